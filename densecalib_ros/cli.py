@@ -1,0 +1,49 @@
+"""`densecalib`: the offline command. Subcommands live in densecalib_ros.commands, one per module,
+listed explicitly here and imported only when used (so `densecalib bench` never imports rclpy)."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+# name -> (module, one-line help)
+SUBCOMMANDS = {
+    "calibrate": ("densecalib_ros.commands.calibrate",
+                  "calibrate a rig from a folder of images or a rosbag2 bag"),
+    "demo": ("densecalib_ros.commands.demo",
+             "generate a rig, calibrate it through the ROS node (or --offline) and compare to truth"),
+    "bench": ("densecalib_ros.commands.bench",
+              "accuracy benchmark against COLMAP/GLOMAP on generated rigs and real images"),
+    "bench-sampling": ("densecalib_ros.commands.bench_sampling",
+                       "matcher + cycle-sampling quality per backend on generated rigs"),
+    "generate": ("densecalib_ros.commands.generate",
+                 "write a generated rig's images and ground truth to a folder"),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(
+        prog="densecalib",
+        description="Target-free calibration of multi-camera rigs from scene images.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    # Parse the subcommand name first so only that module is imported.
+    name = next((a for a in argv if not a.startswith("-")), None)
+    for cmd, (module, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(cmd, help=help_text)
+        if cmd == name:
+            importlib.import_module(module).add_arguments(p)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="[%(asctime)s %(levelname)s %(name)s] %(message)s",
+                        datefmt="%H:%M:%S", stream=sys.stderr)
+    return int(importlib.import_module(SUBCOMMANDS[args.command][0]).run(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,30 @@
+"""Typed errors with messages a field user can act on. The CLI and the ROS service turn them into
+an exit code / `success=False` response; nothing below the boundary prints or exits."""
+
+
+class CalibrationError(RuntimeError):
+    """Base class of every error the calibration core raises on bad input or failed estimation."""
+
+
+class InputError(CalibrationError):
+    """The input cannot be used as given (unreadable image, wrong layout, unknown option)."""
+
+
+class NotEnoughCamerasError(CalibrationError):
+    """Fewer than two cameras could be used or registered."""
+
+
+class NotEnoughOverlapError(CalibrationError):
+    """Cameras do not share enough cycle-consistent matches to be calibrated together."""
+
+
+class DisconnectedViewGraphError(CalibrationError):
+    """The cameras split into groups that share no matches; names the groups."""
+
+
+class FocalInitError(CalibrationError):
+    """The initial focal lengths could not be estimated from the fundamental matrices."""
+
+
+class ModelWeightsError(CalibrationError):
+    """A learned matcher's weights are missing or unreadable at the configured path."""

@@ -1,0 +1,131 @@
+"""Data types shared by the pipeline stages.
+
+Conventions (used everywhere in the core):
+- image coordinates are pixels in COLMAP's convention (top-left pixel centre at (0.5, 0.5));
+- camera models and parameter vectors are COLMAP's (e.g. RADIAL = f, cx, cy, k1, k2;
+  OPENCV_FISHEYE = fx, fy, cx, cy, k1, k2, k3, k4);
+- poses are 4x4 row-major rigid transforms named `<to>_from_<from>`: `cam_from_world`
+  maps world points into the camera frame (x right, y down, z forward).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+
+@dataclass
+class CameraIntrinsics:
+    """One camera's intrinsics in COLMAP terms."""
+
+    model: str  # COLMAP model name, e.g. "RADIAL", "OPENCV_FISHEYE"
+    width: int
+    height: int
+    params: np.ndarray  # float64, COLMAP parameter order
+
+    def to_pycolmap(self, camera_id: int = 1):
+        import pycolmap
+
+        return pycolmap.Camera(
+            model=self.model, width=int(self.width), height=int(self.height),
+            params=np.asarray(self.params, dtype=np.float64), camera_id=camera_id)
+
+    @classmethod
+    def from_pycolmap(cls, camera) -> "CameraIntrinsics":
+        return cls(model=camera.model.name, width=int(camera.width), height=int(camera.height),
+                   params=np.array(camera.params, dtype=np.float64))
+
+
+@dataclass
+class SiteMatches:
+    """Matches of one ordered camera pair (i -> j) as a map between site tables.
+
+    `target[s]` is the index of the site of camera j that site s of camera i maps to, or -1.
+    `certainty[s]` in [0, 1] (0 where target is -1). Both have length = number of sites of i.
+    """
+
+    target: np.ndarray  # int32 (S_i,)
+    certainty: np.ndarray  # float32 (S_i,)
+
+
+@dataclass
+class SiteMatchSet:
+    """The matcher output for one time step: a site table per camera and matches per ordered pair.
+
+    sites[c]: float64 (S_c, 2) pixel coordinates of camera c's sites in its original image.
+    pairs[(i, j)]: SiteMatches for every ordered pair i != j that the matcher produced.
+    For detector-based matchers (j, i) is the inverse map of (i, j) (mutual matches); for dense
+    matchers both directions are predicted independently, so 2-cycles are a real test.
+    """
+
+    sites: list[np.ndarray]
+    pairs: dict[tuple[int, int], SiteMatches]
+    image_sizes: list[tuple[int, int]]  # (width, height) per camera
+
+
+@dataclass
+class Tracks:
+    """Sampled correspondence tracks across the rig's cameras.
+
+    xy_px[t, c] is track t's observation in camera c (NaN where camera c does not observe it).
+    A track comes from one cycle at one time step, so it has at most one observation per camera.
+    """
+
+    xy_px: np.ndarray  # float64 (T, C, 2), NaN = not observed
+    cycle_order: np.ndarray  # int32 (T,), 2..4: the order of the cycle the track was sampled from
+    score: np.ndarray  # float64 (T,), triangulation-angle score (0 when scoring is off)
+    time_index: np.ndarray  # int32 (T,), the frame set the track was sampled from
+
+    @property
+    def num_tracks(self) -> int:
+        return int(self.xy_px.shape[0])
+
+    @property
+    def num_cameras(self) -> int:
+        return int(self.xy_px.shape[1])
+
+    def observed(self) -> np.ndarray:
+        """bool (T, C): whether camera c observes track t."""
+        return ~np.isnan(self.xy_px[..., 0])
+
+    def subset(self, mask: np.ndarray) -> "Tracks":
+        return Tracks(self.xy_px[mask], self.cycle_order[mask], self.score[mask],
+                      self.time_index[mask])
+
+    @staticmethod
+    def concatenate(parts: list["Tracks"], num_cameras: int) -> "Tracks":
+        if not parts:
+            return Tracks(np.zeros((0, num_cameras, 2)), np.zeros(0, np.int32), np.zeros(0),
+                          np.zeros(0, np.int32))
+        return Tracks(np.concatenate([p.xy_px for p in parts]),
+                      np.concatenate([p.cycle_order for p in parts]),
+                      np.concatenate([p.score for p in parts]),
+                      np.concatenate([p.time_index for p in parts]))
+
+
+@dataclass
+class CameraQuality:
+    reprojection_rms_px: float
+    num_observations: int
+    coverage: float  # fraction of image grid cells (10x10) holding at least one observation
+
+
+@dataclass
+class RigCamera:
+    name: str
+    intrinsics: CameraIntrinsics
+    cam_from_rig: np.ndarray  # 4x4; the rig frame is the reference camera's frame
+    quality: Optional[CameraQuality] = None
+
+
+@dataclass
+class RigCalibration:
+    """A calibrated rig. Translation units are those of the reconstruction (arbitrary scale) unless
+    `metric_scale` is True (a known baseline was applied)."""
+
+    reference_camera: str
+    cameras: dict[str, RigCamera]
+    failed_cameras: list[str] = field(default_factory=list)
+    quality: dict = field(default_factory=dict)  # overall: rms, points, runtime_s, pipeline...
+    metric_scale: bool = False

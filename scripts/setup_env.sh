@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Idempotent set-up of the project's virtual environment (.venv in the repo root):
+#   - creates .venv with python3.11 if missing,
+#   - installs the pinned dependencies when requirements*.txt or setup.py changed (stamp file),
+#   - installs this package in editable mode (console scripts densecalib, densecalib_node),
+#   - generates tf2_msgs into .venv when it cannot be imported (PyPI has no tf2_msgs wheel).
+# A second run only checks the stamp and an import: it takes a few seconds.
+# Only package registries are contacted; nothing is downloaded at run time afterwards.
+set -euo pipefail
+repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+venv="$repo/.venv"
+py="${DENSECALIB_PYTHON:-python3.11}"
+command -v "$py" >/dev/null 2>&1 || py=python3
+
+log() { echo "[setup] $*" >&2; }
+
+if [ ! -x "$venv/bin/python" ]; then
+  log "creating virtual environment $venv with $($py --version 2>&1)"
+  "$py" -m venv "$venv"
+fi
+vpy="$venv/bin/python"
+
+stamp="$venv/.densecalib_stamp"
+want="$(cat "$repo/requirements.txt" "$repo/requirements-ros.txt" "$repo/setup.py" | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  log "installing pinned dependencies (first run: about a minute)"
+  "$vpy" -m pip install --quiet --disable-pip-version-check --upgrade pip
+  "$vpy" -m pip install --quiet --disable-pip-version-check \
+      -r "$repo/requirements.txt" -r "$repo/requirements-ros.txt"
+  "$vpy" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$repo"
+  echo "$want" > "$stamp"
+else
+  log "dependencies up to date"
+fi
+
+if ! "$vpy" -c "import tf2_msgs.msg" >/dev/null 2>&1; then
+  log "tf2_msgs not importable: generating it into $venv"
+  bash "$repo/scripts/build_tf2_msgs.sh" "$venv"
+fi
+log "environment ready: $venv"

@@ -1,0 +1,38 @@
+"""The core must import on a machine without rclpy: import every core module in a subprocess in
+which importing rclpy (or any ROS message package) raises."""
+import pkgutil
+import subprocess
+import sys
+from pathlib import Path
+
+import densecalib_ros.core
+
+BLOCKER = r"""
+import sys, importlib.abc
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in {'rclpy', 'sensor_msgs', 'tf2_msgs', 'std_srvs', 'geometry_msgs'}:
+            raise ImportError('blocked ROS import: ' + name)
+sys.meta_path.insert(0, Block())
+import importlib
+for m in sys.argv[1:]:
+    importlib.import_module(m)
+print('ok', len(sys.argv) - 1)
+"""
+
+
+def _core_modules():
+    root = Path(densecalib_ros.core.__file__).parent
+    mods = ["densecalib_ros.core"]
+    for info in pkgutil.walk_packages([str(root)], prefix="densecalib_ros.core."):
+        mods.append(info.name)
+    return mods
+
+
+def test_core_imports_without_rclpy():
+    mods = _core_modules()
+    assert len(mods) >= 3
+    out = subprocess.run([sys.executable, "-c", BLOCKER, *mods], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert f"ok {len(mods)}" in out.stdout
