@@ -1,0 +1,91 @@
+"""Calibration files: ROS conventions of camera_info, calibration.json round trip, atomic replace."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from densecalib_ros.core.errors import InputError
+from densecalib_ros.core.export import (calibration_from_dict, calibration_to_dict, camera_info_yaml,
+                                        read_calibration, replace_directory_atomic,
+                                        ros_camera_info, write_calibration_files)
+from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
+
+
+def _rig():
+    a = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320.0, 240.0, -0.1, 0.02]))
+    b = CameraIntrinsics("OPENCV_FISHEYE", 800, 600,
+                         np.array([300.0, 301.0, 400.5, 299.5, 0.01, -0.02, 0.003, -0.001]))
+    t = np.eye(4)
+    t[:3, 3] = [0.5, 0.0, 0.1]
+    return RigCalibration("a", {
+        "a": RigCamera("a", a, np.eye(4), CameraQuality(0.4, 1000, 0.8)),
+        "b": RigCamera("b", b, t, None)}, quality={"rms_px": np.float64(0.5)})
+
+
+def test_pinhole_camera_info_uses_ros_pixel_convention_and_plumb_bob():
+    info = ros_camera_info("a", _rig().cameras["a"].intrinsics)
+    k = info["camera_matrix"]["data"]
+    assert k[0] == 500.0 and k[4] == 500.0
+    assert k[2] == pytest.approx(319.5) and k[5] == pytest.approx(239.5)  # COLMAP centre - 0.5
+    assert info["distortion_model"] == "plumb_bob"
+    assert info["distortion_coefficients"]["data"] == [-0.1, 0.02, 0.0, 0.0, 0.0]
+    assert info["projection_matrix"]["data"][2] == pytest.approx(319.5)
+
+
+def test_fisheye_camera_info_is_equidistant_with_four_coefficients():
+    info = ros_camera_info("b", _rig().cameras["b"].intrinsics)
+    assert info["distortion_model"] == "equidistant"
+    assert info["distortion_coefficients"]["data"] == [0.01, -0.02, 0.003, -0.001]
+    assert info["camera_matrix"]["data"][2] == pytest.approx(400.0)
+
+
+def test_camera_info_yaml_parses_back():
+    data = yaml.safe_load(camera_info_yaml("b", _rig().cameras["b"].intrinsics))
+    assert data["image_width"] == 800 and data["camera_name"] == "b"
+    assert data["camera_matrix"]["data"][4] == pytest.approx(301.0)
+    assert len(data["distortion_coefficients"]["data"]) == 4
+
+
+def test_unsupported_model_is_refused_with_choices():
+    with pytest.raises(InputError, match="RADIAL"):
+        ros_camera_info("x", CameraIntrinsics("FOV", 10, 10, np.array([1.0, 1, 5, 5, 0.1])))
+
+
+def test_calibration_round_trip(tmp_path):
+    rig = _rig()
+    write_calibration_files(rig, tmp_path)
+    back = read_calibration(tmp_path)
+    assert back.reference_camera == "a"
+    np.testing.assert_allclose(back.cameras["b"].cam_from_rig, rig.cameras["b"].cam_from_rig)
+    np.testing.assert_allclose(back.cameras["b"].intrinsics.params, rig.cameras["b"].intrinsics.params)
+    assert back.cameras["a"].quality.num_observations == 1000
+    assert (tmp_path / "a.yaml").exists() and (tmp_path / "b.yaml").exists()
+    assert json.loads((tmp_path / "calibration.json").read_text())["quality"]["rms_px"] == 0.5
+
+
+def test_bad_calibration_file_gives_input_error(tmp_path):
+    (tmp_path / "calibration.json").write_text('{"cameras": {}}')
+    with pytest.raises(InputError, match="reference_camera"):
+        read_calibration(tmp_path)
+    with pytest.raises(InputError):
+        calibration_from_dict({"reference_camera": "a", "cameras": {"a": {"model": "RADIAL"}}})
+
+
+def test_failed_build_leaves_existing_directory_untouched(tmp_path):
+    out = tmp_path / "out"
+    replace_directory_atomic(lambda d: write_calibration_files(_rig(), d), out)
+    before = (out / "calibration.json").read_text()
+
+    def failing(d):
+        (d / "calibration.json").write_text("partial")
+        raise RuntimeError("calibration failed")
+
+    with pytest.raises(RuntimeError):
+        replace_directory_atomic(failing, out)
+    assert (out / "calibration.json").read_text() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no temporary left behind
+    d = calibration_to_dict(_rig())
+    d["reference_camera"] = "b"
+    replace_directory_atomic(lambda p: (p / "calibration.json").write_text(json.dumps(d)), out)
+    assert read_calibration(out).reference_camera == "b"
