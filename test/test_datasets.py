@@ -1,0 +1,58 @@
+"""Loaders of real image sets: the reference cameras must be consistent with the images."""
+import cv2
+import numpy as np
+import pytest
+
+from densecalib_ros.core.datasets import default_data_dir, load_strecha
+
+STRECHA = default_data_dir() / "strecha_entry_p10"
+needs_strecha = pytest.mark.skipif(
+    not (STRECHA / "gt_dense_cameras").is_dir(),
+    reason=f"Strecha entry-P10 not found at {STRECHA} (set DENSECALIB_DATA to the shared data dir)")
+
+
+def _epipolar_distances_px(scene, a, b):
+    """Distances of SIFT matches of images a, b to the epipolar lines of the reference cameras."""
+    sift = cv2.SIFT_create(4000)
+    ia, ib = (cv2.cvtColor(scene.frame_sets[0][k], cv2.COLOR_RGB2GRAY) for k in (a, b))
+    ka, da = sift.detectAndCompute(ia, None)
+    kb, db = sift.detectAndCompute(ib, None)
+    good = [m for m, n in cv2.BFMatcher().knnMatch(da, db, k=2) if m.distance < 0.7 * n.distance]
+    # OpenCV keypoints -> COLMAP pixels (+0.5), the convention of the loaded intrinsics.
+    pa = np.array([ka[m.queryIdx].pt for m in good]) + 0.5
+    pb = np.array([kb[m.trainIdx].pt for m in good]) + 0.5
+
+    def k_matrix(name):
+        fx, fy, cx, cy = scene.gt.cameras[name].intrinsics.params
+        return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+
+    na, nb = scene.camera_names[a], scene.camera_names[b]
+    rel = scene.gt.cameras[nb].cam_from_rig @ np.linalg.inv(scene.gt.cameras[na].cam_from_rig)
+    t = rel[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    f = np.linalg.inv(k_matrix(nb)).T @ tx @ rel[:3, :3] @ np.linalg.inv(k_matrix(na))
+    lines = np.c_[pa, np.ones(len(pa))] @ f.T
+    return np.abs(np.sum(lines * np.c_[pb, np.ones(len(pb))], 1)) / np.linalg.norm(lines[:, :2], axis=1)
+
+
+@needs_strecha
+def test_strecha_loader_scales_and_is_consistent():
+    scene = load_strecha(STRECHA, max_side_px=768)
+    assert scene.camera_names == [f"{k:04d}" for k in range(10)]
+    assert len(scene.frame_sets) == 1 and len(scene.frame_sets[0]) == 10
+    img = scene.frame_sets[0][0]
+    assert img.shape == (512, 768, 3) and img.dtype == np.uint8
+    cam0 = scene.gt.cameras["0000"].intrinsics
+    assert (cam0.model, cam0.width, cam0.height) == ("PINHOLE", 768, 512)
+    # K.txt: fx=2759.48 fy=2764.16 cx=1520.69 cy=1006.81 at 3072x2048; COLMAP pp = (c + 0.5) * s.
+    np.testing.assert_allclose(cam0.params, [2759.48 / 4, 2764.16 / 4, 1521.19 / 4, 1007.31 / 4])
+    # Camera centre from cam_from_world equals the file's C.
+    t = scene.gt_cam_from_world["0000"]
+    np.testing.assert_allclose(-t[:3, :3].T @ t[:3, 3], [-4.11244, -2.19149, 0.221573], atol=1e-9)
+    assert scene.gt.reference_camera == "0000"
+    np.testing.assert_allclose(scene.gt.cameras["0000"].cam_from_rig, np.eye(4), atol=1e-12)
+    # Real matches lie on the reference epipolar lines (sub-pixel): K, poses and scaling agree.
+    d = _epipolar_distances_px(scene, 0, 1)
+    assert len(d) > 200
+    assert np.median(d) < 0.3
+    assert np.mean(d < 2.0) > 0.8
