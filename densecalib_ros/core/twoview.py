@@ -62,6 +62,9 @@ def estimate_fundamental(xy_i_px: np.ndarray, xy_j_px: np.ndarray, threshold_px:
     if F is None or F.shape != (3, 3) or mask is None:
         return empty
     inliers = mask.reshape(-1).astype(bool)
+    # OpenCV's F is rank 2 only to ~1e-6; enforce it so E = K^T F K is exactly rank 2.
+    u, s, vt = np.linalg.svd(F)
+    F = u @ np.diag([s[0], s[1], 0.0]) @ vt
     F = F / np.linalg.norm(F)
     return TwoViewGeometry(F, inliers, int(inliers.sum()))
 
