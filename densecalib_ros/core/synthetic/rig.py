@@ -1,0 +1,305 @@
+"""Synthetic camera rigs with exact ground truth: a static rig of 3-10 cameras (RADIAL pinhole or
+OPENCV_FISHEYE) around a textured room with moving objects, rendered by ray casting."""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..export import calibration_from_dict, calibration_to_dict, write_text_atomic
+from ..types import CameraIntrinsics, RigCalibration, RigCamera
+from .lens import SUPPORTED_MODELS, cam_rays, img_from_cam_any, monotonic_limit, radial_g
+from .render import Photometry, render_camera
+from .scene import Box, Scene, random_scene
+from .textures import STYLE_NAMES, build_atlas
+
+_FOV_RANGE_DEG = {"RADIAL": (55.0, 75.0), "OPENCV_FISHEYE": (150.0, 190.0)}
+_FOV_LIMITS_DEG = {"RADIAL": (20.0, 120.0), "OPENCV_FISHEYE": (90.0, 230.0)}
+_FISHEYE_CIRCLE_RAD = np.deg2rad(120.0)  # lens circle: pixels beyond this angle stay black
+
+
+@dataclass
+class RigSpec:
+    """What to generate. fov_deg is the horizontal field of view of every camera; None draws one
+    per camera (55-75 deg pinhole, 150-190 deg fisheye)."""
+
+    num_cameras: int = 6
+    camera_model: str = "RADIAL"
+    width: int = 1024
+    height: int = 768
+    num_time_steps: int = 1
+    seed: int = 0
+    fov_deg: float | None = None
+    supersample: int = 2
+    noise_std: float = 2.0  # sensor noise, 8-bit levels
+
+
+@dataclass
+class SyntheticRig:
+    """A rendered rig. World frame: metres, z up. images[t][c]: (H, W, 3) uint8 RGB;
+    depth[t][c]: (H, W) float32 distance along the pixel-centre ray (m), inf where nothing is hit
+    (outside a fisheye's lens circle). scenes[t] is the analytic scene at time t;
+    ray_limit_rad[c] the largest angle from the optical axis that camera c images."""
+
+    names: list[str]
+    cameras: list[CameraIntrinsics]
+    cam_from_world: list[np.ndarray]
+    images: list[list[np.ndarray]]
+    depth: list[list[np.ndarray]]
+    scenes: list[Scene]
+    ray_limit_rad: list[float]
+
+    def ground_truth(self) -> RigCalibration:
+        """Exact calibration; rig frame = cam0's frame, translations in metres."""
+        rig_from_world_inv = np.linalg.inv(self.cam_from_world[0])
+        cams = {n: RigCamera(n, cam, c_w @ rig_from_world_inv)
+                for n, cam, c_w in zip(self.names, self.cameras, self.cam_from_world)}
+        return RigCalibration(reference_camera=self.names[0], cameras=cams,
+                              quality={"source": "synthetic ground truth"}, metric_scale=True)
+
+    def center(self, c: int) -> np.ndarray:
+        """Camera c's projection centre (3,) in the world frame."""
+        return -self.cam_from_world[c][:3, :3].T @ self.cam_from_world[c][:3, 3]
+
+    def _rays_world(self, c: int, xy_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cam = self.cameras[c]
+        a_lim = _a_limit(cam, self.ray_limit_rad[c])
+        rays, _ = cam_rays(cam, np.asarray(xy_px, np.float64).reshape(-1, 2), a_lim)
+        return self.center(c), rays @ self.cam_from_world[c][:3, :3]
+
+    def world_points(self, t: int, c: int, xy_px: np.ndarray) -> np.ndarray:
+        """COLMAP pixels (N, 2) of camera c at time t -> world points (N, 3) on the visible surface,
+        NaN where the pixel sees nothing. Exact: the pixel's own ray is cast against the analytic
+        scene (not the per-pixel depth map), so it holds at sub-pixel positions and at edges."""
+        origin, dirs = self._rays_world(c, xy_px)
+        out = np.full(dirs.shape, np.nan)
+        ok = np.isfinite(dirs[:, 0])
+        hit_t = self.scenes[t].intersect(origin, dirs[ok]).t
+        out[ok] = origin + hit_t[:, None] * dirs[ok]  # inf -> inf/nan rows
+        out[~np.isfinite(out).all(axis=1)] = np.nan
+        return out
+
+    def project(self, c: int, points_world: np.ndarray, beyond_90deg: bool = False) -> tuple[
+            np.ndarray, np.ndarray]:
+        """World points (N, 3) -> COLMAP pixels (N, 2) of camera c and valid (N,) bool.
+
+        Default: pycolmap's img_from_cam (exact COLMAP projection); valid = in front of the camera
+        (z > 0), within the imaged angle and inside the image. beyond_90deg=True (fisheye only)
+        also projects points behind the image plane, which pycolmap cannot (NaN): there valid =
+        within the lens circle and inside the image, using the same model extended to theta > 90.
+        No occlusion test (see `visible`)."""
+        cam = self.cameras[c]
+        x = np.asarray(points_world, np.float64).reshape(-1, 3)
+        x_cam = x @ self.cam_from_world[c][:3, :3].T + self.cam_from_world[c][:3, 3]
+        xy_any, theta = img_from_cam_any(cam, x_cam)
+        if beyond_90deg and cam.model == "OPENCV_FISHEYE":
+            xy = xy_any
+            valid = theta <= self.ray_limit_rad[c]
+        else:
+            valid = (x_cam[:, 2] > 0) & (theta <= self.ray_limit_rad[c])
+            xy = np.full((len(x), 2), np.nan)
+            if valid.any():
+                xy[valid] = cam.to_pycolmap().img_from_cam(x_cam[valid])
+        with np.errstate(invalid="ignore"):
+            valid &= (np.isfinite(xy).all(axis=1) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0)
+                      & (xy[:, 0] <= cam.width) & (xy[:, 1] <= cam.height))
+        return xy, valid
+
+    def visible(self, t: int, c: int, points_world: np.ndarray, tol_m: float = 1e-3) -> np.ndarray:
+        """(N,) bool: world points (N, 3) imaged by camera c at time t (inside the image and not
+        occluded: the ray from the camera hits the point first, within tol_m)."""
+        x = np.asarray(points_world, np.float64).reshape(-1, 3)
+        xy, valid = self.project(c, x, beyond_90deg=True)
+        out = np.zeros(len(x), bool)
+        idx = np.nonzero(valid)[0]
+        if idx.size:
+            origin = self.center(c)
+            vec = x[idx] - origin
+            dist = np.linalg.norm(vec, axis=1)
+            hit_t = self.scenes[t].intersect(origin, vec / dist[:, None]).t
+            out[idx] = np.abs(hit_t - dist) <= tol_m
+        return out
+
+    def transfer(self, t: int, a: int, b: int, xy_a_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ground-truth correspondences: pixels (N, 2) of camera a -> pixels (N, 2) of camera b at
+        time t and (N,) bool where the surface point is visible in b (in the image, unoccluded)."""
+        x = self.world_points(t, a, xy_a_px)
+        ok = np.isfinite(x[:, 0])
+        xy_b = np.full((len(x), 2), np.nan)
+        vis = np.zeros(len(x), bool)
+        if ok.any():
+            xy_b[ok] = self.project(b, x[ok], beyond_90deg=True)[0]
+            vis[ok] = self.visible(t, b, x[ok])
+        xy_b[~vis] = np.nan
+        return xy_b, vis
+
+
+def _a_limit(cam: CameraIntrinsics, theta_limit: float) -> float:
+    """Ray angle limit -> limit of the model's radial variable (r = tan(theta) for RADIAL)."""
+    return float(np.tan(theta_limit)) if cam.model == "RADIAL" else float(theta_limit)
+
+
+def _check_spec(spec: RigSpec) -> None:
+    if not 3 <= int(spec.num_cameras) <= 10:
+        raise InputError(f"num_cameras={spec.num_cameras}: a synthetic rig has 3 to 10 cameras.")
+    if spec.camera_model not in SUPPORTED_MODELS:
+        raise InputError(f"Unsupported camera model {spec.camera_model!r}: use one of "
+                         f"{', '.join(SUPPORTED_MODELS)}.")
+    if spec.width < 32 or spec.height < 32:
+        raise InputError(f"Image size {spec.width}x{spec.height} is too small: use >= 32x32.")
+    if spec.num_time_steps < 1 or spec.supersample < 1 or spec.noise_std < 0:
+        raise InputError("num_time_steps and supersample must be >= 1 and noise_std >= 0.")
+    if spec.fov_deg is not None:
+        lo, hi = _FOV_LIMITS_DEG[spec.camera_model]
+        if not lo <= spec.fov_deg <= hi:
+            raise InputError(f"fov_deg={spec.fov_deg} for {spec.camera_model}: use {lo}..{hi}.")
+
+
+def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec) -> tuple[CameraIntrinsics, float]:
+    """Random realistic intrinsics and the largest ray angle (rad) the camera images."""
+    w, h = spec.width, spec.height
+    lo, hi = _FOV_RANGE_DEG[spec.camera_model]
+    half_fov = np.deg2rad(spec.fov_deg if spec.fov_deg is not None else rng.uniform(lo, hi)) / 2
+    cx = w / 2 + rng.uniform(-4, 4) * w / 1024
+    cy = h / 2 + rng.uniform(-4, 4) * w / 1024
+    while True:
+        if spec.camera_model == "RADIAL":
+            k = np.array([rng.uniform(-0.15, 0.1), rng.uniform(-0.03, 0.03)])
+            probe = CameraIntrinsics("RADIAL", w, h, np.r_[1.0, cx, cy, k])
+            f = (w / 2) / float(radial_g(probe, np.array([np.tan(half_fov)]))[0][0])
+            cam = CameraIntrinsics("RADIAL", w, h, np.r_[f, cx, cy, k])
+            a_lim = monotonic_limit(cam, 4.0)
+            theta_lim = float(np.arctan(a_lim))
+            need = np.hypot(max(cx, w - cx), max(cy, h - cy)) / f  # r_d of the farthest corner
+        else:
+            # Equidistant-like lens: small higher-order terms as in real OpenCV fisheye fits.
+            k = np.array([rng.uniform(-0.04, 0.05), rng.uniform(-0.02, 0.02),
+                          rng.uniform(-0.006, 0.006), rng.uniform(-0.002, 0.002)])
+            probe = CameraIntrinsics("OPENCV_FISHEYE", w, h, np.r_[1.0, 1.0, cx, cy, k])
+            f = (w / 2) / float(radial_g(probe, np.array([half_fov]))[0][0])
+            fy = f * (1 + rng.uniform(-0.002, 0.002))
+            cam = CameraIntrinsics("OPENCV_FISHEYE", w, h, np.r_[f, fy, cx, cy, k])
+            theta_lim = monotonic_limit(cam, float(_FISHEYE_CIRCLE_RAD))
+            need = (w / 2 + 8) / f  # the image must be filled horizontally
+        if float(radial_g(cam, np.array([_a_limit(cam, theta_lim)]))[0][0]) > need:
+            return cam, theta_lim
+
+
+def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+    """cam_from_world (4x4) of a camera at position looking at target (x right, y down, z fwd)."""
+    fwd = target - position
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    c, s = np.cos(roll), np.sin(roll)
+    right, down = c * right + s * down, -s * right + c * down
+    r_cam_from_world = np.stack([right, down, fwd])
+    out = np.eye(4)
+    out[:3, :3] = r_cam_from_world
+    out[:3, 3] = -r_cam_from_world @ position
+    return out
+
+
+def _sample_poses(rng: np.random.Generator, n: int, scene: Scene) -> list[np.ndarray]:
+    """Cameras on an arc around the room centre (arc 50-160 deg, wider for more cameras), 1-2 m
+    high, all looking at points near the centre: every pair overlaps, baselines are wide."""
+    arc = np.deg2rad(np.clip(25.0 * (n - 1), 50.0, 160.0))
+    az = rng.uniform(-np.pi, np.pi) + np.linspace(-arc / 2, arc / 2, n) \
+        + rng.uniform(-4, 4, n) * np.pi / 180
+    semi = scene.room_max[:2] - 0.4
+    poses = []
+    for a in az:
+        xy = semi * rng.uniform(0.88, 1.0) * np.array([np.cos(a), np.sin(a)])
+        position = np.array([xy[0], xy[1], rng.uniform(1.0, 2.0)])
+        target = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5), rng.uniform(0.2, 0.7)])
+        poses.append(_look_at(position, target, np.deg2rad(rng.uniform(-6, 6))))
+    return poses
+
+
+def _texture_styles(rng: np.random.Generator, scene: Scene) -> dict[int, str]:
+    styles = {scene.room_tex[4]: "ground", scene.room_tex[5]: "plaster"}
+    for tid in scene.room_tex[:4]:
+        styles[tid] = str(rng.choice(["plaster", "stone", "wood", "painted"]))
+    for obj in scene.objects:
+        # One material per object (a box is one material on all faces).
+        style = str(rng.choice(STYLE_NAMES if isinstance(obj, Box) else STYLE_NAMES[1:]))
+        styles.update({tid: style for tid in obj.tex})
+    return styles
+
+
+def generate_rig(spec: RigSpec) -> SyntheticRig:
+    """Render a random rig for spec (deterministic from spec.seed)."""
+    _check_spec(spec)
+    n, steps = int(spec.num_cameras), int(spec.num_time_steps)
+    seeds = np.random.SeedSequence(int(spec.seed)).spawn(6)
+    rng_cam, rng_scene, rng_tex, rng_move, rng_photo = (np.random.default_rng(s)
+                                                          for s in seeds[:5])
+    noise_seeds = seeds[5].spawn(n * steps)
+
+    scene = random_scene(rng_scene)
+    moving = rng_move.choice(len(scene.objects), size=max(2, len(scene.objects) // 3),
+                             replace=False).tolist()
+    scenes = [scene]
+    for _ in range(1, steps):
+        scenes.append(scenes[-1].moved(rng_move, moving, 0.25))
+
+    cams, limits = zip(*[_sample_intrinsics(rng_cam, spec) for _ in range(n)])
+    poses = _sample_poses(rng_cam, n, scene)
+
+    # Texel ~ the pixel footprint at ~3 m of a 65 deg camera of this width (detail scales with
+    # the resolution; at 1024 px wide this is ~4 mm).
+    texel_m = float(np.clip(3.0 * 2 * np.tan(np.deg2rad(32.5)) / spec.width, 0.003, 0.03))
+    atlas = build_atlas(rng_tex, scene.surface_extents(), _texture_styles(rng_tex, scene), texel_m)
+
+    images = [[None] * n for _ in range(steps)]
+    depth = [[None] * n for _ in range(steps)]
+    for c in range(n):
+        photo = Photometry(gain=rng_photo.uniform(0.85, 1.15),
+                           white_balance=rng_photo.uniform(0.95, 1.05, 3),
+                           vignetting=rng_photo.uniform(0.1, 0.3))
+        noise_rngs = [np.random.default_rng(noise_seeds[c * steps + t]) for t in range(steps)]
+        imgs, deps = render_camera(cams[c], poses[c], _a_limit(cams[c], limits[c]), scenes, atlas,
+                                   photo, spec.supersample, spec.noise_std, noise_rngs)
+        for t in range(steps):
+            images[t][c] = imgs[t]
+            depth[t][c] = deps[t]
+    return SyntheticRig(names=[f"cam{c}" for c in range(n)], cameras=list(cams),
+                        cam_from_world=poses, images=images, depth=depth, scenes=scenes,
+                        ray_limit_rad=[float(v) for v in limits])
+
+
+def write_rig(rig: SyntheticRig, out_dir: str | os.PathLike) -> None:
+    """out_dir/<camera>/<t:04d>.png (RGB) for every camera and time step, and
+    out_dir/ground_truth.json (calibration.json format + "cam_from_world": {name: 16 floats})."""
+    out_dir = Path(out_dir)
+    for c, name in enumerate(rig.names):
+        (out_dir / name).mkdir(parents=True, exist_ok=True)
+        for t, frame in enumerate(rig.images):
+            path = out_dir / name / f"{t:04d}.png"
+            if not cv2.imwrite(str(path), cv2.cvtColor(frame[c], cv2.COLOR_RGB2BGR)):
+                raise InputError(f"Cannot write {path}: check that the folder is writable.")
+    data = calibration_to_dict(rig.ground_truth())
+    data["cam_from_world"] = {name: [float(v) for v in m.reshape(-1)]
+                              for name, m in zip(rig.names, rig.cam_from_world)}
+    write_text_atomic(out_dir / "ground_truth.json", json.dumps(data, indent=2) + "\n")
+
+
+def read_ground_truth(path: str | os.PathLike) -> tuple[RigCalibration, dict[str, np.ndarray]]:
+    """ground_truth.json (or a folder holding it) -> (calibration, cam_from_world 4x4 per name)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "ground_truth.json"
+    try:
+        data = json.loads(path.read_text())
+        cam_from_world = {name: np.array(v, np.float64).reshape(4, 4)
+                          for name, v in data["cam_from_world"].items()}
+    except (OSError, json.JSONDecodeError, KeyError, ValueError, AttributeError) as exc:
+        raise InputError(f"Cannot read synthetic ground truth {path} ({exc!r}): expected a file "
+                         "written by `densecalib generate`.") from exc
+    return calibration_from_dict(data), cam_from_world
