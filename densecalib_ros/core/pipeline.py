@@ -1,0 +1,182 @@
+"""The calibration pipeline end to end: frame sets -> matches -> sampled tracks -> two-view
+geometry, F_err filter, initial focals -> SfM (incremental or global) -> RigCalibration.
+
+Rig frame: the reference camera is the first camera of `camera_names` that was registered, so the
+rig frame stays the same camera across recalibrations (unless that camera fails). Translations
+are scaled so that the median distance of the other cameras from the reference camera is 1
+(the reconstruction has no metric scale).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+from .config import PipelineConfig
+from .errors import InputError, NotEnoughCamerasError, NotEnoughOverlapError
+from .focal import estimate_initial_focals
+from .incremental import initial_intrinsics, run_incremental
+from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
+from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
+                      symmetric_epipolar_distance_px)
+from .types import RigCalibration, RigCamera, Tracks
+
+log = logging.getLogger(__name__)
+
+FUNDAMENTAL_THRESHOLD_PX = 1.0  # MAGSAC++ scale; robustification starts at 1 px (paper)
+
+Progress = Optional[Callable[[str], None]]
+
+
+@dataclass
+class CalibrationResult:
+    """A calibrated rig plus what produced it.
+
+    reconstruction: the final pycolmap Reconstruction (one image per registered camera, named by
+    camera; its world frame is the SfM frame, not the rig frame) for export as a COLMAP model."""
+
+    rig: RigCalibration
+    reconstruction: pycolmap.Reconstruction
+    tracks: Tracks  # the tracks SfM ran on (after the F_err filter)
+    focal_init_px: np.ndarray  # (C,) initial focal lengths
+    stats: dict = field(default_factory=dict)
+
+
+def _say(progress: Progress, msg: str) -> None:
+    log.info(msg)
+    if progress is not None:
+        progress(msg)
+
+
+def fundamental_matrices(tracks: Tracks, seed: int = 0) -> dict:
+    """{(i, j): TwoViewGeometry} for every camera pair i < j sharing >= 15 tracks (F_ji with
+    x_j^T F_ji x_i = 0 on COLMAP px)."""
+    obs = tracks.observed()
+    out = {}
+    for i in range(tracks.num_cameras):
+        for j in range(i + 1, tracks.num_cameras):
+            rows = np.flatnonzero(obs[:, i] & obs[:, j])
+            if len(rows) >= MIN_CORRESPONDENCES:
+                geom = estimate_fundamental(tracks.xy_px[rows, i], tracks.xy_px[rows, j],
+                                            FUNDAMENTAL_THRESHOLD_PX, seed=seed)
+                if geom.F_ji is not None:
+                    out[(i, j)] = geom
+    return out
+
+
+def epipolar_filter(tracks: Tracks, two_view: dict, f_err_px: Optional[float]) -> Tracks:
+    """Drop tracks with any observation pair farther than f_err_px from its epipolar line
+    (symmetric point-to-line distance, the paper's F_err). Tracks are cycle-consistent, so a
+    pair that fails the test makes the whole track suspect. None = filter off."""
+    if f_err_px is None:
+        return tracks
+    obs = tracks.observed()
+    bad = np.zeros(tracks.num_tracks, dtype=bool)
+    for (i, j), geom in two_view.items():
+        if geom.F_ji is None:
+            continue
+        rows = np.flatnonzero(obs[:, i] & obs[:, j])
+        d = symmetric_epipolar_distance_px(geom.F_ji, tracks.xy_px[rows, i], tracks.xy_px[rows, j])
+        bad[rows[d > f_err_px]] = True
+    return tracks.subset(~bad)
+
+
+def initial_focals(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, int]]
+                   ) -> np.ndarray:
+    """(C,) focal px from the pairs' fundamental matrices (paper eq. 2), pair weight = number of
+    common tracks / the largest number."""
+    obs = tracks.observed()
+    counts = {k: int(np.sum(obs[:, k[0]] & obs[:, k[1]])) for k, g in two_view.items()
+              if g.F_ji is not None}
+    F = {k: two_view[k].F_ji for k in counts}
+    return estimate_initial_focals(F, pair_weights(counts), list(image_sizes))
+
+
+def rig_from_state(state: SfMState, camera_names: Sequence[str], failed: Sequence[int],
+                   quality: Optional[dict] = None) -> RigCalibration:
+    """The registered cameras of `state` as a RigCalibration (module docstring: reference camera
+    and scale). Raises NotEnoughCamerasError with fewer than two registered cameras."""
+    registered = state.registered()
+    if len(registered) < 2:
+        raise NotEnoughCamerasError(
+            f"Only {len(registered)} camera(s) could be registered "
+            f"({', '.join(camera_names[c] for c in registered) or 'none'}): a rig needs two. "
+            "Check that the cameras overlap and see textured scene content.")
+    ref = registered[0]
+    rig_from_world = state.cam_from_world[ref]
+    world_from_rig = np.linalg.inv(rig_from_world)
+    cam_from_rig = {c: state.cam_from_world[c] @ world_from_rig for c in registered}
+    dist = [np.linalg.norm(np.linalg.inv(T)[:3, 3]) for c, T in cam_from_rig.items() if c != ref]
+    scale = 1.0 / np.median(dist) if np.median(dist) > 0 else 1.0
+    errors = reprojection_errors(state)
+    cameras = {}
+    for c in registered:
+        T = cam_from_rig[c].copy()
+        T[:3, 3] *= scale
+        cameras[camera_names[c]] = RigCamera(camera_names[c], state.camera(c), T,
+                                             camera_quality(state, c, errors))
+    finite = errors[np.isfinite(errors)]
+    overall = dict(quality or {})
+    overall.update(
+        reprojection_rms_px=float(np.sqrt(np.mean(finite ** 2))) if len(finite) else float("nan"),
+        num_points=int(state.point_mask().sum()), num_observations=int(len(finite)),
+        num_registered=len(registered), num_cameras=state.num_cameras)
+    return RigCalibration(reference_camera=camera_names[ref], cameras=cameras,
+                          failed_cameras=[camera_names[c] for c in sorted(failed)],
+                          quality=overall)
+
+
+def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]],
+                          camera_names: Sequence[str], config: PipelineConfig, *,
+                          two_view: Optional[dict] = None, focal_px: Optional[np.ndarray] = None,
+                          progress: Progress = None) -> CalibrationResult:
+    """Calibrate from sampled tracks.
+
+    tracks: (T, C, 2) COLMAP px; image_sizes: (width, height) per camera; two_view: {(i, j):
+    TwoViewGeometry} (estimated here from the tracks when None); focal_px: (C,) initial focal
+    lengths (estimated from the F's when None)."""
+    start = time.perf_counter()
+    C = len(camera_names)
+    if tracks.num_cameras != C or len(image_sizes) != C:
+        raise InputError(f"{C} camera names but tracks for {tracks.num_cameras} cameras and "
+                         f"{len(image_sizes)} image sizes.")
+    if C < 2:
+        raise NotEnoughCamerasError(f"A rig needs at least two cameras, got {C}.")
+    if tracks.num_tracks == 0:
+        raise NotEnoughOverlapError(
+            "No correspondences survived cycle sampling: the cameras' views do not overlap enough "
+            "or the scene lacks texture. Point the cameras at a shared, textured scene or add "
+            "frame sets.")
+    seed = config.sampling.seed
+    if two_view is None or (config.sfm.f_err_px is not None and
+                            not any(g.F_ji is not None for g in two_view.values())):
+        two_view = fundamental_matrices(tracks, seed)
+    filtered = epipolar_filter(tracks, two_view, config.sfm.f_err_px)
+    _say(progress, f"{filtered.num_tracks} of {tracks.num_tracks} tracks pass the epipolar "
+                   f"filter (F_err {config.sfm.f_err_px} px)")
+    if focal_px is None:
+        focal_px = initial_focals(filtered, two_view, image_sizes)
+    focal_px = np.asarray(focal_px, dtype=np.float64)
+    _say(progress, "initial focals [px]: " + ", ".join(
+        f"{n}={f:.0f}" for n, f in zip(camera_names, focal_px)))
+    init = initial_intrinsics(image_sizes, focal_px, config.sfm.camera_model)
+    if config.pipeline == "global":
+        from .global_sfm import run_global
+        sfm = run_global(filtered, init, camera_names, config.sfm, seed=seed, progress=progress)
+    else:
+        sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
+                              progress=progress)
+    runtime = time.perf_counter() - start
+    rig = rig_from_state(sfm.state, camera_names, sfm.failed, dict(
+        pipeline=config.pipeline, preset=config.preset, sfm_runtime_s=runtime,
+        view_order=[camera_names[c] for c in sfm.view_order]))
+    reconstruction, _ = build_reconstruction(sfm.state, camera_names)
+    _say(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
+                   f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
+                   f"points ({runtime:.1f} s)")
+    return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
+                             focal_init_px=focal_px)

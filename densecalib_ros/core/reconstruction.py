@@ -1,0 +1,335 @@
+"""The SfM state of a static rig and its pycolmap glue: building a pycolmap Reconstruction from
+tracks + intrinsics + poses, triangulation, bundle adjustment with per-stage refine flags, and
+reprojection statistics.
+
+Model: the rig's cameras are static, so each camera is one pycolmap image (with its own trivial
+rig and frame) whose points2D are all of its track observations over all time steps. Point2D k of
+camera c's image is track `SfMState.obs_track[c][k]`; track t's 3D point is `points_xyz[t]`.
+All image coordinates are COLMAP pixels; poses are 4x4 `cam_from_world`.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+from .types import CameraIntrinsics, CameraQuality, Tracks
+
+log = logging.getLogger(__name__)
+
+# Two-view points closer to parallel than this have ill-conditioned depth; COLMAP's default is 1.5.
+MIN_TRIANGULATION_ANGLE_DEG = 1.0
+COVERAGE_GRID = 10  # coverage = fraction of a 10x10 grid of image cells holding an observation
+
+
+@dataclass
+class SfMState:
+    """Mutable reconstruction state over C static cameras and T tracks.
+
+    tracks: the observations (T, C, 2) px, NaN = unobserved.
+    intrinsics: one CameraIntrinsics per intrinsics block; `camera_block[c]` is camera c's block
+        (identity unless intrinsics are shared between identical cameras).
+    cam_from_world: per camera a 4x4 pose, or None while the camera is not registered.
+    points_xyz: float64 (T, 3) world points, NaN where the track is not triangulated.
+    active: bool (T, C) observations that take part in the reconstruction (observed, not
+        removed as outliers).
+    """
+
+    tracks: Tracks
+    intrinsics: list[CameraIntrinsics]
+    camera_block: np.ndarray
+    cam_from_world: list[Optional[np.ndarray]]
+    points_xyz: np.ndarray
+    active: np.ndarray
+
+    @classmethod
+    def create(cls, tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
+               share_intrinsics: bool = False) -> "SfMState":
+        """intrinsics: one initial CameraIntrinsics per camera. With share_intrinsics, cameras of
+        the same model and image size share one block (the first such camera's values)."""
+        blocks: list[CameraIntrinsics] = []
+        camera_block = np.zeros(len(intrinsics), dtype=np.int64)
+        keys: dict[tuple, int] = {}
+        for c, cam in enumerate(intrinsics):
+            key = (cam.model, cam.width, cam.height) if share_intrinsics else c
+            if key not in keys:
+                keys[key] = len(blocks)
+                blocks.append(CameraIntrinsics(cam.model, cam.width, cam.height,
+                                               np.array(cam.params, dtype=np.float64)))
+            camera_block[c] = keys[key]
+        T = tracks.num_tracks
+        return cls(tracks=tracks, intrinsics=blocks, camera_block=camera_block,
+                   cam_from_world=[None] * tracks.num_cameras,
+                   points_xyz=np.full((T, 3), np.nan), active=tracks.observed().copy())
+
+    @property
+    def num_cameras(self) -> int:
+        return self.tracks.num_cameras
+
+    def camera(self, c: int) -> CameraIntrinsics:
+        return self.intrinsics[int(self.camera_block[c])]
+
+    def registered(self) -> list[int]:
+        return [c for c, pose in enumerate(self.cam_from_world) if pose is not None]
+
+    def triangulated(self) -> np.ndarray:
+        """bool (T,): tracks with a 3D point."""
+        return np.isfinite(self.points_xyz[:, 0])
+
+    def registered_active(self) -> np.ndarray:
+        """bool (T, C): active observations in registered cameras."""
+        reg = np.zeros(self.num_cameras, dtype=bool)
+        reg[self.registered()] = True
+        return self.active & reg[None, :]
+
+    def point_mask(self) -> np.ndarray:
+        """bool (T,): tracks that are points of the reconstruction (3D point + >= 2 views)."""
+        return self.triangulated() & (self.registered_active().sum(axis=1) >= 2)
+
+    def drop_weak_points(self) -> None:
+        """Forget the 3D point of tracks left with fewer than two active registered views."""
+        self.points_xyz[~self.point_mask()] = np.nan
+
+
+def rigid_from_matrix(T: np.ndarray) -> pycolmap.Rigid3d:
+    return pycolmap.Rigid3d(np.asarray(T, dtype=np.float64)[:3, :4])
+
+
+def matrix_from_rigid(rigid: pycolmap.Rigid3d) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :4] = rigid.matrix()
+    return T
+
+
+def build_reconstruction(state: SfMState, camera_names: Sequence[str]
+                         ) -> tuple[pycolmap.Reconstruction, dict[int, int]]:
+    """The registered cameras and the reconstruction's points as a pycolmap Reconstruction.
+
+    Returns (reconstruction, track_of_point3D_id). Camera c has image_id = c + 1; block b has
+    camera_id = rig_id = b + 1 (trivial rig per intrinsics block, one frame per image)."""
+    rec = pycolmap.Reconstruction()
+    registered = state.registered()
+    for b in sorted({int(state.camera_block[c]) for c in registered}):
+        rec.add_camera_with_trivial_rig(state.intrinsics[b].to_pycolmap(camera_id=b + 1))
+    points = state.point_mask()
+    obs = state.registered_active() & points[:, None]
+    for c in registered:
+        rows = np.flatnonzero(state.tracks.observed()[:, c])
+        image = pycolmap.Image(name=str(camera_names[c]), keypoints=state.tracks.xy_px[rows, c],
+                               camera_id=int(state.camera_block[c]) + 1, image_id=c + 1)
+        rec.add_image_with_trivial_frame(image, rigid_from_matrix(state.cam_from_world[c]))
+    # Point2D index of track t in camera c = its rank among c's observed tracks.
+    point2d_idx = np.cumsum(state.tracks.observed(), axis=0) - 1
+    track_of_point: dict[int, int] = {}
+    for t in np.flatnonzero(points):
+        cams = np.flatnonzero(obs[t])
+        track = pycolmap.Track()
+        track.add_elements([pycolmap.TrackElement(int(c) + 1, int(point2d_idx[t, c]))
+                            for c in cams])
+        track_of_point[rec.add_point3D(state.points_xyz[t], track)] = int(t)
+    return rec, track_of_point
+
+
+def read_reconstruction(state: SfMState, rec: pycolmap.Reconstruction,
+                        track_of_point: dict[int, int]) -> None:
+    """Copy intrinsics, poses and points of `rec` (built by build_reconstruction) into state."""
+    for b in range(len(state.intrinsics)):
+        if rec.exists_camera(b + 1):
+            state.intrinsics[b] = CameraIntrinsics.from_pycolmap(rec.camera(b + 1))
+    for c in state.registered():
+        state.cam_from_world[c] = matrix_from_rigid(rec.image(c + 1).cam_from_world())
+    for point_id, t in track_of_point.items():
+        if rec.exists_point3D(point_id):
+            state.points_xyz[t] = rec.point3D(point_id).xyz
+        else:
+            state.points_xyz[t] = np.nan
+
+
+@dataclass
+class BAStage:
+    """Which parameters one bundle adjustment refines, and for how many iterations."""
+
+    iterations: int = 100
+    refine_focal: bool = True
+    refine_extra: bool = True
+    refine_principal_point: bool = False
+    refine_poses: bool = True
+    refine_points: bool = True
+    fixed_pose_cameras: tuple[int, ...] = ()  # cameras whose pose stays constant
+
+
+def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
+                  num_threads: int = -1) -> pycolmap.BundleAdjustmentSummary:
+    """Refine `state` in place with COLMAP's Ceres BA (Cauchy loss, scale 1 px, COLMAP default).
+
+    The gauge: if no pose is held fixed, the first registered camera's pose and the scale (via
+    COLMAP's TWO_CAMS_FROM_WORLD gauge) are fixed."""
+    rec, track_of_point = build_reconstruction(state, camera_names)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = stage.refine_focal
+    options.refine_extra_params = stage.refine_extra
+    options.refine_principal_point = stage.refine_principal_point
+    options.refine_rig_from_world = stage.refine_poses
+    options.refine_sensor_from_rig = False  # trivial rigs
+    options.refine_points3D = stage.refine_points
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = 1.0
+    options.ceres.solver_options.max_num_iterations = int(stage.iterations)
+    options.ceres.solver_options.num_threads = int(num_threads)
+    config = pycolmap.BundleAdjustmentConfig()
+    for c in state.registered():
+        config.add_image(c + 1)
+    for c in stage.fixed_pose_cameras:
+        config.set_constant_rig_from_world_pose(c + 1)  # frame_id = image_id (trivial frames)
+    if stage.refine_poses and not stage.fixed_pose_cameras:
+        config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    adjuster = pycolmap.create_default_bundle_adjuster(options, config, rec)
+    summary = adjuster.solve()
+    read_reconstruction(state, rec, track_of_point)
+    return summary
+
+
+def project(state: SfMState, c: int, X_world: np.ndarray) -> np.ndarray:
+    """Pixels (N, 2) of world points (N, 3) in camera c; NaN behind the camera."""
+    T = state.cam_from_world[c]
+    X_cam = X_world @ T[:3, :3].T + T[:3, 3]
+    xy = np.full((len(X_world), 2), np.nan)
+    front = X_cam[:, 2] > 1e-9
+    if front.any():
+        xy[front] = state.camera(c).to_pycolmap().img_from_cam(X_cam[front])
+    return xy
+
+
+def reprojection_errors(state: SfMState) -> np.ndarray:
+    """float64 (T, C): pixel reprojection error of every active observation of a reconstruction
+    point in a registered camera; NaN elsewhere; inf where the point is behind the camera."""
+    err = np.full(state.active.shape, np.nan)
+    points = state.point_mask()
+    obs = state.registered_active() & points[:, None]
+    for c in state.registered():
+        rows = np.flatnonzero(obs[:, c])
+        if len(rows):
+            xy = project(state, c, state.points_xyz[rows])
+            e = np.linalg.norm(xy - state.tracks.xy_px[rows, c], axis=1)
+            err[rows, c] = np.where(np.isnan(e), np.inf, e)
+    return err
+
+
+def remove_outlier_observations(state: SfMState, max_error_px: Optional[float]) -> int:
+    """Deactivate observations with reprojection error above max_error_px (None = off); drop
+    points left with < 2 views. Returns the number of observations removed."""
+    if max_error_px is None:
+        return 0
+    err = reprojection_errors(state)
+    bad = np.nan_to_num(err, nan=0.0, posinf=np.inf) > max_error_px
+    state.active[bad] = False
+    state.drop_weak_points()
+    return int(bad.sum())
+
+
+def camera_rays_world(state: SfMState, c: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit viewing rays (N, 3) in world frame of camera c's observations of tracks `rows`, and
+    the camera centre (3,)."""
+    T = state.cam_from_world[c]
+    R, t = T[:3, :3], T[:3, 3]
+    rays = state.camera(c).to_pycolmap().cam_ray_from_img(state.tracks.xy_px[rows, c])
+    rays_world = rays @ R  # R^T applied to each row
+    rays_world /= np.linalg.norm(rays_world, axis=1, keepdims=True)
+    return rays_world, -R.T @ t
+
+
+def midpoint_triangulation(state: SfMState, rows: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Triangulate tracks `rows` (N,) from their active observations in registered cameras: the
+    least-squares midpoint of all viewing rays, vectorised over tracks.
+
+    Returns X (N, 3) world points (NaN with < 2 views or parallel rays), angle_deg (N,) an upper
+    estimate of the widest triangulation angle (twice the largest ray deviation from the mean
+    ray), and err_px (N, C) reprojection errors (inf behind the camera, NaN where unobserved)."""
+    rows = np.asarray(rows, dtype=np.int64)
+    n = len(rows)
+    obs = state.registered_active()[rows]
+    A = np.zeros((n, 3, 3))
+    b = np.zeros((n, 3))
+    ray_sum = np.zeros((n, 3))
+    rays = {}
+    for c in state.registered():
+        sel = np.flatnonzero(obs[:, c])
+        if len(sel):
+            d, centre = camera_rays_world(state, c, rows[sel])
+            P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+            A[sel] += P
+            b[sel] += P @ centre
+            ray_sum[sel] += d
+            rays[c] = (sel, d)
+    X = np.full((n, 3), np.nan)
+    solvable = (obs.sum(axis=1) >= 2) & (np.abs(np.linalg.det(A)) > 1e-12)
+    X[solvable] = np.linalg.solve(A[solvable], b[solvable][..., None])[..., 0]
+    mean_dir = ray_sum / np.maximum(np.linalg.norm(ray_sum, axis=1, keepdims=True), 1e-12)
+    angle = np.zeros(n)
+    err = np.full((n, state.num_cameras), np.nan)
+    for c, (sel, d) in rays.items():
+        cos = np.clip(np.sum(d * mean_dir[sel], axis=1), -1.0, 1.0)
+        angle[sel] = np.maximum(angle[sel], 2.0 * np.degrees(np.arccos(cos)))
+        e = np.linalg.norm(project(state, c, np.nan_to_num(X[sel]))
+                           - state.tracks.xy_px[rows[sel], c], axis=1)
+        err[sel, c] = np.where(np.isfinite(e) & solvable[sel], e, np.inf)
+    return X, angle, err
+
+
+def triangulate(state: SfMState, rows: np.ndarray, max_error_px: float,
+                min_angle_deg: float = MIN_TRIANGULATION_ANGLE_DEG) -> np.ndarray:
+    """Triangulate tracks `rows` (midpoint_triangulation) and store the points that are in front
+    of every view, reproject within max_error_px in every view and have a triangulation angle of
+    at least min_angle_deg. Returns bool (len(rows),): which were stored."""
+    rows = np.asarray(rows, dtype=np.int64)
+    if len(rows) == 0:
+        return np.zeros(0, dtype=bool)
+    X, angle, err = midpoint_triangulation(state, rows)
+    ok = np.isfinite(X[:, 0]) & (angle >= min_angle_deg)
+    ok &= np.all(np.nan_to_num(err, nan=0.0) <= max_error_px, axis=1)
+    state.points_xyz[rows[ok]] = X[ok]
+    return ok
+
+
+def camera_quality(state: SfMState, c: int, errors: Optional[np.ndarray] = None) -> CameraQuality:
+    """Reprojection RMS, number of observations and image coverage of camera c's observations
+    of reconstruction points."""
+    errors = reprojection_errors(state) if errors is None else errors
+    e = errors[:, c]
+    rows = np.flatnonzero(np.isfinite(e))
+    cam = state.camera(c)
+    if len(rows) == 0:
+        return CameraQuality(reprojection_rms_px=float("nan"), num_observations=0, coverage=0.0)
+    xy = state.tracks.xy_px[rows, c]
+    gx = np.clip((xy[:, 0] / cam.width * COVERAGE_GRID).astype(int), 0, COVERAGE_GRID - 1)
+    gy = np.clip((xy[:, 1] / cam.height * COVERAGE_GRID).astype(int), 0, COVERAGE_GRID - 1)
+    coverage = len(np.unique(gy * COVERAGE_GRID + gx)) / COVERAGE_GRID ** 2
+    return CameraQuality(reprojection_rms_px=float(np.sqrt(np.mean(e[rows] ** 2))),
+                         num_observations=int(len(rows)), coverage=float(coverage))
+
+
+def convert_camera_models(state: SfMState, model: str) -> None:
+    """Re-express every intrinsics block in `model`, keeping the projection identical where the
+    source model is a special case of it (RADIAL_FISHEYE -> OPENCV_FISHEYE, RADIAL -> OPENCV ...).
+    """
+    for b, cam in enumerate(state.intrinsics):
+        if cam.model == model:
+            continue
+        state.intrinsics[b] = CameraIntrinsics(model, cam.width, cam.height,
+                                               _convert_params(cam.model, model, cam.params))
+
+
+def _convert_params(src: str, dst: str, p: np.ndarray) -> np.ndarray:
+    p = [float(v) for v in p]
+    if src in ("RADIAL_FISHEYE", "SIMPLE_RADIAL_FISHEYE") and dst == "OPENCV_FISHEYE":
+        k = p[3:] + [0.0] * (4 - len(p[3:]))
+        return np.array([p[0], p[0], p[1], p[2], *k])
+    if src in ("RADIAL", "SIMPLE_RADIAL") and dst == "OPENCV":
+        k = p[3:] + [0.0] * (2 - len(p[3:]))
+        return np.array([p[0], p[0], p[1], p[2], k[0], k[1], 0.0, 0.0])
+    raise ValueError(f"No parameter conversion from {src} to {dst}.")
