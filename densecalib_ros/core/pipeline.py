@@ -180,3 +180,82 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                    f"points ({runtime:.1f} s)")
     return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
                              focal_init_px=focal_px)
+
+
+def _previous_focals(previous: Optional[RigCalibration], camera_names: Sequence[str],
+                     image_sizes: Sequence[tuple[int, int]]) -> Optional[np.ndarray]:
+    """Focal lengths of a previous calibration when it has every camera at the same size."""
+    if previous is None:
+        return None
+    focals = []
+    for name, (w, h) in zip(camera_names, image_sizes):
+        cam = previous.cameras.get(name)
+        if cam is None or (cam.intrinsics.width, cam.intrinsics.height) != (w, h):
+            return None
+        p = cam.intrinsics.params
+        two_focals = cam.intrinsics.model in ("PINHOLE", "OPENCV", "OPENCV_FISHEYE", "FULL_OPENCV")
+        focals.append(0.5 * (p[0] + p[1]) if two_focals else p[0])
+    return np.array(focals)
+
+
+def _check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
+    """(width, height) per camera; InputError / NotEnoughCamerasError on unusable input."""
+    C = len(camera_names)
+    if C < 2:
+        raise NotEnoughCamerasError(f"A rig needs at least two cameras, got {C} "
+                                    f"({', '.join(camera_names) or 'none'}).")
+    if not frame_sets:
+        raise InputError("No frame sets to calibrate from: give at least one image per camera.")
+    sizes = None
+    for t, frames in enumerate(frame_sets):
+        if len(frames) != C:
+            raise InputError(f"Frame set {t} has {len(frames)} images for {C} cameras.")
+        shape = [(int(im.shape[1]), int(im.shape[0])) for im in frames]
+        if sizes is not None and shape != sizes:
+            raise InputError(f"Image sizes change between frame sets (set 0: {sizes}, set {t}: "
+                             f"{shape}): every camera must keep one resolution.")
+        sizes = shape
+    return sizes
+
+
+def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
+                    config: PipelineConfig, *, matcher=None,
+                    previous: Optional[RigCalibration] = None,
+                    progress: Progress = None) -> CalibrationResult:
+    """Calibrate a rig from synchronised frame sets.
+
+    frame_sets[t][c]: camera c's image at time t, (H, W, 3) uint8 RGB or (H, W) uint8 gray.
+    matcher: an already loaded core.matching.Matcher to reuse (else config.matcher is created and
+    loaded here). previous: a previous calibration of the same cameras; its focal lengths replace
+    the initial-focal estimate (recalibration). Raises CalibrationError subclasses."""
+    from .matching import create_matcher
+    from .sampling import sample_tracks
+
+    start = time.perf_counter()
+    camera_names = list(camera_names)
+    image_sizes = _check_frame_sets(frame_sets, camera_names)
+    if matcher is None:
+        matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
+        matcher.load()
+    match_sets = []
+    for t, frames in enumerate(frame_sets):
+        match_sets.append(matcher.match(list(frames)))
+        _say(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})")
+    focal_prior = _previous_focals(previous, camera_names, image_sizes)
+    sampled = sample_tracks(match_sets, config, focal_px=focal_prior)
+    _say(progress, f"sampled {sampled.tracks.num_tracks} tracks")
+    result = calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
+                                   two_view=sampled.two_view, focal_px=sampled.focal_px,
+                                   progress=progress)
+    result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
+                              runtime_s=time.perf_counter() - start)
+    return result
+
+
+def calibrate_rig(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
+                  config: PipelineConfig, *, matcher=None,
+                  previous: Optional[RigCalibration] = None,
+                  progress: Progress = None) -> RigCalibration:
+    """run_calibration(...).rig: the calibrated rig only."""
+    return run_calibration(frame_sets, camera_names, config, matcher=matcher, previous=previous,
+                           progress=progress).rig

@@ -1,0 +1,93 @@
+"""`densecalib calibrate`: calibrate a rig from a folder of images or a rosbag2 bag.
+
+Writes OUT/calibration.json, OUT/<camera>.yaml (ROS camera_info) and OUT/colmap/ (COLMAP model),
+all or nothing: OUT is replaced only when the calibration succeeded. Progress goes to stderr
+(logging), a per-camera summary to stdout. Exit status: 0 success, 1 calibration failed (the
+message says what to do), 2 unusable input or options.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+
+from ..core.config import PIPELINES, PRESETS, make_config
+from ..core.errors import CalibrationError, InputError
+
+log = logging.getLogger("densecalib.calibrate")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("--images", metavar="DIR",
+                     help="one image per camera (file stem = camera name) or one subfolder per "
+                          "camera with time-aligned images")
+    src.add_argument("--bag", metavar="PATH", help="rosbag2 bag (sqlite3 or mcap)")
+    parser.add_argument("--topics", nargs="+", metavar="TOPIC",
+                        help="image topics of the bag, one per camera (with --bag)")
+    parser.add_argument("--slop", type=float, default=0.02, metavar="S",
+                        help="max stamp difference within a synchronised frame set (s, --bag)")
+    parser.add_argument("--max-frame-sets", type=int, default=None, metavar="N",
+                        help="use at most N evenly spaced frame sets")
+    parser.add_argument("--out", required=True, metavar="OUT", help="output folder (replaced)")
+    parser.add_argument("--preset", choices=PRESETS, default="regular",
+                        help="camera type: regular (RADIAL) or fisheye (OPENCV_FISHEYE)")
+    parser.add_argument("--pipeline", choices=PIPELINES, default="incremental")
+    parser.add_argument("--matcher", default=None,
+                        help="matcher backend (default: the preset's, sift)")
+    parser.add_argument("--max-side", type=int, default=None, metavar="PX",
+                        help="match images at most at this size (default 1024)")
+    parser.add_argument("--share-intrinsics", action="store_true",
+                        help="one set of intrinsics for cameras of the same image size")
+    parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
+    parser.add_argument("--threads", type=int, default=-1,
+                        help="bundle-adjustment threads (-1 = all cores)")
+
+
+def _read_input(args):
+    if args.images:
+        if args.topics:
+            raise InputError("--topics belongs to --bag; with --images the camera names come "
+                             "from the file or folder names.")
+        from ..core.image_io import read_image_folder
+        return read_image_folder(args.images, max_frame_sets=args.max_frame_sets)
+    if not args.topics:
+        raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
+                         "--topics /cam0/image_raw /cam1/image_raw.")
+    from ..core.bag import read_frame_sets
+    return read_frame_sets(args.bag, args.topics, slop_s=args.slop,
+                           max_frame_sets=args.max_frame_sets)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.export import replace_directory_atomic, write_calibration_files
+    from ..core.pipeline import run_calibration
+
+    try:
+        overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.threads,
+                     "sfm__share_intrinsics": args.share_intrinsics}
+        if args.max_side is not None:
+            overrides["max_image_side_px"] = args.max_side
+        config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
+        frame_sets, names = _read_input(args)
+        log.info("%d camera(s) (%s), %d frame set(s); preset %s, %s pipeline, matcher %s",
+                 len(names), ", ".join(names), len(frame_sets), config.preset, config.pipeline,
+                 config.matcher)
+        result = run_calibration(frame_sets, names, config, progress=None)
+        replace_directory_atomic(
+            lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction), args.out)
+    except InputError as exc:
+        log.error("%s", exc)
+        return 2
+    except CalibrationError as exc:
+        log.error("Calibration failed: %s", exc)
+        return 1
+    rig = result.rig
+    print(f"{'camera':<16} {'model':<15} {'focal_px':>9} {'rms_px':>7} {'obs':>6} {'coverage':>8}")
+    for name, cam in rig.cameras.items():
+        q = cam.quality
+        print(f"{name:<16} {cam.intrinsics.model:<15} {cam.intrinsics.params[0]:9.1f} "
+              f"{q.reprojection_rms_px:7.2f} {q.num_observations:6d} {q.coverage:8.2f}")
+    if rig.failed_cameras:
+        print("not registered: " + ", ".join(rig.failed_cameras))
+    print(f"reference camera {rig.reference_camera}; wrote {args.out}")
+    return 0
