@@ -17,6 +17,9 @@ import numpy as np
 from .errors import InputError
 from .types import CameraIntrinsics, RigCalibration, RigCamera
 
+_FISHEYE_MODELS = {"OPENCV_FISHEYE", "RADIAL_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "FOV",
+                   "THIN_PRISM_FISHEYE", "RAD_TAN_THIN_PRISM_FISHEYE"}
+
 
 @dataclass
 class Scene:
@@ -126,3 +129,30 @@ def load_strecha(directory: str | os.PathLike, max_side_px: Optional[int] = 1024
                  gt_cam_from_world=cam_from_world, lens="pinhole",
                  notes="Strecha et al. 2008 reference cameras (targets + LiDAR), one camera moved "
                        "between shots; undistorted images.")
+
+
+def scene_from_synthetic(rig, name: str) -> Scene:
+    """A Scene of a generated rig (core.synthetic.SyntheticRig): exact ground truth."""
+    fisheye = any(cam.model in _FISHEYE_MODELS for cam in rig.cameras)
+    return Scene(name=name, camera_names=list(rig.names),
+                 frame_sets=[list(frame) for frame in rig.images], gt=rig.ground_truth(),
+                 gt_cam_from_world=dict(zip(rig.names, rig.cam_from_world)),
+                 lens="fisheye" if fisheye else "pinhole", notes="generated rig, exact ground truth")
+
+
+def load_generated(directory: str | os.PathLike, name: Optional[str] = None) -> Scene:
+    """A folder written by `densecalib generate` (core.synthetic.write_rig):
+    <camera>/<t:04d>.png per camera and time step, and ground_truth.json."""
+    from .synthetic import read_ground_truth
+
+    root = Path(directory)
+    gt, cam_from_world = read_ground_truth(root)
+    names = list(gt.cameras)
+    steps = sorted(p.name for p in (root / names[0]).glob("*.png"))
+    if not steps:
+        raise InputError(f"No images under {root / names[0]}: expected <camera>/<t:04d>.png.")
+    frame_sets = [[_read_rgb(root / n / step) for n in names] for step in steps]
+    fisheye = any(c.intrinsics.model in _FISHEYE_MODELS for c in gt.cameras.values())
+    return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets, gt=gt,
+                 gt_cam_from_world=cam_from_world, lens="fisheye" if fisheye else "pinhole",
+                 notes="generated rig, exact ground truth")

@@ -1,0 +1,183 @@
+"""Peer baselines: what a user would otherwise run on the rig's images, with pycolmap 4.2.1.
+
+One image per camera (the first time step), one camera per image (camera_mode PER_IMAGE), SIFT
+features, exhaustive matching, then either
+- "colmap": incremental SfM (pycolmap.incremental_mapping), or
+- "glomap": global SfM. COLMAP 4.x's global mapper does not estimate unknown focal lengths itself
+  (the standalone GLOMAP did, in its view-graph calibration step), so, as COLMAP documents for
+  uncalibrated images, pycolmap.calibrate_view_graph runs before pycolmap.global_mapping.
+Departures from the command-line defaults a user must make for a 3-10 camera rig: min_model_size is
+2 (the incremental default of 10 would discard every rig model). Everything else is default.
+
+A peer never raises on a failed reconstruction: it returns a PeerResult with nothing registered and
+a message, so a benchmark table shows 0 registered / AUC 0.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator, Optional, Sequence
+
+import cv2
+import numpy as np
+
+from .errors import InputError
+from .types import CameraIntrinsics, RigCalibration, RigCamera
+
+log = logging.getLogger(__name__)
+
+PEER_METHODS = ("colmap", "glomap")
+# Initial COLMAP camera model per lens type (peers estimate one camera per image).
+PEER_CAMERA_MODELS = {"pinhole": "SIMPLE_RADIAL", "fisheye": "OPENCV_FISHEYE"}
+
+
+@dataclass
+class PeerResult:
+    """A peer's reconstruction, keyed by camera name.
+
+    cameras[name]: estimated intrinsics; cam_from_world[name]: 4x4 pose in the reconstruction's
+    world frame (arbitrary scale); unregistered: camera names not in the largest model.
+    """
+
+    method: str
+    cameras: dict[str, CameraIntrinsics] = field(default_factory=dict)
+    cam_from_world: dict[str, np.ndarray] = field(default_factory=dict)
+    unregistered: list[str] = field(default_factory=list)
+    runtime_s: float = 0.0
+    num_points3d: int = 0
+    message: str = ""  # why nothing (or not everything) was registered
+
+    def to_rig_calibration(self, camera_names: Sequence[str]) -> RigCalibration:
+        """As a RigCalibration whose rig frame is the first registered camera of `camera_names`."""
+        registered = [n for n in camera_names if n in self.cam_from_world]
+        reference = registered[0] if registered else (camera_names[0] if camera_names else "")
+        cameras = {}
+        if registered:
+            world_from_ref = np.linalg.inv(self.cam_from_world[reference])
+            cameras = {n: RigCamera(n, self.cameras[n], self.cam_from_world[n] @ world_from_ref)
+                       for n in registered}
+        return RigCalibration(reference, cameras,
+                              failed_cameras=[n for n in camera_names if n not in self.cam_from_world],
+                              quality=dict(method=self.method, runtime_s=self.runtime_s,
+                                           num_points3d=self.num_points3d, message=self.message))
+
+
+@contextlib.contextmanager
+def quiet_colmap(min_level: int = 3) -> Iterator[None]:
+    """Only COLMAP (glog) messages at `min_level` or above (2 = ERROR, 3 = FATAL) while inside;
+    restored after. The default keeps only fatal ones: a peer's failure reaches the caller as
+    PeerResult.message instead."""
+    import pycolmap
+
+    previous = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = min_level
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = previous
+
+
+def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[str],
+             lens: str = "pinhole", num_threads: int = -1, seed: int = 0,
+             workdir: Optional[str] = None) -> PeerResult:
+    """Reconstruct one image per camera with a peer method.
+
+    images[c]: (H, W, 3) uint8 RGB image of camera camera_names[c]. lens: "pinhole" or "fisheye"
+    (picks the initial camera model). num_threads: -1 = all cores. workdir: keep the COLMAP database
+    and models there (default: a temporary folder, removed afterwards).
+    """
+    if method not in PEER_METHODS:
+        raise InputError(f"Unknown peer method {method!r}: choose one of {', '.join(PEER_METHODS)}.")
+    if lens not in PEER_CAMERA_MODELS:
+        raise InputError(f"Unknown lens type {lens!r}: choose one of {', '.join(PEER_CAMERA_MODELS)}.")
+    if len(images) != len(camera_names):
+        raise InputError(f"{len(images)} images for {len(camera_names)} camera names.")
+    with contextlib.ExitStack() as stack:
+        root = Path(workdir) if workdir else Path(stack.enter_context(
+            tempfile.TemporaryDirectory(prefix=f"densecalib_{method}_")))
+        start = time.perf_counter()
+        try:
+            with quiet_colmap():
+                result = _reconstruct(method, images, list(camera_names), lens, num_threads, seed,
+                                      root)
+        except Exception as exc:  # a peer's failure is a benchmark result, not a crash
+            log.warning("%s failed: %s", method, exc)
+            result = PeerResult(method, unregistered=list(camera_names),
+                                message=f"{type(exc).__name__}: {exc}")
+        result.runtime_s = time.perf_counter() - start
+        return result
+
+
+def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[str], lens: str,
+                 num_threads: int, seed: int, root: Path) -> PeerResult:
+    import pycolmap
+
+    image_dir, model_dir, database = root / "images", root / "models", root / "database.db"
+    image_dir.mkdir(parents=True, exist_ok=True)
+    model_dir.mkdir(parents=True, exist_ok=True)
+    # File names by index: camera names need not be valid file names.
+    file_to_name = {}
+    for k, (image, name) in enumerate(zip(images, camera_names)):
+        file_name = f"{k:03d}.png"
+        if not cv2.imwrite(str(image_dir / file_name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+            raise InputError(f"Cannot write image of camera {name!r} to {image_dir}.")
+        file_to_name[file_name] = name
+
+    pycolmap.set_random_seed(seed)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = PEER_CAMERA_MODELS[lens]
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = num_threads
+    extraction.use_gpu = False
+    pycolmap.extract_features(database, image_dir, image_names=sorted(file_to_name),
+                              camera_mode=pycolmap.CameraMode.PER_IMAGE, reader_options=reader,
+                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    matching.use_gpu = False
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = seed
+    pycolmap.match_exhaustive(database, matching_options=matching,
+                              verification_options=verification, device=pycolmap.Device.cpu)
+
+    database_handle = pycolmap.Database.open(database)
+    num_verified = int(database_handle.num_verified_image_pairs())
+    database_handle.close()
+    num_pairs = len(camera_names) * (len(camera_names) - 1) // 2
+    message = ""
+    if method == "colmap":
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = num_threads
+        options.random_seed = seed
+        options.min_model_size = 2
+        models = pycolmap.incremental_mapping(database, image_dir, model_dir, options)
+    else:
+        calibration = pycolmap.ViewGraphCalibrationOptions()
+        calibration.random_seed = seed
+        if not pycolmap.calibrate_view_graph(database, calibration):
+            message = "view-graph calibration failed; global mapping used the prior focal lengths"
+        options = pycolmap.GlobalPipelineOptions()
+        options.num_threads = num_threads
+        options.random_seed = seed
+        options.min_model_size = 2
+        models = pycolmap.global_mapping(database, image_dir, model_dir, options)
+
+    if not models:
+        return PeerResult(method, unregistered=list(camera_names),
+                          message=(message + "; " if message else "") + "no model reconstructed "
+                          f"({num_verified} of {num_pairs} image pairs verified)")
+    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    result = PeerResult(method, num_points3d=int(rec.num_points3D()), message=message)
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        name = file_to_name[image.name]
+        result.cameras[name] = CameraIntrinsics.from_pycolmap(rec.cameras[image.camera_id])
+        result.cam_from_world[name] = np.asarray(image.cam_from_world().matrix(), float)
+        result.cam_from_world[name] = np.vstack([result.cam_from_world[name], [0, 0, 0, 1]])
+    result.unregistered = [n for n in camera_names if n not in result.cam_from_world]
+    return result
