@@ -9,7 +9,7 @@ import numpy as np
 
 from ..types import CameraIntrinsics
 from .lens import cam_rays
-from .scene import Scene
+from .scene import Hit, Scene
 from .textures import TextureAtlas
 
 _CHUNK_RAYS = 1 << 17
@@ -38,20 +38,20 @@ def shade(scene: Scene, atlas: TextureAtlas, origin: np.ndarray, dirs: np.ndarra
         np.ndarray, np.ndarray]:
     """Radiance (n, 3) float32 and hit distance (n,) for world rays dirs (n, 3) from origin (3,).
     Rays that hit nothing (NaN rays, beyond the lens circle) are black with distance inf."""
-    ok = np.isfinite(dirs[:, 0])
     rgb = np.zeros((len(dirs), 3), np.float32)
     t = np.full(len(dirs), np.inf, np.float32)
-    idx = np.nonzero(ok)[0]
+    idx = np.nonzero(np.isfinite(dirs[:, 0]))[0]
     hit = scene.intersect(origin, dirs[idx])
     t[idx] = hit.t
     got = np.isfinite(hit.t)
-    idx, tex, uv, nrm = idx[got], hit.tex[got], hit.uv[got], hit.normal[got]
-    p = origin + hit.t[got, None] * dirs[idx]
+    if not got.all():
+        idx, hit = idx[got], Hit(hit.t[got], hit.tex[got], hit.uv[got], hit.normal[got])
+    p = origin + hit.t[:, None] * dirs[idx]
     to_light = scene.light_pos.astype(np.float32) - p
     dist2 = np.einsum("ij,ij->i", to_light, to_light)
-    lambert = np.maximum(np.einsum("ij,ij->i", nrm, to_light), 0) / np.sqrt(dist2)
+    lambert = np.maximum(np.einsum("ij,ij->i", hit.normal, to_light), 0) / np.sqrt(dist2)
     light = 0.35 + 0.9 * lambert / (1 + dist2 / 16)
-    rgb[idx] = atlas.lookup(tex, uv) * light[:, None]
+    rgb[idx] = atlas.lookup(hit.tex, hit.uv) * light[:, None]
     return rgb, t
 
 
@@ -78,7 +78,13 @@ def render_camera(cam: CameraIntrinsics, cam_from_world: np.ndarray, a_limit: fl
             @ r_world_from_cam.T
         for ti, scene in enumerate(scenes):
             rgb, _ = shade(scene, atlas, origin, sub_dirs)
-            radiance[ti][rows] = rgb.reshape(nr, s, w, s, 3).mean(axis=(1, 3))
+            sub = rgb.reshape(nr, s, w, s, 3)
+            acc = sub[:, 0, :, 0].copy()
+            for i in range(s):
+                for j in range(s):
+                    if i or j:
+                        acc += sub[:, i, :, j]
+            radiance[ti][rows] = acc * np.float32(1 / (s * s))
             ok = np.isfinite(ctr_dirs[:, 0])
             d = np.full(len(ctr_dirs), np.inf, np.float32)
             d[ok] = scene.intersect(origin, ctr_dirs[ok]).t

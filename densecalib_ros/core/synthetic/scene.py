@@ -29,6 +29,12 @@ class Box:
     yaw: float
     tex: tuple[int, ...]
 
+    def bound_center(self) -> np.ndarray:
+        return self.center
+
+    def bound_radius(self) -> float:
+        return float(np.linalg.norm(self.size)) / 2 * 1.001
+
     def extents_uv(self) -> list[tuple[float, float]]:
         sx, sy, sz = self.size
         return [(sy, sz), (sy, sz), (sx, sz), (sx, sz), (sx, sy), (sx, sy)]
@@ -44,6 +50,12 @@ class Cylinder:
     yaw: float
     tex: tuple[int, ...]
 
+    def bound_center(self) -> np.ndarray:
+        return self.center + np.array([0.0, 0.0, self.height / 2])
+
+    def bound_radius(self) -> float:
+        return float(np.hypot(self.radius, self.height / 2)) * 1.001
+
     def extents_uv(self) -> list[tuple[float, float]]:
         return [(2 * np.pi * self.radius, self.height), (2 * self.radius, 2 * self.radius)]
 
@@ -54,6 +66,12 @@ class Sphere:
     radius: float
     yaw: float
     tex: tuple[int, ...]  # (surface,)
+
+    def bound_center(self) -> np.ndarray:
+        return self.center
+
+    def bound_radius(self) -> float:
+        return self.radius * 1.001
 
     def extents_uv(self) -> list[tuple[float, float]]:
         return [(2 * np.pi * self.radius, np.pi * self.radius)]
@@ -110,10 +128,16 @@ class Scene:
         best_t = _room_exit(origin, dirs, self.room_min.astype(dt), self.room_max.astype(dt))
         best_k = np.full(n, -1, np.int32)  # -1 = room, k = objects[k]
         for k, obj in enumerate(self.objects):
-            t = _INTERSECT_T[type(obj)](obj, origin, dirs)
-            closer = t < best_t
-            best_t = np.where(closer, t, best_t)
-            best_k[closer] = k
+            # Cull with the bounding sphere (one mat-vec) before the exact test.
+            rel = (origin - obj.bound_center()).astype(dt)
+            b = dirs @ rel
+            cand = np.nonzero(b * b - (float(rel @ rel) - obj.bound_radius() ** 2) > 0)[0]
+            if cand.size == 0:
+                continue
+            t = _INTERSECT_T[type(obj)](obj, origin, dirs[cand])
+            closer = t < best_t[cand]
+            best_t[cand[closer]] = t[closer]
+            best_k[cand[closer]] = k
         tex = np.full(n, -1, np.int32)
         uv = np.zeros((n, 2), dt)
         normal = np.zeros((n, 3), dt)
@@ -129,28 +153,32 @@ class Scene:
         return Hit(best_t, tex, uv, normal)
 
 
-def _room_exit(origin, dirs, lo, hi):
+def _room_axis_t(origin, dirs, lo, hi):
+    """Exit distance of rays from inside the room along each axis: 3 arrays (n,)."""
+    out = []
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(dirs > 0, (hi - origin) / dirs, (lo - origin) / dirs)
-    t = np.where(dirs == 0, np.inf, t)
-    return t.min(axis=1)
+        for i in range(3):
+            d = dirs[:, i]
+            t = np.where(d > 0, (hi[i] - origin[i]) / d, (lo[i] - origin[i]) / d)
+            out.append(np.where(d == 0, np.inf, t))
+    return out
+
+
+def _room_exit(origin, dirs, lo, hi):
+    tx, ty, tz = _room_axis_t(origin, dirs, lo, hi)
+    return np.minimum(np.minimum(tx, ty), tz)
 
 
 def _room_surface(scene, origin, d, t, sel, tex, uv, normal):
-    p = origin + t[:, None] * d
     lo, hi = scene.room_min.astype(d.dtype), scene.room_max.astype(d.dtype)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta = np.where(d > 0, (hi - origin) / d, (lo - origin) / d)
-    ta = np.where(d == 0, np.inf, ta)
-    axis = ta.argmin(axis=1)
+    tx, ty, tz = _room_axis_t(origin, d, lo, hi)
+    axis = np.where(tx <= np.minimum(ty, tz), 0, np.where(ty <= tz, 1, 2))
     positive = d[np.arange(len(d)), axis] > 0
     face = 2 * axis + positive  # 0:-x 1:+x 2:-y 3:+y 4:floor 5:ceiling
-    q = p - lo
-    u = np.where(axis == 0, q[:, 1], q[:, 0])
-    v = np.where(axis == 2, q[:, 1], q[:, 2])
+    q = origin - lo + t[:, None] * d
     tex[sel] = np.asarray(scene.room_tex, np.int32)[face]
-    uv[sel, 0] = u
-    uv[sel, 1] = v
+    uv[sel, 0] = np.where(axis == 0, q[:, 1], q[:, 0])
+    uv[sel, 1] = np.where(axis == 2, q[:, 1], q[:, 2])
     nrm = np.zeros_like(d)
     nrm[np.arange(len(d)), axis] = np.where(positive, -1.0, 1.0)
     normal[sel] = nrm
@@ -175,8 +203,9 @@ def _box_t(box, origin, dirs):
     inside = np.abs(o) <= half
     t1 = np.where(par, np.where(inside, -np.inf, np.inf), t1)
     t2 = np.where(par, np.where(inside, np.inf, -np.inf), t2)
-    t_near = np.minimum(t1, t2).max(axis=1)
-    t_far = np.maximum(t1, t2).min(axis=1)
+    lo, hi = np.minimum(t1, t2), np.maximum(t1, t2)
+    t_near = np.maximum(np.maximum(lo[:, 0], lo[:, 1]), lo[:, 2])
+    t_far = np.minimum(np.minimum(hi[:, 0], hi[:, 1]), hi[:, 2])
     ok = (t_near <= t_far) & (t_near > _EPS_T)
     return np.where(ok, t_near, np.inf)
 

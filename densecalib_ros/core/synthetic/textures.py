@@ -30,31 +30,33 @@ STYLE_NAMES = tuple(_STYLES)
 
 @dataclass
 class TextureAtlas:
-    """All textures in one flat (N, 3) uint8 array: texture k is the row-major (h_k, w_k) block
-    starting at start[k]; texel_m is the texel size in metres (texel centres at (i + 0.5) * texel_m)."""
+    """All textures shelf-packed into one (H, W, 3) uint8 image: texture k occupies the block
+    with top-left texel (x0[k], y0[k]) and size (width[k], height[k]); texel_m is the texel size
+    in metres (texel centres at (i + 0.5) * texel_m of the surface coordinates)."""
 
-    data: np.ndarray  # (N, 3) uint8 RGB
-    start: np.ndarray  # (K,) int64
-    width: np.ndarray  # (K,) int64
-    height: np.ndarray  # (K,) int64
+    image: np.ndarray  # (H, W, 3) uint8 RGB, H and W < 32767 (cv2.remap limit)
+    x0: np.ndarray  # (K,) float32
+    y0: np.ndarray  # (K,) float32
+    width: np.ndarray  # (K,) float32
+    height: np.ndarray  # (K,) float32
     texel_m: float
 
     def lookup(self, tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Bilinear colour (n, 3) float32 in [0, 1] at surface coordinates uv (n, 2) metres of
         texture ids tex (n,) (all >= 0)."""
-        w = self.width[tex]
-        h = self.height[tex]
-        fu = np.clip(uv[:, 0] / self.texel_m - 0.5, 0, w - 1).astype(np.float32)
-        fv = np.clip(uv[:, 1] / self.texel_m - 0.5, 0, h - 1).astype(np.float32)
-        iu = np.minimum(fu.astype(np.int64), w - 2)
-        iv = np.minimum(fv.astype(np.int64), h - 2)
-        au = (fu - iu)[:, None]
-        av = (fv - iv)[:, None]
-        base = self.start[tex] + iv * w + iu
-        d = self.data
-        top = d[base] * (1 - au) + d[base + 1] * au
-        bot = d[base + w] * (1 - au) + d[base + w + 1] * au
-        return (top * (1 - av) + bot * av) * np.float32(1 / 255)
+        n = len(tex)
+        if n == 0:
+            return np.zeros((0, 3), np.float32)
+        inv = np.float32(1 / self.texel_m)
+        fu = np.clip(uv[:, 0] * inv - 0.5, 0, self.width[tex] - 1) + self.x0[tex]
+        fv = np.clip(uv[:, 1] * inv - 0.5, 0, self.height[tex] - 1) + self.y0[tex]
+        # cv2.remap does the gather + bilinear blend in C; maps must be 2D (rows < 32767).
+        cols = 1024
+        pad = (-n) % cols
+        map_x = np.pad(fu.astype(np.float32), (0, pad)).reshape(-1, cols)
+        map_y = np.pad(fv.astype(np.float32), (0, pad)).reshape(-1, cols)
+        out = cv2.remap(self.image, map_x, map_y, cv2.INTER_LINEAR)
+        return out.reshape(-1, 3)[:n].astype(np.float32) * np.float32(1 / 255)
 
 
 def value_noise(rng: np.random.Generator, h: int, w: int, texel_m: float,
@@ -71,9 +73,12 @@ def value_noise(rng: np.random.Generator, h: int, w: int, texel_m: float,
     return out / max(float(out.std()), 1e-6)
 
 
-def _shape_color(rng, base):
-    c = np.clip(np.asarray(base) * rng.uniform(0.45, 1.6) + rng.normal(0, 0.08, 3), 0, 1)
-    return tuple(float(v) for v in c)
+def _shape_colors(rng, bases: np.ndarray) -> list[tuple[float, float, float]]:
+    """Random variations (brightness, tint) of base colours (n, 3) -> n RGB tuples."""
+    bases = np.asarray(bases, np.float64).reshape(-1, 3)
+    c = np.clip(bases * rng.uniform(0.45, 1.6, (len(bases), 1))
+                + rng.normal(0, 0.06, bases.shape), 0, 1)
+    return [tuple(v) for v in c.tolist()]
 
 
 def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_m: float,
@@ -96,7 +101,7 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
         img[..., ch] = (colors[0, ch] * (1 - t1) + colors[1, ch] * t1) * (1 - 0.5 * t2) \
             + colors[2, ch] * 0.5 * t2
     if style == "wood":  # plank seams and grain along v
-        grain = value_noise(rng, h, max(2, w // 1), texel_m, [0.05, 0.02])
+        grain = value_noise(rng, h, w, texel_m, [0.05, 0.02])
         stretch = cv2.resize(value_noise(rng, max(2, h // 8), w, texel_m, [0.03, 0.01]), (w, h))
         img *= (1 + 0.12 * stretch + 0.05 * grain)[..., None]
         x = 0.0
@@ -104,49 +109,54 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
             x += rng.uniform(0.09, 0.25)
             cv2.line(img, (int(x / texel_m), 0), (int(x / texel_m), h - 1),
                      (0.15, 0.1, 0.06), max(1, int(0.006 / texel_m)))
-    # Shape layers, densities per m^2, sizes log-uniform over a decade or two.
     px = 1.0 / texel_m
+    # Shape layers, densities per m^2, sizes log-uniform over a decade or two.
     n_patch = rng.poisson(st["patches"] * area)
-    for _ in range(n_patch):
+    for col in _shape_colors(rng, colors[rng.integers(0, 3, n_patch)][:, ::-1]):
         c = (rng.uniform(0, w), rng.uniform(0, h))
         size = (rng.uniform(0.08, 0.5) * px, rng.uniform(0.08, 0.5) * px)
         box = cv2.boxPoints((c, size, rng.uniform(0, 180))).astype(np.int32)
-        cv2.fillPoly(img, [box], _shape_color(rng, colors[rng.integers(3)][::-1]))
-        for _ in range(rng.integers(0, 5)):  # "print" on a poster: strokes
+        cv2.fillPoly(img, [box], col)
+        n_strokes = int(rng.integers(0, 5))  # "print" on a poster: strokes
+        for stroke in _shape_colors(rng, np.full((n_strokes, 3), 0.2)):
             p0 = box[0] + rng.uniform(0, 1, 2) * (box[2] - box[0])
             p1 = p0 + rng.normal(0, 0.04 * px, 2)
-            cv2.line(img, tuple(int(v) for v in p0), tuple(int(v) for v in p1),
-                     _shape_color(rng, (0.2, 0.2, 0.2)), max(1, int(0.008 * px)), cv2.LINE_AA)
+            cv2.line(img, tuple(int(v) for v in p0), tuple(int(v) for v in p1), stroke,
+                     max(1, int(0.008 * px)), cv2.LINE_AA)
     n_stones = rng.poisson(st["stones"] * area)
-    sizes = np.exp(rng.uniform(np.log(0.004), np.log(0.09), n_stones)) * px
-    sizes = np.maximum(sizes, 1.0)
-    for s in sizes:
-        c = (int(rng.uniform(0, w)), int(rng.uniform(0, h)))
-        axes = (max(1, int(s)), max(1, int(s * rng.uniform(0.4, 1.0))))
-        base = colors[rng.integers(3)]
-        cv2.ellipse(img, c, axes, rng.uniform(0, 180), 0, 360, _shape_color(rng, base), -1,
-                    cv2.LINE_AA)
+    sizes = np.maximum(np.exp(rng.uniform(np.log(0.004), np.log(0.09), n_stones)) * px, 1.0)
+    centres = (rng.uniform(0, 1, (n_stones, 2)) * (w, h)).astype(int).tolist()
+    flat = rng.uniform(0.4, 1.0, n_stones)
+    angles = rng.uniform(0, 180, (n_stones, 4))
+    angles[:, 3] += 200
+    bases = colors[rng.integers(0, 3, n_stones)]
+    fill = _shape_colors(rng, bases)
+    rim = _shape_colors(rng, bases * 0.5)
+    for i, s in enumerate(sizes.tolist()):
+        axes = (max(1, int(s)), max(1, int(s * flat[i])))
+        cv2.ellipse(img, centres[i], axes, angles[i, 0], 0, 360, fill[i], -1, cv2.LINE_AA)
         if s > 6:  # shaded rim makes stones look 3D and adds corners for detectors
-            cv2.ellipse(img, c, axes, rng.uniform(0, 180), rng.uniform(0, 180),
-                        rng.uniform(200, 360), _shape_color(rng, base * 0.5),
+            cv2.ellipse(img, centres[i], axes, angles[i, 1], angles[i, 2], angles[i, 3], rim[i],
                         max(1, int(s / 8)), cv2.LINE_AA)
     n_leaves = rng.poisson(st["leaves"] * area)
     tt = np.linspace(0, np.pi, 7)
-    for _ in range(n_leaves):
+    half_leaf = np.stack([(1 - np.cos(tt)) / 2, np.sin(tt)], 1)
+    outline = np.concatenate([half_leaf, half_leaf[::-1] * (1, -1)])  # unit length/width
+    leaf_base = np.stack([rng.uniform(0.25, 0.75, n_leaves), rng.uniform(0.35, 0.7, n_leaves),
+                          rng.uniform(0.05, 0.25, n_leaves)], 1)
+    leaf_fill = _shape_colors(rng, leaf_base)
+    leaf_vein = _shape_colors(rng, leaf_base * 0.6)
+    for i in range(n_leaves):
         length = np.exp(rng.uniform(np.log(0.015), np.log(0.12))) * px
-        wid = length * rng.uniform(0.2, 0.45)
-        outline = np.concatenate([np.stack([length * (1 - np.cos(tt)) / 2, wid * np.sin(tt)], 1),
-                                  np.stack([length * (1 - np.cos(tt[::-1])) / 2,
-                                            -wid * np.sin(tt[::-1])], 1)])
         ang = rng.uniform(0, 2 * np.pi)
         rot = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
-        pts = (outline @ rot.T + rng.uniform(0, 1, 2) * (w, h)).astype(np.int32)
-        leaf = (rng.uniform(0.25, 0.75), rng.uniform(0.35, 0.7), rng.uniform(0.05, 0.25))
-        cv2.fillPoly(img, [pts], _shape_color(rng, leaf), cv2.LINE_AA)
-        cv2.line(img, tuple(int(v) for v in pts[0]), tuple(int(v) for v in pts[6]),
-                 _shape_color(rng, np.array(leaf) * 0.6), 1, cv2.LINE_AA)
+        pts = ((outline * (length, length * rng.uniform(0.2, 0.45))) @ rot.T
+               + rng.uniform(0, 1, 2) * (w, h)).astype(np.int32)
+        cv2.fillPoly(img, [pts], leaf_fill[i], cv2.LINE_AA)
+        cv2.line(img, tuple(pts[0].tolist()), tuple(pts[6].tolist()), leaf_vein[i], 1,
+                 cv2.LINE_AA)
     n_lines = rng.poisson(st["lines"] * area)
-    for _ in range(n_lines):  # cracks / twigs: random walks
+    for col in _shape_colors(rng, np.tile(colors[0] * 0.4, (n_lines, 1))):  # cracks, twigs
         p = rng.uniform(0, 1, 2) * (w, h)
         ang = rng.uniform(0, 2 * np.pi)
         pts = [p.copy()]
@@ -154,7 +164,7 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
             ang += rng.normal(0, 0.5)
             p = p + rng.uniform(0.01, 0.08) * px * np.array([np.cos(ang), np.sin(ang)])
             pts.append(p.copy())
-        cv2.polylines(img, [np.array(pts, np.int32)], False, _shape_color(rng, colors[0] * 0.4),
+        cv2.polylines(img, [np.array(pts, np.int32)], False, col,
                       max(1, int(rng.uniform(0.001, 0.006) * px)), cv2.LINE_AA)
     # Fine multi-scale brightness texture over everything (grain, dirt, stains).
     detail = value_noise(rng, h, w, texel_m, [0.3, 0.08, 0.03, 0.012, 3 * texel_m])
@@ -164,15 +174,25 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
 
 def build_atlas(rng: np.random.Generator, extents: dict[int, tuple[float, float]],
                 styles: dict[int, str], texel_m: float) -> TextureAtlas:
-    """Textures for ids 0..K-1 (extents and styles keyed by id) in one atlas."""
+    """Textures for ids 0..K-1 (extents and styles keyed by id), shelf-packed into one atlas."""
     k = max(extents) + 1
-    blocks, start, width, height = [], np.zeros(k, np.int64), np.zeros(k, np.int64), \
-        np.zeros(k, np.int64)
-    offset = 0
-    for tid in range(k):
-        tex = make_texture(rng, extents[tid], texel_m, styles[tid])
-        height[tid], width[tid] = tex.shape[:2]
-        start[tid] = offset
-        offset += tex.shape[0] * tex.shape[1]
-        blocks.append(tex.reshape(-1, 3))
-    return TextureAtlas(np.concatenate(blocks), start, width, height, texel_m)
+    textures = [make_texture(rng, extents[tid], texel_m, styles[tid]) for tid in range(k)]
+    atlas_w = max(4096, max(t.shape[1] for t in textures))
+    x0, y0 = np.zeros(k, np.float32), np.zeros(k, np.float32)
+    x = y = shelf_h = 0
+    for tid in sorted(range(k), key=lambda i: -textures[i].shape[0]):  # tallest first
+        h, w = textures[tid].shape[:2]
+        if x + w > atlas_w:
+            x, y, shelf_h = 0, y + shelf_h, 0
+        x0[tid], y0[tid] = x, y
+        x += w
+        shelf_h = max(shelf_h, h)
+    image = np.zeros((y + shelf_h, atlas_w, 3), np.uint8)
+    for tid, tex in enumerate(textures):
+        image[int(y0[tid]):int(y0[tid]) + tex.shape[0], int(x0[tid]):int(x0[tid]) + tex.shape[1]] \
+            = tex
+    if max(image.shape[:2]) >= 32767:
+        raise ValueError(f"Texture atlas {image.shape[:2]} exceeds cv2.remap's 32767 limit: "
+                         "increase texel_m.")
+    sizes = np.array([t.shape[:2] for t in textures], np.float32)
+    return TextureAtlas(image, x0, y0, sizes[:, 1], sizes[:, 0], texel_m)
