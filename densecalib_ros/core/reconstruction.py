@@ -23,6 +23,9 @@ log = logging.getLogger(__name__)
 # Two-view points closer to parallel than this have ill-conditioned depth; COLMAP's default is 1.5.
 MIN_TRIANGULATION_ANGLE_DEG = 1.0
 COVERAGE_GRID = 10  # coverage = fraction of a 10x10 grid of image cells holding an observation
+# Ceres stops when an iteration lowers the cost by less than this fraction (Ceres' own default;
+# COLMAP sets 0, which spends most iterations on changes far below the pixel noise).
+FUNCTION_TOLERANCE = 1e-6
 
 
 @dataclass
@@ -180,6 +183,7 @@ def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
     options.ceres.loss_function_scale = 1.0
     options.ceres.solver_options.max_num_iterations = int(stage.iterations)
     options.ceres.solver_options.num_threads = int(num_threads)
+    options.ceres.solver_options.function_tolerance = FUNCTION_TOLERANCE
     config = pycolmap.BundleAdjustmentConfig()
     for c in state.registered():
         config.add_image(c + 1)
