@@ -179,12 +179,14 @@ def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec) -> tuple[CameraI
         else:
             # Equidistant-like lens: small higher-order terms as in real OpenCV fisheye fits.
             k = np.array([rng.uniform(-0.04, 0.05), rng.uniform(-0.02, 0.02),
-                          rng.uniform(-0.006, 0.006), rng.uniform(-0.002, 0.002)])
+                          rng.uniform(-0.004, 0.004), rng.uniform(-0.001, 0.001)])
             probe = CameraIntrinsics("OPENCV_FISHEYE", w, h, np.r_[1.0, 1.0, cx, cy, k])
             f = (w / 2) / float(radial_g(probe, np.array([half_fov]))[0][0])
             fy = f * (1 + rng.uniform(-0.002, 0.002))
             cam = CameraIntrinsics("OPENCV_FISHEYE", w, h, np.r_[f, fy, cx, cy, k])
             theta_lim = monotonic_limit(cam, float(_FISHEYE_CIRCLE_RAD))
+            if theta_lim < min(half_fov + np.deg2rad(10.0), _FISHEYE_CIRCLE_RAD):
+                continue  # folds back inside the field of view: not a real lens
             need = (w / 2 + 8) / f  # the image must be filled horizontally
         if float(radial_g(cam, np.array([_a_limit(cam, theta_lim)]))[0][0]) > need:
             return cam, theta_lim
