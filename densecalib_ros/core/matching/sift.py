@@ -1,0 +1,93 @@
+"""OpenCV SIFT with Lowe's ratio test and a mutual nearest-neighbour check (no torch).
+
+Sites are keypoint locations; OpenCV returns several keypoints at one location (one per dominant
+orientation), which are merged into one site whose descriptor distance to another site is the
+smallest over their keypoints. The ratio test compares the nearest and second-nearest *site*,
+so orientation duplicates do not reject each other. (j, i) is the exact inverse of (i, j).
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..types import SiteMatchSet
+from .base import Matcher
+from .utils import mutual_pair_maps, opencv_to_original, resize_for_matching, to_gray
+
+
+class SiftMatcher(Matcher):
+    name = "sift"
+
+    def __init__(self, max_image_side_px: Optional[int] = 1024, max_keypoints: int = 8000,
+                 ratio_threshold: float = 0.8, contrast_threshold: float = 0.04,
+                 device: Optional[str] = None):
+        """max_keypoints: SIFT nfeatures per image; ratio_threshold: Lowe ratio (nearest /
+        second-nearest site distance) below which a match is kept, applied in both directions.
+        device: only None or 'cpu' (OpenCV SIFT runs on the CPU)."""
+        super().__init__(max_image_side_px)
+        if device not in (None, "cpu"):
+            raise InputError(f"Matcher 'sift' runs on the CPU only; got device={device!r}.")
+        if not 0.0 < ratio_threshold <= 1.0:
+            raise InputError(f"ratio_threshold must be in (0, 1], got {ratio_threshold}.")
+        self.max_keypoints = int(max_keypoints)
+        self.ratio_threshold = float(ratio_threshold)
+        self.contrast_threshold = float(contrast_threshold)
+
+    def _features(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Returns sites float64 (S, 2) original COLMAP px, keypoint site index int64 (K,),
+        descriptors float32 (K, 128)."""
+        gray, scale_xy = resize_for_matching(to_gray(image), self.max_image_side_px)
+        sift = cv2.SIFT_create(nfeatures=self.max_keypoints,
+                               contrastThreshold=self.contrast_threshold)
+        keypoints, descriptors = sift.detectAndCompute(gray, None)
+        if not keypoints:
+            return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
+        xy = np.array([k.pt for k in keypoints], dtype=np.float64)
+        unique_xy, site_of_kp = np.unique(xy, axis=0, return_inverse=True)
+        return (opencv_to_original(unique_xy, scale_xy), site_of_kp.reshape(-1).astype(np.int64),
+                descriptors.astype(np.float32))
+
+    @staticmethod
+    def _site_distances(desc_a, site_a, n_a, desc_b, site_b, n_b) -> np.ndarray:
+        """float32 (S_a, S_b): smallest descriptor distance between the keypoints of two sites."""
+        order_a, order_b = np.argsort(site_a, kind="stable"), np.argsort(site_b, kind="stable")
+        da, db = desc_a[order_a], desc_b[order_b]
+        d2 = (np.einsum("ij,ij->i", da, da)[:, None] + np.einsum("ij,ij->i", db, db)[None, :]
+              - 2.0 * (da @ db.T))
+        starts_b = np.searchsorted(site_b[order_b], np.arange(n_b))
+        starts_a = np.searchsorted(site_a[order_a], np.arange(n_a))
+        d2 = np.minimum.reduceat(np.minimum.reduceat(d2, starts_b, axis=1), starts_a, axis=0)
+        return np.sqrt(np.maximum(d2, 0.0))
+
+    def _match_pair(self, fa, fb):
+        sites_a, site_a, desc_a = fa
+        sites_b, site_b, desc_b = fb
+        n_a, n_b = len(sites_a), len(sites_b)
+        if n_a < 2 or n_b < 2:
+            empty = np.zeros(0, np.int64)
+            return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
+        dist = self._site_distances(desc_a, site_a, n_a, desc_b, site_b, n_b)
+        best_ab = np.argmin(dist, axis=1)
+        best_ba = np.argmin(dist, axis=0)
+        two_ab = np.partition(dist, 1, axis=1)[:, :2]
+        two_ba = np.partition(dist, 1, axis=0)[:2, :]
+        ratio_ab = two_ab[:, 0] / np.maximum(two_ab[:, 1], 1e-12)
+        ratio_ba = two_ba[0] / np.maximum(two_ba[1], 1e-12)
+        src = np.arange(n_a)
+        keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
+                & (ratio_ba[best_ab] < self.ratio_threshold))
+        src, dst = src[keep], best_ab[keep]
+        certainty = 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
+        return mutual_pair_maps(src, dst, certainty, n_a, n_b)
+
+    def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
+        feats = [self._features(im) for im in images]
+        pairs = {}
+        for i in range(len(images)):
+            for j in range(i + 1, len(images)):
+                pairs[(i, j)], pairs[(j, i)] = self._match_pair(feats[i], feats[j])
+        return SiteMatchSet(sites=[f[0] for f in feats], pairs=pairs,
+                            image_sizes=[(im.shape[1], im.shape[0]) for im in images])

@@ -1,0 +1,241 @@
+"""Matcher backends: SiteMatchSet invariants, accuracy on a known homography, exact coordinate maps
+under resizing, registry errors, RoMa's weight handling and warp-to-site plumbing, no torch for sift."""
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from densecalib_ros.core.errors import InputError, ModelWeightsError
+from densecalib_ros.core.matching import available_matchers, create_matcher
+from densecalib_ros.core.matching.roma import grid_sites, warp_to_site_matches
+from densecalib_ros.core.matching.utils import PixelSiteTable, mutual_pair_maps
+from densecalib_ros.core.types import SiteMatchSet
+
+
+def textured_image(width, height, seed=0):
+    """(H, W, 3) uint8: blurred colour noise plus random discs and boxes (corners for detectors)."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros((height, width, 3), np.float32)
+    for cell in (32, 8):
+        noise = rng.random((height // cell + 2, width // cell + 2, 3)).astype(np.float32)
+        img += cv2.resize(noise, (width, height), interpolation=cv2.INTER_LINEAR) * 60
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    for _ in range(width * height // 400):
+        colour = tuple(int(v) for v in rng.integers(0, 256, 3))
+        x, y, r = int(rng.integers(0, width)), int(rng.integers(0, height)), int(rng.integers(2, 12))
+        if rng.random() < 0.5:
+            cv2.circle(img, (x, y), r, colour, -1, cv2.LINE_AA)
+        else:
+            cv2.rectangle(img, (x, y), (x + r, int(y + 1.5 * r)), colour, -1)
+    return img
+
+
+def apply_h(h_colmap, xy):
+    p = np.c_[xy, np.ones(len(xy))] @ h_colmap.T
+    return p[:, :2] / p[:, 2:]
+
+
+def warp_colmap(image, h_colmap, size):
+    """Warp with a homography given in COLMAP pixels (OpenCV's pixel centres are at 0)."""
+    shift = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])
+    return cv2.warpPerspective(image, shift @ h_colmap @ np.linalg.inv(shift), size, flags=cv2.INTER_LINEAR)
+
+
+H_TRUE = np.array([[0.93, 0.07, 14.0], [-0.05, 0.98, 9.0], [1e-4, 6e-5, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def image_pair():
+    """A 320x240 RGB image and its homography warp rendered at 288x224 (sizes differ)."""
+    image = textured_image(320, 240, seed=1)
+    return image, warp_colmap(image, H_TRUE, (288, 224))
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def check_invariants(ms: SiteMatchSet, images, inverse: bool):
+    n = len(images)
+    assert len(ms.sites) == n and len(ms.image_sizes) == n
+    assert set(ms.pairs) == {(i, j) for i in range(n) for j in range(n) if i != j}
+    for c, image in enumerate(images):
+        w, h = image.shape[1], image.shape[0]
+        assert ms.image_sizes[c] == (w, h)
+        s = ms.sites[c]
+        assert s.dtype == np.float64 and s.ndim == 2 and s.shape[1] == 2
+        assert np.all((s >= 0) & (s <= [w, h])), "sites outside the original image"
+        assert len(np.unique(s, axis=0)) == len(s), "duplicate sites"
+    for (i, j), m in ms.pairs.items():
+        assert m.target.dtype == np.int32 and m.certainty.dtype == np.float32
+        assert m.target.shape == m.certainty.shape == (len(ms.sites[i]),)
+        assert np.all((m.target >= -1) & (m.target < len(ms.sites[j])))
+        assert np.all(m.certainty[m.target < 0] == 0)
+        assert np.all((m.certainty >= 0) & (m.certainty <= 1))
+        if inverse:
+            back = ms.pairs[(j, i)].target
+            src = np.nonzero(m.target >= 0)[0]
+            np.testing.assert_array_equal(back[m.target[src]], src)
+            assert (back >= 0).sum() == len(src)
+
+
+def homography_accuracy(ms, h_true):
+    m = ms.pairs[(0, 1)]
+    src = np.nonzero(m.target >= 0)[0]
+    err = np.linalg.norm(apply_h(h_true, ms.sites[0][src]) - ms.sites[1][m.target[src]], axis=1)
+    return len(src), float(np.mean(err < 2.0)), err
+
+
+def test_registry_lists_backends_and_rejects_unknown_names():
+    assert available_matchers() == ["sift", "xfeat-lighterglue", "xfeat-star", "roma"]
+    with pytest.raises(InputError) as info:
+        create_matcher("superglue")
+    for name in available_matchers():
+        assert name in str(info.value)
+    with pytest.raises(InputError, match="ratio_threshold"):
+        create_matcher("sift", ratio=0.7)
+
+
+def test_sift_does_not_import_torch():
+    code = ("import sys, numpy as np\n"
+            "from densecalib_ros.core.matching import create_matcher\n"
+            "rng = np.random.default_rng(0)\n"
+            "img = (rng.random((120, 160)) * 255).astype(np.uint8)\n"
+            "ms = create_matcher('sift').match([img, img[10:, 5:]])\n"
+            "assert len(ms.pairs) == 2\n"
+            "print('torch' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_sift_matches_follow_the_homography(image_pair):
+    matcher = create_matcher("sift")
+    matcher.load()
+    ms = matcher.match(list(image_pair))
+    check_invariants(ms, image_pair, inverse=True)
+    n, inliers, err = homography_accuracy(ms, H_TRUE)
+    assert n >= 80
+    assert inliers >= 0.9
+    assert np.median(err) < 0.6  # sub-pixel: the +0.5 pixel-centre shift is applied
+
+
+def test_resized_matching_maps_back_to_original_pixels(image_pair):
+    gray = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in image_pair]
+    ms = create_matcher("sift", max_image_side_px=200).match(gray)
+    check_invariants(ms, gray, inverse=True)
+    n, inliers, err = homography_accuracy(ms, H_TRUE)
+    assert n >= 40 and inliers >= 0.8
+    # A wrong scale or pixel-centre convention shows up as a systematic offset.
+    assert np.all(np.abs(np.median(apply_h(H_TRUE, ms.sites[0][ms.pairs[(0, 1)].target >= 0])
+                                   - ms.sites[1][ms.pairs[(0, 1)].target[ms.pairs[(0, 1)].target >= 0]],
+                                   axis=0)) < 0.5)
+
+
+def test_xfeat_lighterglue_matches_follow_the_homography(image_pair):
+    matcher = create_matcher("xfeat-lighterglue", device="cpu", max_keypoints=1024)
+    matcher.load()
+    matcher.load()  # idempotent
+    images = [image_pair[0], image_pair[1], image_pair[0][20:220, 10:300]]
+    ms = matcher.match(images)
+    check_invariants(ms, images, inverse=True)
+    n, inliers, _ = homography_accuracy(ms, H_TRUE)
+    assert n >= 150 and inliers >= 0.6
+
+
+def test_xfeat_star_sites_are_shared_pixels(image_pair):
+    matcher = create_matcher("xfeat-star", device="cpu", max_keypoints=2000)
+    images = [image_pair[0], image_pair[1], image_pair[0][20:220, 10:300]]
+    ms = matcher.match(images)
+    check_invariants(ms, images, inverse=True)
+    for s in ms.sites:  # integer-pixel sites (pixel centres)
+        np.testing.assert_array_equal(s - np.floor(s), 0.5)
+    n, inliers, _ = homography_accuracy(ms, H_TRUE)
+    assert n >= 150 and inliers >= 0.5
+
+
+def test_pixel_site_table_merges_identical_pixels_across_pairs():
+    table = PixelSiteTable(100, 50)
+    a = table.add(np.array([[10.2, 5.9], [99.99, 49.99]]))
+    b = table.add(np.array([[10.7, 5.1], [0.0, 0.0]]))
+    table.finalize()
+    ia, ib = table.indices(a), table.indices(b)
+    assert ia[0] == ib[0] and len(table.sites()) == 3
+    np.testing.assert_array_equal(table.sites()[ia[1]], [99.5, 49.5])
+
+
+def test_mutual_pair_maps_keep_the_most_certain_candidate_per_site():
+    fwd, bwd = mutual_pair_maps(np.array([0, 0, 1, 2]), np.array([3, 1, 1, 0]),
+                                np.array([0.2, 0.9, 0.5, 0.7]), 3, 4)
+    np.testing.assert_array_equal(fwd.target, [1, -1, 0])  # site 1 loses target 1 to site 0
+    np.testing.assert_array_equal(bwd.target, [2, 0, -1, -1])
+    np.testing.assert_allclose(fwd.certainty, [0.9, 0.0, 0.7])
+
+
+def test_roma_missing_weights_name_the_file_and_option(tmp_path, monkeypatch):
+    monkeypatch.delenv("DENSECALIB_ROMA_WEIGHTS", raising=False)
+    monkeypatch.delenv("DENSECALIB_DINOV2_WEIGHTS", raising=False)
+    with pytest.raises(ModelWeightsError, match="weights_path.*DENSECALIB_ROMA_WEIGHTS"):
+        create_matcher("roma").load()
+    missing = tmp_path / "roma_outdoor.pth"
+    with pytest.raises(ModelWeightsError, match=str(missing)):
+        create_matcher("roma", weights_path=str(missing)).load()
+    roma = tmp_path / "roma.pth"
+    roma.write_bytes(b"x")
+    monkeypatch.setenv("DENSECALIB_DINOV2_WEIGHTS", str(tmp_path / "dinov2_vitl14.pth"))
+    with pytest.raises(ModelWeightsError, match="dinov2_vitl14.pth"):
+        create_matcher("roma", weights_path=str(roma)).load()
+
+
+def test_roma_without_romatch_says_why(tmp_path):
+    try:
+        import romatch  # noqa: F401
+    except Exception:
+        pass
+    else:
+        pytest.skip("romatch imports here; its random-weight run is covered by the benchmark")
+    for name in ("roma.pth", "dinov2.pth"):
+        (tmp_path / name).write_bytes(b"x")
+    matcher = create_matcher("roma", weights_path=str(tmp_path / "roma.pth"),
+                             dinov2_weights_path=str(tmp_path / "dinov2.pth"))
+    with pytest.raises(InputError, match="romatch"):
+        matcher.load()
+
+
+def test_roma_warp_becomes_grid_site_matches():
+    """RoMa's output format (normalised warp + certainty on a square grid) for a known homography,
+    both directions, images of different sizes: targets are the nearest grid sites."""
+    (wa, ha), (wb, hb), g = (320, 240), (288, 224), 48
+    sites_a, sites_b = grid_sites(wa, ha, g, g), grid_sites(wb, hb, g, g)
+    rng = np.random.default_rng(0)
+    pairs = {}
+    for (i, j), h, (ws, hs), (wt, ht), sites in (((0, 1), H_TRUE, (wa, ha), (wb, hb), sites_a),
+                                                  ((1, 0), np.linalg.inv(H_TRUE), (wb, hb), (wa, ha), sites_b)):
+        xy = apply_h(h, sites)
+        norm = np.stack([2 * xy[:, 0] / wt - 1, 2 * xy[:, 1] / ht - 1], axis=1).reshape(g, g, 2)
+        certainty = rng.uniform(0.0, 1.0, (g, g)).astype(np.float32)
+        outside = (np.abs(norm) > 1).any(axis=2)
+        certainty[outside] = 0.0  # as RoMa does
+        pairs[(i, j)] = warp_to_site_matches(norm, certainty, min_certainty=0.1)
+        low = (certainty <= 0.1).ravel()
+        assert np.all(pairs[(i, j)].target[low] == -1)
+        ok = pairs[(i, j)].target >= 0
+        assert ok.sum() > 0.6 * g * g
+        target_xy = (sites_b if j == 1 else sites_a)[pairs[(i, j)].target[ok]]
+        half_cell = 0.5 * np.array([wt / g, ht / g]) + 1e-9
+        assert np.all(np.abs(target_xy - xy[ok]) <= half_cell)
+    ms = SiteMatchSet([sites_a, sites_b], pairs, [(wa, ha), (wb, hb)])
+    check_invariants(ms, [np.zeros((ha, wa)), np.zeros((hb, wb))], inverse=False)
+    # Both directions are predicted independently; a 2-cycle closes when they agree on the grid.
+    fwd, bwd = pairs[(0, 1)].target, pairs[(1, 0)].target
+    both = np.nonzero(fwd >= 0)[0]
+    both = both[bwd[fwd[both]] >= 0]
+    assert np.mean(bwd[fwd[both]] == both) > 0.5
