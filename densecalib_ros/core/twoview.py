@@ -69,6 +69,38 @@ def estimate_fundamental(xy_i_px: np.ndarray, xy_j_px: np.ndarray, threshold_px:
     return TwoViewGeometry(F, inliers, int(inliers.sum()))
 
 
+def estimate_essential_from_rays(rays_i: np.ndarray, rays_j: np.ndarray, threshold_rad: float,
+                                 confidence: float = 0.9999, max_iters: int = 10000,
+                                 seed: int = 0, min_z: float = 0.34) -> TwoViewGeometry:
+    """E_ji and the pose cam_j_from_cam_i from (N, 3) camera rays (fisheye or known intrinsics),
+    MAGSAC++ on the normalised plane (x/z, y/z) with `threshold_rad` (~ threshold_px / focal_px).
+
+    Only rays with z > min_z (default cos 70 deg) in both cameras take part: near 90 deg the
+    normalised plane stretches errors without bound. Returns F_ji=None; inlier_mask (N,) is False
+    for rays left out."""
+    rays_i = np.asarray(rays_i, np.float64).reshape(-1, 3)
+    rays_j = np.asarray(rays_j, np.float64).reshape(-1, 3)
+    n = rays_i.shape[0]
+    mask = np.zeros(n, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        use = np.flatnonzero((rays_i[:, 2] > min_z * np.linalg.norm(rays_i, axis=1))
+                             & (rays_j[:, 2] > min_z * np.linalg.norm(rays_j, axis=1)))
+    if use.size < MIN_CORRESPONDENCES:
+        return TwoViewGeometry(None, mask, 0)
+    n_i = np.ascontiguousarray(rays_i[use, :2] / rays_i[use, 2:3])
+    n_j = np.ascontiguousarray(rays_j[use, :2] / rays_j[use, 2:3])
+    cv2.setRNGSeed(int(seed))
+    E, inl = cv2.findEssentialMat(n_i, n_j, np.eye(3), cv2.USAC_MAGSAC, float(confidence),
+                                  float(threshold_rad), int(max_iters))
+    if E is None or E.shape != (3, 3) or inl is None:
+        return TwoViewGeometry(None, mask, 0)
+    inl = inl.reshape(-1).astype(bool)
+    R, t, front = relative_pose_from_rays(E, rays_i[use][inl], rays_j[use][inl])
+    mask[use[inl]] = True
+    return TwoViewGeometry(None, mask, int(mask.sum()), E_ji=E / np.linalg.norm(E), R_ji=R,
+                           t_ji=t)
+
+
 def symmetric_epipolar_distance_px(F_ji: np.ndarray, xy_i_px: np.ndarray,
                                    xy_j_px: np.ndarray) -> np.ndarray:
     """(N,) max over both images of the point-to-epipolar-line distance in pixels: the distance of
