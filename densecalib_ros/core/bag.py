@@ -1,0 +1,204 @@
+"""Offline rosbag2 reading (sqlite3 and mcap) with the pure-Python `rosbags` package: no ROS runtime.
+
+Image topics may be sensor_msgs/msg/Image (rgb8, bgr8, rgba8, bgra8, mono8, mono16) or
+sensor_msgs/msg/CompressedImage (jpeg, png). Frame sets are formed by approximate-time
+synchronisation of the header stamps (core.sync, the same logic the node uses), in the bag's
+message order. Only the selected frame sets are decoded (two passes), so memory stays bounded by
+what is returned.
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Iterator, Optional
+
+import numpy as np
+
+from .errors import InputError
+from .image_encoding import decode_compressed, decode_raw
+from .sync import ApproximateTimeSynchronizer
+
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
+IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
+# Trailing topic components that name the image stream rather than the camera.
+_STREAM_SUFFIXES = {"image_raw", "image_rect", "image_rect_color", "image_color", "image_mono",
+                    "image", "compressed", "raw"}
+
+
+def camera_names_from_topics(topics: list[str]) -> list[str]:
+    """Camera names from image topics: the namespace without the image-stream suffixes, joined by
+    '_' (/stereo/left/image_raw -> stereo_left, /cam0/image_raw/compressed -> cam0).
+    Falls back to the whole topic when that leaves nothing or names collide."""
+    def name(topic: str, strip: bool) -> str:
+        parts = [p for p in topic.strip("/").split("/") if p]
+        while strip and len(parts) > 1 and parts[-1] in _STREAM_SUFFIXES:
+            parts.pop()
+        return re.sub(r"[^A-Za-z0-9_]", "_", "_".join(parts)) or "camera"
+
+    names = [name(t, True) for t in topics]
+    if len(set(names)) < len(names):
+        names = [name(t, False) for t in topics]
+    if len(set(names)) < len(names):
+        raise InputError(f"Topics {topics} do not give distinct camera names: list each topic once.")
+    return names
+
+
+def stamp_ns(header) -> int:
+    """std_msgs/Header stamp in nanoseconds."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def decode_image_message(msgtype: str, msg) -> np.ndarray:
+    """A deserialised Image/CompressedImage (rosbags or rclpy object) -> uint8 RGB (H, W, 3) or
+    gray (H, W)."""
+    if msgtype.endswith("CompressedImage"):
+        return decode_compressed(msg.format, msg.data)
+    return decode_raw(msg.encoding, int(msg.height), int(msg.width), int(msg.step), msg.data,
+                      bool(msg.is_bigendian))
+
+
+def _open(bag_path: str | os.PathLike):
+    from rosbags.rosbag2 import Reader
+
+    path = Path(bag_path)
+    if not path.exists():
+        raise InputError(f"Bag {path} does not exist: give a rosbag2 folder (metadata.yaml + "
+                         ".db3/.mcap) or a .mcap/.db3 file.")
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # rosbags raises several unrelated types for unreadable bags
+        raise InputError(f"Cannot open bag {path}: {exc}") from exc
+    return reader
+
+
+def _typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _image_connections(reader, topics: list[str]):
+    by_topic = {}
+    for conn in reader.connections:
+        by_topic.setdefault(conn.topic, []).append(conn)
+    available = sorted(t for t, cs in by_topic.items() if cs[0].msgtype in IMAGE_TYPES)
+    conns = []
+    for topic in topics:
+        if topic not in by_topic:
+            raise InputError(f"Topic {topic} is not in bag {reader.path}; its image topics are: "
+                             f"{', '.join(available) or 'none'}.")
+        if by_topic[topic][0].msgtype not in IMAGE_TYPES:
+            raise InputError(f"Topic {topic} in bag {reader.path} has type "
+                             f"{by_topic[topic][0].msgtype}, not an image; image topics: "
+                             f"{', '.join(available) or 'none'}.")
+        conns.extend(by_topic[topic])
+    return conns
+
+
+def iter_image_messages(bag_path: str | os.PathLike, topics: list[str]
+                        ) -> Iterator[tuple[int, int, int, str, object]]:
+    """Yield (topic index, header stamp ns, bag log time ns, msgtype, deserialised message) for the
+    image messages of `topics`, in bag order (used by the node's replay)."""
+    if not topics:
+        raise InputError("No image topics given: list the bag's image topics, one per camera.")
+    store = _typestore()
+    reader = _open(bag_path)
+    try:
+        conns = _image_connections(reader, topics)
+        index = {t: i for i, t in enumerate(topics)}
+        for conn, log_time_ns, raw in reader.messages(connections=conns):
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            yield index[conn.topic], stamp_ns(msg.header), int(log_time_ns), conn.msgtype, msg
+    finally:
+        reader.close()
+
+
+def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: float = 0.02,
+                    max_frame_sets: Optional[int] = None, stride: int = 1
+                    ) -> tuple[list[list[np.ndarray]], list[str]]:
+    """Synchronised frame sets of a bag's image topics.
+
+    Returns (frame_sets, camera_names): frame_sets[t][c] is camera c's image of set t, uint8 RGB
+    (H, W, 3) or gray (H, W); camera c is topics[c], named by camera_names_from_topics. Sets are in
+    stamp order; every `stride`-th set is kept, then at most `max_frame_sets` evenly spaced ones.
+    """
+    if stride < 1:
+        raise InputError(f"stride must be >= 1, got {stride}.")
+    if max_frame_sets is not None and max_frame_sets < 1:
+        raise InputError(f"max_frame_sets must be >= 1, got {max_frame_sets}.")
+    if len(set(topics)) != len(topics):
+        raise InputError(f"Topics must be distinct, got {topics}.")
+    names = camera_names_from_topics(topics)
+    # Pass 1: stamps only; the payload is the message's key (topic index, position in topic).
+    sync = ApproximateTimeSynchronizer(len(topics), slop_s, queue_size=1000)
+    counts = [0] * len(topics)
+    sets = []
+    for topic_index, stamp, _, _, _ in iter_image_messages(bag_path, topics):
+        sets.extend(sync.add(topic_index, stamp, counts[topic_index]))
+        counts[topic_index] += 1
+    if not sets:
+        raise InputError(f"No synchronised frame sets in {bag_path} for topics {topics} with "
+                         f"slop {slop_s} s (messages per topic: {counts}); check the topics' "
+                         "header stamps or raise slop_s.")
+    sets.sort(key=lambda s: s.stamp_ns)
+    sets = sets[::stride]
+    if max_frame_sets is not None and len(sets) > max_frame_sets:
+        keep = np.unique(np.round(np.linspace(0, len(sets) - 1, max_frame_sets)).astype(int))
+        sets = [sets[i] for i in keep]
+    # Pass 2: decode only the selected messages.
+    wanted = {(c, pos): t for t, s in enumerate(sets) for c, pos in enumerate(s.items)}
+    frame_sets: list[list[Optional[np.ndarray]]] = [[None] * len(topics) for _ in sets]
+    seen = [0] * len(topics)
+    for topic_index, _, _, msgtype, msg in iter_image_messages(bag_path, topics):
+        t = wanted.get((topic_index, seen[topic_index]))
+        seen[topic_index] += 1
+        if t is not None:
+            frame_sets[t][topic_index] = decode_image_message(msgtype, msg)
+    return frame_sets, names
+
+
+def write_image_bag(bag_path: str | os.PathLike, frame_sets: list[list[np.ndarray]],
+                    topics: list[str], stamps_ns: list[int], *, storage: str = "sqlite3",
+                    encoding: str = "rgb8", frame_ids: Optional[list[str]] = None) -> None:
+    """Write frame_sets[t][c] (uint8 RGB (H, W, 3) or gray (H, W)) as a rosbag2 bag: topic c gets
+    one message per set, header stamp stamps_ns[t][c] (or stamps_ns[t] for all cameras), log time =
+    header stamp. encoding: rgb8, bgr8, mono8, mono16 (sensor_msgs/Image) or jpeg, png
+    (CompressedImage). storage: sqlite3 or mcap. Used to make test bags and to export rigs."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from .image_encoding import COMPRESSED_FORMATS, encode_compressed, encode_raw
+
+    plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
+    if storage not in plugins:
+        raise InputError(f"Unknown bag storage {storage!r}: use sqlite3 or mcap.")
+    if len(stamps_ns) != len(frame_sets):
+        raise InputError(f"{len(frame_sets)} frame sets but {len(stamps_ns)} stamps.")
+    store = _typestore()
+    t = store.types
+    compressed = encoding in COMPRESSED_FORMATS
+    msgtype = COMPRESSED_TYPE if compressed else IMAGE_TYPE
+    frame_ids = frame_ids or [f"{n}_optical_frame" for n in camera_names_from_topics(topics)]
+    messages = []
+    for images, stamps in zip(frame_sets, stamps_ns):
+        stamps = list(stamps) if np.ndim(stamps) else [stamps] * len(topics)
+        for c, image in enumerate(images):
+            sec, nsec = divmod(int(stamps[c]), 1_000_000_000)
+            header = t["std_msgs/msg/Header"](
+                stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                frame_id=frame_ids[c])
+            if compressed:
+                data = np.frombuffer(encode_compressed(image, encoding), np.uint8)
+                msg = t[COMPRESSED_TYPE](header=header, format=encoding, data=data)
+            else:
+                h, w, step, raw = encode_raw(image, encoding)
+                msg = t[IMAGE_TYPE](header=header, height=h, width=w, encoding=encoding,
+                                    is_bigendian=0, step=step, data=np.frombuffer(raw, np.uint8))
+            messages.append((int(stamps[c]), c, msg))
+    messages.sort(key=lambda m: (m[0], m[1]))
+    with Writer(Path(bag_path), version=9, storage_plugin=plugins[storage]) as writer:
+        conns = [writer.add_connection(topic, msgtype, typestore=store) for topic in topics]
+        for log_ns, c, msg in messages:
+            writer.write(conns[c], log_ns, store.serialize_cdr(msg, msgtype))

@@ -1,0 +1,108 @@
+"""ROS message <-> numpy / core types, without cv_bridge or tf2_ros.
+
+Images: sensor_msgs/Image (rgb8, bgr8, mono8, mono16; rgba8/bgra8 read) and CompressedImage
+(jpeg, png) <-> uint8 RGB (H, W, 3) / gray (H, W) arrays (core.image_encoding does the pixels).
+Calibration: CameraInfo from core.export.ros_camera_info (ROS pixel convention, ROS distortion
+model names); TransformStamped parent=rig frame -> child=<camera>_optical_frame holding
+rig_from_cam = inverse(cam_from_rig) (tf's convention: the child frame's pose in the parent frame).
+"""
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import TransformStamped
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from tf2_msgs.msg import TFMessage
+
+from ..core.bag import stamp_ns
+from ..core.export import ros_camera_info
+from ..core.image_encoding import decode_compressed, decode_raw, encode_compressed, encode_raw
+from ..core.types import CameraIntrinsics, RigCalibration
+
+
+def time_from_ns(t_ns: int) -> Time:
+    return Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))
+
+
+def image_msg_to_numpy(msg) -> np.ndarray:
+    """sensor_msgs/Image or CompressedImage (an rclpy message or a `rosbags` one read from a bag)
+    -> uint8 RGB (H, W, 3) or gray (H, W)."""
+    if not hasattr(msg, "encoding"):  # CompressedImage
+        return decode_compressed(msg.format, msg.data)
+    return decode_raw(msg.encoding, msg.height, msg.width, msg.step, msg.data,
+                      bool(msg.is_bigendian))
+
+
+def numpy_to_image_msg(image: np.ndarray, encoding: str, t_ns: int, frame_id: str) -> Image:
+    """uint8 RGB (H, W, 3) or gray (H, W) -> sensor_msgs/Image in rgb8, bgr8, mono8 or mono16."""
+    height, width, step, data = encode_raw(image, encoding)
+    msg = Image(height=height, width=width, encoding=encoding, is_bigendian=0, step=step)
+    msg.data = data
+    msg.header.stamp = time_from_ns(t_ns)
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def numpy_to_compressed_msg(image: np.ndarray, fmt: str, t_ns: int,
+                            frame_id: str) -> CompressedImage:
+    """uint8 RGB (H, W, 3) or gray (H, W) -> sensor_msgs/CompressedImage (jpeg or png)."""
+    msg = CompressedImage(format=fmt)
+    msg.data = encode_compressed(image, fmt)
+    msg.header.stamp = time_from_ns(t_ns)
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def message_stamp_ns(msg) -> int:
+    return stamp_ns(msg.header)
+
+
+def camera_info_msg(name: str, intrinsics: CameraIntrinsics, frame_id: str,
+                    t_ns: int) -> CameraInfo:
+    """CameraInfo of one calibrated camera (K, D, R = I, P = [K | 0]) in ROS conventions."""
+    info = ros_camera_info(name, intrinsics)
+    msg = CameraInfo(width=info["image_width"], height=info["image_height"],
+                     distortion_model=info["distortion_model"])
+    msg.k = [float(v) for v in info["camera_matrix"]["data"]]
+    msg.d = [float(v) for v in info["distortion_coefficients"]["data"]]
+    msg.r = [float(v) for v in info["rectification_matrix"]["data"]]
+    msg.p = [float(v) for v in info["projection_matrix"]["data"]]
+    msg.header.stamp = time_from_ns(t_ns)
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def transform_msg(parent_frame: str, child_frame: str, parent_from_child: np.ndarray,
+                  t_ns: int) -> TransformStamped:
+    """TransformStamped holding the 4x4 `parent_from_child` (child's pose in the parent frame)."""
+    m = np.asarray(parent_from_child, dtype=np.float64)
+    msg = TransformStamped()
+    msg.header.stamp = time_from_ns(t_ns)
+    msg.header.frame_id = parent_frame
+    msg.child_frame_id = child_frame
+    msg.transform.translation.x, msg.transform.translation.y, msg.transform.translation.z = (
+        float(v) for v in m[:3, 3])
+    qx, qy, qz, qw = Rotation.from_matrix(m[:3, :3]).as_quat()
+    q = msg.transform.rotation
+    q.x, q.y, q.z, q.w = float(qx), float(qy), float(qz), float(qw)
+    return msg
+
+
+def transform_to_matrix(msg: TransformStamped) -> np.ndarray:
+    """TransformStamped -> 4x4 parent_from_child."""
+    t, q = msg.transform.translation, msg.transform.rotation
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    m[:3, 3] = [t.x, t.y, t.z]
+    return m
+
+
+def rig_tf_message(rig: RigCalibration, rig_frame: str, optical_frames: dict[str, str],
+                   t_ns: int) -> TFMessage:
+    """All cameras' extrinsics in one TFMessage: rig_frame -> optical_frames[name] for each
+    calibrated camera (the transform is rig_from_cam = inverse(cam_from_rig))."""
+    transforms = [transform_msg(rig_frame, optical_frames[name],
+                                np.linalg.inv(np.asarray(cam.cam_from_rig, dtype=np.float64)), t_ns)
+                  for name, cam in rig.cameras.items()]
+    return TFMessage(transforms=transforms)

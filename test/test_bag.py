@@ -1,0 +1,114 @@
+"""Offline bag reading (core.bag): bags written here with `rosbags` (sqlite3 and mcap, raw and
+compressed) read back to the same synchronised frames; camera names; errors; the shared real bag."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from densecalib_ros.core.bag import (camera_names_from_topics, iter_image_messages,
+                                     read_frame_sets, write_image_bag)
+from densecalib_ros.core.errors import InputError
+from densecalib_ros.core.image_encoding import decode_compressed, encode_compressed
+
+TOPICS = ["/rig/cam_a/image_raw", "/rig/cam_b/image_raw", "/cam_c/image_raw/compressed"]
+SHARED_BAG = (Path(__file__).resolve().parents[2] / "shared" / "data"
+              / "ros2bag_fisheye_stereo_derived" / "fisheye_stereo_bag")
+
+
+def _frames(num_sets=5, num_cams=3, seed=0):
+    rng = np.random.default_rng(seed)
+    # 16x16 blocks (the jpeg MCU) so that jpeg with chroma subsampling stays close
+    base = rng.integers(0, 256, (num_sets, num_cams, 6, 8, 3)).astype(np.uint8)
+    return [[np.kron(base[t, c], np.ones((16, 16, 1), np.uint8)) for c in range(num_cams)]
+            for t in range(num_sets)]
+
+
+def _stamps(num_sets, num_cams, seed=1):
+    """Set t at t*100 ms, each camera jittered by up to +-4 ms."""
+    rng = np.random.default_rng(seed)
+    return [[t * 100_000_000 + int(rng.integers(-4, 5)) * 1_000_000 for _ in range(num_cams)]
+            for t in range(num_sets)]
+
+
+def test_camera_names_from_topics():
+    assert camera_names_from_topics(TOPICS) == ["rig_cam_a", "rig_cam_b", "cam_c"]
+    assert camera_names_from_topics(["/stereo/left/image_raw", "/stereo/right/image_raw"]) == [
+        "stereo_left", "stereo_right"]
+    # stripping the stream name would collide: fall back to the whole topic
+    assert camera_names_from_topics(["/cam0/image_raw", "/cam0/image_rect"]) == [
+        "cam0_image_raw", "cam0_image_rect"]
+    with pytest.raises(InputError, match="distinct"):
+        camera_names_from_topics(["/a/image_raw", "/a/image_raw"])
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+@pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "mono8", "mono16", "png", "jpeg"])
+def test_round_trip(tmp_path, storage, encoding):
+    frames = _frames()
+    if encoding.startswith("mono"):
+        frames = [[im[..., 1] for im in fs] for fs in frames]
+    bag = tmp_path / f"bag_{storage}_{encoding}"
+    write_image_bag(bag, frames, TOPICS, _stamps(5, 3), storage=storage, encoding=encoding)
+    got, names = read_frame_sets(bag, TOPICS, slop_s=0.01)
+    assert names == ["rig_cam_a", "rig_cam_b", "cam_c"]
+    assert len(got) == 5
+    for t in range(5):
+        for c in range(3):
+            assert got[t][c].shape == frames[t][c].shape and got[t][c].dtype == np.uint8
+            err = np.abs(got[t][c].astype(int) - frames[t][c]).mean()
+            assert err < (5.0 if encoding == "jpeg" else 1e-9), (t, c, err)
+            if encoding == "jpeg":  # the bag carries the encoder's bytes unchanged
+                direct = decode_compressed("jpeg", encode_compressed(frames[t][c], "jpeg"))
+                assert np.array_equal(got[t][c], direct)
+
+
+def test_slop_selects_sets_and_stride_and_max(tmp_path):
+    frames = _frames(num_sets=12, num_cams=2)
+    stamps = _stamps(12, 2)
+    stamps[4][1] += 30_000_000  # set 4: camera 1 is 30 ms late -> no set within 10 ms
+    bag = tmp_path / "bag"
+    write_image_bag(bag, frames, TOPICS[:2], stamps, storage="mcap", encoding="png")
+    got, _ = read_frame_sets(bag, TOPICS[:2], slop_s=0.01)
+    kept = [t for t in range(12) if t != 4]
+    assert len(got) == 11
+    assert all(np.array_equal(got[k][0], frames[t][0]) for k, t in enumerate(kept))
+    got, _ = read_frame_sets(bag, TOPICS[:2], slop_s=0.05)
+    assert len(got) == 12
+    got, _ = read_frame_sets(bag, TOPICS[:2], slop_s=0.01, stride=2, max_frame_sets=3)
+    # stride 2 over the 11 sets -> kept[0::2] (6 sets), then 3 evenly spaced: 0, 2 (rounded), 5
+    expect = [kept[0::2][i] for i in (0, 2, 5)]
+    assert [next(t for t in range(12) if np.array_equal(g[1], frames[t][1])) for g in got] == expect
+
+
+def test_iter_image_messages_gives_stamps_in_bag_order(tmp_path):
+    frames, stamps = _frames(3, 2), _stamps(3, 2)
+    write_image_bag(tmp_path / "b", frames, TOPICS[:2], stamps)
+    got = [(i, s) for i, s, _, _, _ in iter_image_messages(tmp_path / "b", TOPICS[:2])]
+    assert sorted(got, key=lambda x: (x[1], x[0])) == got
+    assert sorted(got) == sorted((c, stamps[t][c]) for t in range(3) for c in range(2))
+
+
+def test_errors_name_what_to_do(tmp_path):
+    write_image_bag(tmp_path / "b", _frames(2, 2), TOPICS[:2], [[0, 1000], [10**8, 10**8 + 1]])
+    with pytest.raises(InputError, match="not in bag.*/rig/cam_a/image_raw"):
+        read_frame_sets(tmp_path / "b", ["/nope/image_raw", TOPICS[0]])
+    with pytest.raises(InputError, match="does not exist"):
+        read_frame_sets(tmp_path / "missing", TOPICS[:2])
+    with pytest.raises(InputError, match="No synchronised frame sets.*raise slop_s"):
+        read_frame_sets(tmp_path / "b", TOPICS[:2], slop_s=0.0)
+    with pytest.raises(InputError, match="sqlite3 or mcap"):
+        write_image_bag(tmp_path / "c", _frames(1, 2), TOPICS[:2], [0], storage="zip")
+
+
+@pytest.mark.data
+def test_shared_fisheye_stereo_bag():
+    if not SHARED_BAG.exists():
+        pytest.skip(f"shared data absent: {SHARED_BAG}")
+    topics = ["/stereo/left/image_raw", "/stereo/right/image_raw"]
+    frames, names = read_frame_sets(SHARED_BAG, topics)
+    assert names == ["stereo_left", "stereo_right"]
+    assert len(frames) == 20  # SOURCE.md: 20 pairs sharing one stamp each
+    assert all(im.shape == (503, 800) and im.dtype == np.uint8 for fs in frames for im in fs)
+    assert 40 < np.mean([fs[0].mean() for fs in frames]) < 220
+    with pytest.raises(InputError, match="CameraInfo, not an image"):
+        read_frame_sets(SHARED_BAG, ["/stereo/left/camera_info", topics[1]])
