@@ -60,8 +60,9 @@ def cam_rays(cam: CameraIntrinsics, xy_px: np.ndarray, a_limit: float,
     rd = np.hypot(xd, yd)
     g_lim = radial_g(cam, np.array([a_limit]))[0][0]
     valid = rd <= g_lim
-    # Newton from a = rd (g is close to identity); clipped to the monotonic branch.
-    a = np.minimum(rd, a_limit)
+    # Start from a table inverse of g (monotonic on [0, a_limit]), polish with Newton.
+    a_tab = np.linspace(0.0, a_limit, 2049)
+    a = np.interp(rd, radial_g(cam, a_tab)[0], a_tab)
     for _ in range(20):
         g, dg = radial_g(cam, a)
         step = (g - rd) / dg

@@ -169,19 +169,22 @@ def _room_exit(origin, dirs, lo, hi):
     return np.minimum(np.minimum(tx, ty), tz)
 
 
+_ROOM_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]])
+
+
 def _room_surface(scene, origin, d, t, sel, tex, uv, normal):
     lo, hi = scene.room_min.astype(d.dtype), scene.room_max.astype(d.dtype)
     tx, ty, tz = _room_axis_t(origin, d, lo, hi)
-    axis = np.where(tx <= np.minimum(ty, tz), 0, np.where(ty <= tz, 1, 2))
-    positive = d[np.arange(len(d)), axis] > 0
-    face = 2 * axis + positive  # 0:-x 1:+x 2:-y 3:+y 4:floor 5:ceiling
+    on_x = tx <= np.minimum(ty, tz)
+    on_z = ~on_x & (tz < ty)
+    # face: 0:-x 1:+x 2:-y 3:+y 4:floor 5:ceiling (the wall the ray leaves through)
+    face = np.where(on_x, (d[:, 0] > 0).astype(np.int32),
+                    np.where(on_z, 4 + (d[:, 2] > 0), 2 + (d[:, 1] > 0)))
     q = origin - lo + t[:, None] * d
     tex[sel] = np.asarray(scene.room_tex, np.int32)[face]
-    uv[sel, 0] = np.where(axis == 0, q[:, 1], q[:, 0])
-    uv[sel, 1] = np.where(axis == 2, q[:, 1], q[:, 2])
-    nrm = np.zeros_like(d)
-    nrm[np.arange(len(d)), axis] = np.where(positive, -1.0, 1.0)
-    normal[sel] = nrm
+    uv[sel, 0] = np.where(on_x, q[:, 1], q[:, 0])
+    uv[sel, 1] = np.where(on_z, q[:, 1], q[:, 2])
+    normal[sel] = _ROOM_NORMALS.astype(d.dtype)[face]  # pointing into the room
 
 
 def _local(obj, origin, dirs):
