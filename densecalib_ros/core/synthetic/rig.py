@@ -209,9 +209,9 @@ def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarra
 
 
 def _sample_poses(rng: np.random.Generator, n: int, scene: Scene) -> list[np.ndarray]:
-    """Cameras on an arc around the room centre (arc 50-160 deg, wider for more cameras), 1-2 m
+    """Cameras on an arc around the room centre (20 deg per camera gap, 45-140 deg in all), 1-2 m
     high, all looking at points near the centre: every pair overlaps, baselines are wide."""
-    arc = np.deg2rad(np.clip(25.0 * (n - 1), 50.0, 160.0))
+    arc = np.deg2rad(np.clip(20.0 * (n - 1), 45.0, 140.0))
     az = rng.uniform(-np.pi, np.pi) + np.linspace(-arc / 2, arc / 2, n) \
         + rng.uniform(-4, 4, n) * np.pi / 180
     semi = scene.room_max[:2] - 0.4

@@ -76,8 +76,9 @@ def value_noise(rng: np.random.Generator, h: int, w: int, texel_m: float,
 def _shape_colors(rng, bases: np.ndarray) -> list[tuple[float, float, float]]:
     """Random variations (brightness, tint) of base colours (n, 3) -> n RGB tuples."""
     bases = np.asarray(bases, np.float64).reshape(-1, 3)
-    c = np.clip(bases * rng.uniform(0.45, 1.6, (len(bases), 1))
-                + rng.normal(0, 0.06, bases.shape), 0, 1)
+    c = bases * rng.uniform(0.45, 1.6, (len(bases), 1)) + rng.normal(0, 0.06, bases.shape)
+    grey = c.mean(axis=1, keepdims=True)
+    c = np.clip(grey + 0.7 * (c - grey), 0, 1)  # muted, natural saturation
     return [tuple(v) for v in c.tolist()]
 
 
