@@ -1,0 +1,646 @@
+"""`densecalib_node`: calibrates a rigid camera rig from synchronised image topics (or a replayed
+bag) on a service call and publishes CameraInfo per camera and the extrinsics on /tf_static.
+
+Interface (names relative to the node, default name `densecalib_node`):
+- subscribes: `image_topics` (sensor_msgs/Image or CompressedImage, sensor-data QoS);
+- service `~/calibrate` (std_srvs/Trigger): calibrates on the buffered frame sets; answers with a
+  one-line summary, or the reason of the failure; a call while one runs is refused ("busy");
+- publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
+  (sensor_msgs/CameraInfo, reliable, transient local, depth 1), `/tf_static` (tf2_msgs/TFMessage,
+  all cameras in one message, transient local, depth 1), `/diagnostics`
+  (diagnostic_msgs/DiagnosticArray, 1 Hz);
+- calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
+- files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/) written
+  atomically, then the `output_dir/latest` symlink is swapped atomically. At start-up the
+  calibration under `latest` is republished. A failed calibration publishes and writes nothing.
+
+Threads: subscription callbacks only append messages to the synchroniser; a calibration runs in
+its own worker thread; the service callback (reentrant group, multi-threaded executor) waits for
+its result while the executor keeps serving subscriptions, timers and other service calls.
+"""
+from __future__ import annotations
+
+import os
+import re
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.srv import SetCameraInfo
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+
+from ..core.bag import camera_names_from_topics
+from ..core.config import PIPELINES, PRESETS, make_config
+from ..core.errors import CalibrationError, InputError
+from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
+from ..core.matching import available_matchers
+from ..core.scale import apply_known_baseline
+from ..core.types import RigCalibration
+from .conversions import camera_info_msg, rig_tf_message
+from .replay import BagReplayer
+from .sync import MessageSynchronizer, decode_frame_sets
+
+LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TRANSPORTS = ("auto", "raw", "compressed")
+_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_FRAME_RE = re.compile(r"^[A-Za-z0-9_/.\-]+$")
+
+
+def _range(lo, hi, integer: bool):
+    return ({"integer_range": [IntegerRange(from_value=lo, to_value=hi, step=0)]} if integer else
+            {"floating_point_range": [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]})
+
+
+# name -> (default, or the type of an optional array; description; read-only; range kwargs)
+PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
+    "image_topics": (Parameter.Type.STRING_ARRAY,
+                     "image topics, one per camera (sensor_msgs/Image or CompressedImage); "
+                     "at least two", True, {}),
+    "camera_names": (Parameter.Type.STRING_ARRAY,
+                     "camera names, one per topic (default: from the topics, "
+                     "/stereo/left/image_raw -> stereo_left)", True, {}),
+    "transports": (Parameter.Type.STRING_ARRAY,
+                   "per topic (or one for all): auto (topic type from the graph; '.../compressed' "
+                   "is compressed), raw (Image) or compressed (CompressedImage)", True, {}),
+    "slop_s": (0.02, "approximate-time synchronisation: max stamp spread within a frame set [s]",
+               True, _range(0.0, 10.0, False)),
+    "sync_queue_size": (10, "pending messages per topic while waiting for partners", True,
+                        _range(1, 1000, True)),
+    "buffer_size": (50, "frame sets kept for calibration; the oldest is dropped when full", True,
+                    _range(1, 10000, True)),
+    "min_interval_s": (0.5, "frame sets closer in time than this to the last buffered one are "
+                       "skipped [s]", True, _range(0.0, 3600.0, False)),
+    "min_frame_sets": (1, "frame sets needed before a calibration starts", False,
+                       _range(1, 10000, True)),
+    "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
+    "pipeline": ("incremental", "SfM pipeline: incremental or global", False, {}),
+    "matcher": ("sift", "matcher backend", False, {}),
+    "max_image_side_px": (1024, "images are matched at most at this size [px]", False,
+                          _range(64, 16384, True)),
+    "output_dir": ("~/.ros/densecalib", "calibration files: <output_dir>/<UTC time>/ and a "
+                   "'latest' symlink", True, {}),
+    "rig_frame": ("rig", "parent frame of the cameras' transforms on /tf_static (the reference "
+                  "camera's optical frame coincides with it)", True, {}),
+    "frame_names": (Parameter.Type.STRING_ARRAY,
+                    "optical frame per camera (default <camera>_optical_frame)", True, {}),
+    "camera_info_topics": (Parameter.Type.STRING_ARRAY,
+                           "CameraInfo topic per camera (default <image topic ns>/camera_info)",
+                           True, {}),
+    "call_set_camera_info": (False, "after a calibration, call each camera's set_camera_info",
+                             False, {}),
+    "set_camera_info_services": (Parameter.Type.STRING_ARRAY,
+                                 "set_camera_info service per camera (default <image topic "
+                                 "ns>/set_camera_info)", True, {}),
+    "set_camera_info_timeout_s": (5.0, "timeout of each set_camera_info call [s]", False,
+                                  _range(0.01, 600.0, False)),
+    "known_baseline_m": (0.0, "if > 0: distance between baseline_cameras [m], gives metric "
+                         "translations", False, _range(0.0, 1.0e6, False)),
+    "baseline_cameras": (Parameter.Type.STRING_ARRAY,
+                         "the two cameras whose distance is known_baseline_m", False, {}),
+    "replay_bag": ("", "rosbag2 folder/file to replay into the node at start-up (its "
+                   "image_topics)", True, {}),
+    "replay_rate": (0.0, "replay speed factor (0 = as fast as possible)", True,
+                    _range(0.0, 1000.0, False)),
+    "calibrate_after_replay": (True, "start a calibration when the replay ends", True, {}),
+}
+
+
+@dataclass
+class Settings:
+    """Validated node parameters (see PARAMETERS for their meaning)."""
+
+    image_topics: list[str]
+    camera_names: list[str]
+    transports: list[str]
+    slop_s: float
+    sync_queue_size: int
+    buffer_size: int
+    min_interval_s: float
+    min_frame_sets: int
+    preset: str
+    pipeline: str
+    matcher: str
+    max_image_side_px: int
+    output_dir: Path
+    rig_frame: str
+    frame_names: list[str]
+    camera_info_topics: list[str]
+    call_set_camera_info: bool
+    set_camera_info_services: list[str]
+    set_camera_info_timeout_s: float
+    known_baseline_m: float
+    baseline_cameras: list[str]
+    replay_bag: str
+    replay_rate: float
+    calibrate_after_replay: bool
+
+
+def _topic_namespace(topic: str) -> str:
+    parts = topic.rstrip("/").split("/")
+    if parts[-1] == "compressed":
+        parts = parts[:-1]
+    return "/".join(parts[:-1])
+
+
+def _per_camera(values: list[str], n: int, what: str, default) -> list[str]:
+    if not values:
+        return [default(i) for i in range(n)]
+    if len(values) != n:
+        raise InputError(f"{what} has {len(values)} entries for {n} image topics: give one per "
+                         "topic or leave it empty for the default.")
+    return list(values)
+
+
+def parse_settings(values: dict[str, Any]) -> Settings:
+    """Validate raw parameter values (None = not set) into Settings; raises InputError with a
+    message naming the parameter and the accepted values."""
+    v = {k: (values.get(k) if values.get(k) is not None else
+             ([] if isinstance(PARAMETERS[k][0], Parameter.Type) else PARAMETERS[k][0]))
+         for k in PARAMETERS}
+    topics = list(v["image_topics"])
+    if len(topics) < 2:
+        raise InputError(f"image_topics must list at least two image topics (one per camera), got "
+                         f"{topics or 'none'}.")
+    if len(set(topics)) != len(topics) or any(not t.strip("/") for t in topics):
+        raise InputError(f"image_topics must be distinct, non-empty topic names, got {topics}.")
+    n = len(topics)
+    names = _per_camera(list(v["camera_names"]), n, "camera_names",
+                        lambda i: camera_names_from_topics(topics)[i])
+    bad = [c for c in names if not _NAME_RE.match(c)]
+    if bad or len(set(names)) != n:
+        raise InputError(f"camera_names must be distinct identifiers ([A-Za-z_][A-Za-z0-9_]*), "
+                         f"got {names}.")
+    transports = list(v["transports"]) or ["auto"]
+    if len(transports) == 1:
+        transports = transports * n
+    transports = _per_camera(transports, n, "transports", None)
+    if any(t not in TRANSPORTS for t in transports):
+        raise InputError(f"transports must be one of {', '.join(TRANSPORTS)} per topic, got "
+                         f"{transports}.")
+    if v["preset"] not in PRESETS:
+        raise InputError(f"preset must be one of {', '.join(PRESETS)}, got {v['preset']!r}.")
+    if v["pipeline"] not in PIPELINES:
+        raise InputError(f"pipeline must be one of {', '.join(PIPELINES)}, got {v['pipeline']!r}.")
+    if v["matcher"] not in available_matchers():
+        raise InputError(f"matcher must be one of {', '.join(available_matchers())}, got "
+                         f"{v['matcher']!r}.")
+    if v["min_frame_sets"] > v["buffer_size"]:
+        raise InputError(f"min_frame_sets ({v['min_frame_sets']}) cannot exceed buffer_size "
+                         f"({v['buffer_size']}).")
+    if not str(v["output_dir"]).strip():
+        raise InputError("output_dir must name a directory for the calibration files.")
+    frames = _per_camera(list(v["frame_names"]), n, "frame_names",
+                         lambda i: f"{names[i]}_optical_frame")
+    rig_frame = v["rig_frame"]
+    for f in frames + [rig_frame]:
+        if not _FRAME_RE.match(f):
+            raise InputError(f"Frame name {f!r} is not a valid tf frame id (letters, digits, "
+                             "'_', '/', '.', '-').")
+    if rig_frame in frames or len(set(frames)) != n:
+        raise InputError(f"rig_frame {rig_frame!r} and frame_names {frames} must all differ "
+                         "(a transform from a frame to itself is invalid in tf).")
+    info_topics = _per_camera(list(v["camera_info_topics"]), n, "camera_info_topics",
+                              lambda i: f"{_topic_namespace(topics[i])}/camera_info")
+    services = _per_camera(list(v["set_camera_info_services"]), n, "set_camera_info_services",
+                           lambda i: f"{_topic_namespace(topics[i])}/set_camera_info")
+    for what, lst in (("camera_info_topics", info_topics),
+                      ("set_camera_info_services", services)):
+        if len(set(lst)) != n:
+            raise InputError(f"The default {what} collide ({lst}): set {what} explicitly, one per "
+                             "camera.")
+    baseline_cams = list(v["baseline_cameras"])
+    if v["known_baseline_m"] > 0:
+        if len(baseline_cams) != 2 or len(set(baseline_cams)) != 2 or \
+                any(c not in names for c in baseline_cams):
+            raise InputError(f"known_baseline_m > 0 needs baseline_cameras = two different names "
+                             f"of {names}, got {baseline_cams}.")
+    elif baseline_cams and (len(baseline_cams) != 2 or any(c not in names for c in baseline_cams)):
+        raise InputError(f"baseline_cameras must be two of {names}, got {baseline_cams}.")
+    if v["replay_bag"] and not Path(os.path.expanduser(v["replay_bag"])).exists():
+        raise InputError(f"replay_bag {v['replay_bag']} does not exist: give a rosbag2 folder or "
+                         "an .mcap/.db3 file, or leave it empty.")
+    return Settings(
+        image_topics=topics, camera_names=names, transports=transports,
+        slop_s=float(v["slop_s"]), sync_queue_size=int(v["sync_queue_size"]),
+        buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
+        min_frame_sets=int(v["min_frame_sets"]), preset=v["preset"], pipeline=v["pipeline"],
+        matcher=v["matcher"], max_image_side_px=int(v["max_image_side_px"]),
+        output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
+        frame_names=frames, camera_info_topics=info_topics,
+        call_set_camera_info=bool(v["call_set_camera_info"]), set_camera_info_services=services,
+        set_camera_info_timeout_s=float(v["set_camera_info_timeout_s"]),
+        known_baseline_m=float(v["known_baseline_m"]), baseline_cameras=baseline_cams,
+        replay_bag=os.path.expanduser(v["replay_bag"]), replay_rate=float(v["replay_rate"]),
+        calibrate_after_replay=bool(v["calibrate_after_replay"]))
+
+
+@dataclass
+class Outcome:
+    success: bool
+    message: str
+
+
+@dataclass
+class _Job:
+    reason: str
+    done: threading.Event = field(default_factory=threading.Event)
+    outcome: Optional[Outcome] = None
+
+
+class DenseCalibNode(Node):
+    """The calibration node (module docstring: interface and threading)."""
+
+    def __init__(self, node_name: str = "densecalib_node", **node_kwargs):
+        super().__init__(node_name, **node_kwargs)
+        self._replayer: Optional[BagReplayer] = None
+        for name, (default, description, read_only, ranges) in PARAMETERS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=description, read_only=read_only, **ranges))
+        try:
+            self.settings = parse_settings(self._parameter_values())
+        except InputError:
+            self.destroy_node()
+            raise
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        s = self.settings
+
+        self._state_lock = threading.Lock()
+        self._job: Optional[_Job] = None
+        self._worker: Optional[threading.Thread] = None
+        self.calibration: Optional[RigCalibration] = None
+        self.calibration_dir: Optional[Path] = None
+        self._calibrated_at: Optional[float] = None  # time.time() of the published calibration
+        self._last_failure: Optional[str] = None
+        self._status = "idle"
+        self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
+
+        self.sync = MessageSynchronizer(len(s.image_topics), s.slop_s, s.buffer_size,
+                                        s.min_interval_s, s.sync_queue_size)
+        self._sub_group = MutuallyExclusiveCallbackGroup()
+        self._timer_group = MutuallyExclusiveCallbackGroup()
+        self._service_group = ReentrantCallbackGroup()
+        self._client_group = ReentrantCallbackGroup()
+        self._image_subs: list = [None] * len(s.image_topics)
+
+        self._status_pub = self.create_publisher(String, "~/status", 20)
+        self._info_pubs = [self.create_publisher(CameraInfo, topic, LATCHED_QOS)
+                           for topic in s.camera_info_topics]
+        self._tf_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED_QOS)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._set_info_clients = [
+            self.create_client(SetCameraInfo, srv, callback_group=self._client_group)
+            for srv in s.set_camera_info_services]
+        self.create_service(Trigger, "~/calibrate", self._on_calibrate,
+                            callback_group=self._service_group)
+
+        self._subscribe_known_topics()
+        if None in self._image_subs:
+            self._discovery_timer = self.create_timer(0.5, self._subscribe_discovered_topics,
+                                                      callback_group=self._timer_group)
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=self._timer_group)
+
+        self._load_last_calibration()
+        if s.replay_bag:
+            self._replayer = BagReplayer(s.replay_bag, s.image_topics, self._on_replayed_message,
+                                         rate=s.replay_rate, on_done=self._on_replay_done,
+                                         logger=self.get_logger())
+            self._replayer.start()
+        self.get_logger().info(
+            f"ready: {len(s.image_topics)} cameras ({', '.join(s.camera_names)}), preset "
+            f"{s.preset}, pipeline {s.pipeline}, matcher {s.matcher}; call "
+            f"{self.resolve_service_name('~/calibrate')} to calibrate")
+
+    # ----------------------------------------------------------------- parameters
+    def _parameter_values(self, changes: Optional[list[Parameter]] = None) -> dict[str, Any]:
+        values = {}
+        for name in PARAMETERS:
+            param = self.get_parameter_or(name, Parameter(name, Parameter.Type.NOT_SET, None))
+            values[name] = param.value
+        for p in changes or []:
+            values[p.name] = p.value
+        return values
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        ours = [p for p in params if p.name in PARAMETERS]  # others: e.g. use_sim_time
+        if not ours:
+            return SetParametersResult(successful=True)
+        try:
+            new = parse_settings(self._parameter_values(ours))
+        except InputError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.settings = new
+        return SetParametersResult(successful=True)
+
+    # ----------------------------------------------------------------- intake
+    def _subscribe(self, i: int, compressed: bool) -> None:
+        s = self.settings
+        msg_type = CompressedImage if compressed else Image
+        self._image_subs[i] = self.create_subscription(
+            msg_type, s.image_topics[i], lambda msg, i=i: self.sync.add(i, msg),
+            qos_profile_sensor_data, callback_group=self._sub_group)
+        self.get_logger().info(f"camera {s.camera_names[i]}: subscribed to {s.image_topics[i]} "
+                               f"({msg_type.__name__})")
+
+    def _subscribe_known_topics(self) -> None:
+        for i, (topic, transport) in enumerate(zip(self.settings.image_topics,
+                                                   self.settings.transports)):
+            if transport == "auto" and topic.rstrip("/").endswith("/compressed"):
+                transport = "compressed"
+            if transport != "auto":
+                self._subscribe(i, transport == "compressed")
+
+    def _subscribe_discovered_topics(self) -> None:
+        """Timer: subscribe 'auto' topics once the graph tells their type."""
+        types = dict(self.get_topic_names_and_types())
+        for i, topic in enumerate(self.settings.image_topics):
+            if self._image_subs[i] is not None:
+                continue
+            found = types.get(self.resolve_topic_name(topic), [])
+            if "sensor_msgs/msg/CompressedImage" in found:
+                self._subscribe(i, True)
+            elif "sensor_msgs/msg/Image" in found:
+                self._subscribe(i, False)
+            elif found:
+                self.get_logger().error(f"{topic} has type {found}, not an image: fix image_topics",
+                                        throttle_duration_sec=30.0)
+        if None not in self._image_subs:
+            self._discovery_timer.cancel()
+
+    def _on_replayed_message(self, stream: int, stamp_ns: int, msg) -> None:
+        self.sync.add(stream, msg, stamp_ns)
+
+    def _on_replay_done(self, num_messages: int, error: Optional[str]) -> None:
+        if error:
+            self._set_status(f"replay failed: {error}")
+            return
+        self._set_status(f"replay done: {num_messages} messages, {len(self.sync)} frame sets "
+                         "buffered")
+        if self.settings.calibrate_after_replay:
+            if self.start_calibration("after replay") is None:
+                self.get_logger().warning("not calibrating after the replay: a calibration is "
+                                          "already running")
+
+    # ----------------------------------------------------------------- calibration
+    def start_calibration(self, reason: str) -> Optional[_Job]:
+        """Start a calibration in the worker thread; None when one is already running."""
+        with self._state_lock:
+            if self._job is not None:
+                return None
+            job = self._job = _Job(reason)
+        self._worker = threading.Thread(target=self._run_job, args=(job,),
+                                        name="densecalib-worker", daemon=True)
+        self._worker.start()
+        return job
+
+    def _on_calibrate(self, request, response):
+        job = self.start_calibration("service call")
+        if job is None:
+            response.success = False
+            response.message = "busy: a calibration is already running; call again when it ends"
+            return response
+        job.done.wait()
+        response.success = job.outcome.success
+        response.message = job.outcome.message
+        return response
+
+    def _run_job(self, job: _Job) -> None:
+        start = time.perf_counter()
+        try:
+            job.outcome = self._calibrate(start)
+        except CalibrationError as exc:
+            job.outcome = Outcome(False, f"calibration failed after "
+                                         f"{time.perf_counter() - start:.1f} s: {exc}")
+        except Exception as exc:  # a bug or an OS error must still answer the service call
+            self.get_logger().error(f"calibration crashed: {exc!r}")
+            job.outcome = Outcome(False, f"calibration crashed after "
+                                         f"{time.perf_counter() - start:.1f} s: {exc!r}")
+        if not job.outcome.success:
+            kept = (f"; still publishing the calibration of {self.calibration_dir.name}"
+                    if self.calibration_dir is not None else "")
+            job.outcome.message += kept
+            self._last_failure = job.outcome.message
+            self.get_logger().error(job.outcome.message)
+        else:
+            self._last_failure = None
+            self.get_logger().info(job.outcome.message)
+        self._set_status(("done: " if job.outcome.success else "failed: ") + job.outcome.message,
+                         log=False)
+        with self._state_lock:
+            self._job = None
+        job.done.set()
+
+    def _calibrate(self, start: float) -> Outcome:
+        from ..core.pipeline import run_calibration  # heavy (pycolmap, matchers): import on use
+
+        s = self.settings
+        sets = self.sync.snapshot()
+        if len(sets) < s.min_frame_sets:
+            stats = self.sync.stats()
+            raise InputError(
+                f"{len(sets)} synchronised frame set(s) buffered, {s.min_frame_sets} needed "
+                f"(messages received per camera: {dict(zip(s.camera_names, stats['received']))}, "
+                f"slop {s.slop_s} s); check that every camera publishes with close header stamps")
+        self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
+                         f"{s.matcher})")
+        images = decode_frame_sets(sets)
+        config = make_config(s.preset, s.pipeline, s.matcher,
+                             max_image_side_px=s.max_image_side_px)
+        result = run_calibration(images, s.camera_names, config, matcher=self._matcher_for(s),
+                                 previous=self.calibration,
+                                 progress=lambda msg: self._set_status(f"calibrating: {msg}"))
+        rig, reconstruction = result.rig, result.reconstruction
+        if s.known_baseline_m > 0:
+            rig = apply_known_baseline(rig, *s.baseline_cameras, s.known_baseline_m)
+        elapsed = time.perf_counter() - start
+        out = self._write_files(rig, reconstruction)
+        self._publish(rig, out)
+        rms = rig.quality.get("reprojection_rms_px", float("nan"))
+        failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
+        message = (f"calibrated {len(rig.cameras)}/{len(s.camera_names)} cameras "
+                   f"({', '.join(rig.cameras)}{failed}) from {len(sets)} frame sets, reprojection "
+                   f"RMS {rms:.2f} px, {elapsed:.1f} s; files in {out}")
+        if s.call_set_camera_info:
+            message += "; set_camera_info: " + self._call_set_camera_info(rig)
+        return Outcome(True, message)
+
+    def _matcher_for(self, s: Settings):
+        """The loaded matcher of the current settings, kept across calibrations (loading learned
+        weights takes seconds)."""
+        from ..core.matching import create_matcher
+
+        key = (s.matcher, s.max_image_side_px)
+        if self._matcher is None or self._matcher[0] != key:
+            matcher = create_matcher(s.matcher, max_image_side_px=s.max_image_side_px)
+            matcher.load()
+            self._matcher = (key, matcher)
+        return self._matcher[1]
+
+    # ----------------------------------------------------------------- outputs
+    def _write_files(self, rig: RigCalibration, reconstruction=None) -> Path:
+        """Write output_dir/<UTC time>/ atomically, then swap the `latest` symlink onto it."""
+        root = self.settings.output_dir
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+        out = root / f"{stamp}Z"
+        k = 1
+        while out.exists():
+            out, k = root / f"{stamp}Z_{k}", k + 1
+        replace_directory_atomic(lambda tmp: write_calibration_files(rig, Path(tmp), reconstruction),
+                                 out)
+        tmp_link = root / f".latest.{os.getpid()}.{threading.get_ident()}"
+        tmp_link.unlink(missing_ok=True)
+        os.symlink(out.name, tmp_link)
+        os.replace(tmp_link, root / "latest")
+        return out
+
+    def _load_last_calibration(self) -> None:
+        latest = self.settings.output_dir / "latest"
+        if not latest.exists():
+            self.get_logger().info(f"no previous calibration under {latest}")
+            return
+        try:
+            rig = read_calibration(latest)
+        except InputError as exc:
+            self.get_logger().error(f"ignoring the previous calibration: {exc}")
+            return
+        unknown = [c for c in rig.cameras if c not in self.settings.camera_names]
+        if unknown:
+            self.get_logger().warning(
+                f"ignoring the previous calibration in {latest.resolve()}: its cameras {unknown} "
+                f"are not among camera_names {self.settings.camera_names}")
+            return
+        self._publish(rig, latest.resolve())
+        self.get_logger().info(f"republished the last good calibration {latest.resolve()}")
+
+    def _publish(self, rig: RigCalibration, directory: Path) -> None:
+        s = self.settings
+        t_ns = self.get_clock().now().nanoseconds
+        frames = dict(zip(s.camera_names, s.frame_names))
+        for name, pub in zip(s.camera_names, self._info_pubs):
+            if name in rig.cameras:
+                pub.publish(camera_info_msg(name, rig.cameras[name].intrinsics, frames[name], t_ns))
+        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns))
+        self.calibration, self.calibration_dir = rig, directory
+        self._calibrated_at = time.time()
+        self._publish_diagnostics()
+
+    def _call_set_camera_info(self, rig: RigCalibration) -> str:
+        """Call every calibrated camera's set_camera_info concurrently; returns the per-camera
+        outcome ("cam0 ok, cam1 timeout, ...")."""
+        s = self.settings
+        frames = dict(zip(s.camera_names, s.frame_names))
+        pending = {}
+        for name, client in zip(s.camera_names, self._set_info_clients):
+            if name not in rig.cameras:
+                continue
+            if not client.service_is_ready():
+                pending[name] = None
+                continue
+            request = SetCameraInfo.Request()
+            request.camera_info = camera_info_msg(name, rig.cameras[name].intrinsics,
+                                                  frames[name], self.get_clock().now().nanoseconds)
+            pending[name] = client.call_async(request)
+        deadline = time.monotonic() + s.set_camera_info_timeout_s
+        outcomes = []
+        for (name, future), client in zip(pending.items(), self._set_info_clients):
+            if future is None:
+                outcome = f"{name} no service {client.srv_name}"
+            else:
+                while not future.done() and time.monotonic() < deadline:
+                    time.sleep(0.01)
+                if not future.done():
+                    client.remove_pending_request(future)
+                    outcome = f"{name} timeout"
+                elif future.result() is None or not future.result().success:
+                    reason = future.result().status_message if future.result() else "no answer"
+                    outcome = f"{name} refused ({reason})"
+                else:
+                    outcome = f"{name} ok"
+            self.get_logger().info(f"set_camera_info: {outcome}")
+            outcomes.append(outcome)
+        return ", ".join(outcomes) or "no calibrated camera"
+
+    # ----------------------------------------------------------------- status
+    def _set_status(self, text: str, log: bool = True) -> None:
+        self._status = text
+        self._status_pub.publish(String(data=text))
+        if log:
+            self.get_logger().info(text)
+
+    @property
+    def busy(self) -> bool:
+        with self._state_lock:
+            return self._job is not None
+
+    def _publish_diagnostics(self) -> None:
+        stats = self.sync.stats()
+        status = DiagnosticStatus(name=f"{self.get_name()}: rig calibration",
+                                  hardware_id=self.settings.rig_frame)
+        if self.calibration is None:
+            status.level, status.message = DiagnosticStatus.WARN, "not calibrated"
+        elif self._last_failure:
+            status.level = DiagnosticStatus.WARN
+            status.message = "last calibration failed; previous one still published"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "calibrated"
+        if self._last_failure and self.calibration is None:
+            status.level = DiagnosticStatus.ERROR
+        values = {"state": "calibrating" if self.busy else "idle",
+                  "status": self._status,
+                  "buffered_frame_sets": str(stats["buffered"]),
+                  "received_per_camera": str(stats["received"]),
+                  "dropped_oldest_frame_sets": str(stats["dropped_oldest"])}
+        if self.calibration is not None:
+            rms = self.calibration.quality.get("reprojection_rms_px", float("nan"))
+            values.update(
+                reprojection_rms_px=f"{rms:.3f}",
+                cameras=", ".join(self.calibration.cameras),
+                age_s=f"{time.time() - self._calibrated_at:.1f}",
+                files=str(self.calibration_dir))
+        if self._last_failure:
+            values["last_failure"] = self._last_failure
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(msg)
+
+    def destroy_node(self):
+        if self._replayer is not None:
+            self._replayer.stop()
+        return super().destroy_node()
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = DenseCalibNode()
+        executor = MultiThreadedExecutor(num_threads=4)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except InputError as exc:
+        rclpy.logging.get_logger("densecalib_node").fatal(f"invalid parameters: {exc}")
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,309 @@
+"""The calibration node with real rclpy on loopback (own ROS_DOMAIN_ID, localhost discovery):
+camera publisher nodes -> densecalib_node -> ~/calibrate from an rclpy client -> a listener gets
+CameraInfo and /tf_static matching the generated rig's ground truth; busy refusal; restart
+republishes the last good calibration; a failing calibration leaves every output untouched; bags
+written with `rosbags` (sqlite3 raw, mcap compressed) replay into the node to the same result;
+parameters are validated."""
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy", reason="node tests need rclpy (ROS 2 Jazzy)")
+pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs missing: run scripts/setup_env.sh")
+
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+from densecalib_ros.core.bag import read_frame_sets, write_image_bag  # noqa: E402
+from densecalib_ros.core.config import make_config  # noqa: E402
+from densecalib_ros.core.errors import InputError  # noqa: E402
+from densecalib_ros.core.export import read_calibration  # noqa: E402
+from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
+from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
+from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
+from densecalib_ros.ros.node import DenseCalibNode  # noqa: E402
+from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
+                                          TriggerCaller, wait_until)
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+# A domain of our own (the process id keeps parallel runs apart) and no discovery beyond this host.
+DOMAIN_ID = 30 + os.getpid() % 70
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+# camera -> (topic, what the camera publishes, the node's `transports` entry). All lossless, so
+# the live run, the replays and the offline read see identical images.
+CAMERAS = {
+    "cam0": ("/rig/cam0/image_raw", "rgb8", "auto"),  # type discovered from the graph
+    "cam1": ("/rig/cam1/image_raw", "bgr8", "raw"),
+    "cam2": ("/rig/cam2/image_raw/compressed", "png", "auto"),  # compressed by its name
+    "cam3": ("/rig/cam3/image", "png", "auto"),  # CompressedImage discovered from the graph
+}
+CALIBRATION_TIMEOUT_S = 240.0
+
+
+class Ros:
+    """One rclpy context + multi-threaded executor for the module; nodes are added and removed."""
+
+    def __init__(self):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=DOMAIN_ID)
+        self.executor = MultiThreadedExecutor(num_threads=6, context=self.context)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def add(self, node):
+        self.executor.add_node(node)
+        return node
+
+    def remove(self, node):
+        self.executor.remove_node(node)
+        node.destroy_node()
+
+    def densecalib(self, output_dir, name="densecalib_node", **params):
+        values = dict(image_topics=[c[0] for c in CAMERAS.values()], camera_names=list(CAMERAS),
+                      transports=[c[2] for c in CAMERAS.values()], output_dir=str(output_dir),
+                      min_frame_sets=2, preset="regular", matcher="sift", slop_s=0.01)
+        values.update(params)
+        overrides = [Parameter(k, value=v) for k, v in values.items() if v is not None]
+        return self.add(DenseCalibNode(name, context=self.context, parameter_overrides=overrides))
+
+    def listener(self, node):
+        topics = dict(zip(node.settings.camera_names, node.settings.camera_info_topics))
+        return self.add(CalibrationListener(topics, "/densecalib_node/status",
+                                            name=f"listener_{time.monotonic_ns()}",
+                                            context=self.context))
+
+    def caller(self):
+        return self.add(TriggerCaller("/densecalib_node/calibrate",
+                                      name=f"caller_{time.monotonic_ns()}", context=self.context))
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=5)
+        rclpy.shutdown(context=self.context)
+        self.thread.join(5)
+
+
+@pytest.fixture(scope="module")
+def ros():
+    r = Ros()
+    yield r
+    r.close()
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=320, height=240,
+                                num_time_steps=2, seed=1))
+
+
+def publish_frame_sets(ros, node, frame_sets, first_stamp_s=1.0):
+    """Publish frame_sets[t][c] from one driver node per camera, set t stamped first + t seconds,
+    and wait until the node buffered each set (republishing a set that got lost)."""
+    drivers = [ros.add(CameraPublisherNode(name, topic, encoding, context=ros.context))
+               for name, (topic, encoding, _) in CAMERAS.items()]
+    try:
+        assert wait_until(lambda: None not in node._image_subs, 10.0), "topics not discovered"
+        assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 10.0)
+        start = len(node.sync)
+        for t, images in enumerate(frame_sets):
+            for _attempt in range(3):
+                for driver, image in zip(drivers, images):
+                    driver.publish_image(image, int((first_stamp_s + t) * 1e9))
+                if wait_until(lambda: len(node.sync) >= start + t + 1, 5.0):
+                    break
+            assert len(node.sync) == start + t + 1, node.sync.stats()
+    finally:
+        for d in drivers:
+            ros.remove(d)
+
+
+def check_against_truth(listener, rig, node):
+    """The listener's CameraInfo and /tf_static against the generated rig's ground truth."""
+    gt = rig.ground_truth()
+    assert wait_until(lambda: len(listener.snapshot()["camera_info"]) == 4 and
+                      listener.rig_from_optical(), 10.0)
+    infos = listener.snapshot()["camera_info"]
+    for name, cam in gt.cameras.items():
+        info = infos[name]
+        assert info.header.frame_id == f"{name}_optical_frame"
+        assert (info.width, info.height, info.distortion_model) == (320, 240, "plumb_bob")
+        f_true = cam.intrinsics.params[0]
+        assert abs(info.k[0] - f_true) / f_true < 0.05, (name, info.k[0], f_true)
+        assert info.k[0] == info.k[4]  # RADIAL: one focal length
+    rig_from_optical = listener.rig_from_optical()
+    assert sorted(rig_from_optical) == [f"{n}_optical_frame" for n in sorted(gt.cameras)]
+    est = {n: np.linalg.inv(rig_from_optical[f"{n}_optical_frame"]) for n in gt.cameras}
+    assert np.allclose(est[node.calibration.reference_camera], np.eye(4), atol=1e-9)
+    errors = relative_pose_errors(est, {n: c.cam_from_rig for n, c in gt.cameras.items()})
+    assert len(errors) == 6
+    assert max(e.rot_err_deg for e in errors) < 3.0, errors
+    assert max(e.trans_dir_err_deg for e in errors) < 6.0, errors
+
+
+def camera_info_values(listener):
+    return {n: (tuple(m.k), tuple(m.d), m.header.frame_id)
+            for n, m in listener.snapshot()["camera_info"].items()}
+
+
+def calibration_values(rig):
+    return {n: (np.round(c.intrinsics.params, 9).tolist(), np.round(c.cam_from_rig, 9).tolist())
+            for n, c in rig.cameras.items()}
+
+
+def test_parameters_are_validated(ros, tmp_path):
+    with pytest.raises(InputError, match="at least two image topics"):
+        ros.densecalib(tmp_path, name="bad1", image_topics=["/only/image_raw"], camera_names=None,
+                       transports=None)
+    with pytest.raises(InputError, match="preset must be one of regular, fisheye"):
+        ros.densecalib(tmp_path, name="bad2", preset="wide")
+    with pytest.raises(InputError, match="known_baseline_m > 0 needs baseline_cameras"):
+        ros.densecalib(tmp_path, name="bad3", known_baseline_m=0.5)
+    with pytest.raises(InputError, match="transports must be one of"):
+        ros.densecalib(tmp_path, name="bad4", transports=["theora"])
+    node = ros.densecalib(tmp_path, name="params_node")
+    try:
+        result = node.set_parameters([Parameter("matcher", value="nonexistent")])[0]
+        assert not result.successful and "matcher must be one of" in result.reason
+        result = node.set_parameters([Parameter("min_frame_sets", value=100)])[0]
+        assert not result.successful and "cannot exceed buffer_size" in result.reason
+        result = node.set_parameters([Parameter("image_topics", value=["/a", "/b"])])[0]
+        assert not result.successful and "read-only" in result.reason
+        result = node.set_parameters([Parameter("known_baseline_m", value=0.12)])[0]
+        assert not result.successful and "needs baseline_cameras" in result.reason
+        result = node.set_parameters_atomically([Parameter("known_baseline_m", value=0.12),
+                                                 Parameter("baseline_cameras",
+                                                           value=["cam0", "cam2"])])
+        assert result.successful, result.reason
+        assert node.settings.known_baseline_m == 0.12
+        assert node.settings.baseline_cameras == ["cam0", "cam2"]
+        assert node.settings.camera_info_topics[2] == "/rig/cam2/camera_info"
+        assert node.settings.set_camera_info_services[0] == "/rig/cam0/set_camera_info"
+    finally:
+        ros.remove(node)
+
+
+def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
+    out = tmp_path / "calib"
+    node = ros.densecalib(out)
+    listener, caller = ros.listener(node), ros.caller()
+
+    # Too few frame sets: refused with the reason, nothing written.
+    response = caller.call(30.0)
+    assert not response.success and "0 synchronised frame set(s) buffered, 2 needed" in \
+        response.message
+    assert not out.exists() or not any(out.iterdir())
+
+    publish_frame_sets(ros, node, rig.images)
+    first = caller.call_async()
+    assert wait_until(lambda: node.busy, 10.0)
+    second = caller.call(10.0)  # while the first one runs
+    assert not second.success and second.message.startswith("busy")
+    assert wait_until(first.done, CALIBRATION_TIMEOUT_S, 0.1)
+    response = first.result()
+    assert response.success, response.message
+    assert response.message.startswith("calibrated 4/4 cameras (cam0, cam1, cam2, cam3)")
+    assert "reprojection RMS" in response.message and "2 frame sets" in response.message
+    check_against_truth(listener, rig, node)
+
+    # Files: a timestamped folder and the `latest` symlink onto it, equal to what was published.
+    latest = out / "latest"
+    assert latest.is_symlink() and (latest / "calibration.json").is_file()
+    assert sorted(p.name for p in latest.iterdir()) == [
+        "calibration.json", "cam0.yaml", "cam1.yaml", "cam2.yaml", "cam3.yaml", "colmap"]
+    assert calibration_values(read_calibration(latest)) == calibration_values(node.calibration)
+    assert wait_until(lambda: any(s.startswith("done: calibrated")
+                                  for s in listener.snapshot()["status"]), 5.0)
+    assert any(s.startswith("calibrating: matched frame set")
+               for s in listener.snapshot()["status"])
+
+    def diag_state():
+        diags = listener.snapshot()["diagnostics"]
+        if not diags:
+            return None
+        status = diags[-1].status[0]
+        return status.level, status.message, {kv.key: kv.value for kv in status.values}
+
+    assert wait_until(lambda: diag_state() and diag_state()[0] == DiagnosticStatus.OK, 5.0)
+    level, _, values = diag_state()
+    assert float(values["reprojection_rms_px"]) == pytest.approx(
+        node.calibration.quality["reprojection_rms_px"], abs=1e-3)
+    assert float(values["age_s"]) >= 0.0
+    published = camera_info_values(listener)
+    published_tf = listener.rig_from_optical()
+    files_before = sorted(p.name for p in out.iterdir())
+    ros.remove(listener)
+    ros.remove(node)
+
+    # Restart: the last good calibration is republished from the files.
+    node = ros.densecalib(out)
+    listener = ros.listener(node)
+    assert wait_until(lambda: len(listener.snapshot()["camera_info"]) == 4 and
+                      listener.rig_from_optical(), 10.0)
+    assert camera_info_values(listener) == published
+    restarted_tf = listener.rig_from_optical()
+    assert all(np.allclose(restarted_tf[k], published_tf[k], atol=1e-9) for k in published_tf)
+
+    # A failing calibration (images of unrelated noise) changes nothing published or written.
+    rng = np.random.default_rng(5)
+    noise = [[rng.integers(0, 256, (240, 320, 3), dtype=np.uint8) for _ in CAMERAS]
+             for _ in range(2)]
+    publish_frame_sets(ros, node, noise, first_stamp_s=100.0)
+    response = caller.call(CALIBRATION_TIMEOUT_S)
+    assert not response.success
+    assert response.message.startswith("calibration failed after")
+    assert f"still publishing the calibration of {latest.resolve().name}" in response.message
+    assert sorted(p.name for p in out.iterdir()) == files_before
+    assert calibration_values(read_calibration(latest)) == calibration_values(node.calibration)
+    late = ros.listener(node)  # a subscriber arriving now still gets the good calibration
+    assert wait_until(lambda: len(late.snapshot()["camera_info"]) == 4, 10.0)
+    assert camera_info_values(late) == published
+    assert wait_until(lambda: diag_state() and "last calibration failed" in diag_state()[1], 5.0)
+    for n in (late, listener, node, caller):
+        ros.remove(n)
+
+
+def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
+    """Bags of the rig's images (sqlite3 raw, mcap compressed png) replayed into the node calibrate
+    to the same result; the live test above saw the same (lossless) images."""
+    topics = [c[0] for c in CAMERAS.values()]
+    stamps = [[int((1.0 + t) * 1e9) + 1_000_000 * c for c in range(4)] for t in range(2)]
+    results = {}
+    for storage, encoding in (("sqlite3", "rgb8"), ("mcap", "png")):
+        bag = tmp_path / f"bag_{storage}"
+        write_image_bag(bag, rig.images, topics, stamps, storage=storage, encoding=encoding)
+        node = ros.densecalib(tmp_path / f"out_{storage}", replay_bag=str(bag),
+                              calibrate_after_replay=True, transports=["auto"])
+        try:
+            assert wait_until(lambda: node.calibration is not None or node._last_failure,
+                              CALIBRATION_TIMEOUT_S, 0.1)
+            assert node._last_failure is None, node._last_failure
+            assert node.sync.stats()["received"] == [2, 2, 2, 2]
+            assert len(node.sync) == 2
+            results[storage] = node.calibration
+        finally:
+            ros.remove(node)
+    a, b = results["sqlite3"], results["mcap"]
+    assert set(a.cameras) == set(b.cameras) == set(CAMERAS)
+    for name in CAMERAS:
+        assert np.allclose(a.cameras[name].intrinsics.params, b.cameras[name].intrinsics.params,
+                           rtol=1e-6, atol=1e-9)
+        assert np.allclose(a.cameras[name].cam_from_rig, b.cameras[name].cam_from_rig, atol=1e-6)
+    # ... and to the same result as the ROS-free path: core.bag + calibrate_rig on the same bag.
+    frame_sets, names = read_frame_sets(tmp_path / "bag_mcap", topics, slop_s=0.01)
+    offline = calibrate_rig(frame_sets, list(CAMERAS), make_config("regular", "incremental", "sift"))
+    assert names == ["rig_cam0", "rig_cam1", "rig_cam2", "rig_cam3"]
+    for name in CAMERAS:
+        assert np.allclose(offline.cameras[name].intrinsics.params,
+                           b.cameras[name].intrinsics.params, rtol=1e-6, atol=1e-9)
+        assert np.allclose(offline.cameras[name].cam_from_rig, b.cameras[name].cam_from_rig,
+                           atol=1e-6)
+    gt = rig.ground_truth()
+    errors = relative_pose_errors({n: c.cam_from_rig for n, c in a.cameras.items()},
+                                  {n: c.cam_from_rig for n, c in gt.cameras.items()})
+    assert max(e.rot_err_deg for e in errors) < 3.0
