@@ -1,0 +1,366 @@
+"""Global self-calibrating SfM of a static rig with staged bundle adjustment (paper Sec. 3.4 and
+implementation details), initialised without VGGT.
+
+1. View graph: cameras are linked when they share >= MIN_PAIR_TRACKS sampled tracks; a graph that
+   splits raises DisconnectedViewGraphError naming the camera groups.
+2. Initial poses (`SfMConfig.global_init`):
+   - "rotation_averaging": the GLOMAP core of pycolmap 4.x on OUR tracks: per camera pair an
+     essential matrix (MAGSAC++) on the rays of the initial intrinsics (focal from the
+     initial-focal step) gives a relative pose; `pycolmap.run_rotation_averaging` (L1 + IRLS) gives
+     the rotations and `pycolmap.run_global_positioning` (point-to-camera constraints on the tracks)
+     the camera centres.
+   - "previous": a previous RigCalibration of the same cameras (recalibration: the cameras may
+     have moved a little); its intrinsics are the starting intrinsics too.
+   - "incremental": the result of the incremental pipeline (incremental.run_incremental).
+3. Points: every track is triangulated from all its views with pycolmap.estimate_triangulation
+   (LO-RANSAC on reprojection error); observations RANSAC rejects are deactivated.
+4. Gauge: the pose of the camera with the highest summed track score over tracks from >= 3-cycles
+   stays fixed in every BA stage (the scale is left free: the rig result is normalised anyway).
+5. Staged BA (Cauchy loss, reconstruction.bundle_adjust), each stage adding parameters to the
+   previous ones, a stage with 0 iterations is skipped: extrinsics (+ points) -> + focal ->
+   + distortion -> + principal point; then, with `refine_to_model` (fisheye), the cameras are
+   re-expressed in the richer model and only its distortion (+ points) is refined ("model").
+   There is no outlier removal by reprojection error (B_err) in the global pipeline (paper); the
+   reprojection RMS after triangulation and after every stage is reported in `quality`.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+from .config import SfMConfig
+from .errors import DisconnectedViewGraphError, InputError, NotEnoughCamerasError
+from .incremental import ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, run_incremental
+from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
+                             matrix_from_rigid, reprojection_errors, rigid_from_matrix)
+from .twoview import estimate_essential_from_rays
+from .types import CameraIntrinsics, RigCalibration, Tracks
+from .view_order import track_weights
+
+log = logging.getLogger(__name__)
+
+GLOBAL_INITS = ("rotation_averaging", "previous", "incremental")
+MIN_PAIR_TRACKS = MIN_PAIR_CORRESPONDENCES  # shared tracks that make a view-graph edge
+# Triangulation RANSAC threshold: loose, because the initial poses (rotation averaging, a moved
+# rig) can be a degree off, i.e. ~10-20 px at typical focal lengths; BA's Cauchy loss does the rest.
+TRIANGULATION_MAX_ERROR_PX = 16.0
+MIN_TRIANGULATION_ANGLE_DEG = 1.0
+MAX_POSITIONING_TRACKS = 4000  # tracks given to global positioning (its cost grows with them)
+MIN_CAMERA_OBSERVATIONS = 10  # a camera with fewer point observations after BA has failed
+STAGES = ("extrinsics", "focal", "distortion", "principal_point")
+
+Progress = Optional[Callable[[str], None]]
+
+
+@dataclass
+class GlobalResult:
+    """state: the refined reconstruction. view_order: cameras by gauge score, highest (the gauge
+    camera) first. failed: cameras left without a pose. quality: init method, gauge camera,
+    reprojection RMS (px) after triangulation and after each BA stage."""
+
+    state: SfMState
+    view_order: list[int]
+    failed: list[int]
+    gauge_camera: int
+    quality: dict = field(default_factory=dict)
+
+
+def pair_track_counts(tracks: Tracks) -> np.ndarray:
+    """int (C, C): number of tracks observed by both cameras (diagonal 0)."""
+    obs = tracks.observed().astype(np.int64)
+    counts = obs.T @ obs
+    np.fill_diagonal(counts, 0)
+    return counts
+
+
+def connected_components(num_cameras: int, edges: Sequence[tuple[int, int]]) -> list[list[int]]:
+    """Camera groups (each sorted, groups by their first camera) of an undirected graph."""
+    parent = list(range(num_cameras))
+
+    def root(c: int) -> int:
+        while parent[c] != c:
+            parent[c] = parent[parent[c]]
+            c = parent[c]
+        return c
+
+    for i, j in edges:
+        parent[root(i)] = root(j)
+    groups: dict[int, list[int]] = {}
+    for c in range(num_cameras):
+        groups.setdefault(root(c), []).append(c)
+    return sorted(groups.values(), key=lambda g: g[0])
+
+
+def check_connected(num_cameras: int, edges: Sequence[tuple[int, int]],
+                    camera_names: Sequence[str], what: str) -> None:
+    """Raise DisconnectedViewGraphError naming the camera groups when `edges` split the cameras."""
+    groups = connected_components(num_cameras, edges)
+    if len(groups) > 1:
+        text = "; ".join("{" + ", ".join(camera_names[c] for c in g) + "}" for g in groups)
+        raise DisconnectedViewGraphError(
+            f"The cameras split into {len(groups)} groups that share no {what}: {text}. A rig can "
+            "only be calibrated as one: make the groups' fields of view overlap (or add frame sets "
+            "where they see common, textured content), or calibrate each group on its own.")
+
+
+def gauge_scores(tracks: Tracks) -> np.ndarray:
+    """float (C,): per camera the summed score (1 per track when scoring is off) of the tracks it
+    observes that come from cycles of order >= 3."""
+    w = track_weights(tracks) * (tracks.cycle_order >= 3)
+    return w @ tracks.observed().astype(np.float64)
+
+
+def relative_poses(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics], seed: int = 0
+                   ) -> dict[tuple[int, int], tuple[np.ndarray, int]]:
+    """{(i, j), i < j: (cam_j_from_cam_i 3x4 with unit translation, number of E inliers)} for every
+    pair sharing >= MIN_PAIR_TRACKS tracks whose essential matrix (MAGSAC++ on the rays of
+    `intrinsics`, threshold ESSENTIAL_THRESHOLD_PX) could be estimated."""
+    obs = tracks.observed()
+    cams = [cam.to_pycolmap() for cam in intrinsics]
+    out = {}
+    counts = pair_track_counts(tracks)
+    for i in range(tracks.num_cameras):
+        for j in range(i + 1, tracks.num_cameras):
+            if counts[i, j] < MIN_PAIR_TRACKS:
+                continue
+            rows = np.flatnonzero(obs[:, i] & obs[:, j])
+            focal = 0.5 * (intrinsics[i].params[0] + intrinsics[j].params[0])
+            geom = estimate_essential_from_rays(
+                cams[i].cam_ray_from_img(tracks.xy_px[rows, i]),
+                cams[j].cam_ray_from_img(tracks.xy_px[rows, j]),
+                ESSENTIAL_THRESHOLD_PX / focal, seed=seed)
+            if geom.R_ji is not None and geom.num_inliers >= MIN_PAIR_TRACKS:
+                out[(i, j)] = (np.c_[geom.R_ji, geom.t_ji], geom.num_inliers)
+    return out
+
+
+def _image_reconstruction(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics]
+                          ) -> pycolmap.Reconstruction:
+    """One unposed image per camera (image_id = camera_id = c + 1), keypoints = its observations."""
+    rec = pycolmap.Reconstruction()
+    obs = tracks.observed()
+    for c, cam in enumerate(intrinsics):
+        rec.add_camera_with_trivial_rig(cam.to_pycolmap(camera_id=c + 1))
+        rows = np.flatnonzero(obs[:, c])
+        rec.add_image_with_trivial_frame(pycolmap.Image(
+            name=str(c), keypoints=tracks.xy_px[rows, c], camera_id=c + 1, image_id=c + 1))
+    return rec
+
+
+def _positioning_tracks(tracks: Tracks, max_tracks: int) -> np.ndarray:
+    """Rows of the tracks given to global positioning: all with >= 2 views, or the max_tracks of
+    highest cycle order and score (ties in track order) when there are more."""
+    rows = np.flatnonzero(tracks.observed().sum(axis=1) >= 2)
+    if len(rows) > max_tracks:
+        order = np.lexsort((rows, -tracks.score[rows], -tracks.cycle_order[rows]))
+        rows = np.sort(rows[order[:max_tracks]])
+    return rows
+
+
+def rotation_averaging_poses(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
+                             camera_names: Sequence[str], seed: int = 0) -> list[np.ndarray]:
+    """Initial cam_from_world (4x4 per camera) from pycolmap's rotation averaging and global
+    positioning (the GLOMAP core) on our tracks (module docstring). Raises
+    DisconnectedViewGraphError when the pairs with a relative pose (or the poses that rotation
+    averaging accepts) do not connect all cameras."""
+    from .peers import quiet_colmap
+
+    C = tracks.num_cameras
+    pairs = relative_poses(tracks, intrinsics, seed)
+    check_connected(C, list(pairs), camera_names, "consistent relative pose")
+    rec = _image_reconstruction(tracks, intrinsics)
+    pose_graph = pycolmap.PoseGraph()
+    for (i, j), (cam_j_from_cam_i, num_inliers) in pairs.items():
+        edge = pycolmap.PoseGraphEdge()
+        edge.cam2_from_cam1 = pycolmap.Rigid3d(cam_j_from_cam_i)
+        edge.num_matches = int(num_inliers)
+        pose_graph.add_edge(i + 1, j + 1, edge)
+    rotation_options = pycolmap.RotationEstimatorOptions()
+    rotation_options.random_seed = int(seed)
+    with quiet_colmap(2):
+        ok = pycolmap.run_rotation_averaging(rotation_options, pose_graph, rec, [])
+    posed = [c for c in range(C) if rec.image(c + 1).has_pose]
+    if not ok or len(posed) < C:
+        valid = [(i, j) for (i, j) in pairs if pose_graph.has_edge(i + 1, j + 1)
+                 and pose_graph.get_edge(i + 1, j + 1).valid]
+        check_connected(C, valid, camera_names, "relative rotation consistent with the others")
+        missing = ", ".join(camera_names[c] for c in range(C) if c not in posed)
+        raise DisconnectedViewGraphError(
+            f"Rotation averaging gave no rotation for camera(s) {missing}: their relative poses "
+            "disagree with the rest of the rig. Check their overlap with the other cameras.")
+    # Global positioning: camera centres and points from the tracks' viewing rays.
+    point2d_idx = np.cumsum(tracks.observed(), axis=0) - 1
+    for t in _positioning_tracks(tracks, MAX_POSITIONING_TRACKS):
+        track = pycolmap.Track()
+        track.add_elements([pycolmap.TrackElement(int(c) + 1, int(point2d_idx[t, c]))
+                            for c in np.flatnonzero(tracks.observed()[t])])
+        rec.add_point3D(np.zeros(3), track)
+    position_options = pycolmap.GlobalPositionerOptions()
+    position_options.random_seed = int(seed)
+    position_options.use_gpu = False
+    position_options.min_num_view_per_track = 2
+    with quiet_colmap(2):
+        ok = pycolmap.run_global_positioning(position_options, pose_graph, rec)
+    poses = [matrix_from_rigid(rec.image(c + 1).cam_from_world()) for c in range(C)]
+    if not ok or not all(np.all(np.isfinite(T)) for T in poses):
+        raise DisconnectedViewGraphError(
+            "Global positioning could not place every camera from the shared tracks: the view "
+            "graph is too weak. Add frame sets with common, textured content, or use the "
+            "incremental pipeline.")
+    return poses
+
+
+def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
+                        image_sizes: Sequence[tuple[int, int]]
+                        ) -> tuple[list[CameraIntrinsics], list[np.ndarray]]:
+    """Intrinsics and cam_from_world (= cam_from_rig: world = the previous rig frame) of every
+    camera from a previous calibration. Raises InputError when a camera is missing from it or its
+    image size changed."""
+    intrinsics, poses = [], []
+    for name, (w, h) in zip(camera_names, image_sizes):
+        cam = previous.cameras.get(name)
+        if cam is None:
+            raise InputError(
+                f"Camera {name!r} is not in the previous calibration (cameras: "
+                f"{', '.join(previous.cameras) or 'none'}): recalibrate with "
+                "sfm.global_init='rotation_averaging' instead.")
+        if (int(cam.intrinsics.width), int(cam.intrinsics.height)) != (int(w), int(h)):
+            raise InputError(
+                f"Camera {name!r} was calibrated at {cam.intrinsics.width}x{cam.intrinsics.height} "
+                f"but its images are now {w}x{h}: recalibrate with "
+                "sfm.global_init='rotation_averaging'.")
+        intrinsics.append(CameraIntrinsics(cam.intrinsics.model, w, h,
+                                           np.array(cam.intrinsics.params, dtype=np.float64)))
+        poses.append(np.asarray(cam.cam_from_rig, dtype=np.float64).copy())
+    return intrinsics, poses
+
+
+def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX,
+                       min_angle_deg: float = MIN_TRIANGULATION_ANGLE_DEG, seed: int = 0) -> int:
+    """Triangulate every track with >= 2 active registered views from all of them with
+    pycolmap.estimate_triangulation (LO-RANSAC, reprojection error <= max_error_px, triangulation
+    angle >= min_angle_deg). Sets state.points_xyz (NaN where it fails) and deactivates the
+    observations RANSAC rejects. Returns the number of triangulated tracks."""
+    options = pycolmap.EstimateTriangulationOptions()
+    options.residual_type = pycolmap.TriangulationResidualType.REPROJECTION_ERROR
+    options.ransac.max_error = float(max_error_px)
+    options.ransac.random_seed = int(seed)
+    options.min_tri_angle = float(np.radians(min_angle_deg))
+    cameras = [state.camera(c).to_pycolmap() for c in range(state.num_cameras)]
+    poses = [rigid_from_matrix(T) if T is not None else None for T in state.cam_from_world]
+    obs = state.registered_active()
+    state.points_xyz[:] = np.nan
+    for t in np.flatnonzero(obs.sum(axis=1) >= 2):
+        cams = np.flatnonzero(obs[t])
+        result = pycolmap.estimate_triangulation(state.tracks.xy_px[t, cams],
+                                                 [poses[c] for c in cams],
+                                                 [cameras[c] for c in cams], options)
+        if result is None:
+            continue
+        inliers = np.asarray(result["inliers"], dtype=bool)
+        state.active[t, cams[~inliers]] = False
+        state.points_xyz[t] = result["xyz"]
+    state.drop_weak_points()
+    return int(state.point_mask().sum())
+
+
+def _rms(state: SfMState) -> float:
+    err = reprojection_errors(state)
+    finite = err[np.isfinite(err)]
+    return float(np.sqrt(np.mean(finite ** 2))) if len(finite) else float("nan")
+
+
+def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMConfig,
+                             gauge_camera: int, progress: Progress = None) -> dict[str, float]:
+    """The staged BA of the module docstring, in place. Returns {stage: reprojection RMS px after
+    it} for the stages that ran."""
+    say = progress or (lambda msg: None)
+    iterations = dict(config.global_stage_iterations)
+    rms = {}
+    for k, name in enumerate(STAGES):
+        its = int(iterations.get(name, 0))
+        if its <= 0:
+            continue
+        stage = BAStage(its, refine_focal=k >= 1, refine_extra=k >= 2,
+                        refine_principal_point=k >= 3, fixed_pose_cameras=(gauge_camera,))
+        summary = bundle_adjust(state, camera_names, stage, config.num_threads)
+        rms[name] = _rms(state)
+        say(f"global BA stage {name} ({its} it, {summary.termination_type.name}): "
+            f"reprojection RMS {rms[name]:.2f} px")
+    its = int(iterations.get("model", 0))
+    if config.refine_to_model and its > 0:
+        convert_camera_models(state, config.refine_to_model)
+        bundle_adjust(state, camera_names, BAStage(its, refine_focal=False, refine_extra=True,
+                                                   refine_poses=False), config.num_threads)
+        rms["model"] = _rms(state)
+        say(f"global BA stage model ({config.refine_to_model}, {its} it): reprojection RMS "
+            f"{rms['model']:.2f} px")
+    return rms
+
+
+def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
+               camera_names: Sequence[str], config: SfMConfig, seed: int = 0,
+               progress: Progress = None, previous: Optional[RigCalibration] = None
+               ) -> GlobalResult:
+    """Global SfM with staged BA (module docstring).
+
+    tracks: (T, C, 2) COLMAP px observations; intrinsics: initial CameraIntrinsics per camera
+    (model = config.camera_model, focal from the initial-focal step); previous: the calibration
+    to start from when config.global_init == "previous". Raises DisconnectedViewGraphError,
+    InputError (unknown init, missing/unusable previous calibration), NotEnoughCamerasError.
+    """
+    say = progress or (lambda msg: None)
+    C = tracks.num_cameras
+    init = config.global_init
+    if init not in GLOBAL_INITS:
+        raise InputError(f"Unknown sfm.global_init {init!r}: choose one of "
+                         f"{', '.join(GLOBAL_INITS)}.")
+    counts = pair_track_counts(tracks)
+    check_connected(C, [(i, j) for i in range(C) for j in range(i + 1, C)
+                        if counts[i, j] >= MIN_PAIR_TRACKS], camera_names, "sampled tracks")
+    if init == "previous":
+        if previous is None:
+            raise InputError("sfm.global_init is 'previous' but no previous calibration was "
+                             "given: pass one, or use 'rotation_averaging'.")
+        start, poses = poses_from_previous(previous, camera_names,
+                                           [(c.width, c.height) for c in intrinsics])
+        state = SfMState.create(tracks, start, config.share_intrinsics)
+    elif init == "incremental":
+        state = run_incremental(tracks, intrinsics, camera_names, config, seed=seed,
+                                progress=progress).state
+        poses = state.cam_from_world
+        state.active = tracks.observed().copy()  # global: every observation, no B_err removal
+    else:
+        state = SfMState.create(tracks, intrinsics, config.share_intrinsics)
+        poses = rotation_averaging_poses(tracks, [state.camera(c) for c in range(C)],
+                                         camera_names, seed)
+    # Only the incremental initialisation can leave cameras without a pose (not registrable).
+    state.cam_from_world = [None if T is None else np.asarray(T, dtype=np.float64).copy()
+                            for T in poses]
+    num_points = triangulate_tracks(state, seed=seed)
+    rms = {"triangulation": _rms(state)}
+    say(f"global init {init}: {num_points} of {tracks.num_tracks} tracks triangulated, "
+        f"reprojection RMS {rms['triangulation']:.2f} px")
+    scores = np.where([T is not None for T in state.cam_from_world], gauge_scores(tracks), -1.0)
+    order = [int(c) for c in np.argsort(-scores, kind="stable")]
+    gauge = order[0]
+    rms.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress))
+    # A camera with (almost) no observations of reconstruction points has no trustworthy pose.
+    err = reprojection_errors(state)
+    failed = [c for c in range(C) if state.cam_from_world[c] is None
+              or np.isfinite(err[:, c]).sum() < MIN_CAMERA_OBSERVATIONS]
+    for c in failed:
+        state.cam_from_world[c] = None
+    state.drop_weak_points()
+    if C - len(failed) < 2:
+        raise NotEnoughCamerasError(
+            "Fewer than two cameras keep enough observations after global SfM: check that the "
+            "cameras overlap and see textured scene content.")
+    quality = dict(global_init=init, gauge_camera=camera_names[gauge],
+                   stage_reprojection_rms_px=rms)
+    return GlobalResult(state=state, view_order=order, failed=failed, gauge_camera=gauge,
+                        quality=quality)
