@@ -133,12 +133,14 @@ def rig_from_state(state: SfMState, camera_names: Sequence[str], failed: Sequenc
 def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]],
                           camera_names: Sequence[str], config: PipelineConfig, *,
                           two_view: Optional[dict] = None, focal_px: Optional[np.ndarray] = None,
+                          previous: Optional[RigCalibration] = None,
                           progress: Progress = None) -> CalibrationResult:
     """Calibrate from sampled tracks.
 
     tracks: (T, C, 2) COLMAP px; image_sizes: (width, height) per camera; two_view: {(i, j):
     TwoViewGeometry} (estimated here from the tracks when None); focal_px: (C,) initial focal
-    lengths (estimated from the F's when None)."""
+    lengths (estimated from the F's when None); previous: the calibration the global pipeline
+    starts from when config.sfm.global_init is "previous" (recalibration)."""
     start = time.perf_counter()
     C = len(camera_names)
     if tracks.num_cameras != C or len(image_sizes) != C:
@@ -166,7 +168,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     init = initial_intrinsics(image_sizes, focal_px, config.sfm.camera_model)
     if config.pipeline == "global":
         from .global_sfm import run_global
-        sfm = run_global(filtered, init, camera_names, config.sfm, seed=seed, progress=progress)
+        sfm = run_global(filtered, init, camera_names, config.sfm, seed=seed, progress=progress,
+                         previous=previous)
     else:
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
                               progress=progress)
@@ -174,6 +177,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     rig = rig_from_state(sfm.state, camera_names, sfm.failed, dict(
         pipeline=config.pipeline, preset=config.preset, sfm_runtime_s=runtime,
         view_order=[camera_names[c] for c in sfm.view_order]))
+    if config.pipeline == "global":
+        rig.quality.update(sfm.quality)  # init, gauge camera, RMS per BA stage
     reconstruction, _ = build_reconstruction(sfm.state, camera_names)
     _say(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
                    f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
@@ -246,7 +251,7 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     _say(progress, f"sampled {sampled.tracks.num_tracks} tracks")
     result = calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
                                    two_view=sampled.two_view, focal_px=sampled.focal_px,
-                                   progress=progress)
+                                   previous=previous, progress=progress)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
     return result
