@@ -45,3 +45,41 @@ def test_glomap_runs_and_failure_is_an_empty_result(rig):
 def test_unknown_method_is_a_typed_error(rig):
     with pytest.raises(InputError, match="colmap, glomap"):
         run_peer("vggt", rig.images[0], rig.names)
+
+
+def test_bench_runs_a_scene_and_writes_json(tmp_path, capsys):
+    import json
+
+    from densecalib_ros.core.bench import SceneSpec, run_bench
+
+    spec = SceneSpec("synthetic-pinhole-4cam-480x360-s5", "synthetic", num_cameras=4,
+                     width=480, height=360, seed=5)
+    lines = []
+    report = run_bench([spec, SceneSpec("absent-strecha", "strecha", folder="nope")], ["colmap"],
+                       num_threads=1, data_dir=tmp_path, out_dir=tmp_path / "out", say=lines.append)
+    assert report["skipped"][0]["scene"] == "absent-strecha"
+    (entry,) = report["scenes"]
+    (record,) = entry["results"]
+    assert record["status"] == "ok" and record["metrics"]["num_registered"] >= 3
+    assert record["runtime_s"] > 0
+    table = "\n".join(lines)
+    assert "colmap" in table and "AUC@30" in table and "summary" in table
+    saved = json.loads((tmp_path / "out" / "bench.json").read_text())
+    assert saved["summary"][0]["method"] == "colmap"
+    assert saved["scenes"][0]["results"][0]["metrics"]["auc30"] == pytest.approx(
+        record["metrics"]["auc30"])
+
+
+def test_peer_survives_pycolmap_imported_before_cv2():
+    """Regression: with pycolmap imported first, cv2's PNG encoder aborts the process."""
+    import subprocess
+    import sys
+
+    code = ("import pycolmap, numpy as np\n"
+            "from densecalib_ros.core.peers import run_peer\n"
+            "r = run_peer('colmap', [np.zeros((64, 64, 3), np.uint8)] * 3, ['a', 'b', 'c'],"
+            " num_threads=1)\n"
+            "print('unregistered', len(r.unregistered))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "unregistered 3" in out.stdout

@@ -119,10 +119,12 @@ def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[s
     image_dir, model_dir, database = root / "images", root / "models", root / "database.db"
     image_dir.mkdir(parents=True, exist_ok=True)
     model_dir.mkdir(parents=True, exist_ok=True)
-    # File names by index: camera names need not be valid file names.
+    # File names by index: camera names need not be valid file names. BMP, not PNG: once pycolmap
+    # is imported before cv2, cv2's PNG encoder aborts the process (the two disagree on zlib:
+    # "free(): invalid pointer" in deflateEnd, pycolmap 4.2.1 + opencv 5.0.0); BMP needs no zlib.
     file_to_name = {}
     for k, (image, name) in enumerate(zip(images, camera_names)):
-        file_name = f"{k:03d}.png"
+        file_name = f"{k:03d}.bmp"
         if not cv2.imwrite(str(image_dir / file_name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
             raise InputError(f"Cannot write image of camera {name!r} to {image_dir}.")
         file_to_name[file_name] = name

@@ -1,0 +1,63 @@
+"""`densecalib bench`: accuracy benchmark of our pipelines against COLMAP (incremental) and GLOMAP
+(global) on generated rigs and real images with reference cameras.
+
+Prints a table per scene and a summary per lens type and method; writes OUT/bench.json."""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import time
+
+from ..core.errors import CalibrationError
+
+log = logging.getLogger("densecalib.bench")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..core.bench import METHODS
+
+    parser.add_argument("--quick", action="store_true",
+                        help="3 scenes (6-camera pinhole, 4-camera fisheye, Strecha at 768 px): "
+                             "a few minutes on 2 cores")
+    parser.add_argument("--out", default="bench_out", help="folder for bench.json")
+    parser.add_argument("--scenes", nargs="+", default=None, metavar="PATTERN",
+                        help="only scenes whose name contains one of these (e.g. fisheye, "
+                             "strecha, 10cam); see --list")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
+                        help="methods to run (default: all)")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="threads per method (default: all cores)")
+    parser.add_argument("--data-dir", default=None,
+                        help="folder holding strecha_entry_p10/ (default: $DENSECALIB_DATA, else "
+                             "../shared/data beside the repository)")
+    parser.add_argument("--list", action="store_true", help="list the scenes and exit")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.bench import full_scenes, quick_scenes, run_bench
+
+    specs = quick_scenes() if args.quick else full_scenes()
+    if args.scenes:
+        specs = [s for s in specs if any(p in s.name for p in args.scenes)]
+        if not specs:
+            log.error("No scene matches %s: run with --list to see the names.", args.scenes)
+            return 2
+    if args.list:
+        for s in specs:
+            print(s.name)
+        return 0
+    threads = args.threads if args.threads > 0 else (os.cpu_count() or 1)
+    import cv2
+
+    cv2.setNumThreads(threads)
+    t0 = time.perf_counter()
+    try:
+        run_bench(specs, args.methods, num_threads=threads, data_dir=args.data_dir,
+                  out_dir=args.out)
+    except CalibrationError as exc:
+        log.error("%s", exc)
+        return 2
+    log.info("Benchmark of %d scenes x %d methods took %.0f s; results in %s/bench.json",
+             len(specs), len(args.methods), time.perf_counter() - t0, args.out)
+    return 0

@@ -1,0 +1,286 @@
+"""Accuracy benchmark: our pipelines and the peers (COLMAP incremental, GLOMAP global) on the same
+images in the same process, scored against exact or reference cameras (core.metrics).
+
+Scenes are generated rigs (deterministic from their seeds; the seeds are the benchmark's own, not
+those used in development tests) and real photographs with reference cameras (Strecha entry-P10).
+Every method gets the scene's images as RGB uint8 arrays; peers use the first time step only.
+
+Resources per method: wall-clock runtime, and peak resident memory of the process while the
+method ran (Linux: the VmHWM high-water mark is reset through /proc/self/clear_refs before each
+method and read after; this counts C++ allocations that tracemalloc misses). Where the reset is not
+possible the peak is reported as None.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from .datasets import Scene, default_data_dir, load_strecha, scene_from_synthetic
+from .errors import CalibrationError, InputError
+from .metrics import evaluate_calibration
+from .peers import PEER_METHODS, run_peer
+
+log = logging.getLogger(__name__)
+
+OUR_METHODS = {"densecalib-incremental": "incremental", "densecalib-global": "global"}
+METHODS = (*PEER_METHODS, *OUR_METHODS)
+
+
+@dataclass
+class SceneSpec:
+    """A benchmark scene. kind "synthetic": generated from (num_cameras, camera_model, width,
+    height, seed); kind "strecha": the Strecha folder `folder` under the data dir, long side
+    `max_side_px`."""
+
+    name: str
+    kind: str
+    num_cameras: int = 0
+    camera_model: str = "RADIAL"
+    width: int = 1024
+    height: int = 768
+    seed: int = 0
+    folder: str = ""
+    max_side_px: int = 1024
+
+
+def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
+               height: int = 768) -> SceneSpec:
+    lens = "fisheye" if camera_model == "OPENCV_FISHEYE" else "pinhole"
+    return SceneSpec(f"synthetic-{lens}-{num_cameras}cam-{width}x{height}-s{seed}", "synthetic",
+                     num_cameras, camera_model, width, height, seed)
+
+
+def quick_scenes() -> list[SceneSpec]:
+    """A few minutes on 2 cores: one pinhole rig, one fisheye rig, Strecha at reduced size."""
+    return [_synthetic(6, "RADIAL", 101),
+            _synthetic(4, "OPENCV_FISHEYE", 201, 800, 600),
+            SceneSpec("strecha-entry-p10-768", "strecha", folder="strecha_entry_p10",
+                      max_side_px=768)]
+
+
+def full_scenes() -> list[SceneSpec]:
+    """Pinhole rigs of 3, 6 and 10 cameras (3 seeds each), fisheye rigs of 4, 6 and 8 cameras
+    (150-190 deg, 2 seeds each), all 1024x768, and Strecha entry-P10 at 1024 px."""
+    scenes = [_synthetic(n, "RADIAL", seed) for n in (3, 6, 10) for seed in (101, 102, 103)]
+    scenes += [_synthetic(n, "OPENCV_FISHEYE", seed) for n in (4, 6, 8) for seed in (201, 202)]
+    scenes.append(SceneSpec("strecha-entry-p10-1024", "strecha", folder="strecha_entry_p10",
+                            max_side_px=1024))
+    return scenes
+
+
+def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
+    """The scene's images and reference cameras. Raises FileNotFoundError when real data is absent."""
+    if spec.kind == "synthetic":
+        from .synthetic import RigSpec, generate_rig
+
+        rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
+                                   width=spec.width, height=spec.height, seed=spec.seed))
+        return scene_from_synthetic(rig, spec.name)
+    if spec.kind == "strecha":
+        folder = Path(data_dir) / spec.folder
+        if not (folder / "gt_dense_cameras").is_dir():
+            raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
+        return load_strecha(folder, max_side_px=spec.max_side_px, name=spec.name)
+    raise InputError(f"Unknown scene kind {spec.kind!r}: choose synthetic or strecha.")
+
+
+def _reset_peak_rss() -> bool:
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _peak_rss_mib() -> Optional[float]:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None
+
+
+def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
+    """Run one method on one scene and score it. Never raises for a method's own failure: the
+    record's status is "ok", "failed" (CalibrationError / peer registered nothing), "unavailable"
+    (a module of our pipeline is missing: ImportError) or "error" (an unexpected exception, with its traceback)."""
+    record = dict(method=method, status="ok", message="", runtime_s=None, peak_rss_mib=None)
+    can_measure_memory = _reset_peak_rss()
+    start = time.perf_counter()
+    try:
+        if method in PEER_METHODS:
+            peer = run_peer(method, scene.frame_sets[0], scene.camera_names, lens=scene.lens,
+                            num_threads=num_threads)
+            calib = peer.to_rig_calibration(scene.camera_names)
+            record["message"] = peer.message
+        elif method in OUR_METHODS:
+            from .config import make_config
+            from .pipeline import calibrate_rig
+
+            config = make_config("fisheye" if scene.lens == "fisheye" else "regular",
+                                 OUR_METHODS[method])
+            config.sfm.num_threads = num_threads
+            calib = calibrate_rig(scene.frame_sets, scene.camera_names, config)
+        else:
+            raise InputError(f"Unknown method {method!r}: choose from {', '.join(METHODS)}.")
+    except CalibrationError as exc:
+        record.update(status="failed", message=f"{type(exc).__name__}: {exc}")
+        calib = None
+    except ImportError as exc:  # a pipeline stage that is not part of this installation
+        record.update(status="unavailable", message=f"{type(exc).__name__}: {exc}")
+        calib = None
+    except Exception as exc:  # keep benchmarking the other methods; the record says what broke
+        record.update(status="error", message=f"{type(exc).__name__}: {exc}",
+                      traceback=traceback.format_exc())
+        calib = None
+    record["runtime_s"] = time.perf_counter() - start
+    record["peak_rss_mib"] = _peak_rss_mib() if can_measure_memory else None
+    if calib is None:
+        from .types import RigCalibration
+
+        calib = RigCalibration(scene.camera_names[0], {}, failed_cameras=list(scene.camera_names))
+    elif not calib.cameras and record["status"] == "ok":
+        record["status"] = "failed"
+    record["metrics"] = evaluate_calibration(calib, scene.gt)
+    return record
+
+
+def run_bench(specs: Sequence[SceneSpec], methods: Sequence[str], num_threads: int = -1,
+              data_dir: Optional[Path] = None, out_dir: Optional[Path] = None,
+              say: Callable[[str], None] = print) -> dict:
+    """Run every method on every scene, print a table per scene and a summary, and write
+    `out_dir/bench.json` (rewritten after each scene so an interrupted run keeps its results)."""
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InputError(f"Unknown method(s) {', '.join(unknown)}: choose from {', '.join(METHODS)}.")
+    data_dir = Path(data_dir) if data_dir else default_data_dir()
+    report = dict(started=time.strftime("%Y-%m-%dT%H:%M:%S"), host=platform.node(),
+                  cpu_count=os.cpu_count(), num_threads=num_threads, methods=list(methods),
+                  data_dir=str(data_dir), scenes=[], skipped=[])
+    for spec in specs:
+        start = time.perf_counter()
+        try:
+            scene = build_scene(spec, data_dir)
+        except (FileNotFoundError, InputError) as exc:
+            say(f"\n== {spec.name}: skipped ({exc})")
+            report["skipped"].append(dict(scene=spec.name, reason=str(exc)))
+            continue
+        build_s = time.perf_counter() - start
+        size = scene.frame_sets[0][0].shape
+        entry = dict(scene=spec.name, spec=asdict(spec), lens=scene.lens,
+                     num_cameras=len(scene.camera_names), image_size=[size[1], size[0]],
+                     num_time_steps=len(scene.frame_sets),
+                     reference_is_estimate=scene.reference_is_estimate, notes=scene.notes,
+                     build_s=build_s, results=[])
+        for method in methods:
+            record = run_method(method, scene, num_threads)
+            entry["results"].append(record)
+            if record["status"] in ("error", "unavailable"):
+                log.info("%s on %s: %s", method, spec.name, record["message"])
+        report["scenes"].append(entry)
+        say("\n" + format_scene_table(entry))
+        _write_json(report, out_dir)
+    report["summary"] = summarize(report["scenes"])
+    say("\n" + format_summary(report["summary"]))
+    _write_json(report, out_dir)
+    return report
+
+
+def _write_json(report: dict, out_dir: Optional[Path]) -> None:
+    if out_dir is None:
+        return
+    from .export import write_text_atomic
+
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    write_text_atomic(Path(out_dir) / "bench.json",
+                      json.dumps(_jsonable(report), indent=1, allow_nan=True) + "\n")
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None  # strict JSON has no NaN/inf
+    return obj
+
+
+def _fmt(value, spec: str, missing: str = "-") -> str:
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return missing
+    return format(value, spec)
+
+
+_HEADER = (f"{'method':<24}{'reg':>7}{'AUC@3':>8}{'AUC@30':>8}{'focal%':>8}{'proj px':>9}"
+           f"{'time s':>8}{'peak MiB':>10}  status")
+
+
+def format_scene_table(entry: dict) -> str:
+    """One scene's results as a fixed-width table."""
+    lines = [f"== {entry['scene']} ({entry['lens']}, {entry['num_cameras']} cameras, "
+             f"{entry['image_size'][0]}x{entry['image_size'][1]})", _HEADER]
+    for r in entry["results"]:
+        m = r["metrics"]
+        focal = m["median_focal_err"] * 100 if np.isfinite(m["median_focal_err"]) else None
+        status = r["status"] if r["status"] == "ok" else f"{r['status']}: {r['message'][:60]}"
+        lines.append(f"{r['method']:<24}{m['num_registered']:>3}/{m['num_cameras']:<3}"
+                     f"{m['auc3']:>8.1f}{m['auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
+                     f"{_fmt(m['median_proj_err_px'], '9.2f'):>9}{_fmt(r['runtime_s'], '8.1f'):>8}"
+                     f"{_fmt(r['peak_rss_mib'], '10.0f'):>10}  {status}")
+    return "\n".join(lines)
+
+
+def summarize(scenes: list[dict]) -> list[dict]:
+    """Per (lens, method): scenes, registered/total cameras, mean AUC@3/@30 (failures count as 0),
+    median of the per-scene median focal error and projection error (over scenes where the method
+    registered cameras), median runtime, and the number of scenes that did not run ok."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for entry in scenes:
+        for r in entry["results"]:
+            groups.setdefault((entry["lens"], r["method"]), []).append(r)
+    out = []
+    for (lens, method), records in groups.items():
+        ms = [r["metrics"] for r in records]
+        focal = [m["median_focal_err"] for m in ms if np.isfinite(m["median_focal_err"])]
+        proj = [m["median_proj_err_px"] for m in ms if np.isfinite(m["median_proj_err_px"])]
+        times = [r["runtime_s"] for r in records if r["status"] == "ok"]
+        out.append(dict(
+            lens=lens, method=method, num_scenes=len(records),
+            registered=sum(m["num_registered"] for m in ms), cameras=sum(m["num_cameras"] for m in ms),
+            mean_auc3=float(np.mean([m["auc3"] for m in ms])),
+            mean_auc30=float(np.mean([m["auc30"] for m in ms])),
+            median_focal_err=float(np.median(focal)) if focal else float("nan"),
+            median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
+            median_runtime_s=float(np.median(times)) if times else float("nan"),
+            not_ok=sum(r["status"] != "ok" for r in records)))
+    return out
+
+
+def format_summary(summary: list[dict]) -> str:
+    lines = ["== summary (mean AUC over scenes, failures = 0; medians of per-scene medians)",
+             f"{'lens':<9}{'method':<24}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'AUC@30':>8}"
+             f"{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}"]
+    for s in summary:
+        focal = s["median_focal_err"] * 100 if np.isfinite(s["median_focal_err"]) else None
+        lines.append(f"{s['lens']:<9}{s['method']:<24}{s['num_scenes']:>7}"
+                     f"{s['registered']:>5}/{s['cameras']:<4}{s['mean_auc3']:>8.1f}"
+                     f"{s['mean_auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
+                     f"{_fmt(s['median_proj_err_px'], '9.2f'):>9}"
+                     f"{_fmt(s['median_runtime_s'], '8.1f'):>8}{s['not_ok']:>8}")
+    return "\n".join(lines)
