@@ -180,15 +180,15 @@ def evaluate_calibration(est: RigCalibration, gt: RigCalibration,
             rec["projection"] = projection_map_error(cam_gt.intrinsics,
                                                      est.cameras[name].intrinsics, grid_step_px)
         cameras[name] = rec
-    proj = [c["projection"]["mean_px"] for c in cameras.values() if c["registered"]]
+    proj = [c["projection"]["mean_px"] for c in cameras.values()
+            if c["registered"] and np.isfinite(c["projection"]["mean_px"])]
     return dict(
         num_cameras=len(gt.cameras),
         num_registered=len(est_poses),
         auc3=auc(pairs, 3),
         auc30=auc(pairs, 30),
         median_focal_err=float(np.median(list(focal.values()))) if focal else float("nan"),
-        median_proj_err_px=float(np.nanmedian(proj)) if proj and not np.all(np.isnan(proj))
-        else float("nan"),
+        median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
         cameras=cameras,
         pairs=[dict(i=p.i, j=p.j, rot_err_deg=p.rot_err_deg, trans_dir_err_deg=p.trans_dir_err_deg)
                for p in pairs],
