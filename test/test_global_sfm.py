@@ -1,0 +1,229 @@
+"""Global SfM (core/global_sfm.py) on tracks made from ground truth (exact projections + noise +
+outliers): real pycolmap rotation averaging, global positioning, triangulation and BA."""
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+import pytest
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.errors import DisconnectedViewGraphError, InputError
+from densecalib_ros.core.global_sfm import (gauge_scores, rotation_averaging_poses,
+                                            run_global, staged_bundle_adjustment,
+                                            triangulate_tracks)
+from densecalib_ros.core.incremental import initial_intrinsics
+from densecalib_ros.core.metrics import evaluate_calibration, relative_pose_errors
+from densecalib_ros.core.pipeline import calibrate_from_tracks, rig_from_state
+from densecalib_ros.core.reconstruction import SfMState
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
+
+NAMES = ["front", "left", "right", "top", "back"]
+
+
+def look_at(centre, target):
+    z = (target - centre) / np.linalg.norm(target - centre)
+    x = np.cross([0.0, -1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, np.cross(z, x), z])
+    T[:3, 3] = -T[:3, :3] @ centre
+    return T
+
+
+def gt_rig(num_cameras=5, model="RADIAL", width=640, height=480, seed=0):
+    """cameras, cam_from_world: cameras on a 60 deg arc of radius 6 looking at a cloud at z ~ 6."""
+    rng = np.random.default_rng(seed)
+    cams, poses = [], []
+    for c in range(num_cameras):
+        a = np.radians(-30 + 60 * c / max(num_cameras - 1, 1))
+        centre = np.array([6 * np.sin(a), rng.uniform(-0.5, 0.5), 6 - 6 * np.cos(a)])
+        poses.append(look_at(centre, np.array([0.0, 0.0, 6.0]) + rng.normal(0, 0.2, 3)))
+        if model == "RADIAL":
+            f = width * rng.uniform(0.8, 1.1)
+            params = [f, width / 2 + rng.uniform(-3, 3), height / 2 + rng.uniform(-3, 3),
+                      rng.uniform(-0.05, 0.02), rng.uniform(-0.01, 0.01)]
+        else:  # OPENCV_FISHEYE, ~150 deg diagonal
+            f = width / 3.2
+            params = [f, f, width / 2, height / 2, rng.uniform(-0.05, 0.05), 0.01, 0.0, 0.0]
+        cams.append(CameraIntrinsics(model, width, height, np.array(params)))
+    return cams, poses
+
+
+def gt_tracks(cams, poses, num_points=2500, noise_px=0.3, outlier_frac=0.03, seed=0,
+              groups=None):
+    """Tracks of random scene points, each seen by a random 2-4-camera subset of the cameras that
+    see it (like sampled n-cycles); a fraction has one outlier observation. groups: camera index
+    lists; a track's cameras then all come from one group (a disconnected view graph)."""
+    rng = np.random.default_rng(seed)
+    C = len(cams)
+    X = rng.uniform([-3, -2, 4.5], [3, 2, 9], (num_points, 3))
+    xy = np.full((num_points, C, 2), np.nan)
+    for c, (cam, T) in enumerate(zip(cams, poses)):
+        X_cam = X @ T[:3, :3].T + T[:3, 3]
+        p = cam.to_pycolmap().img_from_cam(X_cam)
+        inside = (X_cam[:, 2] > 0) & np.all((p > 0) & (p < [cam.width, cam.height]), axis=1)
+        xy[inside, c] = p[inside] + rng.normal(0, noise_px, (inside.sum(), 2))
+    groups = groups or [list(range(C))]
+    order = np.zeros(num_points, np.int32)
+    for t in range(num_points):
+        group = groups[t % len(groups)]
+        seen = [c for c in group if not np.isnan(xy[t, c, 0])]
+        if len(seen) < 2:
+            continue
+        keep = rng.choice(seen, rng.integers(2, min(4, len(seen)) + 1), replace=False)
+        xy[t, np.setdiff1d(np.arange(C), keep)] = np.nan
+        order[t] = len(keep)
+        if rng.random() < outlier_frac:
+            xy[t, keep[0]] = rng.uniform([0, 0], [cams[keep[0]].width, cams[keep[0]].height])
+    valid = order > 0
+    score = rng.uniform(0.2, 1.0, valid.sum())
+    return Tracks(xy[valid], order[valid], score, np.zeros(valid.sum(), np.int32))
+
+
+def calibration(cams, poses, names=NAMES):
+    ref_inv = np.linalg.inv(poses[0])
+    return RigCalibration(names[0], {n: RigCamera(n, cam, T @ ref_inv)
+                                     for n, cam, T in zip(names, cams, poses)})
+
+
+def rotation(axis, deg):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    a = np.radians(deg)
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+
+
+def perturbed(cams, poses, rot_deg=2.0, move_frac=0.05, focal_frac=0.05, seed=1):
+    """Cameras turned by rot_deg, centres moved by move_frac of the mean distance between camera
+    centres, focal lengths scaled by 1 +- focal_frac, distortion zeroed (a bumped, refocused rig)."""
+    rng = np.random.default_rng(seed)
+    centres = np.array([-T[:3, :3].T @ T[:3, 3] for T in poses])
+    spread = np.mean(np.linalg.norm(centres[:, None] - centres[None], axis=2)[np.triu_indices(len(poses), 1)])
+    out_cams, out_poses = [], []
+    for cam, T in zip(cams, poses):
+        R = rotation(rng.normal(size=3), rot_deg) @ T[:3, :3]
+        move = rng.normal(size=3)
+        centre = -T[:3, :3].T @ T[:3, 3] + move_frac * spread * move / np.linalg.norm(move)
+        P = np.eye(4)
+        P[:3, :3], P[:3, 3] = R, -R @ centre
+        out_poses.append(P)
+        p = np.array(cam.params, float)
+        scale = 1 + focal_frac * rng.choice([-1, 1])
+        if cam.model == "RADIAL":
+            p[0] *= scale
+            p[3:] = 0.0
+        else:
+            p[:2] *= scale
+            p[4:] = 0.0
+        out_cams.append(CameraIntrinsics(cam.model, cam.width, cam.height, p))
+    return out_cams, out_poses
+
+
+def sfm_config(preset, **stages):
+    cfg = make_config(preset, "global").sfm
+    cfg.num_threads = 1
+    cfg.global_stage_iterations.update(stages)
+    return cfg
+
+
+def test_rotation_averaging_recovers_truth_from_exact_tracks():
+    cams, poses = gt_rig(seed=3)
+    tracks = gt_tracks(cams, poses, noise_px=0.0, outlier_frac=0.0, seed=3)
+    est = rotation_averaging_poses(tracks, cams, NAMES)
+    errors = relative_pose_errors(dict(zip(NAMES, est)), dict(zip(NAMES, poses)))
+    assert max(e.rot_err_deg for e in errors) < 0.05
+    assert max(e.trans_dir_err_deg for e in errors) < 0.5
+
+
+def test_staged_bundle_adjustment_converges_from_perturbed_start():
+    cams, poses = gt_rig(seed=5)
+    tracks = gt_tracks(cams, poses, seed=5)
+    start_cams, start_poses = perturbed(cams, poses)
+    state = SfMState.create(tracks, start_cams)
+    state.cam_from_world = [T.copy() for T in start_poses]
+    before = evaluate_calibration(rig_from_state(state, NAMES, []), calibration(cams, poses))
+    assert before["auc3"] < 40  # a 2 deg / 5 % bump is far outside the AUC@3 thresholds
+    triangulate_tracks(state)
+    gauge = int(np.argmax(gauge_scores(tracks)))
+    pose_before = state.cam_from_world[gauge].copy()
+    rms = staged_bundle_adjustment(state, NAMES, sfm_config("regular", distortion=200), gauge)
+    assert list(rms) == ["extrinsics", "focal", "distortion"]
+    assert rms["distortion"] < rms["extrinsics"]
+    np.testing.assert_allclose(state.cam_from_world[gauge], pose_before, atol=1e-12)
+    after = evaluate_calibration(rig_from_state(state, NAMES, []), calibration(cams, poses))
+    assert after["auc3"] > 90
+    assert after["median_focal_err"] < 0.005
+
+
+@pytest.mark.parametrize("model,preset", [("RADIAL", "regular"), ("OPENCV_FISHEYE", "fisheye")])
+def test_global_from_rotation_averaging_recovers_truth(model, preset):
+    cams, poses = gt_rig(model=model, seed=7)
+    tracks = gt_tracks(cams, poses, seed=7)
+    focal = np.array([c.params[0] for c in cams]) * np.array([1.04, 0.97, 1.05, 0.96, 1.02])
+    cfg = sfm_config(preset, distortion=200)
+    init = initial_intrinsics([(c.width, c.height) for c in cams], focal, cfg.camera_model)
+    result = run_global(tracks, init, NAMES, cfg)
+    assert result.failed == []
+    assert result.quality["global_init"] == "rotation_averaging"
+    stages = result.quality["stage_reprojection_rms_px"]
+    assert list(stages)[:2] == ["triangulation", "extrinsics"]
+    assert ("model" in stages) == (preset == "fisheye")
+    rig = rig_from_state(result.state, NAMES, result.failed)
+    assert rig.cameras["front"].intrinsics.model == model
+    metrics = evaluate_calibration(rig, calibration(cams, poses))
+    assert metrics["auc3"] > 90
+    assert metrics["median_focal_err"] < 0.01
+
+
+def test_recalibration_from_previous_matches_from_scratch():
+    cams, poses = gt_rig(seed=11)
+    tracks = gt_tracks(cams, poses, seed=11)
+    gt = calibration(cams, poses)
+    previous = calibration(*perturbed(cams, poses, seed=2))
+    cfg = sfm_config("regular", distortion=200)
+    cfg.global_init = "previous"
+    init = initial_intrinsics([(c.width, c.height) for c in cams],
+                              [c.params[0] * 1.05 for c in cams], cfg.camera_model)
+    recal = run_global(tracks, init, NAMES, cfg, previous=previous)
+    assert recal.quality["global_init"] == "previous"
+    cfg.global_init = "rotation_averaging"
+    scratch = run_global(tracks, init, NAMES, cfg)
+    m_recal = evaluate_calibration(rig_from_state(recal.state, NAMES, []), gt)
+    m_scratch = evaluate_calibration(rig_from_state(scratch.state, NAMES, []), gt)
+    assert m_recal["auc3"] > 90
+    assert m_recal["auc3"] >= m_scratch["auc3"] - 1.0
+    # The previous calibration must cover every camera.
+    del previous.cameras["top"]
+    cfg.global_init = "previous"
+    with pytest.raises(InputError, match="top"):
+        run_global(tracks, init, NAMES, cfg, previous=previous)
+    with pytest.raises(InputError, match="no previous calibration"):
+        run_global(tracks, init, NAMES, cfg)
+
+
+def test_disconnected_view_graph_names_the_camera_groups():
+    cams, poses = gt_rig(4, seed=13)
+    names = ["north", "east", "south", "west"]
+    tracks = gt_tracks(cams, poses, num_points=800, seed=13, groups=[[0, 1], [2, 3]])
+    init = initial_intrinsics([(c.width, c.height) for c in cams],
+                              [c.params[0] for c in cams], "RADIAL")
+    with pytest.raises(DisconnectedViewGraphError) as info:
+        run_global(tracks, init, names, sfm_config("regular"))
+    assert "{north, east}" in str(info.value) and "{south, west}" in str(info.value)
+
+
+def test_pipeline_global_dispatch_reports_stages():
+    cams, poses = gt_rig(4, seed=17)
+    names = NAMES[:4]
+    tracks = gt_tracks(cams, poses, num_points=1500, seed=17)
+    config = make_config("regular", "global")
+    config.sfm.num_threads = 1
+    result = calibrate_from_tracks(tracks, [(c.width, c.height) for c in cams], names, config,
+                                   focal_px=np.array([c.params[0] * 1.03 for c in cams]))
+    quality = result.rig.quality
+    assert quality["pipeline"] == "global"
+    assert quality["gauge_camera"] in names
+    assert set(quality["stage_reprojection_rms_px"]) == {"triangulation", "extrinsics", "focal"}
+    assert result.reconstruction.num_reg_images() == 4
+    assert evaluate_calibration(result.rig, calibration(cams, poses, names))["auc30"] > 90
