@@ -25,7 +25,7 @@ import numpy as np
 import pycolmap
 
 from .config import SfMConfig
-from .errors import NotEnoughCamerasError, NotEnoughOverlapError
+from .errors import NotEnoughOverlapError
 from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
                              midpoint_triangulation, remove_outlier_observations, triangulate)
 from .twoview import relative_pose_from_rays
@@ -66,19 +66,18 @@ def _pair_rows(tracks: Tracks, i: int, j: int) -> np.ndarray:
     return np.flatnonzero(obs[:, i] & obs[:, j])
 
 
-def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, seed: int
-                          ) -> tuple[float, Optional[np.ndarray]]:
-    """Relative pose of camera j w.r.t. camera i (cam_j_from_cam_i, 4x4) from an essential matrix
-    on camera rays, and its eq. 3 cost sum(d) / N^2 (d: mean reprojection distance over the two
-    views of each point in front of both cameras, N their number). (inf, None) on failure."""
+def _relative_pose(state: SfMState, i: int, j: int, seed: int
+                   ) -> tuple[Optional[np.ndarray], np.ndarray]:
+    """cam_j_from_cam_i (4x4, unit baseline) from an essential matrix (MAGSAC++) on the camera
+    rays of the tracks both observe, and those tracks' rows. (None, rows) on failure."""
     rows = _pair_rows(state.tracks, i, j)
     if len(rows) < MIN_PAIR_CORRESPONDENCES:
-        return np.inf, None
+        return None, rows
     rays_i = state.camera(i).to_pycolmap().cam_ray_from_img(state.tracks.xy_px[rows, i])
     rays_j = state.camera(j).to_pycolmap().cam_ray_from_img(state.tracks.xy_px[rows, j])
     usable = (rays_i[:, 2] > MIN_RAY_Z) & (rays_j[:, 2] > MIN_RAY_Z)
     if usable.sum() < MIN_PAIR_CORRESPONDENCES:
-        return np.inf, None
+        return None, rows
     n_i = np.ascontiguousarray(rays_i[usable, :2] / rays_i[usable, 2:])
     n_j = np.ascontiguousarray(rays_j[usable, :2] / rays_j[usable, 2:])
     focal = 0.5 * (state.camera(i).params[0] + state.camera(j).params[0])
@@ -86,21 +85,70 @@ def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, 
     E, mask = cv2.findEssentialMat(n_i, n_j, np.eye(3), cv2.USAC_MAGSAC, 0.9999,
                                    ESSENTIAL_THRESHOLD_PX / focal)
     if E is None or E.shape != (3, 3):
+        return None, rows
+    inl = mask.ravel() > 0
+    R, t, _ = relative_pose_from_rays(E, rays_i[usable][inl], rays_j[usable][inl])
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = R, t
+    return pose, rows
+
+
+def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, seed: int
+                          ) -> tuple[float, Optional[np.ndarray]]:
+    """Relative pose cam_j_from_cam_i (4x4) and its eq. 3 cost sum(d) / N^2 (d: mean
+    reprojection distance over the two views of each point in front of both cameras and within
+    max_error_px, N their number). (inf, None) on failure."""
+    pose_j, rows = _relative_pose(state, i, j, seed)
+    if pose_j is None:
         return np.inf, None
-    R, t, _ = relative_pose_from_rays(E, rays_i[usable][mask.ravel() > 0],
-                                      rays_j[usable][mask.ravel() > 0])
-    pose_j = np.eye(4)
-    pose_j[:3, :3], pose_j[:3, 3] = R, t
     scratch = SfMState(state.tracks, state.intrinsics, state.camera_block,
                        [None] * state.num_cameras, state.points_xyz, state.active)
     scratch.cam_from_world[i], scratch.cam_from_world[j] = np.eye(4), pose_j
-    X, _, err = midpoint_triangulation(scratch, rows)
+    _, _, err = midpoint_triangulation(scratch, rows)
     d = np.nanmean(err[:, [i, j]], axis=1)
     front = np.isfinite(d) & (d <= max_error_px)
     n = int(front.sum())
     if n < MIN_PAIR_CORRESPONDENCES:
         return np.inf, None
     return float(d[front].sum() / n ** 2), pose_j
+
+
+def _register_from_pairs(state: SfMState, c: int, seed: int) -> bool:
+    """Fallback registration of a camera that shares no 3D points with the reconstruction (only
+    2-cycle tracks): orientation from its relative pose to the registered camera it shares the
+    most tracks with; position from the baseline directions to all such partners (least-squares
+    intersection of the lines), or, with one partner, at the median distance between registered
+    cameras (later 3-cycles and BA fix that scale)."""
+    lines = []  # (partner centre, unit direction to c's centre in world, number of tracks)
+    rotation, best = None, 0
+    for r in state.registered():
+        pose_cr, rows = _relative_pose(state, r, c, seed)
+        if pose_cr is None:
+            continue
+        R_r, t_r = state.cam_from_world[r][:3, :3], state.cam_from_world[r][:3, 3]
+        centre_r = -R_r.T @ t_r
+        direction = R_r.T @ (-pose_cr[:3, :3].T @ pose_cr[:3, 3])
+        lines.append((centre_r, direction / np.linalg.norm(direction)))
+        if len(rows) > best:
+            rotation, best = pose_cr[:3, :3] @ R_r, len(rows)
+    if rotation is None:
+        return False
+    centres = [-T[:3, :3].T @ T[:3, 3] for T in (state.cam_from_world[r]
+                                                 for r in state.registered())]
+    spread = np.median([np.linalg.norm(a - b) for k, a in enumerate(centres)
+                        for b in centres[k + 1:]])
+    centre = lines[0][0] + spread * lines[0][1]
+    if len(lines) >= 2:
+        A = sum(np.eye(3) - np.outer(d, d) for _, d in lines)
+        b = sum((np.eye(3) - np.outer(d, d)) @ o for o, d in lines)
+        if np.linalg.cond(A) < 1e6:
+            candidate = np.linalg.solve(A, b)
+            if all(np.dot(candidate - o, d) > 0 for o, d in lines):
+                centre = candidate
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rotation, -rotation @ centre
+    state.cam_from_world[c] = T
+    return True
 
 
 def _register_next(state: SfMState, c: int, config: SfMConfig) -> bool:
@@ -145,7 +193,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
 
     tracks: (T, C, 2) COLMAP px observations; intrinsics: initial CameraIntrinsics per camera
     (model = config.camera_model, focal from the initial-focal step). Raises NotEnoughOverlapError
-    when no camera pair can be initialised and NotEnoughCamerasError when < 2 cameras register.
+    when no camera pair among the first three of the view order can be initialised.
     """
     say = progress or (lambda msg: None)
     C = tracks.num_cameras
@@ -177,27 +225,29 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                                                refine_extra=False), config.num_threads)
     say(f"initial pair {camera_names[i]} / {camera_names[j]}: "
         f"{int(state.point_mask().sum())} points")
-    queue = [c for c in order if c not in (i, j)]
-    failed: list[int] = []
+    pending = [c for c in order if c not in (i, j)]
     stage = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
                     refine_principal_point=False)
-    deferred: list[int] = []
-    while queue:
-        c = queue.pop(0)
-        if not _register_next(state, c, config):
-            # A camera can become registrable once later cameras add points: retry once at the end.
-            if c not in deferred:
-                deferred.append(c)
-                queue.append(c)
-            else:
-                failed.append(c)
-            continue
+    while pending:
+        # The next camera in view order that registers from 3D points; a camera can become
+        # registrable once later cameras add points, so every pending camera is tried.
+        c = next((c for c in pending if _register_next(state, c, config)), None)
+        how = "3D points"
+        if c is None:
+            seen_by_registered = state.registered_active().any(axis=1)
+            shared = [int(np.sum(state.active[:, c] & seen_by_registered)) for c in pending]
+            c = pending[int(np.argmax(shared))]
+            if not _register_from_pairs(state, c, seed):
+                break
+            how = "two-view geometry (2-cycle tracks only)"
+        pending.remove(c)
         bundle_adjust(state, camera_names, stage, config.num_threads)
         _triangulate_new(state, b_err)
         bundle_adjust(state, camera_names, stage, config.num_threads)
         removed = remove_outlier_observations(state, config.b_err_px)
-        say(f"registered {camera_names[c]} ({len(state.registered())}/{C}): "
+        say(f"registered {camera_names[c]} from {how} ({len(state.registered())}/{C}): "
             f"{int(state.point_mask().sum())} points, {removed} observations above B_err removed")
+    failed = list(pending)
     final = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
                     refine_principal_point=config.refine_principal_point)
     bundle_adjust(state, camera_names, final, config.num_threads)
@@ -207,8 +257,5 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                                                    refine_extra=True, refine_poses=False),
                       config.num_threads)
     failed += [c for c in range(C) if c not in order]
-    registered = state.registered()
-    if len(registered) < 2:
-        raise NotEnoughCamerasError("Fewer than two cameras could be registered.")
     return IncrementalResult(state=state, view_order=order, first_pair=(i, j),
                              failed=sorted(failed))
