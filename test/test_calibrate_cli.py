@@ -1,0 +1,77 @@
+"""`densecalib calibrate` on a generated rig written to disk: files written, failures leave an
+existing output folder untouched and exit non-zero with a message."""
+import json
+import logging
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import cv2
+import numpy as np
+import pytest
+
+from densecalib_ros.cli import main
+from densecalib_ros.core.export import read_calibration
+from densecalib_ros.core.metrics import evaluate_calibration
+from densecalib_ros.core.synthetic import RigSpec, generate_rig, read_ground_truth, write_rig
+
+
+@pytest.fixture(scope="module")
+def rig_dir(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rig")
+    write_rig(generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+                                   seed=3)), path)
+    return path
+
+
+def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["calibrate", "--images", str(rig_dir), "--out", str(out), "--matcher", "sift",
+               "--threads", "1"])
+    assert rc == 0
+    data = json.loads((out / "calibration.json").read_text())
+    names = ["cam0", "cam1", "cam2", "cam3"]
+    assert data["reference_camera"] == "cam0" and sorted(data["cameras"]) == names
+    assert len(data["cameras"]["cam1"]["cam_from_rig"]) == 16
+    assert data["cameras"]["cam1"]["model"] == "RADIAL"
+    for name in names:
+        assert "camera_matrix:" in (out / f"{name}.yaml").read_text()
+    assert {p.name for p in (out / "colmap").iterdir()} >= {"cameras.bin", "images.bin",
+                                                            "points3D.bin"}
+    gt, _ = read_ground_truth(rig_dir / "ground_truth.json")
+    metrics = evaluate_calibration(read_calibration(out), gt)
+    assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
+    assert "cam3" in capsys.readouterr().out  # the per-camera summary
+
+
+def test_failed_run_keeps_existing_output(rig_dir, tmp_path, caplog):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "calibration.json").write_text("previous")
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "cam0.png").write_bytes((rig_dir / "cam0" / "0000.png").read_bytes())
+    (bad / "cam1.png").write_bytes(b"truncated")
+    with caplog.at_level(logging.ERROR):
+        rc = main(["calibrate", "--images", str(bad), "--out", str(out)])
+    assert rc == 2
+    assert "cam1.png" in caplog.text
+    assert (out / "calibration.json").read_text() == "previous"
+    assert not any(p.name.startswith(".out.tmp") for p in tmp_path.iterdir())
+
+
+def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        cv2.imwrite(str(tmp_path / f"{name}.png"), rng.integers(0, 255, (240, 320), np.uint8))
+    with caplog.at_level(logging.ERROR):
+        rc = main(["calibrate", "--images", str(tmp_path), "--out", str(tmp_path / "out")])
+    assert rc == 1
+    assert "Calibration failed" in caplog.text and "overlap" in caplog.text
+    assert not (tmp_path / "out").exists()
+
+
+def test_bag_needs_topics(tmp_path, caplog):
+    with caplog.at_level(logging.ERROR):
+        rc = main(["calibrate", "--bag", str(tmp_path / "x.bag"), "--out", str(tmp_path / "o")])
+    assert rc == 2 and "--topics" in caplog.text
