@@ -140,7 +140,18 @@ def test_resized_matching_maps_back_to_original_pixels(image_pair):
                                    axis=0)) < 0.5)
 
 
-def test_xfeat_lighterglue_matches_follow_the_homography(image_pair):
+def _no_network(monkeypatch):
+    """Any attempt to open a connection (a weights download) fails the test."""
+    import socket
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("network access attempted")
+    monkeypatch.setattr(socket.socket, "connect", refuse)
+    monkeypatch.setattr(socket, "create_connection", refuse)
+
+
+def test_xfeat_lighterglue_matches_follow_the_homography(image_pair, monkeypatch):
+    _no_network(monkeypatch)
     matcher = create_matcher("xfeat-lighterglue", device="cpu", max_keypoints=1024)
     matcher.load()
     matcher.load()  # idempotent
@@ -151,7 +162,8 @@ def test_xfeat_lighterglue_matches_follow_the_homography(image_pair):
     assert n >= 150 and inliers >= 0.6
 
 
-def test_xfeat_star_sites_are_shared_pixels(image_pair):
+def test_xfeat_star_sites_are_shared_pixels(image_pair, monkeypatch):
+    _no_network(monkeypatch)
     matcher = create_matcher("xfeat-star", device="cpu", max_keypoints=2000)
     images = [image_pair[0], image_pair[1], image_pair[0][20:220, 10:300]]
     ms = matcher.match(images)

@@ -51,16 +51,33 @@ class SiftMatcher(Matcher):
                 descriptors.astype(np.float32))
 
     @staticmethod
-    def _site_distances(desc_a, site_a, n_a, desc_b, site_b, n_b) -> np.ndarray:
-        """float32 (S_a, S_b): smallest descriptor distance between the keypoints of two sites."""
+    def _site_sq_distances(desc_a, site_a, n_a, desc_b, site_b, n_b) -> np.ndarray:
+        """float32 (S_a, S_b): smallest squared descriptor distance between the keypoints of two
+        sites (a plain keypoint distance matrix where no location holds several keypoints)."""
         order_a, order_b = np.argsort(site_a, kind="stable"), np.argsort(site_b, kind="stable")
         da, db = desc_a[order_a], desc_b[order_b]
-        d2 = (np.einsum("ij,ij->i", da, da)[:, None] + np.einsum("ij,ij->i", db, db)[None, :]
-              - 2.0 * (da @ db.T))
-        starts_b = np.searchsorted(site_b[order_b], np.arange(n_b))
-        starts_a = np.searchsorted(site_a[order_a], np.arange(n_a))
-        d2 = np.minimum.reduceat(np.minimum.reduceat(d2, starts_b, axis=1), starts_a, axis=0)
-        return np.sqrt(np.maximum(d2, 0.0))
+        d2 = da @ db.T  # in place from here: the matrix is the memory peak
+        d2 *= -2.0
+        d2 += np.einsum("ij,ij->i", da, da)[:, None]
+        d2 += np.einsum("ij,ij->i", db, db)[None, :]
+        if n_b < len(site_b):
+            d2 = np.minimum.reduceat(d2, np.searchsorted(site_b[order_b], np.arange(n_b)), axis=1)
+        if n_a < len(site_a):
+            d2 = np.minimum.reduceat(d2, np.searchsorted(site_a[order_a], np.arange(n_a)), axis=0)
+        return d2
+
+    @staticmethod
+    def _two_nearest(d2: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+        """Index of the nearest entry along `axis` and the ratio nearest / second-nearest distance."""
+        best = np.argmin(d2, axis=axis)
+        other = np.arange(d2.shape[1 - axis])
+        index = (other, best) if axis == 1 else (best, other)
+        first = d2[index].copy()
+        d2[index] = np.inf
+        second = np.min(d2, axis=axis)
+        d2[index] = first
+        ratio = np.sqrt(np.maximum(first, 0.0) / np.maximum(second, 1e-12))
+        return best, ratio
 
     def _match_pair(self, fa, fb):
         sites_a, site_a, desc_a = fa
@@ -69,13 +86,9 @@ class SiftMatcher(Matcher):
         if n_a < 2 or n_b < 2:
             empty = np.zeros(0, np.int64)
             return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
-        dist = self._site_distances(desc_a, site_a, n_a, desc_b, site_b, n_b)
-        best_ab = np.argmin(dist, axis=1)
-        best_ba = np.argmin(dist, axis=0)
-        two_ab = np.partition(dist, 1, axis=1)[:, :2]
-        two_ba = np.partition(dist, 1, axis=0)[:2, :]
-        ratio_ab = two_ab[:, 0] / np.maximum(two_ab[:, 1], 1e-12)
-        ratio_ba = two_ba[0] / np.maximum(two_ba[1], 1e-12)
+        d2 = self._site_sq_distances(desc_a, site_a, n_a, desc_b, site_b, n_b)
+        best_ab, ratio_ab = self._two_nearest(d2, axis=1)
+        best_ba, ratio_ba = self._two_nearest(d2, axis=0)
         src = np.arange(n_a)
         keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
                 & (ratio_ba[best_ab] < self.ratio_threshold))

