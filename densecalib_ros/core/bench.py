@@ -27,7 +27,7 @@ import numpy as np
 from .datasets import Scene, default_data_dir, load_strecha, scene_from_synthetic
 from .errors import CalibrationError, InputError
 from .metrics import evaluate_calibration
-from .peers import PEER_METHODS, run_peer
+from .peers import PEER_METHODS, quiet_colmap, run_peer
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +133,9 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             config = make_config("fisheye" if scene.lens == "fisheye" else "regular",
                                  OUR_METHODS[method])
             config.sfm.num_threads = num_threads
-            calib = calibrate_rig(scene.frame_sets, scene.camera_names, config)
+            # Ceres/COLMAP warnings (e.g. failed LM steps) would bury the tables; errors still show.
+            with quiet_colmap(min_level=2):
+                calib = calibrate_rig(scene.frame_sets, scene.camera_names, config)
         else:
             raise InputError(f"Unknown method {method!r}: choose from {', '.join(METHODS)}.")
     except CalibrationError as exc:
