@@ -36,3 +36,14 @@ def test_core_imports_without_rclpy():
                          timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     assert f"ok {len(mods)}" in out.stdout
+
+
+def test_package_import_order_keeps_png_encoding_alive():
+    """Importing densecalib_ros before pycolmap must keep cv2's PNG encoder working (a zlib clash
+    between the wheels aborts the process when pycolmap is loaded first)."""
+    code = ("import densecalib_ros, pycolmap, cv2, numpy as np\n"
+            "ok, buf = cv2.imencode('.png', np.zeros((8, 8, 3), np.uint8))\n"
+            "assert ok and cv2.imdecode(buf, cv2.IMREAD_COLOR).shape == (8, 8, 3)\nprint('png ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "png ok" in out.stdout
