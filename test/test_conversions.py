@@ -63,8 +63,8 @@ def test_bad_images_are_refused_with_a_reason():
 
 def test_compressed_png_exact_and_jpeg_close():
     assert np.array_equal(decode_compressed("png", encode_compressed(RGB, "png")), RGB)
-    assert np.array_equal(decode_compressed("mono8; png compressed", encode_compressed(GRAY, "png")),
-                          GRAY)
+    png = encode_compressed(GRAY, "png")
+    assert np.array_equal(decode_compressed("mono8; png compressed", png), GRAY)
     smooth = np.clip(np.add.outer(np.arange(24) * 4, np.arange(32) * 3), 0, 255).astype(np.uint8)
     smooth = np.stack([smooth, smooth[::-1], 255 - smooth], axis=2)
     out = decode_compressed("rgb8; jpeg compressed bgr8", encode_compressed(smooth, "jpeg"))

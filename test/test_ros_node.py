@@ -5,6 +5,7 @@ republishes the last good calibration; a failing calibration leaves every output
 written with `rosbags` (sqlite3 raw, mcap compressed) replay into the node to the same result;
 parameters are validated."""
 import os
+import re
 import threading
 import time
 
@@ -12,12 +13,14 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy", reason="node tests need rclpy (ROS 2 Jazzy)")
+import rclpy.node  # noqa: E402
 pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs missing: run scripts/setup_env.sh")
 
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 
 from densecalib_ros.core.bag import read_frame_sets, write_image_bag  # noqa: E402
 from densecalib_ros.core.config import make_config  # noqa: E402
@@ -25,6 +28,7 @@ from densecalib_ros.core.errors import InputError  # noqa: E402
 from densecalib_ros.core.export import read_calibration  # noqa: E402
 from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
 from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
+from densecalib_ros.core.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
 from densecalib_ros.ros.node import DenseCalibNode  # noqa: E402
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
@@ -123,6 +127,24 @@ def publish_frame_sets(ros, node, frame_sets, first_stamp_s=1.0):
             ros.remove(d)
 
 
+class SetCameraInfoDriver(rclpy.node.Node):
+    """The set_camera_info end of a camera driver: accepts, refuses, or answers too late."""
+
+    def __init__(self, camera, answer, **kwargs):
+        super().__init__(f"{camera}_calibration_store", **kwargs)
+        self.answer, self.received, self.answered = answer, [], 0
+        self.create_service(SetCameraInfo, f"/rig/{camera}/set_camera_info", self._on_set)
+
+    def _on_set(self, request, response):
+        self.received.append(request.camera_info)
+        if self.answer == "slow":
+            time.sleep(2.0)
+        response.success = self.answer != "refuse"
+        response.status_message = "stored" if response.success else "no thanks"
+        self.answered += 1
+        return response
+
+
 def check_against_truth(listener, rig, node):
     """The listener's CameraInfo and /tf_static against the generated rig's ground truth."""
     gt = rig.ground_truth()
@@ -199,6 +221,13 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
         response.message
     assert not out.exists() or not any(out.iterdir())
 
+    # Drivers offering set_camera_info: cam0 accepts, cam1 refuses, cam2 is too slow, cam3 has none.
+    drivers = {name: ros.add(SetCameraInfoDriver(name, answer, context=ros.context))
+               for name, answer in (("cam0", "ok"), ("cam1", "refuse"), ("cam2", "slow"))}
+    assert all(r.successful for r in node.set_parameters([
+        Parameter("call_set_camera_info", value=True),
+        Parameter("set_camera_info_timeout_s", value=1.0)]))
+
     publish_frame_sets(ros, node, rig.images)
     first = caller.call_async()
     assert wait_until(lambda: node.busy, 10.0)
@@ -210,6 +239,15 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert response.message.startswith("calibrated 4/4 cameras (cam0, cam1, cam2, cam3)")
     assert "reprojection RMS" in response.message and "2 frame sets" in response.message
     check_against_truth(listener, rig, node)
+    assert response.message.endswith(
+        "set_camera_info: cam0 ok, cam1 refused (no thanks), cam2 timeout, "
+        "cam3 no service /rig/cam3/set_camera_info")
+    received = drivers["cam0"].received
+    assert len(received) == 1 and received[0].header.frame_id == "cam0_optical_frame"
+    assert list(received[0].k) == list(listener.snapshot()["camera_info"]["cam0"].k)
+    for d in drivers.values():  # a node destroyed inside its own callback breaks the executor
+        assert wait_until(lambda: d.answered == len(d.received) == 1, 5.0)
+        ros.remove(d)
 
     # Files: a timestamped folder and the `latest` symlink onto it, equal to what was published.
     latest = out / "latest"
@@ -274,11 +312,15 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
     topics = [c[0] for c in CAMERAS.values()]
     stamps = [[int((1.0 + t) * 1e9) + 1_000_000 * c for c in range(4)] for t in range(2)]
     results = {}
+    gt = rig.ground_truth()
+    baseline_m = camera_distance(gt, "cam0", "cam2")  # the generator's units are metres
     for storage, encoding in (("sqlite3", "rgb8"), ("mcap", "png")):
         bag = tmp_path / f"bag_{storage}"
         write_image_bag(bag, rig.images, topics, stamps, storage=storage, encoding=encoding)
+        scale = dict(known_baseline_m=baseline_m, baseline_cameras=["cam0", "cam2"]) \
+            if storage == "mcap" else {}
         node = ros.densecalib(tmp_path / f"out_{storage}", replay_bag=str(bag),
-                              calibrate_after_replay=True, transports=["auto"])
+                              calibrate_after_replay=True, transports=["auto"], **scale)
         try:
             assert wait_until(lambda: node.calibration is not None or node._last_failure,
                               CALIBRATION_TIMEOUT_S, 0.1)
@@ -290,20 +332,49 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
             ros.remove(node)
     a, b = results["sqlite3"], results["mcap"]
     assert set(a.cameras) == set(b.cameras) == set(CAMERAS)
+    # mcap's run has metric scale: cam0-cam2 at the true distance, everything else the same.
+    assert b.metric_scale and not a.metric_scale
+    assert camera_distance(b, "cam0", "cam2") == pytest.approx(baseline_m, rel=1e-9)
+    factor = baseline_m / camera_distance(a, "cam0", "cam2")
     for name in CAMERAS:
         assert np.allclose(a.cameras[name].intrinsics.params, b.cameras[name].intrinsics.params,
                            rtol=1e-6, atol=1e-9)
-        assert np.allclose(a.cameras[name].cam_from_rig, b.cameras[name].cam_from_rig, atol=1e-6)
+        ta, tb = a.cameras[name].cam_from_rig, b.cameras[name].cam_from_rig
+        assert np.allclose(ta[:3, :3], tb[:3, :3], atol=1e-6)
+        assert np.allclose(ta[:3, 3] * factor, tb[:3, 3], atol=1e-6)
+        # metric translations close to the truth (the SfM scale is fixed by one pair only)
+        assert np.linalg.norm(tb[:3, 3] - gt.cameras[name].cam_from_rig[:3, 3]) < 0.05 * baseline_m
     # ... and to the same result as the ROS-free path: core.bag + calibrate_rig on the same bag.
     frame_sets, names = read_frame_sets(tmp_path / "bag_mcap", topics, slop_s=0.01)
-    offline = calibrate_rig(frame_sets, list(CAMERAS), make_config("regular", "incremental", "sift"))
+    offline = calibrate_rig(frame_sets, list(CAMERAS),
+                            make_config("regular", "incremental", "sift"))
     assert names == ["rig_cam0", "rig_cam1", "rig_cam2", "rig_cam3"]
     for name in CAMERAS:
         assert np.allclose(offline.cameras[name].intrinsics.params,
-                           b.cameras[name].intrinsics.params, rtol=1e-6, atol=1e-9)
-        assert np.allclose(offline.cameras[name].cam_from_rig, b.cameras[name].cam_from_rig,
+                           a.cameras[name].intrinsics.params, rtol=1e-6, atol=1e-9)
+        assert np.allclose(offline.cameras[name].cam_from_rig, a.cameras[name].cam_from_rig,
                            atol=1e-6)
-    gt = rig.ground_truth()
     errors = relative_pose_errors({n: c.cam_from_rig for n, c in a.cameras.items()},
                                   {n: c.cam_from_rig for n, c in gt.cameras.items()})
     assert max(e.rot_err_deg for e in errors) < 3.0
+
+
+def test_demo_command(tmp_path, capsys):
+    """`densecalib demo` (the README main job) on a small rig: node, drivers, service, truth."""
+    from densecalib_ros.cli import main
+
+    out = tmp_path / "demo"
+    code = main(["demo", "--cameras", "4", "--width", "320", "--height", "240", "--seed", "1",
+                 "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "response: success=True: calibrated 4/4 cameras" in text
+    summary = re.search(r"all 6 camera pairs: AUC@3 ([\d.]+), AUC@30 ([\d.]+), max rotation "
+                        r"error ([\d.]+) deg", text)
+    assert summary and float(summary[2]) > 90.0 and float(summary[3]) < 3.0, text
+    rows = [line.split() for line in text.splitlines() if re.match(r"cam\d ", line)]
+    assert [r[0] for r in rows] == ["cam0", "cam1", "cam2", "cam3"]
+    assert all(float(r[3]) < 5.0 for r in rows)  # focal error in percent
+    assert (out / "latest" / "calibration.json").is_file()
+    assert (out / "rig" / "ground_truth.json").is_file()
+    assert (out / "rig" / "cam3" / "0001.png").is_file()

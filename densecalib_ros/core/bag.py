@@ -1,4 +1,5 @@
-"""Offline rosbag2 reading (sqlite3 and mcap) with the pure-Python `rosbags` package: no ROS runtime.
+"""Offline rosbag2 reading and writing (sqlite3 and mcap) with the pure-Python `rosbags` package,
+no ROS runtime.
 
 Image topics may be sensor_msgs/msg/Image (rgb8, bgr8, rgba8, bgra8, mono8, mono16) or
 sensor_msgs/msg/CompressedImage (jpeg, png). Frame sets are formed by approximate-time
@@ -41,7 +42,8 @@ def camera_names_from_topics(topics: list[str]) -> list[str]:
     if len(set(names)) < len(names):
         names = [name(t, False) for t in topics]
     if len(set(names)) < len(names):
-        raise InputError(f"Topics {topics} do not give distinct camera names: list each topic once.")
+        raise InputError(f"Topics {topics} do not give distinct camera names: list each topic "
+                         "once.")
     return names
 
 

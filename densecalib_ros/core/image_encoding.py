@@ -42,7 +42,7 @@ def raw_to_array(encoding: str, height: int, width: int, step: int, data,
     rows = buf[: step * height].reshape(height, step)[:, :row_bytes]
     pixels = rows.copy().view(np.dtype(dtype).newbyteorder(">" if is_bigendian else "<"))
     pixels = pixels.astype(dtype)  # native byte order
-    return pixels.reshape(height, width, channels) if channels > 1 else pixels.reshape(height, width)
+    return pixels.reshape((height, width, channels) if channels > 1 else (height, width))
 
 
 def to_pipeline_image(pixels: np.ndarray, order: str) -> np.ndarray:

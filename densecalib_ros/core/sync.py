@@ -1,5 +1,5 @@
-"""Approximate-time synchronisation of N streams by header stamps (ROS-free; shared by the bag reader
-and the ROS node).
+"""Approximate-time synchronisation of N streams by header stamps (ROS-free; shared by the bag
+reader and the ROS node).
 
 Each stream keeps a small queue sorted by stamp. Whenever every stream has a pending item, the
 queue heads are compared: if their stamps span at most `slop_s`, they form a frame set and are

@@ -473,9 +473,11 @@ class DenseCalibNode(Node):
         self._publish(rig, out)
         rms = rig.quality.get("reprojection_rms_px", float("nan"))
         failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
+        scale = (f", metric scale from {'-'.join(s.baseline_cameras)} = {s.known_baseline_m} m"
+                 if rig.metric_scale else "")
         message = (f"calibrated {len(rig.cameras)}/{len(s.camera_names)} cameras "
                    f"({', '.join(rig.cameras)}{failed}) from {len(sets)} frame sets, reprojection "
-                   f"RMS {rms:.2f} px, {elapsed:.1f} s; files in {out}")
+                   f"RMS {rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
         if s.call_set_camera_info:
             message += "; set_camera_info: " + self._call_set_camera_info(rig)
         return Outcome(True, message)
@@ -501,8 +503,9 @@ class DenseCalibNode(Node):
         k = 1
         while out.exists():
             out, k = root / f"{stamp}Z_{k}", k + 1
-        replace_directory_atomic(lambda tmp: write_calibration_files(rig, Path(tmp), reconstruction),
-                                 out)
+        replace_directory_atomic(
+            lambda tmp: write_calibration_files(rig, Path(tmp), reconstruction), out)
+        out.chmod(0o755)  # created private as a temporary directory
         tmp_link = root / f".latest.{os.getpid()}.{threading.get_ident()}"
         tmp_link.unlink(missing_ok=True)
         os.symlink(out.name, tmp_link)
@@ -541,24 +544,26 @@ class DenseCalibNode(Node):
         self._publish_diagnostics()
 
     def _call_set_camera_info(self, rig: RigCalibration) -> str:
-        """Call every calibrated camera's set_camera_info concurrently; returns the per-camera
-        outcome ("cam0 ok, cam1 timeout, ...")."""
+        """Call every calibrated camera's set_camera_info concurrently, waiting at most
+        set_camera_info_timeout_s in all; returns the per-camera outcome ("cam0 ok, cam1 timeout,
+        ...")."""
         s = self.settings
         frames = dict(zip(s.camera_names, s.frame_names))
-        pending = {}
+        calls = []  # (camera, client, future or None when the service is not there)
         for name, client in zip(s.camera_names, self._set_info_clients):
             if name not in rig.cameras:
                 continue
-            if not client.service_is_ready():
-                pending[name] = None
-                continue
-            request = SetCameraInfo.Request()
-            request.camera_info = camera_info_msg(name, rig.cameras[name].intrinsics,
-                                                  frames[name], self.get_clock().now().nanoseconds)
-            pending[name] = client.call_async(request)
+            future = None
+            if client.service_is_ready():
+                request = SetCameraInfo.Request()
+                request.camera_info = camera_info_msg(name, rig.cameras[name].intrinsics,
+                                                      frames[name],
+                                                      self.get_clock().now().nanoseconds)
+                future = client.call_async(request)
+            calls.append((name, client, future))
         deadline = time.monotonic() + s.set_camera_info_timeout_s
         outcomes = []
-        for (name, future), client in zip(pending.items(), self._set_info_clients):
+        for name, client, future in calls:
             if future is None:
                 outcome = f"{name} no service {client.srv_name}"
             else:
