@@ -528,10 +528,13 @@ class DenseCalibNode(Node):
                 f"ignoring the previous calibration in {latest.resolve()}: its cameras {unknown} "
                 f"are not among camera_names {self.settings.camera_names}")
             return
-        self._publish(rig, latest.resolve())
+        self._publish(rig, latest.resolve(), (latest / "calibration.json").stat().st_mtime)
         self.get_logger().info(f"republished the last good calibration {latest.resolve()}")
 
-    def _publish(self, rig: RigCalibration, directory: Path) -> None:
+    def _publish(self, rig: RigCalibration, directory: Path,
+                 calibrated_at: Optional[float] = None) -> None:
+        """Publish CameraInfo per calibrated camera and all extrinsics in one /tf_static message;
+        calibrated_at: when the calibration was made (time.time(); default now), for its age."""
         s = self.settings
         t_ns = self.get_clock().now().nanoseconds
         frames = dict(zip(s.camera_names, s.frame_names))
@@ -540,7 +543,7 @@ class DenseCalibNode(Node):
                 pub.publish(camera_info_msg(name, rig.cameras[name].intrinsics, frames[name], t_ns))
         self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns))
         self.calibration, self.calibration_dir = rig, directory
-        self._calibrated_at = time.time()
+        self._calibrated_at = time.time() if calibrated_at is None else calibrated_at
         self._publish_diagnostics()
 
     def _call_set_camera_info(self, rig: RigCalibration) -> str:
