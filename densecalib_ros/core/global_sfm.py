@@ -13,7 +13,7 @@ implementation details), initialised without VGGT.
      have moved a little); its intrinsics are the starting intrinsics too.
    - "incremental": the result of the incremental pipeline (incremental.run_incremental).
 3. Points: every track is triangulated from all its views with pycolmap.estimate_triangulation
-   (LO-RANSAC on reprojection error); observations RANSAC rejects are deactivated.
+   (LO-RANSAC on reprojection error), and again from the refined cameras before every BA stage.
 4. Gauge: the pose of the camera with the highest summed track score over tracks from >= 3-cycles
    stays fixed in every BA stage (the scale is left free: the rig result is normalised anyway).
 5. Staged BA (Cauchy loss, reconstruction.bundle_adjust), each stage adding parameters to the
@@ -241,10 +241,12 @@ def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
 
 def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX,
                        min_angle_deg: float = MIN_TRIANGULATION_ANGLE_DEG, seed: int = 0) -> int:
-    """Triangulate every track with >= 2 active registered views from all of them with
-    pycolmap.estimate_triangulation (LO-RANSAC, reprojection error <= max_error_px, triangulation
-    angle >= min_angle_deg). Sets state.points_xyz (NaN where it fails) and deactivates the
-    observations RANSAC rejects. Returns the number of triangulated tracks."""
+    """Triangulate every track with >= 2 active registered views with
+    pycolmap.estimate_triangulation (LO-RANSAC over all its views, reprojection error <=
+    max_error_px, triangulation angle >= min_angle_deg). Sets state.points_xyz (NaN where it
+    fails). Observations RANSAC rejects stay active: with initial poses a degree off (a bumped
+    camera) whole cameras can look like outliers; BA's robust loss decides instead. Returns the
+    number of triangulated tracks."""
     options = pycolmap.EstimateTriangulationOptions()
     options.residual_type = pycolmap.TriangulationResidualType.REPROJECTION_ERROR
     options.ransac.max_error = float(max_error_px)
@@ -259,12 +261,8 @@ def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_
         result = pycolmap.estimate_triangulation(state.tracks.xy_px[t, cams],
                                                  [poses[c] for c in cams],
                                                  [cameras[c] for c in cams], options)
-        if result is None:
-            continue
-        inliers = np.asarray(result["inliers"], dtype=bool)
-        state.active[t, cams[~inliers]] = False
-        state.points_xyz[t] = result["xyz"]
-    state.drop_weak_points()
+        if result is not None:
+            state.points_xyz[t] = result["xyz"]
     return int(state.point_mask().sum())
 
 
@@ -275,9 +273,11 @@ def _rms(state: SfMState) -> float:
 
 
 def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMConfig,
-                             gauge_camera: int, progress: Progress = None) -> dict[str, float]:
-    """The staged BA of the module docstring, in place. Returns {stage: reprojection RMS px after
-    it} for the stages that ran."""
+                             gauge_camera: int, progress: Progress = None, seed: int = 0
+                             ) -> dict[str, float]:
+    """The staged BA of the module docstring, in place; before every stage but the first the
+    tracks are re-triangulated from the current cameras (triangulate_tracks). Returns {stage:
+    reprojection RMS px after it} for the stages that ran."""
     say = progress or (lambda msg: None)
     iterations = dict(config.global_stage_iterations)
     rms = {}
@@ -285,6 +285,10 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
         its = int(iterations.get(name, 0))
         if its <= 0:
             continue
+        if rms:
+            # Points triangulated from the previous stage's cameras are RANSAC consensus points:
+            # a stage that starts from them is not pulled by observations fitted to a worse model.
+            triangulate_tracks(state, seed=seed)
         stage = BAStage(its, refine_focal=k >= 1, refine_extra=k >= 2,
                         refine_principal_point=k >= 3, fixed_pose_cameras=(gauge_camera,))
         summary = bundle_adjust(state, camera_names, stage, config.num_threads)
@@ -293,6 +297,8 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
             f"reprojection RMS {rms[name]:.2f} px")
     its = int(iterations.get("model", 0))
     if config.refine_to_model and its > 0:
+        if rms:
+            triangulate_tracks(state, seed=seed)
         convert_camera_models(state, config.refine_to_model)
         bundle_adjust(state, camera_names, BAStage(its, refine_focal=False, refine_extra=True,
                                                    refine_poses=False), config.num_threads)
@@ -348,7 +354,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     scores = np.where([T is not None for T in state.cam_from_world], gauge_scores(tracks), -1.0)
     order = [int(c) for c in np.argsort(-scores, kind="stable")]
     gauge = order[0]
-    rms.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress))
+    rms.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress, seed))
     # A camera with (almost) no observations of reconstruction points has no trustworthy pose.
     err = reprojection_errors(state)
     failed = [c for c in range(C) if state.cam_from_world[c] is None
