@@ -149,7 +149,8 @@ def test_staged_bundle_adjustment_converges_from_perturbed_start():
     pose_before = state.cam_from_world[gauge].copy()
     rms = staged_bundle_adjustment(state, NAMES, sfm_config("regular", distortion=200), gauge)
     assert list(rms) == ["extrinsics", "focal", "distortion"]
-    assert rms["distortion"] < rms["extrinsics"]
+    # 0.3 px noise per axis; extrinsics alone cannot absorb a 5 % focal error.
+    assert rms["distortion"]["median_px"] < 0.3 < rms["extrinsics"]["median_px"]
     np.testing.assert_allclose(state.cam_from_world[gauge], pose_before, atol=1e-12)
     after = evaluate_calibration(rig_from_state(state, NAMES, []), calibration(cams, poses))
     assert after["auc3"] > 90
@@ -166,10 +167,13 @@ def test_global_from_rotation_averaging_recovers_truth(model, preset):
     result = run_global(tracks, init, NAMES, cfg)
     assert result.failed == []
     assert result.quality["global_init"] == "rotation_averaging"
-    stages = result.quality["stage_reprojection_rms_px"]
+    stages = result.quality["stage_residuals"]
     assert list(stages)[:2] == ["triangulation", "extrinsics"]
     assert ("model" in stages) == (preset == "fisheye")
+    # The 3 % outlier observations take part in BA (robust loss) but are left out of the result.
+    assert result.quality["num_outlier_observations"] > 0
     rig = rig_from_state(result.state, NAMES, result.failed)
+    assert rig.quality["reprojection_rms_px"] < 0.6
     assert rig.cameras["front"].intrinsics.model == model
     metrics = evaluate_calibration(rig, calibration(cams, poses))
     assert metrics["auc3"] > 90
@@ -224,6 +228,7 @@ def test_pipeline_global_dispatch_reports_stages():
     quality = result.rig.quality
     assert quality["pipeline"] == "global"
     assert quality["gauge_camera"] in names
-    assert set(quality["stage_reprojection_rms_px"]) == {"triangulation", "extrinsics", "focal"}
+    assert set(quality["stage_residuals"]) == {"triangulation", "extrinsics", "focal"}
+    assert quality["reprojection_rms_px"] < 0.6  # 0.3 px noise; F_err removed the outlier tracks
     assert result.reconstruction.num_reg_images() == 4
     assert evaluate_calibration(result.rig, calibration(cams, poses, names))["auc30"] > 90

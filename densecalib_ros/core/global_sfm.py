@@ -20,8 +20,10 @@ implementation details), initialised without VGGT.
    previous ones, a stage with 0 iterations is skipped: extrinsics (+ points) -> + focal ->
    + distortion -> + principal point; then, with `refine_to_model` (fisheye), the cameras are
    re-expressed in the richer model and only its distortion (+ points) is refined ("model").
-   There is no outlier removal by reprojection error (B_err) in the global pipeline (paper); the
-   reprojection RMS after triangulation and after every stage is reported in `quality`.
+   There is no outlier removal by reprojection error (B_err) in the global pipeline (paper): all
+   observations take part in every stage; observations above TRIANGULATION_MAX_ERROR_PX are
+   left out of the result only after the last stage. The residuals after triangulation and after
+   every stage are reported in `quality`.
 """
 from __future__ import annotations
 
@@ -59,8 +61,9 @@ Progress = Optional[Callable[[str], None]]
 @dataclass
 class GlobalResult:
     """state: the refined reconstruction. view_order: cameras by gauge score, highest (the gauge
-    camera) first. failed: cameras left without a pose. quality: init method, gauge camera,
-    reprojection RMS (px) after triangulation and after each BA stage."""
+    camera) first. failed: cameras left without a pose. quality: init method, gauge camera, number
+    of outlier observations left out of the result, residual_stats after triangulation and after
+    each BA stage ("stage_residuals")."""
 
     state: SfMState
     view_order: list[int]
@@ -266,46 +269,57 @@ def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_
     return int(state.point_mask().sum())
 
 
-def _rms(state: SfMState) -> float:
+def residual_stats(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX) -> dict:
+    """Reprojection residuals of the active observations of reconstruction points: median_px (all),
+    rms_px (those <= max_error_px) and outlier_fraction (above it or behind the camera). Without
+    outlier removal the plain RMS would only measure the few gross outliers."""
     err = reprojection_errors(state)
-    finite = err[np.isfinite(err)]
-    return float(np.sqrt(np.mean(finite ** 2))) if len(finite) else float("nan")
+    err = err[~np.isnan(err)]
+    inliers = err[err <= max_error_px]
+    return dict(median_px=float(np.median(err)) if len(err) else float("nan"),
+                rms_px=float(np.sqrt(np.mean(inliers ** 2))) if len(inliers) else float("nan"),
+                outlier_fraction=float(1.0 - len(inliers) / len(err)) if len(err) else 0.0)
+
+
+def _describe(stats: dict) -> str:
+    return (f"median {stats['median_px']:.2f} px, RMS {stats['rms_px']:.2f} px of the residuals "
+            f"<= {TRIANGULATION_MAX_ERROR_PX:.0f} px ({100 * stats['outlier_fraction']:.1f} % above)")
 
 
 def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMConfig,
                              gauge_camera: int, progress: Progress = None, seed: int = 0
-                             ) -> dict[str, float]:
+                             ) -> dict[str, dict]:
     """The staged BA of the module docstring, in place; before every stage but the first the
     tracks are re-triangulated from the current cameras (triangulate_tracks). Returns {stage:
-    reprojection RMS px after it} for the stages that ran."""
+    residual_stats after it} for the stages that ran."""
     say = progress or (lambda msg: None)
     iterations = dict(config.global_stage_iterations)
-    rms = {}
+    stats: dict[str, dict] = {}
     for k, name in enumerate(STAGES):
         its = int(iterations.get(name, 0))
         if its <= 0:
             continue
-        if rms:
+        if stats:
             # Points triangulated from the previous stage's cameras are RANSAC consensus points:
             # a stage that starts from them is not pulled by observations fitted to a worse model.
             triangulate_tracks(state, seed=seed)
         stage = BAStage(its, refine_focal=k >= 1, refine_extra=k >= 2,
                         refine_principal_point=k >= 3, fixed_pose_cameras=(gauge_camera,))
         summary = bundle_adjust(state, camera_names, stage, config.num_threads)
-        rms[name] = _rms(state)
+        stats[name] = residual_stats(state)
         say(f"global BA stage {name} ({its} it, {summary.termination_type.name}): "
-            f"reprojection RMS {rms[name]:.2f} px")
+            f"{_describe(stats[name])}")
     its = int(iterations.get("model", 0))
     if config.refine_to_model and its > 0:
-        if rms:
+        if stats:
             triangulate_tracks(state, seed=seed)
         convert_camera_models(state, config.refine_to_model)
         bundle_adjust(state, camera_names, BAStage(its, refine_focal=False, refine_extra=True,
                                                    refine_poses=False), config.num_threads)
-        rms["model"] = _rms(state)
-        say(f"global BA stage model ({config.refine_to_model}, {its} it): reprojection RMS "
-            f"{rms['model']:.2f} px")
-    return rms
+        stats["model"] = residual_stats(state)
+        say(f"global BA stage model ({config.refine_to_model}, {its} it): "
+            f"{_describe(stats['model'])}")
+    return stats
 
 
 def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
@@ -348,15 +362,20 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     state.cam_from_world = [None if T is None else np.asarray(T, dtype=np.float64).copy()
                             for T in poses]
     num_points = triangulate_tracks(state, seed=seed)
-    rms = {"triangulation": _rms(state)}
+    stats = {"triangulation": residual_stats(state)}
     say(f"global init {init}: {num_points} of {tracks.num_tracks} tracks triangulated, "
-        f"reprojection RMS {rms['triangulation']:.2f} px")
+        f"{_describe(stats['triangulation'])}")
     scores = np.where([T is not None for T in state.cam_from_world], gauge_scores(tracks), -1.0)
     order = [int(c) for c in np.argsort(-scores, kind="stable")]
     gauge = order[0]
-    rms.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress, seed))
-    # A camera with (almost) no observations of reconstruction points has no trustworthy pose.
+    stats.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress, seed))
+    # Gross outliers took part in every stage under the robust loss; they are left out of the
+    # result (its statistics and COLMAP model) only now, so the estimate does not depend on it.
     err = reprojection_errors(state)
+    outliers = np.nan_to_num(err, nan=0.0) > TRIANGULATION_MAX_ERROR_PX
+    state.active[outliers] = False
+    err[outliers] = np.nan
+    # A camera with (almost) no observations of reconstruction points has no trustworthy pose.
     failed = [c for c in range(C) if state.cam_from_world[c] is None
               or np.isfinite(err[:, c]).sum() < MIN_CAMERA_OBSERVATIONS]
     for c in failed:
@@ -367,6 +386,6 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             "Fewer than two cameras keep enough observations after global SfM: check that the "
             "cameras overlap and see textured scene content.")
     quality = dict(global_init=init, gauge_camera=camera_names[gauge],
-                   stage_reprojection_rms_px=rms)
+                   num_outlier_observations=int(outliers.sum()), stage_residuals=stats)
     return GlobalResult(state=state, view_order=order, failed=failed, gauge_camera=gauge,
                         quality=quality)

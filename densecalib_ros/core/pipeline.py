@@ -178,7 +178,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         pipeline=config.pipeline, preset=config.preset, sfm_runtime_s=runtime,
         view_order=[camera_names[c] for c in sfm.view_order]))
     if config.pipeline == "global":
-        rig.quality.update(sfm.quality)  # init, gauge camera, RMS per BA stage
+        rig.quality.update(sfm.quality)  # init, gauge camera, residuals per BA stage
     reconstruction, _ = build_reconstruction(sfm.state, camera_names)
     _say(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
                    f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
