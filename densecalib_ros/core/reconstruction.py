@@ -265,6 +265,9 @@ def midpoint_triangulation(state: SfMState, rows: np.ndarray
         sel = np.flatnonzero(obs[:, c])
         if len(sel):
             d, centre = camera_rays_world(state, c, rows[sel])
+            finite = np.isfinite(d).all(axis=1)  # no ray where the lens model does not invert
+            obs[sel[~finite], c] = False
+            sel, d = sel[finite], d[finite]
             P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
             A[sel] += P
             b[sel] += P @ centre
