@@ -21,13 +21,14 @@ class SamplingConfig:
     fine_cell_px: int = 5  # stage-1 grid, random pick per cell
     cell_size_px: int = 80  # stage-2 grid d
     c_min: float = 0.3  # coverage rule constant (see sampling.py for its interpretation)
-    max_grid_iterations: int = 3  # grid halvings allowed per cycle order
+    max_grid_iterations: int = 3  # grid levels per cycle order (Alg. 1 max_iter: d, d/2, d/4)
     samples_per_order: dict = field(default_factory=lambda: {4: 6000, 3: 3000, 2: 1000})
     top_k: int = 3  # number of best pair scores summed per cycle; 0 = no scoring
     probabilistic_scoring: bool = True  # stage-2 pick proportional to score, else argmax
     score_alpha_deg: float = 30.0
     score_sigma_deg: float = 20.0
     score_p: float = 1.0
+    score_boundary_eps: float = 0.03  # boundary-term sharpness (scoring.py); 1.0 = eq. 1 as printed
     seed: int = 0
 
 

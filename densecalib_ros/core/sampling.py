@@ -282,7 +282,8 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
                             theta = triangulation_angles_deg(geo.R_ji, geo.t_ji, cam_rays[a],
                                                              cam_rays[b])
                             pair_scores.append(angle_score(theta, s_cfg.score_alpha_deg,
-                                                           s_cfg.score_sigma_deg, s_cfg.score_p))
+                                                           s_cfg.score_sigma_deg, s_cfg.score_p,
+                                                           s_cfg.score_boundary_eps))
                 score = (top_k_sum(np.stack(pair_scores, axis=1), s_cfg.top_k)
                          if pair_scores else np.zeros(len(cs)))
                 removed[n] += int((~keep).sum())
