@@ -119,8 +119,13 @@ def test_f_err_filter_removes_geometrically_wrong_but_consistent_cycles():
         m = obs[:, i] & obs[:, j]
         d = symmetric_epipolar_distance_px(geo.F_ji, tracks.xy_px[m, i], tracks.xy_px[m, j])
         assert d.max() <= 10.0
+    # F_err off (fisheye preset): only 2-cycles, which closure does not verify, are still tested.
     off = make_config("regular", "incremental", sfm__f_err_px=None, sampling__cell_size_px=20)
-    assert sum(sample_tracks([ms], off).stats["f_err_removed"].values()) == 0
+    removed = sample_tracks([ms], off).stats["f_err_removed"]
+    assert removed[2] > 0 and removed[3] == 0 and removed[4] == 0
+    none = make_config("regular", "incremental", sfm__f_err_px=None,
+                       sfm__two_cycle_f_err_px=None, sampling__cell_size_px=20)
+    assert sum(sample_tracks([ms], none).stats["f_err_removed"].values()) == 0
 
 
 def test_budget_and_time_steps():

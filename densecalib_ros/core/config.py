@@ -37,6 +37,9 @@ class SfMConfig:
     camera_model: str = "RADIAL"  # initial COLMAP model per camera
     refine_to_model: Optional[str] = None  # e.g. "OPENCV_FISHEYE": final distortion-only refinement
     f_err_px: Optional[float] = 10.0  # epipolar filter threshold; None = off
+    # With f_err_px off (fisheye), 2-cycle tracks still get this epipolar test (ray-based E,
+    # pinhole-equivalent px): for mutual matchers a 2-cycle carries no consistency evidence.
+    two_cycle_f_err_px: Optional[float] = 10.0
     b_err_px: Optional[float] = 20.0  # incremental reprojection outlier threshold; None = off
     refine_principal_point: bool = False  # in the final BA only
     share_intrinsics: bool = False  # one intrinsics block for identical cameras

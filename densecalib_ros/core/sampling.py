@@ -263,6 +263,8 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
     removed = {n: 0 for n in closed_counts}
     for t, ms in enumerate(match_sets):
         for n, sets in stage1[t].items():
+            # Higher orders are verified by their closure; with F_err off (fisheye) 2-cycles are not.
+            thr = f_err if (f_err is not None or n > 2) else sfm_cfg.two_cycle_f_err_px
             for cs in sets:
                 xy = np.stack([ms.sites[c][cs.sites[:, k]] for k, c in enumerate(cs.cameras)],
                               axis=1)
@@ -271,10 +273,10 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
                 cam_rays = [rays(c, xy[:, k], focal) for k, c in enumerate(cs.cameras)]
                 for (a, ca), (b, cb) in combinations(enumerate(cs.cameras), 2):
                     geo = two_view.get((ca, cb))
-                    if f_err is not None and geo is not None:
+                    if thr is not None and geo is not None:
                         d = _epipolar_distance_px(geo, xy[:, a], xy[:, b], cam_rays[a],
                                                   cam_rays[b], focal[ca], focal[cb])
-                        keep &= ~(d > f_err)
+                        keep &= ~(d > thr)
                     if s_cfg.top_k > 0:
                         if geo is None or geo.R_ji is None:
                             pair_scores.append(np.zeros(len(cs)))
