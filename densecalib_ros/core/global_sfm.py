@@ -196,11 +196,12 @@ def rotation_averaging_poses(tracks: Tracks, intrinsics: Sequence[CameraIntrinsi
             f"Rotation averaging gave no rotation for camera(s) {missing}: their relative poses "
             "disagree with the rest of the rig. Check their overlap with the other cameras.")
     # Global positioning: camera centres and points from the tracks' viewing rays.
-    point2d_idx = np.cumsum(tracks.observed(), axis=0) - 1
+    obs = tracks.observed()
+    point2d_idx = np.cumsum(obs, axis=0) - 1
     for t in _positioning_tracks(tracks, MAX_POSITIONING_TRACKS):
         track = pycolmap.Track()
         track.add_elements([pycolmap.TrackElement(int(c) + 1, int(point2d_idx[t, c]))
-                            for c in np.flatnonzero(tracks.observed()[t])])
+                            for c in np.flatnonzero(obs[t])])
         rec.add_point3D(np.zeros(3), track)
     position_options = pycolmap.GlobalPositionerOptions()
     position_options.random_seed = int(seed)
