@@ -152,6 +152,10 @@ def test_staged_bundle_adjustment_converges_from_perturbed_start():
     # 0.3 px noise per axis; extrinsics alone cannot absorb a 5 % focal error.
     assert rms["distortion"]["median_px"] < 0.3 < rms["extrinsics"]["median_px"]
     np.testing.assert_allclose(state.cam_from_world[gauge], pose_before, atol=1e-12)
+    # The scale is held too (COLMAP's gauge on one translation component of another camera).
+    spread = [sum(np.linalg.norm(np.linalg.inv(T)[:3, 3] - np.linalg.inv(poses_[gauge])[:3, 3])
+                  for T in poses_) for poses_ in (start_poses, state.cam_from_world)]
+    assert 0.9 < spread[1] / spread[0] < 1.1
     after = evaluate_calibration(rig_from_state(state, NAMES, []), calibration(cams, poses))
     assert after["auc3"] > 90
     assert after["median_focal_err"] < 0.005

@@ -169,7 +169,9 @@ def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
     """Refine `state` in place with COLMAP's Ceres BA (Cauchy loss, scale 1 px, COLMAP default).
 
     The gauge: if no pose is held fixed, the first registered camera's pose and the scale (via
-    COLMAP's TWO_CAMS_FROM_WORLD gauge) are fixed."""
+    COLMAP's TWO_CAMS_FROM_WORLD gauge) are fixed; if one is, COLMAP's gauge takes that camera as
+    its first and fixes the scale with one translation component of another camera (without it
+    the scale drifts freely and can collapse)."""
     rec, track_of_point = build_reconstruction(state, camera_names)
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = stage.refine_focal
@@ -189,7 +191,7 @@ def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
         config.add_image(c + 1)
     for c in stage.fixed_pose_cameras:
         config.set_constant_rig_from_world_pose(c + 1)  # frame_id = image_id (trivial frames)
-    if stage.refine_poses and not stage.fixed_pose_cameras:
+    if stage.refine_poses and len(stage.fixed_pose_cameras) < 2:
         config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
     adjuster = pycolmap.create_default_bundle_adjuster(options, config, rec)
     summary = adjuster.solve()
