@@ -232,7 +232,7 @@ def test_pipeline_global_dispatch_reports_stages():
     quality = result.rig.quality
     assert quality["pipeline"] == "global"
     assert quality["gauge_camera"] in names
-    assert set(quality["stage_residuals"]) == {"triangulation", "extrinsics", "focal"}
+    assert set(quality["stage_residuals"]) == {"triangulation", "extrinsics", "focal", "distortion"}
     assert quality["reprojection_rms_px"] < 0.6  # 0.3 px noise; F_err removed the outlier tracks
     assert result.reconstruction.num_reg_images() == 4
     assert evaluate_calibration(result.rig, calibration(cams, poses, names))["auc30"] > 90

