@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Idempotent set-up of the project's virtual environment (.venv in the repo root):
 #   - creates .venv with python3.11 if missing,
-#   - installs the pinned dependencies when requirements*.txt or setup.py changed (stamp file),
+#   - installs the pinned dependencies when requirements*.txt or setup.py changed (stamp file;
+#     requirements-nodeps.txt with --no-deps),
 #   - installs this package in editable mode (console scripts densecalib, densecalib_node),
 #   - generates tf2_msgs into .venv when it cannot be imported (PyPI has no tf2_msgs wheel).
 # A second run only checks the stamp and an import: it takes a few seconds.
@@ -21,12 +22,15 @@ fi
 vpy="$venv/bin/python"
 
 stamp="$venv/.densecalib_stamp"
-want="$(cat "$repo/requirements.txt" "$repo/requirements-ros.txt" "$repo/setup.py" | sha256sum | cut -d' ' -f1)"
+want="$(cat "$repo/requirements.txt" "$repo/requirements-ros.txt" "$repo/requirements-nodeps.txt" \
+        "$repo/setup.py" | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   log "installing pinned dependencies (first run: about a minute)"
   "$vpy" -m pip install --quiet --disable-pip-version-check --upgrade pip
   "$vpy" -m pip install --quiet --disable-pip-version-check \
       -r "$repo/requirements.txt" -r "$repo/requirements-ros.txt"
+  # Without their declared dependencies (see the file); their real needs are in requirements.txt.
+  "$vpy" -m pip install --quiet --disable-pip-version-check --no-deps -r "$repo/requirements-nodeps.txt"
   "$vpy" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$repo"
   echo "$want" > "$stamp"
 else

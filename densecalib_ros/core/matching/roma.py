@@ -8,8 +8,10 @@ RoMa's certainty. The weights (RoMa outdoor + DINOv2 ViT-L/14) are never downloa
 the options `weights_path` / `dinov2_weights_path` or the environment variables
 DENSECALIB_ROMA_WEIGHTS / DENSECALIB_DINOV2_WEIGHTS.
 
-Requirements beyond the core: romatch (installed with --no-deps), pillow, einops, loguru and a
-torchvision that works with the installed torch (romatch imports it at import time).
+Requirements beyond the core: romatch 0.1.2 installed with --no-deps, plus pillow, einops and
+loguru (requirements-nodeps.txt / requirements.txt; scripts/setup_env.sh installs them). romatch
+imports torchvision; where no working torchvision exists (as with this project's CPU torch) a
+narrow stand-in is used while importing it (see `_tv_compat`).
 """
 from __future__ import annotations
 
@@ -93,13 +95,15 @@ class RomaMatcher(Matcher):
                                "DINOv2 ViT-L/14 (dinov2_vitl14_pretrain.pth)")
         import torch
 
+        from ._tv_compat import import_romatch
+
         try:
-            from romatch import roma_outdoor
-        except Exception as exc:  # ImportError, or torchvision's RuntimeError on a torch mismatch
+            roma_outdoor = import_romatch().roma_outdoor
+        except Exception as exc:  # ImportError (romatch or a dependency missing), or a broken install
             raise InputError(
                 f"Matcher 'roma' needs the romatch package, which cannot be imported here ({exc}). "
-                "Install romatch with pillow, einops, loguru and a torchvision built for the installed "
-                "torch, or choose another matcher (sift, xfeat-lighterglue, xfeat-star).") from exc
+                "Run scripts/setup_env.sh (installs romatch==0.1.2 with --no-deps plus pillow, einops, "
+                "loguru), or choose another matcher (sift, xfeat-lighterglue, xfeat-star).") from exc
         self.device = resolve_device(self.device)
         states = []
         for path in (weights, dinov2):
