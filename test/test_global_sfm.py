@@ -11,11 +11,11 @@ from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import DisconnectedViewGraphError, InputError
 from densecalib_ros.core.global_sfm import (gauge_scores, rotation_averaging_poses,
                                             run_global, staged_bundle_adjustment,
-                                            triangulate_tracks)
+                                            to_gauge_frame, triangulate_tracks)
 from densecalib_ros.core.incremental import initial_intrinsics
 from densecalib_ros.core.metrics import evaluate_calibration, relative_pose_errors
 from densecalib_ros.core.pipeline import calibrate_from_tracks, rig_from_state
-from densecalib_ros.core.reconstruction import SfMState
+from densecalib_ros.core.reconstruction import SfMState, reprojection_errors
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
 
 NAMES = ["front", "left", "right", "top", "back"]
@@ -136,6 +136,20 @@ def test_rotation_averaging_recovers_truth_from_exact_tracks():
     assert max(e.trans_dir_err_deg for e in errors) < 0.5
 
 
+def test_gauge_frame_is_the_gauge_camera_and_keeps_residuals():
+    cams, poses = gt_rig(seed=4)
+    tracks = gt_tracks(cams, poses, seed=4)
+    state = SfMState.create(tracks, cams)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state)
+    before = reprojection_errors(state)
+    to_gauge_frame(state, 2)
+    np.testing.assert_allclose(state.cam_from_world[2], np.eye(4), atol=1e-12)
+    centres = [np.linalg.inv(T)[:3, 3] for c, T in enumerate(state.cam_from_world) if c != 2]
+    assert np.median(np.linalg.norm(centres, axis=1)) == pytest.approx(1.0)
+    np.testing.assert_allclose(reprojection_errors(state), before, atol=1e-6)
+
+
 def test_staged_bundle_adjustment_converges_from_perturbed_start():
     cams, poses = gt_rig(seed=5)
     tracks = gt_tracks(cams, poses, seed=5)
@@ -146,6 +160,8 @@ def test_staged_bundle_adjustment_converges_from_perturbed_start():
     assert before["auc3"] < 40  # a 2 deg / 5 % bump is far outside the AUC@3 thresholds
     triangulate_tracks(state)
     gauge = int(np.argmax(gauge_scores(tracks)))
+    to_gauge_frame(state, gauge)
+    start_poses = [T.copy() for T in state.cam_from_world]
     pose_before = state.cam_from_world[gauge].copy()
     rms = staged_bundle_adjustment(state, NAMES, sfm_config("regular", distortion=200), gauge)
     assert list(rms) == ["extrinsics", "focal", "distortion"]

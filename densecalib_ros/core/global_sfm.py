@@ -14,8 +14,9 @@ implementation details), initialised without VGGT.
    - "incremental": the result of the incremental pipeline (incremental.run_incremental).
 3. Points: every track is triangulated from all its views with pycolmap.estimate_triangulation
    (LO-RANSAC on reprojection error), and again from the refined cameras before every BA stage.
-4. Gauge: the pose of the camera with the highest summed track score over tracks from >= 3-cycles
-   stays fixed in every BA stage (the scale is left free: the rig result is normalised anyway).
+4. Gauge: the world frame becomes the frame of the camera with the highest summed track score
+   over tracks from >= 3-cycles; its pose stays fixed in every BA stage, and COLMAP's gauge fixes
+   the scale with one translation component of another camera.
 5. Staged BA (Cauchy loss, reconstruction.bundle_adjust), each stage adding parameters to the
    previous ones, a stage with 0 iterations is skipped: extrinsics (+ points) -> + focal ->
    + distortion -> + principal point; then, with `refine_to_model` (fisheye), the cameras are
@@ -287,6 +288,27 @@ def _describe(stats: dict) -> str:
             f"<= {TRIANGULATION_MAX_ERROR_PX:.0f} px ({100 * stats['outlier_fraction']:.1f} % above)")
 
 
+def to_gauge_frame(state: SfMState, gauge_camera: int) -> None:
+    """Re-express poses and points in place in the gauge camera's frame, scaled so that the median
+    distance of the other registered cameras from it is 1. COLMAP's scale gauge (one translation
+    component of a second camera, bundle_adjust) only pins the scale when the fixed camera sits at
+    the world origin: elsewhere the cameras can shrink towards it while that component stays put."""
+    gauge_from_world = state.cam_from_world[gauge_camera].copy()
+    world_from_gauge = np.linalg.inv(gauge_from_world)
+    centres = [np.linalg.inv(T)[:3, 3] for T in state.cam_from_world if T is not None]
+    distances = [np.linalg.norm(gauge_from_world[:3, :3] @ c + gauge_from_world[:3, 3])
+                 for c in centres]
+    distances = [d for d in distances if d > 0]
+    scale = 1.0 / float(np.median(distances)) if distances else 1.0
+    for c, T in enumerate(state.cam_from_world):
+        if T is not None:
+            T = T @ world_from_gauge
+            T[:3, 3] *= scale
+            state.cam_from_world[c] = T
+    state.points_xyz = scale * (state.points_xyz @ gauge_from_world[:3, :3].T
+                                + gauge_from_world[:3, 3])
+
+
 def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMConfig,
                              gauge_camera: int, progress: Progress = None, seed: int = 0
                              ) -> dict[str, dict]:
@@ -369,6 +391,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     scores = np.where([T is not None for T in state.cam_from_world], gauge_scores(tracks), -1.0)
     order = [int(c) for c in np.argsort(-scores, kind="stable")]
     gauge = order[0]
+    to_gauge_frame(state, gauge)
     stats.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress, seed))
     # Gross outliers took part in every stage under the robust loss; they are left out of the
     # result (its statistics and COLMAP model) only now, so the estimate does not depend on it.
