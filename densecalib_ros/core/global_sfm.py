@@ -315,7 +315,7 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
     """The staged BA of the module docstring, in place; before every stage but the first the
     tracks are re-triangulated from the current cameras (triangulate_tracks). Returns {stage:
     residual_stats after it} for the stages that ran."""
-    say = progress or (lambda msg: None)
+    say = progress or log.info
     iterations = dict(config.global_stage_iterations)
     stats: dict[str, dict] = {}
     for k, name in enumerate(STAGES):
@@ -356,7 +356,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     to start from when config.global_init == "previous". Raises DisconnectedViewGraphError,
     InputError (unknown init, missing/unusable previous calibration), NotEnoughCamerasError.
     """
-    say = progress or (lambda msg: None)
+    say = progress or log.info
     C = tracks.num_cameras
     init = config.global_init
     if init not in GLOBAL_INITS:
