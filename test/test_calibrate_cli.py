@@ -75,3 +75,17 @@ def test_bag_needs_topics(tmp_path, caplog):
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--bag", str(tmp_path / "x.bag"), "--out", str(tmp_path / "o")])
     assert rc == 2 and "--topics" in caplog.text
+
+
+def test_recalibration_from_previous_reports_change(rig_dir, tmp_path, capsys):
+    first, second = tmp_path / "first", tmp_path / "second"
+    common = ["--images", str(rig_dir), "--matcher", "sift", "--threads", "1"]
+    assert main(["calibrate", *common, "--out", str(first)]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", *common, "--out", str(second), "--previous", str(first)]) == 0
+    printed = capsys.readouterr().out
+    assert "change vs previous" in printed and "started previous calibration" in printed
+    quality = json.loads((second / "calibration.json").read_text())["quality"]
+    # Same images: nothing moved, so the reported change is small.
+    for change in quality["change_vs_previous"].values():
+        assert abs(change["focal_change_pct"]) < 1.0 and change["rotation_change_deg"] < 0.5

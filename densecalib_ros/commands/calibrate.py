@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="match images at most at this size (default 1024)")
     parser.add_argument("--share-intrinsics", action="store_true",
                         help="one set of intrinsics for cameras of the same image size")
+    parser.add_argument("--previous", metavar="PATH", default=None,
+                        help="a previous calibration (folder or calibration.json) of these cameras: "
+                             "start from it, report what changed, and refuse a worse result")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
     parser.add_argument("--threads", type=int, default=-1,
                         help="bundle-adjustment threads (-1 = all cores)")
@@ -72,7 +75,12 @@ def run(args: argparse.Namespace) -> int:
         log.info("%d camera(s) (%s), %d frame set(s); preset %s, %s pipeline, matcher %s",
                  len(names), ", ".join(names), len(frame_sets), config.preset, config.pipeline,
                  config.matcher)
-        result = run_calibration(frame_sets, names, config, progress=None)
+        if args.previous:
+            from ..core.export import read_calibration
+            from ..core.recalibration import recalibrate
+            result = recalibrate(frame_sets, names, config, read_calibration(args.previous))
+        else:
+            result = run_calibration(frame_sets, names, config, progress=None)
         replace_directory_atomic(
             lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction), args.out)
     except InputError as exc:
@@ -89,5 +97,7 @@ def run(args: argparse.Namespace) -> int:
               f"{q.reprojection_rms_px:7.2f} {q.num_observations:6d} {q.coverage:8.2f}")
     if rig.failed_cameras:
         print("not registered: " + ", ".join(rig.failed_cameras))
+    if "change_summary" in rig.quality:
+        print(f"{rig.quality['change_summary']} (started {rig.quality['init']})")
     print(f"reference camera {rig.reference_camera}; wrote {args.out}")
     return 0

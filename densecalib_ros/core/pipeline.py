@@ -203,7 +203,7 @@ def _previous_focals(previous: Optional[RigCalibration], camera_names: Sequence[
     return np.array(focals)
 
 
-def _check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
+def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
     """(width, height) per camera; InputError / NotEnoughCamerasError on unusable input."""
     C = len(camera_names)
     if C < 2:
@@ -223,6 +223,45 @@ def _check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
     return sizes
 
 
+def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,
+                     matcher=None, progress: Progress = None) -> list:
+    """One SiteMatchSet per frame set. matcher: an already loaded core.matching.Matcher to reuse
+    (else config.matcher is created and loaded here)."""
+    from .matching import create_matcher
+
+    if matcher is None:
+        matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
+        matcher.load()
+    match_sets = []
+    for t, frames in enumerate(frame_sets):
+        match_sets.append(matcher.match(list(frames)))
+        _say(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})")
+    return match_sets
+
+
+def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, int]],
+                           camera_names: Sequence[str], config: PipelineConfig, *,
+                           previous: Optional[RigCalibration] = None,
+                           progress: Progress = None) -> CalibrationResult:
+    """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
+    the previous calibration's poses and intrinsics also give the triangulation angles that score
+    the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused."""
+    from .sampling import sample_tracks
+
+    if previous is not None and config.pipeline == "global" and config.sfm.global_init == "previous":
+        from .global_sfm import poses_from_previous
+
+        intrinsics, poses = poses_from_previous(previous, camera_names, image_sizes)
+        sampled = sample_tracks(match_sets, config, cam_from_rig=poses, intrinsics=intrinsics)
+    else:
+        sampled = sample_tracks(match_sets, config,
+                                focal_px=_previous_focals(previous, camera_names, image_sizes))
+    _say(progress, f"sampled {sampled.tracks.num_tracks} tracks")
+    return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
+                                 two_view=sampled.two_view, focal_px=sampled.focal_px,
+                                 previous=previous, progress=progress)
+
+
 def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
                     config: PipelineConfig, *, matcher=None,
                     previous: Optional[RigCalibration] = None,
@@ -232,26 +271,14 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     frame_sets[t][c]: camera c's image at time t, (H, W, 3) uint8 RGB or (H, W) uint8 gray.
     matcher: an already loaded core.matching.Matcher to reuse (else config.matcher is created and
     loaded here). previous: a previous calibration of the same cameras; its focal lengths replace
-    the initial-focal estimate (recalibration). Raises CalibrationError subclasses."""
-    from .matching import create_matcher
-    from .sampling import sample_tracks
-
+    the initial-focal estimate (recalibration; see core.recalibration for starting from its
+    poses). Raises CalibrationError subclasses."""
     start = time.perf_counter()
     camera_names = list(camera_names)
-    image_sizes = _check_frame_sets(frame_sets, camera_names)
-    if matcher is None:
-        matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
-        matcher.load()
-    match_sets = []
-    for t, frames in enumerate(frame_sets):
-        match_sets.append(matcher.match(list(frames)))
-        _say(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})")
-    focal_prior = _previous_focals(previous, camera_names, image_sizes)
-    sampled = sample_tracks(match_sets, config, focal_px=focal_prior)
-    _say(progress, f"sampled {sampled.tracks.num_tracks} tracks")
-    result = calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
-                                   two_view=sampled.two_view, focal_px=sampled.focal_px,
-                                   previous=previous, progress=progress)
+    image_sizes = check_frame_sets(frame_sets, camera_names)
+    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress)
+    result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
+                                    previous=previous, progress=progress)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
     return result

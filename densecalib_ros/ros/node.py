@@ -447,7 +447,9 @@ class DenseCalibNode(Node):
         job.done.set()
 
     def _calibrate(self, start: float) -> Outcome:
-        from ..core.pipeline import run_calibration  # heavy (pycolmap, matchers): import on use
+        # heavy (pycolmap, matchers): import on use
+        from ..core.pipeline import run_calibration
+        from ..core.recalibration import recalibrate
 
         s = self.settings
         sets = self.sync.snapshot()
@@ -462,9 +464,13 @@ class DenseCalibNode(Node):
         images = decode_frame_sets(sets)
         config = make_config(s.preset, s.pipeline, s.matcher,
                              max_image_side_px=s.max_image_side_px)
-        result = run_calibration(images, s.camera_names, config, matcher=self._matcher_for(s),
-                                 previous=self.calibration,
-                                 progress=lambda msg: self._set_status(f"calibrating: {msg}"))
+        progress = lambda msg: self._set_status(f"calibrating: {msg}")  # noqa: E731
+        if self.calibration is not None:  # start from it; a worse result is refused
+            result = recalibrate(images, s.camera_names, config, self.calibration,
+                                 matcher=self._matcher_for(s), progress=progress)
+        else:
+            result = run_calibration(images, s.camera_names, config,
+                                     matcher=self._matcher_for(s), progress=progress)
         rig, reconstruction = result.rig, result.reconstruction
         if s.known_baseline_m > 0:
             rig = apply_known_baseline(rig, *s.baseline_cameras, s.known_baseline_m)
@@ -478,6 +484,8 @@ class DenseCalibNode(Node):
         message = (f"calibrated {len(rig.cameras)}/{len(s.camera_names)} cameras "
                    f"({', '.join(rig.cameras)}{failed}) from {len(sets)} frame sets, reprojection "
                    f"RMS {rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
+        if "change_summary" in rig.quality:
+            message += f"; {rig.quality['change_summary']} (started {rig.quality['init']})"
         if s.call_set_camera_info:
             message += "; set_camera_info: " + self._call_set_camera_info(rig)
         return Outcome(True, message)

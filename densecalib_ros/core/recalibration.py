@@ -1,0 +1,132 @@
+"""Recalibration: calibrate again when a rig already has a good calibration.
+
+Cameras get bumped or refocused; most of the time they moved a little. So the new calibration
+first starts from the previous one (global SfM initialised from its poses and intrinsics, samples
+scored with its triangulation angles: fast and accurate when the change is small). If that does not
+give an acceptable result (a camera missing, reprojection error much larger than before), it
+calibrates from scratch on the same matches. A result that is still worse than the previous
+calibration is refused with CalibrationRejectedError, so callers keep the last good calibration.
+Either way the result says how much every camera changed.
+"""
+from __future__ import annotations
+
+import copy
+import logging
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from .config import PipelineConfig
+from .errors import CalibrationError
+from .metrics import mean_focal_px, relative_pose_errors
+from .pipeline import (CalibrationResult, Progress, _say, calibrate_from_matches, check_frame_sets,
+                       match_frame_sets)
+from .types import RigCalibration
+
+log = logging.getLogger(__name__)
+
+# A new calibration is "worse" when its reprojection RMS exceeds both of these (different images
+# give somewhat different residuals, so only a clear degradation counts).
+MAX_RMS_RATIO = 2.0
+MAX_RMS_INCREASE_PX = 1.0
+
+
+class CalibrationRejectedError(CalibrationError):
+    """The new calibration is worse than the previous one, which stays in force."""
+
+
+@dataclass
+class CameraChange:
+    focal_change_pct: float  # (new - previous) / previous, percent
+    rotation_change_deg: float  # median over the camera's pairs of the relative-rotation change
+    translation_dir_change_deg: float  # same for the relative translation direction
+
+
+def calibration_change(previous: RigCalibration, new: RigCalibration) -> dict[str, CameraChange]:
+    """How much each camera in both calibrations changed. Pose changes are measured on relative
+    poses between cameras (gauge-free): a bumped camera changes in all its pairs, the others in
+    one pair only, so the per-camera median over pairs points at the camera that moved."""
+    names = [n for n in new.cameras if n in previous.cameras]
+    pairs = relative_pose_errors({n: new.cameras[n].cam_from_rig for n in names},
+                                 {n: previous.cameras[n].cam_from_rig for n in names})
+    out = {}
+    for name in names:
+        mine = [p for p in pairs if name in (p.i, p.j)]  # PairError.i/.j are camera names
+        f_new = mean_focal_px(new.cameras[name].intrinsics)
+        f_old = mean_focal_px(previous.cameras[name].intrinsics)
+        out[name] = CameraChange(
+            focal_change_pct=100.0 * (f_new - f_old) / f_old,
+            rotation_change_deg=float(np.median([p.rot_err_deg for p in mine])) if mine else 0.0,
+            translation_dir_change_deg=(float(np.median([p.trans_dir_err_deg for p in mine]))
+                                        if mine else 0.0))
+    return out
+
+
+def change_summary(change: dict[str, CameraChange]) -> str:
+    """One line: the largest changes and the camera they belong to."""
+    if not change:
+        return "no camera in common with the previous calibration"
+    f = max(change.items(), key=lambda kv: abs(kv[1].focal_change_pct))
+    r = max(change.items(), key=lambda kv: kv[1].rotation_change_deg)
+    return (f"change vs previous: focal up to {f[1].focal_change_pct:+.2f} % ({f[0]}), "
+            f"rotation up to {r[1].rotation_change_deg:.2f} deg ({r[0]})")
+
+
+def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:
+    """Why `new` is worse than `previous`, or None when it is acceptable."""
+    lost = [n for n in previous.cameras if n not in new.cameras]
+    if lost:
+        return f"camera(s) {', '.join(lost)} calibrated before but not now"
+    rms_new = float(new.quality.get("reprojection_rms_px", np.nan))
+    rms_old = float(previous.quality.get("reprojection_rms_px", np.nan))
+    if np.isfinite(rms_old) and not (rms_new <= max(MAX_RMS_RATIO * rms_old,
+                                                    rms_old + MAX_RMS_INCREASE_PX)):
+        return f"reprojection RMS {rms_new:.2f} px against {rms_old:.2f} px before"
+    return None
+
+
+def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
+                config: PipelineConfig, previous: RigCalibration, *, matcher=None,
+                progress: Progress = None) -> CalibrationResult:
+    """Calibrate a rig that has a previous calibration (see the module doc). The result's
+    rig.quality gains "init" (what the accepted run started from), "change_vs_previous" (per
+    camera) and "change_summary". Raises CalibrationRejectedError when the best new result is worse
+    than `previous`, and the pipeline's CalibrationError subclasses when calibration fails."""
+    camera_names = list(camera_names)
+    image_sizes = check_frame_sets(frame_sets, camera_names)
+    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress)
+
+    result, why_not_previous = None, None
+    if all(n in previous.cameras for n in camera_names):
+        warm = copy.deepcopy(config)
+        warm.pipeline, warm.sfm.global_init, warm.sfm.b_err_px = "global", "previous", None
+        try:
+            result = calibrate_from_matches(match_sets, image_sizes, camera_names, warm,
+                                            previous=previous, progress=progress)
+            why_not_previous = worse_than(result.rig, previous)
+        except CalibrationError as exc:
+            why_not_previous = str(exc)
+        if why_not_previous is None:
+            result.rig.quality["init"] = "previous calibration"
+        else:
+            result = None
+            _say(progress, f"starting from the previous calibration did not work "
+                           f"({why_not_previous}); calibrating from scratch")
+    else:
+        why_not_previous = "the previous calibration lacks some of the cameras"
+    if result is None:
+        result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
+                                        previous=None, progress=progress)
+        result.rig.quality["init"] = f"from scratch ({why_not_previous})"
+        worse = worse_than(result.rig, previous)
+        if worse is not None:
+            raise CalibrationRejectedError(
+                f"The new calibration is worse than the previous one ({worse}); the previous "
+                "calibration is kept. Check that every camera sees the shared scene (lens covered, "
+                "out of focus, moved away?) and calibrate again.")
+    change = calibration_change(previous, result.rig)
+    result.rig.quality["change_vs_previous"] = {n: vars(c) for n, c in change.items()}
+    result.rig.quality["change_summary"] = change_summary(change)
+    _say(progress, result.rig.quality["change_summary"])
+    return result

@@ -1,0 +1,78 @@
+"""Recalibration: warm start from the previous calibration, change report, refusal when worse."""
+import copy
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+import pytest
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.metrics import evaluate_calibration
+from densecalib_ros.core.pipeline import run_calibration
+from densecalib_ros.core.recalibration import (CalibrationRejectedError, calibration_change,
+                                               recalibrate)
+from densecalib_ros.core.synthetic import RigSpec, generate_rig
+from densecalib_ros.core.types import CameraIntrinsics, RigCamera
+
+
+def _rotz(deg):
+    a = np.radians(deg)
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    return T
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+                                seed=3))
+
+
+@pytest.fixture(scope="module")
+def config():
+    return make_config("regular", matcher="sift", sfm__num_threads=1)
+
+
+def _bumped(calibration, name, deg=2.0, focal_factor=1.03):
+    """The calibration with one camera rotated by `deg` and its focal scaled."""
+    bumped = copy.deepcopy(calibration)
+    cam = bumped.cameras[name]
+    cam.cam_from_rig = _rotz(deg) @ cam.cam_from_rig
+    cam.intrinsics.params[0] *= focal_factor
+    return bumped
+
+
+def test_change_report_points_at_the_bumped_camera(rig):
+    truth = rig.ground_truth()
+    change = calibration_change(truth, _bumped(truth, "cam2", 2.0, 1.03))
+    assert change["cam2"].rotation_change_deg == pytest.approx(2.0, abs=1e-6)
+    assert change["cam2"].focal_change_pct == pytest.approx(3.0, abs=1e-6)
+    for other in ("cam0", "cam1", "cam3"):
+        assert change[other].rotation_change_deg < 1e-4  # only one of its pairs changed
+        assert change[other].focal_change_pct == pytest.approx(0.0, abs=1e-9)
+
+
+def test_recalibration_starts_from_previous_and_recovers_truth(rig, config):
+    truth = rig.ground_truth()
+    previous = _bumped(truth, "cam1", 2.0, 1.03)  # the camera was bumped and refocused since
+    previous.quality["reprojection_rms_px"] = 0.8
+    result = recalibrate([rig.images[0]], rig.names, config, previous)
+    assert result.rig.quality["init"] == "previous calibration"
+    metrics = evaluate_calibration(result.rig, truth)
+    assert metrics["num_registered"] == 4
+    assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
+    # The report says the bumped camera changed by about the bump.
+    change = result.rig.quality["change_vs_previous"]
+    assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam1"
+    assert 1.0 < change["cam1"]["rotation_change_deg"] < 3.0
+    assert "cam1" in result.rig.quality["change_summary"]
+
+
+def test_worse_result_is_refused_so_the_previous_stays(rig, config):
+    previous = copy.deepcopy(run_calibration([rig.images[0]], rig.names, config).rig)
+    extra = previous.cameras["cam3"]
+    previous.cameras["cam_gone"] = RigCamera("cam_gone", CameraIntrinsics(
+        extra.intrinsics.model, 640, 480, extra.intrinsics.params.copy()), extra.cam_from_rig)
+    with pytest.raises(CalibrationRejectedError, match="cam_gone"):
+        recalibrate([rig.images[0]], rig.names, config, previous)
