@@ -183,6 +183,7 @@ def test_global_from_rotation_averaging_recovers_truth(model, preset):
     tracks = gt_tracks(cams, poses, seed=7)
     focal = np.array([c.params[0] for c in cams]) * np.array([1.04, 0.97, 1.05, 0.96, 1.02])
     cfg = sfm_config(preset, distortion=200)
+    cfg.global_multistart = False  # the rotation-averaging start on its own
     init = initial_intrinsics([(c.width, c.height) for c in cams], focal, cfg.camera_model)
     result = run_global(tracks, init, NAMES, cfg)
     assert result.failed == []
@@ -252,3 +253,28 @@ def test_pipeline_global_dispatch_reports_stages():
     assert quality["reprojection_rms_px"] < 0.6  # 0.3 px noise; F_err removed the outlier tracks
     assert result.reconstruction.num_reg_images() == 4
     assert evaluate_calibration(result.rig, calibration(cams, poses, names))["auc30"] > 90
+
+
+def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
+    """Default global run: rotation averaging and the incremental result are both refined; the
+    kept one has the lowest truncated reprojection cost of the two (checked by rerunning each)."""
+    from densecalib_ros.core.incremental import _truncation_px, truncated_cost
+
+    cams, poses = gt_rig(seed=7)
+    tracks = gt_tracks(cams, poses, seed=7)
+    cfg = sfm_config("regular", distortion=200)
+    init = initial_intrinsics([(c.width, c.height) for c in cams],
+                              [c.params[0] * 1.03 for c in cams], cfg.camera_model)
+    both = run_global(tracks, init, NAMES, cfg)
+    assert both.quality["global_init"] in ("rotation_averaging", "incremental")
+    costs = {}
+    for start in ("rotation_averaging", "incremental"):
+        single = sfm_config("regular", distortion=200)
+        single.global_init, single.global_multistart = start, False
+        run = run_global(tracks, init, NAMES, single)
+        costs[start] = truncated_cost(run.state, _truncation_px(single))
+    kept = both.quality["global_init"]
+    assert costs[kept] <= min(costs.values()) + 1e-6
+    metrics = evaluate_calibration(rig_from_state(both.state, NAMES, both.failed),
+                                   calibration(cams, poses))
+    assert metrics["auc3"] > 90

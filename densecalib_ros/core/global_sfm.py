@@ -28,6 +28,7 @@ implementation details), initialised without VGGT.
 """
 from __future__ import annotations
 
+import copy
 import logging
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
@@ -36,8 +37,10 @@ import numpy as np
 import pycolmap
 
 from .config import SfMConfig
-from .errors import DisconnectedViewGraphError, InputError, NotEnoughCamerasError
-from .incremental import ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, run_incremental
+from .errors import (DisconnectedViewGraphError, InputError, NotEnoughCamerasError,
+                     NotEnoughOverlapError)
+from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, _truncation_px,
+                          run_incremental, truncated_cost)
 from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
                              matrix_from_rigid, reprojection_errors, rigid_from_matrix)
 from .twoview import estimate_essential_from_rays
@@ -54,6 +57,8 @@ TRIANGULATION_MAX_ERROR_PX = 16.0
 MIN_TRIANGULATION_ANGLE_DEG = 1.0
 MAX_POSITIONING_TRACKS = 4000  # tracks given to global positioning (its cost grows with them)
 MIN_CAMERA_OBSERVATIONS = 10  # a camera with fewer point observations after BA has failed
+INCREMENTAL_B_ERR_PX = 20.0  # the paper's incremental B_err (regular / fisheye), used when the
+INCREMENTAL_B_ERR_FISHEYE_PX = 100.0  # global preset (no B_err) starts from the incremental result
 STAGES = ("extrinsics", "focal", "distortion", "principal_point")
 
 Progress = Optional[Callable[[str], None]]
@@ -369,30 +374,34 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         if previous is None:
             raise InputError("sfm.global_init is 'previous' but no previous calibration was "
                              "given: pass one, or use 'rotation_averaging'.")
-        start, poses = poses_from_previous(previous, camera_names,
-                                           [(c.width, c.height) for c in intrinsics])
-        state = SfMState.create(tracks, start, config.share_intrinsics)
-    elif init == "incremental":
-        state = run_incremental(tracks, intrinsics, camera_names, config, seed=seed,
-                                progress=progress).state
-        poses = state.cam_from_world
-        state.active = tracks.observed().copy()  # global: every observation, no B_err removal
+        starts = [init]
+    elif init == "rotation_averaging" and config.global_multistart:
+        starts = ["rotation_averaging", "incremental"]
     else:
-        state = SfMState.create(tracks, intrinsics, config.share_intrinsics)
-        poses = rotation_averaging_poses(tracks, [state.camera(c) for c in range(C)],
-                                         camera_names, seed)
-    # Only the incremental initialisation can leave cameras without a pose (not registrable).
-    state.cam_from_world = [None if T is None else np.asarray(T, dtype=np.float64).copy()
-                            for T in poses]
-    num_points = triangulate_tracks(state, seed=seed)
-    stats = {"triangulation": residual_stats(state)}
-    say(f"global init {init}: {num_points} of {tracks.num_tracks} tracks triangulated, "
-        f"{_describe(stats['triangulation'])}")
-    scores = np.where([T is not None for T in state.cam_from_world], gauge_scores(tracks), -1.0)
-    order = [int(c) for c in np.argsort(-scores, kind="stable")]
-    gauge = order[0]
-    to_gauge_frame(state, gauge)
-    stats.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress, seed))
+        starts = [init]
+    candidates = []
+    for name in starts:
+        try:
+            candidates.append((name, *_refine_from_start(name, tracks, intrinsics, camera_names,
+                                                         config, seed, progress, previous)))
+        except (NotEnoughOverlapError, NotEnoughCamerasError, DisconnectedViewGraphError) as exc:
+            if len(starts) == 1:
+                raise
+            say(f"global start {name} failed: {exc}")
+    if not candidates:
+        raise NotEnoughCamerasError(
+            "Global SfM found no usable start (rotation averaging and incremental both failed): "
+            "check that the cameras overlap and see textured scene content.")
+    # Both starts are refined on the same observations; keep the better fit (no ground truth
+    # needed): most cameras posed, then the lowest truncated reprojection cost.
+    trunc = _truncation_px(config)
+    costs = [(-sum(T is not None for T in cand[1].cam_from_world), truncated_cost(cand[1], trunc))
+             for cand in candidates]
+    best = min(range(len(candidates)), key=lambda k: costs[k])
+    init, state, stats, gauge, order = candidates[best]
+    if len(candidates) > 1:
+        say("global starts (truncated reprojection cost): " + ", ".join(
+            f"{cand[0]} {c[1]:.3f} px" for cand, c in zip(candidates, costs)) + f"; kept {init}")
     # Gross outliers took part in every stage under the robust loss; they are left out of the
     # result (its statistics and COLMAP model) only now, so the estimate does not depend on it.
     err = reprojection_errors(state)
@@ -413,3 +422,44 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                    num_outlier_observations=int(outliers.sum()), stage_residuals=stats)
     return GlobalResult(state=state, view_order=order, failed=failed, gauge_camera=gauge,
                         quality=quality)
+
+
+def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
+                       camera_names: Sequence[str], config: SfMConfig, seed: int,
+                       progress: Progress, previous: Optional[RigCalibration]):
+    """Initial poses from `init`, multi-view triangulation, gauge, staged BA.
+    Returns (state, residual stats per stage, gauge camera, cameras by gauge score)."""
+    say = progress or log.info
+    C = tracks.num_cameras
+    if init == "previous":
+        start, poses = poses_from_previous(previous, camera_names,
+                                           [(c.width, c.height) for c in intrinsics])
+        state = SfMState.create(tracks, start, config.share_intrinsics)
+    elif init == "incremental":
+        # The incremental pipeline needs its outlier threshold (B_err) to stay on track even
+        # when the global preset has none.
+        inc_config = copy.copy(config)
+        if inc_config.b_err_px is None:
+            inc_config.b_err_px = (INCREMENTAL_B_ERR_FISHEYE_PX if "FISHEYE" in config.camera_model
+                                   else INCREMENTAL_B_ERR_PX)
+        state = run_incremental(tracks, intrinsics, camera_names, inc_config, seed=seed,
+                                progress=progress).state
+        poses = state.cam_from_world
+        state.active = tracks.observed().copy()  # global: every observation, no B_err removal
+    else:
+        state = SfMState.create(tracks, intrinsics, config.share_intrinsics)
+        poses = rotation_averaging_poses(tracks, [state.camera(c) for c in range(C)],
+                                         camera_names, seed)
+    # Only the incremental initialisation can leave cameras without a pose (not registrable).
+    state.cam_from_world = [None if T is None else np.asarray(T, dtype=np.float64).copy()
+                            for T in poses]
+    num_points = triangulate_tracks(state, seed=seed)
+    stats = {"triangulation": residual_stats(state)}
+    say(f"global init {init}: {num_points} of {tracks.num_tracks} tracks triangulated, "
+        f"{_describe(stats['triangulation'])}")
+    scores = np.where([T is not None for T in state.cam_from_world], gauge_scores(tracks), -1.0)
+    order = [int(c) for c in np.argsort(-scores, kind="stable")]
+    gauge = order[0]
+    to_gauge_frame(state, gauge)
+    stats.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress, seed))
+    return state, stats, gauge, order
