@@ -37,8 +37,8 @@ import numpy as np
 import pycolmap
 
 from .config import SfMConfig
-from .errors import (DisconnectedViewGraphError, InputError, NotEnoughCamerasError,
-                     NotEnoughOverlapError)
+from .errors import (DisconnectedViewGraphError, FocalInitError, InputError,
+                     NotEnoughCamerasError, NotEnoughOverlapError)
 from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, _truncation_px,
                           run_incremental, truncated_cost)
 from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
@@ -384,7 +384,8 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         try:
             candidates.append((name, *_refine_from_start(name, tracks, intrinsics, camera_names,
                                                          config, seed, progress, previous)))
-        except (NotEnoughOverlapError, NotEnoughCamerasError, DisconnectedViewGraphError) as exc:
+        except (NotEnoughOverlapError, NotEnoughCamerasError, DisconnectedViewGraphError,
+                FocalInitError) as exc:
             if len(starts) == 1:
                 raise
             say(f"global start {name} failed: {exc}")

@@ -25,7 +25,7 @@ import numpy as np
 import pycolmap
 
 from .config import SfMConfig
-from .errors import NotEnoughOverlapError
+from .errors import FocalInitError, NotEnoughOverlapError
 from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
                              midpoint_triangulation, remove_outlier_observations,
                              reprojection_errors, triangulate)
@@ -42,6 +42,8 @@ ESSENTIAL_THRESHOLD_PX = 2.0  # MAGSAC++ threshold of the first pair's essential
 ABSOLUTE_POSE_MAX_ERROR_PX = 12.0  # COLMAP's default RANSAC threshold for absolute pose
 MIN_RAY_Z = 0.05  # rays closer to the image plane than this do not fit a perspective E model
 FOCAL_SCALE_STARTS = (1.0, 1.3, 0.8)  # multi-start factors on the initial focals (run_incremental)
+PRIOR_FOCAL_IMAGE_RATIO = 1.2  # COLMAP's prior for unknown focals: 1.2 x max(width, height)
+MAX_FOCAL_IMAGE_RATIO = 10.0  # a self-calibrated focal beyond this x image size has run away
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
 
@@ -207,31 +209,64 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     cost (`truncated_cost`) is used for the full run.
     """
     say = progress or (lambda msg: None)
-    scale = 1.0
-    if len(FOCAL_SCALE_STARTS) > 1:
-        sub = tracks
-        if tracks.num_tracks > MULTISTART_MAX_TRACKS:
-            pick = np.random.default_rng(seed).choice(tracks.num_tracks, MULTISTART_MAX_TRACKS,
-                                                      replace=False)
-            sub = tracks.subset(np.sort(pick))
-        costs = {}
-        for factor in FOCAL_SCALE_STARTS:
-            try:
-                trial = _incremental(sub, _scaled_focals(intrinsics, factor), camera_names,
-                                     config, seed, lambda msg: None)
-            except NotEnoughOverlapError:
-                continue
-            costs[factor] = (-len(trial.state.registered()),
-                             truncated_cost(trial.state, _truncation_px(config)))
-            log.debug("focal start x%.2f: %d registered, truncated cost %.3f px", factor,
-                      -costs[factor][0], costs[factor][1])
-        if costs:
-            scale = min(costs, key=costs.get)
-            say(f"focal multi-start: x{scale:.2f} of the initial focals fits best (truncated "
-                f"reprojection cost {costs[scale][1]:.2f} px; x1.00: "
-                f"{costs.get(1.0, (0, float('nan')))[1]:.2f} px)")
-    return _incremental(tracks, _scaled_focals(intrinsics, scale), camera_names, config, seed,
-                        say)
+    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in FOCAL_SCALE_STARTS}
+    # The generic prior COLMAP uses for unknown focals: a start that does not depend on the F's.
+    starts["prior"] = _prior_focals(intrinsics)
+    sub = tracks
+    if tracks.num_tracks > MULTISTART_MAX_TRACKS:
+        pick = np.random.default_rng(seed).choice(tracks.num_tracks, MULTISTART_MAX_TRACKS,
+                                                  replace=False)
+        sub = tracks.subset(np.sort(pick))
+    costs = {}
+    for name, start in starts.items():
+        try:
+            trial = _incremental(sub, start, camera_names, config, seed, lambda msg: None)
+        except NotEnoughOverlapError:
+            continue
+        if not _plausible_focals(trial.state):
+            log.debug("focal start %s: focal left the plausible range", name)
+            continue
+        costs[name] = (-len(trial.state.registered()),
+                       truncated_cost(trial.state, _truncation_px(config)))
+        log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
+                  -costs[name][0], costs[name][1])
+    best = min(costs, key=costs.get) if costs else "x1.00"
+    if costs:
+        say(f"focal multi-start: {best} fits best (truncated reprojection cost "
+            f"{costs[best][1]:.2f} px; " + ", ".join(f"{n}: {c[1]:.2f}" for n, c in costs.items())
+            + ")")
+    result = _incremental(tracks, starts[best], camera_names, config, seed, say)
+    if not _plausible_focals(result.state):
+        raise FocalInitError(
+            "Self-calibration ran away to implausible focal lengths (more than "
+            f"{MAX_FOCAL_IMAGE_RATIO:g}x the image size): the scene is probably too close to "
+            "planar or the views too similar to fix the focal lengths. Add frame sets with depth "
+            "variation (objects in front of the background), or try --pipeline global.")
+    return result
+
+
+def _prior_focals(intrinsics: Sequence[CameraIntrinsics]) -> list[CameraIntrinsics]:
+    out = []
+    for cam in intrinsics:
+        params = np.array(cam.params, dtype=np.float64)
+        f_idx = list(pycolmap.Camera(model=cam.model, width=cam.width, height=cam.height,
+                                     params=params).focal_length_idxs())
+        if "FISHEYE" in cam.model:  # the initial fisheye focal is already a model prior
+            out.append(cam)
+            continue
+        params[f_idx] = PRIOR_FOCAL_IMAGE_RATIO * max(cam.width, cam.height)
+        out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
+    return out
+
+
+def _plausible_focals(state: SfMState) -> bool:
+    """No registered camera's focal exceeds MAX_FOCAL_IMAGE_RATIO x its image size (a ~6 deg field
+    of view at 10x): larger values mean BA drifted towards an affine camera."""
+    for c in state.registered():
+        cam = state.camera(c).to_pycolmap()
+        if cam.mean_focal_length() > MAX_FOCAL_IMAGE_RATIO * max(cam.width, cam.height):
+            return False
+    return True
 
 
 def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float
@@ -298,6 +333,7 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     pending = [c for c in order if c not in (i, j)]
     stage = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
                     refine_principal_point=False)
+    extrinsics_only = BAStage(config.ba_iterations, refine_focal=False, refine_extra=False)
     while pending:
         # The next camera in view order that registers from 3D points; a camera can become
         # registrable once later cameras add points, so every pending camera is tried.
@@ -311,6 +347,10 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                 break
             how = "two-view geometry (2-cycle tracks only)"
         pending.remove(c)
+        # Poses first, then intrinsics (as the global pipeline's stages): refining the focals
+        # against a new camera's still-rough pose can drift them towards an affine solution on
+        # near-planar scenes (measured on Strecha entry-P10: focals ran to 15x image size).
+        bundle_adjust(state, camera_names, extrinsics_only, config.num_threads)
         bundle_adjust(state, camera_names, stage, config.num_threads)
         _triangulate_new(state, b_err)
         bundle_adjust(state, camera_names, stage, config.num_threads)
