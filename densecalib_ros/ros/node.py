@@ -90,7 +90,7 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "min_frame_sets": (1, "frame sets needed before a calibration starts", False,
                        _range(1, 10000, True)),
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
-    "pipeline": ("incremental", "SfM pipeline: incremental or global", False, {}),
+    "pipeline": ("global", "SfM pipeline: global (default, measured best) or incremental", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
     "max_image_side_px": (1024, "images are matched at most at this size [px]", False,
                           _range(64, 16384, True)),
