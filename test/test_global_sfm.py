@@ -278,3 +278,25 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
     metrics = evaluate_calibration(rig_from_state(both.state, NAMES, both.failed),
                                    calibration(cams, poses))
     assert metrics["auc3"] > 90
+
+
+def test_previous_cameras_of_another_model_are_re_expressed_in_the_preset_model():
+    """A previous calibration from another tool (PINHOLE fx != fy) starts RADIAL with the mean
+    focal and the same principal point; fisheye terms are not carried into a pinhole model."""
+    from densecalib_ros.core.global_sfm import convert_intrinsics, poses_from_previous
+    from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+
+    pinhole = CameraIntrinsics("PINHOLE", 640, 480, np.array([500.0, 510.0, 321.0, 242.0]))
+    radial = convert_intrinsics(pinhole, "RADIAL")
+    assert radial.model == "RADIAL"
+    np.testing.assert_allclose(radial.params, [505.0, 321.0, 242.0, 0.0, 0.0])
+    fisheye = CameraIntrinsics("OPENCV_FISHEYE", 640, 480,
+                               np.array([300.0, 300.0, 320.0, 240.0, 0.1, 0.02, 0.0, 0.0]))
+    np.testing.assert_allclose(convert_intrinsics(fisheye, "RADIAL_FISHEYE").params,
+                               [300.0, 320.0, 240.0, 0.1, 0.02])
+    np.testing.assert_allclose(convert_intrinsics(fisheye, "RADIAL").params[3:], [0.0, 0.0])
+    previous = RigCalibration("a", {"a": RigCamera("a", pinhole, np.eye(4)),
+                                    "b": RigCamera("b", fisheye, np.eye(4))})
+    intr, _ = poses_from_previous(previous, ["a", "b"], [(640, 480)] * 2,
+                                  ("RADIAL_FISHEYE", "OPENCV_FISHEYE"))
+    assert [c.model for c in intr] == ["RADIAL_FISHEYE", "OPENCV_FISHEYE"]  # the latter is kept

@@ -225,11 +225,15 @@ def rotation_averaging_poses(tracks: Tracks, intrinsics: Sequence[CameraIntrinsi
 
 
 def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
-                        image_sizes: Sequence[tuple[int, int]]
+                        image_sizes: Sequence[tuple[int, int]],
+                        models: Sequence[str] = ()
                         ) -> tuple[list[CameraIntrinsics], list[np.ndarray]]:
     """Intrinsics and cam_from_world (= cam_from_rig: world = the previous rig frame) of every
-    camera from a previous calibration. Raises InputError when a camera is missing from it or its
-    image size changed."""
+    camera from a previous calibration. models: the camera models the pipeline works in (the
+    preset's initial model first, then its refinement model); a previous camera of another model
+    (e.g. PINHOLE from another tool) is re-expressed in models[0] (`convert_intrinsics`), since
+    the staged BA refines exactly the parameters of its preset's model. Raises InputError when a
+    camera is missing from it or its image size changed."""
     intrinsics, poses = [], []
     for name, (w, h) in zip(camera_names, image_sizes):
         cam = previous.cameras.get(name)
@@ -243,10 +247,36 @@ def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
                 f"Camera {name!r} was calibrated at {cam.intrinsics.width}x{cam.intrinsics.height} "
                 f"but its images are now {w}x{h}: recalibrate with "
                 "sfm.global_init='rotation_averaging'.")
-        intrinsics.append(CameraIntrinsics(cam.intrinsics.model, w, h,
-                                           np.array(cam.intrinsics.params, dtype=np.float64)))
+        start = CameraIntrinsics(cam.intrinsics.model, w, h,
+                                 np.array(cam.intrinsics.params, dtype=np.float64))
+        if models and start.model not in models:
+            start = convert_intrinsics(start, models[0])
+        intrinsics.append(start)
         poses.append(np.asarray(cam.cam_from_rig, dtype=np.float64).copy())
     return intrinsics, poses
+
+
+# Positions of the radial terms k1, k2 (if any) in each COLMAP model's parameter vector.
+_RADIAL_TERMS = {"SIMPLE_PINHOLE": (), "PINHOLE": (), "SIMPLE_RADIAL": (3,), "RADIAL": (3, 4),
+                 "OPENCV": (4, 5), "FULL_OPENCV": (4, 5), "SIMPLE_RADIAL_FISHEYE": (3,),
+                 "RADIAL_FISHEYE": (3, 4), "OPENCV_FISHEYE": (4, 5)}
+
+
+def convert_intrinsics(camera: CameraIntrinsics, model: str) -> CameraIntrinsics:
+    """`camera` re-expressed in a (f, cx, cy, k1, k2) model (RADIAL or RADIAL_FISHEYE): mean focal,
+    principal point, and the first two radial terms when the source model has the same kind of
+    lens (pinhole family -> RADIAL, fisheye family -> RADIAL_FISHEYE), else zero. Approximate
+    where the source has more terms; it is a starting point for bundle adjustment."""
+    if model not in ("RADIAL", "RADIAL_FISHEYE") or camera.model not in _RADIAL_TERMS:
+        raise InputError(f"Cannot start a {model} calibration from a {camera.model} camera: "
+                         "recalibrate with sfm.global_init='rotation_averaging'.")
+    src = camera.to_pycolmap()
+    k = [0.0, 0.0]
+    if ("FISHEYE" in camera.model) == ("FISHEYE" in model):
+        for n, idx in enumerate(_RADIAL_TERMS[camera.model]):
+            k[n] = float(camera.params[idx])
+    params = [src.mean_focal_length(), src.principal_point_x, src.principal_point_y, *k]
+    return CameraIntrinsics(model, camera.width, camera.height, np.array(params, dtype=np.float64))
 
 
 def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX,
@@ -434,7 +464,8 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
     C = tracks.num_cameras
     if init == "previous":
         start, poses = poses_from_previous(previous, camera_names,
-                                           [(c.width, c.height) for c in intrinsics])
+                                           [(c.width, c.height) for c in intrinsics],
+                                           working_models(config))
         state = SfMState.create(tracks, start, config.share_intrinsics)
     elif init == "incremental":
         # The incremental pipeline needs its outlier threshold (B_err) to stay on track even
@@ -464,3 +495,8 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
     to_gauge_frame(state, gauge)
     stats.update(staged_bundle_adjustment(state, camera_names, config, gauge, progress, seed))
     return state, stats, gauge, order
+
+
+def working_models(config: SfMConfig) -> tuple[str, ...]:
+    """The camera models a preset works in: its initial model, then its refinement model."""
+    return (config.camera_model,) + ((config.refine_to_model,) if config.refine_to_model else ())

@@ -249,9 +249,10 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .sampling import sample_tracks
 
     if previous is not None and config.pipeline == "global" and config.sfm.global_init == "previous":
-        from .global_sfm import poses_from_previous
+        from .global_sfm import working_models, poses_from_previous
 
-        intrinsics, poses = poses_from_previous(previous, camera_names, image_sizes)
+        intrinsics, poses = poses_from_previous(previous, camera_names, image_sizes,
+                                                working_models(config.sfm))
         sampled = sample_tracks(match_sets, config, cam_from_rig=poses, intrinsics=intrinsics)
     else:
         sampled = sample_tracks(match_sets, config,
