@@ -15,7 +15,8 @@ import numpy as np
 from ..errors import InputError
 from ..types import SiteMatchSet
 from .base import Matcher
-from .utils import mutual_pair_maps, opencv_to_original, resize_for_matching, to_gray
+from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
+                    resize_for_matching, to_gray)
 
 
 class SiftMatcher(Matcher):
@@ -98,9 +99,5 @@ class SiftMatcher(Matcher):
 
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
         feats = [self._features(im) for im in images]
-        pairs = {}
-        for i in range(len(images)):
-            for j in range(i + 1, len(images)):
-                pairs[(i, j)], pairs[(j, i)] = self._match_pair(feats[i], feats[j])
-        return SiteMatchSet(sites=[f[0] for f in feats], pairs=pairs,
-                            image_sizes=[(im.shape[1], im.shape[0]) for im in images])
+        return match_unordered_pairs(images, [f[0] for f in feats],
+                                     lambda i, j: self._match_pair(feats[i], feats[j]))

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..types import SiteMatches
+from ..types import SiteMatches, SiteMatchSet
 
 
 def check_images(images: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -141,6 +141,19 @@ def mutual_pair_maps(src: np.ndarray, dst: np.ndarray, certainty: np.ndarray, nu
     forward.target[s], forward.certainty[s] = d, c
     backward.target[d], backward.certainty[d] = s, c
     return forward, backward
+
+
+def match_unordered_pairs(images: Sequence[np.ndarray], sites: Sequence[np.ndarray], match_pair,
+                          ) -> SiteMatchSet:
+    """SiteMatchSet of a detector-based matcher: `match_pair(a, b)` is called once per unordered
+    camera pair (a < b) and returns the (a -> b, b -> a) SiteMatches; sites[c] is camera c's site
+    table (COLMAP px in the original image)."""
+    pairs = {}
+    for i in range(len(images)):
+        for j in range(i + 1, len(images)):
+            pairs[(i, j)], pairs[(j, i)] = match_pair(i, j)
+    return SiteMatchSet(sites=list(sites), pairs=pairs,
+                        image_sizes=[(im.shape[1], im.shape[0]) for im in images])
 
 
 def resolve_device(device: Optional[str]) -> str:

@@ -16,7 +16,8 @@ import numpy as np
 from ..errors import ModelWeightsError
 from ..types import SiteMatchSet
 from .base import Matcher
-from .utils import mutual_pair_maps, opencv_to_original, resize_for_matching, resolve_device, to_rgb
+from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
+                    resize_for_matching, resolve_device, to_rgb)
 
 # LighterGlue's architecture (matches the shipped weights; see kornia LightGlue.features["xfeat"]).
 _LIGHTERGLUE_CONF = dict(input_dim=64, descriptor_dim=96, n_layers=6, num_heads=1, depth_confidence=-1,
@@ -124,9 +125,5 @@ class XFeatLighterGlueMatcher(Matcher):
 
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
         feats = [self._features(im) for im in images]
-        pairs = {}
-        for i in range(len(images)):
-            for j in range(i + 1, len(images)):
-                pairs[(i, j)], pairs[(j, i)] = self._match_pair(feats[i], feats[j])
-        return SiteMatchSet(sites=[f["sites"] for f in feats], pairs=pairs,
-                            image_sizes=[(im.shape[1], im.shape[0]) for im in images])
+        return match_unordered_pairs(images, [f["sites"] for f in feats],
+                                     lambda i, j: self._match_pair(feats[i], feats[j]))
