@@ -1,5 +1,4 @@
 """n-cycle closure on fabricated site matches with exact synthetic correspondences."""
-import time
 
 import numpy as np
 
@@ -132,21 +131,18 @@ def test_missing_pair_and_unmatched_sites():
     assert cycles[3] == [] and cycles[4] == []
 
 
-def test_cost_is_linear_in_sites():
+def test_large_consistent_permutations_close_completely():
+    """Every site of a consistent 4-camera permutation closes in 2-, 3- and 4-cycles at 400k
+    sites (the vectorised composition's scale; its speed is measured by `densecalib
+    bench-sampling`, not asserted here: timed assertions fail on a loaded machine)."""
     rng = np.random.default_rng(0)
-
-    def random_perm_set(n_sites):
-        perm = [np.arange(n_sites)] + [rng.permutation(n_sites) for _ in range(3)]
-        inv = [np.argsort(p) for p in perm]
-        pairs = {(i, j): SiteMatches(perm[j][inv[i]].astype(np.int32), np.ones(n_sites, np.float32))
-                 for i in range(4) for j in range(4) if i != j}
-        return SiteMatchSet([np.zeros((n_sites, 2))] * 4, pairs, [(640, 480)] * 4)
-
-    times = []
-    for n_sites in (100_000, 400_000):
-        ms = random_perm_set(n_sites)
-        start = time.perf_counter()
-        cycles = close_cycles(ms, 4)
-        times.append(time.perf_counter() - start)
-        assert len(cycles[4][0]) == n_sites
-    assert times[1] < 4 * times[0] * 2.0  # 4x the sites: well under quadratic (16x)
+    n_sites = 400_000
+    perm = [np.arange(n_sites)] + [rng.permutation(n_sites) for _ in range(3)]
+    inv = [np.argsort(p) for p in perm]
+    pairs = {(i, j): SiteMatches(perm[j][inv[i]].astype(np.int32), np.ones(n_sites, np.float32))
+             for i in range(4) for j in range(4) if i != j}
+    cycles = close_cycles(SiteMatchSet([np.zeros((n_sites, 2))] * 4, pairs, [(640, 480)] * 4), 4)
+    assert len(cycles[4][0]) == n_sites
+    assert sum(len(cs) for cs in cycles[3]) == 4 * n_sites  # the four camera triples
+    sites = cycles[4][0].sites
+    np.testing.assert_array_equal(sites[:, 1], perm[cycles[4][0].cameras[1]][sites[:, 0]])
