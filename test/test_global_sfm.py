@@ -258,7 +258,7 @@ def test_pipeline_global_dispatch_reports_stages():
 def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
     """Default global run: rotation averaging and the incremental result are both refined; the
     kept one has the lowest truncated reprojection cost of the two (checked by rerunning each)."""
-    from densecalib_ros.core.incremental import _truncation_px, truncated_cost
+    from densecalib_ros.core.incremental import cost_truncation_px, truncated_cost
 
     cams, poses = gt_rig(seed=7)
     tracks = gt_tracks(cams, poses, seed=7)
@@ -272,7 +272,7 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
         single = sfm_config("regular", distortion=200)
         single.global_init, single.global_multistart = start, False
         run = run_global(tracks, init, NAMES, single)
-        costs[start] = truncated_cost(run.state, _truncation_px(single))
+        costs[start] = truncated_cost(run.state, cost_truncation_px(single))
     kept = both.quality["global_init"]
     assert costs[kept] <= min(costs.values()) + 1e-6
     metrics = evaluate_calibration(rig_from_state(both.state, NAMES, both.failed),

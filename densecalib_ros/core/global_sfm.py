@@ -39,7 +39,7 @@ import pycolmap
 from .config import SfMConfig
 from .errors import (DisconnectedViewGraphError, FocalInitError, InputError,
                      NotEnoughCamerasError, NotEnoughOverlapError)
-from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, _truncation_px,
+from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost_truncation_px,
                           run_incremental, truncated_cost)
 from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
                              matrix_from_rigid, reprojection_errors, rigid_from_matrix)
@@ -425,7 +425,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             "check that the cameras overlap and see textured scene content.")
     # Both starts are refined on the same observations; keep the better fit (no ground truth
     # needed): most cameras posed, then the lowest truncated reprojection cost.
-    trunc = _truncation_px(config)
+    trunc = cost_truncation_px(config)
     costs = [(-sum(T is not None for T in cand[1].cam_from_world), truncated_cost(cand[1], trunc))
              for cand in candidates]
     best = min(range(len(candidates)), key=lambda k: costs[k])

@@ -227,7 +227,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             log.debug("focal start %s: focal left the plausible range", name)
             continue
         costs[name] = (-len(trial.state.registered()),
-                       truncated_cost(trial.state, _truncation_px(config)))
+                       truncated_cost(trial.state, cost_truncation_px(config)))
         log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
                   -costs[name][0], costs[name][1])
     best = min(costs, key=costs.get) if costs else "x1.00"
@@ -280,7 +280,7 @@ def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float
     return out
 
 
-def _truncation_px(config: SfMConfig) -> float:
+def cost_truncation_px(config: SfMConfig) -> float:
     return config.b_err_px if config.b_err_px is not None else TRUNCATION_FALLBACK_PX
 
 

@@ -46,7 +46,7 @@ class CalibrationResult:
     stats: dict = field(default_factory=dict)
 
 
-def _say(progress: Progress, msg: str) -> None:
+def say_progress(progress: Progress, msg: str) -> None:
     log.info(msg)
     if progress is not None:
         progress(msg)
@@ -158,12 +158,12 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                             not any(g.F_ji is not None for g in two_view.values())):
         two_view = fundamental_matrices(tracks, seed)
     filtered = epipolar_filter(tracks, two_view, config.sfm.f_err_px)
-    _say(progress, f"{filtered.num_tracks} of {tracks.num_tracks} tracks pass the epipolar "
+    say_progress(progress, f"{filtered.num_tracks} of {tracks.num_tracks} tracks pass the epipolar "
                    f"filter (F_err {config.sfm.f_err_px} px)")
     if focal_px is None:
         focal_px = initial_focals(filtered, two_view, image_sizes)
     focal_px = np.asarray(focal_px, dtype=np.float64)
-    _say(progress, "initial focals [px]: " + ", ".join(
+    say_progress(progress, "initial focals [px]: " + ", ".join(
         f"{n}={f:.0f}" for n, f in zip(camera_names, focal_px)))
     init = initial_intrinsics(image_sizes, focal_px, config.sfm.camera_model)
     if config.pipeline == "global":
@@ -180,7 +180,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     if config.pipeline == "global":
         rig.quality.update(sfm.quality)  # init, gauge camera, residuals per BA stage
     reconstruction, _ = build_reconstruction(sfm.state, camera_names)
-    _say(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
+    say_progress(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
                    f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
                    f"points ({runtime:.1f} s)")
     return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
@@ -235,7 +235,7 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     match_sets = []
     for t, frames in enumerate(frame_sets):
         match_sets.append(matcher.match(list(frames)))
-        _say(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})")
+        say_progress(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})")
     return match_sets
 
 
@@ -257,7 +257,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     else:
         sampled = sample_tracks(match_sets, config,
                                 focal_px=_previous_focals(previous, camera_names, image_sizes))
-    _say(progress, f"sampled {sampled.tracks.num_tracks} tracks")
+    say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
     return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
                                  two_view=sampled.two_view, focal_px=sampled.focal_px,
                                  previous=previous, progress=progress)

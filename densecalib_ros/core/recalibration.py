@@ -20,7 +20,7 @@ import numpy as np
 from .config import PipelineConfig
 from .errors import CalibrationError
 from .metrics import mean_focal_px, relative_pose_errors
-from .pipeline import (CalibrationResult, Progress, _say, calibrate_from_matches, check_frame_sets,
+from .pipeline import (CalibrationResult, Progress, say_progress, calibrate_from_matches, check_frame_sets,
                        match_frame_sets)
 from .types import RigCalibration
 
@@ -111,7 +111,7 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
             result.rig.quality["init"] = "previous calibration"
         else:
             result = None
-            _say(progress, f"starting from the previous calibration did not work "
+            say_progress(progress, f"starting from the previous calibration did not work "
                            f"({why_not_previous}); calibrating from scratch")
     else:
         why_not_previous = "the previous calibration lacks some of the cameras"
@@ -128,5 +128,5 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     change = calibration_change(previous, result.rig)
     result.rig.quality["change_vs_previous"] = {n: vars(c) for n, c in change.items()}
     result.rig.quality["change_summary"] = change_summary(change)
-    _say(progress, result.rig.quality["change_summary"])
+    say_progress(progress, result.rig.quality["change_summary"])
     return result
