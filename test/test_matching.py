@@ -1,5 +1,6 @@
 """Matcher backends: SiteMatchSet invariants, accuracy on a known homography, exact coordinate maps
-under resizing, registry errors, RoMa's weight handling and warp-to-site plumbing, no torch for sift."""
+under resizing, registry errors, RoMa's weight handling and warp-to-site plumbing, no torch for sift,
+XFeat*'s shared keypoint tables (cycles close) and sub-pixel target positions on a rendered rig."""
 import subprocess
 import sys
 
@@ -7,10 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
+from densecalib_ros.core.cycles import close_cycles
 from densecalib_ros.core.errors import InputError, ModelWeightsError
 from densecalib_ros.core.matching import available_matchers, create_matcher
 from densecalib_ros.core.matching.roma import grid_sites, warp_to_site_matches
-from densecalib_ros.core.matching.utils import PixelSiteTable, mutual_pair_maps
+from densecalib_ros.core.matching.utils import mutual_pair_maps
+from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from densecalib_ros.core.types import SiteMatchSet
 
 
@@ -162,26 +165,48 @@ def test_xfeat_lighterglue_matches_follow_the_homography(image_pair, monkeypatch
     assert n >= 150 and inliers >= 0.6
 
 
-def test_xfeat_star_sites_are_shared_pixels(image_pair, monkeypatch):
+def test_xfeat_star_sites_are_one_keypoint_table_per_camera(image_pair, monkeypatch):
     _no_network(monkeypatch)
     matcher = create_matcher("xfeat-star", device="cpu", max_keypoints=2000)
     images = [image_pair[0], image_pair[1], image_pair[0][20:220, 10:300]]
     ms = matcher.match(images)
     check_invariants(ms, images, inverse=True)
-    for s in ms.sites:  # integer-pixel sites (pixel centres)
-        np.testing.assert_array_equal(s - np.floor(s), 0.5)
-    n, inliers, _ = homography_accuracy(ms, H_TRUE)
-    assert n >= 150 and inliers >= 0.5
+    # A camera's table is its image's coarse keypoints, whatever the other images: every pair of
+    # camera c indexes the same sites, so cycles compose by index.
+    alone = matcher.match([images[0], images[2]])
+    np.testing.assert_array_equal(alone.sites[0], ms.sites[0])
+    np.testing.assert_array_equal(alone.sites[1], ms.sites[2])
+    for (i, j), m in ms.pairs.items():  # refined positions exactly where matched
+        assert m.target_xy_px.shape == (len(ms.sites[i]), 2)
+        np.testing.assert_array_equal(np.isfinite(m.target_xy_px).all(axis=1), m.target >= 0)
+    n, inliers, coarse_err = homography_accuracy(ms, H_TRUE)
+    assert n >= 150 and inliers >= 0.3
+    m = ms.pairs[(0, 1)]
+    src = np.nonzero(m.target >= 0)[0]
+    refined_err = np.linalg.norm(apply_h(H_TRUE, ms.sites[0][src]) - m.target_xy_px[src], axis=1)
+    assert np.median(refined_err) < np.median(coarse_err)
+    assert np.mean(refined_err < 2.0) > inliers
 
 
-def test_pixel_site_table_merges_identical_pixels_across_pairs():
-    table = PixelSiteTable(100, 50)
-    a = table.add(np.array([[10.2, 5.9], [99.99, 49.99]]))
-    b = table.add(np.array([[10.7, 5.1], [0.0, 0.0]]))
-    table.finalize()
-    ia, ib = table.indices(a), table.indices(b)
-    assert ia[0] == ib[0] and len(table.sites()) == 3
-    np.testing.assert_array_equal(table.sites()[ia[1]], [99.5, 49.5])
+def test_xfeat_star_closes_cycles_and_refines_on_a_generated_rig(monkeypatch):
+    """Three rendered pinhole views: 3-cycles close on the shared keypoint tables, and the refined
+    target positions are nearer the true correspondence (rig.transfer) than the target sites."""
+    _no_network(monkeypatch)
+    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480, seed=0))
+    ms = create_matcher("xfeat-star", device="cpu", max_keypoints=4000).match(rig.images[0])
+    check_invariants(ms, rig.images[0], inverse=True)
+    cycles = close_cycles(ms, 3)
+    assert sum(len(cs) for cs in cycles[3]) >= 30
+    coarse, refined = [], []
+    for (i, j), m in ms.pairs.items():
+        src = np.flatnonzero(m.target >= 0)
+        true_xy, visible = rig.transfer(0, i, j, ms.sites[i][src])
+        coarse.append(np.linalg.norm(ms.sites[j][m.target[src]] - true_xy, axis=1)[visible])
+        refined.append(np.linalg.norm(m.target_xy_px[src] - true_xy, axis=1)[visible])
+    coarse, refined = np.concatenate(coarse), np.concatenate(refined)
+    assert len(refined) > 1000
+    assert np.median(refined) < 0.8 * np.median(coarse)
+    assert np.mean(refined < 2.0) > np.mean(coarse < 2.0) + 0.1
 
 
 def test_mutual_pair_maps_keep_the_most_certain_candidate_per_site():
@@ -231,7 +256,8 @@ def test_roma_warp_becomes_grid_site_matches():
         certainty = rng.uniform(0.0, 1.0, (g, g)).astype(np.float32)
         outside = (np.abs(norm) > 1).any(axis=2)
         certainty[outside] = 0.0  # as RoMa does
-        pairs[(i, j)] = warp_to_site_matches(norm, certainty, min_certainty=0.1)
+        pairs[(i, j)] = warp_to_site_matches(norm, certainty, min_certainty=0.1,
+                                             target_size=(wt, ht))
         low = (certainty <= 0.1).ravel()
         assert np.all(pairs[(i, j)].target[low] == -1)
         ok = pairs[(i, j)].target >= 0
@@ -239,6 +265,9 @@ def test_roma_warp_becomes_grid_site_matches():
         target_xy = (sites_b if j == 1 else sites_a)[pairs[(i, j)].target[ok]]
         half_cell = 0.5 * np.array([wt / g, ht / g]) + 1e-9
         assert np.all(np.abs(target_xy - xy[ok]) <= half_cell)
+        # The continuous warp coordinate is kept in original pixels.
+        np.testing.assert_allclose(pairs[(i, j)].target_xy_px[ok], xy[ok], atol=1e-9)
+        assert np.all(np.isnan(pairs[(i, j)].target_xy_px[~ok]))
     ms = SiteMatchSet([sites_a, sites_b], pairs, [(wa, ha), (wb, hb)])
     check_invariants(ms, [np.zeros((ha, wa)), np.zeros((hb, wb))], inverse=False)
     # Both directions are predicted independently; a 2-cycle closes when they agree on the grid.

@@ -167,3 +167,49 @@ def test_no_overlap_raises():
                       [(100, 100)] * 2)
     with pytest.raises(NotEnoughOverlapError):
         sample_tracks([ms], config())
+
+
+def _with_refined_targets(ms, pos, offset_px, nan_mask=None):
+    """Copy of `ms` whose pair (i, j) carries target_xy_px = the site position in j shifted by
+    offset_px(i, j) (a pair-specific (2,) shift), NaN where nan_mask(i, j) (S_i,) is set."""
+    pairs = {}
+    for (i, j), m in ms.pairs.items():
+        xy = np.full((len(m.target), 2), np.nan)
+        ok = m.target >= 0
+        xy[ok] = ms.sites[j][m.target[ok]] + offset_px(i, j)
+        if nan_mask is not None:
+            xy[nan_mask(i, j)] = np.nan
+        pairs[(i, j)] = SiteMatches(m.target, m.certainty, xy)
+    return SiteMatchSet(ms.sites, pairs, ms.image_sizes)
+
+
+def test_track_observations_follow_the_anchor_rule():
+    """Cameras other than a track's first (anchor) camera observe the position that pair
+    (anchor, c) refined for the anchor's site; unrefined (NaN) entries fall back to the site."""
+    scene = make_scene(num_cams=3, num_points=3000, seed=7)
+    ms, pos, sop = match_set_from_scene(scene)
+
+    def offset(i, j):  # small (F stays valid), different for every ordered pair
+        return np.array([0.01 * (3 * i + j + 1), -0.02 * (i + 1)])
+
+    odd = {c: pos[c] % 2 == 1 for c in range(3)}  # unrefined: sites of odd scene points
+    refined = _with_refined_targets(ms, pos, offset, lambda i, j: odd[i])
+    cfg = config(sampling__cell_size_px=40)
+    tracks = sample_tracks([refined], cfg).tracks
+    obs = tracks.observed()
+    checked = {True: 0, False: 0}
+    for k in range(tracks.num_tracks):
+        cams = np.flatnonzero(obs[k])
+        anchor = cams[0]
+        hits = np.flatnonzero(np.all(scene["xy"][anchor] == tracks.xy_px[k, anchor], axis=1))
+        assert len(hits) == 1  # the anchor keeps its exact site position
+        p = hits[0]
+        for c in cams[1:]:
+            expected = scene["xy"][c][p] + (0.0 if p % 2 else offset(anchor, c))
+            np.testing.assert_allclose(tracks.xy_px[k, c], expected, atol=1e-9)
+            checked[bool(p % 2)] += 1
+    assert checked[True] > 50 and checked[False] > 50
+    # Without the field, or with nothing refined, observations are the site positions.
+    plain = sample_tracks([ms], cfg).tracks
+    unrefined = _with_refined_targets(ms, pos, offset, lambda i, j: np.ones(len(pos[i]), bool))
+    np.testing.assert_array_equal(sample_tracks([unrefined], cfg).tracks.xy_px, plain.xy_px)

@@ -2,8 +2,8 @@
 
 For each generated 6-camera rig (pinhole RADIAL and fisheye OPENCV_FISHEYE, 1024x768) and each
 matcher backend it reports:
-- raw inliers: fraction of the matcher's raw matches (every ordered pair) within 2 px of the true
-  correspondence (the pixel's surface point, from the analytic scene, projected into the other
+- raw inliers: fraction of the matcher's raw matches (every ordered pair; the target at its
+  refined sub-pixel position where the matcher gives one) within 2 px of the true correspondence (the pixel's surface point, from the analytic scene, projected into the other
   camera; occluded/out-of-view counts as wrong);
 - track inliers: the same for the sampled tracks' observations (each observation against the
   track's first observation);
@@ -50,10 +50,14 @@ def _true_inliers(rig, t: int, a: int, b: int, xy_a: np.ndarray, xy_b: np.ndarra
 
 
 def _raw_inliers(rig, t: int, ms) -> tuple[int, int]:
+    """Inlier count and total over the raw matches of every ordered pair, each judged at the
+    position the tracks use: the refined target position where the matcher gives one."""
+    from ..core.sampling import refined_targets_px
+
     good = total = 0
     for (i, j), m in ms.pairs.items():
         s = np.flatnonzero(m.target >= 0)
-        ok = _true_inliers(rig, t, i, j, ms.sites[i][s], ms.sites[j][m.target[s]])
+        ok = _true_inliers(rig, t, i, j, ms.sites[i][s], refined_targets_px(ms, i, j, s, m.target[s]))
         good += int(ok.sum())
         total += len(s)
     return good, total

@@ -30,6 +30,10 @@ Decisions (the paper leaves them open):
   hold, so rays come from an assumed equidistant model r = f * theta with a 180 deg horizontal field
   of view (f = width / pi) and the principal point at the image centre, and E is estimated on those
   rays (z > cos 70 deg). focal_px then reports this assumed focal.
+- Observations: a cycle is a tuple of site indices; its pixel observations follow an anchor rule
+  (`cycle_observations_px`): the lowest-index camera keeps its site position, the others take the
+  matcher's sub-pixel position of that site's scene point (SiteMatches.target_xy_px) where given,
+  else their site positions. Stage-1 and stage-2 grids use the anchor's (site) position.
 Deterministic for a fixed `sampling.seed`.
 """
 from __future__ import annotations
@@ -266,8 +270,7 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
             # Higher orders are verified by their closure; with F_err off (fisheye) 2-cycles are not.
             thr = f_err if (f_err is not None or n > 2) else sfm_cfg.two_cycle_f_err_px
             for cs in sets:
-                xy = np.stack([ms.sites[c][cs.sites[:, k]] for k, c in enumerate(cs.cameras)],
-                              axis=1)
+                xy = cycle_observations_px(ms, cs)
                 keep = np.ones(len(cs), bool)
                 pair_scores = []
                 cam_rays = [rays(c, xy[:, k], focal) for k, c in enumerate(cs.cameras)]
@@ -327,9 +330,38 @@ def _epipolar_distance_px(geo: TwoViewGeometry, xy_a, xy_b, rays_a, rays_b, f_a,
     return np.where((rays_a[:, 2] > 0) & (rays_b[:, 2] > 0), d, 0.0)
 
 
+def refined_targets_px(match_set: SiteMatchSet, i: int, j: int, sites_i: np.ndarray,
+                       sites_j: np.ndarray) -> np.ndarray:
+    """float64 (M, 2): the observations in camera j of sites `sites_i` of camera i (int (M,)) whose
+    matched sites in j are `sites_j`: the pair's refined position (SiteMatches.target_xy_px) where
+    the matcher gives a finite one, else the site position sites[j][sites_j]."""
+    xy = match_set.sites[j][sites_j]
+    refined = match_set.pairs[(i, j)].target_xy_px
+    if refined is None:
+        return xy
+    r = refined[sites_i]
+    return np.where(np.isfinite(r).all(axis=1)[:, None], r, xy)
+
+
+def cycle_observations_px(match_set: SiteMatchSet, cycles: CycleSet) -> np.ndarray:
+    """float64 (M, n, 2) COLMAP px: the observation of each closed cycle in each of its cameras.
+
+    Anchor rule: the cycle's first (lowest-index) camera keeps its site position; every other
+    camera c takes the position that pair (anchor, c) refined for the anchor's site
+    (`refined_targets_px`), so all observations are of the scene point at the anchor's site. For
+    matchers without refined positions this is the site position in every camera.
+    """
+    anchor = cycles.cameras[0]
+    xy = [match_set.sites[anchor][cycles.sites[:, 0]]]
+    for k, c in enumerate(cycles.cameras[1:], start=1):
+        xy.append(refined_targets_px(match_set, anchor, c, cycles.sites[:, 0], cycles.sites[:, k]))
+    return np.stack(xy, axis=1)
+
+
 def _pooled_pair_correspondences(match_sets, stage1, num_cams) -> dict:
     """{(i, j), i < j: (xy_i (K, 2), xy_j (K, 2))}: the distinct site pairs that take part in a
-    stage-1 cycle of any order at any time step (F is the same for all time steps of a rigid rig)."""
+    stage-1 cycle of any order at any time step (F is the same for all time steps of a rigid rig).
+    xy_i is the site position, xy_j the position refined from i's site (`refined_targets_px`)."""
     out = {}
     for i, j in combinations(range(num_cams), 2):
         parts_i, parts_j = [], []
@@ -342,7 +374,7 @@ def _pooled_pair_correspondences(match_sets, stage1, num_cams) -> dict:
             if pairs:
                 uniq = np.unique(np.concatenate(pairs), axis=0)
                 parts_i.append(ms.sites[i][uniq[:, 0]])
-                parts_j.append(ms.sites[j][uniq[:, 1]])
+                parts_j.append(refined_targets_px(ms, i, j, uniq[:, 0], uniq[:, 1]))
         if parts_i:
             out[(i, j)] = (np.concatenate(parts_i), np.concatenate(parts_j))
     return out

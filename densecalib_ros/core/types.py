@@ -43,10 +43,15 @@ class SiteMatches:
 
     `target[s]` is the index of the site of camera j that site s of camera i maps to, or -1.
     `certainty[s]` in [0, 1] (0 where target is -1). Both have length = number of sites of i.
+    `target_xy_px` (optional, matchers with sub-pixel output): row s is the refined COLMAP pixel
+    position in camera j of the scene point that site s of i shows, NaN where target is -1 or the
+    position was not refined. `target` stays the site index (cycles compose on indices); consumers
+    that want sub-pixel observations use target_xy_px where finite, else sites[j][target[s]].
     """
 
     target: np.ndarray  # int32 (S_i,)
     certainty: np.ndarray  # float32 (S_i,)
+    target_xy_px: Optional[np.ndarray] = None  # float64 (S_i, 2), NaN = not refined
 
 
 @dataclass

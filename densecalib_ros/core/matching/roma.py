@@ -4,7 +4,8 @@ Sites are the pixels of the warp grid of each image (RoMa's `upsample_res`, or `
 without upsampling), mapped to the original image: grid cell (r, c) of an (h, w) grid over a
 W x H image is the site at ((c + 0.5) W / w, (r + 0.5) H / h). For each pair RoMa predicts both
 directions (symmetric model); a target coordinate is rounded to the nearest target grid site, with
-RoMa's certainty. The weights (RoMa outdoor + DINOv2 ViT-L/14) are never downloaded: they come from
+RoMa's certainty, and also kept as the sub-pixel SiteMatches.target_xy_px (cycles compose on the
+rounded sites, track observations use the continuous coordinate; see sampling.cycle_observations_px). The weights (RoMa outdoor + DINOv2 ViT-L/14) are never downloaded: they come from
 the options `weights_path` / `dinov2_weights_path` or the environment variables
 DENSECALIB_ROMA_WEIGHTS / DENSECALIB_DINOV2_WEIGHTS.
 
@@ -38,13 +39,15 @@ def grid_sites(width: int, height: int, grid_w: int, grid_h: int) -> np.ndarray:
 
 
 def warp_to_site_matches(target_norm: np.ndarray, certainty: np.ndarray, min_certainty: float,
-                         ) -> SiteMatches:
+                         target_size: tuple[int, int]) -> SiteMatches:
     """One direction of a RoMa warp as a site map.
 
     target_norm: (h, w, 2) target coordinates in [-1, 1] (RoMa's normalised convention, the image
-    border at +-1) for every source grid cell; certainty: (h, w). The target grid has the same
-    (h, w) shape. A target is the grid cell containing the coordinate, i.e. the nearest target
-    site; -1 where certainty <= min_certainty or the coordinate is not finite.
+    border at +-1) for every source grid cell; certainty: (h, w); target_size: (width, height) of
+    the original target image. The target grid has the same (h, w) shape. A target is the grid
+    cell containing the coordinate, i.e. the nearest target site; -1 where certainty <=
+    min_certainty or the coordinate is not finite. target_xy_px holds the continuous coordinate in
+    original COLMAP px, x = (u + 1) / 2 * width (NaN where target is -1).
     """
     h, w = certainty.shape
     t = np.asarray(target_norm, dtype=np.float64).reshape(-1, 2)
@@ -55,7 +58,8 @@ def warp_to_site_matches(target_norm: np.ndarray, certainty: np.ndarray, min_cer
     row = np.clip(np.floor((t[:, 1] + 1.0) * 0.5 * h), 0, h - 1).astype(np.int64)
     ok = finite & (cert > min_certainty)
     target = np.where(ok, row * w + col, -1).astype(np.int32)
-    return SiteMatches(target, np.where(ok, np.clip(cert, 0.0, 1.0), 0.0).astype(np.float32))
+    xy = np.where(ok[:, None], (t + 1.0) * 0.5 * np.asarray(target_size, np.float64), np.nan)
+    return SiteMatches(target, np.where(ok, np.clip(cert, 0.0, 1.0), 0.0).astype(np.float32), xy)
 
 
 def _weights_file(option_value: Optional[str], env: str, option: str, what: str) -> Path:
@@ -131,6 +135,7 @@ class RomaMatcher(Matcher):
 
         grid_h, grid_w = self._grid_shape()
         pil = [Image.fromarray(to_rgb(resize_for_matching(im, self.max_image_side_px)[0])) for im in images]
+        sizes = [(im.shape[1], im.shape[0]) for im in images]  # (width, height)
         pairs = {}
         for i in range(len(images)):
             for j in range(i + 1, len(images)):
@@ -141,8 +146,8 @@ class RomaMatcher(Matcher):
                     raise InputError(f"RoMa returned a {warp.shape[:2]} warp, expected {(grid_h, 2 * grid_w)}: "
                                      "this romatch version is not supported.")
                 pairs[(i, j)] = warp_to_site_matches(warp[:, :grid_w, 2:], certainty[:, :grid_w],
-                                                     self.min_certainty)
+                                                     self.min_certainty, sizes[j])
                 pairs[(j, i)] = warp_to_site_matches(warp[:, grid_w:, :2], certainty[:, grid_w:],
-                                                     self.min_certainty)
-        return SiteMatchSet(sites=[grid_sites(im.shape[1], im.shape[0], grid_w, grid_h) for im in images],
-                            pairs=pairs, image_sizes=[(im.shape[1], im.shape[0]) for im in images])
+                                                     self.min_certainty, sizes[i])
+        return SiteMatchSet(sites=[grid_sites(w, h, grid_w, grid_h) for w, h in sizes],
+                            pairs=pairs, image_sizes=sizes)

@@ -1,5 +1,5 @@
 """Helpers shared by the matcher backends: input checks, resizing with exact coordinate maps,
-integer-pixel site tables and one-to-one pair maps.
+one-to-one pair maps.
 
 Coordinates: COLMAP pixels (the centre of the top-left pixel is (0.5, 0.5)). A backend that works
 on a resized image of size (w, h) for an original of size (W, H) maps a resized COLMAP coordinate
@@ -75,56 +75,14 @@ def opencv_to_original(xy_opencv_resized: np.ndarray, scale_xy: np.ndarray) -> n
     return (np.asarray(xy_opencv_resized, dtype=np.float64) + 0.5) * scale_xy
 
 
-def pixel_sites(xy_px: np.ndarray, width: int, height: int) -> np.ndarray:
-    """int64 (N, 2) integer pixel (column, row) containing each COLMAP coordinate, clipped to the
-    image. The site of pixel (u, v) lies at its centre (u + 0.5, v + 0.5)."""
-    uv = np.floor(np.asarray(xy_px, dtype=np.float64)).astype(np.int64)
-    np.clip(uv[:, 0], 0, width - 1, out=uv[:, 0])
-    np.clip(uv[:, 1], 0, height - 1, out=uv[:, 1])
-    return uv
-
-
-class PixelSiteTable:
-    """Builds one camera's site table from integer pixels seen in several pairs: identical pixels
-    from different pairs become the same site, so site indices compose across pairs."""
-
-    def __init__(self, width: int, height: int):
-        self.width, self.height = int(width), int(height)
-        self._chunks: list[np.ndarray] = []
-
-    def add(self, xy_px: np.ndarray) -> int:
-        """Register (N, 2) COLMAP coordinates; returns a handle for `indices`."""
-        self._chunks.append(np.asarray(xy_px, dtype=np.float64).reshape(-1, 2))
-        return len(self._chunks) - 1
-
-    def finalize(self) -> None:
-        """Assign site indices (sorted by row, then column) to all registered pixels."""
-        uv = [pixel_sites(c, self.width, self.height) for c in self._chunks]
-        keys = [v[:, 1] * self.width + v[:, 0] for v in uv]
-        all_keys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
-        self._unique, inverse = np.unique(all_keys, return_inverse=True)
-        splits = np.cumsum([len(k) for k in keys])[:-1]
-        self._indices = np.split(inverse.astype(np.int64), splits) if keys else []
-
-    def indices(self, handle: int) -> np.ndarray:
-        """int64 (N,) site index of each coordinate registered under `handle` (after finalize)."""
-        return self._indices[handle]
-
-    def sites(self) -> np.ndarray:
-        """float64 (S, 2) COLMAP coordinates of the sites: pixel centres."""
-        u = self._unique % self.width
-        v = self._unique // self.width
-        return np.stack([u + 0.5, v + 0.5], axis=1).astype(np.float64)
-
-
 def mutual_pair_maps(src: np.ndarray, dst: np.ndarray, certainty: np.ndarray, num_src: int,
                      num_dst: int) -> tuple[SiteMatches, SiteMatches]:
     """One-to-one maps i -> j and j -> i (exact inverses) from candidate site correspondences.
 
     src, dst: int (M,) site indices in cameras i and j; certainty: (M,) in [0, 1]. Where several
-    candidates share a site (e.g. SIFT keypoints at one location with different orientations, or
-    rounded sub-pixel matches), a candidate is kept only if it is the most certain one for both of
-    its sites (ties broken by order).
+    candidates share a site (e.g. SIFT keypoints at one location with different orientations), a
+    candidate is kept only if it is the most certain one for both of its sites (ties broken by
+    order).
     """
     src = np.asarray(src, dtype=np.int64)
     dst = np.asarray(dst, dtype=np.int64)

