@@ -99,6 +99,13 @@ def test_roma_matches_every_pair_with_random_weights(random_checkpoints, monkeyp
         assert np.all(m.certainty[m.target < 0] == 0)
         assert np.all((m.certainty >= 0) & (m.certainty <= 1))
         assert (m.target >= 0).sum() > 0, f"no match above min_certainty in {(i, j)}"
+        # The continuous target (original px of image j) lies in the target site's grid cell.
+        ok = m.target >= 0
+        assert m.target_xy_px.shape == (sites_per_image, 2)
+        assert np.isfinite(m.target_xy_px[ok]).all() and np.isnan(m.target_xy_px[~ok]).all()
+        w_j, h_j = ms.image_sizes[j]
+        half_cell = 0.5 * np.array([w_j, h_j]) / UPSAMPLE_RES + 1e-6
+        assert np.all(np.abs(m.target_xy_px[ok] - ms.sites[j][m.target[ok]]) <= half_cell)
     for j in (0, 1):
         from_uniform, from_textured = ms.pairs[(2, j)], ms.pairs[(j, 2)]
         assert len(np.unique(from_uniform.target)) <= 4 < 50 <= len(np.unique(from_textured.target))
