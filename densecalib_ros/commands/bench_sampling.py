@@ -3,8 +3,9 @@
 For each generated 6-camera rig (pinhole RADIAL and fisheye OPENCV_FISHEYE, 1024x768) and each
 matcher backend it reports:
 - raw inliers: fraction of the matcher's raw matches (every ordered pair; the target at its
-  refined sub-pixel position where the matcher gives one) within 2 px of the true correspondence (the pixel's surface point, from the analytic scene, projected into the other
-  camera; occluded/out-of-view counts as wrong);
+  refined sub-pixel position where the matcher gives one) within 2 px of the true correspondence
+  (the pixel's surface point, from the analytic scene, projected into the other camera;
+  occluded/out-of-view counts as wrong);
 - track inliers: the same for the sampled tracks' observations (each observation against the
   track's first observation);
 - coverage: mean over cameras of the fraction of 10x10 image cells holding a track observation;

@@ -5,9 +5,10 @@ without upsampling), mapped to the original image: grid cell (r, c) of an (h, w)
 W x H image is the site at ((c + 0.5) W / w, (r + 0.5) H / h). For each pair RoMa predicts both
 directions (symmetric model); a target coordinate is rounded to the nearest target grid site, with
 RoMa's certainty, and also kept as the sub-pixel SiteMatches.target_xy_px (cycles compose on the
-rounded sites, track observations use the continuous coordinate; see sampling.cycle_observations_px). The weights (RoMa outdoor + DINOv2 ViT-L/14) are never downloaded: they come from
-the options `weights_path` / `dinov2_weights_path` or the environment variables
-DENSECALIB_ROMA_WEIGHTS / DENSECALIB_DINOV2_WEIGHTS.
+rounded sites, track observations use the continuous coordinate; see
+sampling.cycle_observations_px). The weights (RoMa outdoor + DINOv2 ViT-L/14) are never
+downloaded: they come from the options `weights_path` / `dinov2_weights_path` or the environment
+variables DENSECALIB_ROMA_WEIGHTS / DENSECALIB_DINOV2_WEIGHTS.
 
 Requirements beyond the core: romatch 0.1.2 installed with --no-deps, plus pillow, einops and
 loguru (requirements-nodeps.txt / requirements.txt; scripts/setup_env.sh installs them). romatch
