@@ -37,6 +37,8 @@ class RigSpec:
     fov_deg: float | None = None
     supersample: int = 2
     noise_std: float = 2.0  # sensor noise, 8-bit levels
+    gap_deg: float = 20.0  # azimuth between neighbouring cameras on their arc (the baseline width)
+    max_arc_deg: float = 140.0  # the arc of all cameras is gap_deg x (n - 1) clipped to [45, this]
 
 
 @dataclass
@@ -152,6 +154,9 @@ def _check_spec(spec: RigSpec) -> None:
                          f"{', '.join(SUPPORTED_MODELS)}.")
     if spec.width < 32 or spec.height < 32:
         raise InputError(f"Image size {spec.width}x{spec.height} is too small: use >= 32x32.")
+    if not 0 < spec.gap_deg <= 120 or not 45 <= spec.max_arc_deg <= 360:
+        raise InputError(f"gap_deg={spec.gap_deg}, max_arc_deg={spec.max_arc_deg}: use a gap in "
+                         "(0, 120] deg and an arc in [45, 360] deg.")
     if spec.num_time_steps < 1 or spec.supersample < 1 or spec.noise_std < 0:
         raise InputError("num_time_steps and supersample must be >= 1 and noise_std >= 0.")
     if spec.fov_deg is not None:
@@ -208,10 +213,12 @@ def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarra
     return out
 
 
-def _sample_poses(rng: np.random.Generator, n: int, scene: Scene) -> list[np.ndarray]:
-    """Cameras on an arc around the room centre (20 deg per camera gap, 45-140 deg in all), 1-2 m
-    high, all looking at points near the centre: every pair overlaps, baselines are wide."""
-    arc = np.deg2rad(np.clip(20.0 * (n - 1), 45.0, 140.0))
+def _sample_poses(rng: np.random.Generator, n: int, scene: Scene, gap_deg: float,
+                  max_arc_deg: float) -> list[np.ndarray]:
+    """Cameras on an arc around the room centre (gap_deg per camera gap, 45-max_arc_deg in all),
+    1-2 m high, all looking at points near the centre: every pair overlaps, baselines are wide.
+    Larger gaps (an arena ringed by cameras) make neighbouring views less alike."""
+    arc = np.deg2rad(np.clip(gap_deg * (n - 1), 45.0, max_arc_deg))
     az = rng.uniform(-np.pi, np.pi) + np.linspace(-arc / 2, arc / 2, n) \
         + rng.uniform(-4, 4, n) * np.pi / 180
     semi = scene.room_max[:2] - 0.4
@@ -252,7 +259,7 @@ def generate_rig(spec: RigSpec) -> SyntheticRig:
         scenes.append(scenes[-1].moved(rng_move, moving, 0.25))
 
     cams, limits = zip(*[_sample_intrinsics(rng_cam, spec) for _ in range(n)])
-    poses = _sample_poses(rng_cam, n, scene)
+    poses = _sample_poses(rng_cam, n, scene, float(spec.gap_deg), float(spec.max_arc_deg))
 
     # Texel ~ the pixel footprint at ~3 m of a 65 deg camera of this width (detail scales with
     # the resolution; at 1024 px wide this is ~4 mm).
