@@ -191,3 +191,40 @@ def test_rig_from_one_registered_camera_is_an_error():
     state.cam_from_world[1] = poses[1]
     with pytest.raises(NotEnoughCamerasError, match="b"):
         rig_from_state(state, ["a", "b", "c"], failed=[0, 2])
+
+
+def two_view_only(tracks, camera):
+    """Tracks where `camera` is only ever seen together with one other camera (2-cycle tracks), as
+    on wide-baseline rigs where few 3-cycles close: it cannot register from 3D points."""
+    xy = tracks.xy_px.copy()
+    obs = ~np.isnan(xy[:, :, 0])
+    for t in np.flatnonzero(obs[:, camera] & (obs.sum(axis=1) > 2)):
+        others = np.flatnonzero(obs[t])
+        partner = others[others != camera][t % (len(others) - 1)]
+        xy[t, [c for c in others if c not in (camera, partner)]] = np.nan
+    order = (~np.isnan(xy[:, :, 0])).sum(axis=1).astype(np.int32)
+    return Tracks(xy, order, tracks.score, tracks.time_index)
+
+
+def test_pair_registration_picks_the_focal_that_fits_the_two_view_tracks():
+    """A camera seen in 2-view tracks only is placed from its relative poses; its focal is still
+    the (here 40 % low) initial estimate, so registration tries focal candidates and keeps the one
+    that reprojects best: it must land near the true focal, and the pose near the truth."""
+    from densecalib_ros.core.incremental import _register_from_pairs
+    from densecalib_ros.core.reconstruction import triangulate
+
+    cams, poses = gt_rig(5, seed=11)
+    tracks = two_view_only(gt_tracks(cams, poses, num_points=1500, outlier_frac=0.02, seed=11), 4)
+    init = [CameraIntrinsics(c.model, c.width, c.height, c.params.copy()) for c in cams]
+    init[4].params[0] *= 0.6
+    state = SfMState.create(tracks, init)
+    for c in range(4):
+        state.cam_from_world[c] = poses[c].copy()
+    rows = np.flatnonzero(state.registered_active().sum(axis=1) >= 2)
+    triangulate(state, rows, 20.0)
+    assert _register_from_pairs(state, 4, seed=0, max_error_px=20.0, num_threads=1)
+    focal = state.camera(4).params[0]
+    assert abs(focal / cams[4].params[0] - 1) < 0.1
+    R_err = state.cam_from_world[4][:3, :3] @ poses[4][:3, :3].T
+    assert np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 2.0
+

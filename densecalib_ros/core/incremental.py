@@ -46,6 +46,10 @@ PRIOR_FOCAL_IMAGE_RATIO = 1.2  # COLMAP's prior for unknown focals: 1.2 x max(wi
 MAX_FOCAL_IMAGE_RATIO = 10.0  # a self-calibrated focal beyond this x image size has run away
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
+# Focal candidates (x the current focal) for a camera registered from 2-view tracks only: they span
+# the eq. 2 errors measured on wide-baseline rigs (0.64-1.3 x the truth).
+PAIR_REGISTRATION_FOCAL_SCALES = (0.6, 0.75, 0.9, 1.0, 1.15, 1.35, 1.6)
+PAIR_REGISTRATION_BA_ITERATIONS = 30
 
 
 @dataclass
@@ -119,12 +123,83 @@ def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, 
     return float(d[front].sum() / n ** 2), pose_j
 
 
-def _register_from_pairs(state: SfMState, c: int, seed: int) -> bool:
+def _register_from_pairs(state: SfMState, c: int, seed: int, max_error_px: float,
+                         num_threads: int) -> bool:
     """Fallback registration of a camera that shares no 3D points with the reconstruction (only
-    2-cycle tracks): orientation from its relative pose to the registered camera it shares the
-    most tracks with; position from the baseline directions to all such partners (least-squares
-    intersection of the lines), or, with one partner, at the median distance between registered
-    cameras (later 3-cycles and BA fix that scale)."""
+    2-cycle tracks; common when baselines are wide and few 3-cycles close).
+
+    Camera c's focal is still its initial estimate, which nothing has refined yet, and a relative
+    pose from an essential matrix on wrongly scaled rays is biased (measured: wrong translation
+    directions at 30 % focal error). So the pose is computed for several focal candidates
+    (`_pair_registration_focals`) and the one whose 2-view points reproject best after a BA of
+    c's pose and focal (everything else fixed) is kept: for 2-view tracks the reprojection error
+    measures how well the E's agree across c's partners, which the wrong focal breaks."""
+    best = (np.inf, None)
+    for focal in _pair_registration_focals(state, c):
+        trial = state.copy()
+        _set_focal(trial, c, focal)
+        if not _place_from_pairs(trial, c, seed):
+            continue
+        rows = np.flatnonzero(trial.active[:, c] & ~trial.triangulated()
+                              & (trial.registered_active().sum(axis=1) >= 2))
+        triangulate(trial, rows, max_error_px)
+        others = tuple(r for r in trial.registered() if r != c)
+        bundle_adjust(trial, [str(k) for k in range(trial.num_cameras)],
+                      BAStage(PAIR_REGISTRATION_BA_ITERATIONS, refine_focal=True,
+                              refine_extra=False, fixed_pose_cameras=others,
+                              fixed_intrinsics_cameras=others), num_threads)
+        cost = _camera_truncated_cost(trial, c, max_error_px)
+        log.debug("pair registration of camera %d with focal %.1f px: cost %.3f px", c, focal, cost)
+        if cost < best[0]:
+            best = (cost, trial)
+    if best[1] is None:
+        return False
+    state.cam_from_world[c] = best[1].cam_from_world[c]
+    state.intrinsics[int(state.camera_block[c])] = best[1].camera(c)
+    return True
+
+
+def _pair_registration_focals(state: SfMState, c: int) -> list[float]:
+    """Focal candidates for camera c: its current focal scaled by PAIR_REGISTRATION_FOCAL_SCALES,
+    and the refined focal of every registered camera with the same image size (rigs often use
+    identical cameras). Only the current focal when c's intrinsics are shared with a registered
+    camera (they are refined already)."""
+    cam = state.camera(c)
+    f_c = float(cam.to_pycolmap().mean_focal_length())
+    if any(state.camera_block[r] == state.camera_block[c] for r in state.registered()):
+        return [f_c]
+    out = [f_c * s for s in PAIR_REGISTRATION_FOCAL_SCALES]
+    for r in state.registered():
+        other = state.camera(r)
+        if (other.width, other.height) == (cam.width, cam.height):
+            out.append(float(other.to_pycolmap().mean_focal_length()))
+    return out
+
+
+def _set_focal(state: SfMState, c: int, focal_px: float) -> None:
+    cam = state.camera(c).to_pycolmap()
+    params = np.array(cam.params, dtype=np.float64)
+    params[list(cam.focal_length_idxs())] = focal_px
+    state.intrinsics[int(state.camera_block[c])] = CameraIntrinsics(
+        cam.model.name, int(cam.width), int(cam.height), params)
+
+
+def _camera_truncated_cost(state: SfMState, c: int, truncation_px: float) -> float:
+    """Mean of min(reprojection error, truncation_px) over camera c's active observations of tracks
+    seen by >= 2 registered cameras; missing points count truncation_px."""
+    rows = state.active[:, c] & (state.registered_active().sum(axis=1) >= 2)
+    if not rows.any():
+        return np.inf
+    err = reprojection_errors(state)[rows, c]
+    truncation_px = min(truncation_px, TRUNCATION_FALLBACK_PX)
+    return float(np.where(np.isfinite(err), np.minimum(err, truncation_px), truncation_px).mean())
+
+
+def _place_from_pairs(state: SfMState, c: int, seed: int) -> bool:
+    """Pose of camera c from its relative poses to registered cameras: orientation from the
+    partner it shares the most tracks with; position from the baseline directions to all partners
+    (least-squares intersection of the lines), or, with one partner, at the median distance
+    between registered cameras (later 3-cycles and BA fix that scale)."""
     lines = []  # (partner centre, unit direction to c's centre in world, number of tracks)
     rotation, best = None, 0
     for r in state.registered():
@@ -343,7 +418,7 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             seen_by_registered = state.registered_active().any(axis=1)
             shared = [int(np.sum(state.active[:, c] & seen_by_registered)) for c in pending]
             c = pending[int(np.argmax(shared))]
-            if not _register_from_pairs(state, c, seed):
+            if not _register_from_pairs(state, c, seed, b_err, config.num_threads):
                 break
             how = "two-view geometry (2-cycle tracks only)"
         pending.remove(c)

@@ -72,6 +72,15 @@ class SfMState:
     def num_cameras(self) -> int:
         return self.tracks.num_cameras
 
+    def copy(self) -> "SfMState":
+        """A scratch copy for trial steps (tracks are shared; they are never modified)."""
+        return SfMState(self.tracks,
+                        [CameraIntrinsics(c.model, c.width, c.height, c.params.copy())
+                         for c in self.intrinsics],
+                        self.camera_block.copy(),
+                        [None if T is None else T.copy() for T in self.cam_from_world],
+                        self.points_xyz.copy(), self.active.copy())
+
     def camera(self, c: int) -> CameraIntrinsics:
         return self.intrinsics[int(self.camera_block[c])]
 
@@ -162,6 +171,7 @@ class BAStage:
     refine_poses: bool = True
     refine_points: bool = True
     fixed_pose_cameras: tuple[int, ...] = ()  # cameras whose pose stays constant
+    fixed_intrinsics_cameras: tuple[int, ...] = ()  # cameras whose intrinsics block stays constant
 
 
 def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
@@ -189,6 +199,8 @@ def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
     config = pycolmap.BundleAdjustmentConfig()
     for c in state.registered():
         config.add_image(c + 1)
+    for c in stage.fixed_intrinsics_cameras:
+        config.set_constant_cam_intrinsics(int(state.camera_block[c]) + 1)
     for c in stage.fixed_pose_cameras:
         config.set_constant_rig_from_world_pose(c + 1)  # frame_id = image_id (trivial frames)
     if stage.refine_poses and len(stage.fixed_pose_cameras) < 2:
