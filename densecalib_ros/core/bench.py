@@ -39,13 +39,14 @@ RECAL_METHOD = "densecalib-recal"
 RECAL_ROTATION_DEG = 2.0
 RECAL_MOVE_FRACTION = 0.05
 METHODS = (*PEER_METHODS, *OUR_METHODS, RECAL_METHOD)
+WIDE_GAP_DEG = 35.0  # the wide-baseline rigs' azimuth between neighbouring cameras
 
 
 @dataclass
 class SceneSpec:
     """A benchmark scene. kind "synthetic": generated from (num_cameras, camera_model, width,
-    height, seed); kind "strecha": the Strecha folder `folder` under the data dir, long side
-    `max_side_px`."""
+    height, seed, gap_deg: azimuth between neighbouring cameras); kind "strecha": the Strecha
+    folder `folder` under the data dir, long side `max_side_px`."""
 
     name: str
     kind: str
@@ -56,13 +57,16 @@ class SceneSpec:
     seed: int = 0
     folder: str = ""
     max_side_px: int = 1024
+    gap_deg: float = 20.0
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
-               height: int = 768) -> SceneSpec:
+               height: int = 768, gap_deg: float = 20.0) -> SceneSpec:
     lens = "fisheye" if camera_model == "OPENCV_FISHEYE" else "pinhole"
-    return SceneSpec(f"synthetic-{lens}-{num_cameras}cam-{width}x{height}-s{seed}", "synthetic",
-                     num_cameras, camera_model, width, height, seed)
+    wide = "" if gap_deg == 20.0 else f"gap{gap_deg:g}-"
+    return SceneSpec(f"synthetic-{lens}-{wide}{num_cameras}cam-{width}x{height}-s{seed}",
+                     "synthetic", num_cameras, camera_model, width, height, seed,
+                     gap_deg=gap_deg)
 
 
 def quick_scenes() -> list[SceneSpec]:
@@ -74,9 +78,13 @@ def quick_scenes() -> list[SceneSpec]:
 
 
 def full_scenes() -> list[SceneSpec]:
-    """Pinhole rigs of 3, 6 and 10 cameras (3 seeds each), fisheye rigs of 4, 6 and 8 cameras
-    (150-190 deg, 2 seeds each), all 1024x768, and Strecha entry-P10 at 1024 px."""
+    """Pinhole rigs of 3, 6 and 10 cameras (3 seeds each, 20 deg between neighbours), wider
+    pinhole rigs of 4 and 6 cameras 35 deg apart (an arena ringed by cameras; 3 seeds each),
+    fisheye rigs of 4, 6 and 8 cameras (150-190 deg, 2 seeds each), all 1024x768, and Strecha
+    entry-P10 at 1024 px."""
     scenes = [_synthetic(n, "RADIAL", seed) for n in (3, 6, 10) for seed in (101, 102, 103)]
+    scenes += [_synthetic(n, "RADIAL", seed, gap_deg=WIDE_GAP_DEG) for n in (4, 6)
+               for seed in (101, 102, 103)]
     scenes += [_synthetic(n, "OPENCV_FISHEYE", seed) for n in (4, 6, 8) for seed in (201, 202)]
     scenes.append(SceneSpec("strecha-entry-p10-1024", "strecha", folder="strecha_entry_p10",
                             max_side_px=1024))
@@ -89,7 +97,9 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
         from .synthetic import RigSpec, generate_rig
 
         rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
-                                   width=spec.width, height=spec.height, seed=spec.seed))
+                                   width=spec.width, height=spec.height, seed=spec.seed,
+                                   gap_deg=spec.gap_deg,
+                                   max_arc_deg=max(140.0, spec.gap_deg * (spec.num_cameras - 1))))
         return scene_from_synthetic(rig, spec.name)
     if spec.kind == "strecha":
         folder = Path(data_dir) / spec.folder
@@ -290,6 +300,7 @@ def format_scene_table(entry: dict) -> str:
 
 def summarize(scenes: list[dict]) -> list[dict]:
     """Per (lens, method): scenes, registered/total cameras, mean AUC@3/@30 (failures count as 0),
+    median AUC@3 over scenes,
     median of the per-scene median focal error and projection error (over scenes where the method
     registered cameras), median runtime, and the number of scenes that did not run ok."""
     groups: dict[tuple[str, str], list[dict]] = {}
@@ -307,6 +318,7 @@ def summarize(scenes: list[dict]) -> list[dict]:
             registered=sum(m["num_registered"] for m in ms), cameras=sum(m["num_cameras"] for m in ms),
             mean_auc3=float(np.mean([m["auc3"] for m in ms])),
             mean_auc30=float(np.mean([m["auc30"] for m in ms])),
+            median_auc3=float(np.median([m["auc3"] for m in ms])),
             median_focal_err=float(np.median(focal)) if focal else float("nan"),
             median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
             median_runtime_s=float(np.median(times)) if times else float("nan"),
@@ -315,14 +327,15 @@ def summarize(scenes: list[dict]) -> list[dict]:
 
 
 def format_summary(summary: list[dict]) -> str:
-    lines = ["== summary (mean AUC over scenes, failures = 0; medians of per-scene medians)",
-             f"{'lens':<9}{'method':<24}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'AUC@30':>8}"
+    lines = ["== summary (mean AUC over scenes, failures = 0; med@3 = median AUC@3 over scenes; "
+             "focal, proj: medians of per-scene medians)",
+             f"{'lens':<9}{'method':<24}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'med@3':>7}{'AUC@30':>8}"
              f"{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}"]
     for s in summary:
         focal = s["median_focal_err"] * 100 if np.isfinite(s["median_focal_err"]) else None
         lines.append(f"{s['lens']:<9}{s['method']:<24}{s['num_scenes']:>7}"
                      f"{s['registered']:>5}/{s['cameras']:<4}{s['mean_auc3']:>8.1f}"
-                     f"{s['mean_auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
+                     f"{s['median_auc3']:>7.1f}{s['mean_auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(s['median_proj_err_px'], '9.2f'):>9}"
                      f"{_fmt(s['median_runtime_s'], '8.1f'):>8}{s['not_ok']:>8}")
     return "\n".join(lines)
