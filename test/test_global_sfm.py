@@ -16,75 +16,11 @@ from densecalib_ros.core.incremental import initial_intrinsics
 from densecalib_ros.core.metrics import evaluate_calibration, relative_pose_errors
 from densecalib_ros.core.pipeline import calibrate_from_tracks, rig_from_state
 from densecalib_ros.core.reconstruction import SfMState, reprojection_errors
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+
+from sfm_fixtures import gt_calibration, gt_rig, gt_tracks
 
 NAMES = ["front", "left", "right", "top", "back"]
-
-
-def look_at(centre, target):
-    z = (target - centre) / np.linalg.norm(target - centre)
-    x = np.cross([0.0, -1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z])
-    T[:3, 3] = -T[:3, :3] @ centre
-    return T
-
-
-def gt_rig(num_cameras=5, model="RADIAL", width=640, height=480, seed=0):
-    """cameras, cam_from_world: cameras on a 60 deg arc of radius 6 looking at a cloud at z ~ 6."""
-    rng = np.random.default_rng(seed)
-    cams, poses = [], []
-    for c in range(num_cameras):
-        a = np.radians(-30 + 60 * c / max(num_cameras - 1, 1))
-        centre = np.array([6 * np.sin(a), rng.uniform(-0.5, 0.5), 6 - 6 * np.cos(a)])
-        poses.append(look_at(centre, np.array([0.0, 0.0, 6.0]) + rng.normal(0, 0.2, 3)))
-        if model == "RADIAL":
-            f = width * rng.uniform(0.8, 1.1)
-            params = [f, width / 2 + rng.uniform(-3, 3), height / 2 + rng.uniform(-3, 3),
-                      rng.uniform(-0.05, 0.02), rng.uniform(-0.01, 0.01)]
-        else:  # OPENCV_FISHEYE, ~150 deg diagonal
-            f = width / 3.2
-            params = [f, f, width / 2, height / 2, rng.uniform(-0.05, 0.05), 0.01, 0.0, 0.0]
-        cams.append(CameraIntrinsics(model, width, height, np.array(params)))
-    return cams, poses
-
-
-def gt_tracks(cams, poses, num_points=2500, noise_px=0.3, outlier_frac=0.03, seed=0,
-              groups=None):
-    """Tracks of random scene points, each seen by a random 2-4-camera subset of the cameras that
-    see it (like sampled n-cycles); a fraction has one outlier observation. groups: camera index
-    lists; a track's cameras then all come from one group (a disconnected view graph)."""
-    rng = np.random.default_rng(seed)
-    C = len(cams)
-    X = rng.uniform([-3, -2, 4.5], [3, 2, 9], (num_points, 3))
-    xy = np.full((num_points, C, 2), np.nan)
-    for c, (cam, T) in enumerate(zip(cams, poses)):
-        X_cam = X @ T[:3, :3].T + T[:3, 3]
-        p = cam.to_pycolmap().img_from_cam(X_cam)
-        inside = (X_cam[:, 2] > 0) & np.all((p > 0) & (p < [cam.width, cam.height]), axis=1)
-        xy[inside, c] = p[inside] + rng.normal(0, noise_px, (inside.sum(), 2))
-    groups = groups or [list(range(C))]
-    order = np.zeros(num_points, np.int32)
-    for t in range(num_points):
-        group = groups[t % len(groups)]
-        seen = [c for c in group if not np.isnan(xy[t, c, 0])]
-        if len(seen) < 2:
-            continue
-        keep = rng.choice(seen, rng.integers(2, min(4, len(seen)) + 1), replace=False)
-        xy[t, np.setdiff1d(np.arange(C), keep)] = np.nan
-        order[t] = len(keep)
-        if rng.random() < outlier_frac:
-            xy[t, keep[0]] = rng.uniform([0, 0], [cams[keep[0]].width, cams[keep[0]].height])
-    valid = order > 0
-    score = rng.uniform(0.2, 1.0, valid.sum())
-    return Tracks(xy[valid], order[valid], score, np.zeros(valid.sum(), np.int32))
-
-
-def calibration(cams, poses, names=NAMES):
-    ref_inv = np.linalg.inv(poses[0])
-    return RigCalibration(names[0], {n: RigCamera(n, cam, T @ ref_inv)
-                                     for n, cam, T in zip(names, cams, poses)})
 
 
 def rotation(axis, deg):
@@ -153,10 +89,11 @@ def test_gauge_frame_is_the_gauge_camera_and_keeps_residuals():
 def test_staged_bundle_adjustment_converges_from_perturbed_start():
     cams, poses = gt_rig(seed=5)
     tracks = gt_tracks(cams, poses, seed=5)
+    gt = gt_calibration(NAMES, cams, poses)
     start_cams, start_poses = perturbed(cams, poses)
     state = SfMState.create(tracks, start_cams)
     state.cam_from_world = [T.copy() for T in start_poses]
-    before = evaluate_calibration(rig_from_state(state, NAMES, []), calibration(cams, poses))
+    before = evaluate_calibration(rig_from_state(state, NAMES, []), gt)
     assert before["auc3"] < 40  # a 2 deg / 5 % bump is far outside the AUC@3 thresholds
     triangulate_tracks(state)
     gauge = int(np.argmax(gauge_scores(tracks)))
@@ -172,7 +109,7 @@ def test_staged_bundle_adjustment_converges_from_perturbed_start():
     spread = [sum(np.linalg.norm(np.linalg.inv(T)[:3, 3] - np.linalg.inv(poses_[gauge])[:3, 3])
                   for T in poses_) for poses_ in (start_poses, state.cam_from_world)]
     assert 0.9 < spread[1] / spread[0] < 1.1
-    after = evaluate_calibration(rig_from_state(state, NAMES, []), calibration(cams, poses))
+    after = evaluate_calibration(rig_from_state(state, NAMES, []), gt)
     assert after["auc3"] > 90
     assert after["median_focal_err"] < 0.005
 
@@ -196,7 +133,7 @@ def test_global_from_rotation_averaging_recovers_truth(model, preset):
     rig = rig_from_state(result.state, NAMES, result.failed)
     assert rig.quality["reprojection_rms_px"] < 0.6
     assert rig.cameras["front"].intrinsics.model == model
-    metrics = evaluate_calibration(rig, calibration(cams, poses))
+    metrics = evaluate_calibration(rig, gt_calibration(NAMES, cams, poses))
     assert metrics["auc3"] > 90
     assert metrics["median_focal_err"] < 0.01
 
@@ -204,8 +141,8 @@ def test_global_from_rotation_averaging_recovers_truth(model, preset):
 def test_recalibration_from_previous_matches_from_scratch():
     cams, poses = gt_rig(seed=11)
     tracks = gt_tracks(cams, poses, seed=11)
-    gt = calibration(cams, poses)
-    previous = calibration(*perturbed(cams, poses, seed=2))
+    gt = gt_calibration(NAMES, cams, poses)
+    previous = gt_calibration(NAMES, *perturbed(cams, poses, seed=2))
     cfg = sfm_config("regular", distortion=200)
     cfg.global_init = "previous"
     init = initial_intrinsics([(c.width, c.height) for c in cams],
@@ -252,7 +189,7 @@ def test_pipeline_global_dispatch_reports_stages():
     assert set(quality["stage_residuals"]) == {"triangulation", "extrinsics", "focal", "distortion"}
     assert quality["reprojection_rms_px"] < 0.6  # 0.3 px noise; F_err removed the outlier tracks
     assert result.reconstruction.num_reg_images() == 4
-    assert evaluate_calibration(result.rig, calibration(cams, poses, names))["auc30"] > 90
+    assert evaluate_calibration(result.rig, gt_calibration(names, cams, poses))["auc30"] > 90
 
 
 def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
@@ -276,7 +213,7 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
     kept = both.quality["global_init"]
     assert costs[kept] <= min(costs.values()) + 1e-6
     metrics = evaluate_calibration(rig_from_state(both.state, NAMES, both.failed),
-                                   calibration(cams, poses))
+                                   gt_calibration(NAMES, cams, poses))
     assert metrics["auc3"] > 90
 
 

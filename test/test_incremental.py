@@ -1,6 +1,7 @@
 """Incremental SfM on tracks made from ground truth (exact projections + noise + outliers), so the
 SfM stage is tested on its own: real pycolmap BA / absolute pose, no mocks."""
 import os
+from functools import partial
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -15,76 +16,19 @@ from densecalib_ros.core.pipeline import rig_from_state
 from densecalib_ros.core.reconstruction import (BAStage, SfMState, bundle_adjust,
                                                 build_reconstruction, reprojection_errors,
                                                 triangulate)
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
+from densecalib_ros.core.types import CameraIntrinsics, Tracks
 from densecalib_ros.core.view_order import view_order
 
-
-def look_at(centre, target):
-    z = target - centre
-    z = z / np.linalg.norm(z)
-    x = np.cross([0.0, -1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z])
-    T[:3, 3] = -T[:3, :3] @ centre
-    return T
+import sfm_fixtures
+from sfm_fixtures import gt_calibration
 
 
-def gt_rig(num_cameras=4, model="RADIAL", width=640, height=480, seed=0):
-    """Cameras on an arc (radius 6, 60 deg span) looking at a unit-ish cloud of points."""
-    rng = np.random.default_rng(seed)
-    cams, poses = [], []
-    for c in range(num_cameras):
-        a = np.radians(-30 + 60 * c / max(num_cameras - 1, 1))
-        centre = np.array([6 * np.sin(a), rng.uniform(-0.5, 0.5), -6 * np.cos(a) + 6])
-        poses.append(look_at(centre, np.array([0.0, 0.0, 6.0]) + rng.normal(0, 0.2, 3)))
-        f = width * rng.uniform(0.8, 1.1)
-        if model == "RADIAL":
-            params = [f, width / 2 + rng.uniform(-5, 5), height / 2 + rng.uniform(-5, 5),
-                      rng.uniform(-0.1, 0.05), rng.uniform(-0.02, 0.02)]
-        else:  # OPENCV_FISHEYE, ~150 deg diagonal
-            f = width / 3.2
-            params = [f, f, width / 2, height / 2, rng.uniform(-0.05, 0.05), 0.01, 0.0, 0.0]
-        cams.append(CameraIntrinsics(model, width, height, np.array(params)))
-    return cams, poses
-
-
-def gt_tracks(cams, poses, num_points=3000, noise_px=0.3, outlier_frac=0.05, seed=0):
-    """Tracks of random scene points: each point is observed by a random 2-4-camera subset of
-    the cameras that see it (like sampled n-cycles); a fraction of observations are outliers."""
-    rng = np.random.default_rng(seed)
-    C = len(cams)
-    X = rng.uniform([-3, -2, 4.5], [3, 2, 9], (num_points, 3))
-    xy = np.full((num_points, C, 2), np.nan)
-    for c, (cam, T) in enumerate(zip(cams, poses)):
-        X_cam = X @ T[:3, :3].T + T[:3, 3]
-        p = cam.to_pycolmap().img_from_cam(X_cam)
-        inside = (X_cam[:, 2] > 0) & (p[:, 0] > 0) & (p[:, 0] < cam.width) & \
-            (p[:, 1] > 0) & (p[:, 1] < cam.height)
-        xy[inside, c] = p[inside] + rng.normal(0, noise_px, (inside.sum(), 2))
-    order = np.zeros(num_points, np.int32)
-    for t in range(num_points):
-        seen = np.flatnonzero(~np.isnan(xy[t, :, 0]))
-        if len(seen) < 2:
-            xy[t] = np.nan
-            continue
-        n = rng.integers(2, min(4, len(seen)) + 1)
-        keep = rng.choice(seen, n, replace=False)
-        drop = np.setdiff1d(np.arange(C), keep)
-        xy[t, drop] = np.nan
-        order[t] = n
-        if rng.random() < outlier_frac:
-            c = keep[0]
-            xy[t, c] = rng.uniform([0, 0], [cams[c].width, cams[c].height])
-    valid = order > 0
-    return Tracks(xy[valid], order[valid], np.ones(valid.sum()), np.zeros(valid.sum(), np.int32))
-
-
-def gt_calibration(names, cams, poses):
-    ref_inv = np.linalg.inv(poses[0])
-    return RigCalibration(names[0], {n: RigCamera(n, cam, T @ ref_inv)
-                                     for n, cam, T in zip(names, cams, poses)})
+# This file's rigs have larger principal-point offsets and distortion, and its tracks more points,
+# more outliers and unit scores, than test_global_sfm's; its thresholds were set on them.
+gt_rig = partial(sfm_fixtures.gt_rig, pp_jitter_px=5.0, k1_range=(-0.1, 0.05), k2_max=0.02,
+                 fisheye_draws_focal=True)
+gt_tracks = partial(sfm_fixtures.gt_tracks, num_points=3000, outlier_frac=0.05,
+                    random_scores=False)
 
 
 def noisy_focals(cams, rel=0.05, seed=1):
