@@ -27,6 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="horizontal field of view of every camera (default: random per "
                              "camera, 55-75 pinhole, 150-190 fisheye)")
     parser.add_argument("--noise-std", type=float, default=2.0, help="sensor noise, 8-bit levels")
+    parser.add_argument("--gap-deg", type=float, default=20.0,
+                        help="azimuth between neighbouring cameras on their arc (wider = less "
+                             "alike views)")
+    parser.add_argument("--max-arc-deg", type=float, default=140.0,
+                        help="largest arc spanned by all cameras (360 = a ring around the scene)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
 
     spec = RigSpec(num_cameras=args.cameras, camera_model=args.model, width=args.width,
                    height=args.height, num_time_steps=args.time_steps, seed=args.seed,
-                   fov_deg=args.fov_deg, noise_std=args.noise_std)
+                   fov_deg=args.fov_deg, noise_std=args.noise_std, gap_deg=args.gap_deg,
+                   max_arc_deg=args.max_arc_deg)
     try:
         t0 = time.perf_counter()
         rig = generate_rig(spec)
