@@ -40,7 +40,8 @@ from .config import SfMConfig
 from .errors import (DisconnectedViewGraphError, FocalInitError, InputError,
                      NotEnoughCamerasError, NotEnoughOverlapError)
 from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost_truncation_px,
-                          run_incremental, truncated_cost)
+                          drop_implausible_cameras, run_incremental, truncated_cost)
+from .plausibility import bundle_adjust_plausibly, implausible_cameras
 from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
                              matrix_from_rigid, reprojection_errors, rigid_from_matrix)
 from .twoview import estimate_essential_from_rays
@@ -363,7 +364,7 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
             triangulate_tracks(state, seed=seed)
         stage = BAStage(its, refine_focal=k >= 1, refine_extra=k >= 2,
                         refine_principal_point=k >= 3, fixed_pose_cameras=(gauge_camera,))
-        summary = bundle_adjust(state, camera_names, stage, config.num_threads)
+        summary = bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
         stats[name] = residual_stats(state)
         say(f"global BA stage {name} ({its} it, {summary.termination_type.name}): "
             f"{_describe(stats[name])}")
@@ -424,10 +425,11 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             "Global SfM found no usable start (rotation averaging and incremental both failed): "
             "check that the cameras overlap and see textured scene content.")
     # Both starts are refined on the same observations; keep the better fit (no ground truth
-    # needed): most cameras posed, then the lowest truncated reprojection cost.
+    # needed): most cameras posed with plausible intrinsics, then the lowest truncated
+    # reprojection cost.
     trunc = cost_truncation_px(config)
-    costs = [(-sum(T is not None for T in cand[1].cam_from_world), truncated_cost(cand[1], trunc))
-             for cand in candidates]
+    costs = [(-(len(cand[1].registered()) - len(implausible_cameras(cand[1]))),
+              truncated_cost(cand[1], trunc)) for cand in candidates]
     best = min(range(len(candidates)), key=lambda k: costs[k])
     init, state, stats, gauge, order = candidates[best]
     if len(candidates) > 1:
@@ -444,7 +446,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
               or np.isfinite(err[:, c]).sum() < MIN_CAMERA_OBSERVATIONS]
     for c in failed:
         state.cam_from_world[c] = None
-    state.drop_weak_points()
+    drop_implausible_cameras(state, failed, camera_names, say)
     if C - len(failed) < 2:
         raise NotEnoughCamerasError(
             "Fewer than two cameras keep enough observations after global SfM: check that the "

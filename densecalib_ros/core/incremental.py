@@ -26,6 +26,7 @@ import pycolmap
 
 from .config import SfMConfig
 from .errors import FocalInitError, NotEnoughOverlapError
+from .plausibility import bundle_adjust_plausibly, implausible_cameras
 from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
                              midpoint_triangulation, remove_outlier_observations,
                              reprojection_errors, triangulate)
@@ -43,7 +44,6 @@ ABSOLUTE_POSE_MAX_ERROR_PX = 12.0  # COLMAP's default RANSAC threshold for absol
 MIN_RAY_Z = 0.05  # rays closer to the image plane than this do not fit a perspective E model
 FOCAL_SCALE_STARTS = (1.0, 1.3, 0.8)  # multi-start factors on the initial focals (run_incremental)
 PRIOR_FOCAL_IMAGE_RATIO = 1.2  # COLMAP's prior for unknown focals: 1.2 x max(width, height)
-MAX_FOCAL_IMAGE_RATIO = 10.0  # a self-calibrated focal beyond this x image size has run away
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
 # Focal candidates (x the current focal) for a camera registered from 2-view tracks only: they span
@@ -298,8 +298,9 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             trial = _incremental(sub, start, camera_names, config, seed, lambda msg: None)
         except NotEnoughOverlapError:
             continue
-        if not _plausible_focals(trial.state):
-            log.debug("focal start %s: focal left the plausible range", name)
+        problems = implausible_cameras(trial.state)
+        if problems:
+            log.debug("focal start %s: implausible intrinsics %s", name, problems)
             continue
         costs[name] = (-len(trial.state.registered()),
                        truncated_cost(trial.state, cost_truncation_px(config)))
@@ -311,13 +312,29 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             f"{costs[best][1]:.2f} px; " + ", ".join(f"{n}: {c[1]:.2f}" for n, c in costs.items())
             + ")")
     result = _incremental(tracks, starts[best], camera_names, config, seed, say)
-    if not _plausible_focals(result.state):
-        raise FocalInitError(
-            "Self-calibration ran away to implausible focal lengths (more than "
-            f"{MAX_FOCAL_IMAGE_RATIO:g}x the image size): the scene is probably too close to "
-            "planar or the views too similar to fix the focal lengths. Add frame sets with depth "
-            "variation (objects in front of the background), or try --pipeline global.")
+    drop_implausible_cameras(result.state, result.failed, camera_names, say)
     return result
+
+
+def drop_implausible_cameras(state: SfMState, failed: list[int], camera_names: Sequence[str],
+                             say: Callable[[str], None]) -> None:
+    """Unregister the cameras whose intrinsics ran into physically implausible values
+    (plausibility.py) and add them to `failed`: their poses and intrinsics are not trustworthy,
+    whatever the residuals. Raises FocalInitError when fewer than two cameras remain."""
+    problems = implausible_cameras(state)
+    for c, problem in problems.items():
+        say(f"camera {camera_names[c]} left out: {problem}")
+        state.cam_from_world[c] = None
+        failed.append(c)
+    failed.sort()
+    state.drop_weak_points()
+    if problems and len(state.registered()) < 2:
+        raise FocalInitError(
+            "Self-calibration ran into implausible intrinsics (" + "; ".join(
+                f"{camera_names[c]}: {p}" for c, p in problems.items()) + "): the scene is "
+            "probably too close to planar or the views too similar to fix the focal lengths and "
+            "distortion. Add frame sets with depth variation (objects in front of the "
+            "background), or try --pipeline global.")
 
 
 def _prior_focals(intrinsics: Sequence[CameraIntrinsics]) -> list[CameraIntrinsics]:
@@ -332,16 +349,6 @@ def _prior_focals(intrinsics: Sequence[CameraIntrinsics]) -> list[CameraIntrinsi
         params[f_idx] = PRIOR_FOCAL_IMAGE_RATIO * max(cam.width, cam.height)
         out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
     return out
-
-
-def _plausible_focals(state: SfMState) -> bool:
-    """No registered camera's focal exceeds MAX_FOCAL_IMAGE_RATIO x its image size (a ~6 deg field
-    of view at 10x): larger values mean BA drifted towards an affine camera."""
-    for c in state.registered():
-        cam = state.camera(c).to_pycolmap()
-        if cam.mean_focal_length() > MAX_FOCAL_IMAGE_RATIO * max(cam.width, cam.height):
-            return False
-    return True
 
 
 def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float
@@ -426,16 +433,16 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         # against a new camera's still-rough pose can drift them towards an affine solution on
         # near-planar scenes (measured on Strecha entry-P10: focals ran to 15x image size).
         bundle_adjust(state, camera_names, extrinsics_only, config.num_threads)
-        bundle_adjust(state, camera_names, stage, config.num_threads)
+        bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
         _triangulate_new(state, b_err)
-        bundle_adjust(state, camera_names, stage, config.num_threads)
+        bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
         removed = remove_outlier_observations(state, config.b_err_px)
         say(f"registered {camera_names[c]} from {how} ({len(state.registered())}/{C}): "
             f"{int(state.point_mask().sum())} points, {removed} observations above B_err removed")
     failed = list(pending)
     final = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
                     refine_principal_point=config.refine_principal_point)
-    bundle_adjust(state, camera_names, final, config.num_threads)
+    bundle_adjust_plausibly(state, camera_names, final, config.num_threads)
     if config.refine_to_model:
         convert_camera_models(state, config.refine_to_model)
         bundle_adjust(state, camera_names, BAStage(config.ba_iterations, refine_focal=False,

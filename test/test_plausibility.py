@@ -1,0 +1,76 @@
+"""Plausibility of self-calibrated intrinsics (core/plausibility.py) and the guarded BA."""
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+
+from densecalib_ros.core.plausibility import (bundle_adjust_plausibly, implausible_cameras,
+                                              intrinsics_problem)
+from densecalib_ros.core.reconstruction import BAStage, SfMState, bundle_adjust, triangulate
+from densecalib_ros.core.types import CameraIntrinsics
+
+from sfm_fixtures import gt_rig, gt_tracks
+
+
+def cam(model, params, width=1024, height=768):
+    return CameraIntrinsics(model, width, height, np.array(params, dtype=np.float64))
+
+
+def test_ordinary_lenses_are_plausible():
+    assert intrinsics_problem(cam("RADIAL", [900, 512, 384, -0.1, 0.02])) is None
+    assert intrinsics_problem(cam("RADIAL", [900, 512, 384, 0.3, -0.2])) is None
+    assert intrinsics_problem(cam("SIMPLE_PINHOLE", [700, 512, 384])) is None
+    # The real fisheye bag's lens (~290 px on 640x480, mild distortion).
+    assert intrinsics_problem(cam("OPENCV_FISHEYE", [290, 290, 320, 240, 0.05, -0.01, 0, 0],
+                                  640, 480)) is None
+
+
+def test_distortion_that_folds_inside_the_image_is_named():
+    # Measured on a wide-baseline rig: k1 ran to -1.1 on a camera placed from 2-view tracks.
+    problem = intrinsics_problem(cam("RADIAL", [1486, 512, 384, -1.136, 0.294]))
+    assert problem is not None and "folds the image" in problem
+    # The same k1 on a long lens (the corner nearer the axis) does not fold inside the image.
+    assert intrinsics_problem(cam("RADIAL", [4000, 512, 384, -1.136, 0.294])) is None
+
+
+def test_runaway_focal_and_non_finite_parameters_are_named():
+    assert "focal length" in intrinsics_problem(cam("RADIAL", [20000, 512, 384, 0, 0]))
+    assert "not finite" in intrinsics_problem(cam("RADIAL", [np.nan, 512, 384, 0, 0]))
+
+
+def test_fisheye_extent_is_that_of_the_observations():
+    # Folds at ~1.05 (normalised) while the corners lie at ~2: fine if nothing is seen out there.
+    lens = cam("OPENCV_FISHEYE", [200, 200, 320, 240, -0.04, -0.01, 0.105, -0.144], 640, 480)
+    inner = np.array([[320 + 150, 240], [320, 240 + 150]])  # 0.75 normalised
+    outer = np.array([[320 + 300, 240 + 200]])  # 1.8 normalised
+    assert intrinsics_problem(lens, inner) is None
+    assert "folds the image" in intrinsics_problem(lens, np.vstack([inner, outer]))
+    assert "folds the image" in intrinsics_problem(lens)  # no observations: the image corners
+
+
+def test_guarded_bundle_adjustment_keeps_a_camera_out_of_a_folding_lens():
+    """Camera 3's observations come from a lens whose k1 folds inside the image; a free BA fits
+    that lens (implausible), the guarded BA keeps camera 3's previous intrinsics instead."""
+    cams, poses = gt_rig(4, seed=3)
+    true3 = cams[3]
+    cams[3] = CameraIntrinsics("RADIAL", 640, 480, np.array([1.6 * 640, 320, 240, -1.2, 0.0]))
+    assert intrinsics_problem(cams[3]) is not None
+    tracks = gt_tracks(cams, poses, num_points=800, outlier_frac=0.0, seed=3)
+    start = cams[:3] + [true3]
+
+    def fresh_state():
+        state = SfMState.create(tracks, [CameraIntrinsics(c.model, c.width, c.height,
+                                                          c.params.copy()) for c in start])
+        state.cam_from_world = [T.copy() for T in poses]
+        triangulate(state, np.arange(tracks.num_tracks), 50.0)
+        return state
+
+    stage = BAStage(100, refine_focal=True, refine_extra=True)
+    free = fresh_state()
+    bundle_adjust(free, list("abcd"), stage, num_threads=1)
+    assert 3 in implausible_cameras(free)
+    guarded = fresh_state()
+    bundle_adjust_plausibly(guarded, list("abcd"), stage, num_threads=1)
+    assert implausible_cameras(guarded) == {}
+    np.testing.assert_array_equal(guarded.camera(3).params, true3.params)
