@@ -45,7 +45,8 @@ WIDE_GAP_DEG = 35.0  # the wide-baseline rigs' azimuth between neighbouring came
 @dataclass
 class SceneSpec:
     """A benchmark scene. kind "synthetic": generated from (num_cameras, camera_model, width,
-    height, seed, gap_deg: azimuth between neighbouring cameras); kind "strecha": the Strecha
+    height, seed, gap_deg: azimuth between neighbouring cameras, max_arc_deg: the cameras' arc at
+    most; see synthetic.RigSpec); kind "strecha": the Strecha
     folder `folder` under the data dir, long side `max_side_px`."""
 
     name: str
@@ -58,15 +59,17 @@ class SceneSpec:
     folder: str = ""
     max_side_px: int = 1024
     gap_deg: float = 20.0
+    max_arc_deg: float = 140.0
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
-               height: int = 768, gap_deg: float = 20.0) -> SceneSpec:
+               height: int = 768, gap_deg: float = 20.0,
+               max_arc_deg: float = 140.0) -> SceneSpec:
     lens = "fisheye" if camera_model == "OPENCV_FISHEYE" else "pinhole"
     wide = "" if gap_deg == 20.0 else f"gap{gap_deg:g}-"
     return SceneSpec(f"synthetic-{lens}-{wide}{num_cameras}cam-{width}x{height}-s{seed}",
                      "synthetic", num_cameras, camera_model, width, height, seed,
-                     gap_deg=gap_deg)
+                     gap_deg=gap_deg, max_arc_deg=max_arc_deg)
 
 
 def quick_scenes() -> list[SceneSpec]:
@@ -83,8 +86,8 @@ def full_scenes() -> list[SceneSpec]:
     fisheye rigs of 4, 6 and 8 cameras (150-190 deg, 2 seeds each), all 1024x768, and Strecha
     entry-P10 at 1024 px."""
     scenes = [_synthetic(n, "RADIAL", seed) for n in (3, 6, 10) for seed in (101, 102, 103)]
-    scenes += [_synthetic(n, "RADIAL", seed, gap_deg=WIDE_GAP_DEG) for n in (4, 6)
-               for seed in (101, 102, 103)]
+    scenes += [_synthetic(n, "RADIAL", seed, gap_deg=WIDE_GAP_DEG, max_arc_deg=360.0)
+               for n in (4, 6) for seed in (101, 102, 103)]
     scenes += [_synthetic(n, "OPENCV_FISHEYE", seed) for n in (4, 6, 8) for seed in (201, 202)]
     scenes.append(SceneSpec("strecha-entry-p10-1024", "strecha", folder="strecha_entry_p10",
                             max_side_px=1024))
@@ -98,8 +101,7 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
 
         rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
                                    width=spec.width, height=spec.height, seed=spec.seed,
-                                   gap_deg=spec.gap_deg,
-                                   max_arc_deg=max(140.0, spec.gap_deg * (spec.num_cameras - 1))))
+                                   gap_deg=spec.gap_deg, max_arc_deg=spec.max_arc_deg))
         return scene_from_synthetic(rig, spec.name)
     if spec.kind == "strecha":
         folder = Path(data_dir) / spec.folder
