@@ -42,8 +42,9 @@ from .errors import (DisconnectedViewGraphError, FocalInitError, InputError,
 from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost_truncation_px,
                           drop_implausible_cameras, run_incremental, truncated_cost)
 from .plausibility import bundle_adjust_plausibly, implausible_cameras
-from .reconstruction import (BAStage, SfMState, bundle_adjust, convert_camera_models,
-                             matrix_from_rigid, reprojection_errors, rigid_from_matrix)
+from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
+                             convert_camera_models, matrix_from_rigid, reprojection_errors,
+                             triangulate_tracks)
 from .twoview import estimate_essential_from_rays
 from .types import CameraIntrinsics, RigCalibration, Tracks
 from .view_order import track_weights
@@ -54,8 +55,6 @@ GLOBAL_INITS = ("rotation_averaging", "previous", "incremental")
 MIN_PAIR_TRACKS = MIN_PAIR_CORRESPONDENCES  # shared tracks that make a view-graph edge
 # Triangulation RANSAC threshold: loose, because the initial poses (rotation averaging, a moved
 # rig) can be a degree off, i.e. ~10-20 px at typical focal lengths; BA's Cauchy loss does the rest.
-TRIANGULATION_MAX_ERROR_PX = 16.0
-MIN_TRIANGULATION_ANGLE_DEG = 1.0
 MAX_POSITIONING_TRACKS = 4000  # tracks given to global positioning (its cost grows with them)
 MIN_CAMERA_OBSERVATIONS = 10  # a camera with fewer point observations after BA has failed
 INCREMENTAL_B_ERR_PX = 20.0  # the paper's incremental B_err (regular / fisheye), used when the
@@ -278,33 +277,6 @@ def convert_intrinsics(camera: CameraIntrinsics, model: str) -> CameraIntrinsics
             k[n] = float(camera.params[idx])
     params = [src.mean_focal_length(), src.principal_point_x, src.principal_point_y, *k]
     return CameraIntrinsics(model, camera.width, camera.height, np.array(params, dtype=np.float64))
-
-
-def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX,
-                       min_angle_deg: float = MIN_TRIANGULATION_ANGLE_DEG, seed: int = 0) -> int:
-    """Triangulate every track with >= 2 active registered views with
-    pycolmap.estimate_triangulation (LO-RANSAC over all its views, reprojection error <=
-    max_error_px, triangulation angle >= min_angle_deg). Sets state.points_xyz (NaN where it
-    fails). Observations RANSAC rejects stay active: with initial poses a degree off (a bumped
-    camera) whole cameras can look like outliers; BA's robust loss decides instead. Returns the
-    number of triangulated tracks."""
-    options = pycolmap.EstimateTriangulationOptions()
-    options.residual_type = pycolmap.TriangulationResidualType.REPROJECTION_ERROR
-    options.ransac.max_error = float(max_error_px)
-    options.ransac.random_seed = int(seed)
-    options.min_tri_angle = float(np.radians(min_angle_deg))
-    cameras = [state.camera(c).to_pycolmap() for c in range(state.num_cameras)]
-    poses = [rigid_from_matrix(T) if T is not None else None for T in state.cam_from_world]
-    obs = state.registered_active()
-    state.points_xyz[:] = np.nan
-    for t in np.flatnonzero(obs.sum(axis=1) >= 2):
-        cams = np.flatnonzero(obs[t])
-        result = pycolmap.estimate_triangulation(state.tracks.xy_px[t, cams],
-                                                 [poses[c] for c in cams],
-                                                 [cameras[c] for c in cams], options)
-        if result is not None:
-            state.points_xyz[t] = result["xyz"]
-    return int(state.point_mask().sum())
 
 
 def residual_stats(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX) -> dict:

@@ -22,6 +22,7 @@ log = logging.getLogger(__name__)
 
 # Two-view points closer to parallel than this have ill-conditioned depth; COLMAP's default is 1.5.
 MIN_TRIANGULATION_ANGLE_DEG = 1.0
+TRIANGULATION_MAX_ERROR_PX = 16.0  # RANSAC triangulation inlier threshold (triangulate_tracks)
 COVERAGE_GRID = 10  # coverage = fraction of a 10x10 grid of image cells holding an observation
 # Ceres stops when an iteration lowers the cost by less than this fraction (Ceres' own default;
 # COLMAP sets 0, which spends most iterations on changes far below the pixel noise).
@@ -354,3 +355,30 @@ def _convert_params(src: str, dst: str, p: np.ndarray) -> np.ndarray:
         k = p[3:] + [0.0] * (2 - len(p[3:]))
         return np.array([p[0], p[0], p[1], p[2], k[0], k[1], 0.0, 0.0])
     raise ValueError(f"No parameter conversion from {src} to {dst}.")
+
+
+def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX,
+                       min_angle_deg: float = MIN_TRIANGULATION_ANGLE_DEG, seed: int = 0) -> int:
+    """Triangulate every track with >= 2 active registered views with
+    pycolmap.estimate_triangulation (LO-RANSAC over all its views, reprojection error <=
+    max_error_px, triangulation angle >= min_angle_deg). Sets state.points_xyz (NaN where it
+    fails). Observations RANSAC rejects stay active: with initial poses a degree off (a bumped
+    camera) whole cameras can look like outliers; BA's robust loss decides instead. Returns the
+    number of triangulated tracks."""
+    options = pycolmap.EstimateTriangulationOptions()
+    options.residual_type = pycolmap.TriangulationResidualType.REPROJECTION_ERROR
+    options.ransac.max_error = float(max_error_px)
+    options.ransac.random_seed = int(seed)
+    options.min_tri_angle = float(np.radians(min_angle_deg))
+    cameras = [state.camera(c).to_pycolmap() for c in range(state.num_cameras)]
+    poses = [rigid_from_matrix(T) if T is not None else None for T in state.cam_from_world]
+    obs = state.registered_active()
+    state.points_xyz[:] = np.nan
+    for t in np.flatnonzero(obs.sum(axis=1) >= 2):
+        cams = np.flatnonzero(obs[t])
+        result = pycolmap.estimate_triangulation(state.tracks.xy_px[t, cams],
+                                                 [poses[c] for c in cams],
+                                                 [cameras[c] for c in cams], options)
+        if result is not None:
+            state.points_xyz[t] = result["xyz"]
+    return int(state.point_mask().sum())
