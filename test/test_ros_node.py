@@ -23,7 +23,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 
 from densecalib_ros.core.bag import read_frame_sets, write_image_bag  # noqa: E402
-from densecalib_ros.core.config import make_config  # noqa: E402
+from densecalib_ros.core.config import DEFAULT_PIPELINE, make_config  # noqa: E402
 from densecalib_ros.core.errors import InputError  # noqa: E402
 from densecalib_ros.core.export import read_calibration  # noqa: E402
 from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
@@ -347,7 +347,7 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
     # ... and to the same result as the ROS-free path: core.bag + calibrate_rig on the same bag.
     frame_sets, names = read_frame_sets(tmp_path / "bag_mcap", topics, slop_s=0.01)
     offline = calibrate_rig(frame_sets, list(CAMERAS),
-                            make_config("regular", "global", "sift"))
+                            make_config("regular", DEFAULT_PIPELINE, "sift"))
     assert names == ["rig_cam0", "rig_cam1", "rig_cam2", "rig_cam3"]
     for name in CAMERAS:
         assert np.allclose(offline.cameras[name].intrinsics.params,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from ..core.config import PIPELINES, PRESETS, make_config
+from ..core.config import DEFAULT_PIPELINE, PIPELINES, PRESETS, make_config
 from ..core.errors import CalibrationError, InputError
 
 log = logging.getLogger("densecalib.calibrate")
@@ -31,8 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="OUT", help="output folder (replaced)")
     parser.add_argument("--preset", choices=PRESETS, default="regular",
                         help="camera type: regular (RADIAL) or fisheye (OPENCV_FISHEYE)")
-    parser.add_argument("--pipeline", choices=PIPELINES, default="global",
-                        help="global (default: the most accurate in `densecalib bench`) or incremental")
+    parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
+                        help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see README)")
     parser.add_argument("--matcher", default=None,
                         help="matcher backend (default: the preset's, sift)")
     parser.add_argument("--max-side", type=int, default=None, metavar="PX",

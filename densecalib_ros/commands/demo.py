@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.config import PIPELINES, make_config
+from ..core.config import DEFAULT_PIPELINE, PIPELINES, make_config
 from ..core.errors import CalibrationError, InputError
 
 log = logging.getLogger("densecalib.demo")
@@ -39,8 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="frame sets (objects move between them)")
     parser.add_argument("--seed", type=int, default=0, help="rig generator seed")
     parser.add_argument("--matcher", default="sift", help="matcher backend")
-    parser.add_argument("--pipeline", choices=PIPELINES, default="global",
-                        help="global (default: the most accurate in `densecalib bench`) or incremental")
+    parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
+                        help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see README)")
     parser.add_argument("--timeout", type=float, default=600.0, metavar="S",
                         help="seconds to wait for the calibration service")
 

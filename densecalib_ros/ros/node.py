@@ -45,7 +45,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from ..core.bag import camera_names_from_topics
-from ..core.config import PIPELINES, PRESETS, make_config
+from ..core.config import DEFAULT_PIPELINE, PIPELINES, PRESETS, make_config
 from ..core.errors import CalibrationError, InputError
 from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
 from ..core.matching import available_matchers
@@ -90,7 +90,7 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "min_frame_sets": (1, "frame sets needed before a calibration starts", False,
                        _range(1, 10000, True)),
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
-    "pipeline": ("global", "SfM pipeline: global (default, measured best) or incremental", False, {}),
+    "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
     "max_image_side_px": (1024, "images are matched at most at this size [px]", False,
                           _range(64, 16384, True)),
