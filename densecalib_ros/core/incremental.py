@@ -8,10 +8,14 @@
 3. Each next camera: absolute pose (pycolmap.estimate_and_refine_absolute_pose, focal and
    distortion refined) from points seen by >= 2 registered cameras, BA, triangulation of the
    tracks that now have two registered views (the 2-cycle points), BA, removal of observations
-   above B_err.
-4. A final global BA (principal point refined per preset) and, for fisheye, a distortion-only
-   refinement into the richer model (RADIAL_FISHEYE -> OPENCV_FISHEYE).
-Every BA uses a Cauchy loss (COLMAP default scale) and `config.ba_iterations` iterations.
+   above B_err. A camera that shares only 2-cycle tracks with the registered ones is placed from
+   its relative poses instead, trying several focal candidates (`_register_from_pairs`).
+4. A final global BA (principal point refined per preset), every track re-triangulated from the
+   final cameras, B_err, the final BA again and, for fisheye, a distortion-only refinement into
+   the richer model (RADIAL_FISHEYE -> OPENCV_FISHEYE).
+Every BA uses a Cauchy loss (COLMAP default scale) and `config.ba_iterations` iterations; those
+that refine intrinsics are guarded against physically implausible lenses (plausibility.py), and
+cameras that still end implausible are reported as failed.
 """
 from __future__ import annotations
 
