@@ -166,7 +166,7 @@ def test_pair_registration_picks_the_focal_that_fits_the_two_view_tracks():
         state.cam_from_world[c] = poses[c].copy()
     rows = np.flatnonzero(state.registered_active().sum(axis=1) >= 2)
     triangulate(state, rows, 20.0)
-    assert _register_from_pairs(state, 4, seed=0, max_error_px=20.0, num_threads=1)
+    assert _register_from_pairs(state, 4, list("abcde"), seed=0, max_error_px=20.0, num_threads=1)
     focal = state.camera(4).params[0]
     assert abs(focal / cams[4].params[0] - 1) < 0.1
     R_err = state.cam_from_world[4][:3, :3] @ poses[4][:3, :3].T

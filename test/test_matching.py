@@ -56,14 +56,7 @@ def image_pair():
     return image, warp_colmap(image, H_TRUE, (288, 224))
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    import torch
-
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def check_invariants(ms: SiteMatchSet, images, inverse: bool):

@@ -15,12 +15,7 @@ from densecalib_ros.core.types import SiteMatchSet
 COARSE_RES, UPSAMPLE_RES = 14 * 4, 64  # RoMa's defaults are 560 / 864
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def no_network(monkeypatch):

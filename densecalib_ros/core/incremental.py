@@ -128,8 +128,8 @@ def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, 
     return float(d[front].sum() / n ** 2), pose_j
 
 
-def _register_from_pairs(state: SfMState, c: int, seed: int, max_error_px: float,
-                         num_threads: int) -> bool:
+def _register_from_pairs(state: SfMState, c: int, camera_names: Sequence[str], seed: int,
+                         max_error_px: float, num_threads: int) -> bool:
     """Fallback registration of a camera that shares no 3D points with the reconstruction (only
     2-cycle tracks; common when baselines are wide and few 3-cycles close).
 
@@ -149,7 +149,7 @@ def _register_from_pairs(state: SfMState, c: int, seed: int, max_error_px: float
                               & (trial.registered_active().sum(axis=1) >= 2))
         triangulate(trial, rows, max_error_px)
         others = tuple(r for r in trial.registered() if r != c)
-        bundle_adjust(trial, [str(k) for k in range(trial.num_cameras)],
+        bundle_adjust(trial, camera_names,
                       BAStage(PAIR_REGISTRATION_BA_ITERATIONS, refine_focal=True,
                               refine_extra=False, fixed_pose_cameras=others,
                               fixed_intrinsics_cameras=others), num_threads)
@@ -191,7 +191,8 @@ def _set_focal(state: SfMState, c: int, focal_px: float) -> None:
 
 def _camera_truncated_cost(state: SfMState, c: int, truncation_px: float) -> float:
     """Mean of min(reprojection error, truncation_px) over camera c's active observations of tracks
-    seen by >= 2 registered cameras; missing points count truncation_px."""
+    seen by >= 2 registered cameras; missing points count truncation_px. Unlike `truncated_cost`
+    (which compares whole runs) it judges one camera's trial placement on the current state."""
     rows = state.active[:, c] & (state.registered_active().sum(axis=1) >= 2)
     if not rows.any():
         return np.inf
@@ -430,7 +431,7 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             seen_by_registered = state.registered_active().any(axis=1)
             shared = [int(np.sum(state.active[:, c] & seen_by_registered)) for c in pending]
             c = pending[int(np.argmax(shared))]
-            if not _register_from_pairs(state, c, seed, b_err, config.num_threads):
+            if not _register_from_pairs(state, c, camera_names, seed, b_err, config.num_threads):
                 break
             how = "two-view geometry (2-cycle tracks only)"
         pending.remove(c)
