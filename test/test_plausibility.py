@@ -74,3 +74,20 @@ def test_guarded_bundle_adjustment_keeps_a_camera_out_of_a_folding_lens():
     bundle_adjust_plausibly(guarded, list("abcd"), stage, num_threads=1)
     assert implausible_cameras(guarded) == {}
     np.testing.assert_array_equal(guarded.camera(3).params, true3.params)
+
+
+def test_radial_coefficients_are_read_from_the_colmap_parameter_order():
+    import pycolmap
+
+    # k1 placed where each model keeps it (pycolmap's params_info), strong enough to fold.
+    for model in ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV", "RADIAL_FISHEYE",
+                  "OPENCV_FISHEYE"):
+        camera = pycolmap.Camera.create_from_model_name(0, model, 300.0, 1024, 768)
+        names = [n.strip() for n in camera.params_info.split(",")]
+        params = np.array(camera.params, dtype=np.float64)
+        assert intrinsics_problem(cam(model, params)) is None, model
+        for k in ("k", "k1", "k2", "k3"):
+            if k in names:
+                folded = params.copy()
+                folded[names.index(k)] = -3.0
+                assert "folds the image" in intrinsics_problem(cam(model, folded)), (model, k)

@@ -43,7 +43,7 @@ _LAYOUT = {
     "SIMPLE_RADIAL": (0, None, 1, 2, (3,), False),
     "RADIAL": (0, None, 1, 2, (3, 4), False),
     "OPENCV": (0, 1, 2, 3, (4, 5), False),
-    "FULL_OPENCV": (0, 1, 2, 3, (4, 5, 10), False),  # k1, k2, k3 (the rational k4-k6 ignored)
+    "FULL_OPENCV": (0, 1, 2, 3, (4, 5, 8), False),  # k1, k2, k3 (the rational k4-k6 ignored)
     "SIMPLE_RADIAL_FISHEYE": (0, None, 1, 2, (3,), True),
     "RADIAL_FISHEYE": (0, None, 1, 2, (3, 4), True),
     "OPENCV_FISHEYE": (0, 1, 2, 3, (4, 5, 6, 7), True),
