@@ -75,3 +75,40 @@ def test_generated_folder_round_trip(tmp_path):
                                    direct.gt.cameras[name].cam_from_rig, atol=1e-9)
         np.testing.assert_allclose(scene.gt.cameras[name].intrinsics.params,
                                    direct.gt.cameras[name].intrinsics.params)
+
+
+FOX = default_data_dir() / "ngp_fox"
+
+
+@pytest.mark.skipif(not (FOX / "transforms.json").is_file(),
+                    reason=f"instant-ngp fox not found at {FOX} (set DENSECALIB_DATA to the shared "
+                           "data dir)")
+def test_nerf_loader_axes_and_intrinsics_agree_with_the_images():
+    from densecalib_ros.core.datasets import load_nerf_transforms
+
+    scene = load_nerf_transforms(FOX, num_views=25, max_side_px=1024)
+    assert len(scene.camera_names) == 25 and scene.reference_is_estimate
+    cam = scene.gt.cameras[scene.camera_names[0]].intrinsics
+    assert (cam.model, cam.width, cam.height) == ("OPENCV", 576, 1024)
+    s = 1024 / 1920  # transforms.json: fl_x 1375.52, cx 554.558 at 1080x1920
+    np.testing.assert_allclose(cam.params[[0, 2]], [1375.52 * s, 555.058 * s], rtol=1e-9)
+    # SIFT matches of neighbouring frames lie on the epipolar lines of the reference poses once
+    # undistorted: the OpenGL -> OpenCV axis flip, the pose inversion and the scaling are right.
+    sift = cv2.SIFT_create(4000)
+    gray = [cv2.cvtColor(scene.frame_sets[0][k], cv2.COLOR_RGB2GRAY) for k in (0, 1)]
+    (ka, da), (kb, db) = (sift.detectAndCompute(g, None) for g in gray)
+    good = [m for m, n in cv2.BFMatcher().knnMatch(da, db, k=2) if m.distance < 0.7 * n.distance]
+    fx, fy, cx, cy, *dist = cam.params
+    K = np.array([[fx, 0, cx - 0.5], [0, fy, cy - 0.5], [0, 0, 1]])  # OpenCV pixel convention
+    pa, pb = (cv2.undistortPoints(np.array([kp[i].pt for i in idx], np.float64)[:, None], K,
+                                  np.array(dist)).reshape(-1, 2)
+              for kp, idx in ((ka, [m.queryIdx for m in good]), (kb, [m.trainIdx for m in good])))
+    na, nb = scene.camera_names[:2]
+    rel = scene.gt.cameras[nb].cam_from_rig @ np.linalg.inv(scene.gt.cameras[na].cam_from_rig)
+    t = rel[:3, 3] / np.linalg.norm(rel[:3, 3])
+    E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ rel[:3, :3]
+    lines = np.c_[pa, np.ones(len(pa))] @ E.T
+    d_px = fx * np.abs(np.sum(lines * np.c_[pb, np.ones(len(pb))], 1)) / np.linalg.norm(
+        lines[:, :2], axis=1)
+    assert len(d_px) > 100
+    assert np.median(d_px) < 1.0

@@ -24,7 +24,8 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from .datasets import Scene, default_data_dir, load_strecha, scene_from_synthetic
+from .datasets import (Scene, default_data_dir, load_nerf_transforms, load_strecha,
+                       scene_from_synthetic)
 from .errors import CalibrationError, InputError
 from .metrics import evaluate_calibration
 from .peers import PEER_METHODS, quiet_colmap, run_peer
@@ -47,7 +48,8 @@ class SceneSpec:
     """A benchmark scene. kind "synthetic": generated from (num_cameras, camera_model, width,
     height, seed, gap_deg: azimuth between neighbouring cameras, max_arc_deg: the cameras' arc at
     most; see synthetic.RigSpec); kind "strecha": the Strecha
-    folder `folder` under the data dir, long side `max_side_px`."""
+    folder `folder` under the data dir, long side `max_side_px`; kind "nerf": `num_cameras`
+    evenly spaced frames of the NeRF capture in `folder`, long side `max_side_px`."""
 
     name: str
     kind: str
@@ -83,13 +85,15 @@ def quick_scenes() -> list[SceneSpec]:
 def full_scenes() -> list[SceneSpec]:
     """Pinhole rigs of 3, 6 and 10 cameras (3 seeds each, 20 deg between neighbours), wider
     pinhole rigs of 4 and 6 cameras 35 deg apart (an arena ringed by cameras; 3 seeds each),
-    fisheye rigs of 4, 6 and 8 cameras (150-190 deg, 2 seeds each), all 1024x768, and Strecha
-    entry-P10 at 1024 px."""
+    fisheye rigs of 4, 6 and 8 cameras (150-190 deg, 2 seeds each), all 1024x768, Strecha
+    entry-P10 at 1024 px, and 6 frames of instant-ngp's fox (a phone walked around an object)."""
     scenes = [_synthetic(n, "RADIAL", seed) for n in (3, 6, 10) for seed in (101, 102, 103)]
     scenes += [_synthetic(n, "RADIAL", seed, gap_deg=WIDE_GAP_DEG, max_arc_deg=360.0)
                for n in (4, 6) for seed in (101, 102, 103)]
     scenes += [_synthetic(n, "OPENCV_FISHEYE", seed) for n in (4, 6, 8) for seed in (201, 202)]
     scenes.append(SceneSpec("strecha-entry-p10-1024", "strecha", folder="strecha_entry_p10",
+                            max_side_px=1024))
+    scenes.append(SceneSpec("ngp-fox-6view-1024", "nerf", num_cameras=6, folder="ngp_fox",
                             max_side_px=1024))
     return scenes
 
@@ -108,7 +112,12 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
         if not (folder / "gt_dense_cameras").is_dir():
             raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
         return load_strecha(folder, max_side_px=spec.max_side_px, name=spec.name)
-    raise InputError(f"Unknown scene kind {spec.kind!r}: choose synthetic or strecha.")
+    if spec.kind == "nerf":
+        folder = Path(data_dir) / spec.folder
+        if not (folder / "transforms.json").is_file():
+            raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
+        return load_nerf_transforms(folder, spec.num_cameras, spec.max_side_px, name=spec.name)
+    raise InputError(f"Unknown scene kind {spec.kind!r}: choose synthetic, strecha or nerf.")
 
 
 def _reset_peak_rss() -> bool:

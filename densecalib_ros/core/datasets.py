@@ -6,6 +6,7 @@ rig frame = first camera) plus cam_from_world per camera.
 """
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -129,6 +130,58 @@ def load_strecha(directory: str | os.PathLike, max_side_px: Optional[int] = 1024
                  gt_cam_from_world=cam_from_world, lens="pinhole",
                  notes="Strecha et al. 2008 reference cameras (targets + LiDAR), one camera moved "
                        "between shots; undistorted images.")
+
+
+def load_nerf_transforms(directory: str | os.PathLike, num_views: int = 6,
+                         max_side_px: Optional[int] = 1024, name: Optional[str] = None) -> Scene:
+    """`num_views` evenly spaced frames of a NeRF / instant-ngp capture (`transforms.json` with
+    shared fl_x, fl_y, cx, cy, k1, k2, p1, p2, w, h and a camera-to-world `transform_matrix` per
+    frame, OpenGL axes: x right, y up, z backwards), as a rig of one camera per frame.
+
+    cam_from_world = inv(c2w @ diag(1, -1, -1, 1)) (OpenGL to OpenCV axes). Frames whose image is
+    missing are skipped (instant-ngp's fox lists 67 frames and ships 50). Reference model: OPENCV;
+    cx, cy are taken as OpenCV's (pixel centre at 0), so COLMAP's are +0.5; intrinsics scale with
+    the downscaled image as in load_strecha. The poses are themselves an SfM estimate (COLMAP on
+    all frames), so the reference is an estimate too.
+    """
+    root = Path(directory)
+    path = root / "transforms.json"
+    if not path.is_file():
+        raise InputError(f"No transforms.json in {root}: point the loader at a NeRF capture folder.")
+    meta = json.loads(path.read_text())
+    frames = [f for f in sorted(meta["frames"], key=lambda f: f["file_path"])
+              if (root / f["file_path"]).is_file()]
+    if len(frames) < num_views:
+        raise InputError(f"{root}: {len(frames)} frames with images, {num_views} needed.")
+    pick = [frames[int(k)] for k in np.linspace(0, len(frames) - 1, num_views).round()]
+    width, height = int(meta["w"]), int(meta["h"])
+    new_w, new_h = width, height
+    if max_side_px and max(width, height) > max_side_px:
+        s = max_side_px / max(width, height)
+        new_w, new_h = int(round(width * s)), int(round(height * s))
+    sx, sy = new_w / width, new_h / height
+    params = np.array([meta["fl_x"] * sx, meta["fl_y"] * sy, (meta["cx"] + 0.5) * sx,
+                       (meta["cy"] + 0.5) * sy, meta.get("k1", 0.0), meta.get("k2", 0.0),
+                       meta.get("p1", 0.0), meta.get("p2", 0.0)])
+    names, frame, cameras, cam_from_world = [], [], {}, {}
+    for f in pick:
+        image = _read_rgb(root / f["file_path"])
+        if image.shape[:2] != (height, width):
+            raise InputError(f"{f['file_path']}: image is {image.shape[1]}x{image.shape[0]}, "
+                             f"transforms.json says {width}x{height}.")
+        if (new_w, new_h) != (width, height):
+            image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
+        cam = Path(f["file_path"]).stem
+        names.append(cam)
+        frame.append(np.ascontiguousarray(image))
+        cameras[cam] = CameraIntrinsics("OPENCV", new_w, new_h, params.copy())
+        opengl_c2w = np.asarray(f["transform_matrix"], dtype=np.float64)
+        cam_from_world[cam] = np.linalg.inv(opengl_c2w @ np.diag([1.0, -1.0, -1.0, 1.0]))
+    return Scene(name=name or root.name, camera_names=names, frame_sets=[frame],
+                 gt=rig_from_cam_from_world(cameras, cam_from_world),
+                 gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
+                 notes=f"{num_views} of the capture's frames (one phone camera walked around the "
+                       "object); reference = the capture's own SfM poses and intrinsics.")
 
 
 def scene_from_synthetic(rig, name: str) -> Scene:
