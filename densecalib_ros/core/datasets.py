@@ -56,6 +56,14 @@ def default_data_dir() -> Path:
     return Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
+def _downscaled_size(width: int, height: int, max_side_px: Optional[int]) -> tuple[int, int]:
+    """(w, h) with the long side at most max_side_px (None: unchanged), aspect kept."""
+    if not max_side_px or max(width, height) <= max_side_px:
+        return width, height
+    s = max_side_px / max(width, height)
+    return int(round(width * s)), int(round(height * s))
+
+
 def _read_rgb(path: Path) -> np.ndarray:
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None:
@@ -107,10 +115,8 @@ def load_strecha(directory: str | os.PathLike, max_side_px: Optional[int] = 1024
         if image.shape[:2] != (height, width):
             raise InputError(f"{image_name}: image is {image.shape[1]}x{image.shape[0]} but its "
                              f"camera file says {width}x{height}.")
-        new_w, new_h = width, height
-        if max_side_px and max(width, height) > max_side_px:
-            s = max_side_px / max(width, height)
-            new_w, new_h = int(round(width * s)), int(round(height * s))
+        new_w, new_h = _downscaled_size(width, height, max_side_px)
+        if (new_w, new_h) != (width, height):
             image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
         sx, sy = new_w / width, new_h / height
         params = np.array([k[0, 0] * sx, k[1, 1] * sy, (k[0, 2] + 0.5) * sx, (k[1, 2] + 0.5) * sy])
@@ -155,10 +161,7 @@ def load_nerf_transforms(directory: str | os.PathLike, num_views: int = 6,
         raise InputError(f"{root}: {len(frames)} frames with images, {num_views} needed.")
     pick = [frames[int(k)] for k in np.linspace(0, len(frames) - 1, num_views).round()]
     width, height = int(meta["w"]), int(meta["h"])
-    new_w, new_h = width, height
-    if max_side_px and max(width, height) > max_side_px:
-        s = max_side_px / max(width, height)
-        new_w, new_h = int(round(width * s)), int(round(height * s))
+    new_w, new_h = _downscaled_size(width, height, max_side_px)
     sx, sy = new_w / width, new_h / height
     params = np.array([meta["fl_x"] * sx, meta["fl_y"] * sy, (meta["cx"] + 0.5) * sx,
                        (meta["cy"] + 0.5) * sy, meta.get("k1", 0.0), meta.get("k2", 0.0),

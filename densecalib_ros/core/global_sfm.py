@@ -40,8 +40,9 @@ from .config import SfMConfig
 from .errors import (DisconnectedViewGraphError, FocalInitError, InputError,
                      NotEnoughCamerasError, NotEnoughOverlapError)
 from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost_truncation_px,
-                          drop_implausible_cameras, run_incremental, truncated_cost)
-from .plausibility import bundle_adjust_plausibly, implausible_cameras
+                          run_incremental, truncated_cost)
+from .plausibility import (bundle_adjust_plausibly, drop_implausible_cameras,
+                           implausible_cameras)
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
                              convert_camera_models, matrix_from_rigid, reprojection_errors,
                              triangulate_tracks)

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 import pycolmap
 
+from .errors import FocalInitError
 from .reconstruction import BAStage, SfMState, bundle_adjust, reprojection_errors
 from .types import CameraIntrinsics
 
@@ -125,3 +126,24 @@ def bundle_adjust_plausibly(state: SfMState, camera_names: Sequence[str], stage:
     fixed = tuple(sorted(set(stage.fixed_intrinsics_cameras) | set(bad)))
     return bundle_adjust(state, camera_names,
                          dataclasses.replace(stage, fixed_intrinsics_cameras=fixed), num_threads)
+
+
+def drop_implausible_cameras(state: SfMState, failed: list[int], camera_names: Sequence[str],
+                             say: Callable[[str], None]) -> None:
+    """Unregister the cameras whose intrinsics ran into physically implausible values
+    (plausibility.py) and add them to `failed`: their poses and intrinsics are not trustworthy,
+    whatever the residuals. Raises FocalInitError when fewer than two cameras remain."""
+    problems = implausible_cameras(state)
+    for c, problem in problems.items():
+        say(f"camera {camera_names[c]} left out: {problem}")
+        state.cam_from_world[c] = None
+        failed.append(c)
+    failed.sort()
+    state.drop_weak_points()
+    if problems and len(state.registered()) < 2:
+        raise FocalInitError(
+            "Self-calibration ran into implausible intrinsics (" + "; ".join(
+                f"{camera_names[c]}: {p}" for c, p in problems.items()) + "): the scene is "
+            "probably too close to planar or the views too similar to fix the focal lengths and "
+            "distortion. Add frame sets with depth variation (objects in front of the "
+            "background), or try --pipeline global.")
