@@ -1,5 +1,10 @@
 """OpenCV SIFT with Lowe's ratio test and a mutual nearest-neighbour check (no torch).
 
+Descriptors are RootSIFT by default (L1-normalised, element-wise square root: Euclidean distance
+then compares them by the Hellinger kernel, Arandjelovic & Zisserman 2012; COLMAP's default too).
+Measured on wide-baseline (35 deg) generated rigs, it removes about half of the wrong matches of
+the weakly overlapping pairs and keeps the right ones.
+
 Sites are keypoint locations; OpenCV returns several keypoints at one location (one per dominant
 orientation), which are merged into one site whose descriptor distance to another site is the
 smallest over their keypoints. The ratio test compares the nearest and second-nearest *site*,
@@ -24,9 +29,10 @@ class SiftMatcher(Matcher):
 
     def __init__(self, max_image_side_px: Optional[int] = 1024, max_keypoints: int = 8000,
                  ratio_threshold: float = 0.8, contrast_threshold: float = 0.04,
-                 device: Optional[str] = None):
+                 root_sift: bool = True, device: Optional[str] = None):
         """max_keypoints: SIFT nfeatures per image; ratio_threshold: Lowe ratio (nearest /
         second-nearest site distance) below which a match is kept, applied in both directions.
+        root_sift: compare RootSIFT descriptors (False: OpenCV's raw L2 SIFT descriptors).
         device: only None or 'cpu' (OpenCV SIFT runs on the CPU)."""
         super().__init__(max_image_side_px)
         if device not in (None, "cpu"):
@@ -36,6 +42,7 @@ class SiftMatcher(Matcher):
         self.max_keypoints = int(max_keypoints)
         self.ratio_threshold = float(ratio_threshold)
         self.contrast_threshold = float(contrast_threshold)
+        self.root_sift = bool(root_sift)
 
     def _features(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Returns sites float64 (S, 2) original COLMAP px, keypoint site index int64 (K,),
@@ -48,8 +55,12 @@ class SiftMatcher(Matcher):
             return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
         xy = np.array([k.pt for k in keypoints], dtype=np.float64)
         unique_xy, site_of_kp = np.unique(xy, axis=0, return_inverse=True)
+        descriptors = descriptors.astype(np.float32)
+        if self.root_sift:  # SIFT descriptors are non-negative
+            descriptors = np.sqrt(descriptors / np.maximum(
+                descriptors.sum(axis=1, keepdims=True), 1e-12))
         return (opencv_to_original(unique_xy, scale_xy), site_of_kp.reshape(-1).astype(np.int64),
-                descriptors.astype(np.float32))
+                descriptors)
 
     @staticmethod
     def _site_sq_distances(desc_a, site_a, n_a, desc_b, site_b, n_b) -> np.ndarray:
