@@ -125,15 +125,15 @@ def test_sift_matches_follow_the_homography(image_pair):
 
 
 def test_sift_compares_rootsift_descriptors(image_pair):
-    """Default descriptors are RootSIFT (sqrt of the L1-normalised SIFT descriptor: unit L2 norm);
-    root_sift=False keeps OpenCV's raw descriptors at the same sites."""
-    root = create_matcher("sift")._features(image_pair[0])
-    raw = create_matcher("sift", root_sift=False)._features(image_pair[0])
+    """root_sift=True: sqrt of the L1-normalised SIFT descriptor (unit L2 norm) at the same sites
+    as the default raw descriptors."""
+    root = create_matcher("sift", root_sift=True)._features(image_pair[0])
+    raw = create_matcher("sift")._features(image_pair[0])
     np.testing.assert_array_equal(root[0], raw[0])
     np.testing.assert_allclose(np.linalg.norm(root[2], axis=1), 1.0, atol=1e-5)
     np.testing.assert_allclose(root[2], np.sqrt(raw[2] / raw[2].sum(axis=1, keepdims=True)),
                                atol=1e-6)
-    assert np.abs(np.linalg.norm(raw[2], axis=1) - 1.0).max() > 0.1  # raw ones are not unit L1-roots
+    assert np.abs(np.linalg.norm(raw[2], axis=1) - 1.0).max() > 0.1  # the default stays raw
 
 
 def test_resized_matching_maps_back_to_original_pixels(image_pair):
