@@ -213,3 +213,38 @@ def test_track_observations_follow_the_anchor_rule():
     plain = sample_tracks([ms], cfg).tracks
     unrefined = _with_refined_targets(ms, pos, offset, lambda i, j: np.ones(len(pos[i]), bool))
     np.testing.assert_array_equal(sample_tracks([unrefined], cfg).tracks.xy_px, plain.xy_px)
+
+
+def test_two_cycles_of_unverified_pairs_are_not_sampled():
+    """Pair (0, 2) keeps only 10 right matches plus 10 wrong ones: its F has fewer inliers than
+    min_two_cycle_pair_inliers, so none of its 2-cycles (which only F_err could verify) is
+    sampled; its 3-cycles, verified by closure, still are."""
+    scene = make_scene(num_cams=3, num_points=3000, seed=8)
+    ms, _, sop = match_set_from_scene(scene)
+    rng = np.random.default_rng(1)
+    both = np.flatnonzero((sop[0] >= 0) & (sop[2] >= 0))
+    right = rng.choice(both, 10, replace=False)
+    wrong_src = rng.choice(np.setdiff1d(both, right), 10, replace=False)
+    wrong_dst = rng.permutation(wrong_src)  # sites of other points: consistent but wrong
+    fwd = np.full(len(ms.sites[0]), -1, np.int32)
+    fwd[sop[0][right]] = sop[2][right]
+    fwd[sop[0][wrong_src]] = sop[2][wrong_dst]
+    bwd = np.full(len(ms.sites[2]), -1, np.int32)
+    bwd[fwd[fwd >= 0]] = np.flatnonzero(fwd >= 0)
+    ms.pairs[(0, 2)] = SiteMatches(fwd, (fwd >= 0).astype(np.float32))
+    ms.pairs[(2, 0)] = SiteMatches(bwd, (bwd >= 0).astype(np.float32))
+
+    def pair_02_only(res):
+        obs = res.tracks.observed()
+        return int(np.sum(obs[:, 0] & obs[:, 2] & ~obs[:, 1]))
+
+    res = sample_tracks([ms], config(sfm__f_err_px=None, sfm__two_cycle_f_err_px=None))
+    assert res.two_view[(0, 2)].num_inliers < 15
+    assert res.stats["unverified_pairs"] == ["0-2"]
+    assert res.stats["unverified_two_cycles_removed"] > 0
+    assert pair_02_only(res) == 0
+    assert (res.tracks.cycle_order == 3).sum() > 0
+    everything = sample_tracks([ms], config(sfm__f_err_px=None, sfm__two_cycle_f_err_px=None,
+                                            sampling__min_two_cycle_pair_inliers=0))
+    assert everything.stats["unverified_pairs"] == []
+    assert pair_02_only(everything) > 0

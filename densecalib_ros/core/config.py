@@ -24,6 +24,11 @@ class SamplingConfig:
     max_grid_iterations: int = 3  # grid levels per cycle order (Alg. 1 max_iter: d, d/2, d/4)
     samples_per_order: dict = field(default_factory=lambda: {4: 6000, 3: 3000, 2: 1000})
     top_k: int = 3  # number of best pair scores summed per cycle; 0 = no scoring
+    # A pair's 2-cycles are sampled only if its F (or fisheye E) has at least this many inliers
+    # (COLMAP's two-view min_num_inliers). Closure verifies higher cycles; a 2-cycle has only
+    # F_err, which a fit to a handful of matches cannot give (measured on 35-deg rigs: pairs with
+    # 9-17 inliers of 21-45 matches supplied most of the wrong 2-view tracks).
+    min_two_cycle_pair_inliers: int = 15
     probabilistic_scoring: bool = True  # stage-2 pick proportional to score, else argmax
     score_alpha_deg: float = 30.0
     score_sigma_deg: float = 20.0

@@ -263,6 +263,10 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
     # --- F_err filter and scores per stage-1 cycle --------------------------------------------
     clock = time.perf_counter()
     f_err = sfm_cfg.f_err_px
+    unverified = {k for k, g in two_view.items()
+                  if g.num_inliers < s_cfg.min_two_cycle_pair_inliers}
+    stats["unverified_pairs"] = sorted(f"{i}-{j}" for i, j in unverified)
+    removed_unverified = 0
     candidates: dict[int, list[_Candidates]] = {n: [] for n in closed_counts}
     removed = {n: 0 for n in closed_counts}
     for t, ms in enumerate(match_sets):
@@ -272,6 +276,9 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
             for cs in sets:
                 xy = cycle_observations_px(ms, cs)
                 keep = np.ones(len(cs), bool)
+                if n == 2 and cs.cameras in unverified:
+                    removed_unverified += len(cs)
+                    continue
                 pair_scores = []
                 cam_rays = [rays(c, xy[:, k], focal) for k, c in enumerate(cs.cameras)]
                 for (a, ca), (b, cb) in combinations(enumerate(cs.cameras), 2):
@@ -296,6 +303,11 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
                     candidates[n].append(_Candidates(
                         t, CycleSet(cs.cameras, cs.sites[keep]), xy[keep], score[keep]))
     stats["f_err_removed"] = removed
+    stats["unverified_two_cycles_removed"] = removed_unverified
+    if unverified:
+        LOG.info("2-cycles of camera pairs %s not used: their two-view geometry has fewer than %d "
+                 "inliers (%d cycles)", ", ".join(stats["unverified_pairs"]),
+                 s_cfg.min_two_cycle_pair_inliers, removed_unverified)
     stats["timing_s"]["filter_score"] = time.perf_counter() - clock
 
     # --- stage 2: coarse grid, orders N..2, coverage rule, budget -----------------------------
