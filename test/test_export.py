@@ -19,7 +19,7 @@ def _rig():
     t = np.eye(4)
     t[:3, 3] = [0.5, 0.0, 0.1]
     return RigCalibration("a", {
-        "a": RigCamera("a", a, np.eye(4), CameraQuality(0.4, 1000, 0.8)),
+        "a": RigCamera("a", a, np.eye(4), CameraQuality(0.4, 1000, 0.8, 600)),
         "b": RigCamera("b", b, t, None)}, quality={"rms_px": np.float64(0.5)})
 
 
@@ -60,6 +60,11 @@ def test_calibration_round_trip(tmp_path):
     np.testing.assert_allclose(back.cameras["b"].cam_from_rig, rig.cameras["b"].cam_from_rig)
     np.testing.assert_allclose(back.cameras["b"].intrinsics.params, rig.cameras["b"].intrinsics.params)
     assert back.cameras["a"].quality.num_observations == 1000
+    assert back.cameras["a"].quality.num_multiview_observations == 600
+    # Files written before the multi-view count was recorded still load.
+    data = json.loads((tmp_path / "calibration.json").read_text())
+    del data["cameras"]["a"]["quality"]["num_multiview_observations"]
+    assert calibration_from_dict(data).cameras["a"].quality.num_multiview_observations is None
     assert (tmp_path / "a.yaml").exists() and (tmp_path / "b.yaml").exists()
     assert json.loads((tmp_path / "calibration.json").read_text())["quality"]["rms_px"] == 0.5
 

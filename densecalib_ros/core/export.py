@@ -84,6 +84,9 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
             entry["quality"] = {"reprojection_rms_px": float(cam.quality.reprojection_rms_px),
                                 "num_observations": int(cam.quality.num_observations),
                                 "coverage": float(cam.quality.coverage)}
+            if cam.quality.num_multiview_observations is not None:
+                entry["quality"]["num_multiview_observations"] = int(
+                    cam.quality.num_multiview_observations)
         cams[name] = entry
     return {"reference_camera": rig.reference_camera, "cameras": cams,
             "failed_cameras": list(rig.failed_cameras), "metric_scale": bool(rig.metric_scale),

@@ -319,20 +319,23 @@ def triangulate(state: SfMState, rows: np.ndarray, max_error_px: float,
 
 
 def camera_quality(state: SfMState, c: int, errors: Optional[np.ndarray] = None) -> CameraQuality:
-    """Reprojection RMS, number of observations and image coverage of camera c's observations
-    of reconstruction points."""
+    """Reprojection RMS, number of observations (and of those whose point >= 3 cameras see) and
+    image coverage of camera c's observations of reconstruction points."""
     errors = reprojection_errors(state) if errors is None else errors
     e = errors[:, c]
     rows = np.flatnonzero(np.isfinite(e))
     cam = state.camera(c)
     if len(rows) == 0:
-        return CameraQuality(reprojection_rms_px=float("nan"), num_observations=0, coverage=0.0)
+        return CameraQuality(reprojection_rms_px=float("nan"), num_observations=0, coverage=0.0,
+                             num_multiview_observations=0)
     xy = state.tracks.xy_px[rows, c]
     gx = np.clip((xy[:, 0] / cam.width * COVERAGE_GRID).astype(int), 0, COVERAGE_GRID - 1)
     gy = np.clip((xy[:, 1] / cam.height * COVERAGE_GRID).astype(int), 0, COVERAGE_GRID - 1)
     coverage = len(np.unique(gy * COVERAGE_GRID + gx)) / COVERAGE_GRID ** 2
+    views = np.isfinite(errors[rows]).sum(axis=1)
     return CameraQuality(reprojection_rms_px=float(np.sqrt(np.mean(e[rows] ** 2))),
-                         num_observations=int(len(rows)), coverage=float(coverage))
+                         num_observations=int(len(rows)), coverage=float(coverage),
+                         num_multiview_observations=int(np.sum(views >= 3)))
 
 
 def convert_camera_models(state: SfMState, model: str) -> None:
