@@ -91,6 +91,22 @@ def test_incremental_recovers_ground_truth(model, preset):
         assert cam.quality.coverage > 0.1
 
 
+def test_identical_cameras_share_one_intrinsics_block():
+    names = ["a", "b", "c", "d"]
+    cams, poses = gt_rig(4, seed=11)
+    cams = [cams[0]] * 4  # identical units
+    tracks = gt_tracks(cams, poses, seed=11)
+    cfg = make_config("regular", sfm__share_intrinsics=True, sfm__num_threads=1).sfm
+    init = initial_intrinsics([(c.width, c.height) for c in cams], noisy_focals(cams), "RADIAL")
+    result = run_incremental(tracks, init, names, cfg)
+    assert result.failed == [] and len(result.state.intrinsics) == 1
+    rig = rig_from_state(result.state, names, result.failed)
+    for cam in rig.cameras.values():
+        np.testing.assert_array_equal(cam.intrinsics.params, rig.cameras["a"].intrinsics.params)
+    assert abs(rig.cameras["a"].intrinsics.params[0] / cams[0].params[0] - 1) < 0.005
+    assert evaluate_calibration(rig, gt_calibration(names, cams, poses))["auc3"] > 85.0
+
+
 def test_two_cameras_without_shared_tracks_is_not_enough_overlap():
     cams, poses = gt_rig(3, seed=2)
     tracks = gt_tracks(cams, poses, seed=2)

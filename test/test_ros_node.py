@@ -30,7 +30,7 @@ from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
 from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
 from densecalib_ros.core.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
-from densecalib_ros.ros.node import DenseCalibNode  # noqa: E402
+from densecalib_ros.ros.node import DenseCalibNode, pipeline_config  # noqa: E402
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
                                           TriggerCaller, wait_until)
 
@@ -206,6 +206,9 @@ def test_parameters_are_validated(ros, tmp_path):
         assert node.settings.baseline_cameras == ["cam0", "cam2"]
         assert node.settings.camera_info_topics[2] == "/rig/cam2/camera_info"
         assert node.settings.set_camera_info_services[0] == "/rig/cam0/set_camera_info"
+        assert not pipeline_config(node.settings).sfm.share_intrinsics
+        assert node.set_parameters([Parameter("share_intrinsics", value=True)])[0].successful
+        assert pipeline_config(node.settings).sfm.share_intrinsics
     finally:
         ros.remove(node)
 

@@ -38,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-side", type=int, default=None, metavar="PX",
                         help="match images at most at this size (default 1024)")
     parser.add_argument("--share-intrinsics", action="store_true",
-                        help="one set of intrinsics for cameras of the same image size")
+                        help="one set of intrinsics for cameras of the same image size: use it "
+                             "when the cameras are identical units (same model, lens and zoom)")
     parser.add_argument("--previous", metavar="PATH", default=None,
                         help="a previous calibration (folder or calibration.json) of these cameras: "
                              "start from it, report what changed, and refuse a worse result")

@@ -45,7 +45,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from ..core.bag import camera_names_from_topics
-from ..core.config import DEFAULT_PIPELINE, PIPELINES, PRESETS, make_config
+from ..core.config import DEFAULT_PIPELINE, PIPELINES, PRESETS, PipelineConfig, make_config
 from ..core.errors import CalibrationError, InputError
 from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
 from ..core.matching import available_matchers
@@ -92,6 +92,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
+    "share_intrinsics": (False, "one set of intrinsics for cameras of the same image size "
+                         "(identical cameras: same model, lens and zoom)", False, {}),
     "max_image_side_px": (1024, "images are matched at most at this size [px]", False,
                           _range(64, 16384, True)),
     "output_dir": ("~/.ros/densecalib", "calibration files: <output_dir>/<UTC time>/ and a "
@@ -137,6 +139,7 @@ class Settings:
     preset: str
     pipeline: str
     matcher: str
+    share_intrinsics: bool
     max_image_side_px: int
     output_dir: Path
     rig_frame: str
@@ -150,6 +153,12 @@ class Settings:
     replay_bag: str
     replay_rate: float
     calibrate_after_replay: bool
+
+
+def pipeline_config(s: Settings) -> PipelineConfig:
+    """The core pipeline configuration the node's method parameters select."""
+    return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
+                       sfm__share_intrinsics=s.share_intrinsics)
 
 
 def _topic_namespace(topic: str) -> str:
@@ -241,7 +250,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         slop_s=float(v["slop_s"]), sync_queue_size=int(v["sync_queue_size"]),
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), preset=v["preset"], pipeline=v["pipeline"],
-        matcher=v["matcher"], max_image_side_px=int(v["max_image_side_px"]),
+        matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
+        max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
         frame_names=frames, camera_info_topics=info_topics,
         call_set_camera_info=bool(v["call_set_camera_info"]), set_camera_info_services=services,
@@ -462,8 +472,7 @@ class DenseCalibNode(Node):
         self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
                          f"{s.matcher})")
         images = decode_frame_sets(sets)
-        config = make_config(s.preset, s.pipeline, s.matcher,
-                             max_image_side_px=s.max_image_side_px)
+        config = pipeline_config(s)
         progress = lambda msg: self._set_status(f"calibrating: {msg}")  # noqa: E731
         if self.calibration is not None:  # start from it; a worse result is refused
             result = recalibrate(images, s.camera_names, config, self.calibration,
