@@ -40,6 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--share-intrinsics", action="store_true",
                         help="one set of intrinsics for cameras of the same image size: use it "
                              "when the cameras are identical units (same model, lens and zoom)")
+    parser.add_argument("--consensus-runs", type=int, default=5, metavar="N",
+                        help="sample + SfM up to N times with different seeds and keep the run "
+                             "that agrees best with the others (default 5; it stops after 3 runs "
+                             "that agree; 1 = a single run)")
     parser.add_argument("--previous", metavar="PATH", default=None,
                         help="a previous calibration (folder or calibration.json) of these cameras: "
                              "start from it, report what changed, and refuse a worse result")
@@ -69,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.threads,
-                     "sfm__share_intrinsics": args.share_intrinsics}
+                     "sfm__share_intrinsics": args.share_intrinsics,
+                     "consensus_runs": args.consensus_runs}
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)

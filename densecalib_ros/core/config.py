@@ -69,6 +69,10 @@ class PipelineConfig:
     pipeline: str = "incremental"  # "incremental" | "global"
     matcher: str = "sift"
     max_image_side_px: int = 1024  # images are matched at most at this size (coordinates rescaled)
+    # Fresh calibrations run the sampling + SfM up to this many times (seeds seed, seed+1, ...) and
+    # keep the medoid run (consensus.py): on weakly connected rigs one sample's outcome is a
+    # lottery. They stop after 3 runs that agree (consensus.AGREEMENT_DEG). 1 = a single run.
+    consensus_runs: int = 5
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 

@@ -8,6 +8,7 @@ are scaled so that the median distance of the other cameras from the reference c
 """
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from dataclasses import dataclass, field
@@ -17,7 +18,7 @@ import numpy as np
 import pycolmap
 
 from .config import PipelineConfig
-from .errors import InputError, NotEnoughCamerasError, NotEnoughOverlapError
+from .errors import CalibrationError, InputError, NotEnoughCamerasError, NotEnoughOverlapError
 from .focal import estimate_initial_focals
 from .incremental import initial_intrinsics, run_incremental
 from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
@@ -245,7 +246,56 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
                            progress: Progress = None) -> CalibrationResult:
     """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
     the previous calibration's poses and intrinsics also give the triangulation angles that score
-    the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused."""
+    the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused.
+
+    A fresh calibration (no previous) with config.consensus_runs > 1 repeats sampling + SfM with
+    consecutive seeds and returns the medoid run (core.consensus); its quality records the runs'
+    disagreement. Runs that fail are skipped; if all fail, the first run's error is raised."""
+    if previous is None and config.consensus_runs > 1:
+        return _consensus_calibration(match_sets, image_sizes, camera_names, config, progress)
+    return _calibrate_once(match_sets, image_sizes, camera_names, config, previous, progress)
+
+
+def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],
+                           camera_names: Sequence[str], config: PipelineConfig,
+                           progress: Progress) -> CalibrationResult:
+    from .consensus import AGREEMENT_DEG, EARLY_STOP_RUNS, medoid
+
+    results, seeds, failed, first_error = [], [], 0, None
+    for k in range(config.consensus_runs):
+        if k == EARLY_STOP_RUNS and len(results) == k and \
+                medoid([r.rig for r in results], camera_names)[1].max() < AGREEMENT_DEG:
+            break  # a well-determined rig: more runs would only repeat the answer
+        seed = config.sampling.seed + k
+        run_config = copy.deepcopy(config)
+        run_config.sampling.seed = seed
+        say_progress(progress, f"consensus run {k + 1} of up to {config.consensus_runs} "
+                               f"(sampling seed {seed})")
+        try:
+            results.append(_calibrate_once(match_sets, image_sizes, camera_names, run_config,
+                                           None, progress if k == 0 else None))
+            seeds.append(seed)
+        except CalibrationError as exc:
+            log.info("consensus run %d (seed %d) failed: %s", k + 1, seed, exc)
+            failed += 1
+            first_error = first_error or exc
+    if not results:
+        raise first_error
+    best, D = medoid([r.rig for r in results], camera_names)
+    others = np.delete(D[best], best)
+    result = results[best]
+    result.rig.quality.update(
+        consensus_runs=len(results), consensus_failed_runs=failed, consensus_seed=seeds[best],
+        consensus_disagreement_deg=float(np.median(others)) if len(others) else 0.0)
+    say_progress(progress, f"consensus: the run with seed {seeds[best]} agrees best with the "
+                           f"other {len(results) - 1} (median disagreement "
+                           f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg)")
+    return result
+
+
+def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
+                    camera_names: Sequence[str], config: PipelineConfig,
+                    previous: Optional[RigCalibration], progress: Progress) -> CalibrationResult:
     from .sampling import sample_tracks
 
     if previous is not None and config.pipeline == "global" and config.sfm.global_init == "previous":

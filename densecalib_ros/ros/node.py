@@ -92,6 +92,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
+    "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
+                       "run that agrees best with the others (stops after 3 that agree; 1 = one "
+                       "run)", False, _range(1, 20, True)),
     "share_intrinsics": (False, "one set of intrinsics for cameras of the same image size "
                          "(identical cameras: same model, lens and zoom)", False, {}),
     "max_image_side_px": (1024, "images are matched at most at this size [px]", False,
@@ -140,6 +143,7 @@ class Settings:
     pipeline: str
     matcher: str
     share_intrinsics: bool
+    consensus_runs: int
     max_image_side_px: int
     output_dir: Path
     rig_frame: str
@@ -158,7 +162,8 @@ class Settings:
 def pipeline_config(s: Settings) -> PipelineConfig:
     """The core pipeline configuration the node's method parameters select."""
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
-                       sfm__share_intrinsics=s.share_intrinsics)
+                       sfm__share_intrinsics=s.share_intrinsics,
+                       consensus_runs=s.consensus_runs)
 
 
 def _topic_namespace(topic: str) -> str:
@@ -251,6 +256,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), preset=v["preset"], pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
+        consensus_runs=int(v["consensus_runs"]),
         max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
         frame_names=frames, camera_info_topics=info_topics,
