@@ -63,3 +63,16 @@ def test_one_camera_and_inconsistent_input_fail_clearly(rig):
         calibrate_rig([[rig.images[0][0]]], ["only"], config)
     with pytest.raises(InputError, match="3 images for 2 cameras"):
         calibrate_rig([rig.images[0][:3]], ["a", "b"], config)
+
+
+def test_pipeline_stops_after_three_agreeing_runs_and_single_run_has_no_consensus(rig):
+    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    assert config.consensus_runs == 5
+    result = run_calibration([rig.images[0]], rig.names, config)
+    q = result.rig.quality
+    assert q["consensus_runs"] == 3 and q["consensus_failed_runs"] == 0
+    assert q["consensus_seed"] in (0, 1, 2) and 0.0 <= q["consensus_disagreement_deg"] < 1.0
+    single = run_calibration([rig.images[0]], rig.names,
+                             make_config("regular", matcher="sift", sfm__num_threads=1,
+                                         consensus_runs=1))
+    assert "consensus_runs" not in single.rig.quality
