@@ -274,11 +274,11 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
             # Higher orders are verified by their closure; with F_err off (fisheye) 2-cycles are not.
             thr = f_err if (f_err is not None or n > 2) else sfm_cfg.two_cycle_f_err_px
             for cs in sets:
-                xy = cycle_observations_px(ms, cs)
-                keep = np.ones(len(cs), bool)
                 if n == 2 and cs.cameras in unverified:
                     removed_unverified += len(cs)
                     continue
+                xy = cycle_observations_px(ms, cs)
+                keep = np.ones(len(cs), bool)
                 pair_scores = []
                 cam_rays = [rays(c, xy[:, k], focal) for k, c in enumerate(cs.cameras)]
                 for (a, ca), (b, cb) in combinations(enumerate(cs.cameras), 2):
