@@ -3,8 +3,9 @@ pipeline's use of it is tested in test_pipeline.py)."""
 import numpy as np
 import pytest
 
-from densecalib_ros.core.consensus import (UNREGISTERED_PAIR_DEG, medoid,
-                                           pair_disagreement_deg, rig_disagreement_deg)
+from densecalib_ros.core.consensus import (UNREGISTERED_PAIR_DEG, WARN_DISAGREEMENT_DEG,
+                                           disagreement_warning, medoid, pair_disagreement_deg,
+                                           rig_disagreement_deg)
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 NAMES = ["a", "b", "c"]
@@ -46,3 +47,11 @@ def test_medoid_is_the_majority_answer():
     best, D = medoid(rigs, NAMES)
     assert best == 2 and D.shape == (5, 5) and np.allclose(D, D.T)
     assert D[0, 2] == pytest.approx(20.0) and np.all(np.diag(D) == 0)
+
+
+def test_users_are_warned_when_runs_disagree_beyond_auc3_threshold():
+    assert WARN_DISAGREEMENT_DEG == 3.0
+    assert disagreement_warning(0.4, 3) is None and disagreement_warning(3.0, 5) is None
+    message = disagreement_warning(12.5, 5)
+    assert "5 calibration runs disagree" in message and "12.5 deg" in message
+    assert "frame sets" in message and "share-intrinsics" in message

@@ -12,7 +12,7 @@ determine the rig.
 from __future__ import annotations
 
 from itertools import combinations
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -26,6 +26,9 @@ UNREGISTERED_PAIR_DEG = 180.0
 # differ by degrees.
 EARLY_STOP_RUNS = 3
 AGREEMENT_DEG = 1.0
+# The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
+# other runs put the cameras where the kept one would count as wrong.
+WARN_DISAGREEMENT_DEG = 3.0
 
 
 def _angle_deg(cos: float) -> float:
@@ -62,3 +65,14 @@ def medoid(rigs: Sequence[RigCalibration], camera_names: Sequence[str]
     for i, j in combinations(range(n), 2):
         D[i, j] = D[j, i] = rig_disagreement_deg(rigs[i], rigs[j], camera_names)
     return int(np.argmin(D.sum(axis=1))), D
+
+
+def disagreement_warning(disagreement_deg: float, num_runs: int) -> Optional[str]:
+    """The message for a user whose runs disagree by more than WARN_DISAGREEMENT_DEG, else None."""
+    if disagreement_deg <= WARN_DISAGREEMENT_DEG:
+        return None
+    return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
+            "(median over camera pairs) from the others, so the images allow quite different rigs "
+            "and this one may be wrong. Add frame sets (time-aligned images of a changing scene) or "
+            "more overlap between cameras, or use --share-intrinsics (node: share_intrinsics) if "
+            "the cameras are identical units.")

@@ -259,7 +259,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                            camera_names: Sequence[str], config: PipelineConfig,
                            progress: Progress) -> CalibrationResult:
-    from .consensus import AGREEMENT_DEG, EARLY_STOP_RUNS, medoid
+    from .consensus import AGREEMENT_DEG, EARLY_STOP_RUNS, disagreement_warning, medoid
 
     results, seeds, failed, first_error = [], [], 0, None
     for k in range(config.consensus_runs):
@@ -290,6 +290,10 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     say_progress(progress, f"consensus: the run with seed {seeds[best]} agrees best with the "
                            f"other {len(results) - 1} (median disagreement "
                            f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg)")
+    warning = disagreement_warning(result.rig.quality["consensus_disagreement_deg"], len(results))
+    if warning:
+        log.warning("%s", warning)
+        say_progress(progress, warning)
     return result
 
 
