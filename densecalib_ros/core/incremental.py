@@ -288,7 +288,8 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     20-35 % low), from which incremental SfM converges to a wrong reconstruction. So the SfM is
     run from the initial focals scaled by each of FOCAL_SCALE_STARTS (on a seeded subsample of
     at most MULTISTART_MAX_TRACKS tracks) and the start with the lowest truncated reprojection
-    cost (`truncated_cost`) is used for the full run.
+    cost (`truncated_cost`) gives the result: that trial itself when it ran on all tracks, else a
+    run on all tracks from that start.
     """
     say = progress or (lambda msg: None)
     starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in FOCAL_SCALE_STARTS}
@@ -299,12 +300,14 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         pick = np.random.default_rng(seed).choice(tracks.num_tracks, MULTISTART_MAX_TRACKS,
                                                   replace=False)
         sub = tracks.subset(np.sort(pick))
-    costs = {}
+    costs, trials = {}, {}
     for name, start in starts.items():
+        messages: list[str] = []
         try:
-            trial = _incremental(sub, start, camera_names, config, seed, lambda msg: None)
+            trial = _incremental(sub, start, camera_names, config, seed, messages.append)
         except NotEnoughOverlapError:
             continue
+        trials[name] = (trial, messages)
         problems = implausible_cameras(trial.state)
         if problems:
             log.debug("focal start %s: implausible intrinsics %s", name, problems)
@@ -318,7 +321,12 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         say(f"focal multi-start: {best} fits best (truncated reprojection cost "
             f"{costs[best][1]:.2f} px; " + ", ".join(f"{n}: {c[1]:.2f}" for n, c in costs.items())
             + ")")
-    result = _incremental(tracks, starts[best], camera_names, config, seed, say)
+    if sub is tracks and best in trials:  # the trial already is the full run from this start
+        result, messages = trials[best]
+        for msg in messages:
+            say(msg)
+    else:
+        result = _incremental(tracks, starts[best], camera_names, config, seed, say)
     drop_implausible_cameras(result.state, result.failed, camera_names, say)
     return result
 
