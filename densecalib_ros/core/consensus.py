@@ -22,8 +22,8 @@ from .types import RigCalibration
 UNREGISTERED_PAIR_DEG = 180.0
 # After this many successful runs, stop if every two of them agree within AGREEMENT_DEG (mean over
 # camera pairs): a third of AUC@3's strictest threshold, so further runs could not change which
-# poses count as accurate. Measured: well-connected rigs agree within ~0.1-0.5 deg, weak ones
-# differ by degrees.
+# poses count as accurate. Measured on bench scenes: 3-camera s101 0.13 deg, 6-camera s101
+# 0.05 deg; weak wide rigs 2.9-7.4 deg, the real fox 12.4 deg.
 EARLY_STOP_RUNS = 3
 AGREEMENT_DEG = 1.0
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the

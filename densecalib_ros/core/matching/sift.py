@@ -4,9 +4,9 @@ root_sift=True compares RootSIFT descriptors (L1-normalised, element-wise square
 distance then compares them by the Hellinger kernel, Arandjelovic & Zisserman 2012; COLMAP's
 default). It gives better matches (bench-sampling --quick: raw inliers 0.946 -> 0.968 pinhole,
 0.971 -> 0.982 fisheye; about half the wrong matches of weak 35 deg pairs gone), but end to end it
-measured worse (full bench, incremental mean AUC@3 90.6 -> 83.7, the real fox scene 62 -> 7),
-because the pipeline's focal start is fragile on weakly connected rigs and small input changes
-flip its outcome. So it is opt-in until that fragility is fixed.
+measured worse (full bench, incremental mean AUC@3 90.6 -> 83.7, the real fox scene 62 -> 7):
+on weakly connected rigs small input changes flip the outcome (a different sampling seed does too;
+see core/consensus.py), so one bench run cannot show a match-quality gain there. Opt-in for now.
 
 Sites are keypoint locations; OpenCV returns several keypoints at one location (one per dominant
 orientation), which are merged into one site whose descriptor distance to another site is the
