@@ -91,6 +91,28 @@ def test_incremental_recovers_ground_truth(model, preset):
         assert cam.quality.coverage > 0.1
 
 
+def test_multistart_on_a_subsample_is_finished_on_every_track(monkeypatch):
+    """Rigs with more tracks than MULTISTART_MAX_TRACKS run the focal multi-start on a subsample;
+    the winning trial's cameras are then finished on all tracks (not re-run from scratch)."""
+    import densecalib_ros.core.incremental as incremental
+    monkeypatch.setattr(incremental, "MULTISTART_MAX_TRACKS", 800)
+    names = ["a", "b", "c", "d", "e"]
+    cams, poses = gt_rig(5, seed=7)
+    tracks = gt_tracks(cams, poses, seed=7)
+    assert tracks.num_tracks > 2000
+    cfg = make_config("regular", sfm__num_threads=1).sfm
+    init = initial_intrinsics([(c.width, c.height) for c in cams], noisy_focals(cams), "RADIAL")
+    messages = []
+    result = run_incremental(tracks, init, names, cfg, progress=messages.append)
+    assert result.failed == [] and result.state.tracks is tracks
+    assert any(f"finished on all {tracks.num_tracks} tracks" in m for m in messages)
+    # Points from (nearly) every inlier track, not only the subsample's 800 (5 % are outliers).
+    assert result.state.point_mask().sum() > 0.85 * tracks.num_tracks
+    rig = rig_from_state(result.state, names, result.failed)
+    metrics = evaluate_calibration(rig, gt_calibration(names, cams, poses))
+    assert metrics["auc3"] > 85.0 and metrics["median_focal_err"] < 0.01
+
+
 def test_identical_cameras_share_one_intrinsics_block():
     names = ["a", "b", "c", "d"]
     cams, poses = gt_rig(4, seed=11)
