@@ -55,3 +55,36 @@ def test_users_are_warned_when_runs_disagree_beyond_auc3_threshold():
     message = disagreement_warning(12.5, 5)
     assert "5 calibration runs disagree" in message and "12.5 deg" in message
     assert "frame sets" in message and "share-intrinsics" in message
+
+
+def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majority():
+    """Three of five runs put camera c 4 deg off with a 12 % focal error (they agree with each
+    other, so the medoid alone would keep one of them); on the common tracks, triangulated from
+    each run's cameras, they cost far more than the right runs, which are kept."""
+    import sfm_fixtures
+    from densecalib_ros.core.consensus import (COMMON_TRACKS_MAX, WORSE_FIT_RATIO,
+                                               common_track_costs, well_fitting_runs)
+
+    names = ["a", "b", "c", "d"]
+    cams, poses = sfm_fixtures.gt_rig(4, seed=5)
+    right = sfm_fixtures.gt_calibration(names, cams, poses)
+    c_cam = right.cameras["c"]
+    wrong_pose = c_cam.cam_from_rig.copy()
+    wrong_pose[:3, :3] = _rotation_z(4.0) @ wrong_pose[:3, :3]
+    wrong_intrinsics = CameraIntrinsics(c_cam.intrinsics.model, c_cam.intrinsics.width,
+                                        c_cam.intrinsics.height,
+                                        c_cam.intrinsics.params * [1.12, 1, 1, 1, 1])
+    wrong = RigCalibration("a", {**right.cameras, "c": RigCamera("c", wrong_intrinsics,
+                                                                 wrong_pose)})
+    rigs = [wrong, right, wrong, wrong, right]
+    runs_tracks = [sfm_fixtures.gt_tracks(cams, poses, num_points=1000, seed=s) for s in range(5)]
+    assert sum(t.num_tracks for t in runs_tracks) > COMMON_TRACKS_MAX  # the sample is used
+    costs = common_track_costs(rigs, runs_tracks, names, truncation_px=20.0)
+    assert costs[1] == pytest.approx(costs[4]) and costs[0] == pytest.approx(costs[2])
+    assert costs[0] > 2 * WORSE_FIT_RATIO * costs[1]
+    assert well_fitting_runs(costs) == [1, 4]
+    assert medoid(rigs, names)[0] in (0, 2, 3)  # the majority is wrong
+    assert medoid(rigs, names, well_fitting_runs(costs))[0] == 1
+    # A run that did not register a camera is scored on the observations in its cameras.
+    partial = RigCalibration("a", {n: right.cameras[n] for n in ["a", "b", "d"]})
+    assert np.isfinite(common_track_costs([partial], runs_tracks, names, 20.0)[0])

@@ -8,6 +8,12 @@ medoid (the run that disagrees least with the others in relative camera poses) t
 into a majority vote; on well-connected rigs all runs agree and the medoid is any of them. How much
 the runs disagree is reported with the result: it is a direct measure of how well the data
 determine the rig.
+
+Before the vote, each run's cameras are scored on the same observations: a seeded sample of all
+runs' tracks, triangulated from that run's cameras (`common_track_costs`). A run that fits them
+clearly worse than the best run is a wrong reconstruction, not an equally good alternative, and
+is not kept even when it is the medoid (where most runs are wrong). Runs that fit about equally
+well, the near-ambiguous case of converging cameras with free focals, are left to the vote.
 """
 from __future__ import annotations
 
@@ -16,7 +22,9 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .types import RigCalibration
+from .incremental import truncated_cost
+from .reconstruction import SfMState, triangulate_tracks
+from .types import RigCalibration, Tracks
 
 # A camera pair that one of two runs did not register counts as this far apart.
 UNREGISTERED_PAIR_DEG = 180.0
@@ -29,6 +37,12 @@ AGREEMENT_DEG = 1.0
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
 # other runs put the cameras where the kept one would count as wrong.
 WARN_DISAGREEMENT_DEG = 3.0
+# A run whose truncated reprojection cost on the common tracks exceeds the best run's by this factor
+# is not kept. Measured on the bench's weak rigs (seeds 0-4): wrong runs cost 1.8-7.5x the best,
+# runs that are right or near-ambiguous alternatives within 1.12x; any factor in 1.2-1.7 keeps
+# the same runs there.
+WORSE_FIT_RATIO = 1.5
+COMMON_TRACKS_MAX = 3000  # the common tracks: a seeded sample of at most this many
 
 
 def _angle_deg(cos: float) -> float:
@@ -56,15 +70,50 @@ def rig_disagreement_deg(a: RigCalibration, b: RigCalibration,
     return float(np.mean([pair_disagreement_deg(a, b, i, j) for i, j in pairs])) if pairs else 0.0
 
 
-def medoid(rigs: Sequence[RigCalibration], camera_names: Sequence[str]
-           ) -> tuple[int, np.ndarray]:
-    """Index of the rig with the smallest summed disagreement with the others (the first on ties)
-    and the (R, R) disagreement matrix in degrees."""
+def medoid(rigs: Sequence[RigCalibration], camera_names: Sequence[str],
+           candidates: Optional[Sequence[int]] = None) -> tuple[int, np.ndarray]:
+    """Index of the rig among `candidates` (default: all) with the smallest summed disagreement
+    with all the others (the first on ties) and the (R, R) disagreement matrix in degrees."""
     n = len(rigs)
     D = np.zeros((n, n))
     for i, j in combinations(range(n), 2):
         D[i, j] = D[j, i] = rig_disagreement_deg(rigs[i], rigs[j], camera_names)
-    return int(np.argmin(D.sum(axis=1))), D
+    keep = list(range(n)) if candidates is None else list(candidates)
+    return keep[int(np.argmin(D[keep].sum(axis=1)))], D
+
+
+def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
+                       camera_names: Sequence[str], truncation_px: float, seed: int = 0
+                       ) -> np.ndarray:
+    """Per rig, the truncated reprojection cost (incremental.truncated_cost, px) of the common
+    tracks (a seeded sample of at most COMMON_TRACKS_MAX of all runs' tracks) triangulated from
+    that rig's cameras, held fixed. Every rig is scored on the same observations (those in its
+    registered cameras)."""
+    xy = np.concatenate([t.xy_px for t in runs_tracks])
+    pick = np.arange(len(xy))
+    if len(xy) > COMMON_TRACKS_MAX:
+        pick = np.sort(np.random.default_rng(seed).choice(len(xy), COMMON_TRACKS_MAX,
+                                                          replace=False))
+    common = Tracks(xy[pick], np.concatenate([t.cycle_order for t in runs_tracks])[pick],
+                    np.concatenate([t.score for t in runs_tracks])[pick],
+                    np.concatenate([t.time_index for t in runs_tracks])[pick])
+    costs = []
+    for rig in rigs:
+        registered = [n for n in camera_names if n in rig.cameras]
+        any_camera = rig.cameras[registered[0]].intrinsics
+        state = SfMState.create(common, [rig.cameras[n].intrinsics if n in rig.cameras
+                                         else any_camera for n in camera_names])
+        for c, name in enumerate(camera_names):
+            if name in rig.cameras:
+                state.cam_from_world[c] = rig.cameras[name].cam_from_rig
+        triangulate_tracks(state, max_error_px=truncation_px, seed=seed)
+        costs.append(truncated_cost(state, truncation_px))
+    return np.array(costs)
+
+
+def well_fitting_runs(costs: np.ndarray) -> list[int]:
+    """The runs whose common-track cost is within WORSE_FIT_RATIO of the best run's."""
+    return [k for k, c in enumerate(costs) if c <= WORSE_FIT_RATIO * float(np.min(costs))]
 
 
 def disagreement_warning(disagreement_deg: float, num_runs: int) -> Optional[str]:
