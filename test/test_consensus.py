@@ -62,7 +62,7 @@ def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majo
     other, so the medoid alone would keep one of them); on the common tracks, triangulated from
     each run's cameras, they cost far more than the right runs, which are kept."""
     import sfm_fixtures
-    from densecalib_ros.core.consensus import (COMMON_TRACKS_MAX, WORSE_FIT_RATIO,
+    from densecalib_ros.core.consensus import (COMMON_TRACKS_MAX, WORSE_FIT_RATIO, choose_run,
                                                common_track_costs, well_fitting_runs)
 
     names = ["a", "b", "c", "d"]
@@ -84,7 +84,12 @@ def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majo
     assert costs[0] > 2 * WORSE_FIT_RATIO * costs[1]
     assert well_fitting_runs(costs) == [1, 4]
     assert medoid(rigs, names)[0] in (0, 2, 3)  # the majority is wrong
-    assert medoid(rigs, names, well_fitting_runs(costs))[0] == 1
+    choice = choose_run(rigs, runs_tracks, names, truncation_px=20.0)
+    assert choice.best == 1 and choice.worse_fit == [0, 2, 3]
+    np.testing.assert_allclose(choice.costs_px, costs)
+    # Runs that agree need no cost: the medoid is kept.
+    agreeing = choose_run([right, right, right], runs_tracks[:3], names, truncation_px=20.0)
+    assert agreeing.best == 0 and agreeing.worse_fit == [] and np.isnan(agreeing.costs_px).all()
     # A run that did not register a camera is scored on the observations in its cameras.
     partial = RigCalibration("a", {n: right.cameras[n] for n in ["a", "b", "d"]})
     assert np.isfinite(common_track_costs([partial], runs_tracks, names, 20.0)[0])

@@ -17,6 +17,7 @@ well, the near-ambiguous case of converging cameras with free focals, are left t
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from itertools import combinations
 from typing import Optional, Sequence
 
@@ -114,6 +115,28 @@ def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tra
 def well_fitting_runs(costs: np.ndarray) -> list[int]:
     """The runs whose common-track cost is within WORSE_FIT_RATIO of the best run's."""
     return [k for k, c in enumerate(costs) if c <= WORSE_FIT_RATIO * float(np.min(costs))]
+
+
+@dataclass
+class Choice:
+    best: int  # the run to keep
+    disagreement_deg: np.ndarray  # (R, R) rig_disagreement_deg between runs
+    costs_px: np.ndarray  # (R,) common-track costs; NaN when the runs agree and none was needed
+    worse_fit: list[int]  # runs not kept because they fit the common tracks clearly worse
+
+
+def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
+               camera_names: Sequence[str], truncation_px: float, seed: int = 0) -> Choice:
+    """The run to keep: the medoid among the runs that fit the common tracks about as well as
+    the best one (module docstring). When all runs agree within AGREEMENT_DEG, simply the
+    medoid."""
+    best, D = medoid(rigs, camera_names)
+    if len(rigs) < 2 or D.max() < AGREEMENT_DEG:
+        return Choice(best, D, np.full(len(rigs), np.nan), [])
+    costs = common_track_costs(rigs, runs_tracks, camera_names, truncation_px, seed)
+    fitting = well_fitting_runs(costs)
+    return Choice(medoid(rigs, camera_names, fitting)[0], D, costs,
+                  [k for k in range(len(rigs)) if k not in fitting])
 
 
 def disagreement_warning(disagreement_deg: float, num_runs: int) -> Optional[str]:

@@ -354,6 +354,7 @@ def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraI
         return finished
     full = _incremental(tracks, start, camera_names, config, seed, say)
     truncation = cost_truncation_px(config)
+
     def rank(r: IncrementalResult) -> tuple[int, float]:
         return -len(r.state.registered()), truncated_cost(r.state, truncation)
     return finished if rank(finished) <= rank(full) else full

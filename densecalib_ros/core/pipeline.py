@@ -259,8 +259,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                            camera_names: Sequence[str], config: PipelineConfig,
                            progress: Progress) -> CalibrationResult:
-    from .consensus import (AGREEMENT_DEG, EARLY_STOP_RUNS, common_track_costs,
-                            disagreement_warning, medoid, well_fitting_runs)
+    from .consensus import (AGREEMENT_DEG, EARLY_STOP_RUNS, choose_run, disagreement_warning,
+                            medoid)
     from .incremental import cost_truncation_px
 
     results, seeds, failed, first_error = [], [], 0, None
@@ -283,23 +283,19 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
             first_error = first_error or exc
     if not results:
         raise first_error
-    rigs = [r.rig for r in results]
-    candidates = list(range(len(results)))
-    if len(results) > 1 and medoid(rigs, camera_names)[1].max() >= AGREEMENT_DEG:
-        costs = common_track_costs(rigs, [r.tracks for r in results], camera_names,
-                                   cost_truncation_px(config.sfm), config.sampling.seed)
-        candidates = well_fitting_runs(costs)
-        if len(candidates) < len(results):
-            say_progress(progress, "consensus: the runs with seeds " + ", ".join(
-                f"{seeds[k]} ({costs[k]:.2f} px)" for k in range(len(results))
-                if k not in candidates) + " fit the common tracks clearly worse than seed "
-                f"{seeds[int(np.argmin(costs))]} ({costs.min():.2f} px) and are not kept")
-    best, D = medoid(rigs, camera_names, candidates)
+    choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
+                        cost_truncation_px(config.sfm), config.sampling.seed)
+    best, D, costs = choice.best, choice.disagreement_deg, choice.costs_px
+    if choice.worse_fit:
+        say_progress(progress, "consensus: the runs with seeds " + ", ".join(
+            f"{seeds[k]} ({costs[k]:.2f} px)" for k in choice.worse_fit) + " fit the common "
+            f"tracks clearly worse than seed {seeds[int(np.nanargmin(costs))]} "
+            f"({np.nanmin(costs):.2f} px) and are not kept")
     others = np.delete(D[best], best)
     result = results[best]
     result.rig.quality.update(
         consensus_runs=len(results), consensus_failed_runs=failed, consensus_seed=seeds[best],
-        consensus_worse_fit_runs=len(results) - len(candidates),
+        consensus_worse_fit_runs=len(choice.worse_fit),
         consensus_disagreement_deg=float(np.median(others)) if len(others) else 0.0)
     say_progress(progress, f"consensus: the run with seed {seeds[best]} agrees best with the "
                            f"other {len(results) - 1} (median disagreement "
