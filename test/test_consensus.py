@@ -82,7 +82,7 @@ def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majo
     costs = common_track_costs(rigs, runs_tracks, names, truncation_px=20.0)
     assert costs[1] == pytest.approx(costs[4]) and costs[0] == pytest.approx(costs[2])
     assert costs[0] > 2 * WORSE_FIT_RATIO * costs[1]
-    assert well_fitting_runs(costs) == [1, 4]
+    assert well_fitting_runs(costs, [4] * 5) == [1, 4]
     assert medoid(rigs, names)[0] in (0, 2, 3)  # the majority is wrong
     choice = choose_run(rigs, runs_tracks, names, truncation_px=20.0)
     assert choice.best == 1 and choice.worse_fit == [0, 2, 3]
@@ -90,6 +90,10 @@ def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majo
     # Runs that agree need no cost: the medoid is kept.
     agreeing = choose_run([right, right, right], runs_tracks[:3], names, truncation_px=20.0)
     assert agreeing.best == 0 and agreeing.worse_fit == [] and np.isnan(agreeing.costs_px).all()
-    # A run that did not register a camera is scored on the observations in its cameras.
+    # A run that did not register camera c is scored on the observations in its cameras; it
+    # does not set the bar for the runs that registered all four, even with a lower cost.
     partial = RigCalibration("a", {n: right.cameras[n] for n in ["a", "b", "d"]})
-    assert np.isfinite(common_track_costs([partial], runs_tracks, names, 20.0)[0])
+    costs = common_track_costs([partial, right], runs_tracks, names, 20.0)
+    assert np.all(np.isfinite(costs))
+    assert well_fitting_runs(np.array([0.1, 0.5]), [3, 4]) == [0, 1]
+    assert well_fitting_runs(np.array([0.1, 0.5, 0.9]), [3, 4, 4]) == [0, 1]

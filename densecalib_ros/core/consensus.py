@@ -112,9 +112,13 @@ def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tra
     return np.array(costs)
 
 
-def well_fitting_runs(costs: np.ndarray) -> list[int]:
-    """The runs whose common-track cost is within WORSE_FIT_RATIO of the best run's."""
-    return [k for k, c in enumerate(costs) if c <= WORSE_FIT_RATIO * float(np.min(costs))]
+def well_fitting_runs(costs: np.ndarray, num_registered: Sequence[int]) -> list[int]:
+    """The runs whose common-track cost is within WORSE_FIT_RATIO of the best cost among the runs
+    that registered the most cameras (a run that left out a hard camera is scored on fewer,
+    easier observations, so it cannot set the bar)."""
+    most = max(num_registered)
+    bar = WORSE_FIT_RATIO * min(c for c, n in zip(costs, num_registered) if n == most)
+    return [k for k, c in enumerate(costs) if c <= bar]
 
 
 @dataclass
@@ -134,7 +138,7 @@ def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
     if len(rigs) < 2 or D.max() < AGREEMENT_DEG:
         return Choice(best, D, np.full(len(rigs), np.nan), [])
     costs = common_track_costs(rigs, runs_tracks, camera_names, truncation_px, seed)
-    fitting = well_fitting_runs(costs)
+    fitting = well_fitting_runs(costs, [len(r.cameras) for r in rigs])
     return Choice(medoid(rigs, camera_names, fitting)[0], D, costs,
                   [k for k in range(len(rigs)) if k not in fitting])
 
