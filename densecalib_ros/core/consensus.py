@@ -90,14 +90,10 @@ def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tra
     tracks (a seeded sample of at most COMMON_TRACKS_MAX of all runs' tracks) triangulated from
     that rig's cameras, held fixed. Every rig is scored on the same observations (those in its
     registered cameras)."""
-    xy = np.concatenate([t.xy_px for t in runs_tracks])
-    pick = np.arange(len(xy))
-    if len(xy) > COMMON_TRACKS_MAX:
-        pick = np.sort(np.random.default_rng(seed).choice(len(xy), COMMON_TRACKS_MAX,
-                                                          replace=False))
-    common = Tracks(xy[pick], np.concatenate([t.cycle_order for t in runs_tracks])[pick],
-                    np.concatenate([t.score for t in runs_tracks])[pick],
-                    np.concatenate([t.time_index for t in runs_tracks])[pick])
+    common = Tracks.concatenate(list(runs_tracks), len(camera_names))
+    if common.num_tracks > COMMON_TRACKS_MAX:
+        common = common.subset(np.sort(np.random.default_rng(seed).choice(
+            common.num_tracks, COMMON_TRACKS_MAX, replace=False)))
     costs = []
     for rig in rigs:
         registered = [n for n in camera_names if n in rig.cameras]

@@ -19,6 +19,7 @@ cameras that still end implausible are reported as failed.
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 from dataclasses import dataclass
@@ -463,9 +464,7 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         say(f"registered {camera_names[c]} from {how} ({len(state.registered())}/{C}): "
             f"{int(state.point_mask().sum())} points, {removed} observations above B_err removed")
     failed = list(pending)
-    final = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
-                    refine_principal_point=config.refine_principal_point)
-    bundle_adjust_plausibly(state, camera_names, final, config.num_threads)
+    bundle_adjust_plausibly(state, camera_names, _final_stage(config), config.num_threads)
     registration = state.copy()
     _finish(state, camera_names, config, seed)
     failed += [c for c in range(C) if c not in order]
@@ -473,12 +472,17 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                              failed=sorted(failed), registration=registration)
 
 
+def _final_stage(config: SfMConfig) -> BAStage:
+    """The final global BA: everything but the principal point, which the preset decides."""
+    return BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
+                   refine_principal_point=config.refine_principal_point)
+
+
 def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, seed: int) -> None:
     """Every track re-triangulated from the registered cameras, B_err, the final BA and the
     fisheye model refinement (module docstring, step 4); in place."""
     b_err = config.b_err_px if config.b_err_px is not None else np.inf
-    final = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
-                    refine_principal_point=config.refine_principal_point)
+    final = _final_stage(config)
     # As COLMAP's mapper ends: every track re-triangulated (LO-RANSAC) from the final cameras, so
     # observations dropped against earlier, rougher cameras and tracks that could not be
     # triangulated then count again; B_err, then the final BA once more. Measured: 3-camera rigs
@@ -499,13 +503,10 @@ def _finish_on(tracks: Tracks, trial: IncrementalResult, camera_names: Sequence[
                config: SfMConfig, seed: int) -> IncrementalResult:
     """The trial's registered cameras (poses and intrinsics before its finishing step), finished
     on `tracks` (a superset of the trial's)."""
-    reg = trial.registration
-    state = SfMState(tracks, [CameraIntrinsics(c.model, c.width, c.height, c.params.copy())
-                              for c in reg.intrinsics],
-                     reg.camera_block.copy(),
-                     [None if T is None else T.copy() for T in reg.cam_from_world],
-                     np.full((tracks.num_tracks, 3), np.nan), tracks.observed().copy())
+    state = dataclasses.replace(trial.registration.copy(), tracks=tracks,
+                                points_xyz=np.full((tracks.num_tracks, 3), np.nan),
+                                active=tracks.observed().copy())
     _finish(state, camera_names, config, seed)
     return IncrementalResult(state=state, view_order=trial.view_order,
                              first_pair=trial.first_pair, failed=list(trial.failed),
-                             registration=reg)
+                             registration=trial.registration)
