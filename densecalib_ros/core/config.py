@@ -73,6 +73,9 @@ class PipelineConfig:
     # keep the medoid run (consensus.py): on weakly connected rigs one sample's outcome is a
     # lottery. They stop after 3 runs that agree (consensus.AGREEMENT_DEG). 1 = a single run.
     consensus_runs: int = 5
+    # Refine the found rig once more on every keypoint match (all_matches.py; keypoint matchers
+    # only): the sampled tracks find the rig, all the matches it agrees with refine it.
+    refine_on_all_matches: bool = True
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 

@@ -464,7 +464,7 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         say(f"registered {camera_names[c]} from {how} ({len(state.registered())}/{C}): "
             f"{int(state.point_mask().sum())} points, {removed} observations above B_err removed")
     failed = list(pending)
-    bundle_adjust_plausibly(state, camera_names, _final_stage(config), config.num_threads)
+    bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
     registration = state.copy()
     _finish(state, camera_names, config, seed)
     failed += [c for c in range(C) if c not in order]
@@ -472,7 +472,7 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                              failed=sorted(failed), registration=registration)
 
 
-def _final_stage(config: SfMConfig) -> BAStage:
+def final_stage(config: SfMConfig) -> BAStage:
     """The final global BA: everything but the principal point, which the preset decides."""
     return BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
                    refine_principal_point=config.refine_principal_point)
@@ -482,7 +482,7 @@ def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, see
     """Every track re-triangulated from the registered cameras, B_err, the final BA and the
     fisheye model refinement (module docstring, step 4); in place."""
     b_err = config.b_err_px if config.b_err_px is not None else np.inf
-    final = _final_stage(config)
+    final = final_stage(config)
     # As COLMAP's mapper ends: every track re-triangulated (LO-RANSAC) from the final cameras, so
     # observations dropped against earlier, rougher cameras and tracks that could not be
     # triangulated then count again; B_err, then the final BA once more. Measured: 3-camera rigs

@@ -17,6 +17,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 import pycolmap
 
+from .all_matches import keypoint_tracks, refine_on_tracks
 from .config import PipelineConfig
 from .errors import CalibrationError, InputError, NotEnoughCamerasError, NotEnoughOverlapError
 from .focal import estimate_initial_focals
@@ -135,13 +136,16 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                           camera_names: Sequence[str], config: PipelineConfig, *,
                           two_view: Optional[dict] = None, focal_px: Optional[np.ndarray] = None,
                           previous: Optional[RigCalibration] = None,
+                          match_tracks: Optional[Tracks] = None,
                           progress: Progress = None) -> CalibrationResult:
     """Calibrate from sampled tracks.
 
     tracks: (T, C, 2) COLMAP px; image_sizes: (width, height) per camera; two_view: {(i, j):
     TwoViewGeometry} (estimated here from the tracks when None); focal_px: (C,) initial focal
     lengths (estimated from the F's when None); previous: the calibration the global pipeline
-    starts from when config.sfm.global_init is "previous" (recalibration)."""
+    starts from when config.sfm.global_init is "previous" (recalibration); match_tracks: every
+    keypoint match as tracks (all_matches.keypoint_tracks), on which the found rig is refined
+    last (None: no such refinement)."""
     start = time.perf_counter()
     C = len(camera_names)
     if tracks.num_cameras != C or len(image_sizes) != C:
@@ -174,13 +178,19 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     else:
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
                               progress=progress)
+    state = sfm.state
+    if match_tracks is not None and match_tracks.num_tracks:
+        state = refine_on_tracks(state, match_tracks, camera_names, config.sfm, seed)
+        say_progress(progress, f"refined on all {match_tracks.num_tracks} keypoint-match tracks: "
+                               f"{int(state.point_mask().sum())} points")
     runtime = time.perf_counter() - start
-    rig = rig_from_state(sfm.state, camera_names, sfm.failed, dict(
+    rig = rig_from_state(state, camera_names, sfm.failed, dict(
         pipeline=config.pipeline, preset=config.preset, sfm_runtime_s=runtime,
-        view_order=[camera_names[c] for c in sfm.view_order]))
+        view_order=[camera_names[c] for c in sfm.view_order],
+        match_tracks=0 if match_tracks is None else match_tracks.num_tracks))
     if config.pipeline == "global":
         rig.quality.update(sfm.quality)  # init, gauge camera, residuals per BA stage
-    reconstruction, _ = build_reconstruction(sfm.state, camera_names)
+    reconstruction, _ = build_reconstruction(state, camera_names)
     say_progress(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
                    f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
                    f"points ({runtime:.1f} s)")
@@ -250,15 +260,24 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
 
     A fresh calibration (no previous) with config.consensus_runs > 1 repeats sampling + SfM with
     consecutive seeds and returns the medoid run (core.consensus); its quality records the runs'
-    disagreement. Runs that fail are skipped; if all fail, the first run's error is raised."""
+    disagreement. Runs that fail are skipped; if all fail, the first run's error is raised.
+
+    With config.refine_on_all_matches and a keypoint matcher, every run's rig is refined last on
+    all the matches (core.all_matches)."""
+    match_tracks = None
+    if config.refine_on_all_matches:
+        match_tracks = keypoint_tracks(match_sets, len(camera_names), seed=config.sampling.seed)
     if previous is None and config.consensus_runs > 1:
-        return _consensus_calibration(match_sets, image_sizes, camera_names, config, progress)
-    return _calibrate_once(match_sets, image_sizes, camera_names, config, previous, progress)
+        return _consensus_calibration(match_sets, image_sizes, camera_names, config, match_tracks,
+                                      progress)
+    return _calibrate_once(match_sets, image_sizes, camera_names, config, previous, match_tracks,
+                           progress)
 
 
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                            camera_names: Sequence[str], config: PipelineConfig,
-                           progress: Progress) -> CalibrationResult:
+                           match_tracks: Optional[Tracks], progress: Progress
+                           ) -> CalibrationResult:
     from .consensus import (AGREEMENT_DEG, EARLY_STOP_RUNS, choose_run, disagreement_warning,
                             medoid)
     from .incremental import cost_truncation_px
@@ -275,7 +294,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                                f"(sampling seed {seed})")
         try:
             results.append(_calibrate_once(match_sets, image_sizes, camera_names, run_config,
-                                           None, progress if k == 0 else None))
+                                           None, match_tracks, progress if k == 0 else None))
             seeds.append(seed)
         except CalibrationError as exc:
             log.info("consensus run %d (seed %d) failed: %s", k + 1, seed, exc)
@@ -309,7 +328,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
 
 def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                     camera_names: Sequence[str], config: PipelineConfig,
-                    previous: Optional[RigCalibration], progress: Progress) -> CalibrationResult:
+                    previous: Optional[RigCalibration], match_tracks: Optional[Tracks],
+                    progress: Progress) -> CalibrationResult:
     from .sampling import sample_tracks
 
     if previous is not None and config.pipeline == "global" and config.sfm.global_init == "previous":
@@ -324,7 +344,8 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
     return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
                                  two_view=sampled.two_view, focal_px=sampled.focal_px,
-                                 previous=previous, progress=progress)
+                                 previous=previous, match_tracks=match_tracks,
+                                 progress=progress)
 
 
 def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
