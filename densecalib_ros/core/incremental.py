@@ -296,7 +296,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     axes nearly meet (a common rig layout) and then tends to be off by a common factor (measured
     20-47 % low), from which incremental SfM converges to a wrong reconstruction. So the SfM is
     run from the initial focals scaled by each of FOCAL_SCALE_STARTS (and, for perspective
-    models, EQ2_EXTRA_FOCAL_SCALE_STARTS), from COLMAP's prior (on a seeded subsample of
+    models, EQ2_EXTRA_FOCAL_SCALE_STARTS) and from COLMAP's prior (on a seeded subsample of
     at most MULTISTART_MAX_TRACKS tracks) and the start with the lowest truncated reprojection
     cost (`truncated_cost`) gives the result: that trial itself when it ran on all tracks, else
     its cameras finished on all tracks (`_on_all_tracks`).
