@@ -18,9 +18,10 @@ pull the rig far; what it cannot do is move a rig out of a wrong basin (the cons
 focal multi-start do that before).
 
 Measured on the bench's generated and real pinhole rigs (single incremental runs, sampling seed 0,
-on the same matches with and without this step): 6cam s102 82.2 -> 100, 3cam s103 66.7 -> 100, gap35 6cam s101
-88.9 -> 100, gap35 4cam s102 44.4 -> 83.3, instant-ngp fox 62.2 -> 86.7, 10cam s102/s103 97.8/99.3
--> 98.5/100; worse: gap35 4cam s103 100 -> 94.4, Strecha 100 -> 99.3 (one pair at 1.0-1.1 deg).
+on the same matches with and without this step): 6cam s102 82.2 -> 100, 3cam s103 66.7 -> 100,
+gap35 6cam s101 88.9 -> 100, gap35 4cam s102 44.4 -> 83.3, instant-ngp fox 62.2 -> 86.7, 10cam
+s102/s103 97.8/99.3 -> 98.5/100; worse: gap35 4cam s103 100 -> 94.4, Strecha 100 -> 99.3 (one pair
+at 1.0-1.1 deg).
 Fisheye focal errors 0.80 -> 0.17 % (4 cameras) and 0.07 -> 0.04 % (6).
 
 Dense matchers (RoMa, XFeat*) give sub-pixel target positions and grid or coarse sites that do
