@@ -30,7 +30,6 @@ they skip this step (`keypoint_tracks` returns None).
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 from typing import Optional, Sequence
 
@@ -39,10 +38,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .config import SfMConfig
-from .incremental import final_stage
-from .plausibility import bundle_adjust_plausibly
-from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, SfMState, remove_outlier_observations,
-                             triangulate_tracks)
+from .incremental import retriangulate_and_adjust
+from .reconstruction import TRIANGULATION_MAX_ERROR_PX, SfMState
 from .types import SiteMatchSet, Tracks
 
 log = logging.getLogger(__name__)
@@ -104,13 +101,11 @@ def refine_on_tracks(state: SfMState, tracks: Tracks, camera_names: Sequence[str
                      config: SfMConfig, seed: int = 0) -> SfMState:
     """A new state with `state`'s cameras refined on `tracks` (module docstring); `state` is
     left as it is. Unregistered cameras stay unregistered."""
-    refined = dataclasses.replace(state.copy(), tracks=tracks,
-                                  points_xyz=np.full((tracks.num_tracks, 3), np.nan),
-                                  active=tracks.observed().copy())
+    refined = state.on_tracks(tracks)
+    # Raw matches are not cycle-verified: the gate drops the ones the found cameras reject even
+    # where the preset keeps every observation (B_err off).
     gate_px = config.b_err_px if config.b_err_px is not None else TRIANGULATION_MAX_ERROR_PX
-    triangulate_tracks(refined, max_error_px=gate_px, seed=seed)
-    remove_outlier_observations(refined, gate_px)
-    bundle_adjust_plausibly(refined, camera_names, final_stage(config), config.num_threads)
+    retriangulate_and_adjust(refined, camera_names, config, seed, outlier_px=gate_px)
     log.debug("refined on %d match tracks: %d points", tracks.num_tracks,
               int(refined.point_mask().sum()))
     return refined

@@ -19,7 +19,6 @@ cameras that still end implausible are reported as failed.
 """
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import logging
 from dataclasses import dataclass
@@ -490,17 +489,11 @@ def final_stage(config: SfMConfig) -> BAStage:
 def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, seed: int) -> None:
     """Every track re-triangulated from the registered cameras, B_err, the final BA and the
     fisheye model refinement (module docstring, step 4); in place."""
-    b_err = config.b_err_px if config.b_err_px is not None else np.inf
-    final = final_stage(config)
     # As COLMAP's mapper ends: every track re-triangulated (LO-RANSAC) from the final cameras, so
     # observations dropped against earlier, rougher cameras and tracks that could not be
     # triangulated then count again; B_err, then the final BA once more. Measured: 3-camera rigs
     # with ~100 tracks went from 4 % to 0.3 % focal error (AUC@3 44 -> 100).
-    state.active = state.tracks.observed().copy()
-    retriangulation_px = b_err if np.isfinite(b_err) else TRIANGULATION_MAX_ERROR_PX
-    triangulate_tracks(state, max_error_px=retriangulation_px, seed=seed)
-    remove_outlier_observations(state, config.b_err_px)
-    bundle_adjust_plausibly(state, camera_names, final, config.num_threads)
+    retriangulate_and_adjust(state, camera_names, config, seed, config.b_err_px)
     if config.refine_to_model:
         convert_camera_models(state, config.refine_to_model)
         bundle_adjust(state, camera_names, BAStage(config.ba_iterations, refine_focal=False,
@@ -508,13 +501,23 @@ def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, see
                       config.num_threads)
 
 
+def retriangulate_and_adjust(state: SfMState, camera_names: Sequence[str], config: SfMConfig,
+                             seed: int, outlier_px: Optional[float]) -> None:
+    """In place: every observation active again, every track triangulated from the registered
+    cameras (RANSAC gate B_err, else TRIANGULATION_MAX_ERROR_PX), observations above outlier_px
+    dropped (None: none), then the final BA."""
+    state.active = state.tracks.observed().copy()
+    gate_px = config.b_err_px if config.b_err_px is not None else TRIANGULATION_MAX_ERROR_PX
+    triangulate_tracks(state, max_error_px=gate_px, seed=seed)
+    remove_outlier_observations(state, outlier_px)
+    bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
+
+
 def _finish_on(tracks: Tracks, trial: IncrementalResult, camera_names: Sequence[str],
                config: SfMConfig, seed: int) -> IncrementalResult:
     """The trial's registered cameras (poses and intrinsics before its finishing step), finished
     on `tracks` (a superset of the trial's)."""
-    state = dataclasses.replace(trial.registration.copy(), tracks=tracks,
-                                points_xyz=np.full((tracks.num_tracks, 3), np.nan),
-                                active=tracks.observed().copy())
+    state = trial.registration.on_tracks(tracks)
     _finish(state, camera_names, config, seed)
     return IncrementalResult(state=state, view_order=trial.view_order,
                              first_pair=trial.first_pair, failed=list(trial.failed),

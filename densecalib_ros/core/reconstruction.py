@@ -9,6 +9,8 @@ All image coordinates are COLMAP pixels; poses are 4x4 `cam_from_world`.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 from dataclasses import dataclass
 from typing import Optional, Sequence
@@ -81,6 +83,13 @@ class SfMState:
                         self.camera_block.copy(),
                         [None if T is None else T.copy() for T in self.cam_from_world],
                         self.points_xyz.copy(), self.active.copy())
+
+    def on_tracks(self, tracks: Tracks) -> "SfMState":
+        """A copy of the cameras (poses, intrinsics) over other tracks of the same cameras: no
+        points yet, every observation active."""
+        return dataclasses.replace(self.copy(), tracks=tracks,
+                                   points_xyz=np.full((tracks.num_tracks, 3), np.nan),
+                                   active=tracks.observed().copy())
 
     def camera(self, c: int) -> CameraIntrinsics:
         return self.intrinsics[int(self.camera_block[c])]
