@@ -17,9 +17,14 @@ log = logging.getLogger("densecalib.bench")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..core.bench import METHODS
 
-    parser.add_argument("--quick", action="store_true",
-                        help="3 scenes (6-camera pinhole, 4-camera fisheye, Strecha at 768 px): "
-                             "a few minutes on 2 cores")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--quick", action="store_true",
+                       help="3 scenes (6-camera pinhole, 4-camera fisheye, Strecha at 768 px): "
+                            "a few minutes on 2 cores")
+    which.add_argument("--heldout", action="store_true",
+                       help="27 scenes never used to develop the method (22 generated pinhole "
+                            "rigs with other seeds, camera counts and gaps, 2 fisheye rigs, 5, 8 "
+                            "and 10 frames of the fox): how results carry over")
     parser.add_argument("--out", default="bench_out", help="folder for bench.json")
     parser.add_argument("--scenes", nargs="+", default=None, metavar="PATTERN",
                         help="only scenes whose name contains one of these (e.g. fisheye, "
@@ -35,9 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.bench import full_scenes, quick_scenes, run_bench
+    from ..core.bench import full_scenes, heldout_scenes, quick_scenes, run_bench
 
-    specs = quick_scenes() if args.quick else full_scenes()
+    specs = quick_scenes() if args.quick else heldout_scenes() if args.heldout else full_scenes()
     if args.scenes:
         specs = [s for s in specs if any(p in s.name for p in args.scenes)]
         if not specs:
