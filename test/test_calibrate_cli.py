@@ -71,6 +71,17 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     assert not (tmp_path / "out").exists()
 
 
+def test_focal_px_option_is_checked(rig_dir, tmp_path, caplog):
+    for value, message in (("wide", "expected a number of pixels"),
+                           ("cam9=800", "unknown camera(s) cam9")):
+        caplog.clear()
+        with caplog.at_level(logging.ERROR):
+            rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),
+                       "--focal-px", value, "--consensus-runs", "1"])
+        assert rc == 2 and message in caplog.text
+    assert not (tmp_path / "o").exists()
+
+
 def test_bag_needs_topics(tmp_path, caplog):
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--bag", str(tmp_path / "x.bag"), "--out", str(tmp_path / "o")])

@@ -76,3 +76,26 @@ def test_pipeline_stops_after_three_agreeing_runs_and_single_run_has_no_consensu
                              make_config("regular", matcher="sift", sfm__num_threads=1,
                                          consensus_runs=1))
     assert "consensus_runs" not in single.rig.quality
+
+
+def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
+    """initial_focal_px (CLI --focal-px, node initial_focal_px) replaces the eq. 2 estimate as
+    the start of sampling and SfM; the SfM still refines it."""
+    gt = rig.ground_truth()
+    truth = np.array([gt.cameras[n].intrinsics.params[0] for n in rig.names])
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
+                         initial_focal_px={"*": 1.1 * truth[0], rig.names[1]: 1.1 * truth[1]})
+    result = run_calibration([rig.images[0]], rig.names, config)
+    start = np.full(len(rig.names), 1.1 * truth[0])
+    start[1] = 1.1 * truth[1]
+    np.testing.assert_allclose(result.focal_init_px, start)
+    metrics = evaluate_calibration(result.rig, gt)
+    assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02  # refined from +10 %
+
+    for hint, message in (({"nope": 500.0}, "unknown camera"),
+                          ({rig.names[0]: 500.0}, "No initial focal length for camera"),
+                          ({"*": -5.0}, "must be positive")):
+        with pytest.raises(InputError, match=message):
+            run_calibration([rig.images[0]], rig.names,
+                            make_config("regular", matcher="sift", consensus_runs=1,
+                                        initial_focal_px=hint))

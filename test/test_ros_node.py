@@ -213,6 +213,17 @@ def test_parameters_are_validated(ros, tmp_path):
         assert node.set_parameters([Parameter("consensus_runs", value=1)])[0].successful
         assert pipeline_config(node.settings).consensus_runs == 1
         assert not node.set_parameters([Parameter("consensus_runs", value=0)])[0].successful
+        assert pipeline_config(node.settings).initial_focal_px == {}
+        assert node.set_parameters([Parameter("initial_focal_px", value=[800.0])])[0].successful
+        assert pipeline_config(node.settings).initial_focal_px == {"*": 800.0}
+        assert node.set_parameters([Parameter("initial_focal_px",
+                                              value=[800.0, 810.0, 820.0, 830.0])])[0].successful
+        assert pipeline_config(node.settings).initial_focal_px == {
+            "cam0": 800.0, "cam1": 810.0, "cam2": 820.0, "cam3": 830.0}
+        result = node.set_parameters([Parameter("initial_focal_px", value=[800.0, 810.0])])[0]
+        assert not result.successful and "one per camera (4)" in result.reason
+        assert not node.set_parameters([Parameter("initial_focal_px",
+                                                  value=[-1.0])])[0].successful
     finally:
         ros.remove(node)
 

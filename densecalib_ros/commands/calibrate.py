@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from typing import Optional
 
 from ..core.config import DEFAULT_PIPELINE, PIPELINES, PRESETS, make_config
 from ..core.errors import CalibrationError, InputError
@@ -40,6 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--share-intrinsics", action="store_true",
                         help="one set of intrinsics for cameras of the same image size: use it "
                              "when the cameras are identical units (same model, lens and zoom)")
+    parser.add_argument("--focal-px", nargs="+", default=None, metavar="PX|NAME=PX",
+                        help="known focal lengths in pixels, one for all cameras (--focal-px 800) "
+                             "or per camera (--focal-px cam0=800 cam1=760): the calibration "
+                             "starts from them instead of estimating them, and still refines "
+                             "them. From a datasheet: focal_mm / pixel_pitch_mm, or "
+                             "(width / 2) / tan(horizontal_fov / 2)")
     parser.add_argument("--consensus-runs", type=int, default=5, metavar="N",
                         help="sample + SfM up to N times with different seeds and keep the run "
                              "that agrees best with the others (default 5; it stops after 3 runs "
@@ -67,6 +74,20 @@ def _read_input(args):
                            max_frame_sets=args.max_frame_sets)
 
 
+def parse_focal_px(values: Optional[list[str]]) -> dict:
+    """--focal-px values -> {camera name or '*': px}; InputError on a malformed value."""
+    out = {}
+    for value in values or []:
+        name, _, number = value.rpartition("=")
+        try:
+            px = float(number)
+        except ValueError:
+            raise InputError(f"--focal-px {value!r}: expected a number of pixels (800) or "
+                             "NAME=PX (cam0=800).") from None
+        out[name or "*"] = px
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
     from ..core.pipeline import run_calibration
@@ -74,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.threads,
                      "sfm__share_intrinsics": args.share_intrinsics,
-                     "consensus_runs": args.consensus_runs}
+                     "consensus_runs": args.consensus_runs,
+                     "initial_focal_px": parse_focal_px(args.focal_px)}
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)

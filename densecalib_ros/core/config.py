@@ -76,6 +76,11 @@ class PipelineConfig:
     # Refine the found rig once more on every keypoint match (all_matches.py; keypoint matchers
     # only): the sampled tracks find the rig, all the matches it agrees with refine it.
     refine_on_all_matches: bool = True
+    # Focal lengths the user knows [px] (lens datasheet: f_mm / pixel pitch in mm, or
+    # (width / 2) / tan(horizontal FOV / 2)): camera name -> px, "*" for every camera not named.
+    # They replace the estimate from the fundamental matrices (eq. 2; fisheye: the equidistant
+    # assumption) as the SfM's start; the SfM still refines them. Empty: estimated.
+    initial_focal_px: dict = field(default_factory=dict)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 

@@ -87,7 +87,8 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
         raise FocalInitError(
             f"No usable fundamental matrix for camera(s) {missing}: they share too few "
             "cycle-consistent matches with the other cameras. Check that every camera overlaps at "
-            "least one other camera, or give initial focal lengths explicitly.")
+            "least one other camera, or "
+            "give the focal lengths if you know them (--focal-px; node: initial_focal_px).")
     weights_arr = np.array(w_list)
     log_prior = np.log(PRIOR_FOCAL_FACTOR * sizes)
     lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)
@@ -171,7 +172,8 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     if best is None:
         raise FocalInitError(
             "Initial focal estimation did not converge: the fundamental matrices are degenerate. "
-            "Use more overlapping views or scene texture, or give initial focal lengths explicitly.")
+            "Use more overlapping views or scene texture, or "
+            "give the focal lengths if you know them (--focal-px; node: initial_focal_px).")
     focal = np.exp(best.x)
     at_bound = np.abs(best.x - lower) < 1e-3 * np.abs(lower) + 1e-6
     at_bound |= np.abs(best.x - upper) < 1e-3 * np.abs(upper) + 1e-6
@@ -181,13 +183,15 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
             f"Initial focal of camera(s) {bad} ran to the limit of [{FOCAL_BOUNDS_FACTOR[0]}, "
             f"{FOCAL_BOUNDS_FACTOR[1]}] x image size: the fundamental matrices are inconsistent "
             "(wrong matches or a degenerate camera configuration). Check the overlap between "
-            "cameras, or give initial focal lengths explicitly.")
+            "cameras, or give the focal lengths if you know them (--focal-px; node: "
+            "initial_focal_px).")
     median_residual = float(np.median(np.abs(pair_residuals(best.x))))
     if median_residual > MAX_MEDIAN_RESIDUAL:
         raise FocalInitError(
             f"Initial focals do not fit the fundamental matrices (median residual "
             f"{median_residual:.2f} > {MAX_MEDIAN_RESIDUAL}): most camera pairs have wrong "
-            "two-view geometry. Check the matches / overlap, or give initial focal lengths.")
+            "two-view geometry. Check the matches / overlap, or "
+            "give the focal lengths if you know them (--focal-px; node: initial_focal_px).")
     LOG.debug("initial focals %s px (median eq.2 residual %.4f)", np.round(focal, 1),
               median_residual)
     return focal

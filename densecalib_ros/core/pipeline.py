@@ -198,6 +198,35 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                              focal_init_px=focal_px)
 
 
+def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
+                 camera_names: Sequence[str], image_sizes: Sequence[tuple[int, int]]
+                 ) -> Optional[np.ndarray]:
+    """(C,) focal px the calibration starts from instead of estimating them, or None: the user's
+    config.initial_focal_px, else a previous calibration's focals. InputError when the user's
+    focals name unknown cameras, are not positive, or leave a camera without a focal."""
+    hint = dict(config.initial_focal_px or {})
+    focal = _previous_focals(previous, camera_names, image_sizes)
+    if not hint:
+        return focal
+    unknown = sorted(set(hint) - set(camera_names) - {"*"})
+    if unknown:
+        raise InputError(f"Initial focal lengths given for unknown camera(s) {', '.join(unknown)}: "
+                         f"the cameras are {', '.join(camera_names)} (or use '*' for all).")
+    bad = {k: v for k, v in hint.items() if not (np.isfinite(float(v)) and float(v) > 0)}
+    if bad:
+        raise InputError(f"Initial focal lengths must be positive pixel values, got {bad}.")
+    out = np.full(len(camera_names), np.nan) if focal is None else focal.astype(np.float64)
+    for c, name in enumerate(camera_names):
+        value = hint.get(name, hint.get("*"))
+        if value is not None:
+            out[c] = float(value)
+    missing = [n for n, f in zip(camera_names, out) if not np.isfinite(f)]
+    if missing:
+        raise InputError(f"No initial focal length for camera(s) {', '.join(missing)}: give one "
+                         "per camera, or one for all ('*', e.g. --focal-px 800).")
+    return out
+
+
 def _previous_focals(previous: Optional[RigCalibration], camera_names: Sequence[str],
                      image_sizes: Sequence[tuple[int, int]]) -> Optional[np.ndarray]:
     """Focal lengths of a previous calibration when it has every camera at the same size."""
@@ -340,7 +369,8 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
         sampled = sample_tracks(match_sets, config, cam_from_rig=poses, intrinsics=intrinsics)
     else:
         sampled = sample_tracks(match_sets, config,
-                                focal_px=_previous_focals(previous, camera_names, image_sizes))
+                                focal_px=start_focals(config, previous, camera_names,
+                                                      image_sizes))
     say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
     return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
                                  two_view=sampled.two_view, focal_px=sampled.focal_px,

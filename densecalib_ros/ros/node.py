@@ -20,6 +20,7 @@ its result while the executor keeps serving subscriptions, timers and other serv
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import threading
@@ -97,6 +98,10 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                        "run)", False, _range(1, 20, True)),
     "share_intrinsics": (False, "one set of intrinsics for cameras of the same image size "
                          "(identical cameras: same model, lens and zoom)", False, {}),
+    "initial_focal_px": (Parameter.Type.DOUBLE_ARRAY,
+                         "known focal lengths [px]: one for all cameras or one per camera "
+                         "(empty: estimated from the images); the calibration starts from them "
+                         "and still refines them", False, {}),
     "max_image_side_px": (1024, "images are matched at most at this size [px]", False,
                           _range(64, 16384, True)),
     "output_dir": ("~/.ros/densecalib", "calibration files: <output_dir>/<UTC time>/ and a "
@@ -143,6 +148,7 @@ class Settings:
     pipeline: str
     matcher: str
     share_intrinsics: bool
+    initial_focal_px: dict[str, float]
     consensus_runs: int
     max_image_side_px: int
     output_dir: Path
@@ -163,7 +169,7 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     """The core pipeline configuration the node's method parameters select."""
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
-                       consensus_runs=s.consensus_runs)
+                       consensus_runs=s.consensus_runs, initial_focal_px=s.initial_focal_px)
 
 
 def _topic_namespace(topic: str) -> str:
@@ -247,6 +253,11 @@ def parse_settings(values: dict[str, Any]) -> Settings:
                              f"of {names}, got {baseline_cams}.")
     elif baseline_cams and (len(baseline_cams) != 2 or any(c not in names for c in baseline_cams)):
         raise InputError(f"baseline_cameras must be two of {names}, got {baseline_cams}.")
+    focals = [float(f) for f in v["initial_focal_px"]]
+    if len(focals) not in (0, 1, n) or not all(math.isfinite(f) and f > 0 for f in focals):
+        raise InputError(f"initial_focal_px must be empty, one positive focal length [px] for all "
+                         f"cameras or one per camera ({n}), got {focals}.")
+    initial_focal_px = {"*": focals[0]} if len(focals) == 1 else dict(zip(names, focals))
     if v["replay_bag"] and not Path(os.path.expanduser(v["replay_bag"])).exists():
         raise InputError(f"replay_bag {v['replay_bag']} does not exist: give a rosbag2 folder or "
                          "an .mcap/.db3 file, or leave it empty.")
@@ -256,6 +267,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), preset=v["preset"], pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
+        initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),
         max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
