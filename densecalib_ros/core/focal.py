@@ -39,6 +39,8 @@ PRIOR_WEIGHT = 1e-3
 ROBUST_SCALE = 0.05  # Cauchy scale on r_ij: a good pair's residual is ~0.01, a wrong F's ~0.3
 MAX_MEDIAN_RESIDUAL = 0.2  # above this the F's do not agree on any set of focals
 RESTART_FACTORS = (1.0, 0.5, 2.0, 4.0)
+# How the user can skip this estimate (pipeline.start_focals); ends every FocalInitError message.
+KNOWN_FOCALS_HINT = "give the focal lengths if you know them (--focal-px; node: initial_focal_px)."
 
 
 def calibration_matrix(focal_px: float, principal_point_px) -> np.ndarray:
@@ -88,7 +90,7 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
             f"No usable fundamental matrix for camera(s) {missing}: they share too few "
             "cycle-consistent matches with the other cameras. Check that every camera overlaps at "
             "least one other camera, or "
-            "give the focal lengths if you know them (--focal-px; node: initial_focal_px).")
+            + KNOWN_FOCALS_HINT)
     weights_arr = np.array(w_list)
     log_prior = np.log(PRIOR_FOCAL_FACTOR * sizes)
     lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)
@@ -173,7 +175,7 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
         raise FocalInitError(
             "Initial focal estimation did not converge: the fundamental matrices are degenerate. "
             "Use more overlapping views or scene texture, or "
-            "give the focal lengths if you know them (--focal-px; node: initial_focal_px).")
+            + KNOWN_FOCALS_HINT)
     focal = np.exp(best.x)
     at_bound = np.abs(best.x - lower) < 1e-3 * np.abs(lower) + 1e-6
     at_bound |= np.abs(best.x - upper) < 1e-3 * np.abs(upper) + 1e-6
@@ -183,15 +185,14 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
             f"Initial focal of camera(s) {bad} ran to the limit of [{FOCAL_BOUNDS_FACTOR[0]}, "
             f"{FOCAL_BOUNDS_FACTOR[1]}] x image size: the fundamental matrices are inconsistent "
             "(wrong matches or a degenerate camera configuration). Check the overlap between "
-            "cameras, or give the focal lengths if you know them (--focal-px; node: "
-            "initial_focal_px).")
+            "cameras, or " + KNOWN_FOCALS_HINT)
     median_residual = float(np.median(np.abs(pair_residuals(best.x))))
     if median_residual > MAX_MEDIAN_RESIDUAL:
         raise FocalInitError(
             f"Initial focals do not fit the fundamental matrices (median residual "
             f"{median_residual:.2f} > {MAX_MEDIAN_RESIDUAL}): most camera pairs have wrong "
             "two-view geometry. Check the matches / overlap, or "
-            "give the focal lengths if you know them (--focal-px; node: initial_focal_px).")
+            + KNOWN_FOCALS_HINT)
     LOG.debug("initial focals %s px (median eq.2 residual %.4f)", np.round(focal, 1),
               median_residual)
     return focal
