@@ -257,23 +257,37 @@ def _register_next(state: SfMState, c: int, config: SfMConfig) -> bool:
     camera = state.camera(c).to_pycolmap()
     block_in_use = any(state.camera_block[r] == state.camera_block[c]
                        for r in state.registered())
-    est = pycolmap.AbsolutePoseEstimationOptions()
-    est.ransac.max_error = ABSOLUTE_POSE_MAX_ERROR_PX
-    est.ransac.random_seed = 0
-    ref = pycolmap.AbsolutePoseRefinementOptions()
-    ref.refine_focal_length = not block_in_use
-    ref.refine_extra_params = not block_in_use
-    ref.max_num_iterations = config.absolute_pose_refine_iterations
-    result = pycolmap.estimate_and_refine_absolute_pose(
-        state.tracks.xy_px[rows, c], state.points_xyz[rows], camera, est, ref)
-    if result is None or result["num_inliers"] < MIN_REGISTRATION_INLIERS:
+    T = absolute_pose(state.tracks.xy_px[rows, c], state.points_xyz[rows], camera,
+                      refine_intrinsics=not block_in_use,
+                      refine_iterations=config.absolute_pose_refine_iterations)
+    if T is None:
         return False
-    T = np.eye(4)
-    T[:3, :4] = result["cam_from_world"].matrix()
     state.cam_from_world[c] = T
     if not block_in_use:
         state.intrinsics[int(state.camera_block[c])] = CameraIntrinsics.from_pycolmap(camera)
     return True
+
+
+def absolute_pose(xy_px: np.ndarray, points_xyz: np.ndarray, camera: pycolmap.Camera,
+                  refine_intrinsics: bool, refine_iterations: int = 100) -> Optional[np.ndarray]:
+    """cam_from_world (4x4) from 2D-3D correspondences (COLMAP px, world points): RANSAC
+    (ABSOLUTE_POSE_MAX_ERROR_PX) then refinement of the pose and, with refine_intrinsics, of the
+    focal and distortion, which `camera` then holds. None with fewer than
+    MIN_REGISTRATION_INLIERS inliers."""
+    estimation = pycolmap.AbsolutePoseEstimationOptions()
+    estimation.ransac.max_error = ABSOLUTE_POSE_MAX_ERROR_PX
+    estimation.ransac.random_seed = 0
+    refinement = pycolmap.AbsolutePoseRefinementOptions()
+    refinement.refine_focal_length = refine_intrinsics
+    refinement.refine_extra_params = refine_intrinsics
+    refinement.max_num_iterations = refine_iterations
+    result = pycolmap.estimate_and_refine_absolute_pose(xy_px, points_xyz, camera, estimation,
+                                                        refinement)
+    if result is None or result["num_inliers"] < MIN_REGISTRATION_INLIERS:
+        return None
+    T = np.eye(4)
+    T[:3, :4] = result["cam_from_world"].matrix()
+    return T
 
 
 def _triangulate_new(state: SfMState, max_error_px: float) -> int:

@@ -22,6 +22,7 @@ from .config import PipelineConfig
 from .errors import CalibrationError, InputError, NotEnoughCamerasError, NotEnoughOverlapError
 from .focal import estimate_initial_focals
 from .incremental import initial_intrinsics, run_incremental
+from .placement import repair_placements
 from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
@@ -145,7 +146,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     lengths (estimated from the F's when None); previous: the calibration the global pipeline
     starts from when config.sfm.global_init is "previous" (recalibration); match_tracks: every
     keypoint match as tracks (all_matches.keypoint_tracks), on which the found rig is refined
-    last (None: no such refinement)."""
+    last, after cameras the matches contradict are moved (placement.py) (None: neither)."""
     start = time.perf_counter()
     C = len(camera_names)
     if tracks.num_cameras != C or len(image_sizes) != C:
@@ -179,7 +180,10 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
                               progress=progress)
     state = sfm.state
+    moved: list[str] = []
     if match_tracks is not None and match_tracks.num_tracks:
+        state = state.on_tracks(match_tracks)
+        moved = repair_placements(state, camera_names, lambda m: say_progress(progress, m))
         state = refine_on_tracks(state, match_tracks, camera_names, config.sfm, seed)
         say_progress(progress, f"refined on all {match_tracks.num_tracks} keypoint-match tracks: "
                                f"{int(state.point_mask().sum())} points")
@@ -187,7 +191,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     rig = rig_from_state(state, camera_names, sfm.failed, dict(
         pipeline=config.pipeline, preset=config.preset, sfm_runtime_s=runtime,
         view_order=[camera_names[c] for c in sfm.view_order],
-        match_tracks=0 if match_tracks is None else match_tracks.num_tracks))
+        match_tracks=0 if match_tracks is None else match_tracks.num_tracks,
+        moved_cameras=moved))
     if config.pipeline == "global":
         rig.quality.update(sfm.quality)  # init, gauge camera, residuals per BA stage
     reconstruction, _ = build_reconstruction(state, camera_names)
