@@ -52,9 +52,14 @@ SUPPORT_MAX_ERROR_PX = 4.0
 # +-6 % of their alternative, wrong ones 2.4x and more behind it) ...
 REPLACE_SUPPORT_RATIO = 1.5
 MIN_SUPPORT_GAIN = 20  # ... and this many more (counts of a few matches are noise)
+# A hypothesis within this of the current placement is that placement (the wrong placements
+# measured were 40-130 deg off; smaller errors are the bundle adjustment's job).
+SAME_PLACEMENT_DEG = 2.0
+SAME_PLACEMENT_CENTRE = 0.05  # x the median distance between registered cameras
 # Points for the alternative pose: reprojection gate in the views outside the group (the regular
 # B_err; the absolute pose's RANSAC sorts out the rest).
 LOO_POINT_MAX_ERROR_PX = 20.0
+MAX_POSE_POINTS = 1000
 
 
 def _scratch(state: SfMState, cam_from_world: Sequence[Optional[np.ndarray]]) -> SfMState:
@@ -100,11 +105,14 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
           & (np.nan_to_num(err, nan=0.0).max(axis=1) <= LOO_POINT_MAX_ERROR_PX))
     if ok.sum() < MIN_REGISTRATION_POINTS:
         return []
+    use = np.flatnonzero(ok)
+    if len(use) > MAX_POSE_POINTS:  # a seeded subsample bounds the RANSAC's time
+        use = np.sort(np.random.default_rng(c).choice(use, MAX_POSE_POINTS, replace=False))
     shared = _shares_intrinsics(state, c)
     out = []
     for start in _start_intrinsics(state, c, shared):
         camera = start.to_pycolmap()
-        T = absolute_pose(state.tracks.xy_px[rows[ok], c], X[ok], camera,
+        T = absolute_pose(state.tracks.xy_px[rows[use], c], X[use], camera,
                           refine_intrinsics=not shared)
         intrinsics = CameraIntrinsics.from_pycolmap(camera)
         if T is not None and intrinsics_problem(intrinsics) is None:
@@ -134,23 +142,42 @@ def _start_intrinsics(state: SfMState, c: int, shared: bool) -> list[CameraIntri
                                   np.median(np.array(same), axis=0))]
 
 
-def _moved(state: SfMState, group: Sequence[int]) -> Optional[SfMState]:
+def _moved(state: SfMState, group: Sequence[int]) -> Optional[tuple[SfMState, int]]:
     """The best-supported trial state with every camera of `group` at a pose hypothesis (all
-    combinations of the members' hypotheses), or None when a member has none."""
+    combinations of the members' hypotheses) and its support, or None when a member has no
+    hypothesis or every combination leaves the group where it is (`_same_placement`: nothing to
+    gain, and no support to compute)."""
     options = [pose_hypotheses(state, c, group) for c in group]
     if not all(options):
         return None
-    best, best_support = None, -1
+    best = None
     for combination in itertools.product(*options):
+        if all(_same_placement(state, c, T) for c, (T, _) in zip(group, combination)):
+            continue
         trial = state.copy()
         for c, (T, K) in zip(group, combination):
             trial.cam_from_world[c] = T
             if not _shares_intrinsics(state, c):
                 trial.intrinsics[int(trial.camera_block[c])] = K
         n = group_support(trial, group)
-        if n > best_support:
-            best, best_support = trial, n
+        if best is None or n > best[1]:
+            best = (trial, n)
     return best
+
+
+def _same_placement(state: SfMState, c: int, cam_from_world: np.ndarray) -> bool:
+    """Whether a pose hypothesis of camera c is its current placement: within SAME_PLACEMENT_DEG
+    and SAME_PLACEMENT_CENTRE x the median distance between registered cameras."""
+    T = state.cam_from_world[c]
+    turn = np.degrees(np.arccos(np.clip(
+        (np.trace(T[:3, :3] @ cam_from_world[:3, :3].T) - 1.0) / 2.0, -1.0, 1.0)))
+    centres = np.array([-P[:3, :3].T @ P[:3, 3] for P in
+                        (state.cam_from_world[r] for r in state.registered())])
+    spread = np.median(np.linalg.norm(centres[:, None] - centres[None], axis=2)[
+        np.triu_indices(len(centres), 1)])
+    shift = np.linalg.norm(-T[:3, :3].T @ T[:3, 3]
+                           + cam_from_world[:3, :3].T @ cam_from_world[:3, 3])
+    return turn <= SAME_PLACEMENT_DEG and shift <= SAME_PLACEMENT_CENTRE * spread
 
 
 def _groups(state: SfMState) -> list[tuple[int, ...]]:
@@ -179,10 +206,11 @@ def repair_placements(state: SfMState, camera_names: Sequence[str],
     for _ in range(state.num_cameras):
         best = None  # (support ratio, group, trial, support now, support after)
         for group in _groups(state):
-            trial = _moved(state, group)
-            if trial is None:
+            found = _moved(state, group)
+            if found is None:
                 continue
-            now, after = group_support(state, group), group_support(trial, group)
+            trial, after = found
+            now = group_support(state, group)
             log.debug("placement of %s: support %d, moved %d",
                       "+".join(camera_names[c] for c in group), now, after)
             if after >= REPLACE_SUPPORT_RATIO * now and after - now >= MIN_SUPPORT_GAIN:
