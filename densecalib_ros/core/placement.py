@@ -37,7 +37,9 @@ import logging
 from typing import Callable, Optional, Sequence
 
 import numpy as np
+
 from .incremental import MIN_REGISTRATION_POINTS, absolute_pose
+from .metrics import rotation_angle_deg
 from .plausibility import intrinsics_problem
 from .reconstruction import (MIN_TRIANGULATION_ANGLE_DEG, SfMState, midpoint_triangulation)
 from .types import CameraIntrinsics
@@ -169,8 +171,7 @@ def _same_placement(state: SfMState, c: int, cam_from_world: np.ndarray) -> bool
     """Whether a pose hypothesis of camera c is its current placement: within SAME_PLACEMENT_DEG
     and SAME_PLACEMENT_CENTRE x the median distance between registered cameras."""
     T = state.cam_from_world[c]
-    turn = np.degrees(np.arccos(np.clip(
-        (np.trace(T[:3, :3] @ cam_from_world[:3, :3].T) - 1.0) / 2.0, -1.0, 1.0)))
+    turn = rotation_angle_deg(T[:3, :3] @ cam_from_world[:3, :3].T)
     centres = np.array([-P[:3, :3].T @ P[:3, 3] for P in
                         (state.cam_from_world[r] for r in state.registered())])
     spread = np.median(np.linalg.norm(centres[:, None] - centres[None], axis=2)[
@@ -187,12 +188,13 @@ def _groups(state: SfMState) -> list[tuple[int, ...]]:
     observed = state.tracks.observed()
     common = observed.T.astype(np.int64) @ observed.astype(np.int64)
     out: list[tuple[int, ...]] = [(c,) for c in registered]
+    if len(registered) < 4:  # two cameras must remain to triangulate without a pair
+        return out
     for c in registered:
-        partners = [r for r in registered if r != c]
-        if len(registered) >= 4 and partners:
-            pair = tuple(sorted((c, max(partners, key=lambda r: common[c, r]))))
-            if pair not in out:
-                out.append(pair)
+        partner = max((r for r in registered if r != c), key=lambda r: common[c, r])
+        pair = tuple(sorted((c, partner)))
+        if pair not in out:
+            out.append(pair)
     return out
 
 
@@ -225,6 +227,8 @@ def repair_placements(state: SfMState, camera_names: Sequence[str],
             state.intrinsics[int(state.camera_block[c])] = trial.camera(c)
         names = [camera_names[c] for c in group]
         moved += names
-        say(f"camera(s) {', '.join(names)}: only {now} of their matches fit where they were "
-            f"registered; moved to where the other cameras' points place them ({after} fit)")
+        which, it, they = ((f"camera {names[0]}", "it", "it was") if len(names) == 1 else
+                           (f"cameras {' and '.join(names)}", "them", "they were"))
+        say(f"{which}: only {now} of the matches with the other cameras fit where {they} "
+            f"registered; moved to where the other cameras' points place {it} ({after} fit)")
     return moved
