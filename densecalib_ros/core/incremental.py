@@ -180,7 +180,7 @@ def _pair_registration_focals(state: SfMState, c: int) -> list[float]:
     camera (they are refined already)."""
     cam = state.camera(c)
     f_c = float(cam.to_pycolmap().mean_focal_length())
-    if any(state.camera_block[r] == state.camera_block[c] for r in state.registered()):
+    if state.shares_intrinsics(c):
         return [f_c]
     out = [f_c * s for s in PAIR_REGISTRATION_FOCAL_SCALES]
     for r in state.registered():
@@ -255,8 +255,7 @@ def _register_next(state: SfMState, c: int, config: SfMConfig) -> bool:
     if len(rows) < MIN_REGISTRATION_POINTS:
         return False
     camera = state.camera(c).to_pycolmap()
-    block_in_use = any(state.camera_block[r] == state.camera_block[c]
-                       for r in state.registered())
+    block_in_use = state.shares_intrinsics(c)
     T = absolute_pose(state.tracks.xy_px[rows, c], state.points_xyz[rows], camera,
                       refine_intrinsics=not block_in_use,
                       refine_iterations=config.absolute_pose_refine_iterations)

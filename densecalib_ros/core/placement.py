@@ -110,7 +110,7 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
     use = np.flatnonzero(ok)
     if len(use) > MAX_POSE_POINTS:  # a seeded subsample bounds the RANSAC's time
         use = np.sort(np.random.default_rng(c).choice(use, MAX_POSE_POINTS, replace=False))
-    shared = _shares_intrinsics(state, c)
+    shared = state.shares_intrinsics(c)
     out = []
     for start in _start_intrinsics(state, c, shared):
         camera = start.to_pycolmap()
@@ -120,11 +120,6 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
         if T is not None and intrinsics_problem(intrinsics) is None:
             out.append((T, intrinsics))
     return out
-
-
-def _shares_intrinsics(state: SfMState, c: int) -> bool:
-    return any(state.camera_block[r] == state.camera_block[c]
-               for r in state.registered() if r != c)
 
 
 def _start_intrinsics(state: SfMState, c: int, shared: bool) -> list[CameraIntrinsics]:
@@ -159,7 +154,7 @@ def _moved(state: SfMState, group: Sequence[int]) -> Optional[tuple[SfMState, in
         trial = state.copy()
         for c, (T, K) in zip(group, combination):
             trial.cam_from_world[c] = T
-            if not _shares_intrinsics(state, c):
+            if not state.shares_intrinsics(c):
                 trial.intrinsics[int(trial.camera_block[c])] = K
         n = group_support(trial, group)
         if best is None or n > best[1]:

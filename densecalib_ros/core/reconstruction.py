@@ -97,6 +97,12 @@ class SfMState:
     def registered(self) -> list[int]:
         return [c for c, pose in enumerate(self.cam_from_world) if pose is not None]
 
+    def shares_intrinsics(self, c: int) -> bool:
+        """Whether camera c's intrinsics block is used by another registered camera (it is then
+        refined by that camera's registration and BA, not re-estimated for c)."""
+        return any(self.camera_block[r] == self.camera_block[c]
+                   for r in self.registered() if r != c)
+
     def triangulated(self) -> np.ndarray:
         """bool (T,): tracks with a 3D point."""
         return np.isfinite(self.points_xyz[:, 0])
