@@ -94,3 +94,30 @@ def test_degenerate_fundamentals_raise():
     F = {(0, 1): np.zeros((3, 3)), (1, 2): np.ones((3, 3)), (0, 2): np.eye(3) * [1, 0, 0]}
     with pytest.raises(FocalInitError):
         estimate_initial_focals(F, {k: 1.0 for k in F}, sizes)
+
+
+def _corrupt(F, counts, pairs, count, seed=5):
+    rng = np.random.default_rng(seed)
+    for k in pairs:
+        u, _, vt = np.linalg.svd(rng.normal(size=(3, 3)))
+        F[k] = u @ np.diag([1.0, rng.uniform(0.2, 0.6), 0.0]) @ vt  # rank 2, unrelated to the rig
+        counts[k] = count
+
+
+def test_wrong_weak_pairs_outnumbering_strong_ones_are_tolerated():
+    """A ring of cameras where only neighbours overlap well: the 10 non-neighbour pairs carry few
+    matches and a wrong F, the 5 neighbour pairs are right. The fit is judged by its median
+    weighted like the solve, so the focals come back instead of an error (the unweighted median
+    is a wrong pair's residual)."""
+    focals, sizes, F, counts = make_rig(seed=0, num_cams=6, noise_px=0.3)
+    weak = [(i, j) for i, j in F if j - i > 1]
+    _corrupt(F, counts, weak, count=max(counts.values()) // 6)
+    est = estimate_initial_focals(F, pair_weights(counts), sizes)
+    np.testing.assert_allclose(est, focals, rtol=0.05)
+
+
+def test_wrong_strong_pairs_raise():
+    focals, sizes, F, counts = make_rig(seed=0, num_cams=6, noise_px=0.3)
+    _corrupt(F, counts, [(i, j) for i, j in F if j - i > 1], count=max(counts.values()))
+    with pytest.raises(FocalInitError, match="weighted median residual"):
+        estimate_initial_focals(F, pair_weights(counts), sizes)
