@@ -47,16 +47,21 @@ def gt_rig(num_cameras=5, model="RADIAL", width=640, height=480, seed=0, pp_jitt
 
 
 def gt_tracks(cams, poses, num_points=2500, noise_px=0.3, outlier_frac=0.03, seed=0,
-              groups=None, random_scores=True):
+              groups=None, random_scores=True, points_xyz=None):
     """Tracks (xy_px (T, C, 2) in COLMAP pixels, NaN where unobserved; T <= num_points) of random
     scene points, each seen by a random 2-4-camera subset of the cameras that see it (like sampled
     n-cycles), with N(0, noise_px) pixel noise; a fraction outlier_frac has one observation
     replaced by a uniform random pixel. cams / poses: as from gt_rig (poses are cam_from_world).
     groups: camera index lists; a track's cameras then all come from one group (a disconnected
-    view graph). random_scores: scores ~ U(0.2, 1) (drawn last), else all 1."""
+    view graph). random_scores: scores ~ U(0.2, 1) (drawn last), else all 1.
+    points_xyz: (N, 3) world points to use instead of the random cloud (num_points ignored)."""
     rng = np.random.default_rng(seed)
     C = len(cams)
-    X = rng.uniform([-3, -2, 4.5], [3, 2, 9], (num_points, 3))
+    if points_xyz is None:
+        X = rng.uniform([-3, -2, 4.5], [3, 2, 9], (num_points, 3))
+    else:
+        X = np.asarray(points_xyz, dtype=np.float64)
+        num_points = len(X)
     xy = np.full((num_points, C, 2), np.nan)
     for c, (cam, T) in enumerate(zip(cams, poses)):
         X_cam = X @ T[:3, :3].T + T[:3, 3]

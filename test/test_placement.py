@@ -1,5 +1,6 @@
 """Cameras whose placement the raw matches contradict are moved (core.placement): a camera
-registered in a wrong place, two cameras wrong together, and correct rigs left alone."""
+registered in a wrong place, two cameras wrong together, a camera facing a flat scene at a wrong
+focal and distance, and correct rigs left alone."""
 import numpy as np
 
 from densecalib_ros.core.metrics import rotation_angle_deg
@@ -93,3 +94,50 @@ def test_a_right_rig_is_left_alone_even_with_many_wrong_matches():
     assert repair_placements(state, NAMES) == []
     for c in range(5):
         np.testing.assert_array_equal(state.cam_from_world[c], kept[c])
+
+
+def _identical_cameras(cams):
+    """The rig's cameras made identical units (focal and distortion of the first, no distortion):
+    a fronto-parallel plane then looks the same at focal k f from distance k d."""
+    for cam in cams:
+        cam.params[0] = cams[0].params[0]
+        cam.params[3:] = 0.0
+    return cams
+
+
+def test_a_camera_facing_a_flat_scene_at_a_wrong_focal_and_distance_is_moved_to_its_peers_focal():
+    """Camera c faces a wall square on; registered at 0.4x its focal and 0.4x the distance, every
+    match fits exactly as well as at the truth (the focal-distance ambiguity). The other cameras
+    are identical units, so the placement at their focal is taken."""
+    cams, poses = gt_rig(5, seed=35)
+    cams = _identical_cameras(cams)
+    c, k = 2, 0.4
+    R, centre = poses[c][:3, :3], _centre(poses[c])
+    u, v = np.random.default_rng(35).uniform([-2.5, -1.8], [2.5, 1.8], (2000, 2)).T
+    wall = centre + 6.0 * R[2] + u[:, None] * R[0] + v[:, None] * R[1]  # square on to c, 6 away
+    tracks = gt_tracks(cams, poses, noise_px=0.3, outlier_frac=0.03, seed=35, points_xyz=wall)
+    state = _state(cams, poses, tracks)
+    state.cam_from_world[c][:3, 3] = -R @ (centre + (1 - k) * 6.0 * R[2])
+    state.intrinsics[c].params[0] *= k
+    before = group_support(state, [c])
+
+    moved = repair_placements(state, NAMES)
+
+    assert moved == ["c"]
+    assert group_support(state, [c]) >= before
+    _assert_at_truth(state, poses, [c])
+    assert abs(state.camera(c).params[0] / cams[c].params[0] - 1) < 0.02
+
+
+def test_a_camera_with_another_focal_than_its_peers_is_left_alone():
+    """A right rig in which one camera has 1.8x the focal of the others (another lens on the same
+    sensor): its focal is far from its peers', but no other placement fits as many matches."""
+    cams, poses = gt_rig(5, seed=36)
+    cams = _identical_cameras(cams)
+    cams[1].params[0] *= 1.8
+    tracks = gt_tracks(cams, poses, num_points=2500, noise_px=0.3, outlier_frac=0.1, seed=36)
+    state = _state(cams, poses, tracks)
+
+    assert repair_placements(state, NAMES) == []
+    for c in range(5):
+        np.testing.assert_array_equal(state.cam_from_world[c], poses[c])

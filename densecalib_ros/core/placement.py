@@ -21,12 +21,22 @@ it shares the most matches with, which can hold it in a wrong place):
 - the group moves when the alternative has at least REPLACE_SUPPORT_RATIO x the support and
   MIN_SUPPORT_GAIN more matches. One group at a time, the largest ratio first; then every group is
   judged again (a moved camera changes the others' points).
+- Focal tie-break, when no group moves so: a camera facing a flat scene nearly square on can sit
+  at a wrong focal and distance that fit the matches as well as the right ones (the focal-distance
+  ambiguity of a fronto-parallel plane). A camera whose focal is FOCAL_TIE_BREAK_RATIO x or more
+  off the median focal of the other registered cameras of its image size (its peers) is moved to
+  the alternative closest to their focal, among those at least as well supported; its pose alone
+  at the peers' intrinsics is one of the alternatives (refined, the focal wanders along the
+  ambiguity). A camera whose own focal the matches do pin down is left alone: no alternative at
+  another focal fits as many of them.
 
 Measured (single incremental runs on the fox): correctly placed cameras and pairs: the
 alternative's support within -6 % .. +5 % of the current one; wrong placements: 8 frames, camera
 0094 0 -> 271 (seeds 1-3; seed 2 also 0049, 63 -> 394, with its focal 83 % short); 10 frames, the
 pair 0001 + 0007 483 -> 1163 (seeds 0, 2). AUC@3 8 frames 37-46 -> 56, 10 frames 58.5-60 -> 80.7-82.2.
 Generated rigs: nothing moved on the bench scenes checked, one camera on a held-out 45-deg rig.
+Focal tie-break: fox, 12 frames: camera 0014 (focal 68 % short, 64 deg off) moved, AUC@3 71.7 -> 86.4;
+on 48 bench, held-out and development scenes it moved two other cameras, with AUC unchanged.
 What it cannot repair: a reconstruction wrong everywhere (fox, 5 frames), or a wrong group of
 three or more cameras. The all-match refinement (all_matches.py) runs after it.
 """
@@ -62,6 +72,12 @@ SAME_PLACEMENT_CENTRE = 0.05  # x the median distance between registered cameras
 # B_err; the absolute pose's RANSAC sorts out the rest).
 LOO_POINT_MAX_ERROR_PX = 20.0
 MAX_POSE_POINTS = 1000
+# Focal tie-break: when an alternative placement fits at least as many matches, and its focal is
+# this many times closer (as a ratio) to the focal of the other cameras of the same image size,
+# it is taken. Matches cannot tell focal from distance for a camera facing a flat scene nearly
+# square on (fox, 12 frames: camera 0014 registered with its focal 68 % short and 64 deg off,
+# 1425 matches fit; at the other cameras' focal 1454 fit); the rig's other cameras can.
+FOCAL_TIE_BREAK_RATIO = 1.5
 
 
 def _scratch(state: SfMState, cam_from_world: Sequence[Optional[np.ndarray]]) -> SfMState:
@@ -111,11 +127,16 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
     if len(use) > MAX_POSE_POINTS:  # a seeded subsample bounds the RANSAC's time
         use = np.sort(np.random.default_rng(c).choice(use, MAX_POSE_POINTS, replace=False))
     shared = state.shares_intrinsics(c)
+    starts = [(start, not shared) for start in _start_intrinsics(state, c, shared)]
+    if len(starts) == 2 and len(left_out) == 1:
+        # The pose alone at the peers' intrinsics: the placement the focal tie-break prefers
+        # where the matches cannot fix the focal (refined, it wanders along the ambiguity).
+        starts.append((starts[1][0], False))
     out = []
-    for start in _start_intrinsics(state, c, shared):
+    for start, refine in starts:
         camera = start.to_pycolmap()
         T = absolute_pose(state.tracks.xy_px[rows[use], c], X[use], camera,
-                          refine_intrinsics=not shared)
+                          refine_intrinsics=refine)
         intrinsics = CameraIntrinsics.from_pycolmap(camera)
         if T is not None and intrinsics_problem(intrinsics) is None:
             out.append((T, intrinsics))
@@ -128,26 +149,30 @@ def _start_intrinsics(state: SfMState, c: int, shared: bool) -> list[CameraIntri
     wrongly often has a wrong focal too (measured: fox, 8 frames, 83 % short), from which the
     absolute pose's RANSAC does not find the right pose (rigs often use identical cameras)."""
     own = state.camera(c)
-    if shared:
-        return [own]
-    same = [state.camera(r).params for r in state.registered()
-            if r != c and (state.camera(r).model, state.camera(r).width, state.camera(r).height)
-            == (own.model, own.width, own.height)]
-    if not same:
+    peers = _peers(state, c)
+    if shared or not peers:
         return [own]
     return [own, CameraIntrinsics(own.model, own.width, own.height,
-                                  np.median(np.array(same), axis=0))]
+                                  np.median(np.array([state.camera(r).params for r in peers]),
+                                            axis=0))]
 
 
-def _moved(state: SfMState, group: Sequence[int]) -> Optional[tuple[SfMState, int]]:
-    """The best-supported trial state with every camera of `group` at a pose hypothesis (all
-    combinations of the members' hypotheses) and its support, or None when a member has no
-    hypothesis or every combination leaves the group where it is (`_same_placement`: nothing to
-    gain, and no support to compute)."""
+def _peers(state: SfMState, c: int) -> list[int]:
+    """The other registered cameras of camera c's model and image size."""
+    own = state.camera(c)
+    return [r for r in state.registered()
+            if r != c and (state.camera(r).model, state.camera(r).width, state.camera(r).height)
+            == (own.model, own.width, own.height)]
+
+
+def _alternatives(state: SfMState, group: Sequence[int]) -> list[tuple[SfMState, int]]:
+    """Trial states with every camera of `group` at a pose hypothesis (all combinations of the
+    members' hypotheses), each with its support; combinations that leave the group where it is
+    (`_same_placement`) are not scored. Empty when a member has no hypothesis."""
     options = [pose_hypotheses(state, c, group) for c in group]
     if not all(options):
-        return None
-    best = None
+        return []
+    out = []
     for combination in itertools.product(*options):
         if all(_same_placement(state, c, T) for c, (T, _) in zip(group, combination)):
             continue
@@ -156,10 +181,35 @@ def _moved(state: SfMState, group: Sequence[int]) -> Optional[tuple[SfMState, in
             trial.cam_from_world[c] = T
             if not state.shares_intrinsics(c):
                 trial.intrinsics[int(trial.camera_block[c])] = K
-        n = group_support(trial, group)
-        if best is None or n > best[1]:
-            best = (trial, n)
-    return best
+        out.append((trial, group_support(trial, group)))
+    return out
+
+
+def peer_focal_px(state: SfMState, c: int) -> Optional[float]:
+    """Median focal of the other registered cameras of camera c's model and image size (None
+    when there is none, or when c shares its intrinsics: then there is no focal of its own)."""
+    peers = _peers(state, c)
+    if not peers or state.shares_intrinsics(c):
+        return None
+    return float(np.median([state.camera(r).to_pycolmap().mean_focal_length() for r in peers]))
+
+
+def _focal_tie_break(state: SfMState, c: int, alternatives: list[tuple[SfMState, int]],
+                     now: int) -> Optional[tuple[SfMState, int]]:
+    """Among camera c's alternatives that the matches support at least as well as its current
+    placement, the one whose focal is closest to its peers' (`peer_focal_px`), when that is
+    FOCAL_TIE_BREAK_RATIO times closer (in ratio) than the current focal; else None."""
+    f_peer = peer_focal_px(state, c)
+    if f_peer is None:
+        return None
+
+    def off(s: SfMState) -> float:  # |log(f / f_peer)|
+        return abs(np.log(s.camera(c).to_pycolmap().mean_focal_length() / f_peer))
+    tied = [(trial, n) for trial, n in alternatives if n >= now]
+    if not tied:
+        return None
+    trial, n = min(tied, key=lambda a: off(a[0]))
+    return (trial, n) if off(trial) + np.log(FOCAL_TIE_BREAK_RATIO) <= off(state) else None
 
 
 def _same_placement(state: SfMState, c: int, cam_from_world: np.ndarray) -> bool:
@@ -202,11 +252,12 @@ def repair_placements(state: SfMState, camera_names: Sequence[str],
     moved: list[str] = []
     for _ in range(state.num_cameras):
         best = None  # (support ratio, group, trial, support now, support after)
+        tie = None  # (group, trial, support now, support after): the focal tie-break
         for group in _groups(state):
-            found = _moved(state, group)
-            if found is None:
+            alternatives = _alternatives(state, group)
+            if not alternatives:
                 continue
-            trial, after = found
+            trial, after = max(alternatives, key=lambda a: a[1])
             now = group_support(state, group)
             log.debug("placement of %s: support %d, moved %d",
                       "+".join(camera_names[c] for c in group), now, after)
@@ -214,14 +265,31 @@ def repair_placements(state: SfMState, camera_names: Sequence[str],
                 ratio = after / max(now, 1)
                 if best is None or ratio > best[0]:
                     best = (ratio, group, trial, now, after)
-        if best is None:
+            elif tie is None and len(group) == 1:
+                found = _focal_tie_break(state, group[0], alternatives, now)
+                if found is not None:
+                    tie = (group, found[0], now, found[1])
+        if best is not None:
+            _, group, trial, now, after = best
+            why = None
+        elif tie is not None:
+            group, trial, now, after = tie
+            c = group[0]
+            why = (f"its focal {state.camera(c).to_pycolmap().mean_focal_length():.0f} px is far "
+                   f"from the other cameras of its size (median {peer_focal_px(state, c):.0f} px), "
+                   f"and the matches fit as well ({now} -> {after}) with focal "
+                   f"{trial.camera(c).to_pycolmap().mean_focal_length():.0f} px where the other "
+                   "cameras' points place it")
+        else:
             break
-        _, group, trial, now, after = best
         for c in group:
             state.cam_from_world[c] = trial.cam_from_world[c]
             state.intrinsics[int(state.camera_block[c])] = trial.camera(c)
         names = [camera_names[c] for c in group]
         moved += names
+        if why is not None:
+            say(f"camera {names[0]}: {why}; moved there")
+            continue
         which, it, they = ((f"camera {names[0]}", "it", "it was") if len(names) == 1 else
                            (f"cameras {' and '.join(names)}", "them", "they were"))
         say(f"{which}: only {now} of the matches with the other cameras fit where {they} "
