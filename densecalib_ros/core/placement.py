@@ -128,9 +128,11 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
         use = np.sort(np.random.default_rng(c).choice(use, MAX_POSE_POINTS, replace=False))
     shared = state.shares_intrinsics(c)
     starts = [(start, not shared) for start in _start_intrinsics(state, c, shared)]
-    if len(starts) == 2 and len(left_out) == 1:
+    if len(starts) == 2 and len(left_out) == 1 and _focal_off_peers(state, c) >= np.log(
+            FOCAL_TIE_BREAK_RATIO):
         # The pose alone at the peers' intrinsics: the placement the focal tie-break prefers
         # where the matches cannot fix the focal (refined, it wanders along the ambiguity).
+        # Only where the tie-break can apply: it costs another absolute pose.
         starts.append((starts[1][0], False))
     out = []
     for start, refine in starts:
@@ -194,22 +196,29 @@ def peer_focal_px(state: SfMState, c: int) -> Optional[float]:
     return float(np.median([state.camera(r).to_pycolmap().mean_focal_length() for r in peers]))
 
 
+def _focal_off_peers(state: SfMState, c: int, f_peer: Optional[float] = None) -> float:
+    """|log(f_c / f_peer)|: how far camera c's focal in `state` is from its peers' (0 without
+    peers)."""
+    f_peer = peer_focal_px(state, c) if f_peer is None else f_peer
+    if f_peer is None:
+        return 0.0
+    return abs(float(np.log(state.camera(c).to_pycolmap().mean_focal_length() / f_peer)))
+
+
 def _focal_tie_break(state: SfMState, c: int, alternatives: list[tuple[SfMState, int]],
                      now: int) -> Optional[tuple[SfMState, int]]:
     """Among camera c's alternatives that the matches support at least as well as its current
     placement, the one whose focal is closest to its peers' (`peer_focal_px`), when that is
     FOCAL_TIE_BREAK_RATIO times closer (in ratio) than the current focal; else None."""
     f_peer = peer_focal_px(state, c)
-    if f_peer is None:
-        return None
-
-    def off(s: SfMState) -> float:  # |log(f / f_peer)|
-        return abs(np.log(s.camera(c).to_pycolmap().mean_focal_length() / f_peer))
     tied = [(trial, n) for trial, n in alternatives if n >= now]
-    if not tied:
+    if f_peer is None or not tied:
         return None
-    trial, n = min(tied, key=lambda a: off(a[0]))
-    return (trial, n) if off(trial) + np.log(FOCAL_TIE_BREAK_RATIO) <= off(state) else None
+    trial, n = min(tied, key=lambda a: _focal_off_peers(a[0], c, f_peer))
+    if _focal_off_peers(trial, c, f_peer) + np.log(FOCAL_TIE_BREAK_RATIO) \
+            <= _focal_off_peers(state, c, f_peer):
+        return trial, n
+    return None
 
 
 def _same_placement(state: SfMState, c: int, cam_from_world: np.ndarray) -> bool:
