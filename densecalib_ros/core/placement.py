@@ -303,4 +303,4 @@ def repair_placements(state: SfMState, camera_names: Sequence[str],
                            (f"cameras {' and '.join(names)}", "them", "they were"))
         say(f"{which}: only {now} of the matches with the other cameras fit where {they} "
             f"registered; moved to where the other cameras' points place {it} ({after} fit)")
-    return moved
+    return list(dict.fromkeys(moved))  # a camera can move twice; name it once
