@@ -49,7 +49,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from .incremental import MIN_REGISTRATION_POINTS, absolute_pose
-from .metrics import rotation_angle_deg
+from .metrics import mean_focal_px, rotation_angle_deg
 from .plausibility import intrinsics_problem
 from .reconstruction import (MIN_TRIANGULATION_ANGLE_DEG, SfMState, midpoint_triangulation)
 from .types import CameraIntrinsics
@@ -128,8 +128,8 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
         use = np.sort(np.random.default_rng(c).choice(use, MAX_POSE_POINTS, replace=False))
     shared = state.shares_intrinsics(c)
     starts = [(start, not shared) for start in _start_intrinsics(state, c, shared)]
-    if len(starts) == 2 and len(left_out) == 1 and _focal_off_peers(state, c) >= np.log(
-            FOCAL_TIE_BREAK_RATIO):
+    if len(starts) == 2 and len(left_out) == 1 and _focal_off_peers(
+            state, c, peer_focal_px(state, c)) >= np.log(FOCAL_TIE_BREAK_RATIO):
         # The pose alone at the peers' intrinsics: the placement the focal tie-break prefers
         # where the matches cannot fix the focal (refined, it wanders along the ambiguity).
         # Only where the tie-break can apply: it costs another absolute pose.
@@ -193,16 +193,12 @@ def peer_focal_px(state: SfMState, c: int) -> Optional[float]:
     peers = _peers(state, c)
     if not peers or state.shares_intrinsics(c):
         return None
-    return float(np.median([state.camera(r).to_pycolmap().mean_focal_length() for r in peers]))
+    return float(np.median([mean_focal_px(state.camera(r)) for r in peers]))
 
 
-def _focal_off_peers(state: SfMState, c: int, f_peer: Optional[float] = None) -> float:
-    """|log(f_c / f_peer)|: how far camera c's focal in `state` is from its peers' (0 without
-    peers)."""
-    f_peer = peer_focal_px(state, c) if f_peer is None else f_peer
-    if f_peer is None:
-        return 0.0
-    return abs(float(np.log(state.camera(c).to_pycolmap().mean_focal_length() / f_peer)))
+def _focal_off_peers(state: SfMState, c: int, f_peer: float) -> float:
+    """|log(f_c / f_peer)|: how far camera c's focal in `state` is from its peers' focal."""
+    return abs(float(np.log(mean_focal_px(state.camera(c)) / f_peer)))
 
 
 def _focal_tie_break(state: SfMState, c: int, alternatives: list[tuple[SfMState, int]],
@@ -284,10 +280,10 @@ def repair_placements(state: SfMState, camera_names: Sequence[str],
         elif tie is not None:
             group, trial, now, after = tie
             c = group[0]
-            why = (f"its focal {state.camera(c).to_pycolmap().mean_focal_length():.0f} px is far "
+            why = (f"its focal {mean_focal_px(state.camera(c)):.0f} px is far "
                    f"from the other cameras of its size (median {peer_focal_px(state, c):.0f} px), "
                    f"and the matches fit as well ({now} -> {after}) with focal "
-                   f"{trial.camera(c).to_pycolmap().mean_focal_length():.0f} px where the other "
+                   f"{mean_focal_px(trial.camera(c)):.0f} px where the other "
                    "cameras' points place it")
         else:
             break
