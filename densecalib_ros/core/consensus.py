@@ -10,7 +10,10 @@ the runs disagree is reported with the result: it is a direct measure of how wel
 determine the rig.
 
 Before the vote, each run's cameras are scored on the same observations: a seeded sample of all
-runs' tracks, triangulated from that run's cameras (`common_track_costs`). A run that fits them
+runs' tracks in the cameras that every run registered, triangulated from that run's cameras
+(`common_track_costs`). Scoring only shared cameras lets a run that left out one hard camera
+compete on equal terms (the real fox, 8 frames, global pipeline: the one run that dropped a frame
+was right, the runs that posed all 8 were wrong and fit the other 7 twice as badly). A run that fits them
 clearly worse than the best run is a wrong reconstruction, not an equally good alternative, and
 is not kept even when it is the medoid (where most runs are wrong). Runs that fit about equally
 well, the near-ambiguous case of converging cameras with free focals, are left to the vote.
@@ -88,32 +91,34 @@ def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tra
                        ) -> np.ndarray:
     """Per rig, the truncated reprojection cost (incremental.truncated_cost, px) of the common
     tracks (a seeded sample of at most COMMON_TRACKS_MAX of all runs' tracks) triangulated from
-    that rig's cameras, held fixed. Every rig is scored on the same observations (those in its
-    registered cameras)."""
+    that rig's cameras, held fixed, over the cameras that every rig registered: so every rig is
+    scored on the same observations, and a run that left out a hard camera is not favoured for
+    fitting fewer of them. All NaN when fewer than two cameras are shared."""
+    shared = [c for c, n in enumerate(camera_names) if all(n in r.cameras for r in rigs)]
+    if len(shared) < 2:
+        return np.full(len(rigs), np.nan)
     common = Tracks.concatenate(list(runs_tracks), len(camera_names))
     if common.num_tracks > COMMON_TRACKS_MAX:
         common = common.subset(np.sort(np.random.default_rng(seed).choice(
             common.num_tracks, COMMON_TRACKS_MAX, replace=False)))
     costs = []
     for rig in rigs:
-        registered = [n for n in camera_names if n in rig.cameras]
-        any_camera = rig.cameras[registered[0]].intrinsics
+        any_camera = rig.cameras[camera_names[shared[0]]].intrinsics
         state = SfMState.create(common, [rig.cameras[n].intrinsics if n in rig.cameras
                                          else any_camera for n in camera_names])
-        for c, name in enumerate(camera_names):
-            if name in rig.cameras:
-                state.cam_from_world[c] = rig.cameras[name].cam_from_rig
+        for c in shared:
+            state.cam_from_world[c] = rig.cameras[camera_names[c]].cam_from_rig
         triangulate_tracks(state, max_error_px=truncation_px, seed=seed)
         costs.append(truncated_cost(state, truncation_px))
     return np.array(costs)
 
 
-def well_fitting_runs(costs: np.ndarray, num_registered: Sequence[int]) -> list[int]:
-    """The runs whose common-track cost is within WORSE_FIT_RATIO of the best cost among the runs
-    that registered the most cameras (a run that left out a hard camera is scored on fewer,
-    easier observations, so it cannot set the bar)."""
-    most = max(num_registered)
-    bar = WORSE_FIT_RATIO * min(c for c, n in zip(costs, num_registered) if n == most)
+def well_fitting_runs(costs: np.ndarray) -> list[int]:
+    """The runs whose common-track cost is within WORSE_FIT_RATIO of the best; every run when
+    the costs could not be computed (NaN)."""
+    if not np.isfinite(costs).any():
+        return list(range(len(costs)))
+    bar = WORSE_FIT_RATIO * np.nanmin(costs)
     return [k for k, c in enumerate(costs) if c <= bar]
 
 
@@ -134,7 +139,7 @@ def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
     if len(rigs) < 2 or D.max() < AGREEMENT_DEG:
         return Choice(best, D, np.full(len(rigs), np.nan), [])
     costs = common_track_costs(rigs, runs_tracks, camera_names, truncation_px, seed)
-    fitting = well_fitting_runs(costs, [len(r.cameras) for r in rigs])
+    fitting = well_fitting_runs(costs)
     return Choice(medoid(rigs, camera_names, fitting)[0], D, costs,
                   [k for k in range(len(rigs)) if k not in fitting])
 
