@@ -50,6 +50,25 @@ def test_loaded_matcher_is_reused_and_result_is_deterministic(rig):
                                    b.cameras[name].intrinsics.params, rtol=1e-6)
 
 
+def test_converging_wide_rig_whose_eq2_focals_are_far_off_is_calibrated():
+    """Three cameras 45 deg apart whose optical axes meet: eq. 2 is degenerate there and puts the
+    focals at about 0.2x the truth (140-175 px for 714-858 px), beyond the multi-start's eq. 2
+    scale starts, and COLMAP's generic prior (1.2 x 1024 px) is too far the other way; the
+    wider-lens generic priors (incremental.PRIOR_FOCAL_IMAGE_RATIOS) reach it. With only the
+    1.2 prior this rig came out wrong (every camera pair > 40 deg off)."""
+    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=1024, height=768,
+                               seed=711, gap_deg=45.0, max_arc_deg=360.0))
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1)
+    messages = []
+    result = run_calibration([rig.images[0]], rig.names, config, progress=messages.append)
+    initial = next(m for m in messages if m.startswith("initial focals"))
+    assert all(int(x.split("=")[1]) < 300 for x in initial.split(": ")[1].split(", "))
+    metrics = evaluate_calibration(result.rig, rig.ground_truth())
+    assert metrics["num_registered"] == 3
+    assert metrics["auc3"] >= 66.0
+    assert metrics["median_focal_err"] <= 0.05
+
+
 def test_images_without_overlap_fail_with_overlap_error():
     rng = np.random.default_rng(0)
     frames = [[rng.integers(0, 255, (240, 320), dtype=np.uint8) for _ in range(3)]]

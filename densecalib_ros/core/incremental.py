@@ -54,7 +54,13 @@ FOCAL_SCALE_STARTS = (1.0, 1.3, 0.8)  # multi-start factors on the initial focal
 # 3-camera rig 47 % low failed from every other start and was right from x1.69, as from 0.9-1.0x
 # the truth).
 EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
-PRIOR_FOCAL_IMAGE_RATIO = 1.2  # COLMAP's prior for unknown focals: 1.2 x max(width, height)
+# Generic focal priors (x max(width, height)), starts that do not depend on the F's, for perspective
+# models: COLMAP's prior for unknown focals, 1.2 (45 deg across the long side), and two wider
+# lenses 1/sqrt(2) apart, 0.85 and 0.6 (62 and 81 deg: wide-angle trap and arena cameras). Where
+# eq. 2 degenerates it can miss by more than the scale starts span (a converging 3-camera rig: 0.2x
+# the truth), and from every other start SfM ended in a wrong rig; the starts sit closer together
+# than the ~1.4x a start may be off and still converge.
+PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6)
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
 # Focal candidates (x the current focal) for a camera registered from 2-view tracks only: eq. 2 was
@@ -308,18 +314,19 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     axes nearly meet (a common rig layout) and then tends to be off by a common factor (measured
     20-47 % low), from which incremental SfM converges to a wrong reconstruction. So the SfM is
     run from the initial focals scaled by each of FOCAL_SCALE_STARTS (and, for perspective
-    models, EQ2_EXTRA_FOCAL_SCALE_STARTS) and from COLMAP's prior (on a seeded subsample of
-    at most MULTISTART_MAX_TRACKS tracks) and the start with the lowest truncated reprojection
+    models, EQ2_EXTRA_FOCAL_SCALE_STARTS and the generic priors PRIOR_FOCAL_IMAGE_RATIOS) (on
+    a seeded subsample of at most MULTISTART_MAX_TRACKS tracks) and the start with the lowest truncated reprojection
     cost (`truncated_cost`) gives the result: that trial itself when it ran on all tracks, else
     its cameras finished on all tracks (`_on_all_tracks`).
     """
     say = progress or (lambda msg: None)
-    factors = FOCAL_SCALE_STARTS
-    if not any("FISHEYE" in cam.model for cam in intrinsics):
-        factors += EQ2_EXTRA_FOCAL_SCALE_STARTS
+    # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate.
+    perspective = not any("FISHEYE" in cam.model for cam in intrinsics)
+    factors = FOCAL_SCALE_STARTS + (EQ2_EXTRA_FOCAL_SCALE_STARTS if perspective else ())
     starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in factors}
-    # The generic prior COLMAP uses for unknown focals: a start that does not depend on the F's.
-    starts["prior"] = _prior_focals(intrinsics)
+    if perspective:
+        for ratio in PRIOR_FOCAL_IMAGE_RATIOS:
+            starts[f"prior {ratio:g}"] = _prior_focals(intrinsics, ratio)
     sub = tracks
     if tracks.num_tracks > MULTISTART_MAX_TRACKS:
         pick = np.random.default_rng(seed).choice(tracks.num_tracks, MULTISTART_MAX_TRACKS,
@@ -382,16 +389,15 @@ def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraI
     return finished if rank(finished) <= rank(full) else full
 
 
-def _prior_focals(intrinsics: Sequence[CameraIntrinsics]) -> list[CameraIntrinsics]:
+def _prior_focals(intrinsics: Sequence[CameraIntrinsics], ratio: float
+                  ) -> list[CameraIntrinsics]:
+    """The cameras with focal = ratio x max(width, height) px."""
     out = []
     for cam in intrinsics:
         params = np.array(cam.params, dtype=np.float64)
         f_idx = list(pycolmap.Camera(model=cam.model, width=cam.width, height=cam.height,
                                      params=params).focal_length_idxs())
-        if "FISHEYE" in cam.model:  # the initial fisheye focal is already a model prior
-            out.append(cam)
-            continue
-        params[f_idx] = PRIOR_FOCAL_IMAGE_RATIO * max(cam.width, cam.height)
+        params[f_idx] = ratio * max(cam.width, cam.height)
         out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
     return out
 
