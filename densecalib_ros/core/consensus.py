@@ -13,9 +13,9 @@ Before the vote, each run's cameras are scored on the same observations: a seede
 runs' tracks in the cameras that every run registered, triangulated from that run's cameras
 (`common_track_costs`). Scoring only shared cameras lets a run that left out one hard camera
 compete on equal terms (the real fox, 8 frames, global pipeline: the one run that dropped a frame
-was right, the runs that posed all 8 were wrong and fit the other 7 twice as badly). A run that fits them
-clearly worse than the best run is a wrong reconstruction, not an equally good alternative, and
-is not kept even when it is the medoid (where most runs are wrong). Runs that fit about equally
+was right, the runs that posed all 8 were wrong and fit the other 7 twice as badly). A run that
+fits them clearly worse than the best run is a wrong reconstruction, not an equally good
+alternative, and is not kept even when it is the medoid (where most runs are wrong). Runs that fit about equally
 well, the near-ambiguous case of converging cameras with free focals, are left to the vote.
 """
 from __future__ import annotations

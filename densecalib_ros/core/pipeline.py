@@ -21,7 +21,7 @@ from .all_matches import keypoint_tracks, refine_on_tracks
 from .config import PipelineConfig
 from .errors import CalibrationError, InputError, NotEnoughCamerasError, NotEnoughOverlapError
 from .focal import estimate_initial_focals
-from .incremental import initial_intrinsics, run_incremental
+from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .placement import repair_placements
 from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
@@ -145,8 +145,9 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     TwoViewGeometry} (estimated here from the tracks when None); focal_px: (C,) initial focal
     lengths (estimated from the F's when None); previous: the calibration the global pipeline
     starts from when config.sfm.global_init is "previous" (recalibration); match_tracks: every
-    keypoint match as tracks (all_matches.keypoint_tracks), on which the found rig is refined
-    last, after cameras the matches contradict are moved (placement.py) (None: neither)."""
+    keypoint match as tracks (all_matches.keypoint_tracks), on which the incremental focal
+    multi-start is judged (a seeded sample) and the found rig is refined last, after cameras the
+    matches contradict are moved (placement.py) (None: none of these)."""
     start = time.perf_counter()
     C = len(camera_names)
     if tracks.num_cameras != C or len(image_sizes) != C:
@@ -177,8 +178,14 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         sfm = run_global(filtered, init, camera_names, config.sfm, seed=seed, progress=progress,
                          previous=previous)
     else:
+        validation = None
+        if match_tracks is not None and match_tracks.num_tracks:
+            validation = match_tracks
+            if validation.num_tracks > MULTISTART_MAX_TRACKS:
+                validation = validation.subset(np.sort(np.random.default_rng(seed).choice(
+                    validation.num_tracks, MULTISTART_MAX_TRACKS, replace=False)))
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
-                              progress=progress)
+                              progress=progress, validation_tracks=validation)
     state = sfm.state
     moved: list[str] = []
     if match_tracks is not None and match_tracks.num_tracks:
