@@ -66,11 +66,7 @@ def keypoint_tracks(match_sets: Sequence[SiteMatchSet], num_cameras: int,
     if any(m.target_xy_px is not None for ms in match_sets for m in ms.pairs.values()):
         return None
     parts = [_frame_set_tracks(ms, num_cameras, t) for t, ms in enumerate(match_sets)]
-    tracks = Tracks.concatenate(parts, num_cameras)
-    if tracks.num_tracks > max_tracks:
-        pick = np.random.default_rng(seed).choice(tracks.num_tracks, max_tracks, replace=False)
-        tracks = tracks.subset(np.sort(pick))
-    return tracks
+    return Tracks.concatenate(parts, num_cameras).sample(max_tracks, seed)
 
 
 def _frame_set_tracks(match_set: SiteMatchSet, num_cameras: int, time_index: int) -> Tracks:

@@ -97,10 +97,8 @@ def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tra
     shared = [c for c, n in enumerate(camera_names) if all(n in r.cameras for r in rigs)]
     if len(shared) < 2:
         return np.full(len(rigs), np.nan)
-    common = Tracks.concatenate(list(runs_tracks), len(camera_names))
-    if common.num_tracks > COMMON_TRACKS_MAX:
-        common = common.subset(np.sort(np.random.default_rng(seed).choice(
-            common.num_tracks, COMMON_TRACKS_MAX, replace=False)))
+    common = Tracks.concatenate(list(runs_tracks), len(camera_names)).sample(COMMON_TRACKS_MAX,
+                                                                            seed)
     costs = []
     for rig in rigs:
         any_camera = rig.cameras[camera_names[shared[0]]].intrinsics

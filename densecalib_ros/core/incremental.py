@@ -333,11 +333,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     if perspective:
         for ratio in PRIOR_FOCAL_IMAGE_RATIOS:
             starts[f"prior {ratio:g}"] = _prior_focals(intrinsics, ratio)
-    sub = tracks
-    if tracks.num_tracks > MULTISTART_MAX_TRACKS:
-        pick = np.random.default_rng(seed).choice(tracks.num_tracks, MULTISTART_MAX_TRACKS,
-                                                  replace=False)
-        sub = tracks.subset(np.sort(pick))
+    sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
     costs, trials = {}, {}
     for name, start in starts.items():
         messages: list[str] = []

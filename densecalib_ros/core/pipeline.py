@@ -180,10 +180,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     else:
         validation = None
         if match_tracks is not None and match_tracks.num_tracks:
-            validation = match_tracks
-            if validation.num_tracks > MULTISTART_MAX_TRACKS:
-                validation = validation.subset(np.sort(np.random.default_rng(seed).choice(
-                    validation.num_tracks, MULTISTART_MAX_TRACKS, replace=False)))
+            validation = match_tracks.sample(MULTISTART_MAX_TRACKS, seed)
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
                               progress=progress, validation_tracks=validation)
     state = sfm.state

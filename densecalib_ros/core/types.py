@@ -98,6 +98,14 @@ class Tracks:
         return Tracks(self.xy_px[mask], self.cycle_order[mask], self.score[mask],
                       self.time_index[mask])
 
+    def sample(self, max_tracks: int, seed: int = 0) -> "Tracks":
+        """At most max_tracks of the tracks, a seeded random choice kept in track order; self
+        (the same object) when there are not more."""
+        if self.num_tracks <= max_tracks:
+            return self
+        pick = np.random.default_rng(seed).choice(self.num_tracks, max_tracks, replace=False)
+        return self.subset(np.sort(pick))
+
     @staticmethod
     def concatenate(parts: list["Tracks"], num_cameras: int) -> "Tracks":
         if not parts:
