@@ -355,7 +355,10 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                   -costs[name][0], costs[name][1])
     best = min(costs, key=costs.get) if costs else "x1.00"
     if costs:
-        say(f"focal multi-start: {best} fits best (truncated reprojection cost "
+        judged_on = (f"{validation_tracks.num_tracks} keypoint-match tracks"
+                     if validation_tracks is not None and validation_tracks.num_tracks
+                     else "its own tracks")
+        say(f"focal multi-start: {best} fits best (truncated reprojection cost on {judged_on} "
             f"{costs[best][1]:.2f} px; " + ", ".join(f"{n}: {c[1]:.2f}" for n, c in costs.items())
             + ")")
     if best in trials:
