@@ -304,7 +304,10 @@ def to_gauge_frame(state: SfMState, gauge_camera: int) -> None:
     the world origin: elsewhere the cameras can shrink towards it while that component stays put."""
     gauge_from_world = state.cam_from_world[gauge_camera].copy()
     world_from_gauge = np.linalg.inv(gauge_from_world)
-    centres = [np.linalg.inv(T)[:3, 3] for T in state.cam_from_world if T is not None]
+    # The gauge camera is left out by index: its own distance comes out as 0 or as rounding noise
+    # (1e-16) depending on the BLAS, and a test "d > 0" let that noise into the median.
+    centres = [np.linalg.inv(T)[:3, 3] for c, T in enumerate(state.cam_from_world)
+               if T is not None and c != gauge_camera]
     distances = [np.linalg.norm(gauge_from_world[:3, :3] @ c + gauge_from_world[:3, 3])
                  for c in centres]
     distances = [d for d in distances if d > 0]
