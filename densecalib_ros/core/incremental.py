@@ -61,6 +61,11 @@ EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
 # the truth), and from every other start SfM ended in a wrong rig; the starts sit closer together
 # than the ~1.4x a start may be off and still converge.
 PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6)
+# A prior start whose focals are all within this factor of a start already planned is skipped: it
+# sits in the same basin (the scale starts are 1.3x apart; this is about half that step in log)
+# and would cost a whole SfM run, on 10-camera rigs where eq. 2 is close to the truth two of the
+# three priors did.
+DUPLICATE_START_FOCAL_RATIO = 1.15
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
 # Focal candidates (x the current focal) for a camera registered from 2-view tracks only: eq. 2 was
@@ -326,13 +331,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     samples, 2.17 vs 2.02 px on the other matches), so the left-out matches judge more fairly.
     """
     say = progress or (lambda msg: None)
-    # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate.
-    perspective = not any("FISHEYE" in cam.model for cam in intrinsics)
-    factors = FOCAL_SCALE_STARTS + (EQ2_EXTRA_FOCAL_SCALE_STARTS if perspective else ())
-    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in factors}
-    if perspective:
-        for ratio in PRIOR_FOCAL_IMAGE_RATIOS:
-            starts[f"prior {ratio:g}"] = _prior_focals(intrinsics, ratio)
+    starts = focal_starts(intrinsics)
     sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
     costs, trials = {}, {}
     for name, start in starts.items():
@@ -373,6 +372,26 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     return result
 
 
+def focal_starts(intrinsics: Sequence[CameraIntrinsics]) -> dict[str, list[CameraIntrinsics]]:
+    """The multi-start's starting intrinsics by name: the initial focals scaled ("x1.30"), and for
+    perspective models the generic priors ("prior 0.85") that are not within
+    DUPLICATE_START_FOCAL_RATIO of a scaled start."""
+    # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate.
+    perspective = not any("FISHEYE" in cam.model for cam in intrinsics)
+    factors = FOCAL_SCALE_STARTS + (EQ2_EXTRA_FOCAL_SCALE_STARTS if perspective else ())
+    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in factors}
+    if perspective:
+        for ratio in PRIOR_FOCAL_IMAGE_RATIOS:
+            prior = _prior_focals(intrinsics, ratio)
+            twin = next((n for n, s in starts.items() if _same_focals(prior, s)), None)
+            if twin is None:
+                starts[f"prior {ratio:g}"] = prior
+            else:
+                log.debug("focal start prior %g skipped: within %gx of start %s", ratio,
+                          DUPLICATE_START_FOCAL_RATIO, twin)
+    return starts
+
+
 def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraIntrinsics],
                    camera_names: Sequence[str], config: SfMConfig, seed: int,
                    say: Callable[[str], None]) -> IncrementalResult:
@@ -397,26 +416,40 @@ def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraI
     return finished if rank(finished) <= rank(full) else full
 
 
+def _focal_idxs(cam: CameraIntrinsics) -> list[int]:
+    """Indices of the focal length(s) in cam.params (COLMAP's order for cam.model)."""
+    return list(pycolmap.Camera(model=cam.model, width=cam.width, height=cam.height,
+                                params=np.asarray(cam.params, dtype=np.float64)
+                                ).focal_length_idxs())
+
+
+def _same_focals(a: Sequence[CameraIntrinsics], b: Sequence[CameraIntrinsics]) -> bool:
+    """Whether every focal of start a is within DUPLICATE_START_FOCAL_RATIO of start b's."""
+    def focals(cams):
+        return np.concatenate([np.asarray(c.params, dtype=np.float64)[_focal_idxs(c)]
+                               for c in cams])
+    return bool(np.all(np.abs(np.log(focals(a) / focals(b)))
+                       <= np.log(DUPLICATE_START_FOCAL_RATIO)))
+
+
 def _prior_focals(intrinsics: Sequence[CameraIntrinsics], ratio: float
                   ) -> list[CameraIntrinsics]:
     """The cameras with focal = ratio x max(width, height) px."""
     out = []
     for cam in intrinsics:
         params = np.array(cam.params, dtype=np.float64)
-        f_idx = list(pycolmap.Camera(model=cam.model, width=cam.width, height=cam.height,
-                                     params=params).focal_length_idxs())
-        params[f_idx] = ratio * max(cam.width, cam.height)
+        params[_focal_idxs(cam)] = ratio * max(cam.width, cam.height)
         out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
     return out
 
 
 def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float
                    ) -> list[CameraIntrinsics]:
+    """The cameras with their focal lengths multiplied by factor."""
     out = []
     for cam in intrinsics:
         params = np.array(cam.params, dtype=np.float64)
-        params[list(pycolmap.Camera(model=cam.model, width=cam.width, height=cam.height,
-                                    params=params).focal_length_idxs())] *= factor
+        params[_focal_idxs(cam)] *= factor
         out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
     return out
 
