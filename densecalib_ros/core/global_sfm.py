@@ -40,7 +40,7 @@ from .config import SfMConfig
 from .errors import (DisconnectedViewGraphError, FocalInitError, InputError,
                      NotEnoughCamerasError, NotEnoughOverlapError)
 from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost_truncation_px,
-                          run_incremental, truncated_cost)
+                          held_out_cost, run_incremental, truncated_cost)
 from .plausibility import (bundle_adjust_plausibly, drop_implausible_cameras,
                            implausible_cameras)
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
@@ -359,14 +359,17 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
 
 def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                camera_names: Sequence[str], config: SfMConfig, seed: int = 0,
-               progress: Progress = None, previous: Optional[RigCalibration] = None
-               ) -> GlobalResult:
+               progress: Progress = None, previous: Optional[RigCalibration] = None,
+               validation_tracks: Optional[Tracks] = None) -> GlobalResult:
     """Global SfM with staged BA (module docstring).
 
     tracks: (T, C, 2) COLMAP px observations; intrinsics: initial CameraIntrinsics per camera
     (model = config.camera_model, focal from the initial-focal step); previous: the calibration
-    to start from when config.global_init == "previous". Raises DisconnectedViewGraphError,
-    InputError (unknown init, missing/unusable previous calibration), NotEnoughCamerasError.
+    to start from when config.global_init == "previous"; validation_tracks: other tracks of the
+    same cameras (e.g. a sample of all keypoint matches) on which the incremental start's
+    multi-start and the choice between starts are judged (incremental.held_out_cost; None: on
+    the tracks themselves). Raises DisconnectedViewGraphError, InputError (unknown init,
+    missing/unusable previous calibration), NotEnoughCamerasError.
     """
     say = progress or log.info
     C = tracks.num_cameras
@@ -390,7 +393,8 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     for name in starts:
         try:
             candidates.append((name, *_refine_from_start(name, tracks, intrinsics, camera_names,
-                                                         config, seed, progress, previous)))
+                                                         config, seed, progress, previous,
+                                                         validation_tracks)))
         except (NotEnoughOverlapError, NotEnoughCamerasError, DisconnectedViewGraphError,
                 FocalInitError) as exc:
             if len(starts) == 1:
@@ -402,14 +406,22 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             "check that the cameras overlap and see textured scene content.")
     # Both starts are refined on the same observations; keep the better fit (no ground truth
     # needed): most cameras posed with plausible intrinsics, then the lowest truncated
-    # reprojection cost.
+    # reprojection cost, on the validation tracks where given (matches neither start was fitted
+    # to), else on the tracks.
     trunc = cost_truncation_px(config)
-    costs = [(-(len(cand[1].registered()) - len(implausible_cameras(cand[1]))),
-              truncated_cost(cand[1], trunc)) for cand in candidates]
+    judge = validation_tracks is not None and validation_tracks.num_tracks > 0
+
+    def cost(state: SfMState) -> float:
+        return (held_out_cost(state, validation_tracks, trunc, seed) if judge
+                else truncated_cost(state, trunc))
+    costs = [(-(len(cand[1].registered()) - len(implausible_cameras(cand[1]))), cost(cand[1]))
+             for cand in candidates]
     best = min(range(len(candidates)), key=lambda k: costs[k])
     init, state, stats, gauge, order = candidates[best]
     if len(candidates) > 1:
-        say("global starts (truncated reprojection cost): " + ", ".join(
+        judged_on = (f"{validation_tracks.num_tracks} keypoint-match tracks" if judge
+                     else "the sampled tracks")
+        say(f"global starts (truncated reprojection cost on {judged_on}): " + ", ".join(
             f"{cand[0]} {c[1]:.3f} px" for cand, c in zip(candidates, costs)) + f"; kept {init}")
     # Gross outliers took part in every stage under the robust loss; they are left out of the
     # result (its statistics and COLMAP model) only now, so the estimate does not depend on it.
@@ -435,7 +447,8 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
 
 def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                        camera_names: Sequence[str], config: SfMConfig, seed: int,
-                       progress: Progress, previous: Optional[RigCalibration]):
+                       progress: Progress, previous: Optional[RigCalibration],
+                       validation_tracks: Optional[Tracks] = None):
     """Initial poses from `init`, multi-view triangulation, gauge, staged BA.
     Returns (state, residual stats per stage, gauge camera, cameras by gauge score)."""
     say = progress or log.info
@@ -453,7 +466,7 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
             inc_config.b_err_px = (INCREMENTAL_B_ERR_FISHEYE_PX if "FISHEYE" in config.camera_model
                                    else INCREMENTAL_B_ERR_PX)
         state = run_incremental(tracks, intrinsics, camera_names, inc_config, seed=seed,
-                                progress=progress).state
+                                progress=progress, validation_tracks=validation_tracks).state
         poses = state.cam_from_world
         state.active = tracks.observed().copy()  # global: every observation, no B_err removal
     else:

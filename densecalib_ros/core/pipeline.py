@@ -146,7 +146,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     lengths (estimated from the F's when None); previous: the calibration the global pipeline
     starts from when config.sfm.global_init is "previous" (recalibration); match_tracks: every
     keypoint match as tracks (all_matches.keypoint_tracks), on which the incremental focal
-    multi-start is judged (a seeded sample) and the found rig is refined last, after cameras the
+    multi-start and the global pipeline's choice of start are judged (a seeded sample) and the
+    found rig is refined last, after cameras the
     matches contradict are moved (placement.py) (None: none of these)."""
     start = time.perf_counter()
     C = len(camera_names)
@@ -173,14 +174,14 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     say_progress(progress, "initial focals [px]: " + ", ".join(
         f"{n}={f:.0f}" for n, f in zip(camera_names, focal_px)))
     init = initial_intrinsics(image_sizes, focal_px, config.sfm.camera_model)
+    validation = None
+    if match_tracks is not None and match_tracks.num_tracks:
+        validation = match_tracks.sample(MULTISTART_MAX_TRACKS, seed)
     if config.pipeline == "global":
         from .global_sfm import run_global
         sfm = run_global(filtered, init, camera_names, config.sfm, seed=seed, progress=progress,
-                         previous=previous)
+                         previous=previous, validation_tracks=validation)
     else:
-        validation = None
-        if match_tracks is not None and match_tracks.num_tracks:
-            validation = match_tracks.sample(MULTISTART_MAX_TRACKS, seed)
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
                               progress=progress, validation_tracks=validation)
     state = sfm.state
