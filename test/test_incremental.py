@@ -113,19 +113,18 @@ def test_multistart_on_a_subsample_is_finished_on_every_track(monkeypatch):
     assert metrics["auc3"] > 85.0 and metrics["median_focal_err"] < 0.01
 
 
-def test_focal_starts_skip_a_prior_that_duplicates_a_scaled_start():
-    """A generic prior within DUPLICATE_START_FOCAL_RATIO of a scaled eq. 2 start for every camera
-    is not run again; priors far from every scaled start are kept, and fisheye models get none."""
+def test_focal_starts_are_eq2_scales_and_generic_priors_for_perspective_models():
+    """Perspective models start from eq. 2 scaled and from every generic prior (ratio x the long
+    side, for every camera alike, even where that is close to a scaled start); fisheye models,
+    whose initial focal is a lens-model prior already, only from the scales."""
     from densecalib_ros.core.incremental import focal_starts
 
-    sizes = [(1024, 768)] * 3
-    far = focal_starts(initial_intrinsics(sizes, np.full(3, 150.0), "RADIAL"))
-    assert {"prior 1.2", "prior 0.85", "prior 0.6"} <= set(far)
-    # 1.2 x 1024 = 1229 px: x1.00 (1200 px) is within 1.15x for every camera; 0.85 x 1024 = 870 px
-    # is within 1.15x of x0.80 (960 px) for all but the third camera (1300 x 0.8 = 1040 px).
-    near = focal_starts(initial_intrinsics(sizes, np.array([1200.0, 1150.0, 1300.0]), "RADIAL"))
-    assert "prior 1.2" not in near and "prior 0.85" in near and "prior 0.6" in near
-    assert {"x1.00", "x1.30", "x0.80", "x1.69"} <= set(near)
+    sizes = [(1024, 768), (1024, 768), (800, 600)]
+    starts = focal_starts(initial_intrinsics(sizes, np.array([1200.0, 1150.0, 1300.0]), "RADIAL"))
+    assert set(starts) == {"x1.00", "x1.30", "x0.80", "x1.69", "prior 1.2", "prior 0.85",
+                           "prior 0.6"}
+    assert [c.params[0] for c in starts["prior 0.85"]] == pytest.approx([870.4, 870.4, 680.0])
+    assert [c.params[0] for c in starts["x1.30"]] == pytest.approx([1560.0, 1495.0, 1690.0])
     fisheye = focal_starts(initial_intrinsics(sizes, np.full(3, 300.0), "OPENCV_FISHEYE"))
     assert set(fisheye) == {"x1.00", "x1.30", "x0.80"}
 
