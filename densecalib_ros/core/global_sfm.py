@@ -12,6 +12,9 @@ implementation details), initialised without VGGT.
    - "previous": a previous RigCalibration of the same cameras (recalibration: the cameras may
      have moved a little); its intrinsics are the starting intrinsics too.
    - "incremental": the result of the incremental pipeline (incremental.run_incremental).
+   With "rotation_averaging" and `global_multistart`, both it and "incremental" are refined and
+   the better fit is kept, judged like the incremental multi-start on matches neither was fitted
+   to (a sample of all keypoint matches) where the pipeline passes them.
 3. Points: every track is triangulated from all its views with pycolmap.estimate_triangulation
    (LO-RANSAC on reprojection error), and again from the refined cameras before every BA stage.
 4. Gauge: the world frame becomes the frame of the camera with the highest summed track score
