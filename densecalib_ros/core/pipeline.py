@@ -147,8 +147,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     starts from when config.sfm.global_init is "previous" (recalibration); match_tracks: every
     keypoint match as tracks (all_matches.keypoint_tracks), on which the incremental focal
     multi-start and the global pipeline's choice of start are judged (a seeded sample) and the
-    found rig is refined last, after cameras the
-    matches contradict are moved (placement.py) (None: none of these)."""
+    found rig is refined last, after cameras the matches contradict are moved (placement.py)
+    (None: none of these)."""
     start = time.perf_counter()
     C = len(camera_names)
     if tracks.num_cameras != C or len(image_sizes) != C:
