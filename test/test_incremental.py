@@ -230,7 +230,6 @@ def test_pair_registration_picks_the_focal_that_fits_the_two_view_tracks():
     assert np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 2.0
 
 
-
 def test_held_out_cost_counts_raw_matches_at_the_inlier_scale_not_b_err():
     """Raw keypoint matches are judged at HELD_OUT_TRUNCATION_PX whatever B_err: a wrong match
     costs that much, not 20 px, so many wrong matches (repetitive texture) cannot outweigh how
@@ -245,8 +244,8 @@ def test_held_out_cost_counts_raw_matches_at_the_inlier_scale_not_b_err():
         state.cam_from_world[c] = T
     right = held_out_cost(state, raw, truncation_px=20.0, seed=0)
     assert right == pytest.approx(held_out_cost(state, raw, HELD_OUT_TRUNCATION_PX, seed=0))
-    # ~40 % of the tracks hold one wrong observation of 2-4: at 20 px they would cost ~2-4 px.
-    assert 0.3 < right < 0.5 * HELD_OUT_TRUNCATION_PX
+    # ~40 % of the tracks hold one wrong observation of 2-4: at 20 px they cost 3.9 px.
+    assert 0.3 < right < 2.0
     turned = state.on_tracks(raw)
     turned.cam_from_world[2] = turned.cam_from_world[2].copy()
     turned.cam_from_world[2][:3, :3] = Rotation.from_euler("y", 0.3, degrees=True).as_matrix() \
