@@ -324,6 +324,19 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
         ros.remove(n)
 
 
+def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_path):
+    """Shutdown (destroy_node) while a calibration runs: the worker's publishing no longer kills
+    its thread, so the job is still answered and nobody is left waiting on it."""
+    node = ros.densecalib(tmp_path / "calib")
+    publish_frame_sets(ros, node, rig.images)
+    job = node.start_calibration("test")
+    assert job is not None
+    ros.remove(node)  # the calibration publishes its progress from here on
+    assert job.done.wait(CALIBRATION_TIMEOUT_S)
+    assert job.outcome is not None and not job.outcome.success
+    assert "shut down" in job.outcome.message
+
+
 def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
     """Bags of the rig's images (sqlite3 raw, mcap compressed png) replayed into the node calibrate
     to the same result; the live test above saw the same (lossless) images."""

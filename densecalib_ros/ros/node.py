@@ -34,6 +34,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -455,6 +456,9 @@ class DenseCalibNode(Node):
         except CalibrationError as exc:
             job.outcome = Outcome(False, f"calibration failed after "
                                          f"{time.perf_counter() - start:.1f} s: {exc}")
+        except InvalidHandle:  # destroy_node ran (shutdown) while the calibration was publishing
+            job.outcome = Outcome(False, "the node shut down before the calibration was "
+                                         "published (its files, if written, load at start-up)")
         except Exception as exc:  # a bug or an OS error must still answer the service call
             self.get_logger().error(f"calibration crashed: {exc!r}")
             job.outcome = Outcome(False, f"calibration crashed after "
@@ -622,7 +626,10 @@ class DenseCalibNode(Node):
     # ----------------------------------------------------------------- status
     def _set_status(self, text: str, log: bool = True) -> None:
         self._status = text
-        self._status_pub.publish(String(data=text))
+        try:
+            self._status_pub.publish(String(data=text))
+        except InvalidHandle:  # destroyed (shutdown) while a calibration runs or ends
+            pass
         if log:
             self.get_logger().info(text)
 
