@@ -121,3 +121,23 @@ def test_wrong_strong_pairs_raise():
     _corrupt(F, counts, [(i, j) for i, j in F if j - i > 1], count=max(counts.values()))
     with pytest.raises(FocalInitError, match="weighted median residual"):
         estimate_initial_focals(F, pair_weights(counts), sizes)
+
+
+def test_known_focals_are_held_and_set_the_scale_of_the_others():
+    focals, sizes, F, counts = make_rig(seed=0, noise_px=0.5)
+    known = np.full(6, np.nan)
+    known[[0, 2]] = focals[[0, 2]]
+    est = estimate_initial_focals(F, pair_weights(counts), sizes, known_px=known)
+    assert est[0] == focals[0] and est[2] == focals[2]
+    np.testing.assert_allclose(est, focals, rtol=0.03)
+    # Known focals 20 % long pull the free cameras along with them (one scale for the rig).
+    est_long = estimate_initial_focals(F, pair_weights(counts), sizes, known_px=1.2 * known)
+    assert np.median(est_long[[1, 3, 4, 5]] / focals[[1, 3, 4, 5]]) > 1.05
+    # A camera without a usable pair is no error when its focal is known.
+    lonely = {k: (None if 5 in k else v) for k, v in F.items()}
+    with pytest.raises(FocalInitError, match=r"camera\(s\) \[5\]"):
+        estimate_initial_focals(lonely, pair_weights(counts), sizes)
+    known[5] = focals[5]
+    est = estimate_initial_focals(lonely, pair_weights(counts), sizes, known_px=known)
+    assert est[5] == focals[5]
+    np.testing.assert_allclose(est, focals, rtol=0.03)

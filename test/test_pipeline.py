@@ -11,7 +11,7 @@ from densecalib_ros.core.errors import (InputError, NotEnoughCamerasError,
                                         NotEnoughOverlapError)
 from densecalib_ros.core.matching import create_matcher
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.pipeline import calibrate_rig, run_calibration
+from densecalib_ros.core.pipeline import calibrate_rig, run_calibration, start_focals
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
@@ -115,8 +115,8 @@ def test_pipeline_stops_after_three_agreeing_runs_and_single_run_has_no_consensu
 
 
 def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
-    """initial_focal_px (CLI --focal-px, node initial_focal_px) replaces the eq. 2 estimate as
-    the start of sampling and SfM; the SfM still refines it."""
+    """initial_focal_px (CLI --focal-px, node initial_focal_px) replaces the eq. 2 estimate in
+    the sampling and as the SfM's start; the SfM still refines it."""
     gt = rig.ground_truth()
     truth = np.array([gt.cameras[n].intrinsics.params[0] for n in rig.names])
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
@@ -135,3 +135,45 @@ def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
             run_calibration([rig.images[0]], rig.names,
                             make_config("regular", matcher="sift", consensus_runs=1,
                                         initial_focal_px=hint))
+
+
+def test_exif_focals_start_the_cameras_they_name_below_the_users_and_a_previous_calibration(rig):
+    """config.exif_focal_px (the offline command reads it from the images' EXIF) is the start of
+    the cameras it names; the others are estimated (eq. 2, at the named cameras' scale)."""
+    gt = rig.ground_truth()
+    truth = np.array([gt.cameras[n].intrinsics.params[0] for n in rig.names])
+    names, sizes = rig.names, [(640, 480)] * 4
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
+                         exif_focal_px={names[0]: 1.05 * truth[0], "not-a-camera": 999.0})
+    result = run_calibration([rig.images[0]], names, config)
+    assert result.focal_init_px[0] == pytest.approx(1.05 * truth[0])
+    assert np.all(np.isfinite(result.focal_init_px)) and result.rig.quality["exif_focal_px"] == {
+        names[0]: pytest.approx(1.05 * truth[0], abs=0.1), "not-a-camera": 999.0}
+    metrics = evaluate_calibration(result.rig, gt)
+    assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
+
+    exif = {n: 800.0 for n in names}
+    user_some = {names[0]: 700.0, names[1]: 710.0, names[2]: 720.0}
+    np.testing.assert_allclose(  # the user's focals first, EXIF for the rest
+        start_focals(make_config(initial_focal_px=user_some, exif_focal_px=exif), None, names,
+                     sizes), [700.0, 710.0, 720.0, 800.0])
+    np.testing.assert_allclose(  # a previous calibration of the same cameras before EXIF
+        start_focals(make_config(exif_focal_px=exif), gt, names, sizes), truth)
+
+
+def test_known_focals_add_a_start_and_keep_the_eq2_start():
+    """With the true focals as the only start, SfM on this 3-camera rig (40 deg apart) picks the
+    wide first pair, whose relative pose the still unmodelled distortion turns by ~11 deg, and
+    ends in a wrong rig (AUC@3 22); from eq. 2's start it ends right. Known focals (user, EXIF)
+    therefore join the multi-start beside eq. 2 and the matches decide."""
+    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", seed=704, gap_deg=40.0,
+                               max_arc_deg=360.0))
+    gt = rig.ground_truth()
+    truth = {n: float(gt.cameras[n].intrinsics.params[0]) for n in rig.names}
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
+                         initial_focal_px=truth)
+    messages = []
+    result = run_calibration([rig.images[0]], rig.names, config, progress=messages.append)
+    metrics = evaluate_calibration(result.rig, gt)
+    assert metrics["auc3"] >= 90.0 and metrics["median_focal_err"] <= 0.02
+    assert any(m.startswith("focal multi-start") and "eq. 2:" in m for m in messages)

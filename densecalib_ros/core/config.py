@@ -79,8 +79,14 @@ class PipelineConfig:
     # Focal lengths the user knows [px] (lens datasheet: f_mm / pixel pitch in mm, or
     # (width / 2) / tan(horizontal FOV / 2)): camera name -> px, "*" for every camera not named.
     # They replace the estimate from the fundamental matrices (eq. 2; fisheye: the equidistant
-    # assumption) as the SfM's start; the SfM still refines them. Empty: estimated.
+    # assumption) in the sampling and as the base of the SfM's focal multi-start; for perspective
+    # models eq. 2's focals stay one more start (pipeline.calibrate_from_tracks). The SfM still
+    # refines them. Empty: estimated.
     initial_focal_px: dict = field(default_factory=dict)
+    # Focal lengths from the images' EXIF [px] (core/exif.py; the offline command fills it for
+    # image folders): camera name -> px. A start like initial_focal_px but below it and below a
+    # previous calibration's; cameras without one start from the estimate.
+    exif_focal_px: dict = field(default_factory=dict)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 

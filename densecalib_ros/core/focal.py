@@ -68,13 +68,16 @@ def essential_residual(F_ji: np.ndarray, K_i: np.ndarray, K_j: np.ndarray) -> fl
 
 
 def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
-                            principal_points: Optional[list] = None) -> np.ndarray:
+                            principal_points: Optional[list] = None,
+                            known_px: Optional[np.ndarray] = None) -> np.ndarray:
     """Focal length in pixels per camera, (C,) float64, from fundamental matrices of camera pairs.
 
     F: {(i, j): F_ji (3, 3) with x_j^T F_ji x_i = 0 on COLMAP pixels, or None}.
     weights: {(i, j): w_ij} (paper: n_ij / max n); pairs with weight <= 0 are ignored.
     image_sizes: [(width, height)] per camera; principal_points: [(cx, cy)] COLMAP px per camera,
       default the image centre (w / 2, h / 2).
+    known_px: (C,) focals already known [px], NaN where not: held fixed, so they set the scale the
+      others are solved at (eq. 2 alone tends to miss by a factor common to all cameras).
     Raises FocalInitError when a camera has no usable pair, or when the least-squares problem
     does not converge to focals inside [0.1, 20] * max(w, h) with consistent F's.
     """
@@ -94,8 +97,10 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
         pairs.append((i, j))
         F_list.append(F_ji / s[0])
         w_list.append(w)
+    known = np.full(num_cams, np.nan) if known_px is None else np.asarray(known_px, np.float64)
+    fixed = np.isfinite(known)
     covered = {c for p in pairs for c in p}
-    missing = [c for c in range(num_cams) if c not in covered]
+    missing = [c for c in range(num_cams) if c not in covered and not fixed[c]]
     if missing:
         raise FocalInitError(
             f"No usable fundamental matrix for camera(s) {missing}: they share too few "
@@ -106,6 +111,17 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     log_prior = np.log(PRIOR_FOCAL_FACTOR * sizes)
     lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)
     upper = np.log(FOCAL_BOUNDS_FACTOR[1] * sizes)
+    # The solver moves the free cameras' log focals only; known ones stay in place.
+    free = ~fixed
+    if not free.any():
+        return known.copy()
+    log_known = np.log(np.where(fixed, known, 1.0))
+    log_prior = np.where(fixed, log_known, log_prior)
+
+    def full(x_free: np.ndarray) -> np.ndarray:
+        log_f = log_known.copy()
+        log_f[free] = x_free
+        return log_f
 
     F_stack = np.stack(F_list)  # (P, 3, 3)
     idx_i = np.array([i for i, _ in pairs])
@@ -166,19 +182,22 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     # best one (by eq. 2 cost) is then polished on eq. 2 itself.
     best, best_cost = None, np.inf
     for factor in RESTART_FACTORS:
-        x0 = np.clip(log_prior + np.log(factor), lower + 1e-6, upper - 1e-6)
+        x0 = np.clip(log_prior + np.log(factor), lower + 1e-6, upper - 1e-6)[free]
         try:
-            res = least_squares(smooth_residuals, x0, bounds=(lower, upper), loss="cauchy",
+            res = least_squares(lambda x: smooth_residuals(full(x)), x0,
+                                bounds=(lower[free], upper[free]), loss="cauchy",
                                 f_scale=ROBUST_SCALE / 3.0, max_nfev=100 * (num_cams + 1))
-            cost = float(np.sum(np.log1p((weights_arr * pair_residuals(res.x) / ROBUST_SCALE)
-                                         ** 2)))
+            r = weights_arr * pair_residuals(full(res.x)) / ROBUST_SCALE
+            cost = float(np.sum(np.log1p(r ** 2)))
         except ValueError as exc:  # non-finite residuals from a pathological F
             LOG.debug("focal restart %.1f failed: %s", factor, exc)
             continue
         if np.isfinite(cost) and cost < best_cost:
             best, best_cost = res, cost
     if best is not None:
-        polished = least_squares(residuals, best.x, jac=jacobian, bounds=(lower, upper),
+        polished = least_squares(lambda x: residuals(full(x)), best.x,
+                                 jac=lambda x: jacobian(full(x))[:, free],
+                                 bounds=(lower[free], upper[free]),
                                  loss="cauchy", f_scale=ROBUST_SCALE, max_nfev=50 * num_cams)
         if np.all(np.isfinite(polished.x)):
             best = polished
@@ -187,9 +206,11 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
             "Initial focal estimation did not converge: the fundamental matrices are degenerate. "
             "Use more overlapping views or scene texture, or "
             + KNOWN_FOCALS_HINT)
-    focal = np.exp(best.x)
-    at_bound = np.abs(best.x - lower) < 1e-3 * np.abs(lower) + 1e-6
-    at_bound |= np.abs(best.x - upper) < 1e-3 * np.abs(upper) + 1e-6
+    log_f = full(best.x)
+    focal = np.where(fixed, known, np.exp(log_f))
+    at_bound = np.abs(log_f - lower) < 1e-3 * np.abs(lower) + 1e-6
+    at_bound |= np.abs(log_f - upper) < 1e-3 * np.abs(upper) + 1e-6
+    at_bound &= ~fixed
     if np.any(at_bound):
         bad = np.flatnonzero(at_bound).tolist()
         raise FocalInitError(
@@ -197,7 +218,7 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
             f"{FOCAL_BOUNDS_FACTOR[1]}] x image size: the fundamental matrices are inconsistent "
             "(wrong matches or a degenerate camera configuration). Check the overlap between "
             "cameras, or " + KNOWN_FOCALS_HINT)
-    median_residual = weighted_median(np.abs(pair_residuals(best.x)), weights_arr)
+    median_residual = weighted_median(np.abs(pair_residuals(log_f)), weights_arr)
     if median_residual > MAX_MEDIAN_RESIDUAL:
         raise FocalInitError(
             f"Initial focals do not fit the fundamental matrices (weighted median residual "

@@ -363,7 +363,8 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
 def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                camera_names: Sequence[str], config: SfMConfig, seed: int = 0,
                progress: Progress = None, previous: Optional[RigCalibration] = None,
-               validation_tracks: Optional[Tracks] = None) -> GlobalResult:
+               validation_tracks: Optional[Tracks] = None,
+               extra_starts: Optional[dict] = None) -> GlobalResult:
     """Global SfM with staged BA (module docstring).
 
     tracks: (T, C, 2) COLMAP px observations; intrinsics: initial CameraIntrinsics per camera
@@ -371,8 +372,9 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     to start from when config.global_init == "previous"; validation_tracks: other tracks of the
     same cameras (e.g. a sample of all keypoint matches) on which the incremental start's
     multi-start and the choice between starts are judged (incremental.held_out_cost; None: on
-    the tracks themselves). Raises DisconnectedViewGraphError, InputError (unknown init,
-    missing/unusable previous calibration), NotEnoughCamerasError.
+    the tracks themselves); extra_starts: more named starting intrinsics for the incremental
+    start's focal multi-start (run_incremental). Raises DisconnectedViewGraphError, InputError
+    (unknown init, missing/unusable previous calibration), NotEnoughCamerasError.
     """
     say = progress or log.info
     C = tracks.num_cameras
@@ -397,7 +399,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         try:
             candidates.append((name, *_refine_from_start(name, tracks, intrinsics, camera_names,
                                                          config, seed, progress, previous,
-                                                         validation_tracks)))
+                                                         validation_tracks, extra_starts)))
         except (NotEnoughOverlapError, NotEnoughCamerasError, DisconnectedViewGraphError,
                 FocalInitError) as exc:
             if len(starts) == 1:
@@ -451,7 +453,8 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
 def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                        camera_names: Sequence[str], config: SfMConfig, seed: int,
                        progress: Progress, previous: Optional[RigCalibration],
-                       validation_tracks: Optional[Tracks] = None):
+                       validation_tracks: Optional[Tracks] = None,
+                       extra_starts: Optional[dict] = None):
     """Initial poses from `init`, multi-view triangulation, gauge, staged BA.
     Returns (state, residual stats per stage, gauge camera, cameras by gauge score)."""
     say = progress or log.info
@@ -469,7 +472,8 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
             inc_config.b_err_px = (INCREMENTAL_B_ERR_FISHEYE_PX if "FISHEYE" in config.camera_model
                                    else INCREMENTAL_B_ERR_PX)
         state = run_incremental(tracks, intrinsics, camera_names, inc_config, seed=seed,
-                                progress=progress, validation_tracks=validation_tracks).state
+                                progress=progress, validation_tracks=validation_tracks,
+                                extra_starts=extra_starts).state
         poses = state.cam_from_world
         state.active = tracks.observed().copy()  # global: every observation, no B_err removal
     else:

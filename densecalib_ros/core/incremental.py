@@ -310,7 +310,9 @@ def _triangulate_new(state: SfMState, max_error_px: float) -> int:
 def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                     camera_names: Sequence[str], config: SfMConfig, seed: int = 0,
                     progress: Optional[Callable[[str], None]] = None,
-                    validation_tracks: Optional[Tracks] = None) -> IncrementalResult:
+                    validation_tracks: Optional[Tracks] = None,
+                    extra_starts: Optional[dict[str, list[CameraIntrinsics]]] = None
+                    ) -> IncrementalResult:
     """Register the rig's cameras one by one and refine them (module docstring).
 
     tracks: (T, C, 2) COLMAP px observations; intrinsics: initial CameraIntrinsics per camera
@@ -330,9 +332,11 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     (`truncated_cost`). A trial can fit the tracks it was built from better than the right rig
     does and still fit the matches it never saw worse (a 3-camera rig: 0.33 vs 0.41 px on its
     samples, 2.17 vs 2.02 px on the other matches), so the left-out matches judge more fairly.
+    extra_starts: more named starting intrinsics for the multi-start (the eq. 2 estimate where
+    `intrinsics` hold known focals: pipeline.calibrate_from_tracks).
     """
     say = progress or (lambda msg: None)
-    starts = focal_starts(intrinsics)
+    starts = {**focal_starts(intrinsics), **(extra_starts or {})}
     sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
     costs, trials = {}, {}
     for name, start in starts.items():

@@ -19,7 +19,8 @@ import pycolmap
 
 from .all_matches import keypoint_tracks, refine_on_tracks
 from .config import PipelineConfig
-from .errors import CalibrationError, InputError, NotEnoughCamerasError, NotEnoughOverlapError
+from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughCamerasError,
+                     NotEnoughOverlapError)
 from .focal import estimate_initial_focals
 from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .placement import repair_placements
@@ -138,6 +139,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                           two_view: Optional[dict] = None, focal_px: Optional[np.ndarray] = None,
                           previous: Optional[RigCalibration] = None,
                           match_tracks: Optional[Tracks] = None,
+                          known_focals: bool = False,
                           progress: Progress = None) -> CalibrationResult:
     """Calibrate from sampled tracks.
 
@@ -148,7 +150,13 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     keypoint match as tracks (all_matches.keypoint_tracks), on which the incremental focal
     multi-start and the global pipeline's choice of start are judged (a seeded sample) and the
     found rig is refined last, after cameras the matches contradict are moved (placement.py)
-    (None: none of these)."""
+    (None: none of these); known_focals: focal_px are known ones (the user's, EXIF), not eq. 2's.
+
+    Known focals add a start to the SfM's focal multi-start; they do not take the eq. 2 start's
+    place. The path SfM takes depends on the start, not only on how close it is: from the true
+    focals (no distortion yet) a 3-camera rig 40 deg apart chose another first pair, whose
+    relative pose the unmodelled distortion had turned 11 deg, and ended wrong (AUC@3 22); from
+    eq. 2's focals, 3-32 % short, it ended right (100), and fitted all matches better."""
     start = time.perf_counter()
     C = len(camera_names)
     if tracks.num_cameras != C or len(image_sizes) != C:
@@ -174,16 +182,20 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     say_progress(progress, "initial focals [px]: " + ", ".join(
         f"{n}={f:.0f}" for n, f in zip(camera_names, focal_px)))
     init = initial_intrinsics(image_sizes, focal_px, config.sfm.camera_model)
+    extra_starts = _eq2_start(filtered, two_view, image_sizes, config, progress) \
+        if known_focals else None
     validation = None
     if match_tracks is not None and match_tracks.num_tracks:
         validation = match_tracks.sample(MULTISTART_MAX_TRACKS, seed)
     if config.pipeline == "global":
         from .global_sfm import run_global
         sfm = run_global(filtered, init, camera_names, config.sfm, seed=seed, progress=progress,
-                         previous=previous, validation_tracks=validation)
+                         previous=previous, validation_tracks=validation,
+                         extra_starts=extra_starts)
     else:
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
-                              progress=progress, validation_tracks=validation)
+                              progress=progress, validation_tracks=validation,
+                              extra_starts=extra_starts)
     state = sfm.state
     moved: list[str] = []
     if match_tracks is not None and match_tracks.num_tracks:
@@ -208,15 +220,32 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                              focal_init_px=focal_px)
 
 
+def _eq2_start(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, int]],
+               config: PipelineConfig, progress: Progress) -> Optional[dict]:
+    """{"eq. 2": intrinsics at the eq. 2 focals} where they can be estimated (perspective
+    models), else None."""
+    if "FISHEYE" in config.sfm.camera_model:
+        return None
+    try:
+        focal = initial_focals(tracks, two_view, image_sizes)
+    except FocalInitError as exc:
+        say_progress(progress, f"no eq. 2 start beside the known focals: {exc}")
+        return None
+    return {"eq. 2": initial_intrinsics(image_sizes, focal, config.sfm.camera_model)}
+
+
 def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
                  camera_names: Sequence[str], image_sizes: Sequence[tuple[int, int]]
                  ) -> Optional[np.ndarray]:
-    """(C,) focal px the calibration starts from instead of estimating them, or None: the user's
-    config.initial_focal_px, else a previous calibration's focals. InputError when the user's
-    focals name unknown cameras, are not positive, or leave a camera without a focal."""
+    """(C,) focal px the calibration starts from instead of estimating them, or None. Per camera,
+    first found: the user's config.initial_focal_px, a previous calibration's focal, the images'
+    EXIF focal (config.exif_focal_px). NaN for a camera only EXIF could have named and did not:
+    its focal is estimated (sampling.sample_tracks). InputError when the user's focals name
+    unknown cameras, are not positive, or leave a camera without a focal."""
     hint = dict(config.initial_focal_px or {})
+    exif = {k: v for k, v in (config.exif_focal_px or {}).items() if k in camera_names}
     focal = _previous_focals(previous, camera_names, image_sizes)
-    if not hint:
+    if not hint and not exif:
         return focal
     unknown = sorted(set(hint) - set(camera_names) - {"*"})
     if unknown:
@@ -230,8 +259,10 @@ def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
         value = hint.get(name, hint.get("*"))
         if value is not None:
             out[c] = float(value)
+        elif not np.isfinite(out[c]) and name in exif:
+            out[c] = float(exif[name])
     missing = [n for n, f in zip(camera_names, out) if not np.isfinite(f)]
-    if missing:
+    if missing and hint:
         raise InputError(f"No initial focal length for camera(s) {', '.join(missing)}: give one "
                          "per camera, or one for all ('*', e.g. --focal-px 800).")
     return out
@@ -382,10 +413,11 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                                 focal_px=start_focals(config, previous, camera_names,
                                                       image_sizes))
     say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
+    known = previous is None and bool(config.initial_focal_px or config.exif_focal_px)
     return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
                                  two_view=sampled.two_view, focal_px=sampled.focal_px,
                                  previous=previous, match_tracks=match_tracks,
-                                 progress=progress)
+                                 known_focals=known, progress=progress)
 
 
 def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
@@ -407,6 +439,9 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
                                     previous=previous, progress=progress)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
+    if config.exif_focal_px:
+        result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
+                                               for n, f in config.exif_focal_px.items()}
     return result
 
 

@@ -154,7 +154,8 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
     """Cycle-consistent, spatially balanced, scored tracks from the matches of every time step.
 
     match_sets: one SiteMatchSet per time step (same cameras and image sizes).
-    focal_px: (C,) initial focals to use instead of estimating them from the F's.
+    focal_px: (C,) initial focals to use instead of estimating them from the F's (NaN: estimate
+      that camera's).
     cam_from_rig, intrinsics: a known calibration (refinement/recalibration): poses (4x4 per
       camera) and COLMAP intrinsics give the triangulation angles directly; intrinsics alone give
       the rays (and focals).
@@ -228,8 +229,9 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
 
     # --- initial focals ----------------------------------------------------------------------
     clock = time.perf_counter()
-    if focal_px is not None:
-        focal = np.asarray(focal_px, np.float64).reshape(num_cams)
+    given = None if focal_px is None else np.asarray(focal_px, np.float64).reshape(num_cams)
+    if given is not None and np.isfinite(given).all():
+        focal = given
         stats["focal_source"] = "given"
     elif intrinsics is not None:
         focal = np.array([_focal_hint(intrinsics, fisheye_focal, c) for c in range(num_cams)])
@@ -239,9 +241,12 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
         stats["focal_source"] = f"equidistant {FISHEYE_ASSUMED_FOV_DEG:.0f} deg assumption"
     else:
         F = {k: g.F_ji for k, g in two_view.items() if not (fisheye[k[0]] or fisheye[k[1]])}
-        focal = estimate_initial_focals(F, weights, sizes)
+        focal = estimate_initial_focals(F, weights, sizes, known_px=given)
         focal[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]
         stats["focal_source"] = "fundamental matrices (eq. 2)"
+    if given is not None and not np.isfinite(given).all():  # NaN: estimate this camera's focal
+        focal = np.where(np.isfinite(given), given, focal)
+        stats["focal_source"] = "given, the rest " + stats["focal_source"]
     stats["timing_s"]["focal"] = time.perf_counter() - clock
 
     # --- relative poses ----------------------------------------------------------------------
