@@ -9,6 +9,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2
 import numpy as np
 import pytest
+from PIL import Image
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.export import read_calibration
@@ -100,3 +101,31 @@ def test_recalibration_from_previous_reports_change(rig_dir, tmp_path, capsys):
     # Same images: nothing moved, so the reported change is small.
     for change in quality["change_vs_previous"].values():
         assert abs(change["focal_change_pct"]) < 1.0 and change["rotation_change_deg"] < 0.5
+
+
+def test_exif_focal_lengths_are_read_from_the_images_and_can_be_ignored(rig_dir, tmp_path):
+    """JPEGs carrying FocalLengthIn35mmFilm (as phones write it): the command starts from those
+    focals, records them in quality.exif_focal_px, and --ignore-exif leaves them out."""
+    gt, _ = read_ground_truth(rig_dir / "ground_truth.json")
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    written = {}
+    for name, cam in gt.cameras.items():
+        w, h = cam.intrinsics.width, cam.intrinsics.height
+        f35 = round(cam.intrinsics.params[0] * np.hypot(36, 24) / np.hypot(w, h))  # whole mm
+        written[name] = f35 * np.hypot(w, h) / np.hypot(36, 24)
+        exif = Image.Exif()
+        exif[0x010F] = "densecalib test"  # Make
+        exif.get_ifd(0x8769)[0xA405] = f35  # FocalLengthIn35mmFilm
+        Image.open(rig_dir / name / "0000.png").convert("RGB").save(
+            photos / f"{name}.jpg", quality=95, exif=exif)
+    common = ["calibrate", "--images", str(photos), "--matcher", "sift", "--threads", "1",
+              "--consensus-runs", "1"]
+    assert main([*common, "--out", str(tmp_path / "out")]) == 0
+    quality = json.loads((tmp_path / "out" / "calibration.json").read_text())["quality"]
+    assert quality["exif_focal_px"] == pytest.approx(written, abs=0.1)
+    metrics = evaluate_calibration(read_calibration(tmp_path / "out"), gt)
+    assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
+    assert main([*common, "--out", str(tmp_path / "plain"), "--ignore-exif"]) == 0
+    quality = json.loads((tmp_path / "plain" / "calibration.json").read_text())["quality"]
+    assert "exif_focal_px" not in quality

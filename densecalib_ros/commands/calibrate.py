@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "starts from them instead of estimating them, and still refines "
                              "them. From a datasheet: focal_mm / pixel_pitch_mm, or "
                              "(width / 2) / tan(horizontal_fov / 2)")
+    parser.add_argument("--ignore-exif", action="store_true",
+                        help="do not start from the focal lengths in the images' EXIF (use it "
+                             "when the images were cropped, or taken with digital zoom)")
     parser.add_argument("--consensus-runs", type=int, default=5, metavar="N",
                         help="sample + SfM up to N times with different seeds and keep the run "
                              "that agrees best with the others (default 5; it stops after 3 runs "
@@ -72,6 +75,20 @@ def _read_input(args):
     from ..core.bag import read_frame_sets
     return read_frame_sets(args.bag, args.topics, slop_s=args.slop,
                            max_frame_sets=args.max_frame_sets)
+
+
+def _exif_focals(directory, frame_sets, names) -> dict:
+    """{camera: focal px} from the EXIF of every image of the folder (core.exif), logged."""
+    from ..core.exif import camera_exif_focals
+    from ..core.image_io import list_image_folder
+
+    paths, _ = list_image_folder(directory)
+    sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
+    focals = camera_exif_focals(paths, names, sizes)
+    if focals:
+        log.info("EXIF focal lengths (a start; --ignore-exif to skip them): %s", ", ".join(
+            f"{n}={f:.0f} px" for n, f in focals.items()))
+    return focals
 
 
 def parse_focal_px(values: Optional[list[str]]) -> dict:
@@ -101,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
         frame_sets, names = _read_input(args)
+        if args.images and not args.ignore_exif:
+            config.exif_focal_px = _exif_focals(args.images, frame_sets, names)
         log.info("%d camera(s) (%s), %d frame set(s); preset %s, %s pipeline, matcher %s",
                  len(names), ", ".join(names), len(frame_sets), config.preset, config.pipeline,
                  config.matcher)

@@ -1,0 +1,112 @@
+"""Focal lengths from the EXIF metadata of image files (the offline command's image folders).
+
+Phones, DSLRs and many trail cameras record the lens focal length in EXIF. It is turned into
+pixels of the image as it is now, in one of two ways (COLMAP's image reader does the same):
+- FocalLengthIn35mmFilm: the focal length a 36 x 24 mm frame needs for the same field of view.
+  The equivalence is on the frame diagonal (CIPA DC-008), so f_px = f_35mm * diagonal_px /
+  43.27 mm. It holds at any resolution the image was scaled to.
+- FocalLength [mm] with FocalPlaneXResolution / FocalPlaneResolutionUnit (sensor pixels per
+  unit at the size PixelXDimension x PixelYDimension, else at the image's own size):
+  f_px = f_mm * pixels_per_mm, scaled by the image's long side over that size's long side.
+A file with neither, or whose value is outside 0.1-10x its long side, has no EXIF focal.
+
+EXIF describes the camera that took the picture, not what was done to the file afterwards (a
+cropped image keeps its tags; digital zoom may not be recorded). So an EXIF focal is only where the
+SfM starts, like a user's --focal-px: the focal multi-start still tries the scaled and generic
+starts and keeps the one that fits all the matches best, and bundle adjustment refines the focal.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+from typing import Optional, Sequence
+
+log = logging.getLogger(__name__)
+
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)  # 43.27 mm, the 35 mm format's diagonal
+# mm per FocalPlaneResolutionUnit: 2 inch, 3 cm (EXIF 2.3); 4 mm and 5 um are written by some
+# cameras although the standard stops at 3. 1 ("no unit") carries no scale.
+RESOLUTION_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
+PLAUSIBLE_FOCAL_RATIO = (0.1, 10.0)  # focal / long side: outside this the tag is not trusted
+# Images of one camera whose EXIF focals differ by more than this were taken at different zoom
+# settings; no single start fits them and the calibration assumes fixed intrinsics.
+CONSISTENT_FOCAL_REL = 0.01
+
+# EXIF tag numbers (Exif sub-IFD)
+_EXIF_IFD = 0x8769
+_FOCAL_LENGTH = 0x920A
+_FOCAL_LENGTH_35MM = 0xA405
+_FOCAL_PLANE_X_RESOLUTION = 0xA20E
+_FOCAL_PLANE_RESOLUTION_UNIT = 0xA210
+_PIXEL_X_DIMENSION = 0xA002
+_PIXEL_Y_DIMENSION = 0xA003
+
+
+def _positive(value) -> Optional[float]:
+    try:
+        v = float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
+
+
+def focal_px_from_tags(tags: dict, image_size: tuple[int, int]) -> Optional[float]:
+    """Focal length [px] of an image of image_size (width, height) px from its Exif sub-IFD
+    tags {tag number: value}, or None when they do not give one (module docstring)."""
+    w, h = image_size
+    long_side = float(max(w, h))
+    focal = None
+    f35 = _positive(tags.get(_FOCAL_LENGTH_35MM))
+    if f35 is not None:
+        focal = f35 * math.hypot(w, h) / FULL_FRAME_DIAGONAL_MM
+    else:
+        f_mm = _positive(tags.get(_FOCAL_LENGTH))
+        px_per_unit = _positive(tags.get(_FOCAL_PLANE_X_RESOLUTION))
+        unit_mm = RESOLUTION_UNIT_MM.get(tags.get(_FOCAL_PLANE_RESOLUTION_UNIT, 2))
+        if f_mm is not None and px_per_unit is not None and unit_mm is not None:
+            dims = [_positive(tags.get(tag)) for tag in (_PIXEL_X_DIMENSION, _PIXEL_Y_DIMENSION)]
+            recorded_long_side = max(dims) if all(dims) else long_side
+            focal = f_mm * px_per_unit / unit_mm * long_side / recorded_long_side
+    if focal is None:
+        return None
+    lo, hi = PLAUSIBLE_FOCAL_RATIO
+    if not lo * long_side <= focal <= hi * long_side:
+        log.warning("EXIF focal %.0f px is implausible for a %dx%d image: ignored", focal, w, h)
+        return None
+    return focal
+
+
+def exif_focal_px(path: str | os.PathLike, image_size: tuple[int, int]) -> Optional[float]:
+    """Focal length [px] that the EXIF of the image file at `path` gives for its size
+    image_size (width, height) as loaded, or None (no EXIF, no focal tags, unreadable)."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            tags = dict(im.getexif().get_ifd(_EXIF_IFD))
+    except Exception as exc:  # noqa: BLE001 - metadata is optional; the pixels were read already
+        log.debug("no EXIF from %s: %s", path, exc)
+        return None
+    return focal_px_from_tags(tags, image_size)
+
+
+def camera_exif_focals(paths: Sequence[Sequence[str | os.PathLike]], camera_names: Sequence[str],
+                       image_sizes: Sequence[tuple[int, int]]) -> dict[str, float]:
+    """{camera name: EXIF focal px} for the cameras whose images all give the same EXIF focal
+    (within CONSISTENT_FOCAL_REL; their median). paths[t][c]: camera c's file at time t;
+    image_sizes[c]: camera c's (width, height) as loaded. Cameras without one are left out, with
+    a warning where their images disagree (zoom changed between them)."""
+    out = {}
+    for c, name in enumerate(camera_names):
+        focals = [exif_focal_px(row[c], image_sizes[c]) for row in paths]
+        if not focals or any(f is None for f in focals):
+            continue
+        lo, hi = min(focals), max(focals)
+        if hi > lo * (1.0 + CONSISTENT_FOCAL_REL):
+            log.warning("Camera %s: its images' EXIF focal lengths differ (%.0f-%.0f px; zoom "
+                        "changed?): not used. The calibration assumes one focal per camera.",
+                        name, lo, hi)
+            continue
+        out[name] = sorted(focals)[len(focals) // 2]
+    return out
