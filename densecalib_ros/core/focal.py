@@ -111,14 +111,18 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     log_prior = np.log(PRIOR_FOCAL_FACTOR * sizes)
     lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)
     upper = np.log(FOCAL_BOUNDS_FACTOR[1] * sizes)
-    # The solver moves the free cameras' log focals only; known ones stay in place.
-    free = ~fixed
-    if not free.any():
+    # The solver moves the free cameras' log focals only; known ones stay in place. With none
+    # known it works on the arrays themselves: a copy through a boolean index changed the
+    # Jacobian's memory layout and the focals' last digits (0.04 %), which SfM can amplify.
+    if fixed.all():
         return known.copy()
+    free = ~fixed if fixed.any() else slice(None)
     log_known = np.log(np.where(fixed, known, 1.0))
     log_prior = np.where(fixed, log_known, log_prior)
 
     def full(x_free: np.ndarray) -> np.ndarray:
+        if not fixed.any():
+            return x_free
         log_f = log_known.copy()
         log_f[free] = x_free
         return log_f
