@@ -402,6 +402,7 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                     progress: Progress) -> CalibrationResult:
     from .sampling import sample_tracks
 
+    given = None
     if previous is not None and config.pipeline == "global" and config.sfm.global_init == "previous":
         from .global_sfm import working_models, poses_from_previous
 
@@ -409,11 +410,11 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                                                 working_models(config.sfm))
         sampled = sample_tracks(match_sets, config, cam_from_rig=poses, intrinsics=intrinsics)
     else:
-        sampled = sample_tracks(match_sets, config,
-                                focal_px=start_focals(config, previous, camera_names,
-                                                      image_sizes))
+        given = start_focals(config, previous, camera_names, image_sizes)
+        sampled = sample_tracks(match_sets, config, focal_px=given)
     say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
-    known = previous is None and bool(config.initial_focal_px or config.exif_focal_px)
+    # Focals the user or EXIF gave (a previous calibration's are calibrated, not guessed).
+    known = previous is None and given is not None
     return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
                                  two_view=sampled.two_view, focal_px=sampled.focal_px,
                                  previous=previous, match_tracks=match_tracks,
