@@ -83,6 +83,18 @@ def test_focal_px_option_is_checked(rig_dir, tmp_path, caplog):
     assert not (tmp_path / "o").exists()
 
 
+def test_lens_option_is_checked_before_matching(rig_dir, tmp_path, caplog):
+    for value, message in (("cam1=tele", "expected NAME=LENS with LENS pinhole or fisheye"),
+                           ("fisheye", "expected NAME=LENS"),
+                           ("cam9=fisheye", "unknown camera(s) cam9")):
+        caplog.clear()
+        with caplog.at_level(logging.ERROR):
+            rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),
+                       "--lens", value, "--consensus-runs", "1"])
+        assert rc == 2 and message in caplog.text
+    assert not (tmp_path / "o").exists()
+
+
 def test_bag_needs_topics(tmp_path, caplog):
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--bag", str(tmp_path / "x.bag"), "--out", str(tmp_path / "o")])

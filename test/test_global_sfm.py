@@ -235,5 +235,5 @@ def test_previous_cameras_of_another_model_are_re_expressed_in_the_preset_model(
     previous = RigCalibration("a", {"a": RigCamera("a", pinhole, np.eye(4)),
                                     "b": RigCamera("b", fisheye, np.eye(4))})
     intr, _ = poses_from_previous(previous, ["a", "b"], [(640, 480)] * 2,
-                                  ("RADIAL_FISHEYE", "OPENCV_FISHEYE"))
+                                  [("RADIAL_FISHEYE", "OPENCV_FISHEYE")] * 2)
     assert [c.model for c in intr] == ["RADIAL_FISHEYE", "OPENCV_FISHEYE"]  # the latter is kept

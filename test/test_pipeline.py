@@ -38,6 +38,49 @@ def test_generated_rig_recovers_ground_truth(rig):
     assert {im.name for im in result.reconstruction.images.values()} == set(rig.names)
 
 
+def test_rig_mixing_lenses_gets_each_cameras_lens_model():
+    """A fisheye camera among pinhole ones (camera_lens): it is calibrated as OPENCV_FISHEYE, the
+    others as RADIAL, and the rig is recovered."""
+    models = ("RADIAL", "OPENCV_FISHEYE", "RADIAL", "RADIAL")
+    rig = generate_rig(RigSpec(num_cameras=4, camera_models=models, width=640, height=480,
+                               seed=0))
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
+                         camera_lens={"cam1": "fisheye"})
+    result = run_calibration([rig.images[0]], rig.names, config)
+    assert [result.rig.cameras[n].intrinsics.model for n in rig.names] == [
+        "RADIAL", "OPENCV_FISHEYE", "RADIAL", "RADIAL"]
+    assert result.rig.quality["camera_lens"] == {"cam1": "fisheye"}
+    metrics = evaluate_calibration(result.rig, rig.ground_truth())
+    assert metrics["num_registered"] == 4
+    assert metrics["auc3"] >= 80.0
+    assert max(c["focal_err"] for c in metrics["cameras"].values()) <= 0.03
+    with pytest.raises(InputError, match="unknown camera"):
+        run_calibration([rig.images[0]], rig.names,
+                        make_config("regular", camera_lens={"cam7": "fisheye"}))
+
+
+def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
+    from densecalib_ros.core.config import resolve_camera_lenses
+
+    names = ["a", "b", "c"]
+    plain = make_config("regular")
+    assert resolve_camera_lenses(plain, names) is plain and plain.sfm.models(3) == ["RADIAL"] * 3
+    mixed = resolve_camera_lenses(make_config("regular", camera_lens={"c": "fisheye"}), names)
+    assert mixed.sfm.models(3) == ["RADIAL", "RADIAL", "RADIAL_FISHEYE"]
+    fisheye = make_config("fisheye")
+    for name in ("f_err_px", "b_err_px", "refine_to_model", "refine_principal_point"):
+        assert getattr(mixed.sfm, name) == getattr(fisheye.sfm, name), name
+    assert resolve_camera_lenses(mixed, names) is mixed  # idempotent
+    inverse = resolve_camera_lenses(make_config("fisheye", "global", camera_lens={"a": "pinhole"}),
+                                    names)
+    assert inverse.sfm.models(3) == ["RADIAL", "RADIAL_FISHEYE", "RADIAL_FISHEYE"]
+    assert inverse.sfm.b_err_px is None  # the global preset's
+    with pytest.raises(InputError, match="Unknown lens"):
+        resolve_camera_lenses(make_config(camera_lens={"a": "tele"}), names)
+    with pytest.raises(InputError, match="unknown camera"):
+        resolve_camera_lenses(make_config(camera_lens={"z": "fisheye"}), names)
+
+
 def test_loaded_matcher_is_reused_and_result_is_deterministic(rig):
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     matcher = create_matcher("sift", max_image_side_px=config.max_image_side_px)

@@ -224,6 +224,14 @@ def test_parameters_are_validated(ros, tmp_path):
         assert not result.successful and "one per camera (4)" in result.reason
         assert not node.set_parameters([Parameter("initial_focal_px",
                                                   value=[-1.0])])[0].successful
+        assert pipeline_config(node.settings).camera_lens == {}
+        lenses = ["pinhole", "fisheye", "pinhole", "pinhole"]
+        assert node.set_parameters([Parameter("camera_lens", value=lenses)])[0].successful
+        assert pipeline_config(node.settings).camera_lens == dict(zip(node.settings.camera_names,
+                                                                      lenses))
+        for bad in (["fisheye"], ["pinhole", "tele", "pinhole", "pinhole"]):
+            result = node.set_parameters([Parameter("camera_lens", value=bad)])[0]
+            assert not result.successful and "one lens per camera (4)" in result.reason
     finally:
         ros.remove(node)
 

@@ -179,6 +179,22 @@ def test_bad_spec_raises():
         generate_rig(RigSpec(camera_model="PINHOLE"))
     with pytest.raises(InputError, match="fov_deg"):
         generate_rig(RigSpec(camera_model="RADIAL", fov_deg=170.0))
+    with pytest.raises(InputError, match="one model per camera"):
+        generate_rig(RigSpec(num_cameras=3, camera_models=("RADIAL", "OPENCV_FISHEYE")))
+    with pytest.raises(InputError, match="fov_deg=70.0 for OPENCV_FISHEYE"):
+        generate_rig(RigSpec(num_cameras=3, fov_deg=70.0,
+                             camera_models=("RADIAL", "OPENCV_FISHEYE", "RADIAL")))
+
+
+def test_rig_mixing_lenses_draws_each_camera_of_its_model():
+    spec = dict(num_cameras=3, width=64, height=48, seed=5)
+    mixed = generate_rig(RigSpec(camera_models=("RADIAL", "OPENCV_FISHEYE", "RADIAL"), **spec))
+    assert [c.model for c in mixed.cameras] == ["RADIAL", "OPENCV_FISHEYE", "RADIAL"]
+    assert mixed.ray_limit_rad[1] > np.pi / 2 > mixed.ray_limit_rad[0]  # fisheye: beyond 90 deg
+    plain = generate_rig(RigSpec(**spec))
+    np.testing.assert_array_equal(plain.cameras[0].params,
+                                  generate_rig(RigSpec(camera_models=("RADIAL",) * 3,
+                                                       **spec)).cameras[0].params)
 
 
 def test_generate_command(tmp_path):
@@ -190,3 +206,10 @@ def test_generate_command(tmp_path):
     calib, _ = read_ground_truth(tmp_path / "out" / "ground_truth.json")
     assert calib.cameras["cam1"].intrinsics.model == "OPENCV_FISHEYE"
     assert cli_main(["generate", "--out", str(tmp_path / "bad"), "--cameras", "2"]) == 2
+    assert cli_main(["generate", "--out", str(tmp_path / "mixed"), "--cameras", "3", "--width",
+                     "64", "--height", "48", "--fisheye-cameras", "2"]) == 0
+    calib, _ = read_ground_truth(tmp_path / "mixed" / "ground_truth.json")
+    assert [calib.cameras[f"cam{c}"].intrinsics.model for c in range(3)] == [
+        "RADIAL", "RADIAL", "OPENCV_FISHEYE"]
+    assert cli_main(["generate", "--out", str(tmp_path / "bad"), "--cameras", "3",
+                     "--fisheye-cameras", "3"]) == 2

@@ -25,6 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="27 scenes never used to develop the method (22 generated pinhole "
                             "rigs with other seeds, camera counts and gaps, 2 fisheye rigs, 5, 8 "
                             "and 10 frames of the fox): how results carry over")
+    which.add_argument("--mixed", action="store_true",
+                       help="6 generated rigs of 3-8 cameras mixing fisheye and pinhole lenses "
+                            "(each camera calibrated with its lens's model; peers get each "
+                            "camera's model too)")
     parser.add_argument("--out", default="bench_out", help="folder for bench.json")
     parser.add_argument("--scenes", nargs="+", default=None, metavar="PATTERN",
                         help="only scenes whose name contains one of these (e.g. fisheye, "
@@ -40,9 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.bench import full_scenes, heldout_scenes, quick_scenes, run_bench
+    from ..core.bench import full_scenes, heldout_scenes, mixed_scenes, quick_scenes, run_bench
 
-    specs = quick_scenes() if args.quick else heldout_scenes() if args.heldout else full_scenes()
+    specs = (quick_scenes() if args.quick else heldout_scenes() if args.heldout
+             else mixed_scenes() if args.mixed else full_scenes())
     if args.scenes:
         specs = [s for s in specs if any(p in s.name for p in args.scenes)]
         if not specs:

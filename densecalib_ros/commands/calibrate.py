@@ -11,7 +11,8 @@ import argparse
 import logging
 from typing import Optional
 
-from ..core.config import DEFAULT_PIPELINE, PIPELINES, PRESETS, make_config
+from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
+                           resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
 
 log = logging.getLogger("densecalib.calibrate")
@@ -32,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="OUT", help="output folder (replaced)")
     parser.add_argument("--preset", choices=PRESETS, default="regular",
                         help="camera type: regular (RADIAL) or fisheye (OPENCV_FISHEYE)")
+    parser.add_argument("--lens", nargs="+", default=None, metavar="NAME=LENS",
+                        help="cameras whose lens differs from the preset's, for a rig mixing "
+                             "lenses: --lens cam3=fisheye (or NAME=pinhole under --preset "
+                             "fisheye); each camera is then calibrated with its lens's model")
     parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see README)")
     parser.add_argument("--matcher", default=None,
@@ -105,6 +110,18 @@ def parse_focal_px(values: Optional[list[str]]) -> dict:
     return out
 
 
+def parse_camera_lens(values: Optional[list[str]]) -> dict:
+    """--lens values -> {camera name: lens}; InputError on a malformed value."""
+    out = {}
+    for value in values or []:
+        name, _, lens = value.rpartition("=")
+        if not name or lens not in LENS_MODELS:
+            raise InputError(f"--lens {value!r}: expected NAME=LENS with LENS "
+                             f"{' or '.join(LENS_MODELS)} (e.g. --lens cam3=fisheye).")
+        out[name] = lens
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
     from ..core.pipeline import run_calibration
@@ -113,16 +130,19 @@ def run(args: argparse.Namespace) -> int:
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.threads,
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
-                     "initial_focal_px": parse_focal_px(args.focal_px)}
+                     "initial_focal_px": parse_focal_px(args.focal_px),
+                     "camera_lens": parse_camera_lens(args.lens)}
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
         frame_sets, names = _read_input(args)
+        config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
         if args.images and not args.ignore_exif:
             config.exif_focal_px = _exif_focals(args.images, frame_sets, names)
-        log.info("%d camera(s) (%s), %d frame set(s); preset %s, %s pipeline, matcher %s",
-                 len(names), ", ".join(names), len(frame_sets), config.preset, config.pipeline,
-                 config.matcher)
+        log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",
+                 len(names), ", ".join(names), len(frame_sets), config.preset,
+                 "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),
+                 config.pipeline, config.matcher)
         if args.previous:
             from ..core.export import read_calibration
             from ..core.recalibration import recalibrate

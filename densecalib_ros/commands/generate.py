@@ -18,6 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cameras", type=int, default=6, help="number of cameras, 3..10")
     parser.add_argument("--model", default="RADIAL", choices=["RADIAL", "OPENCV_FISHEYE"],
                         help="camera model of every camera")
+    parser.add_argument("--fisheye-cameras", type=int, nargs="+", default=(), metavar="INDEX",
+                        help="a rig mixing lenses: these cameras (0-based) are OPENCV_FISHEYE, "
+                             "the others --model")
     parser.add_argument("--width", type=int, default=1024)
     parser.add_argument("--height", type=int, default=768)
     parser.add_argument("--time-steps", type=int, default=1,
@@ -37,7 +40,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..core.synthetic import RigSpec, generate_rig, write_rig
 
-    spec = RigSpec(num_cameras=args.cameras, camera_model=args.model, width=args.width,
+    fisheye = set(args.fisheye_cameras)
+    if not fisheye <= set(range(args.cameras)):
+        log.error("--fisheye-cameras %s: the cameras are 0..%d.", sorted(fisheye),
+                  args.cameras - 1)
+        return 2
+    models = tuple("OPENCV_FISHEYE" if c in fisheye else args.model
+                   for c in range(args.cameras)) if fisheye else ()
+    spec = RigSpec(num_cameras=args.cameras, camera_model=args.model, camera_models=models,
+                   width=args.width,
                    height=args.height, num_time_steps=args.time_steps, seed=args.seed,
                    fov_deg=args.fov_deg, noise_std=args.noise_std, gap_deg=args.gap_deg,
                    max_arc_deg=args.max_arc_deg)
@@ -49,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         return 2
     log.info("Wrote %d cameras x %d time steps (%dx%d, %s) to %s in %.1f s", len(rig.names),
-             len(rig.images), spec.width, spec.height, spec.camera_model, args.out,
+             len(rig.images), spec.width, spec.height,
+             ", ".join(sorted(set(spec.camera_models or (spec.camera_model,)))), args.out,
              time.perf_counter() - t0)
     return 0

@@ -39,7 +39,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .config import SfMConfig
-from .incremental import final_stage, retriangulate_and_adjust
+from .incremental import final_adjustment, retriangulate_and_adjust
 from .plausibility import bundle_adjust_plausibly
 from .reconstruction import TRIANGULATION_MAX_ERROR_PX, SfMState, remove_outlier_observations
 from .types import SiteMatchSet, Tracks
@@ -124,7 +124,7 @@ def refine_on_tracks(state: SfMState, tracks: Tracks, camera_names: Sequence[str
     for _ in range(GATE_REFINEMENTS):
         if not remove_outlier_observations(refined, gate_px):
             break
-        bundle_adjust_plausibly(refined, camera_names, final_stage(config), config.num_threads)
+        final_adjustment(refined, camera_names, config)
     log.debug("refined on %d match tracks: %d points", tracks.num_tracks,
               int(refined.point_mask().sum()))
     return refined

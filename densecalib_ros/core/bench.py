@@ -62,6 +62,7 @@ class SceneSpec:
     max_side_px: int = 1024
     gap_deg: float = 20.0
     max_arc_deg: float = 140.0
+    fisheye_cameras: tuple = ()  # a rig mixing lenses: these cameras are OPENCV_FISHEYE
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
@@ -72,6 +73,19 @@ def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024
     return SceneSpec(f"synthetic-{lens}-{wide}{num_cameras}cam-{width}x{height}-s{seed}",
                      "synthetic", num_cameras, camera_model, width, height, seed,
                      gap_deg=gap_deg, max_arc_deg=max_arc_deg)
+
+
+# Rigs mixing lenses: (cameras, indices of the fisheye cameras among RADIAL ones, seed); 20 deg
+# gaps. Seeds of their own (development used others), peers get each camera's model.
+MIXED_RIGS = ((3, (1,), 501), (4, (0,), 502), (5, (2,), 503), (6, (1, 4), 504), (7, (3,), 505),
+              (8, (0, 7), 506))
+
+
+def mixed_scenes() -> list[SceneSpec]:
+    """Generated rigs with fisheye cameras among pinhole ones (MIXED_RIGS), 1024x768."""
+    return [SceneSpec(f"synthetic-mixed-{n}cam-fisheye{'+'.join(map(str, fish))}-1024x768-s{seed}",
+                      "synthetic", n, "RADIAL", seed=seed, fisheye_cameras=tuple(fish))
+            for n, fish, seed in MIXED_RIGS]
 
 
 def quick_scenes() -> list[SceneSpec]:
@@ -127,9 +141,12 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
     if spec.kind == "synthetic":
         from .synthetic import RigSpec, generate_rig
 
+        models = tuple("OPENCV_FISHEYE" if c in spec.fisheye_cameras else spec.camera_model
+                       for c in range(spec.num_cameras)) if spec.fisheye_cameras else ()
         rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
-                                   width=spec.width, height=spec.height, seed=spec.seed,
-                                   gap_deg=spec.gap_deg, max_arc_deg=spec.max_arc_deg))
+                                   camera_models=models, width=spec.width, height=spec.height,
+                                   seed=spec.seed, gap_deg=spec.gap_deg,
+                                   max_arc_deg=spec.max_arc_deg))
         return scene_from_synthetic(rig, spec.name)
     if spec.kind == "strecha":
         folder = Path(data_dir) / spec.folder
@@ -173,7 +190,8 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
     start = time.perf_counter()
     try:
         if method in PEER_METHODS:
-            peer = run_peer(method, scene.frame_sets[0], scene.camera_names, lens=scene.lens,
+            peer = run_peer(method, scene.frame_sets[0], scene.camera_names,
+                            lens=[scene.camera_lens.get(n, scene.lens) for n in scene.camera_names],
                             num_threads=num_threads)
             calib = peer.to_rig_calibration(scene.camera_names)
             record["message"] = peer.message
@@ -182,7 +200,7 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             from .pipeline import calibrate_rig
 
             config = make_config("fisheye" if scene.lens == "fisheye" else "regular",
-                                 OUR_METHODS[method])
+                                 OUR_METHODS[method], camera_lens=dict(scene.camera_lens))
             config.sfm.num_threads = num_threads
             # Ceres/COLMAP warnings (e.g. failed LM steps) would bury the tables; errors still show.
             with quiet_colmap(min_level=2):
@@ -191,7 +209,8 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             from .config import make_config
             from .recalibration import recalibrate
 
-            config = make_config("fisheye" if scene.lens == "fisheye" else "regular", "global")
+            config = make_config("fisheye" if scene.lens == "fisheye" else "regular", "global",
+                                 camera_lens=dict(scene.camera_lens))
             config.sfm.num_threads = num_threads
             previous = perturbed_calibration(scene.gt, RECAL_ROTATION_DEG, RECAL_MOVE_FRACTION)
             start = time.perf_counter()  # the perturbation is set-up, not recalibration time

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field, fields, is_dataclass
-from typing import Optional
+from typing import Optional, Sequence
+
+import numpy as np
 
 from .errors import InputError
 
@@ -40,12 +42,19 @@ class SamplingConfig:
 @dataclass
 class SfMConfig:
     camera_model: str = "RADIAL"  # initial COLMAP model per camera
-    refine_to_model: Optional[str] = None  # e.g. "OPENCV_FISHEYE": final distortion-only refinement
+    # Per camera (the calibration's camera order), a model that replaces camera_model for that
+    # camera: a rig mixing lenses (resolve_camera_lenses fills it from PipelineConfig.camera_lens).
+    camera_models: tuple = ()
+    # e.g. "OPENCV_FISHEYE": final distortion-only refinement of the cameras of its lens family
+    refine_to_model: Optional[str] = None
     f_err_px: Optional[float] = 10.0  # epipolar filter threshold; None = off
     # With f_err_px off (fisheye), 2-cycle tracks still get this epipolar test (ray-based E,
     # pinhole-equivalent px): for mutual matchers a 2-cycle carries no consistency evidence.
     two_cycle_f_err_px: Optional[float] = 10.0
     b_err_px: Optional[float] = 20.0  # incremental reprojection outlier threshold; None = off
+    # A rig mixing lenses runs with the fisheye B_err; its pinhole cameras' observations are
+    # judged by the regular preset's (resolve_camera_lenses). None: b_err_px for every camera.
+    pinhole_b_err_px: Optional[float] = None
     refine_principal_point: bool = False  # in the final BA only
     share_intrinsics: bool = False  # one intrinsics block for identical cameras
     brute_force_first_pair: bool = True
@@ -61,6 +70,20 @@ class SfMConfig:
     global_stage_iterations: dict = field(default_factory=lambda: {
         "extrinsics": 300, "focal": 200, "distortion": 200, "principal_point": 0, "model": 0})
     num_threads: int = -1  # -1 = all cores
+
+    def model_of(self, c: int) -> str:
+        """Camera c's initial COLMAP model."""
+        return self.camera_models[c] if self.camera_models else self.camera_model
+
+    def models(self, num_cameras: int) -> list[str]:
+        return [self.model_of(c) for c in range(num_cameras)]
+
+    def outlier_thresholds_px(self, num_cameras: int):
+        """B_err: b_err_px (None = off), or per camera (C,) where pinhole_b_err_px applies."""
+        if self.b_err_px is None or self.pinhole_b_err_px is None or not self.camera_models:
+            return self.b_err_px
+        return np.array([self.b_err_px if "FISHEYE" in m else self.pinhole_b_err_px
+                         for m in self.models(num_cameras)])
 
 
 @dataclass
@@ -87,11 +110,18 @@ class PipelineConfig:
     # image folders): camera name -> px. A start like initial_focal_px but below it and below a
     # previous calibration's; cameras without one start from the estimate.
     exif_focal_px: dict = field(default_factory=dict)
+    # Cameras whose lens differs from the preset's: camera name -> "pinhole" | "fisheye" (a rig
+    # mixing lenses, e.g. a fisheye overhead camera among pinhole side cameras). Each camera gets
+    # its lens's model (LENS_MODELS); a rig with any fisheye camera runs with the fisheye
+    # preset's SfM options (resolve_camera_lenses).
+    camera_lens: dict = field(default_factory=dict)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 
 
 PRESETS = ("regular", "fisheye")
+# Lens -> the initial COLMAP model of a camera with it (the presets' models).
+LENS_MODELS = {"pinhole": "RADIAL", "fisheye": "RADIAL_FISHEYE"}
 PIPELINES = ("incremental", "global")
 # The pipeline the CLI, node and demo use unless told otherwise. Incremental since its final
 # re-triangulation: in `densecalib bench` (2026-11-21) mean pinhole AUC@3 90.0 vs 84.6 for global
@@ -116,15 +146,59 @@ def make_config(preset: str = "regular", pipeline: str = "incremental",
         s.cell_size_px, s.top_k, s.probabilistic_scoring = 40, 1, True
         b.b_err_px = None
     if preset == "fisheye":
-        b.camera_model, b.refine_to_model = "RADIAL_FISHEYE", "OPENCV_FISHEYE"
-        b.f_err_px = None
-        b.refine_principal_point = True
-        if pipeline == "incremental":
-            b.b_err_px = 100.0
-        b.global_stage_iterations.update(distortion=200, principal_point=100, model=100)
+        _fisheye_sfm_options(b, pipeline)
     for key, value in overrides.items():
         _apply_override(cfg, key, value)
     return cfg
+
+
+def _fisheye_sfm_options(b: SfMConfig, pipeline: str) -> None:
+    b.camera_model, b.refine_to_model = LENS_MODELS["fisheye"], "OPENCV_FISHEYE"
+    b.f_err_px = None
+    b.refine_principal_point = True
+    b.b_err_px = 100.0 if pipeline == "incremental" else None
+    b.global_stage_iterations.update(distortion=200, principal_point=100, model=100)
+
+
+def lens_of_model(model: str) -> str:
+    return "fisheye" if "FISHEYE" in model.upper() else "pinhole"
+
+
+def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -> PipelineConfig:
+    """`config` for these cameras: without config.camera_lens, itself. Otherwise a copy whose
+    sfm.camera_models gives every camera its lens's model (cameras not named keep the preset's
+    lens) and which, when any camera is fisheye, runs with the fisheye preset's SfM options:
+    F_err off (a fisheye pair breaks the pinhole epipolar constraint), B_err 100 px while the
+    fisheye distortion is still rough, the principal point refined and the fisheye cameras
+    refined to OPENCV_FISHEYE; pinhole cameras stay RADIAL, their observations judged by the
+    regular preset's B_err (SfMConfig.pinhole_b_err_px). Idempotent: a resolved config is
+    returned as it is. InputError on unknown cameras or lenses."""
+    lenses = dict(config.camera_lens or {})
+    if not lenses or config.sfm.camera_models:
+        return config
+    unknown = sorted(set(lenses) - set(camera_names))
+    if unknown:
+        raise InputError(f"Lens given for unknown camera(s) {', '.join(unknown)}: the cameras are "
+                         f"{', '.join(camera_names)}.")
+    bad = {k: v for k, v in lenses.items() if v not in LENS_MODELS}
+    if bad:
+        raise InputError(f"Unknown lens {bad}: use {' or '.join(LENS_MODELS)} "
+                         "(e.g. --lens cam3=fisheye).")
+    out = copy.deepcopy(config)
+    preset_lens = lens_of_model(config.sfm.camera_model)
+    per_camera = [lenses.get(n, preset_lens) for n in camera_names]
+    if "fisheye" in per_camera and preset_lens == "pinhole":
+        _fisheye_sfm_options(out.sfm, config.pipeline)
+    if len(set(per_camera)) > 1:
+        # The fisheye B_err (100 px) leaves room for the rough early fisheye models; a pinhole
+        # camera's outliers are judged as in the regular preset. Measured on generated rigs with
+        # one fisheye among 3 pinhole cameras: 100 px for all let outliers pull every focal
+        # 3-8 % short (AUC@3 39-56), per lens 100.
+        out.sfm.pinhole_b_err_px = make_config("regular", config.pipeline).sfm.b_err_px
+    # Cameras of the preset's lens keep its (possibly user-set) model.
+    out.sfm.camera_models = tuple(config.sfm.camera_model if lens == preset_lens
+                                  else LENS_MODELS[lens] for lens in per_camera)
+    return out
 
 
 def _apply_override(cfg: PipelineConfig, key: str, value) -> None:

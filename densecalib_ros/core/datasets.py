@@ -31,7 +31,8 @@ class Scene:
     frame_sets: list[list[np.ndarray]]  # [time step][camera] (H, W, 3) uint8 RGB
     gt: RigCalibration  # cam_from_rig with rig = camera_names[0]
     gt_cam_from_world: dict[str, np.ndarray] = field(default_factory=dict)  # name -> 4x4
-    lens: str = "pinhole"  # "pinhole" | "fisheye": picks the preset / peer camera model
+    lens: str = "pinhole"  # "pinhole" | "fisheye" | "mixed": picks the preset / peer camera model
+    camera_lens: dict = field(default_factory=dict)  # "mixed": camera name -> "pinhole" | "fisheye"
     reference_is_estimate: bool = False  # True when the "ground truth" is itself an SfM result
     notes: str = ""
 
@@ -187,13 +188,20 @@ def load_nerf_transforms(directory: str | os.PathLike, num_views: int = 6,
                        "object); reference = the capture's own SfM poses and intrinsics.")
 
 
+def _lenses(models: dict[str, str]) -> tuple[str, dict]:
+    """(lens of the scene, {camera: lens} where the cameras mix lenses, else {})."""
+    per_camera = {n: "fisheye" if m in _FISHEYE_MODELS else "pinhole" for n, m in models.items()}
+    kinds = set(per_camera.values())
+    return (kinds.pop(), {}) if len(kinds) == 1 else ("mixed", per_camera)
+
+
 def scene_from_synthetic(rig, name: str) -> Scene:
     """A Scene of a generated rig (core.synthetic.SyntheticRig): exact ground truth."""
-    fisheye = any(cam.model in _FISHEYE_MODELS for cam in rig.cameras)
+    lens, camera_lens = _lenses({n: cam.model for n, cam in zip(rig.names, rig.cameras)})
     return Scene(name=name, camera_names=list(rig.names),
                  frame_sets=[list(frame) for frame in rig.images], gt=rig.ground_truth(),
                  gt_cam_from_world=dict(zip(rig.names, rig.cam_from_world)),
-                 lens="fisheye" if fisheye else "pinhole", notes="generated rig, exact ground truth")
+                 lens=lens, camera_lens=camera_lens, notes="generated rig, exact ground truth")
 
 
 def load_generated(directory: str | os.PathLike, name: Optional[str] = None) -> Scene:
@@ -208,7 +216,7 @@ def load_generated(directory: str | os.PathLike, name: Optional[str] = None) -> 
     if not steps:
         raise InputError(f"No images under {root / names[0]}: expected <camera>/<t:04d>.png.")
     frame_sets = [[_read_rgb(root / n / step) for n in names] for step in steps]
-    fisheye = any(c.intrinsics.model in _FISHEYE_MODELS for c in gt.cameras.values())
+    lens, camera_lens = _lenses({n: c.intrinsics.model for n, c in gt.cameras.items()})
     return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets, gt=gt,
-                 gt_cam_from_world=cam_from_world, lens="fisheye" if fisheye else "pinhole",
+                 gt_cam_from_world=cam_from_world, lens=lens, camera_lens=camera_lens,
                  notes="generated rig, exact ground truth")

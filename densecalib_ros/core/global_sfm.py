@@ -230,16 +230,16 @@ def rotation_averaging_poses(tracks: Tracks, intrinsics: Sequence[CameraIntrinsi
 
 def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
                         image_sizes: Sequence[tuple[int, int]],
-                        models: Sequence[str] = ()
+                        models: Sequence[Sequence[str]] = ()
                         ) -> tuple[list[CameraIntrinsics], list[np.ndarray]]:
     """Intrinsics and cam_from_world (= cam_from_rig: world = the previous rig frame) of every
-    camera from a previous calibration. models: the camera models the pipeline works in (the
-    preset's initial model first, then its refinement model); a previous camera of another model
-    (e.g. PINHOLE from another tool) is re-expressed in models[0] (`convert_intrinsics`), since
-    the staged BA refines exactly the parameters of its preset's model. Raises InputError when a
+    camera from a previous calibration. models: per camera, the models the pipeline works in (its
+    initial model first, then its refinement model: working_models); a previous camera of
+    another model (e.g. PINHOLE from another tool) is re-expressed in the first of them
+    (`convert_intrinsics`), since the staged BA refines exactly the parameters of that model. Raises InputError when a
     camera is missing from it or its image size changed."""
     intrinsics, poses = [], []
-    for name, (w, h) in zip(camera_names, image_sizes):
+    for c, (name, (w, h)) in enumerate(zip(camera_names, image_sizes)):
         cam = previous.cameras.get(name)
         if cam is None:
             raise InputError(
@@ -253,8 +253,8 @@ def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
                 "sfm.global_init='rotation_averaging'.")
         start = CameraIntrinsics(cam.intrinsics.model, w, h,
                                  np.array(cam.intrinsics.params, dtype=np.float64))
-        if models and start.model not in models:
-            start = convert_intrinsics(start, models[0])
+        if models and start.model not in models[c]:
+            start = convert_intrinsics(start, models[c][0])
         intrinsics.append(start)
         poses.append(np.asarray(cam.cam_from_rig, dtype=np.float64).copy())
     return intrinsics, poses
@@ -333,6 +333,11 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
     say = progress or log.info
     iterations = dict(config.global_stage_iterations)
     stats: dict[str, dict] = {}
+    # A rig mixing lenses refines the principal point of its fisheye cameras only
+    # (incremental.final_adjustment): the pinhole cameras' intrinsics are held in that stage.
+    models = config.models(state.num_cameras)
+    pinhole = tuple(c for c, m in enumerate(models) if "FISHEYE" not in m)
+    held_in_pp_stage = pinhole if config.camera_models and len(pinhole) < len(models) else ()
     for k, name in enumerate(STAGES):
         its = int(iterations.get(name, 0))
         if its <= 0:
@@ -342,7 +347,8 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
             # a stage that starts from them is not pulled by observations fitted to a worse model.
             triangulate_tracks(state, seed=seed)
         stage = BAStage(its, refine_focal=k >= 1, refine_extra=k >= 2,
-                        refine_principal_point=k >= 3, fixed_pose_cameras=(gauge_camera,))
+                        refine_principal_point=k >= 3, fixed_pose_cameras=(gauge_camera,),
+                        fixed_intrinsics_cameras=held_in_pp_stage if k >= 3 else ())
         summary = bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
         stats[name] = residual_stats(state)
         say(f"global BA stage {name} ({its} it, {summary.termination_type.name}): "
@@ -462,7 +468,7 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
     if init == "previous":
         start, poses = poses_from_previous(previous, camera_names,
                                            [(c.width, c.height) for c in intrinsics],
-                                           working_models(config))
+                                           working_models(config, C))
         state = SfMState.create(tracks, start, config.share_intrinsics)
     elif init == "incremental":
         # The incremental pipeline needs its outlier threshold (B_err) to stay on track even
@@ -471,6 +477,8 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
         if inc_config.b_err_px is None:
             inc_config.b_err_px = (INCREMENTAL_B_ERR_FISHEYE_PX if "FISHEYE" in config.camera_model
                                    else INCREMENTAL_B_ERR_PX)
+            if len({"FISHEYE" in m for m in config.models(C)}) > 1:  # a rig mixing lenses
+                inc_config.pinhole_b_err_px = INCREMENTAL_B_ERR_PX
         state = run_incremental(tracks, intrinsics, camera_names, inc_config, seed=seed,
                                 progress=progress, validation_tracks=validation_tracks,
                                 extra_starts=extra_starts).state
@@ -495,6 +503,12 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
     return state, stats, gauge, order
 
 
-def working_models(config: SfMConfig) -> tuple[str, ...]:
-    """The camera models a preset works in: its initial model, then its refinement model."""
-    return (config.camera_model,) + ((config.refine_to_model,) if config.refine_to_model else ())
+def working_models(config: SfMConfig, num_cameras: int) -> list[tuple[str, ...]]:
+    """Per camera, the models the pipeline works in: its initial model, then the refinement
+    model where it is of the same lens family (convert_camera_models)."""
+    out = []
+    for model in config.models(num_cameras):
+        refine = config.refine_to_model
+        same = refine and ("FISHEYE" in refine) == ("FISHEYE" in model)
+        out.append((model,) + ((refine,) if same else ()))
+    return out

@@ -87,11 +87,12 @@ class IncrementalResult:
 
 
 def initial_intrinsics(image_sizes: Sequence[tuple[int, int]], focal_px: np.ndarray,
-                       model: str) -> list[CameraIntrinsics]:
-    """Per camera `model` with focal_px[c], the principal point at the image centre and zero
-    distortion. image_sizes: (width, height) per camera."""
+                       model: str | Sequence[str]) -> list[CameraIntrinsics]:
+    """Per camera `model` (one for all, or one per camera) with focal_px[c], the principal point
+    at the image centre and zero distortion. image_sizes: (width, height) per camera."""
+    models = [model] * len(image_sizes) if isinstance(model, str) else list(model)
     out = []
-    for (w, h), f in zip(image_sizes, focal_px):
+    for (w, h), f, model in zip(image_sizes, focal_px, models):
         cam = pycolmap.Camera.create_from_model_name(0, model, float(f), int(w), int(h))
         out.append(CameraIntrinsics.from_pycolmap(cam))
     return out
@@ -386,12 +387,14 @@ def focal_starts(intrinsics: Sequence[CameraIntrinsics]) -> dict[str, list[Camer
     the two can end in different rigs. Skipping such priors saved ~13 % of the SfM time but
     turned one of five consensus runs of a 4-camera rig wrong (from x1.30 and x1.69, where priors
     0.6 and 0.85 had been right), AUC@3 94.4 -> 88.9."""
-    # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate.
-    perspective = not any("FISHEYE" in cam.model for cam in intrinsics)
-    factors = FOCAL_SCALE_STARTS + (EQ2_EXTRA_FOCAL_SCALE_STARTS if perspective else ())
-    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in factors}
-    if perspective:
-        starts.update({f"prior {ratio:g}": _prior_focals(intrinsics, ratio)
+    # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate: the
+    # eq. 2 step and the generic priors move only the perspective cameras (a rig mixing lenses).
+    perspective = ["FISHEYE" not in cam.model for cam in intrinsics]
+    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in FOCAL_SCALE_STARTS}
+    if any(perspective):
+        starts.update({f"x{f:.2f}": _scaled_focals(intrinsics, f, perspective)
+                       for f in EQ2_EXTRA_FOCAL_SCALE_STARTS})
+        starts.update({f"prior {ratio:g}": _prior_focals(intrinsics, ratio, perspective)
                        for ratio in PRIOR_FOCAL_IMAGE_RATIOS})
     return starts
 
@@ -427,24 +430,26 @@ def _focal_idxs(cam: CameraIntrinsics) -> list[int]:
                                 ).focal_length_idxs())
 
 
-def _prior_focals(intrinsics: Sequence[CameraIntrinsics], ratio: float
-                  ) -> list[CameraIntrinsics]:
-    """The cameras with focal = ratio x max(width, height) px."""
+def _prior_focals(intrinsics: Sequence[CameraIntrinsics], ratio: float,
+                  which: Optional[Sequence[bool]] = None) -> list[CameraIntrinsics]:
+    """The cameras (those `which` marks; default all) with focal = ratio x max(width, height) px."""
     out = []
-    for cam in intrinsics:
+    for c, cam in enumerate(intrinsics):
         params = np.array(cam.params, dtype=np.float64)
-        params[_focal_idxs(cam)] = ratio * max(cam.width, cam.height)
+        if which is None or which[c]:
+            params[_focal_idxs(cam)] = ratio * max(cam.width, cam.height)
         out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
     return out
 
 
-def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float
-                   ) -> list[CameraIntrinsics]:
-    """The cameras with their focal lengths multiplied by factor."""
+def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float,
+                   which: Optional[Sequence[bool]] = None) -> list[CameraIntrinsics]:
+    """The cameras (those `which` marks; default all) with their focal lengths times factor."""
     out = []
-    for cam in intrinsics:
+    for c, cam in enumerate(intrinsics):
         params = np.array(cam.params, dtype=np.float64)
-        params[_focal_idxs(cam)] *= factor
+        if which is None or which[c]:
+            params[_focal_idxs(cam)] *= factor
         out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
     return out
 
@@ -532,11 +537,11 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
         _triangulate_new(state, b_err)
         bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
-        removed = remove_outlier_observations(state, config.b_err_px)
+        removed = remove_outlier_observations(state, config.outlier_thresholds_px(C))
         say(f"registered {camera_names[c]} from {how} ({len(state.registered())}/{C}): "
             f"{int(state.point_mask().sum())} points, {removed} observations above B_err removed")
     failed = list(pending)
-    bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
+    final_adjustment(state, camera_names, config)
     registration = state.copy()
     _finish(state, camera_names, config, seed)
     failed += [c for c in range(C) if c not in order]
@@ -550,6 +555,26 @@ def final_stage(config: SfMConfig) -> BAStage:
                    refine_principal_point=config.refine_principal_point)
 
 
+def final_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMConfig) -> None:
+    """The final global BA, in place. In a rig mixing lenses the principal point is refined for
+    its fisheye cameras only (as the fisheye preset does; the regular preset keeps it fixed, the
+    paper's ablation: refining it costs pinhole cameras AUC@3): pycolmap refines every camera's
+    principal point or none, so a second pass refines it with the pinhole cameras' intrinsics
+    held. Measured on generated rigs of 3-4 cameras with one fisheye: refining every camera's
+    let every focal drift 4-8 % short (AUC@3 22-56); held for the pinhole cameras, 78-100."""
+    pinhole = tuple(c for c, m in enumerate(config.models(state.num_cameras))
+                    if "FISHEYE" not in m)
+    if not (config.refine_principal_point and config.camera_models and pinhole
+            and len(pinhole) < state.num_cameras):
+        bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
+        return
+    held = BAStage(config.ba_iterations, refine_principal_point=False)
+    bundle_adjust_plausibly(state, camera_names, held, config.num_threads)
+    fisheye_pp = BAStage(config.ba_iterations, refine_principal_point=True,
+                         fixed_intrinsics_cameras=pinhole)
+    bundle_adjust_plausibly(state, camera_names, fisheye_pp, config.num_threads)
+
+
 def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, seed: int) -> None:
     """Every track re-triangulated from the registered cameras, B_err, the final BA and the
     fisheye model refinement (module docstring, step 4); in place."""
@@ -557,7 +582,8 @@ def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, see
     # observations dropped against earlier, rougher cameras and tracks that could not be
     # triangulated then count again; B_err, then the final BA once more. Measured: 3-camera rigs
     # with ~100 tracks went from 4 % to 0.3 % focal error (AUC@3 44 -> 100).
-    retriangulate_and_adjust(state, camera_names, config, seed, config.b_err_px)
+    retriangulate_and_adjust(state, camera_names, config, seed,
+                             config.outlier_thresholds_px(state.num_cameras))
     if config.refine_to_model:
         convert_camera_models(state, config.refine_to_model)
         bundle_adjust(state, camera_names, BAStage(config.ba_iterations, refine_focal=False,
@@ -574,7 +600,7 @@ def retriangulate_and_adjust(state: SfMState, camera_names: Sequence[str], confi
     gate_px = config.b_err_px if config.b_err_px is not None else TRIANGULATION_MAX_ERROR_PX
     triangulate_tracks(state, max_error_px=gate_px, seed=seed)
     remove_outlier_observations(state, outlier_px)
-    bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
+    final_adjustment(state, camera_names, config)
 
 
 def _finish_on(tracks: Tracks, trial: IncrementalResult, camera_names: Sequence[str],

@@ -82,18 +82,20 @@ def quiet_colmap(min_level: int = 3) -> Iterator[None]:
 
 
 def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[str],
-             lens: str = "pinhole", num_threads: int = -1, seed: int = 0,
+             lens: str | Sequence[str] = "pinhole", num_threads: int = -1, seed: int = 0,
              workdir: Optional[str] = None) -> PeerResult:
     """Reconstruct one image per camera with a peer method.
 
     images[c]: (H, W, 3) uint8 RGB image of camera camera_names[c]. lens: "pinhole" or "fisheye"
-    (picks the initial camera model). num_threads: -1 = all cores. workdir: keep the COLMAP database
+    (picks the initial camera model), for all cameras or one per camera (a rig mixing lenses). num_threads: -1 = all cores. workdir: keep the COLMAP database
     and models there (default: a temporary folder, removed afterwards).
     """
     if method not in PEER_METHODS:
         raise InputError(f"Unknown peer method {method!r}: choose one of {', '.join(PEER_METHODS)}.")
-    if lens not in PEER_CAMERA_MODELS:
-        raise InputError(f"Unknown lens type {lens!r}: choose one of {', '.join(PEER_CAMERA_MODELS)}.")
+    lenses = [lens] * len(camera_names) if isinstance(lens, str) else list(lens)
+    if any(v not in PEER_CAMERA_MODELS for v in lenses) or len(lenses) != len(camera_names):
+        raise InputError(f"Unknown lens type(s) {lens!r}: choose one of "
+                         f"{', '.join(PEER_CAMERA_MODELS)}, for all cameras or one per camera.")
     if len(images) != len(camera_names):
         raise InputError(f"{len(images)} images for {len(camera_names)} camera names.")
     with contextlib.ExitStack() as stack:
@@ -102,8 +104,8 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
         start = time.perf_counter()
         try:
             with quiet_colmap():
-                result = _reconstruct(method, images, list(camera_names), lens, num_threads, seed,
-                                      root)
+                result = _reconstruct(method, images, list(camera_names), lenses, num_threads,
+                                      seed, root)
         except Exception as exc:  # a peer's failure is a benchmark result, not a crash
             log.warning("%s failed: %s", method, exc)
             result = PeerResult(method, unregistered=list(camera_names),
@@ -112,8 +114,8 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
         return result
 
 
-def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[str], lens: str,
-                 num_threads: int, seed: int, root: Path) -> PeerResult:
+def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[str],
+                 lenses: list[str], num_threads: int, seed: int, root: Path) -> PeerResult:
     import pycolmap
 
     image_dir, model_dir, database = root / "images", root / "models", root / "database.db"
@@ -130,14 +132,20 @@ def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[s
         file_to_name[file_name] = name
 
     pycolmap.set_random_seed(seed)
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = PEER_CAMERA_MODELS[lens]
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = num_threads
     extraction.use_gpu = False
-    pycolmap.extract_features(database, image_dir, image_names=sorted(file_to_name),
-                              camera_mode=pycolmap.CameraMode.PER_IMAGE, reader_options=reader,
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    # One extraction per camera model: the reader gives every image of a call the same model.
+    lens_of_file = {f"{k:03d}.bmp": lens for k, lens in enumerate(lenses)}
+    for lens in sorted(set(lenses)):
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = PEER_CAMERA_MODELS[lens]
+        pycolmap.extract_features(database, image_dir,
+                                  image_names=sorted(f for f in file_to_name
+                                                     if lens_of_file[f] == lens),
+                                  camera_mode=pycolmap.CameraMode.PER_IMAGE,
+                                  reader_options=reader, extraction_options=extraction,
+                                  device=pycolmap.Device.cpu)
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
     matching.use_gpu = False

@@ -18,7 +18,7 @@ import numpy as np
 import pycolmap
 
 from .all_matches import keypoint_tracks, refine_on_tracks
-from .config import PipelineConfig
+from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughCamerasError,
                      NotEnoughOverlapError)
 from .focal import estimate_initial_focals
@@ -159,6 +159,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     eq. 2's focals, 3-32 % short, it ended right (100), and fitted all matches better."""
     start = time.perf_counter()
     C = len(camera_names)
+    config = resolve_camera_lenses(config, camera_names)
     if tracks.num_cameras != C or len(image_sizes) != C:
         raise InputError(f"{C} camera names but tracks for {tracks.num_cameras} cameras and "
                          f"{len(image_sizes)} image sizes.")
@@ -181,7 +182,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     focal_px = np.asarray(focal_px, dtype=np.float64)
     say_progress(progress, "initial focals [px]: " + ", ".join(
         f"{n}={f:.0f}" for n, f in zip(camera_names, focal_px)))
-    init = initial_intrinsics(image_sizes, focal_px, config.sfm.camera_model)
+    init = initial_intrinsics(image_sizes, focal_px, config.sfm.models(C))
     extra_starts = _eq2_start(filtered, two_view, image_sizes, config, progress) \
         if known_focals else None
     validation = None
@@ -222,16 +223,17 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
 
 def _eq2_start(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, int]],
                config: PipelineConfig, progress: Progress) -> Optional[dict]:
-    """{"eq. 2": intrinsics at the eq. 2 focals} where they can be estimated (perspective
-    models), else None."""
-    if "FISHEYE" in config.sfm.camera_model:
+    """{"eq. 2": intrinsics at the eq. 2 focals} where they can be estimated (every camera
+    perspective), else None."""
+    models = config.sfm.models(len(image_sizes))
+    if any("FISHEYE" in m for m in models):
         return None
     try:
         focal = initial_focals(tracks, two_view, image_sizes)
     except FocalInitError as exc:
         say_progress(progress, f"no eq. 2 start beside the known focals: {exc}")
         return None
-    return {"eq. 2": initial_intrinsics(image_sizes, focal, config.sfm.camera_model)}
+    return {"eq. 2": initial_intrinsics(image_sizes, focal, models)}
 
 
 def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
@@ -327,6 +329,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
     the previous calibration's poses and intrinsics also give the triangulation angles that score
     the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused.
+    config.camera_lens gives cameras another lens than the preset's (config.resolve_camera_lenses).
 
     A fresh calibration (no previous) with config.consensus_runs > 1 repeats sampling + SfM with
     consecutive seeds and returns the medoid run (core.consensus); its quality records the runs'
@@ -334,6 +337,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
 
     With config.refine_on_all_matches and a keypoint matcher, every run's rig is refined last on
     all the matches (core.all_matches)."""
+    config = resolve_camera_lenses(config, camera_names)
     match_tracks = None
     if config.refine_on_all_matches:
         match_tracks = keypoint_tracks(match_sets, len(camera_names), seed=config.sampling.seed)
@@ -407,7 +411,7 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
         from .global_sfm import working_models, poses_from_previous
 
         intrinsics, poses = poses_from_previous(previous, camera_names, image_sizes,
-                                                working_models(config.sfm))
+                                                working_models(config.sfm, len(camera_names)))
         sampled = sample_tracks(match_sets, config, cam_from_rig=poses, intrinsics=intrinsics)
     else:
         given = start_focals(config, previous, camera_names, image_sizes)
@@ -440,6 +444,8 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
                                     previous=previous, progress=progress)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
+    if config.camera_lens:
+        result.rig.quality["camera_lens"] = dict(config.camera_lens)
     if config.exif_focal_px:
         result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
                                                for n, f in config.exif_focal_px.items()}

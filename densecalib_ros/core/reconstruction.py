@@ -253,9 +253,10 @@ def reprojection_errors(state: SfMState) -> np.ndarray:
     return err
 
 
-def remove_outlier_observations(state: SfMState, max_error_px: Optional[float]) -> int:
-    """Deactivate observations with reprojection error above max_error_px (None = off); drop
-    points left with < 2 views. Returns the number of observations removed."""
+def remove_outlier_observations(state: SfMState, max_error_px) -> int:
+    """Deactivate observations with reprojection error above max_error_px (None = off; a float, or
+    (C,) per camera); drop points left with < 2 views. Returns the number of observations
+    removed."""
     if max_error_px is None:
         return 0
     err = reprojection_errors(state)
@@ -354,11 +355,12 @@ def camera_quality(state: SfMState, c: int, errors: Optional[np.ndarray] = None)
 
 
 def convert_camera_models(state: SfMState, model: str) -> None:
-    """Re-express every intrinsics block in `model`, keeping the projection identical where the
-    source model is a special case of it (RADIAL_FISHEYE -> OPENCV_FISHEYE, RADIAL -> OPENCV ...).
-    """
+    """Re-express every intrinsics block of `model`'s lens family (fisheye or not) in `model`,
+    keeping the projection identical where the source model is a special case of it
+    (RADIAL_FISHEYE -> OPENCV_FISHEYE, RADIAL -> OPENCV ...). Blocks of the other family (the
+    pinhole cameras of a rig mixing lenses) are left as they are."""
     for b, cam in enumerate(state.intrinsics):
-        if cam.model == model:
+        if cam.model == model or ("FISHEYE" in cam.model) != ("FISHEYE" in model):
             continue
         state.intrinsics[b] = CameraIntrinsics(model, cam.width, cam.height,
                                                _convert_params(cam.model, model, cam.params))

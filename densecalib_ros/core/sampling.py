@@ -63,6 +63,10 @@ LOG = logging.getLogger(__name__)
 F_THRESHOLD_PX = 1.0  # MAGSAC++ threshold (COLMAP's default max error, the paper's robustification)
 MAX_F_POINTS = 20000  # correspondences per pair given to MAGSAC++ (a seeded random subset beyond)
 FISHEYE_ASSUMED_FOV_DEG = 180.0  # horizontal field of view of the assumed equidistant fisheye
+# Start focal (x max(width, height)) of a pinhole camera that shares a fundamental matrix with no
+# other pinhole camera (a rig mixing lenses), so eq. 2 cannot give one: COLMAP's prior for unknown
+# focals; the SfM's focal multi-start also tries the generic priors (incremental.focal_starts).
+MIXED_LONE_PINHOLE_FOCAL_RATIO = 1.2
 
 
 @dataclass
@@ -192,7 +196,7 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
     # --- two-view geometry per camera pair on pooled stage-1 correspondences ---------------
     clock = time.perf_counter()
     fisheye = [(_is_fisheye(intrinsics[c].model) if intrinsics is not None
-                else _is_fisheye(sfm_cfg.camera_model)) for c in range(num_cams)]
+                else _is_fisheye(sfm_cfg.model_of(c))) for c in range(num_cams)]
     fisheye_focal = np.array([w / np.radians(FISHEYE_ASSUMED_FOV_DEG) for w, _ in sizes])
 
     def rays(c: int, xy: np.ndarray, focal: Optional[np.ndarray]) -> np.ndarray:
@@ -203,21 +207,31 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
         K = calibration_matrix(focal[c], (sizes[c][0] / 2.0, sizes[c][1] / 2.0))
         return pixels_to_rays(xy, K)
 
+    given = None if focal_px is None else np.asarray(focal_px, np.float64).reshape(num_cams)
+
+    def essential(i: int, j: int, xy_i: np.ndarray, xy_j: np.ndarray,
+                  focal: Optional[np.ndarray]):
+        f_mean = 0.5 * (_focal_hint(intrinsics, fisheye_focal, i, focal)
+                        + _focal_hint(intrinsics, fisheye_focal, j, focal))
+        return estimate_essential_from_rays(rays(i, xy_i, focal), rays(j, xy_j, focal),
+                                            F_THRESHOLD_PX / f_mean, seed=s_cfg.seed)
+
     pair_xy = _pooled_pair_correspondences(match_sets, stage1, num_cams)
     two_view: dict = {}
     counts: dict = {}
+    # A pinhole camera paired with a fisheye one (a rig mixing lenses) needs its focal for the
+    # rays: such pairs wait for the focals the pinhole pairs give (or the user's).
+    deferred = []
     for (i, j), (xy_i, xy_j) in pair_xy.items():
         if len(xy_i) > MAX_F_POINTS:
             pick = np.sort(rng.choice(len(xy_i), MAX_F_POINTS, replace=False))
             xy_i, xy_j = xy_i[pick], xy_j[pick]
             pair_xy[(i, j)] = (xy_i, xy_j)
         counts[(i, j)] = len(xy_i)
-        if fisheye[i] or fisheye[j]:
-            f_mean = 0.5 * (_focal_hint(intrinsics, fisheye_focal, i)
-                            + _focal_hint(intrinsics, fisheye_focal, j))
-            two_view[(i, j)] = estimate_essential_from_rays(
-                rays(i, xy_i, None), rays(j, xy_j, None), F_THRESHOLD_PX / f_mean,
-                seed=s_cfg.seed)
+        if fisheye[i] != fisheye[j] and intrinsics is None:
+            deferred.append((i, j))
+        elif fisheye[i] or fisheye[j]:
+            two_view[(i, j)] = essential(i, j, xy_i, xy_j, None)
         else:
             two_view[(i, j)] = estimate_fundamental(xy_i, xy_j, F_THRESHOLD_PX,
                                                     seed=s_cfg.seed)
@@ -229,7 +243,6 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
 
     # --- initial focals ----------------------------------------------------------------------
     clock = time.perf_counter()
-    given = None if focal_px is None else np.asarray(focal_px, np.float64).reshape(num_cams)
     if given is not None and np.isfinite(given).all():
         focal = given
         stats["focal_source"] = "given"
@@ -241,12 +254,25 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
         stats["focal_source"] = f"equidistant {FISHEYE_ASSUMED_FOV_DEG:.0f} deg assumption"
     else:
         F = {k: g.F_ji for k, g in two_view.items() if not (fisheye[k[0]] or fisheye[k[1]])}
-        focal = estimate_initial_focals(F, weights, sizes, known_px=given)
+        known = np.full(num_cams, np.nan) if given is None else given.copy()
+        known[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]  # not in eq. 2: no F
+        lone = [c for c in range(num_cams) if any(fisheye) and not fisheye[c]
+                and not np.isfinite(known[c]) and not any(c in k and F[k] is not None for k in F)]
+        for c in lone:  # a pinhole camera with no pinhole partner: a generic lens as its start
+            known[c] = MIXED_LONE_PINHOLE_FOCAL_RATIO * max(sizes[c])
+        focal = estimate_initial_focals(F, weights, sizes, known_px=known) \
+            if not np.isfinite(known).all() else known
         focal[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]
-        stats["focal_source"] = "fundamental matrices (eq. 2)"
+        stats["focal_source"] = "fundamental matrices (eq. 2)" + (
+            f", generic {MIXED_LONE_PINHOLE_FOCAL_RATIO:g} x image size for camera(s) {lone}"
+            if lone else "")
     if given is not None and not np.isfinite(given).all():  # NaN: estimate this camera's focal
         focal = np.where(np.isfinite(given), given, focal)
         stats["focal_source"] = "given, the rest " + stats["focal_source"]
+    for i, j in deferred:
+        two_view[(i, j)] = essential(i, j, *pair_xy[(i, j)], focal)
+        stats["pair_inlier_ratio"][f"{i}-{j}"] = round(two_view[(i, j)].num_inliers
+                                                       / max(counts[(i, j)], 1), 4)
     stats["timing_s"]["focal"] = time.perf_counter() - clock
 
     # --- relative poses ----------------------------------------------------------------------
@@ -326,10 +352,11 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
     return SamplingResult(tracks, two_view, focal, weights, stats)
 
 
-def _focal_hint(intrinsics: Optional[list], fisheye_focal: np.ndarray, c: int) -> float:
+def _focal_hint(intrinsics: Optional[list], fisheye_focal: np.ndarray, c: int,
+                focal: Optional[np.ndarray] = None) -> float:
     if intrinsics is not None:
         return float(intrinsics[c].params[0])
-    return float(fisheye_focal[c])
+    return float(fisheye_focal[c] if focal is None else focal[c])
 
 
 def _epipolar_distance_px(geo: TwoViewGeometry, xy_a, xy_b, rays_a, rays_b, f_a, f_b):

@@ -47,7 +47,8 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from ..core.bag import camera_names_from_topics
-from ..core.config import DEFAULT_PIPELINE, PIPELINES, PRESETS, PipelineConfig, make_config
+from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, PipelineConfig,
+                           make_config)
 from ..core.errors import CalibrationError, InputError
 from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
 from ..core.matching import available_matchers
@@ -92,6 +93,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "min_frame_sets": (1, "frame sets needed before a calibration starts", False,
                        _range(1, 10000, True)),
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
+    "camera_lens": (Parameter.Type.STRING_ARRAY,
+                    "per camera its lens, pinhole or fisheye, for a rig mixing lenses (empty: "
+                    "the preset's for all)", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
@@ -146,6 +150,7 @@ class Settings:
     min_interval_s: float
     min_frame_sets: int
     preset: str
+    camera_lens: dict[str, str]
     pipeline: str
     matcher: str
     share_intrinsics: bool
@@ -170,7 +175,8 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     """The core pipeline configuration the node's method parameters select."""
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
-                       consensus_runs=s.consensus_runs, initial_focal_px=s.initial_focal_px)
+                       consensus_runs=s.consensus_runs, initial_focal_px=s.initial_focal_px,
+                       camera_lens=s.camera_lens)
 
 
 def _topic_namespace(topic: str) -> str:
@@ -217,6 +223,10 @@ def parse_settings(values: dict[str, Any]) -> Settings:
                          f"{transports}.")
     if v["preset"] not in PRESETS:
         raise InputError(f"preset must be one of {', '.join(PRESETS)}, got {v['preset']!r}.")
+    lenses = list(v["camera_lens"])
+    if lenses and (len(lenses) != n or any(lens not in LENS_MODELS for lens in lenses)):
+        raise InputError(f"camera_lens must be empty or give one lens per camera ({n}), each "
+                         f"{' or '.join(LENS_MODELS)}, got {lenses}.")
     if v["pipeline"] not in PIPELINES:
         raise InputError(f"pipeline must be one of {', '.join(PIPELINES)}, got {v['pipeline']!r}.")
     if v["matcher"] not in available_matchers():
@@ -266,7 +276,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         image_topics=topics, camera_names=names, transports=transports,
         slop_s=float(v["slop_s"]), sync_queue_size=int(v["sync_queue_size"]),
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
-        min_frame_sets=int(v["min_frame_sets"]), preset=v["preset"], pipeline=v["pipeline"],
+        min_frame_sets=int(v["min_frame_sets"]), preset=v["preset"],
+        camera_lens=dict(zip(names, lenses)), pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
         initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),

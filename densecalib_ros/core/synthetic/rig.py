@@ -26,7 +26,8 @@ _FISHEYE_CIRCLE_RAD = np.deg2rad(120.0)  # lens circle: pixels beyond this angle
 @dataclass
 class RigSpec:
     """What to generate. fov_deg is the horizontal field of view of every camera; None draws one
-    per camera (55-75 deg pinhole, 150-190 deg fisheye)."""
+    per camera (55-75 deg pinhole, 150-190 deg fisheye). camera_models: per camera, a model that
+    replaces camera_model (a rig mixing lenses); empty: camera_model for all."""
 
     num_cameras: int = 6
     camera_model: str = "RADIAL"
@@ -39,6 +40,10 @@ class RigSpec:
     noise_std: float = 2.0  # sensor noise, 8-bit levels
     gap_deg: float = 20.0  # azimuth between neighbouring cameras on their arc (the baseline width)
     max_arc_deg: float = 140.0  # the arc of all cameras is gap_deg x (n - 1) clipped to [45, this]
+    camera_models: tuple = ()
+
+    def model_of(self, c: int) -> str:
+        return self.camera_models[c] if self.camera_models else self.camera_model
 
 
 @dataclass
@@ -149,9 +154,14 @@ def _a_limit(cam: CameraIntrinsics, theta_limit: float) -> float:
 def _check_spec(spec: RigSpec) -> None:
     if not 3 <= int(spec.num_cameras) <= 10:
         raise InputError(f"num_cameras={spec.num_cameras}: a synthetic rig has 3 to 10 cameras.")
-    if spec.camera_model not in SUPPORTED_MODELS:
-        raise InputError(f"Unsupported camera model {spec.camera_model!r}: use one of "
-                         f"{', '.join(SUPPORTED_MODELS)}.")
+    if spec.camera_models and len(spec.camera_models) != int(spec.num_cameras):
+        raise InputError(f"camera_models has {len(spec.camera_models)} entries for "
+                         f"{spec.num_cameras} cameras: give one model per camera (or none).")
+    models = set(spec.camera_models or (spec.camera_model,))
+    for model in models:
+        if model not in SUPPORTED_MODELS:
+            raise InputError(f"Unsupported camera model {model!r}: use one of "
+                             f"{', '.join(SUPPORTED_MODELS)}.")
     if spec.width < 32 or spec.height < 32:
         raise InputError(f"Image size {spec.width}x{spec.height} is too small: use >= 32x32.")
     if not 0 < spec.gap_deg <= 120 or not 45 <= spec.max_arc_deg <= 360:
@@ -159,21 +169,22 @@ def _check_spec(spec: RigSpec) -> None:
                          "(0, 120] deg and an arc in [45, 360] deg.")
     if spec.num_time_steps < 1 or spec.supersample < 1 or spec.noise_std < 0:
         raise InputError("num_time_steps and supersample must be >= 1 and noise_std >= 0.")
-    if spec.fov_deg is not None:
-        lo, hi = _FOV_LIMITS_DEG[spec.camera_model]
+    for model in sorted(models) if spec.fov_deg is not None else ():
+        lo, hi = _FOV_LIMITS_DEG[model]
         if not lo <= spec.fov_deg <= hi:
-            raise InputError(f"fov_deg={spec.fov_deg} for {spec.camera_model}: use {lo}..{hi}.")
+            raise InputError(f"fov_deg={spec.fov_deg} for {model}: use {lo}..{hi}.")
 
 
-def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec) -> tuple[CameraIntrinsics, float]:
-    """Random realistic intrinsics and the largest ray angle (rad) the camera images."""
+def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec, model: str
+                       ) -> tuple[CameraIntrinsics, float]:
+    """Random realistic intrinsics of `model` and the largest ray angle (rad) the camera images."""
     w, h = spec.width, spec.height
-    lo, hi = _FOV_RANGE_DEG[spec.camera_model]
+    lo, hi = _FOV_RANGE_DEG[model]
     half_fov = np.deg2rad(spec.fov_deg if spec.fov_deg is not None else rng.uniform(lo, hi)) / 2
     cx = w / 2 + rng.uniform(-4, 4) * w / 1024
     cy = h / 2 + rng.uniform(-4, 4) * w / 1024
     while True:
-        if spec.camera_model == "RADIAL":
+        if model == "RADIAL":
             k = np.array([rng.uniform(-0.15, 0.1), rng.uniform(-0.03, 0.03)])
             probe = CameraIntrinsics("RADIAL", w, h, np.r_[1.0, cx, cy, k])
             f = (w / 2) / float(radial_g(probe, np.array([np.tan(half_fov)]))[0][0])
@@ -258,7 +269,7 @@ def generate_rig(spec: RigSpec) -> SyntheticRig:
     for _ in range(1, steps):
         scenes.append(scenes[-1].moved(rng_move, moving, 0.25))
 
-    cams, limits = zip(*[_sample_intrinsics(rng_cam, spec) for _ in range(n)])
+    cams, limits = zip(*[_sample_intrinsics(rng_cam, spec, spec.model_of(c)) for c in range(n)])
     poses = _sample_poses(rng_cam, n, scene, float(spec.gap_deg), float(spec.max_arc_deg))
 
     # Texel ~ the pixel footprint at ~3 m of a 65 deg camera of this width (detail scales with
