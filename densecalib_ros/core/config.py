@@ -191,9 +191,9 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
         _fisheye_sfm_options(out.sfm, config.pipeline)
     if len(set(per_camera)) > 1:
         # The fisheye B_err (100 px) leaves room for the rough early fisheye models; a pinhole
-        # camera's outliers are judged as in the regular preset. Measured on generated rigs with
-        # one fisheye among 3 pinhole cameras: 100 px for all let outliers pull every focal
-        # 3-8 % short (AUC@3 39-56), per lens 100.
+        # camera's outliers are judged as in the regular preset. (B_err 20 px for every camera
+        # also removed the focal drift incremental.final_adjustment describes on a 4-camera rig,
+        # but would cut the fisheye cameras' early observations; this alone did not.)
         out.sfm.pinhole_b_err_px = make_config("regular", config.pipeline).sfm.b_err_px
     # Cameras of the preset's lens keep its (possibly user-set) model.
     out.sfm.camera_models = tuple(config.sfm.camera_model if lens == preset_lens
