@@ -72,26 +72,18 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     assert not (tmp_path / "out").exists()
 
 
-def test_focal_px_option_is_checked(rig_dir, tmp_path, caplog):
-    for value, message in (("wide", "expected a number of pixels"),
-                           ("cam9=800", "unknown camera(s) cam9")):
-        caplog.clear()
-        with caplog.at_level(logging.ERROR):
-            rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),
-                       "--focal-px", value, "--consensus-runs", "1"])
-        assert rc == 2 and message in caplog.text
-    assert not (tmp_path / "o").exists()
-
-
-def test_lens_option_is_checked_before_matching(rig_dir, tmp_path, caplog):
-    for value, message in (("cam1=tele", "expected NAME=LENS with LENS pinhole or fisheye"),
-                           ("fisheye", "expected NAME=LENS"),
-                           ("cam9=fisheye", "unknown camera(s) cam9")):
-        caplog.clear()
-        with caplog.at_level(logging.ERROR):
-            rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),
-                       "--lens", value, "--consensus-runs", "1"])
-        assert rc == 2 and message in caplog.text
+@pytest.mark.parametrize("option, value, message", [
+    ("--focal-px", "wide", "expected a number of pixels"),
+    ("--focal-px", "cam9=800", "unknown camera(s) cam9"),
+    ("--lens", "cam1=tele", "expected NAME=LENS with LENS pinhole or fisheye"),
+    ("--lens", "fisheye", "expected NAME=LENS"),
+    ("--lens", "cam9=fisheye", "unknown camera(s) cam9")])
+def test_focal_and_lens_options_are_checked_before_matching(rig_dir, tmp_path, caplog, option,
+                                                            value, message):
+    with caplog.at_level(logging.ERROR):
+        rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),
+                   option, value, "--consensus-runs", "1"])
+    assert rc == 2 and message in caplog.text
     assert not (tmp_path / "o").exists()
 
 
