@@ -78,6 +78,12 @@ class SfMConfig:
     def models(self, num_cameras: int) -> list[str]:
         return [self.model_of(c) for c in range(num_cameras)]
 
+    def mixed_rig_pinhole_cameras(self, num_cameras: int) -> tuple[int, ...]:
+        """The pinhole cameras of a rig mixing lenses; () when every camera has one lens."""
+        pinhole = tuple(c for c, m in enumerate(self.models(num_cameras))
+                        if lens_of_model(m) == "pinhole")
+        return pinhole if self.camera_models and len(pinhole) < num_cameras else ()
+
     def outlier_thresholds_px(self, num_cameras: int):
         """B_err: b_err_px (None = off), or per camera (C,) where pinhole_b_err_px applies."""
         if self.b_err_px is None or self.pinhole_b_err_px is None or not self.camera_models:

@@ -236,8 +236,8 @@ def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
     camera from a previous calibration. models: per camera, the models the pipeline works in (its
     initial model first, then its refinement model: working_models); a previous camera of
     another model (e.g. PINHOLE from another tool) is re-expressed in the first of them
-    (`convert_intrinsics`), since the staged BA refines exactly the parameters of that model. Raises InputError when a
-    camera is missing from it or its image size changed."""
+    (`convert_intrinsics`), since the staged BA refines exactly the parameters of that model.
+    Raises InputError when a camera is missing from it or its image size changed."""
     intrinsics, poses = [], []
     for c, (name, (w, h)) in enumerate(zip(camera_names, image_sizes)):
         cam = previous.cameras.get(name)
@@ -335,9 +335,7 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
     stats: dict[str, dict] = {}
     # A rig mixing lenses refines the principal point of its fisheye cameras only
     # (incremental.final_adjustment): the pinhole cameras' intrinsics are held in that stage.
-    models = config.models(state.num_cameras)
-    pinhole = tuple(c for c, m in enumerate(models) if "FISHEYE" not in m)
-    held_in_pp_stage = pinhole if config.camera_models and len(pinhole) < len(models) else ()
+    held_in_pp_stage = config.mixed_rig_pinhole_cameras(state.num_cameras)
     for k, name in enumerate(STAGES):
         its = int(iterations.get(name, 0))
         if its <= 0:
@@ -477,7 +475,7 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
         if inc_config.b_err_px is None:
             inc_config.b_err_px = (INCREMENTAL_B_ERR_FISHEYE_PX if "FISHEYE" in config.camera_model
                                    else INCREMENTAL_B_ERR_PX)
-            if len({"FISHEYE" in m for m in config.models(C)}) > 1:  # a rig mixing lenses
+            if config.mixed_rig_pinhole_cameras(C):
                 inc_config.pinhole_b_err_px = INCREMENTAL_B_ERR_PX
         state = run_incremental(tracks, intrinsics, camera_names, inc_config, seed=seed,
                                 progress=progress, validation_tracks=validation_tracks,

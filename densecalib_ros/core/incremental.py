@@ -562,10 +562,8 @@ def final_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMCo
     principal point or none, so a second pass refines it with the pinhole cameras' intrinsics
     held. Measured on generated rigs of 3-4 cameras with one fisheye: refining every camera's
     let every focal drift 4-8 % short (AUC@3 22-56); held for the pinhole cameras, 78-100."""
-    pinhole = tuple(c for c, m in enumerate(config.models(state.num_cameras))
-                    if "FISHEYE" not in m)
-    if not (config.refine_principal_point and config.camera_models and pinhole
-            and len(pinhole) < state.num_cameras):
+    pinhole = config.mixed_rig_pinhole_cameras(state.num_cameras)
+    if not (config.refine_principal_point and pinhole):
         bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
         return
     held = BAStage(config.ba_iterations, refine_principal_point=False)
