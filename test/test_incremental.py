@@ -145,6 +145,33 @@ def test_identical_cameras_share_one_intrinsics_block():
     assert evaluate_calibration(rig, gt_calibration(names, cams, poses))["auc3"] > 85.0
 
 
+def test_shared_intrinsics_in_a_rig_mixing_lenses_stay_within_one_lens():
+    """Three identical pinhole units and a fisheye of the same image size: share_intrinsics gives
+    the pinhole cameras one block and the fisheye its own, refined to its lens's model."""
+    from densecalib_ros.core.config import resolve_camera_lenses
+
+    names = ["a", "b", "c", "d"]
+    pinhole, poses = gt_rig(4, seed=11)
+    fisheye, _ = gt_rig(4, model="OPENCV_FISHEYE", seed=11)
+    cams = [pinhole[0]] * 3 + [fisheye[3]]
+    tracks = gt_tracks(cams, poses, seed=11)
+    cfg = resolve_camera_lenses(make_config("regular", camera_lens={"d": "fisheye"},
+                                            sfm__share_intrinsics=True, sfm__num_threads=1),
+                                names).sfm
+    init = initial_intrinsics([(c.width, c.height) for c in cams], noisy_focals(cams),
+                              cfg.models(4))
+    result = run_incremental(tracks, init, names, cfg)
+    assert result.failed == [] and len(result.state.intrinsics) == 2
+    rig = rig_from_state(result.state, names, result.failed)
+    assert [rig.cameras[n].intrinsics.model for n in names] == ["RADIAL"] * 3 + ["OPENCV_FISHEYE"]
+    for n in "bc":
+        np.testing.assert_array_equal(rig.cameras[n].intrinsics.params,
+                                      rig.cameras["a"].intrinsics.params)
+    for n, cam in zip(names, cams):
+        assert abs(rig.cameras[n].intrinsics.params[0] / cam.params[0] - 1) < 0.01, n
+    assert evaluate_calibration(rig, gt_calibration(names, cams, poses))["auc3"] > 85.0
+
+
 def test_two_cameras_without_shared_tracks_is_not_enough_overlap():
     cams, poses = gt_rig(3, seed=2)
     tracks = gt_tracks(cams, poses, seed=2)
