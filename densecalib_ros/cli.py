@@ -19,6 +19,8 @@ SUBCOMMANDS = {
                        "matcher + cycle-sampling quality per backend on generated rigs"),
     "generate": ("densecalib_ros.commands.generate",
                  "write a generated rig's images and ground truth to a folder"),
+    "report": ("densecalib_ros.commands.report",
+               "print a calibration's intrinsics, fit and camera layout, or its change from another"),
 }
 
 

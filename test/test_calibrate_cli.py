@@ -43,6 +43,25 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     metrics = evaluate_calibration(read_calibration(out), gt)
     assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
     assert "cam3" in capsys.readouterr().out  # the per-camera summary
+    # `densecalib report` of the result against the ground truth: the paper's metric, as above.
+    assert main(["report", str(out), "--against", str(rig_dir / "ground_truth.json")]) == 0
+    text = capsys.readouterr().out
+    assert all(name in text for name in names) and "AUC@3" in text
+    assert main(["report", str(out / "calibration.json"), "--json",
+                 "--against", str(rig_dir / "ground_truth.json")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["pose_agreement"]["auc3"] == pytest.approx(metrics["auc3"])
+    for name in names:
+        assert abs(report["change"][name]["focal_change_pct"]) == pytest.approx(
+            100 * metrics["cameras"][name]["focal_err"])
+        assert report["change"][name]["projection_change_px"] == pytest.approx(
+            metrics["cameras"][name]["projection"]["mean_px"], rel=1e-6)
+
+
+def test_report_of_a_missing_calibration_says_what_it_needs(tmp_path, caplog):
+    with caplog.at_level(logging.ERROR):
+        assert main(["report", str(tmp_path / "nothing")]) == 2
+    assert "Cannot read calibration file" in caplog.text
 
 
 def test_failed_run_keeps_existing_output(rig_dir, tmp_path, caplog):

@@ -7,11 +7,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
+from densecalib_ros.core.change import calibration_change
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.pipeline import run_calibration
-from densecalib_ros.core.recalibration import (CalibrationRejectedError, calibration_change,
-                                               recalibrate)
+from densecalib_ros.core.recalibration import CalibrationRejectedError, recalibrate
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from densecalib_ros.core.types import CameraIntrinsics, RigCamera
 
@@ -51,6 +51,9 @@ def test_change_report_points_at_the_bumped_camera(rig):
     for other in ("cam0", "cam1", "cam3"):
         assert change[other].rotation_change_deg < 1e-4  # only one of its pairs changed
         assert change[other].focal_change_pct == pytest.approx(0.0, abs=1e-9)
+        assert change[other].projection_change_px == pytest.approx(0.0, abs=1e-6)
+    # A 3 % focal change moves a pixel 3 % of its distance from the principal point: a few px.
+    assert 2.0 < change["cam2"].projection_change_px < 0.03 * 640
 
 
 def test_recalibration_starts_from_previous_and_recovers_truth(rig, config):

@@ -14,6 +14,7 @@ from typing import Optional
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
+from ..core.report import camera_table
 
 log = logging.getLogger("densecalib.calibrate")
 
@@ -158,13 +159,7 @@ def run(args: argparse.Namespace) -> int:
         log.error("Calibration failed: %s", exc)
         return 1
     rig = result.rig
-    print(f"{'camera':<16} {'model':<15} {'focal_px':>9} {'rms_px':>7} {'obs':>6} {'obs3+':>6} "
-          f"{'coverage':>8}")
-    for name, cam in rig.cameras.items():
-        q = cam.quality
-        print(f"{name:<16} {cam.intrinsics.model:<15} {cam.intrinsics.params[0]:9.1f} "
-              f"{q.reprojection_rms_px:7.2f} {q.num_observations:6d} "
-              f"{q.num_multiview_observations:6d} {q.coverage:8.2f}")
+    print(camera_table(rig))
     if rig.failed_cameras:
         print("not registered: " + ", ".join(rig.failed_cameras))
     if "change_summary" in rig.quality:

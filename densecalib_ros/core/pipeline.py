@@ -397,6 +397,9 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     if warning:
         log.warning("%s", warning)
         say_progress(progress, warning)
+        # Kept in the calibration file too: the node's service reply and `densecalib report`
+        # show it to whoever looks at the calibration later.
+        result.rig.quality.setdefault("warnings", []).append(warning)
     return result
 
 

@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import copy
 import logging
-from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
 
+from .change import calibration_change, change_summary
 from .config import PipelineConfig
 from .errors import CalibrationError
-from .metrics import mean_focal_px, relative_pose_errors
 from .pipeline import (CalibrationResult, Progress, say_progress, calibrate_from_matches, check_frame_sets,
                        match_frame_sets)
 from .types import RigCalibration
@@ -34,43 +33,6 @@ MAX_RMS_INCREASE_PX = 1.0
 
 class CalibrationRejectedError(CalibrationError):
     """The new calibration is worse than the previous one, which stays in force."""
-
-
-@dataclass
-class CameraChange:
-    focal_change_pct: float  # (new - previous) / previous, percent
-    rotation_change_deg: float  # median over the camera's pairs of the relative-rotation change
-    translation_dir_change_deg: float  # same for the relative translation direction
-
-
-def calibration_change(previous: RigCalibration, new: RigCalibration) -> dict[str, CameraChange]:
-    """How much each camera in both calibrations changed. Pose changes are measured on relative
-    poses between cameras (gauge-free): a bumped camera changes in all its pairs, the others in
-    one pair only, so the per-camera median over pairs points at the camera that moved."""
-    names = [n for n in new.cameras if n in previous.cameras]
-    pairs = relative_pose_errors({n: new.cameras[n].cam_from_rig for n in names},
-                                 {n: previous.cameras[n].cam_from_rig for n in names})
-    out = {}
-    for name in names:
-        mine = [p for p in pairs if name in (p.i, p.j)]  # PairError.i/.j are camera names
-        f_new = mean_focal_px(new.cameras[name].intrinsics)
-        f_old = mean_focal_px(previous.cameras[name].intrinsics)
-        out[name] = CameraChange(
-            focal_change_pct=100.0 * (f_new - f_old) / f_old,
-            rotation_change_deg=float(np.median([p.rot_err_deg for p in mine])) if mine else 0.0,
-            translation_dir_change_deg=(float(np.median([p.trans_dir_err_deg for p in mine]))
-                                        if mine else 0.0))
-    return out
-
-
-def change_summary(change: dict[str, CameraChange]) -> str:
-    """One line: the largest changes and the camera they belong to."""
-    if not change:
-        return "no camera in common with the previous calibration"
-    f = max(change.items(), key=lambda kv: abs(kv[1].focal_change_pct))
-    r = max(change.items(), key=lambda kv: kv[1].rotation_change_deg)
-    return (f"change vs previous: focal up to {f[1].focal_change_pct:+.2f} % ({f[0]}), "
-            f"rotation up to {r[1].rotation_change_deg:.2f} deg ({r[0]})")
 
 
 def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:

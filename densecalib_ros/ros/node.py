@@ -528,6 +528,8 @@ class DenseCalibNode(Node):
                    f"RMS {rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
         if "change_summary" in rig.quality:
             message += f"; {rig.quality['change_summary']} (started {rig.quality['init']})"
+        for warning in rig.quality.get("warnings", []):
+            message += f"; warning: {warning}"
         if s.call_set_camera_info:
             message += "; set_camera_info: " + self._call_set_camera_info(rig)
         return Outcome(True, message)

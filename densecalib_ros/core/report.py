@@ -1,0 +1,142 @@
+"""The text report of a rig calibration: intrinsics and fit per camera, where the cameras sit in the
+rig, and (optionally) how it differs from another calibration of the same cameras: a previous one,
+or a ground truth. `densecalib calibrate` prints the camera table after a calibration;
+`densecalib report` prints the whole report of a calibration on disk (e.g. the node's output)."""
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from .change import CameraChange, calibration_change, pose_agreement
+from .metrics import mean_focal_px
+from .types import CameraIntrinsics, RigCalibration
+
+
+def parameter_names(intrinsics: CameraIntrinsics) -> list[str]:
+    """COLMAP's names of the model's parameters, e.g. ["f", "cx", "cy", "k1", "k2"]."""
+    cam = intrinsics.to_pycolmap()
+    return [name.strip() for name in cam.params_info.split(",")]
+
+
+def distortion_text(intrinsics: CameraIntrinsics) -> str:
+    """The parameters after the principal point, named: "k1=-0.0512 k2=0.0104"."""
+    names = parameter_names(intrinsics)
+    first = names.index("cy") + 1
+    return " ".join(f"{n}={v:.4g}" for n, v in zip(names[first:], intrinsics.params[first:]))
+
+
+def principal_point_px(intrinsics: CameraIntrinsics) -> tuple[float, float]:
+    """(cx, cy) in COLMAP pixel coordinates (the centre of the top-left pixel is 0.5, 0.5)."""
+    names = parameter_names(intrinsics)
+    return (float(intrinsics.params[names.index("cx")]),
+            float(intrinsics.params[names.index("cy")]))
+
+
+def camera_table(rig: RigCalibration) -> str:
+    """Per camera: model, image size, mean focal and principal point (px, COLMAP convention),
+    distortion, and the fit: reprojection RMS, observations (all / seen by >= 3 cameras) and the
+    fraction of the image covered by observations."""
+    rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>9} {'cx':>7} {'cy':>7} "
+            f"{'rms_px':>6} {'obs':>6} {'obs3+':>6} {'coverage':>8}  distortion"]
+    for name, cam in rig.cameras.items():
+        k = cam.intrinsics
+        cx, cy = principal_point_px(k)
+        q = cam.quality
+        fit = (f"{q.reprojection_rms_px:6.2f} {q.num_observations:6d} "
+               f"{q.num_multiview_observations if q.num_multiview_observations is not None else '-':>6} "
+               f"{q.coverage:8.2f}" if q is not None else f"{'-':>6} {'-':>6} {'-':>6} {'-':>8}")
+        rows.append(f"{name:<16} {k.model:<15} {f'{k.width}x{k.height}':>9} "
+                    f"{mean_focal_px(k):9.1f} {cx:7.1f} {cy:7.1f} {fit}  {distortion_text(k)}")
+    return "\n".join(rows)
+
+
+def camera_centres_in_rig(rig: RigCalibration) -> dict[str, np.ndarray]:
+    """Each camera's optical centre in the rig frame (the reference camera's optical frame)."""
+    return {n: -c.cam_from_rig[:3, :3].T @ c.cam_from_rig[:3, 3] for n, c in rig.cameras.items()}
+
+
+def layout_table(rig: RigCalibration) -> str:
+    """Where each camera is in the rig frame (x right, y down, z forward of the reference camera):
+    optical centre, its distance from the reference, and the angle between its optical axis and
+    the reference's. Units are metres when the scale came from a known baseline, else the
+    reconstruction's arbitrary unit."""
+    unit = "m" if rig.metric_scale else "units"
+    rows = [f"{'camera':<16} {f'x_{unit}':>9} {f'y_{unit}':>9} {f'z_{unit}':>9} "
+            f"{f'dist_{unit}':>10} {'axis_deg':>8}"]
+    for name, centre in camera_centres_in_rig(rig).items():
+        centre = np.round(centre, 3) + 0.0  # no "-0.000"
+        axis_in_rig = rig.cameras[name].cam_from_rig[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        axis_deg = float(np.degrees(np.arccos(np.clip(axis_in_rig[2], -1.0, 1.0))))
+        rows.append(f"{name:<16} {centre[0]:9.3f} {centre[1]:9.3f} {centre[2]:9.3f} "
+                    f"{np.linalg.norm(centre):10.3f} {axis_deg:8.2f}")
+    return "\n".join(rows)
+
+
+def change_table(change: dict[str, CameraChange]) -> str:
+    """Per camera in both calibrations: focal change (%), the median over its camera pairs of the
+    relative rotation and translation-direction changes (deg), and the mean projection change
+    (px) of its intrinsics."""
+    rows = [f"{'camera':<16} {'focal_%':>8} {'rot_deg':>8} {'dir_deg':>8} {'proj_px':>8}"]
+    for name, c in change.items():
+        proj = "-" if c.projection_change_px is None else f"{c.projection_change_px:.2f}"
+        rows.append(f"{name:<16} {c.focal_change_pct:+8.2f} {c.rotation_change_deg:8.3f} "
+                    f"{c.translation_dir_change_deg:8.3f} {proj:>8}")
+    return "\n".join(rows)
+
+
+def overall_lines(rig: RigCalibration) -> list[str]:
+    """What the calibration was made from and how well it fits, from rig.quality (keys written by
+    the pipeline; older or hand-written files may lack some)."""
+    q = rig.quality
+    made = [f"{q[k]} {label}" for k, label in (("pipeline", "pipeline"), ("preset", "preset"),
+                                               ("matcher", "matcher")) if k in q]
+    if "num_frame_sets" in q:
+        made.append(f"{q['num_frame_sets']} frame set(s)")
+    if q.get("camera_lens"):
+        made.append("lenses " + ", ".join(f"{n} {lens}" for n, lens in q["camera_lens"].items()))
+    lines = [f"{len(rig.cameras)} camera(s), reference {rig.reference_camera}"
+             + (f"; {', '.join(made)}" if made else "")]
+    fit = []
+    if "reprojection_rms_px" in q:
+        fit.append(f"reprojection RMS {float(q['reprojection_rms_px']):.2f} px")
+    if "num_points" in q:
+        fit.append(f"{q['num_points']} points")
+    if "consensus_disagreement_deg" in q:
+        fit.append(f"runs disagree by {float(q['consensus_disagreement_deg']):.2f} deg")
+    if fit:
+        lines.append(", ".join(fit))
+    if rig.failed_cameras:
+        lines.append("not registered: " + ", ".join(rig.failed_cameras))
+    for warning in q.get("warnings", []) or []:
+        lines.append(f"warning: {warning}")
+    if "change_summary" in q:
+        lines.append(f"{q['change_summary']} (started {q.get('init', '?')})")
+    scale = q.get("scale_from_baseline")
+    lines.append(f"scale: metric, from the {scale['baseline_m']} m baseline "
+                 f"{scale['cameras'][0]}-{scale['cameras'][1]}" if rig.metric_scale and scale
+                 else "scale: metric" if rig.metric_scale
+                 else "scale: arbitrary (no known baseline was given)")
+    return lines
+
+
+def rig_report(rig: RigCalibration, against: Optional[RigCalibration] = None,
+               against_label: str = "the other calibration") -> str:
+    """The whole report: overall lines, camera table, layout and, with `against`, the change
+    from it and the pose agreement with it."""
+    parts = ["\n".join(overall_lines(rig)), "", camera_table(rig), "",
+             "camera layout in the rig frame (reference camera's optical frame: x right, y down, "
+             "z forward)", layout_table(rig)]
+    if against is not None:
+        parts += ["", f"change from {against_label}", change_table(calibration_change(against, rig))]
+        agreement = pose_agreement(against, rig)
+        parts.append(f"relative-pose agreement with {against_label} over its "
+                     f"{agreement['num_pairs']} camera pair(s): AUC@3 {agreement['auc3']:.1f}, "
+                     f"AUC@30 {agreement['auc30']:.1f}")
+        only_here = [n for n in rig.cameras if n not in against.cameras]
+        only_there = [n for n in against.cameras if n not in rig.cameras]
+        if only_here:
+            parts.append(f"not in {against_label}: {', '.join(only_here)}")
+        if only_there:
+            parts.append(f"missing from this calibration: {', '.join(only_there)}")
+    return "\n".join(parts)

@@ -1,0 +1,84 @@
+"""The calibration report (core.report, core.change): what it says about a known rig."""
+import copy
+
+import numpy as np
+import pytest
+
+from densecalib_ros.core.change import calibration_change, pose_agreement
+from densecalib_ros.core.report import (camera_centres_in_rig, camera_table, distortion_text,
+                                        layout_table, overall_lines, rig_report)
+from densecalib_ros.core.scale import apply_known_baseline
+from densecalib_ros.core.types import CameraQuality
+
+from sfm_fixtures import gt_calibration, gt_rig
+
+
+@pytest.fixture
+def rig():
+    names = ["cam0", "cam1", "cam2", "cam3"]
+    cams, poses = gt_rig(4, seed=5)
+    fisheye, _ = gt_rig(4, model="OPENCV_FISHEYE", seed=5)
+    cams[3] = fisheye[3]
+    out = gt_calibration(names, cams, poses)
+    for cam in out.cameras.values():
+        cam.quality = CameraQuality(0.5, 1000, 0.8, 400)
+    out.quality.update(reprojection_rms_px=0.5, num_points=900, pipeline="incremental",
+                       camera_lens={"cam3": "fisheye"})
+    return out
+
+
+def test_camera_table_names_each_models_parameters(rig):
+    table = camera_table(rig)
+    lines = {line.split()[0]: line for line in table.splitlines()[1:]}
+    assert set(lines) == set(rig.cameras)
+    assert "k1=" in lines["cam0"] and "k2=" in lines["cam0"] and "k3=" not in lines["cam0"]
+    assert all(f"k{i}=" in lines["cam3"] for i in range(1, 5)) and "OPENCV_FISHEYE" in lines["cam3"]
+    k = rig.cameras["cam0"].intrinsics
+    assert distortion_text(k) == f"k1={k.params[3]:.4g} k2={k.params[4]:.4g}"
+    assert f"{k.params[0]:.1f}" in lines["cam0"]
+
+
+def test_layout_gives_centres_and_axis_angles_in_the_rig_frame(rig):
+    centres = camera_centres_in_rig(rig)
+    np.testing.assert_allclose(centres["cam0"], 0.0, atol=1e-12)
+    for name, cam in rig.cameras.items():
+        np.testing.assert_allclose(cam.cam_from_rig[:3, :3] @ centres[name]
+                                   + cam.cam_from_rig[:3, 3], 0.0, atol=1e-9)
+    rows = {line.split()[0]: line.split()[1:] for line in layout_table(rig).splitlines()[1:]}
+    R = rig.cameras["cam3"].cam_from_rig[:3, :3]
+    axis_deg = np.degrees(np.arccos(R[2, 2]))  # angle between the z axes of cam3 and the rig
+    assert float(rows["cam3"][4]) == pytest.approx(axis_deg, abs=0.01)
+    assert float(rows["cam2"][3]) == pytest.approx(np.linalg.norm(centres["cam2"]), abs=1e-3)
+    assert "x_units" in layout_table(rig)
+    metric = apply_known_baseline(rig, "cam0", "cam1", 0.25)
+    assert "x_m" in layout_table(metric)
+    assert "0.25 m baseline cam0-cam1" in "\n".join(overall_lines(metric))
+
+
+def test_change_points_at_the_moved_and_refocused_camera(rig):
+    moved = copy.deepcopy(rig)
+    c = np.cos(np.radians(1.5)), np.sin(np.radians(1.5))
+    moved.cameras["cam2"].cam_from_rig = np.array(
+        [[c[0], -c[1], 0, 0], [c[1], c[0], 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    ) @ moved.cameras["cam2"].cam_from_rig
+    moved.cameras["cam3"].intrinsics.params[4] += 0.02  # fisheye k1: a refocused lens
+    change = calibration_change(rig, moved)
+    assert max(change, key=lambda n: change[n].rotation_change_deg) == "cam2"
+    assert change["cam2"].rotation_change_deg == pytest.approx(1.5, abs=1e-6)
+    assert change["cam3"].focal_change_pct == 0.0 and change["cam3"].projection_change_px > 1.0
+    assert change["cam0"].projection_change_px == pytest.approx(0.0, abs=1e-6)
+    # Every pair with cam2 moved by 1.5 deg: 3 of 6 pairs fail AUC@1, none fails at 2..3 deg.
+    assert pose_agreement(rig, moved)["auc3"] == pytest.approx(100 * (3 + 6 + 6) / 18)
+    assert pose_agreement(rig, rig)["auc3"] == 100.0
+
+
+def test_report_names_missing_cameras_and_warnings(rig):
+    partial = copy.deepcopy(rig)
+    del partial.cameras["cam3"]
+    partial.failed_cameras = ["cam3"]
+    partial.quality["warnings"] = ["the 5 calibration runs disagree"]
+    text = rig_report(partial, rig, "before")
+    assert "not registered: cam3" in text and "warning: the 5 calibration runs disagree" in text
+    assert "missing from this calibration: cam3" in text
+    assert "over its 6 camera pair(s)" in text  # pairs with cam3 count as failures
+    assert "lenses cam3 fisheye" in rig_report(rig)
