@@ -8,12 +8,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2
 import numpy as np
+import pycolmap
 import pytest
 from PIL import Image
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.export import read_calibration
 from densecalib_ros.core.metrics import evaluate_calibration
+from densecalib_ros.core.scale import camera_distance
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, read_ground_truth, write_rig
 
 
@@ -96,12 +98,14 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     ("--focal-px", "cam9=800", "unknown camera(s) cam9"),
     ("--lens", "cam1=tele", "expected NAME=LENS with LENS pinhole or fisheye"),
     ("--lens", "fisheye", "expected NAME=LENS"),
-    ("--lens", "cam9=fisheye", "unknown camera(s) cam9")])
-def test_focal_and_lens_options_are_checked_before_matching(rig_dir, tmp_path, caplog, option,
-                                                            value, message):
+    ("--lens", "cam9=fisheye", "unknown camera(s) cam9"),
+    ("--known-baseline", "cam0 cam0 0.5", "expected two different cameras of cam0, cam1"),
+    ("--known-baseline", "cam0 cam9 0.5", "expected two different cameras"),
+    ("--known-baseline", "cam0 cam1 -2", "their distance in metres (> 0)")])
+def test_options_are_checked_before_matching(rig_dir, tmp_path, caplog, option, value, message):
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),
-                   option, value, "--consensus-runs", "1"])
+                   option, *value.split(), "--consensus-runs", "1"])
     assert rc == 2 and message in caplog.text
     assert not (tmp_path / "o").exists()
 
@@ -113,13 +117,27 @@ def test_bag_needs_topics(tmp_path, caplog):
 
 
 def test_recalibration_from_previous_reports_change(rig_dir, tmp_path, capsys):
+    """Also: --known-baseline makes the rig file and the COLMAP model metric, and a recalibration
+    from a metric calibration stays metric."""
     first, second = tmp_path / "first", tmp_path / "second"
     common = ["--images", str(rig_dir), "--matcher", "sift", "--threads", "1"]
-    assert main(["calibrate", *common, "--out", str(first)]) == 0
+    gt, _ = read_ground_truth(rig_dir / "ground_truth.json")
+    baseline_m = camera_distance(gt, "cam0", "cam2")  # the generator's units are metres
+    assert main(["calibrate", *common, "--out", str(first),
+                 "--known-baseline", "cam0", "cam2", str(baseline_m)]) == 0
     capsys.readouterr()
+    rig = read_calibration(first)
+    assert rig.metric_scale and camera_distance(rig, "cam0", "cam2") == pytest.approx(baseline_m)
+    # Every other distance is then metric too (within the calibration's accuracy).
+    assert camera_distance(rig, "cam1", "cam3") == pytest.approx(
+        camera_distance(gt, "cam1", "cam3"), rel=0.03)
+    model = pycolmap.Reconstruction(str(first / "colmap"))
+    centres = {im.name: im.projection_center() for im in model.images.values()}
+    assert np.linalg.norm(centres["cam0"] - centres["cam2"]) == pytest.approx(baseline_m)
     assert main(["calibrate", *common, "--out", str(second), "--previous", str(first)]) == 0
     printed = capsys.readouterr().out
     assert "change vs previous" in printed and "started previous calibration" in printed
+    assert read_calibration(second).metric_scale  # the previous calibration's baseline
     quality = json.loads((second / "calibration.json").read_text())["quality"]
     # Same images: nothing moved, so the reported change is small.
     for change in quality["change_vs_previous"].values():

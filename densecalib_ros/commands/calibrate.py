@@ -63,6 +63,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--previous", metavar="PATH", default=None,
                         help="a previous calibration (folder or calibration.json) of these cameras: "
                              "start from it, report what changed, and refuse a worse result")
+    parser.add_argument("--known-baseline", nargs=3, default=None,
+                        metavar=("CAM_A", "CAM_B", "METRES"),
+                        help="metric scale: the distance between the optical centres of two "
+                             "cameras, e.g. --known-baseline cam0 cam1 0.42 (SfM alone gives the "
+                             "rig up to scale). With --previous, a metric previous calibration's "
+                             "baseline is used when this is not given")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
     parser.add_argument("--threads", type=int, default=-1,
                         help="bundle-adjustment threads (-1 = all cores)")
@@ -123,6 +129,33 @@ def parse_camera_lens(values: Optional[list[str]]) -> dict:
     return out
 
 
+def parse_known_baseline(values: Optional[list[str]], names: list[str]) -> Optional[tuple]:
+    """--known-baseline CAM_A CAM_B METRES -> (cam_a, cam_b, metres) or None; InputError when the
+    cameras are not two different ones of `names` or the distance is not a positive number."""
+    if not values:
+        return None
+    cam_a, cam_b, metres = values
+    try:
+        baseline_m = float(metres)
+    except ValueError:
+        baseline_m = float("nan")
+    if cam_a == cam_b or cam_a not in names or cam_b not in names or not baseline_m > 0:
+        raise InputError(f"--known-baseline {' '.join(values)}: expected two different cameras "
+                         f"of {', '.join(names)} and their distance in metres (> 0), e.g. "
+                         f"--known-baseline {names[0]} {names[-1]} 0.5.")
+    return cam_a, cam_b, baseline_m
+
+
+def _previous_baseline(previous) -> Optional[tuple]:
+    """The known baseline a metric previous calibration was scaled with, or None."""
+    scale = previous.quality.get("scale_from_baseline") if previous.metric_scale else None
+    if not scale:
+        return None
+    log.info("metric scale as in the previous calibration: %s-%s = %s m", *scale["cameras"],
+             scale["baseline_m"])
+    return (*scale["cameras"], float(scale["baseline_m"]))
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
     from ..core.pipeline import run_calibration
@@ -144,12 +177,20 @@ def run(args: argparse.Namespace) -> int:
                  len(names), ", ".join(names), len(frame_sets), config.preset,
                  "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),
                  config.pipeline, config.matcher)
+        baseline = parse_known_baseline(args.known_baseline, names)
+        previous = None
         if args.previous:
             from ..core.export import read_calibration
+            previous = read_calibration(args.previous)
+            baseline = baseline or _previous_baseline(previous)
+        if previous is not None:
             from ..core.recalibration import recalibrate
-            result = recalibrate(frame_sets, names, config, read_calibration(args.previous))
+            result = recalibrate(frame_sets, names, config, previous)
         else:
             result = run_calibration(frame_sets, names, config, progress=None)
+        if baseline:
+            from ..core.scale import with_known_baseline
+            result = with_known_baseline(result, *baseline)
         replace_directory_atomic(
             lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction), args.out)
     except InputError as exc:

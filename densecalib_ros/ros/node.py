@@ -52,7 +52,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, Pi
 from ..core.errors import CalibrationError, InputError
 from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
 from ..core.matching import available_matchers
-from ..core.scale import apply_known_baseline
+from ..core.scale import with_known_baseline
 from ..core.types import RigCalibration
 from .conversions import camera_info_msg, rig_tf_message
 from .replay import BagReplayer
@@ -513,9 +513,9 @@ class DenseCalibNode(Node):
         else:
             result = run_calibration(images, s.camera_names, config,
                                      matcher=self._matcher_for(s), progress=progress)
-        rig, reconstruction = result.rig, result.reconstruction
         if s.known_baseline_m > 0:
-            rig = apply_known_baseline(rig, *s.baseline_cameras, s.known_baseline_m)
+            result = with_known_baseline(result, *s.baseline_cameras, s.known_baseline_m)
+        rig, reconstruction = result.rig, result.reconstruction
         elapsed = time.perf_counter() - start
         out = self._write_files(rig, reconstruction)
         self._publish(rig, out)
