@@ -6,7 +6,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from densecalib_ros.core.bench import RECAL_METHOD, perturbed_calibration, run_method
+from densecalib_ros.core.bench import (RECAL_METHOD, perturbed_calibration, run_method,
+                                       summarize_error_sigma_ratios)
 from densecalib_ros.core.datasets import scene_from_synthetic
 from densecalib_ros.core.metrics import relative_pose_errors
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
@@ -37,3 +38,9 @@ def test_recalibration_method_recovers_truth(scene):
     assert record["message"] == "started from previous calibration"
     assert record["metrics"]["num_registered"] == 4
     assert record["metrics"]["auc3"] >= 80.0
+    # The uncertainty check: every camera's focal error against its sigma, pooled per method.
+    ratios = record["error_sigma_ratios"]["focal"]
+    assert len(ratios) == 4 and all(np.isfinite(r) and r >= 0 for r in ratios)
+    check = summarize_error_sigma_ratios([{"results": [record]}])
+    assert check[RECAL_METHOD]["focal"]["n"] == 4
+    assert check[RECAL_METHOD]["focal"]["median"] == pytest.approx(np.median(ratios))

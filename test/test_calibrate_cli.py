@@ -37,6 +37,9 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     assert data["reference_camera"] == "cam0" and sorted(data["cameras"]) == names
     assert len(data["cameras"]["cam1"]["cam_from_rig"]) == 16
     assert data["cameras"]["cam1"]["model"] == "RADIAL"
+    for name in names:  # standard deviations (core.uncertainty); the principal point was held
+        quality = data["cameras"][name]["quality"]
+        assert quality["focal_std_px"] > 0 and "principal_point_std_px" not in quality
     for name in names:
         assert "camera_matrix:" in (out / f"{name}.yaml").read_text()
     assert {p.name for p in (out / "colmap").iterdir()} >= {"cameras.bin", "images.bin",

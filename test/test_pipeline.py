@@ -75,6 +75,11 @@ def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
                                     names)
     assert inverse.sfm.models(3) == ["RADIAL", "RADIAL_FISHEYE", "RADIAL_FISHEYE"]
     assert inverse.sfm.b_err_px is None  # the global preset's
+    # Whose principal point the final adjustment refines (and whose sigma core.uncertainty gives).
+    assert plain.sfm.principal_point_cameras(3) == ()
+    assert fisheye.sfm.principal_point_cameras(3) == (0, 1, 2)
+    assert mixed.sfm.principal_point_cameras(3) == (2,)
+    assert inverse.sfm.principal_point_cameras(3) == (1, 2)
     with pytest.raises(InputError, match="Unknown lens"):
         resolve_camera_lenses(make_config(camera_lens={"a": "tele"}), names)
     with pytest.raises(InputError, match="unknown camera"):

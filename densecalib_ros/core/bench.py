@@ -238,6 +238,9 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
     elif not calib.cameras and record["status"] == "ok":
         record["status"] = "failed"
     record["metrics"] = evaluate_calibration(calib, scene.gt)
+    if method not in PEER_METHODS and calib.cameras:
+        from .uncertainty import error_sigma_ratios
+        record["error_sigma_ratios"] = error_sigma_ratios(calib, scene.gt)
     return record
 
 
@@ -301,6 +304,9 @@ def run_bench(specs: Sequence[SceneSpec], methods: Sequence[str], num_threads: i
         _write_json(report, out_dir)
     report["summary"] = summarize(report["scenes"])
     say("\n" + format_summary(report["summary"]))
+    report["uncertainty_check"] = summarize_error_sigma_ratios(report["scenes"])
+    if report["uncertainty_check"]:
+        say(format_error_sigma_ratios(report["uncertainty_check"]))
     _write_json(report, out_dir)
     return report
 
@@ -378,6 +384,29 @@ def summarize(scenes: list[dict]) -> list[dict]:
             median_runtime_s=float(np.median(times)) if times else float("nan"),
             not_ok=sum(r["status"] != "ok" for r in records)))
     return out
+
+
+def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
+    """Per our method: quantiles over all cameras of |focal error| / focal sigma
+    (core.uncertainty); a sigma that is only a lower bound shows as ratios well above 1."""
+    pooled: dict[str, dict[str, list]] = {}
+    for entry in scenes:
+        for r in entry["results"]:
+            for kind, ratios in r.get("error_sigma_ratios", {}).items():
+                pooled.setdefault(r["method"], {}).setdefault(kind, []).extend(ratios)
+    return {method: {kind: dict(n=len(v), median=float(np.median(v)),
+                                p90=float(np.percentile(v, 90)), max=float(np.max(v)))
+                     for kind, v in kinds.items() if v}
+            for method, kinds in pooled.items()}
+
+
+def format_error_sigma_ratios(check: dict) -> str:
+    lines = ["== uncertainty check: actual focal error / its estimated sigma, over cameras"]
+    for method, kinds in check.items():
+        parts = [f"{kind} median {q['median']:.2f}, 90% {q['p90']:.2f}, max {q['max']:.2f} "
+                 f"(n={q['n']})" for kind, q in kinds.items()]
+        lines.append(f"{method:<24}" + "; ".join(parts))
+    return "\n".join(lines)
 
 
 def format_summary(summary: list[dict]) -> str:

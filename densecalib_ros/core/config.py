@@ -84,6 +84,14 @@ class SfMConfig:
                         if lens_of_model(m) == "pinhole")
         return pinhole if self.camera_models and len(pinhole) < num_cameras else ()
 
+    def principal_point_cameras(self, num_cameras: int) -> tuple[int, ...]:
+        """The cameras whose principal point the final adjustment refines: none under the regular
+        preset, the fisheye cameras in a rig mixing lenses, else every camera."""
+        if not self.refine_principal_point:
+            return ()
+        held = set(self.mixed_rig_pinhole_cameras(num_cameras))
+        return tuple(c for c in range(num_cameras) if c not in held)
+
     def outlier_thresholds_px(self, num_cameras: int):
         """B_err: b_err_px (None = off), or per camera (C,) where pinhole_b_err_px applies."""
         if self.b_err_px is None or self.pinhole_b_err_px is None or not self.camera_models:

@@ -28,6 +28,7 @@ from .reconstruction import SfMState, build_reconstruction, camera_quality, repr
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
 from .types import RigCalibration, RigCamera, Tracks
+from .uncertainty import calibration_uncertainty
 
 log = logging.getLogger(__name__)
 
@@ -342,10 +343,28 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     if config.refine_on_all_matches:
         match_tracks = keypoint_tracks(match_sets, len(camera_names), seed=config.sampling.seed)
     if previous is None and config.consensus_runs > 1:
-        return _consensus_calibration(match_sets, image_sizes, camera_names, config, match_tracks,
-                                      progress)
-    return _calibrate_once(match_sets, image_sizes, camera_names, config, previous, match_tracks,
-                           progress)
+        result = _consensus_calibration(match_sets, image_sizes, camera_names, config,
+                                        match_tracks, progress)
+    else:
+        result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
+                                 match_tracks, progress)
+    add_uncertainty(result, camera_names, config)
+    return result
+
+
+def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],
+                    config: PipelineConfig) -> None:
+    """Record each camera's standard deviations (core.uncertainty) in its quality, in place."""
+    rig = result.rig
+    pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
+    # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
+    noise_px = float(rig.quality["reprojection_rms_px"]) / np.sqrt(2.0)
+    sigmas = calibration_uncertainty(result.reconstruction, rig.reference_camera, noise_px,
+                                     pp_refined)
+    for name, cam in rig.cameras.items():
+        if name in sigmas and cam.quality is not None:
+            cam.quality.focal_std_px = sigmas[name].focal_std_px
+            cam.quality.principal_point_std_px = sigmas[name].principal_point_std_px
 
 
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],

@@ -34,21 +34,32 @@ def principal_point_px(intrinsics: CameraIntrinsics) -> tuple[float, float]:
 
 
 def camera_table(rig: RigCalibration) -> str:
-    """Per camera: model, image size, mean focal and principal point (px, COLMAP convention),
-    distortion, and the fit: reprojection RMS, observations (all / seen by >= 3 cameras) and the
-    fraction of the image covered by observations."""
-    rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>9} {'cx':>7} {'cy':>7} "
-            f"{'rms_px':>6} {'obs':>6} {'obs3+':>6} {'coverage':>8}  distortion"]
+    """Per camera: model, image size, mean focal and its standard deviation, principal point (px,
+    COLMAP convention; its standard deviation where it was refined), distortion and the fit:
+    reprojection RMS, observations (all / seen by >= 3 cameras) and the fraction of the image
+    covered by observations. Standard deviations: core.uncertainty ('-' where not estimated)."""
+    rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>9} {'f_std':>6} {'cx':>7} "
+            f"{'cy':>7} {'pp_std':>6} {'rms_px':>6} {'obs':>6} {'obs3+':>6} {'coverage':>8}  "
+            "distortion"]
     for name, cam in rig.cameras.items():
         k = cam.intrinsics
         cx, cy = principal_point_px(k)
         q = cam.quality
-        fit = (f"{q.reprojection_rms_px:6.2f} {q.num_observations:6d} "
-               f"{q.num_multiview_observations if q.num_multiview_observations is not None else '-':>6} "
-               f"{q.coverage:8.2f}" if q is not None else f"{'-':>6} {'-':>6} {'-':>6} {'-':>8}")
+        if q is None:
+            f_std, pp_std, fit = "-", "-", f"{'-':>6} {'-':>6} {'-':>6} {'-':>8}"
+        else:
+            f_std = _optional(q.focal_std_px, ".1f")
+            pp_std = _optional(q.principal_point_std_px, ".1f")
+            fit = (f"{q.reprojection_rms_px:6.2f} {q.num_observations:6d} "
+                   f"{_optional(q.num_multiview_observations, 'd'):>6} {q.coverage:8.2f}")
         rows.append(f"{name:<16} {k.model:<15} {f'{k.width}x{k.height}':>9} "
-                    f"{mean_focal_px(k):9.1f} {cx:7.1f} {cy:7.1f} {fit}  {distortion_text(k)}")
+                    f"{mean_focal_px(k):9.1f} {f_std:>6} {cx:7.1f} {cy:7.1f} {pp_std:>6} {fit}  "
+                    f"{distortion_text(k)}")
     return "\n".join(rows)
+
+
+def _optional(value, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
 
 
 def camera_centres_in_rig(rig: RigCalibration) -> dict[str, np.ndarray]:

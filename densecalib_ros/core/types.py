@@ -126,6 +126,10 @@ class CameraQuality:
     # A diagnostic, not a verdict: on generated rigs cameras with < 30 were often, not always,
     # the less accurate ones. None in files written before it was recorded.
     num_multiview_observations: Optional[int] = None
+    # Standard deviations from the final adjustment's information matrix (core.uncertainty; a
+    # lower bound). None where not estimated (a held principal point).
+    focal_std_px: Optional[float] = None
+    principal_point_std_px: Optional[float] = None
 
 
 @dataclass

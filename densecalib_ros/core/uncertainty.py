@@ -1,0 +1,113 @@
+"""How well the images pin down each camera's intrinsics: standard deviations of its focal length
+and (where it was refined) principal point from the bundle adjustment's information matrix at the
+final solution (pycolmap.estimate_ba_covariance: Schur complement over the points, then the
+camera blocks).
+
+The problem is the final adjustment's: Cauchy loss, the reference camera's pose held and the
+scale fixed by COLMAP's two-camera gauge, the principal point free only where the calibration
+refined it. The covariance is that of unit pixel noise, scaled by the noise the fit shows
+(reprojection RMS / sqrt(2) per pixel coordinate). It treats observations as independent and the
+model as right, so it is a lower bound. On tracks with independent Gaussian noise the focal errors
+are about 1 sigma (test_uncertainty); on the bench scenes (README) 0.5-0.6 sigma at the median
+and up to 3 sigma, on rigs mixing lenses up to 8.5 sigma (the pinhole cameras' held principal
+point).
+
+No rotation sigma is given: measured the same way it was 6-10x smaller than the rotation errors
+at the median on generated rigs (a principal point held at the image centre that is not there
+turns a camera by ~0.2 deg, which a covariance conditional on the held point cannot show), and
+with the principal point marginalised it was 1x on pinhole rigs but 6x on fisheye rigs and 0.2x
+on Strecha: not a number to act on. The consensus runs' disagreement
+(quality.consensus_disagreement_deg) is the measured spread of the extrinsics."""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class CameraUncertainty:
+    focal_std_px: Optional[float]  # of the mean focal length
+    principal_point_std_px: Optional[float]  # larger of cx, cy; None where it was held fixed
+
+
+def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
+                refine_principal_point: bool):
+    """(BACovariance, the reconstruction copy it refers to), or (None, None) when it fails."""
+    rec = pycolmap.Reconstruction(reconstruction)  # the adjuster's problem points into it
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_principal_point = refine_principal_point
+    options.refine_sensor_from_rig = False  # trivial rigs, as in reconstruction.bundle_adjust
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = 1.0
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id, image in rec.images.items():
+        config.add_image(image_id)
+        if image.name == reference:
+            config.set_constant_rig_from_world_pose(image.frame_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
+    cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
+    return (cov, rec) if cov is not None else (None, None)
+
+
+def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image,
+                        noise_px: float, refine_principal_point: bool) -> CameraUncertainty:
+    camera = rec.cameras[image.camera_id]
+    names = [n.strip() for n in camera.params_info.split(",")]
+    # The rows of the free parameters, in order (held ones are left out of the covariance).
+    free = [n for n in names if refine_principal_point or n not in ("cx", "cy")]
+    params_cov = cov.get_other_params_cov(camera.params)
+    focal = pp = None
+    if params_cov is not None and params_cov.shape[0] == len(free):
+        var = np.diag(params_cov) * noise_px ** 2
+        focal_rows = [i for i, n in enumerate(free) if n in ("f", "fx", "fy")]
+        # The mean focal's variance: the mean of the focal block over its size squared.
+        focal = float(np.sqrt(params_cov[np.ix_(focal_rows, focal_rows)].sum()
+                              / len(focal_rows) ** 2) * noise_px)
+        if refine_principal_point:
+            pp = float(np.sqrt(max(var[free.index("cx")], var[free.index("cy")])))
+    return CameraUncertainty(focal, pp)
+
+
+def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: str,
+                            noise_px: float, pp_refined: Sequence[str] = ()
+                            ) -> dict[str, CameraUncertainty]:
+    """Per camera (image name) of `reconstruction` its CameraUncertainty. reference: the camera
+    whose pose is held; noise_px: the standard deviation of one pixel coordinate of an
+    observation (reprojection RMS / sqrt(2)); pp_refined:
+    the cameras whose principal point the calibration refined. Cameras whose covariance cannot
+    be estimated get None values."""
+    out = {}
+    for refine_pp in (False, True):
+        wanted = [im for im in reconstruction.images.values()
+                  if (im.name in pp_refined) == refine_pp]
+        if not wanted:
+            continue
+        cov, rec = _covariance(reconstruction, reference, refine_pp)
+        for image in wanted:
+            out[image.name] = (_camera_uncertainty(cov, rec, rec.images[image.image_id], noise_px,
+                                                   refine_pp) if cov is not None
+                               else CameraUncertainty(None, None))
+    if any(u.focal_std_px is None for u in out.values()):
+        log.debug("no covariance for some cameras' intrinsics (degenerate bundle adjustment)")
+    return out
+
+
+def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
+    """How the sigmas compare with the actual errors against a ground truth (the benchmark's
+    check): {"focal": |focal error| / focal_std_px per camera with a sigma}."""
+    from .metrics import mean_focal_px
+
+    ratios = []
+    for name, cam in rig.cameras.items():
+        if cam.quality is not None and cam.quality.focal_std_px and name in truth.cameras:
+            error = mean_focal_px(cam.intrinsics) - mean_focal_px(truth.cameras[name].intrinsics)
+            ratios.append(abs(error) / cam.quality.focal_std_px)
+    return {"focal": ratios}

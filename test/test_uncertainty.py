@@ -1,0 +1,60 @@
+"""Standard deviations from the bundle adjustment's information matrix (core.uncertainty), on
+tracks made from ground truth with independent Gaussian pixel noise: there the predicted sigma
+must match the actual errors."""
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+import pytest
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.incremental import initial_intrinsics, run_incremental
+from densecalib_ros.core.reconstruction import build_reconstruction
+from densecalib_ros.core.uncertainty import calibration_uncertainty
+
+from sfm_fixtures import gt_rig, gt_tracks
+
+NAMES = ["a", "b", "c", "d", "e"]
+
+
+def _solved(seed):
+    cams, poses = gt_rig(5, seed=seed, pp_jitter_px=0.0)  # the held principal point is right
+    tracks = gt_tracks(cams, poses, num_points=1500, noise_px=0.5, outlier_frac=0.0, seed=seed)
+    cfg = make_config("regular", sfm__num_threads=1).sfm
+    init = initial_intrinsics([(c.width, c.height) for c in cams],
+                              [c.params[0] * 1.03 for c in cams], "RADIAL")
+    result = run_incremental(tracks, init, NAMES, cfg)
+    assert result.failed == []
+    rec, _ = build_reconstruction(result.state, NAMES)
+    return cams, rec
+
+
+def test_sigmas_match_the_actual_errors_under_independent_noise():
+    ratios = []
+    for seed in (1, 2):
+        cams, rec = _solved(seed)
+        sigmas = calibration_uncertainty(rec, "a", noise_px=0.5)
+        assert set(sigmas) == set(NAMES)
+        for name, cam in zip(NAMES, cams):
+            s = sigmas[name]
+            assert s.focal_std_px > 0 and s.principal_point_std_px is None  # pp held
+            estimate = next(c for c in rec.cameras.values()
+                            if c.camera_id == next(i.camera_id for i in rec.images.values()
+                                                   if i.name == name))
+            ratios.append(abs(estimate.params[0] - cam.params[0]) / s.focal_std_px)
+    # |error| / sigma of a well-predicted Gaussian: median ~0.67, rarely above 3.
+    print("focal |error| / sigma:", np.round(ratios, 2))
+    assert 0.2 < np.median(ratios) < 2.0 and max(ratios) < 4.0, ratios
+
+
+def test_a_free_principal_point_makes_the_focal_less_certain():
+    _, rec = _solved(1)
+    held = calibration_uncertainty(rec, "a", noise_px=0.5)
+    free = calibration_uncertainty(rec, "a", noise_px=0.5, pp_refined=NAMES[:2])
+    for name in NAMES[:2]:
+        assert free[name].principal_point_std_px > 0
+        assert free[name].focal_std_px > held[name].focal_std_px
+    for name in NAMES[2:]:  # estimated with the principal point held, as before
+        assert free[name].principal_point_std_px is None
+        assert free[name].focal_std_px == pytest.approx(held[name].focal_std_px, rel=1e-9)
