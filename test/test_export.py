@@ -69,6 +69,13 @@ def test_calibration_round_trip(tmp_path):
     assert json.loads((tmp_path / "calibration.json").read_text())["quality"]["rms_px"] == 0.5
 
 
+def test_a_node_output_dir_reads_as_its_latest_calibration(tmp_path):
+    stamped = tmp_path / "20261123T000000Z"
+    write_calibration_files(_rig(), stamped)
+    (tmp_path / "latest").symlink_to(stamped.name)
+    assert read_calibration(tmp_path).reference_camera == "a"
+
+
 def test_bad_calibration_file_gives_input_error(tmp_path):
     (tmp_path / "calibration.json").write_text('{"cameras": {}}')
     with pytest.raises(InputError, match="reference_camera"):

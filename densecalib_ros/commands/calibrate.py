@@ -61,8 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "that agrees best with the others (default 5; it stops after 3 runs "
                              "that agree; 1 = a single run)")
     parser.add_argument("--previous", metavar="PATH", default=None,
-                        help="a previous calibration (folder or calibration.json) of these cameras: "
-                             "start from it, report what changed, and refuse a worse result")
+                        help="a previous calibration of these cameras (folder, a node output_dir, "
+                             "or calibration.json): start from it, report what changed, and "
+                             "refuse a worse result")
     parser.add_argument("--known-baseline", nargs=3, default=None,
                         metavar=("CAM_A", "CAM_B", "METRES"),
                         help="metric scale: the distance between the optical centres of two "

@@ -18,8 +18,8 @@ log = logging.getLogger("densecalib.report")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("calibration", metavar="CALIBRATION",
-                        help="a calibration folder (as written by `densecalib calibrate` or the "
-                             "node) or its calibration.json")
+                        help="a calibration folder (as `densecalib calibrate` writes it), a node's "
+                             "output_dir (its latest calibration) or a calibration.json")
     parser.add_argument("--against", metavar="OTHER",
                         help="another calibration of the same cameras (folder or JSON, e.g. the "
                              "previous one, or a ground_truth.json): report the change from it")

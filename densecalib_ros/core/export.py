@@ -118,9 +118,13 @@ def calibration_from_dict(data: dict) -> RigCalibration:
 
 
 def read_calibration(path: str | os.PathLike) -> RigCalibration:
+    """A calibration.json, or the one in a folder; a node's output_dir (calibrations in
+    time-stamped folders) gives its `latest`."""
     path = Path(path)
     if path.is_dir():
-        path = path / "calibration.json"
+        latest = path / "latest" / "calibration.json"
+        path = latest if not (path / "calibration.json").exists() and latest.exists() \
+            else path / "calibration.json"
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
