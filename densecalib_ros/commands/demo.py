@@ -87,7 +87,7 @@ def _run_offline(rig, config, out: Path) -> int:
     _print_comparison(rig, focal, rig_from_cam, est.reference_camera,
                       f"offline calibrate_rig: RMS {est.quality['reprojection_rms_px']:.2f} px, "
                       f"{est.quality['runtime_s']:.1f} s")
-    print(f"files: {out / 'offline'}")
+    print(f"files: {out / 'offline'} (read them with: densecalib report {out / 'offline'})")
     return 0
 
 
@@ -153,7 +153,8 @@ def _run_ros(rig, args, out: Path) -> int:
                         if f"{n}_optical_frame" in frames}
         _print_comparison(rig, focal, rig_from_cam, node.calibration.reference_camera,
                           "published CameraInfo + /tf_static")
-        print(f"files: {node.calibration_dir} (and {out / 'latest'})")
+        print(f"files: {node.calibration_dir} (and {out / 'latest'}; read them with: "
+              f"densecalib report {out})")
         return 0
     except (CalibrationError, TimeoutError) as exc:
         log.error("%s", exc)
