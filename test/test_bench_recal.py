@@ -38,9 +38,12 @@ def test_recalibration_method_recovers_truth(scene):
     assert record["message"] == "started from previous calibration"
     assert record["metrics"]["num_registered"] == 4
     assert record["metrics"]["auc3"] >= 80.0
-    # The uncertainty check: every camera's focal error against its sigma, pooled per method.
+    # The uncertainty check: every camera's focal and projection errors against their sigmas,
+    # pooled per method.
+    for kind in ("focal", "projection"):
+        values = record["error_sigma_ratios"][kind]
+        assert len(values) == 4 and all(np.isfinite(r) and r >= 0 for r in values), kind
     ratios = record["error_sigma_ratios"]["focal"]
-    assert len(ratios) == 4 and all(np.isfinite(r) and r >= 0 for r in ratios)
     check = summarize_error_sigma_ratios([{"results": [record]}])
     assert check[RECAL_METHOD]["focal"]["n"] == 4
     assert check[RECAL_METHOD]["focal"]["median"] == pytest.approx(np.median(ratios))

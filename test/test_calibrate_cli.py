@@ -40,6 +40,7 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     for name in names:  # standard deviations (core.uncertainty); the principal point was held
         quality = data["cameras"][name]["quality"]
         assert quality["focal_std_px"] > 0 and "principal_point_std_px" not in quality
+        assert quality["projection_std_px"] > 0
     for name in names:
         assert "camera_matrix:" in (out / f"{name}.yaml").read_text()
     assert {p.name for p in (out / "colmap").iterdir()} >= {"cameras.bin", "images.bin",

@@ -31,12 +31,14 @@ def test_camera_table_names_each_models_parameters(rig):
     rig.cameras["cam0"].quality.focal_std_px = 3.14
     rig.cameras["cam3"].quality.focal_std_px = 0.52
     rig.cameras["cam3"].quality.principal_point_std_px = 0.71
+    rig.cameras["cam3"].quality.projection_std_px = 0.333
     table = camera_table(rig)
     lines = {line.split()[0]: line for line in table.splitlines()[1:]}
     header = table.splitlines()[0].split()
     columns = {name: dict(zip(header, line.split())) for name, line in lines.items()}
     assert columns["cam0"]["f_std"] == "3.1" and columns["cam0"]["pp_std"] == "-"
     assert columns["cam3"]["f_std"] == "0.5" and columns["cam3"]["pp_std"] == "0.7"
+    assert columns["cam3"]["proj_std"] == "0.33" and columns["cam0"]["proj_std"] == "-"
     assert columns["cam1"]["f_std"] == "-"
     assert set(lines) == set(rig.cameras)
     assert "k1=" in lines["cam0"] and "k2=" in lines["cam0"] and "k3=" not in lines["cam0"]

@@ -300,6 +300,7 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert float(values["age_s"]) >= 0.0
     assert set(values["focal_std_px"].split(", ")) == {
         f"{n}={c.quality.focal_std_px:.1f}" for n, c in node.calibration.cameras.items()}
+    assert len(values["projection_std_px"].split(", ")) == len(node.calibration.cameras)
     published = camera_info_values(listener)
     published_tf = listener.rig_from_optical()
     files_before = sorted(p.name for p in out.iterdir())

@@ -10,7 +10,9 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.incremental import initial_intrinsics, run_incremental
+from densecalib_ros.core.metrics import projection_map_error
 from densecalib_ros.core.reconstruction import build_reconstruction
+from densecalib_ros.core.types import CameraIntrinsics
 from densecalib_ros.core.uncertainty import calibration_uncertainty
 
 from sfm_fixtures import gt_rig, gt_tracks
@@ -31,7 +33,7 @@ def _solved(seed):
 
 
 def test_sigmas_match_the_actual_errors_under_independent_noise():
-    ratios = []
+    focal, projection = [], []
     for seed in (1, 2):
         cams, rec = _solved(seed)
         sigmas = calibration_uncertainty(rec, "a", noise_px=0.5)
@@ -39,13 +41,16 @@ def test_sigmas_match_the_actual_errors_under_independent_noise():
         for name, cam in zip(NAMES, cams):
             s = sigmas[name]
             assert s.focal_std_px > 0 and s.principal_point_std_px is None  # pp held
-            estimate = next(c for c in rec.cameras.values()
-                            if c.camera_id == next(i.camera_id for i in rec.images.values()
-                                                   if i.name == name))
-            ratios.append(abs(estimate.params[0] - cam.params[0]) / s.focal_std_px)
+            image = next(i for i in rec.images.values() if i.name == name)
+            estimate = CameraIntrinsics.from_pycolmap(rec.cameras[image.camera_id])
+            focal.append(abs(estimate.params[0] - cam.params[0]) / s.focal_std_px)
+            projection.append(projection_map_error(cam, estimate)["mean_px"]
+                              / s.projection_std_px)
     # |error| / sigma of a well-predicted Gaussian: median ~0.67, rarely above 3.
-    print("focal |error| / sigma:", np.round(ratios, 2))
-    assert 0.2 < np.median(ratios) < 2.0 and max(ratios) < 4.0, ratios
+    print("focal |error| / sigma:", np.round(focal, 2))
+    print("projection error / sigma:", np.round(projection, 2))
+    for ratios in (focal, projection):
+        assert 0.2 < np.median(ratios) < 2.0 and max(ratios) < 4.0, ratios
 
 
 def test_a_free_principal_point_makes_the_focal_less_certain():

@@ -387,8 +387,9 @@ def summarize(scenes: list[dict]) -> list[dict]:
 
 
 def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
-    """Per our method: quantiles over all cameras of |focal error| / focal sigma
-    (core.uncertainty); a sigma that is only a lower bound shows as ratios well above 1."""
+    """Per our method: quantiles over all cameras of actual error / estimated sigma, focal and
+    projection (core.uncertainty.error_sigma_ratios); a sigma that is only a lower bound shows as
+    ratios well above 1."""
     pooled: dict[str, dict[str, list]] = {}
     for entry in scenes:
         for r in entry["results"]:
@@ -401,7 +402,8 @@ def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
 
 
 def format_error_sigma_ratios(check: dict) -> str:
-    lines = ["== uncertainty check: actual focal error / its estimated sigma, over cameras"]
+    lines = ["== uncertainty check: actual error / its estimated sigma over cameras (focal length; "
+             "projection: mean projection-map error / projection_std_px)"]
     for method, kinds in check.items():
         parts = [f"{kind} median {q['median']:.2f}, 90% {q['p90']:.2f}, max {q['max']:.2f} "
                  f"(n={q['n']})" for kind, q in kinds.items()]

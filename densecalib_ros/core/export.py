@@ -87,7 +87,7 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
             if cam.quality.num_multiview_observations is not None:
                 entry["quality"]["num_multiview_observations"] = int(
                     cam.quality.num_multiview_observations)
-            for key in ("focal_std_px", "principal_point_std_px"):
+            for key in ("focal_std_px", "principal_point_std_px", "projection_std_px"):
                 if getattr(cam.quality, key) is not None:
                     entry["quality"][key] = float(getattr(cam.quality, key))
         cams[name] = entry

@@ -365,6 +365,7 @@ def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],
         if name in sigmas and cam.quality is not None:
             cam.quality.focal_std_px = sigmas[name].focal_std_px
             cam.quality.principal_point_std_px = sigmas[name].principal_point_std_px
+            cam.quality.projection_std_px = sigmas[name].projection_std_px
 
 
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],

@@ -35,26 +35,29 @@ def principal_point_px(intrinsics: CameraIntrinsics) -> tuple[float, float]:
 
 def camera_table(rig: RigCalibration) -> str:
     """Per camera: model, image size, mean focal and its standard deviation, principal point (px,
-    COLMAP convention; its standard deviation where it was refined), distortion and the fit:
+    COLMAP convention; its standard deviation where it was refined), the standard deviation of
+    where a ray projects (proj_std: the intrinsics as a whole), distortion and the fit:
     reprojection RMS, observations (all / seen by >= 3 cameras) and the fraction of the image
     covered by observations. Standard deviations: core.uncertainty ('-' where not estimated)."""
     rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>9} {'f_std':>6} {'cx':>7} "
-            f"{'cy':>7} {'pp_std':>6} {'rms_px':>6} {'obs':>6} {'obs3+':>6} {'coverage':>8}  "
-            "distortion"]
+            f"{'cy':>7} {'pp_std':>6} {'proj_std':>8} {'rms_px':>6} {'obs':>6} {'obs3+':>6} "
+            f"{'coverage':>8}  distortion"]
     for name, cam in rig.cameras.items():
         k = cam.intrinsics
         cx, cy = principal_point_px(k)
         q = cam.quality
         if q is None:
-            f_std, pp_std, fit = "-", "-", f"{'-':>6} {'-':>6} {'-':>6} {'-':>8}"
+            f_std, pp_std, proj_std = "-", "-", "-"
+            fit = f"{'-':>6} {'-':>6} {'-':>6} {'-':>8}"
         else:
             f_std = _optional(q.focal_std_px, ".1f")
             pp_std = _optional(q.principal_point_std_px, ".1f")
+            proj_std = _optional(q.projection_std_px, ".2f")
             fit = (f"{q.reprojection_rms_px:6.2f} {q.num_observations:6d} "
                    f"{_optional(q.num_multiview_observations, 'd'):>6} {q.coverage:8.2f}")
         rows.append(f"{name:<16} {k.model:<15} {f'{k.width}x{k.height}':>9} "
-                    f"{mean_focal_px(k):9.1f} {f_std:>6} {cx:7.1f} {cy:7.1f} {pp_std:>6} {fit}  "
-                    f"{distortion_text(k)}")
+                    f"{mean_focal_px(k):9.1f} {f_std:>6} {cx:7.1f} {cy:7.1f} {pp_std:>6} "
+                    f"{proj_std:>8} {fit}  {distortion_text(k)}")
     return "\n".join(rows)
 
 
@@ -139,7 +142,8 @@ def rig_report(rig: RigCalibration, against: Optional[RigCalibration] = None,
              "camera layout in the rig frame (reference camera's optical frame: x right, y down, "
              "z forward)", layout_table(rig)]
     if against is not None:
-        parts += ["", f"change from {against_label}", change_table(calibration_change(against, rig))]
+        parts += ["", f"change from {against_label}",
+                  change_table(calibration_change(against, rig))]
         agreement = pose_agreement(against, rig)
         parts.append(f"relative-pose agreement with {against_label} over its "
                      f"{agreement['num_pairs']} camera pair(s): AUC@3 {agreement['auc3']:.1f}, "

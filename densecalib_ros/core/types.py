@@ -130,6 +130,7 @@ class CameraQuality:
     # lower bound). None where not estimated (a held principal point).
     focal_std_px: Optional[float] = None
     principal_point_std_px: Optional[float] = None
+    projection_std_px: Optional[float] = None  # the intrinsics as a whole, mean over the image
 
 
 @dataclass

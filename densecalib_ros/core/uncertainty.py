@@ -1,16 +1,18 @@
-"""How well the images pin down each camera's intrinsics: standard deviations of its focal length
-and (where it was refined) principal point from the bundle adjustment's information matrix at the
-final solution (pycolmap.estimate_ba_covariance: Schur complement over the points, then the
-camera blocks).
+"""How well the images pin down each camera's intrinsics: standard deviations of its focal length,
+of where a ray projects (the intrinsics as a whole) and, where it was refined, of its principal
+point, from the bundle adjustment's information matrix at the final solution
+(pycolmap.estimate_ba_covariance: Schur complement over the points, then the camera blocks).
 
 The problem is the final adjustment's: Cauchy loss, the reference camera's pose held and the
 scale fixed by COLMAP's two-camera gauge, the principal point free only where the calibration
 refined it. The covariance is that of unit pixel noise, scaled by the noise the fit shows
 (reprojection RMS / sqrt(2) per pixel coordinate). It treats observations as independent and the
-model as right, so it is a lower bound. On tracks with independent Gaussian noise the focal errors
-are about 1 sigma (test_uncertainty); on the bench scenes (README) 0.5-0.6 sigma at the median
-and up to 3 sigma, on rigs mixing lenses up to 8.5 sigma (the pinhole cameras' held principal
-point).
+model as right, so it is a lower bound. On tracks with independent Gaussian noise the errors are
+about 1 sigma (test_uncertainty). On the bench scenes (README) the focal errors were 0.5-0.6
+sigma at the median and up to 3 sigma (8.5 on rigs mixing lenses), the projection errors about 3
+sigma at the median: mostly a pinhole camera's principal point, held at the image centre, which a
+covariance conditional on it cannot see (started from the true principal points, the
+recalibration's ratios were near 1).
 
 No rotation sigma is given: measured the same way it was 6-10x smaller than the rotation errors
 at the median on generated rigs (a principal point held at the image centre that is not there
@@ -20,6 +22,7 @@ on Strecha: not a number to act on. The consensus runs' disagreement
 (quality.consensus_disagreement_deg) is the measured spread of the extrinsics."""
 from __future__ import annotations
 
+import copy
 import logging
 from dataclasses import dataclass
 from typing import Optional, Sequence
@@ -34,6 +37,14 @@ log = logging.getLogger(__name__)
 class CameraUncertainty:
     focal_std_px: Optional[float]  # of the mean focal length
     principal_point_std_px: Optional[float]  # larger of cx, cy; None where it was held fixed
+    # Mean over the image of the standard deviation (px) of where a ray projects: the
+    # intrinsics' uncertainty as a whole. A focal that trades off against the distortion (a
+    # fisheye seen over part of its field) has a large focal_std_px but a small projection_std_px.
+    projection_std_px: Optional[float] = None
+
+
+# Rays sampled on a grid of this many points per image side for projection_std_px.
+PROJECTION_GRID = 12
 
 
 def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
@@ -73,7 +84,39 @@ def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image
                               / len(focal_rows) ** 2) * noise_px)
         if refine_principal_point:
             pp = float(np.sqrt(max(var[free.index("cx")], var[free.index("cy")])))
+        projection = projection_std_px(camera, [names.index(n) for n in free],
+                                       params_cov * noise_px ** 2)
+        return CameraUncertainty(focal, pp, projection)
     return CameraUncertainty(focal, pp)
+
+
+def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],
+                      params_cov: np.ndarray) -> Optional[float]:
+    """Mean over a grid of image points of sqrt(trace) of the 2x2 covariance of where the point's
+    ray projects, params_cov being the covariance of camera.params[free_rows] (first-order
+    propagation, numerical Jacobian). Grid points whose ray does not map back to them (beyond a
+    fisheye model's invertible field) are left out; None when none is left."""
+    xs = np.linspace(0.5, camera.width - 0.5, PROJECTION_GRID)
+    ys = np.linspace(0.5, camera.height - 0.5, PROJECTION_GRID)
+    xy_px = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2).astype(np.float64)
+    rays = camera.cam_ray_from_img(xy_px)
+    back = camera.img_from_cam(rays)
+    valid = np.isfinite(back).all(1) & (np.linalg.norm(back - xy_px, axis=1) < 0.01)
+    if not valid.any():
+        return None
+    rays = rays[valid]
+    params = np.array(camera.params, dtype=np.float64)
+    jacobian = np.zeros((len(rays), 2, len(free_rows)))
+    for k, row in enumerate(free_rows):
+        step = 1e-6 * max(1.0, abs(params[row]))
+        moved = copy.copy(camera)
+        shifted = params.copy()
+        shifted[row] += step
+        moved.params = shifted
+        jacobian[:, :, k] = (moved.img_from_cam(rays) - back[valid]) / step
+    cov_px = np.einsum("nik,kl,njl->nij", jacobian, params_cov, jacobian)
+    std = np.sqrt(np.clip(np.trace(cov_px, axis1=1, axis2=2), 0.0, None))
+    return float(std[np.isfinite(std)].mean()) if np.isfinite(std).any() else None
 
 
 def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: str,
@@ -94,7 +137,7 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
         for image in wanted:
             out[image.name] = (_camera_uncertainty(cov, rec, rec.images[image.image_id], noise_px,
                                                    refine_pp) if cov is not None
-                               else CameraUncertainty(None, None))
+                               else CameraUncertainty(None, None, None))
     if any(u.focal_std_px is None for u in out.values()):
         log.debug("no covariance for some cameras' intrinsics (degenerate bundle adjustment)")
     return out
@@ -102,12 +145,20 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
 
 def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
     """How the sigmas compare with the actual errors against a ground truth (the benchmark's
-    check): {"focal": |focal error| / focal_std_px per camera with a sigma}."""
-    from .metrics import mean_focal_px
+    check), per camera with a sigma: "focal": |focal error| / focal_std_px; "projection": the
+    mean projection-map error (metrics.projection_map_error) / projection_std_px."""
+    from .metrics import mean_focal_px, projection_map_error
 
-    ratios = []
+    out = {"focal": [], "projection": []}
     for name, cam in rig.cameras.items():
-        if cam.quality is not None and cam.quality.focal_std_px and name in truth.cameras:
-            error = mean_focal_px(cam.intrinsics) - mean_focal_px(truth.cameras[name].intrinsics)
-            ratios.append(abs(error) / cam.quality.focal_std_px)
-    return {"focal": ratios}
+        q, true = cam.quality, truth.cameras.get(name)
+        if q is None or true is None:
+            continue
+        if q.focal_std_px:
+            error = mean_focal_px(cam.intrinsics) - mean_focal_px(true.intrinsics)
+            out["focal"].append(abs(error) / q.focal_std_px)
+        if q.projection_std_px:
+            error = projection_map_error(true.intrinsics, cam.intrinsics)["mean_px"]
+            if np.isfinite(error):
+                out["projection"].append(error / q.projection_std_px)
+    return out

@@ -680,13 +680,20 @@ class DenseCalibNode(Node):
                       if c.quality is not None and c.quality.focal_std_px is not None}
             if sigmas:
                 values["focal_std_px"] = ", ".join(f"{n}={s:.1f}" for n, s in sigmas.items())
+            projection = {n: c.quality.projection_std_px
+                          for n, c in self.calibration.cameras.items()
+                          if c.quality is not None and c.quality.projection_std_px is not None}
+            if projection:
+                values["projection_std_px"] = ", ".join(f"{n}={s:.2f}"
+                                                        for n, s in projection.items())
             if self.calibration.failed_cameras:
                 values["failed_cameras"] = ", ".join(self.calibration.failed_cameras)
             warnings = self.calibration.quality.get("warnings", [])
             if warnings:  # e.g. the consensus runs disagree: the rig may be wrong
                 values["warnings"] = " | ".join(warnings)
                 if status.level == DiagnosticStatus.OK:
-                    status.level, status.message = DiagnosticStatus.WARN, "calibrated, with warnings"
+                    status.level = DiagnosticStatus.WARN
+                    status.message = "calibrated, with warnings"
         if self._last_failure:
             values["last_failure"] = self._last_failure
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
