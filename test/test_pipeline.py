@@ -80,6 +80,10 @@ def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
     assert fisheye.sfm.principal_point_cameras(3) == (0, 1, 2)
     assert mixed.sfm.principal_point_cameras(3) == (2,)
     assert inverse.sfm.principal_point_cameras(3) == (1, 2)
+    # F_err: off for the fisheye preset, but a pair of a mixed rig's pinhole cameras is tested.
+    assert plain.sfm.pair_f_err_px(0, 1) == 10.0 and fisheye.sfm.pair_f_err_px(0, 1) is None
+    assert mixed.sfm.pair_f_err_px(0, 1) == 10.0 and mixed.sfm.pair_f_err_px(0, 2) is None
+    assert inverse.sfm.pair_f_err_px(0, 1) is None and inverse.sfm.pair_f_err_px(1, 2) is None
     with pytest.raises(InputError, match="Unknown lens"):
         resolve_camera_lenses(make_config(camera_lens={"a": "tele"}), names)
     with pytest.raises(InputError, match="unknown camera"):

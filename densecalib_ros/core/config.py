@@ -55,6 +55,9 @@ class SfMConfig:
     # A rig mixing lenses runs with the fisheye B_err; its pinhole cameras' observations are
     # judged by the regular preset's (resolve_camera_lenses). None: b_err_px for every camera.
     pinhole_b_err_px: Optional[float] = None
+    # Likewise F_err: a rig mixing lenses runs with it off (fisheye), but a pair of its pinhole
+    # cameras is tested as in the regular preset. None: f_err_px for every pair.
+    pinhole_f_err_px: Optional[float] = None
     refine_principal_point: bool = False  # in the final BA only
     share_intrinsics: bool = False  # one intrinsics block for identical cameras
     brute_force_first_pair: bool = True
@@ -91,6 +94,14 @@ class SfMConfig:
             return ()
         held = set(self.mixed_rig_pinhole_cameras(num_cameras))
         return tuple(c for c in range(num_cameras) if c not in held)
+
+    def pair_f_err_px(self, i: int, j: int) -> Optional[float]:
+        """F_err of the camera pair (i, j): f_err_px, or pinhole_f_err_px for two pinhole
+        cameras of a rig mixing lenses."""
+        if self.f_err_px is not None or self.pinhole_f_err_px is None or not self.camera_models:
+            return self.f_err_px
+        both_pinhole = all(lens_of_model(self.model_of(c)) == "pinhole" for c in (i, j))
+        return self.pinhole_f_err_px if both_pinhole else None
 
     def outlier_thresholds_px(self, num_cameras: int):
         """B_err: b_err_px (None = off), or per camera (C,) where pinhole_b_err_px applies."""
@@ -185,7 +196,8 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
     F_err off (a fisheye pair breaks the pinhole epipolar constraint), B_err 100 px while the
     fisheye distortion is still rough, the principal point refined and the fisheye cameras
     refined to OPENCV_FISHEYE; pinhole cameras stay RADIAL, their observations judged by the
-    regular preset's B_err (SfMConfig.pinhole_b_err_px). Idempotent: a resolved config is
+    regular preset's B_err and their pairs by its F_err (SfMConfig.pinhole_b_err_px,
+    pinhole_f_err_px). Idempotent: a resolved config is
     returned as it is. InputError on unknown cameras or lenses."""
     lenses = dict(config.camera_lens or {})
     if not lenses or config.sfm.camera_models:
@@ -208,7 +220,9 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
         # camera's outliers are judged as in the regular preset. (B_err 20 px for every camera
         # also removed the focal drift incremental.final_adjustment describes on a 4-camera rig,
         # but would cut the fisheye cameras' early observations; this alone did not.)
-        out.sfm.pinhole_b_err_px = make_config("regular", config.pipeline).sfm.b_err_px
+        regular = make_config("regular", config.pipeline).sfm
+        out.sfm.pinhole_b_err_px = regular.b_err_px
+        out.sfm.pinhole_f_err_px = regular.f_err_px
     # Cameras of the preset's lens keep its (possibly user-set) model.
     out.sfm.camera_models = tuple(config.sfm.camera_model if lens == preset_lens
                                   else LENS_MODELS[lens] for lens in per_camera)

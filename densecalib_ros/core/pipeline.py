@@ -73,21 +73,21 @@ def fundamental_matrices(tracks: Tracks, seed: int = 0) -> dict:
     return out
 
 
-def epipolar_filter(tracks: Tracks, two_view: dict, f_err_px: Optional[float]) -> Tracks:
-    """Drop tracks with any observation pair farther than f_err_px from its epipolar line
-    (symmetric point-to-line distance, the paper's F_err). Tracks are cycle-consistent, so a
-    pair that fails the test makes the whole track suspect. None = filter off."""
-    if f_err_px is None:
-        return tracks
+def epipolar_filter(tracks: Tracks, two_view: dict,
+                    f_err_px: Callable[[int, int], Optional[float]]) -> Tracks:
+    """Drop tracks with any observation pair (i, j) farther than f_err_px(i, j) from its epipolar
+    line (symmetric point-to-line distance, the paper's F_err; None: that pair is not tested).
+    Tracks are cycle-consistent, so a pair that fails the test makes the whole track suspect."""
     obs = tracks.observed()
     bad = np.zeros(tracks.num_tracks, dtype=bool)
     for (i, j), geom in two_view.items():
-        if geom.F_ji is None:
+        threshold = f_err_px(i, j)
+        if geom.F_ji is None or threshold is None:
             continue
         rows = np.flatnonzero(obs[:, i] & obs[:, j])
         d = symmetric_epipolar_distance_px(geom.F_ji, tracks.xy_px[rows, i], tracks.xy_px[rows, j])
-        bad[rows[d > f_err_px]] = True
-    return tracks.subset(~bad)
+        bad[rows[d > threshold]] = True
+    return tracks.subset(~bad) if bad.any() else tracks
 
 
 def initial_focals(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, int]]
@@ -175,9 +175,12 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     if two_view is None or (config.sfm.f_err_px is not None and
                             not any(g.F_ji is not None for g in two_view.values())):
         two_view = fundamental_matrices(tracks, seed)
-    filtered = epipolar_filter(tracks, two_view, config.sfm.f_err_px)
+    filtered = epipolar_filter(tracks, two_view, config.sfm.pair_f_err_px)
+    f_err = (f"{config.sfm.f_err_px} px" if config.sfm.f_err_px is not None
+             else f"{config.sfm.pinhole_f_err_px} px on pinhole pairs"
+             if config.sfm.pinhole_f_err_px is not None and config.sfm.camera_models else "off")
     say_progress(progress, f"{filtered.num_tracks} of {tracks.num_tracks} tracks pass the epipolar "
-                   f"filter (F_err {config.sfm.f_err_px} px)")
+                           f"filter (F_err {f_err})")
     if focal_px is None:
         focal_px = initial_focals(filtered, two_view, image_sizes)
     focal_px = np.asarray(focal_px, dtype=np.float64)

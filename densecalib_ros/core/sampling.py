@@ -293,7 +293,6 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
 
     # --- F_err filter and scores per stage-1 cycle --------------------------------------------
     clock = time.perf_counter()
-    f_err = sfm_cfg.f_err_px
     unverified = {k for k, g in two_view.items()
                   if g.num_inliers < s_cfg.min_two_cycle_pair_inliers}
     stats["unverified_pairs"] = sorted(f"{i}-{j}" for i, j in unverified)
@@ -302,8 +301,6 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
     removed = {n: 0 for n in closed_counts}
     for t, ms in enumerate(match_sets):
         for n, sets in stage1[t].items():
-            # Higher orders are verified by their closure; with F_err off (fisheye) 2-cycles are not.
-            thr = f_err if (f_err is not None or n > 2) else sfm_cfg.two_cycle_f_err_px
             for cs in sets:
                 if n == 2 and cs.cameras in unverified:
                     removed_unverified += len(cs)
@@ -314,6 +311,11 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
                 cam_rays = [rays(c, xy[:, k], focal) for k, c in enumerate(cs.cameras)]
                 for (a, ca), (b, cb) in combinations(enumerate(cs.cameras), 2):
                     geo = two_view.get((ca, cb))
+                    thr = sfm_cfg.pair_f_err_px(ca, cb)
+                    if thr is None and n == 2:
+                        # Higher orders are verified by their closure; with F_err off (fisheye)
+                        # 2-cycles are not.
+                        thr = sfm_cfg.two_cycle_f_err_px
                     if thr is not None and geo is not None:
                         d = _epipolar_distance_px(geo, xy[:, a], xy[:, b], cam_rays[a],
                                                   cam_rays[b], focal[ca], focal[cb])

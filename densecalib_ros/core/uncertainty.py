@@ -9,7 +9,7 @@ refined it. The covariance is that of unit pixel noise, scaled by the noise the 
 (reprojection RMS / sqrt(2) per pixel coordinate). It treats observations as independent and the
 model as right, so it is a lower bound. On tracks with independent Gaussian noise the errors are
 about 1 sigma (test_uncertainty). On the bench scenes (README) the focal errors were 0.5-0.6
-sigma at the median and up to 3 sigma (8.5 on rigs mixing lenses), the projection errors about 3
+sigma at the median and up to 3 sigma (15 on rigs mixing lenses), the projection errors about 3
 sigma at the median: mostly a pinhole camera's principal point, held at the image centre, which a
 covariance conditional on it cannot see (started from the true principal points, the
 recalibration's ratios were near 1).
