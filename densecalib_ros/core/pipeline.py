@@ -176,9 +176,13 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                             not any(g.F_ji is not None for g in two_view.values())):
         two_view = fundamental_matrices(tracks, seed)
     filtered = epipolar_filter(tracks, two_view, config.sfm.pair_f_err_px)
-    f_err = (f"{config.sfm.f_err_px} px" if config.sfm.f_err_px is not None
-             else f"{config.sfm.pinhole_f_err_px} px on pinhole pairs"
-             if config.sfm.pinhole_f_err_px is not None and config.sfm.camera_models else "off")
+    if config.sfm.f_err_px is not None:
+        f_err = f"{config.sfm.f_err_px} px"
+    elif config.sfm.pinhole_f_err_px is not None and \
+            len(config.sfm.mixed_rig_pinhole_cameras(C)) >= 2:
+        f_err = f"{config.sfm.pinhole_f_err_px} px between pinhole cameras"
+    else:
+        f_err = "off"
     say_progress(progress, f"{filtered.num_tracks} of {tracks.num_tracks} tracks pass the epipolar "
                            f"filter (F_err {f_err})")
     if focal_px is None:
@@ -362,8 +366,12 @@ def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],
     pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
     # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
     noise_px = float(rig.quality["reprojection_rms_px"]) / np.sqrt(2.0)
-    sigmas = calibration_uncertainty(result.reconstruction, rig.reference_camera, noise_px,
-                                     pp_refined)
+    try:
+        sigmas = calibration_uncertainty(result.reconstruction, rig.reference_camera, noise_px,
+                                         pp_refined)
+    except (RuntimeError, ValueError) as exc:  # a diagnostic: never a reason to lose the result
+        log.warning("no standard deviations for this calibration: %s", exc)
+        return
     for name, cam in rig.cameras.items():
         if name in sigmas and cam.quality is not None:
             cam.quality.focal_std_px = sigmas[name].focal_std_px

@@ -48,8 +48,10 @@ PROJECTION_GRID = 12
 
 
 def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
-                refine_principal_point: bool):
-    """(BACovariance, the reconstruction copy it refers to), or (None, None) when it fails."""
+                refine_principal_point: bool, held_intrinsics: Sequence[str] = ()):
+    """(BACovariance, the reconstruction copy it refers to), or (None, None) when it fails.
+    held_intrinsics: cameras whose intrinsics are constant (a mixed rig's pinhole cameras while
+    the fisheye principal points are refined, as in incremental.final_adjustment)."""
     rec = pycolmap.Reconstruction(reconstruction)  # the adjuster's problem points into it
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_principal_point = refine_principal_point
@@ -62,6 +64,8 @@ def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
         config.add_image(image_id)
         if image.name == reference:
             config.set_constant_rig_from_world_pose(image.frame_id)
+        if image.name in held_intrinsics:
+            config.set_constant_cam_intrinsics(image.camera_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
     cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
@@ -133,7 +137,9 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
                   if (im.name in pp_refined) == refine_pp]
         if not wanted:
             continue
-        cov, rec = _covariance(reconstruction, reference, refine_pp)
+        held = [im.name for im in reconstruction.images.values()
+                if refine_pp and im.name not in pp_refined]
+        cov, rec = _covariance(reconstruction, reference, refine_pp, held)
         for image in wanted:
             out[image.name] = (_camera_uncertainty(cov, rec, rec.images[image.image_id], noise_px,
                                                    refine_pp) if cov is not None
