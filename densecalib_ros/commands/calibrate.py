@@ -179,13 +179,11 @@ def run(args: argparse.Namespace) -> int:
                  "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),
                  config.pipeline, config.matcher)
         baseline = parse_known_baseline(args.known_baseline, names)
-        previous = None
         if args.previous:
             from ..core.export import read_calibration
+            from ..core.recalibration import recalibrate
             previous = read_calibration(args.previous)
             baseline = baseline or _previous_baseline(previous)
-        if previous is not None:
-            from ..core.recalibration import recalibrate
             result = recalibrate(frame_sets, names, config, previous)
         else:
             result = run_calibration(frame_sets, names, config, progress=None)

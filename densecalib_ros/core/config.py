@@ -196,9 +196,9 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
     F_err off (a fisheye pair breaks the pinhole epipolar constraint), B_err 100 px while the
     fisheye distortion is still rough, the principal point refined and the fisheye cameras
     refined to OPENCV_FISHEYE; pinhole cameras stay RADIAL, their observations judged by the
-    regular preset's B_err and their pairs by its F_err (SfMConfig.pinhole_b_err_px,
-    pinhole_f_err_px). Idempotent: a resolved config is
-    returned as it is. InputError on unknown cameras or lenses."""
+    regular preset's B_err, and a pair of two pinhole cameras by its F_err
+    (SfMConfig.pinhole_b_err_px, pinhole_f_err_px). Idempotent: a resolved config is returned
+    as it is. InputError on unknown cameras or lenses."""
     lenses = dict(config.camera_lens or {})
     if not lenses or config.sfm.camera_models:
         return config

@@ -676,16 +676,12 @@ class DenseCalibNode(Node):
                 cameras=", ".join(self.calibration.cameras),
                 age_s=f"{time.time() - self._calibrated_at:.1f}",
                 files=str(self.calibration_dir))
-            sigmas = {n: c.quality.focal_std_px for n, c in self.calibration.cameras.items()
-                      if c.quality is not None and c.quality.focal_std_px is not None}
-            if sigmas:
-                values["focal_std_px"] = ", ".join(f"{n}={s:.1f}" for n, s in sigmas.items())
-            projection = {n: c.quality.projection_std_px
-                          for n, c in self.calibration.cameras.items()
-                          if c.quality is not None and c.quality.projection_std_px is not None}
-            if projection:
-                values["projection_std_px"] = ", ".join(f"{n}={s:.2f}"
-                                                        for n, s in projection.items())
+            for key, fmt in (("focal_std_px", ".1f"), ("projection_std_px", ".2f")):
+                per_camera = [f"{n}={getattr(c.quality, key):{fmt}}"
+                              for n, c in self.calibration.cameras.items()
+                              if c.quality is not None and getattr(c.quality, key) is not None]
+                if per_camera:
+                    values[key] = ", ".join(per_camera)
             if self.calibration.failed_cameras:
                 values["failed_cameras"] = ", ".join(self.calibration.failed_cameras)
             warnings = self.calibration.quality.get("warnings", [])
