@@ -120,6 +120,15 @@ def focal_errors(est: Mapping[str, CameraIntrinsics],
     return out
 
 
+def invertible_pixel_rays(camera, xy_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rays (N, 3), valid (N,)): camera's (pycolmap) rays of the pixels xy_px and which of them
+    it maps back to their own pixel within 0.01 px: pycolmap's fisheye models do not invert
+    beyond 90 deg off-axis."""
+    rays = camera.cam_ray_from_img(xy_px)
+    back = camera.img_from_cam(rays)
+    return rays, np.isfinite(back).all(1) & (np.linalg.norm(back - xy_px, axis=1) < 0.01)
+
+
 def projection_map_error(true: CameraIntrinsics, est: CameraIntrinsics,
                          grid_step_px: float = 16.0) -> dict:
     """Distance between the true and the estimated projection maps, in pixels.
@@ -142,9 +151,7 @@ def projection_map_error(true: CameraIntrinsics, est: CameraIntrinsics,
     xs = np.arange(0.5, true.width, grid_step_px)
     ys = np.arange(0.5, true.height, grid_step_px)
     xy_px = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2).astype(np.float64)
-    rays_in_cam = cam_true.cam_ray_from_img(xy_px)
-    back = cam_true.img_from_cam(rays_in_cam)
-    valid = np.isfinite(back).all(1) & (np.linalg.norm(back - xy_px, axis=1) < 0.01)
+    rays_in_cam, valid = invertible_pixel_rays(cam_true, xy_px)
     xy_est = cam_est.img_from_cam(rays_in_cam[valid])
     projectable = np.isfinite(xy_est).all(1)
     err = np.linalg.norm(xy_est[projectable] - xy_px[valid][projectable], axis=1)

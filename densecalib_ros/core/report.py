@@ -13,22 +13,16 @@ from .metrics import mean_focal_px
 from .types import CameraIntrinsics, RigCalibration
 
 
-def parameter_names(intrinsics: CameraIntrinsics) -> list[str]:
-    """COLMAP's names of the model's parameters, e.g. ["f", "cx", "cy", "k1", "k2"]."""
-    cam = intrinsics.to_pycolmap()
-    return [name.strip() for name in cam.params_info.split(",")]
-
-
 def distortion_text(intrinsics: CameraIntrinsics) -> str:
     """The parameters after the principal point, named: "k1=-0.0512 k2=0.0104"."""
-    names = parameter_names(intrinsics)
+    names = intrinsics.parameter_names
     first = names.index("cy") + 1
     return " ".join(f"{n}={v:.4g}" for n, v in zip(names[first:], intrinsics.params[first:]))
 
 
 def principal_point_px(intrinsics: CameraIntrinsics) -> tuple[float, float]:
     """(cx, cy) in COLMAP pixel coordinates (the centre of the top-left pixel is 0.5, 0.5)."""
-    names = parameter_names(intrinsics)
+    names = intrinsics.parameter_names
     return (float(intrinsics.params[names.index("cx")]),
             float(intrinsics.params[names.index("cy")]))
 

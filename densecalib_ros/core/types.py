@@ -15,6 +15,11 @@ from typing import Optional
 import numpy as np
 
 
+def colmap_parameter_names(camera) -> list[str]:
+    """A pycolmap.Camera's parameter names, in params order (from its params_info)."""
+    return [name.strip() for name in camera.params_info.split(",")]
+
+
 @dataclass
 class CameraIntrinsics:
     """One camera's intrinsics in COLMAP terms."""
@@ -30,6 +35,11 @@ class CameraIntrinsics:
         return pycolmap.Camera(
             model=self.model, width=int(self.width), height=int(self.height),
             params=np.asarray(self.params, dtype=np.float64), camera_id=camera_id)
+
+    @property
+    def parameter_names(self) -> list[str]:
+        """COLMAP's names of the model's parameters, e.g. ["f", "cx", "cy", "k1", "k2"]."""
+        return colmap_parameter_names(self.to_pycolmap())
 
     @classmethod
     def from_pycolmap(cls, camera) -> "CameraIntrinsics":

@@ -30,6 +30,9 @@ from typing import Optional, Sequence
 import numpy as np
 import pycolmap
 
+from .metrics import invertible_pixel_rays, mean_focal_px, projection_map_error
+from .types import colmap_parameter_names
+
 log = logging.getLogger(__name__)
 
 
@@ -40,7 +43,7 @@ class CameraUncertainty:
     # Mean over the image of the standard deviation (px) of where a ray projects: the
     # intrinsics' uncertainty as a whole. A focal that trades off against the distortion (a
     # fisheye seen over part of its field) has a large focal_std_px but a small projection_std_px.
-    projection_std_px: Optional[float] = None
+    projection_std_px: Optional[float]
 
 
 # Rays sampled on a grid of this many points per image side for projection_std_px.
@@ -75,23 +78,21 @@ def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
 def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image,
                         noise_px: float, refine_principal_point: bool) -> CameraUncertainty:
     camera = rec.cameras[image.camera_id]
-    names = [n.strip() for n in camera.params_info.split(",")]
+    names = colmap_parameter_names(camera)
     # The rows of the free parameters, in order (held ones are left out of the covariance).
     free = [n for n in names if refine_principal_point or n not in ("cx", "cy")]
-    params_cov = cov.get_other_params_cov(camera.params)
-    focal = pp = None
-    if params_cov is not None and params_cov.shape[0] == len(free):
-        var = np.diag(params_cov) * noise_px ** 2
-        focal_rows = [i for i, n in enumerate(free) if n in ("f", "fx", "fy")]
-        # The mean focal's variance: the mean of the focal block over its size squared.
-        focal = float(np.sqrt(params_cov[np.ix_(focal_rows, focal_rows)].sum()
-                              / len(focal_rows) ** 2) * noise_px)
-        if refine_principal_point:
-            pp = float(np.sqrt(max(var[free.index("cx")], var[free.index("cy")])))
-        projection = projection_std_px(camera, [names.index(n) for n in free],
-                                       params_cov * noise_px ** 2)
-        return CameraUncertainty(focal, pp, projection)
-    return CameraUncertainty(focal, pp)
+    unit_cov = cov.get_other_params_cov(camera.params)
+    if unit_cov is None or unit_cov.shape[0] != len(free):
+        return CameraUncertainty(None, None, None)
+    params_cov = unit_cov * noise_px ** 2
+    focal_rows = [i for i, n in enumerate(free) if n in ("f", "fx", "fy")]
+    # The mean focal's variance: the sum of the focal block over its size squared.
+    focal = float(np.sqrt(params_cov[np.ix_(focal_rows, focal_rows)].sum()
+                          / len(focal_rows) ** 2))
+    pp = (float(np.sqrt(max(params_cov[free.index(n), free.index(n)] for n in ("cx", "cy"))))
+          if refine_principal_point else None)
+    projection = projection_std_px(camera, [names.index(n) for n in free], params_cov)
+    return CameraUncertainty(focal, pp, projection)
 
 
 def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],
@@ -103,12 +104,11 @@ def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],
     xs = np.linspace(0.5, camera.width - 0.5, PROJECTION_GRID)
     ys = np.linspace(0.5, camera.height - 0.5, PROJECTION_GRID)
     xy_px = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2).astype(np.float64)
-    rays = camera.cam_ray_from_img(xy_px)
-    back = camera.img_from_cam(rays)
-    valid = np.isfinite(back).all(1) & (np.linalg.norm(back - xy_px, axis=1) < 0.01)
+    rays, valid = invertible_pixel_rays(camera, xy_px)
     if not valid.any():
         return None
     rays = rays[valid]
+    projected = camera.img_from_cam(rays)
     params = np.array(camera.params, dtype=np.float64)
     jacobian = np.zeros((len(rays), 2, len(free_rows)))
     for k, row in enumerate(free_rows):
@@ -117,7 +117,7 @@ def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],
         shifted = params.copy()
         shifted[row] += step
         moved.params = shifted
-        jacobian[:, :, k] = (moved.img_from_cam(rays) - back[valid]) / step
+        jacobian[:, :, k] = (moved.img_from_cam(rays) - projected) / step
     cov_px = np.einsum("nik,kl,njl->nij", jacobian, params_cov, jacobian)
     std = np.sqrt(np.clip(np.trace(cov_px, axis1=1, axis2=2), 0.0, None))
     return float(std[np.isfinite(std)].mean()) if np.isfinite(std).any() else None
@@ -153,8 +153,6 @@ def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
     """How the sigmas compare with the actual errors against a ground truth (the benchmark's
     check), per camera with a sigma: "focal": |focal error| / focal_std_px; "projection": the
     mean projection-map error (metrics.projection_map_error) / projection_std_px."""
-    from .metrics import mean_focal_px, projection_map_error
-
     out = {"focal": [], "projection": []}
     for name, cam in rig.cameras.items():
         q, true = cam.quality, truth.cameras.get(name)
