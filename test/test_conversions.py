@@ -51,14 +51,68 @@ def test_bgra_drops_alpha():
 
 
 def test_bad_images_are_refused_with_a_reason():
-    with pytest.raises(InputError, match="bayer_rggb8.*rgb8"):
-        decode_raw("bayer_rggb8", 24, 32, 32, bytes(24 * 32))
+    with pytest.raises(InputError, match="32FC1.*rgb8.*bayer_rggb8"):  # e.g. a depth topic
+        decode_raw("32FC1", 24, 32, 128, bytes(24 * 128))
+    with pytest.raises(InputError, match="even width"):
+        decode_raw("yuv422", 24, 31, 62, bytes(24 * 62))
     with pytest.raises(InputError, match="needs step"):
         decode_raw("rgb8", 24, 32, 96, bytes(100))
     with pytest.raises(InputError, match="Cannot decode"):
         decode_compressed("jpeg", b"not a jpeg")
     with pytest.raises(InputError, match="jpeg or png"):
         encode_compressed(RGB, "webp")
+
+
+# A smooth colour image: demosaicing interpolates, so it is exact only where colour is linear.
+_YY, _XX = np.mgrid[0:24, 0:32]
+SMOOTH_RGB = np.stack([_XX * 7, _YY * 9 + 20, 240 - _XX * 5], axis=2).astype(np.uint8)
+
+
+def _mosaic(rgb, pattern):
+    """ROS Bayer pattern, e.g. "rggb": row 0 is R G R G..., row 1 is G B G B..."""
+    out = np.zeros(rgb.shape[:2], rgb.dtype)
+    for k, (dy, dx) in enumerate([(0, 0), (0, 1), (1, 0), (1, 1)]):
+        out[dy::2, dx::2] = rgb[dy::2, dx::2, "rgb".index(pattern[k])]
+    return out
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_bayer_is_demosaiced_to_rgb(pattern):
+    mosaic8 = _mosaic(SMOOTH_RGB, pattern)
+    assert encode_raw(SMOOTH_RGB, f"bayer_{pattern}8") == (24, 32, 32, mosaic8.tobytes())
+    out = decode_raw(f"bayer_{pattern}8", 24, 32, 32, mosaic8.tobytes())
+    assert out.shape == (24, 32, 3) and out.dtype == np.uint8
+    # interior (the border rows and columns are extrapolated): the right colours, not swapped
+    assert np.abs(out.astype(int) - SMOOTH_RGB)[2:-2, 2:-2].max() <= 1
+    # 12-bit sensor in a 16-bit big-endian message: the same colours
+    mosaic12 = (mosaic8.astype(np.uint16) << 4) | 0x3
+    out16 = decode_raw(f"bayer_{pattern}16", 24, 32, 64, mosaic12.astype(">u2").tobytes(),
+                       is_bigendian=True)
+    assert np.array_equal(out16, out)
+
+
+@pytest.mark.parametrize("encoding", ["yuv422", "uyvy", "yuv422_yuy2", "yuyv"])
+def test_yuv422_is_converted_to_rgb(encoding):
+    rgb = SMOOTH_RGB.astype(float)
+    # BT.601 video range, the convention of ROS camera drivers' 4:2:2 output
+    y = 16 + (65.738 * rgb[..., 0] + 129.057 * rgb[..., 1] + 25.064 * rgb[..., 2]) / 256
+    u = 128 + (-37.945 * rgb[..., 0] - 74.494 * rgb[..., 1] + 112.439 * rgb[..., 2]) / 256
+    v = 128 + (112.439 * rgb[..., 0] - 94.154 * rgb[..., 1] - 18.285 * rgb[..., 2]) / 256
+    u2, v2 = (u[:, 0::2] + u[:, 1::2]) / 2, (v[:, 0::2] + v[:, 1::2]) / 2  # 4:2:2 subsampling
+    macro = [u2, y[:, 0::2], v2, y[:, 1::2]] if encoding in ("yuv422", "uyvy") else \
+        [y[:, 0::2], u2, y[:, 1::2], v2]
+    data = np.round(np.stack(macro, axis=2)).astype(np.uint8).tobytes()  # 2 bytes per pixel
+    out = decode_raw(encoding, 24, 32, 64, data)
+    assert out.shape == (24, 32, 3) and out.dtype == np.uint8
+    assert np.abs(out.astype(int) - SMOOTH_RGB).max() <= 8  # chroma is shared by pixel pairs
+    assert np.abs(out.astype(int) - SMOOTH_RGB).mean() < 3
+
+
+def test_rgb16_keeps_contrast():
+    twelve = (RGB.astype(np.uint16) << 4)
+    assert np.array_equal(decode_raw("rgb16", 24, 32, 192, twelve.astype("<u2").tobytes()), RGB)
+    assert np.array_equal(decode_raw("bgr16", 24, 32, 192,
+                                     twelve[..., ::-1].astype("<u2").tobytes()), RGB)
 
 
 def test_compressed_png_exact_and_jpeg_close():
@@ -89,6 +143,14 @@ def test_image_messages_round_trip(conv, encoding):
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1_700_000_000, 123_456_789)
     assert conv.message_stamp_ns(msg) == 1_700_000_000_123_456_789
     assert np.array_equal(conv.image_msg_to_numpy(msg), src)
+
+
+def test_bayer_message_is_demosaiced(conv):
+    """A machine-vision driver's raw Bayer frame, as the node receives it from DDS."""
+    msg = conv.numpy_to_image_msg(SMOOTH_RGB, "bayer_gbrg8", 5, "f")
+    assert msg.encoding == "bayer_gbrg8" and msg.step == 32
+    out = conv.image_msg_to_numpy(msg)
+    assert np.abs(out.astype(int) - SMOOTH_RGB)[2:-2, 2:-2].max() <= 1
 
 
 def test_compressed_message_round_trip(conv):

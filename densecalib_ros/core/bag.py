@@ -1,11 +1,11 @@
 """Offline rosbag2 reading and writing (sqlite3 and mcap) with the pure-Python `rosbags` package,
 no ROS runtime.
 
-Image topics may be sensor_msgs/msg/Image (rgb8, bgr8, rgba8, bgra8, mono8, mono16) or
-sensor_msgs/msg/CompressedImage (jpeg, png). Frame sets are formed by approximate-time
-synchronisation of the header stamps (core.sync, the same logic the node uses), in the bag's
-message order. Only the selected frame sets are decoded (two passes), so memory stays bounded by
-what is returned.
+Image topics may be sensor_msgs/msg/Image (any encoding in core.image_encoding.RAW_ENCODINGS:
+rgb8, bgr8, mono8, mono16, Bayer, YUV 4:2:2, ...) or sensor_msgs/msg/CompressedImage (jpeg,
+png). Frame sets are formed by approximate-time synchronisation of the header stamps (core.sync,
+the same logic the node uses), in the bag's message order. Only the selected frame sets are
+decoded (two passes), so memory stays bounded by what is returned.
 """
 from __future__ import annotations
 
@@ -167,8 +167,9 @@ def write_image_bag(bag_path: str | os.PathLike, frame_sets: list[list[np.ndarra
                     encoding: str = "rgb8", frame_ids: Optional[list[str]] = None) -> None:
     """Write frame_sets[t][c] (uint8 RGB (H, W, 3) or gray (H, W)) as a rosbag2 bag: topic c gets
     one message per set, header stamp stamps_ns[t][c] (or stamps_ns[t] for all cameras), log time =
-    header stamp. encoding: rgb8, bgr8, mono8, mono16 (sensor_msgs/Image) or jpeg, png
-    (CompressedImage). storage: sqlite3 or mcap. Used to make test bags and to export rigs."""
+    header stamp. encoding: rgb8, bgr8, mono8, mono16, bayer_<pattern>8 (sensor_msgs/Image) or
+    jpeg, png (CompressedImage). storage: sqlite3 or mcap. Used to make test bags and to export
+    rigs."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from .image_encoding import COMPRESSED_FORMATS, encode_compressed, encode_raw

@@ -4,7 +4,8 @@ Works on the fields of sensor_msgs/Image (encoding, height, width, step, is_bige
 sensor_msgs/CompressedImage (format, data), whatever object carries them (an rclpy message or a
 `rosbags` deserialised message). Output images for the pipeline are uint8: (H, W, 3) RGB or (H, W)
 gray; 16-bit images are shifted down to 8 bits by their used bit depth (a 12-bit camera keeps its
-full contrast).
+full contrast). Bayer mosaics (what machine-vision drivers publish, and rigs record to save
+bandwidth) are demosaiced and YUV 4:2:2 (USB cameras) converted, both to RGB.
 """
 from __future__ import annotations
 
@@ -13,15 +14,32 @@ import numpy as np
 
 from .errors import InputError
 
-# encoding -> (channels, dtype, channel order to reach RGB or gray)
+# encoding -> (channels, dtype, layout to reach RGB or gray); names as in sensor_msgs
+# image_encodings.hpp
 RAW_ENCODINGS = {
     "rgb8": (3, np.uint8, "rgb"), "bgr8": (3, np.uint8, "bgr"),
     "rgba8": (4, np.uint8, "rgba"), "bgra8": (4, np.uint8, "bgra"),
+    "rgb16": (3, np.uint16, "rgb"), "bgr16": (3, np.uint16, "bgr"),
+    "rgba16": (4, np.uint16, "rgba"), "bgra16": (4, np.uint16, "bgra"),
     "mono8": (1, np.uint8, "gray"), "8UC1": (1, np.uint8, "gray"),
     "8UC3": (3, np.uint8, "bgr"),
     "mono16": (1, np.uint16, "gray"), "16UC1": (1, np.uint16, "gray"),
+    **{f"bayer_{p}{bits}": (1, dtype, f"bayer_{p}") for p in ("rggb", "bggr", "gbrg", "grbg")
+       for bits, dtype in ((8, np.uint8), (16, np.uint16))},
+    # 4:2:2, two bytes per pixel: "yuv422"/"uyvy" is U Y0 V Y1, "yuv422_yuy2"/"yuyv" is Y0 U Y1 V
+    "yuv422": (2, np.uint8, "uyvy"), "uyvy": (2, np.uint8, "uyvy"),
+    "yuv422_yuy2": (2, np.uint8, "yuyv"), "yuyv": (2, np.uint8, "yuyv"),
 }
 COMPRESSED_FORMATS = ("jpeg", "png")
+BAYER8_ENCODINGS = ("bayer_rggb8", "bayer_bggr8", "bayer_gbrg8", "bayer_grbg8")
+
+# OpenCV names a Bayer pattern by the second row's second and third pixels, so ROS's rggb (first
+# row R G) is OpenCV's "BG"; test_conversions checks each pattern on a mosaiced image.
+_TO_RGB = {
+    "bayer_rggb": cv2.COLOR_BayerBG2RGB, "bayer_bggr": cv2.COLOR_BayerRG2RGB,
+    "bayer_gbrg": cv2.COLOR_BayerGR2RGB, "bayer_grbg": cv2.COLOR_BayerGB2RGB,
+    "uyvy": cv2.COLOR_YUV2RGB_UYVY, "yuyv": cv2.COLOR_YUV2RGB_YUY2,
+}
 
 
 def raw_to_array(encoding: str, height: int, width: int, step: int, data,
@@ -31,7 +49,9 @@ def raw_to_array(encoding: str, height: int, width: int, step: int, data,
     if encoding not in RAW_ENCODINGS:
         raise InputError(f"Unsupported image encoding {encoding!r}: publish one of "
                          f"{', '.join(RAW_ENCODINGS)} or a CompressedImage (jpeg/png).")
-    channels, dtype, _ = RAW_ENCODINGS[encoding]
+    channels, dtype, layout = RAW_ENCODINGS[encoding]
+    if layout in ("uyvy", "yuyv") and width % 2:
+        raise InputError(f"Malformed {encoding} image: 4:2:2 needs an even width, got {width}.")
     itemsize = np.dtype(dtype).itemsize
     buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(),
                         dtype=np.uint8)
@@ -46,11 +66,13 @@ def raw_to_array(encoding: str, height: int, width: int, step: int, data,
 
 
 def to_pipeline_image(pixels: np.ndarray, order: str) -> np.ndarray:
-    """Stored pixels in channel `order` (rgb, bgr, rgba, bgra, gray) -> uint8 RGB (H, W, 3) or
-    gray (H, W)."""
+    """Stored pixels in layout `order` (rgb, bgr, rgba, bgra, gray, bayer_<pattern>, uyvy, yuyv)
+    -> uint8 RGB (H, W, 3) or gray (H, W)."""
     if pixels.dtype == np.uint16:
         bits = max(8, int(pixels.max()).bit_length())
         pixels = (pixels >> (bits - 8)).astype(np.uint8)
+    if order in _TO_RGB:
+        return cv2.cvtColor(np.ascontiguousarray(pixels), _TO_RGB[order])
     if order == "gray":
         return np.ascontiguousarray(pixels)
     if order in ("bgr", "bgra"):
@@ -81,7 +103,8 @@ def decode_compressed(fmt: str, data) -> np.ndarray:
 
 def encode_raw(image: np.ndarray, encoding: str) -> tuple[int, int, int, bytes]:
     """uint8 RGB (H, W, 3) or gray (H, W) (uint16 for mono16) -> (height, width, step, data) of a
-    little-endian sensor_msgs/Image with `encoding` in rgb8, bgr8, mono8, mono16."""
+    little-endian sensor_msgs/Image with `encoding` in rgb8, bgr8, mono8, mono16 or bayer_<pattern>8
+    (the colour filter of a raw sensor, e.g. bayer_rggb8: rows R G R G.. and G B G B..)."""
     image = np.asarray(image)
     if encoding == "rgb8":
         out = _as_rgb(image)
@@ -92,8 +115,14 @@ def encode_raw(image: np.ndarray, encoding: str) -> tuple[int, int, int, bytes]:
     elif encoding == "mono16":
         out = image.astype("<u2") if image.dtype == np.uint16 else \
             _as_gray(image).astype("<u2") * 257
+    elif encoding in BAYER8_ENCODINGS:
+        rgb, pattern = _as_rgb(image), encoding[len("bayer_"):-1]
+        out = np.empty(rgb.shape[:2], np.uint8)
+        for k, (dy, dx) in enumerate([(0, 0), (0, 1), (1, 0), (1, 1)]):
+            out[dy::2, dx::2] = rgb[dy::2, dx::2, "rgb".index(pattern[k])]
     else:
-        raise InputError(f"Cannot encode images as {encoding!r}: use rgb8, bgr8, mono8 or mono16.")
+        raise InputError(f"Cannot encode images as {encoding!r}: use rgb8, bgr8, mono8, mono16 or "
+                         f"one of {', '.join(BAYER8_ENCODINGS)}.")
     out = np.ascontiguousarray(out)
     height, width = out.shape[:2]
     return height, width, out.strides[0], out.tobytes()

@@ -1,7 +1,8 @@
 """ROS message <-> numpy / core types, without cv_bridge or tf2_ros.
 
-Images: sensor_msgs/Image (rgb8, bgr8, mono8, mono16; rgba8/bgra8 read) and CompressedImage
-(jpeg, png) <-> uint8 RGB (H, W, 3) / gray (H, W) arrays (core.image_encoding does the pixels).
+Images: sensor_msgs/Image (rgb8, bgr8, mono8, mono16, bayer_<pattern>8; more read: see
+core.image_encoding.RAW_ENCODINGS) and CompressedImage (jpeg, png) <-> uint8 RGB (H, W, 3) / gray
+(H, W) arrays (core.image_encoding does the pixels).
 Calibration: CameraInfo from core.export.ros_camera_info (ROS pixel convention, ROS distortion
 model names); TransformStamped parent=rig frame -> child=<camera>_optical_frame holding
 rig_from_cam = inverse(cam_from_rig) (tf's convention: the child frame's pose in the parent frame).
@@ -35,7 +36,8 @@ def image_msg_to_numpy(msg) -> np.ndarray:
 
 
 def numpy_to_image_msg(image: np.ndarray, encoding: str, t_ns: int, frame_id: str) -> Image:
-    """uint8 RGB (H, W, 3) or gray (H, W) -> sensor_msgs/Image in rgb8, bgr8, mono8 or mono16."""
+    """uint8 RGB (H, W, 3) or gray (H, W) -> sensor_msgs/Image in rgb8, bgr8, mono8, mono16 or
+    bayer_<pattern>8."""
     height, width, step, data = encode_raw(image, encoding)
     msg = Image(height=height, width=width, encoding=encoding, is_bigendian=0, step=step)
     msg.data = data
