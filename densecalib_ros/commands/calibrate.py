@@ -1,4 +1,4 @@
-"""`densecalib calibrate`: calibrate a rig from a folder of images or a rosbag2 bag.
+"""`densecalib calibrate`: calibrate a rig from a folder of images or videos or a rosbag2 bag.
 
 Writes OUT/calibration.json, OUT/<camera>.yaml (ROS camera_info) and OUT/colmap/ (COLMAP model),
 all or nothing: OUT is replaced only when the calibration succeeded. Progress goes to stderr
@@ -11,10 +11,13 @@ import argparse
 import logging
 from typing import Optional
 
+import numpy as np
+
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
 from ..core.report import camera_table
+from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
 
 log = logging.getLogger("densecalib.calibrate")
 
@@ -24,6 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--images", metavar="DIR",
                      help="one image per camera (file stem = camera name) or one subfolder per "
                           "camera with time-aligned images")
+    src.add_argument("--videos", metavar="DIR",
+                     help="one video per camera (file stem = camera name) on one timeline; "
+                          f"--max-frame-sets (default {DEFAULT_VIDEO_FRAME_SETS}) frame sets are "
+                          "taken at evenly spaced times")
     src.add_argument("--bag", metavar="PATH", help="rosbag2 bag (sqlite3 or mcap)")
     parser.add_argument("--topics", nargs="+", metavar="TOPIC",
                         help="image topics of the bag, one per camera (with --bag)")
@@ -31,6 +38,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="max stamp difference within a synchronised frame set (s, --bag)")
     parser.add_argument("--max-frame-sets", type=int, default=None, metavar="N",
                         help="use at most N evenly spaced frame sets")
+    parser.add_argument("--video-offset", nargs="+", default=None, metavar="NAME=S",
+                        help="with --videos: seconds into this camera's file at which the others' "
+                             "0 s falls (a camera that started recording 0.4 s early: NAME=0.4)")
+    parser.add_argument("--start", type=float, default=None, metavar="S",
+                        help="with --videos: take frames from this common time on (s)")
+    parser.add_argument("--end", type=float, default=None, metavar="S",
+                        help="with --videos: take frames up to this common time (s)")
     parser.add_argument("--out", required=True, metavar="OUT", help="output folder (replaced)")
     parser.add_argument("--preset", choices=PRESETS, default="regular",
                         help="camera type: regular (RADIAL) or fisheye (OPENCV_FISHEYE)")
@@ -76,6 +90,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _read_input(args):
+    video_only = [opt for opt, value in (("--video-offset", args.video_offset),
+                                         ("--start", args.start), ("--end", args.end))
+                  if value is not None]
+    if video_only and not args.videos:
+        raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
+    if args.videos:
+        if args.topics:
+            raise InputError("--topics belongs to --bag; with --videos the camera names come "
+                             "from the video file names.")
+        from ..core.video_io import read_video_frame_sets
+        frame_sets, names, times_s = read_video_frame_sets(
+            args.videos, args.max_frame_sets or DEFAULT_VIDEO_FRAME_SETS,
+            parse_video_offsets(args.video_offset),
+            args.start, args.end)
+        log.info("video frame sets at %s s", ", ".join(f"{t:.2f}" for t in times_s))
+        return frame_sets, names
     if args.images:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --images the camera names come "
@@ -115,6 +145,21 @@ def parse_focal_px(values: Optional[list[str]]) -> dict:
             raise InputError(f"--focal-px {value!r}: expected a number of pixels (800) or "
                              "NAME=PX (cam0=800).") from None
         out[name or "*"] = px
+    return out
+
+
+def parse_video_offsets(values: Optional[list[str]]) -> dict:
+    """--video-offset values -> {camera name: seconds}; InputError on a malformed value."""
+    out = {}
+    for value in values or []:
+        name, _, number = value.rpartition("=")
+        try:
+            seconds = float(number)
+        except ValueError:
+            seconds = float("nan")
+        if not name or not np.isfinite(seconds):
+            raise InputError(f"--video-offset {value!r}: expected NAME=SECONDS (cam1=0.4).")
+        out[name] = seconds
     return out
 
 

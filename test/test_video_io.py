@@ -1,0 +1,144 @@
+"""Frame sets from one video per camera (core.video_io, `densecalib calibrate --videos`): videos
+written here with OpenCV in three containers, frames placed on the common timeline with offsets,
+errors that say what to do, and a generated rig calibrated from its videos."""
+import logging
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import cv2
+import numpy as np
+import pytest
+
+from densecalib_ros.cli import main
+from densecalib_ros.core.errors import InputError, NotEnoughCamerasError
+from densecalib_ros.core.export import read_calibration
+from densecalib_ros.core.metrics import evaluate_calibration
+from densecalib_ros.core.synthetic import RigSpec, generate_rig
+from densecalib_ros.core.video_io import read_video_frame_sets
+
+BITS = 8
+
+
+def _write_video(path, frames_rgb, fps, fourcc):
+    h, w = frames_rgb[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
+    assert writer.isOpened(), f"OpenCV cannot write {fourcc} to {path}"
+    for frame in frames_rgb:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+
+
+def _numbered_frames(count, h=96, w=160):
+    """Frame i shows i in binary as 16x16 black/white blocks (survives lossy codecs)."""
+    frames = []
+    for i in range(count):
+        frame = np.full((h, w, 3), 90, np.uint8)
+        for b in range(BITS):
+            frame[16:32, 16 * b:16 * (b + 1)] = 255 if (i >> b) & 1 else 0
+        frames.append(frame)
+    return frames
+
+
+def _frame_number(frame):
+    return sum(1 << b for b in range(BITS) if frame[24, 16 * b + 8].mean() > 128)
+
+
+# camera -> (file, fps, frames, codec, offset s): three containers, three frame rates
+VIDEOS = {"camA": ("camA.mp4", 25.0, 60, "mp4v", 0.0),
+          "camB": ("camB.avi", 30.0, 80, "MJPG", 0.5),   # started 0.5 s before camA
+          "camC": ("camC.mkv", 10.0, 25, "FFV1", -0.2)}  # started 0.2 s after camA
+
+
+@pytest.fixture(scope="module")
+def video_dir(tmp_path_factory):
+    path = tmp_path_factory.mktemp("videos")
+    for file, fps, count, fourcc, _ in VIDEOS.values():
+        _write_video(path / file, _numbered_frames(count), fps, fourcc)
+    (path / "notes.txt").write_text("not a video")
+    return path
+
+
+def test_frames_are_taken_at_common_times_with_offsets(video_dir):
+    offsets = {n: v[4] for n, v in VIDEOS.items() if v[4]}
+    frame_sets, names, times = read_video_frame_sets(video_dir, 4, offsets)
+    assert names == ["camA", "camB", "camC"]
+    # common span: camA covers 0..2.4 s, camB -0.5..2.167 s, camC 0.2..2.7 s
+    first, last = 0.2, 80 / 30 - 0.5
+    assert np.allclose(times, first + (np.arange(4) + 0.5) * (last - first) / 4)
+    for t, time_s in enumerate(times):
+        for c, name in enumerate(names):
+            _, fps, _, _, offset = VIDEOS[name]
+            frame = frame_sets[t][c]
+            assert frame.shape == (96, 160, 3) and frame.dtype == np.uint8
+            # the frame showing at the common time in this camera's file
+            number = _frame_number(frame)
+            assert number / fps <= time_s + offset < (number + 1) / fps
+
+
+def test_window_and_set_count(video_dir):
+    _, _, times = read_video_frame_sets(video_dir, 3, start_s=1.0, end_s=1.6)
+    assert np.allclose(times, [1.1, 1.3, 1.5])
+    # never more sets than the slowest camera has frames in the window (camC: 10 fps)
+    frame_sets, _, times = read_video_frame_sets(video_dir, 50, start_s=1.0, end_s=1.6)
+    assert len(times) == len(frame_sets) == 6
+    numbers = [_frame_number(fs[2]) for fs in frame_sets]
+    assert numbers == sorted(set(numbers))
+
+
+def test_errors_say_what_to_do(video_dir, tmp_path):
+    with pytest.raises(InputError, match="unknown camera.*camZ.*camA, camB, camC"):
+        read_video_frame_sets(video_dir, 2, {"camZ": 1.0})
+    with pytest.raises(InputError, match="share no time span"):
+        read_video_frame_sets(video_dir, 2, {"camB": 10.0})
+    with pytest.raises(InputError, match="No videos"):
+        read_video_frame_sets(tmp_path, 2)
+    (tmp_path / "only.mp4").write_bytes((video_dir / "camA.mp4").read_bytes())
+    with pytest.raises(NotEnoughCamerasError, match="only one video"):
+        read_video_frame_sets(tmp_path, 2)
+    (tmp_path / "only.avi").write_bytes((video_dir / "camB.avi").read_bytes())
+    with pytest.raises(InputError, match="share the camera name.*only"):
+        read_video_frame_sets(tmp_path, 2)
+    (tmp_path / "only.avi").unlink()
+    (tmp_path / "broken.mp4").write_bytes(b"\x00" * 4096)
+    with pytest.raises(InputError, match="Cannot open video .*broken.mp4"):
+        read_video_frame_sets(tmp_path, 2)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--video-offset", "cam1"], "expected NAME=SECONDS"),
+    (["--start", "1.0"], "--start belong(s) to --videos"),
+    (["--topics", "/a", "/b"], "--topics belongs to --bag")])
+def test_cli_video_options_are_checked(video_dir, tmp_path, caplog, args, message):
+    source = [] if args[0] == "--start" else ["--videos", str(video_dir)]
+    if not source:
+        source = ["--images", str(tmp_path)]
+    with caplog.at_level(logging.ERROR):
+        assert main(["calibrate", *source, "--out", str(tmp_path / "o"), *args]) == 2
+    assert message in caplog.text and not (tmp_path / "o").exists()
+
+
+def test_rig_calibrated_from_its_videos(tmp_path):
+    """Two scene states, 1 s each at 10 fps, one lossless video per camera; cam2 started
+    recording 1 s early (its file opens with 10 black frames), which --video-offset undoes."""
+    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+                               num_time_steps=2, seed=3))
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for c, name in enumerate(rig.names):
+        frames = [rig.images[t][c] for t in range(2) for _ in range(10)]
+        if name == "cam2":
+            frames = [np.zeros_like(frames[0])] * 10 + frames
+        _write_video(videos / f"{name}.mkv", frames, 10.0, "FFV1")
+    out = tmp_path / "out"
+    assert main(["calibrate", "--videos", str(videos), "--out", str(out), "--max-frame-sets", "2",
+                 "--video-offset", "cam2=1", "--matcher", "sift", "--threads", "1",
+                 "--consensus-runs", "1"]) == 0
+    frame_sets, _, _ = read_video_frame_sets(videos, 2, {"cam2": 1.0})
+    for t in range(2):  # lossless: the rig's own images
+        assert all(np.array_equal(frame_sets[t][c], rig.images[t][c]) for c in range(4))
+    unaligned, _, _ = read_video_frame_sets(videos, 2)
+    assert not unaligned[0][2].any()  # without the offset: a black frame
+    metrics = evaluate_calibration(read_calibration(out), rig.ground_truth())
+    assert metrics["num_registered"] == 4
+    assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
