@@ -10,7 +10,7 @@ import sys
 # name -> (module, one-line help)
 SUBCOMMANDS = {
     "calibrate": ("densecalib_ros.commands.calibrate",
-                  "calibrate a rig from a folder of images or a rosbag2 bag"),
+                  "calibrate a rig from a folder of images or videos, or a rosbag2 bag"),
     "demo": ("densecalib_ros.commands.demo",
              "generate a rig, calibrate it through the ROS node (or --offline) and compare to truth"),
     "bench": ("densecalib_ros.commands.bench",
@@ -21,6 +21,8 @@ SUBCOMMANDS = {
                  "write a generated rig's images and ground truth to a folder"),
     "report": ("densecalib_ros.commands.report",
                "print a calibration's intrinsics, fit and camera layout, or its change from another"),
+    "export": ("densecalib_ros.commands.export",
+               "write a calibration as anipose calibration.toml or Kalibr camchain.yaml"),
 }
 
 

@@ -1,0 +1,113 @@
+"""A rig calibration in the files other tools read.
+
+- anipose / aniposelib `calibration.toml` (multi-camera animal pose: anipose, DeepLabCut 3D,
+  freemocap): per camera `[cam_i]` with name, size [w, h], matrix (OpenCV pixel convention),
+  distortions (OpenCV k1 k2 p1 p2 k3, or fisheye k1..k4 with `fisheye = true`), rotation
+  (Rodrigues vector) and translation of cam_from_world; world = our rig frame.
+- Kalibr camchain YAML (read by OpenVINS, VINS-Fusion, ORB-SLAM3's converters, ...): per camera
+  `camN` with pinhole intrinsics [fu, fv, pu, pv], radtan or equidistant distortion, resolution,
+  rostopic, and T_cn_cnm1 (camN from cam(N-1)) for N >= 1.
+
+Both take the camera parameters from core.export.ros_camera_info (ROS = OpenCV conventions), so the
+pixel convention and the distortion mapping live in one place. Translations are in the rig's
+units: metres when a known baseline set the scale, else the reconstruction's arbitrary unit
+(the files say which in a comment).
+"""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+
+from .errors import InputError
+from .export import ros_camera_info
+from .types import RigCalibration
+
+FORMATS = ("anipose", "kalibr")
+DEFAULT_TOPIC_PATTERN = "/{name}/image_raw"
+
+
+def _units(rig: RigCalibration) -> str:
+    return "metres" if rig.metric_scale else \
+        "arbitrary SfM units (no known baseline; calibrate with --known-baseline for metres)"
+
+
+def _lens(name: str, rig: RigCalibration, fmt: str) -> tuple[dict, list[float], bool]:
+    """(ROS CameraInfo dict, distortion coefficients, fisheye?) of a camera, checked for fmt."""
+    info = ros_camera_info(name, rig.cameras[name].intrinsics)
+    dist = [float(d) for d in info["distortion_coefficients"]["data"]]
+    model = info["distortion_model"]
+    if model == "equidistant":
+        return info, dist, True
+    if model != "plumb_bob" or (fmt == "kalibr" and dist[4] != 0.0):
+        raise InputError(f"Camera {name} ({rig.cameras[name].intrinsics.model}) has a lens model "
+                         f"{fmt} cannot hold: it takes pinhole + radial-tangential "
+                         f"({'k1 k2 p1 p2' if fmt == 'kalibr' else 'k1 k2 p1 p2 k3'}) or "
+                         "equidistant fisheye.")
+    return info, (dist[:4] if fmt == "kalibr" else dist), False
+
+
+def _toml_list(values) -> str:
+    return "[ " + ", ".join(repr(float(v)) for v in values) + ",]"
+
+
+def anipose_toml(rig: RigCalibration) -> str:
+    """aniposelib CameraGroup.load() text (format in the module docstring)."""
+    lines = [f"# densecalib rig calibration; world = the rig frame (reference camera "
+             f"{rig.reference_camera}); translations in {_units(rig)}", ""]
+    for i, name in enumerate(rig.cameras):
+        info, dist, fisheye = _lens(name, rig, "anipose")
+        k = np.asarray(info["camera_matrix"]["data"], float).reshape(3, 3)
+        cam_from_rig = np.asarray(rig.cameras[name].cam_from_rig, float)
+        rvec = cv2.Rodrigues(cam_from_rig[:3, :3])[0].ravel()
+        lines += [f"[cam_{i}]", f"name = {json.dumps(name)}",
+                  f"size = [ {info['image_width']}, {info['image_height']},]",
+                  "matrix = [ " + ", ".join(_toml_list(row) for row in k) + ",]",
+                  f"distortions = {_toml_list(dist)}",
+                  f"rotation = {_toml_list(rvec)}",
+                  f"translation = {_toml_list(cam_from_rig[:3, 3])}"]
+        if fisheye:
+            lines.append("fisheye = true")
+        lines.append("")
+    rms = rig.quality.get("reprojection_rms_px")
+    lines += ["[metadata]", "adjusted = false",
+              f"error = {float(rms) if rms is not None else 0.0!r}", ""]
+    return "\n".join(lines)
+
+
+def _yaml_list(values) -> str:
+    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+
+
+def kalibr_camchain_yaml(rig: RigCalibration,
+                         topic_pattern: str = DEFAULT_TOPIC_PATTERN) -> str:
+    """Kalibr camchain.yaml text (format in the module docstring); camN follow the rig's camera
+    order, the reference camera first; rostopic = topic_pattern.format(name=camera name)."""
+    names = [rig.reference_camera] + [n for n in rig.cameras if n != rig.reference_camera]
+    lines = [f"# densecalib rig calibration; translations in {_units(rig)}"]
+    previous = None
+    for n, name in enumerate(names):
+        info, dist, fisheye = _lens(name, rig, "kalibr")
+        k = info["camera_matrix"]["data"]
+        cam_from_rig = np.asarray(rig.cameras[name].cam_from_rig, float)
+        lines += [f"cam{n}:  # {name}", "  camera_model: pinhole",
+                  f"  intrinsics: {_yaml_list([k[0], k[4], k[2], k[5]])}",
+                  f"  distortion_model: {'equidistant' if fisheye else 'radtan'}",
+                  f"  distortion_coeffs: {_yaml_list(dist)}",
+                  f"  resolution: [{info['image_width']}, {info['image_height']}]",
+                  f"  rostopic: {topic_pattern.format(name=name)}"]
+        if previous is not None:
+            cn_from_cnm1 = cam_from_rig @ np.linalg.inv(previous)
+            lines.append("  T_cn_cnm1:")
+            lines += [f"  - {_yaml_list(row)}" for row in cn_from_cnm1]
+        previous = cam_from_rig
+    return "\n".join(lines) + "\n"
+
+
+def export_text(rig: RigCalibration, fmt: str, **options) -> str:
+    if fmt == "anipose":
+        return anipose_toml(rig)
+    if fmt == "kalibr":
+        return kalibr_camchain_yaml(rig, **options)
+    raise InputError(f"Unknown export format {fmt!r}: use one of {', '.join(FORMATS)}.")

@@ -1,0 +1,129 @@
+"""Exports for other tools (core.interchange, `densecalib export`): each file, read back as those
+tools read it and projected with OpenCV as they project, gives the pixels COLMAP gives for our
+calibration; lens models a format cannot hold are refused."""
+import json
+import logging
+import tomllib
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from densecalib_ros.cli import main
+from densecalib_ros.core.errors import InputError
+from densecalib_ros.core.export import calibration_to_dict
+from densecalib_ros.core.interchange import anipose_toml, kalibr_camchain_yaml
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+
+
+def _pose(euler_deg, t):
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_euler("xyz", euler_deg, degrees=True).as_matrix()
+    m[:3, 3] = t
+    return m
+
+
+@pytest.fixture
+def rig():
+    cams = {
+        "left": RigCamera("left", CameraIntrinsics("RADIAL", 1024, 768,
+                                                   np.array([810.0, 515.3, 380.2, -0.12, 0.03])),
+                          np.eye(4)),
+        "top": RigCamera("top", CameraIntrinsics("OPENCV_FISHEYE", 1280, 960, np.array(
+            [402.0, 403.5, 641.0, 478.5, 0.05, -0.02, 0.004, -0.0007])),
+            _pose([3, -40, 5], [0.9, 0.05, 0.3])),
+        "right": RigCamera("right", CameraIntrinsics("RADIAL", 1024, 768,
+                                                     np.array([795.0, 509.9, 385.0, 0.04, -0.01])),
+                           _pose([-2, 25, -4], [-0.6, 0.02, 0.1])),
+    }
+    return RigCalibration("left", cams, quality={"reprojection_rms_px": 0.8}, metric_scale=True)
+
+
+def _points_seen_by_all(rig, n=200, seed=0):
+    """Rig-frame points in front of every camera, within 40 deg of each optical axis."""
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform([-1, -1, 2], [1, 1, 5], (20 * n, 3))
+    ok = np.ones(len(pts), bool)
+    for cam in rig.cameras.values():
+        x = pts @ cam.cam_from_rig[:3, :3].T + cam.cam_from_rig[:3, 3]
+        ok &= np.arccos(x[:, 2] / np.linalg.norm(x, axis=1)) < np.deg2rad(40)
+    assert ok.sum() >= n
+    return pts[ok][:n]
+
+
+def _colmap_pixels(cam, pts_rig):
+    x = pts_rig @ cam.cam_from_rig[:3, :3].T + cam.cam_from_rig[:3, 3]
+    return cam.intrinsics.to_pycolmap().img_from_cam(x) - 0.5  # COLMAP -> OpenCV pixel centres
+
+
+def _opencv_pixels(pts, k, dist, rvec, tvec, fisheye):
+    if fisheye:
+        out, _ = cv2.fisheye.projectPoints(pts.reshape(-1, 1, 3), rvec, tvec, k, dist)
+    else:
+        out, _ = cv2.projectPoints(pts.reshape(-1, 1, 3), rvec, tvec, k, dist)
+    return out.reshape(-1, 2)
+
+
+def test_anipose_toml_projects_like_our_cameras(rig):
+    data = tomllib.loads(anipose_toml(rig))
+    pts = _points_seen_by_all(rig)
+    sections = [data[f"cam_{i}"] for i in range(3)]
+    assert [s["name"] for s in sections] == ["left", "top", "right"]
+    for section in sections:
+        cam = rig.cameras[section["name"]]
+        assert section["size"] == [cam.intrinsics.width, cam.intrinsics.height]
+        fisheye = section.get("fisheye", False)
+        assert fisheye == (cam.intrinsics.model == "OPENCV_FISHEYE")
+        assert len(section["distortions"]) == (4 if fisheye else 5)
+        got = _opencv_pixels(pts, np.array(section["matrix"]), np.array(section["distortions"]),
+                             np.array(section["rotation"]), np.array(section["translation"]),
+                             fisheye)
+        assert np.abs(got - _colmap_pixels(cam, pts)).max() < 1e-6
+    assert data["metadata"]["error"] == 0.8
+
+
+def test_kalibr_camchain_chains_back_to_the_rig(rig):
+    data = yaml.safe_load(kalibr_camchain_yaml(rig, "/arena/{name}/image_raw"))
+    assert list(data) == ["cam0", "cam1", "cam2"]  # reference first, then the rig's order
+    pts = _points_seen_by_all(rig)
+    cam_from_rig = np.eye(4)
+    for n, name in enumerate(["left", "top", "right"]):
+        entry = data[f"cam{n}"]
+        cam = rig.cameras[name]
+        assert entry["rostopic"] == f"/arena/{name}/image_raw"
+        assert entry["resolution"] == [cam.intrinsics.width, cam.intrinsics.height]
+        if n:
+            cam_from_rig = np.array(entry["T_cn_cnm1"]) @ cam_from_rig
+        else:
+            assert "T_cn_cnm1" not in entry
+        fu, fv, pu, pv = entry["intrinsics"]
+        k = np.array([[fu, 0, pu], [0, fv, pv], [0, 0, 1]])
+        fisheye = entry["distortion_model"] == "equidistant"
+        assert fisheye == (cam.intrinsics.model == "OPENCV_FISHEYE")
+        got = _opencv_pixels(pts, k, np.array(entry["distortion_coeffs"]),
+                             cv2.Rodrigues(cam_from_rig[:3, :3])[0], cam_from_rig[:3, 3], fisheye)
+        assert np.abs(got - _colmap_pixels(cam, pts)).max() < 1e-6
+
+
+def test_models_a_format_cannot_hold_are_refused(rig):
+    rig.cameras["top"].intrinsics = CameraIntrinsics("FULL_OPENCV", 640, 480,
+                                                     np.r_[500.0, 500, 320, 240, np.full(8, 0.01)])
+    with pytest.raises(InputError, match="top .*FULL_OPENCV.*anipose cannot hold"):
+        anipose_toml(rig)
+    with pytest.raises(InputError, match="kalibr cannot hold"):
+        kalibr_camchain_yaml(rig)
+
+
+def test_export_command(rig, tmp_path, capsys, caplog):
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    out = tmp_path / "arena" / "calibration.toml"
+    assert main(["export", str(calib), "--format", "anipose", "--out", str(out)]) == 0
+    assert tomllib.loads(out.read_text())["cam_2"]["name"] == "right"
+    assert "wrote" in capsys.readouterr().out
+    with caplog.at_level(logging.ERROR):
+        assert main(["export", str(tmp_path / "none"), "--format", "kalibr",
+                     "--out", str(tmp_path / "c.yaml")]) == 2
+    assert not (tmp_path / "c.yaml").exists()
