@@ -105,7 +105,10 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     ("--lens", "cam9=fisheye", "unknown camera(s) cam9"),
     ("--known-baseline", "cam0 cam0 0.5", "expected two different cameras of cam0, cam1"),
     ("--known-baseline", "cam0 cam9 0.5", "expected two different cameras"),
-    ("--known-baseline", "cam0 cam1 -2", "their distance in metres (> 0)")])
+    ("--known-baseline", "cam0 cam1 -2", "their distance in metres (> 0)"),
+    ("--time-offset", "cam1=3", "--time-offset belongs to --videos or to --images with --align"),
+    ("--align", "name --time-offset cam1=3", "--time-offset belongs to"),
+    ("--align", "time", "no EXIF capture time")])
 def test_options_are_checked_before_matching(rig_dir, tmp_path, caplog, option, value, message):
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),

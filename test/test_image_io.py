@@ -1,9 +1,11 @@
 import cv2
 import numpy as np
 import pytest
+from PIL import Image
 
 from densecalib_ros.core.errors import InputError, NotEnoughCamerasError
-from densecalib_ros.core.image_io import read_image_folder
+from densecalib_ros.core.exif import exif_capture_time_s
+from densecalib_ros.core.image_io import list_image_folder, read_image_folder
 
 
 def _write(path, value, size=(40, 30)):
@@ -59,3 +61,49 @@ def test_misaligned_subfolders_and_empty_folder(tmp_path):
         read_image_folder(empty)
     with pytest.raises(InputError, match="does not exist"):
         read_image_folder(tmp_path / "missing")
+
+
+def test_unaligned_subfolders_need_a_choice_and_order_pairs_evenly(tmp_path):
+    for i in range(5):
+        _write(tmp_path / "a" / f"IMG_{i:04d}.png", 10 * i)
+    for i in range(3):
+        _write(tmp_path / "b" / f"DSC{i:05d}.png", 100 + 10 * i)
+    with pytest.raises(InputError, match="--align time.*--align order"):
+        list_image_folder(tmp_path)
+    with pytest.raises(InputError, match="--align name: the file names in b differ"):
+        list_image_folder(tmp_path, align="name")
+    paths, names = list_image_folder(tmp_path, align="order")
+    assert names == ["a", "b"]
+    assert [[p.name for p in row] for row in paths] == [
+        ["IMG_0000.png", "DSC00000.png"], ["IMG_0002.png", "DSC00001.png"],
+        ["IMG_0004.png", "DSC00002.png"]]
+
+
+def _write_shot(path, when, subsec=""):
+    """An image file whose EXIF says it was taken at `when` ("YYYY:MM:DD HH:MM:SS")."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    exif = Image.Exif()
+    exif[0x010F] = "trail cam"  # Make: Pillow skips an Exif block without IFD0 entries
+    exif.get_ifd(0x8769).update({0x9003: when, **({0x9291: subsec} if subsec else {})})
+    Image.fromarray(np.zeros((30, 40, 3), np.uint8)).save(path, exif=exif)
+
+
+def test_camera_traps_paired_by_capture_time(tmp_path):
+    # Two events (10:00:05 and 10:07:30) that fired both cameras; cam b's clock runs 60 s fast,
+    # and b also fired alone at 10:03:00.
+    _write_shot(tmp_path / "a" / "IMG_0001.jpg", "2026:05:01 10:00:05", "25")
+    _write_shot(tmp_path / "a" / "IMG_0002.jpg", "2026:05:01 10:07:30")
+    _write_shot(tmp_path / "b" / "PICT001.jpg", "2026:05:01 10:01:04", "9")
+    _write_shot(tmp_path / "b" / "PICT002.jpg", "2026:05:01 10:04:00")
+    _write_shot(tmp_path / "b" / "PICT003.jpg", "2026:05:01 10:08:31")
+    with pytest.raises(InputError, match="within 2 s \\(nearest: 59.*--time-offset"):
+        list_image_folder(tmp_path, align="time")
+    paths, names = list_image_folder(tmp_path, align="time", time_offsets_s={"b": 60.0})
+    assert [[p.name for p in row] for row in paths] == [["IMG_0001.jpg", "PICT001.jpg"],
+                                                         ["IMG_0002.jpg", "PICT003.jpg"]]
+    assert exif_capture_time_s(tmp_path / "a" / "IMG_0001.jpg") % 60 == pytest.approx(5.25)
+    with pytest.raises(InputError, match="unknown camera.*z"):
+        list_image_folder(tmp_path, align="time", time_offsets_s={"z": 1.0})
+    _write(tmp_path / "b" / "PICT004.png", 0)  # no EXIF
+    with pytest.raises(InputError, match="PICT004.png has no EXIF capture time"):
+        list_image_folder(tmp_path, align="time", time_offsets_s={"b": 60.0})

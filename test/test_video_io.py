@@ -106,9 +106,10 @@ def test_errors_say_what_to_do(video_dir, tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--video-offset", "cam1"], "expected NAME=SECONDS"),
+    (["--time-offset", "cam1"], "expected NAME=SECONDS"),
     (["--start", "1.0"], "--start belong(s) to --videos"),
-    (["--topics", "/a", "/b"], "--topics belongs to --bag")])
+    (["--topics", "/a", "/b"], "--topics belongs to --bag"),
+    (["--align", "time"], "--align belongs to --images")])
 def test_cli_video_options_are_checked(video_dir, tmp_path, caplog, args, message):
     source = [] if args[0] == "--start" else ["--videos", str(video_dir)]
     if not source:
@@ -120,7 +121,7 @@ def test_cli_video_options_are_checked(video_dir, tmp_path, caplog, args, messag
 
 def test_rig_calibrated_from_its_videos(tmp_path):
     """Two scene states, 1 s each at 10 fps, one lossless video per camera; cam2 started
-    recording 1 s early (its file opens with 10 black frames), which --video-offset undoes."""
+    recording 1 s early (its file opens with 10 black frames), which --time-offset undoes."""
     rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                num_time_steps=2, seed=3))
     videos = tmp_path / "videos"
@@ -132,7 +133,7 @@ def test_rig_calibrated_from_its_videos(tmp_path):
         _write_video(videos / f"{name}.mkv", frames, 10.0, "FFV1")
     out = tmp_path / "out"
     assert main(["calibrate", "--videos", str(videos), "--out", str(out), "--max-frame-sets", "2",
-                 "--video-offset", "cam2=1", "--matcher", "sift", "--threads", "1",
+                 "--time-offset", "cam2=1", "--matcher", "sift", "--threads", "1",
                  "--consensus-runs", "1"]) == 0
     frame_sets, _, _ = read_video_frame_sets(videos, 2, {"cam2": 1.0})
     for t in range(2):  # lossless: the rig's own images

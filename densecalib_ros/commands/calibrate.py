@@ -17,6 +17,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, ma
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
 from ..core.report import camera_table
+from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
 
 log = logging.getLogger("densecalib.calibrate")
@@ -26,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--images", metavar="DIR",
                      help="one image per camera (file stem = camera name) or one subfolder per "
-                          "camera with time-aligned images")
+                          "camera with time-aligned images (see --align)")
     src.add_argument("--videos", metavar="DIR",
                      help="one video per camera (file stem = camera name) on one timeline; "
                           f"--max-frame-sets (default {DEFAULT_VIDEO_FRAME_SETS}) frame sets are "
@@ -38,9 +39,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="max stamp difference within a synchronised frame set (s, --bag)")
     parser.add_argument("--max-frame-sets", type=int, default=None, metavar="N",
                         help="use at most N evenly spaced frame sets")
-    parser.add_argument("--video-offset", nargs="+", default=None, metavar="NAME=S",
-                        help="with --videos: seconds into this camera's file at which the others' "
-                             "0 s falls (a camera that started recording 0.4 s early: NAME=0.4)")
+    parser.add_argument("--align", choices=ALIGNMENTS, default="auto",
+                        help="with --images and camera subfolders: pair images by file name, "
+                             "sorted position, or EXIF capture time (default auto: name, else "
+                             "position when the counts agree)")
+    parser.add_argument("--max-time-gap", type=float, default=DEFAULT_MAX_TIME_GAP_S,
+                        metavar="S", help="with --align time: the most a frame set's capture "
+                                          f"times may differ (default {DEFAULT_MAX_TIME_GAP_S:g})")
+    parser.add_argument("--time-offset", nargs="+", default=None, metavar="NAME=S",
+                        help="how far this camera's time runs ahead of the others' (s): with "
+                             "--videos, a camera that started recording 0.4 s early is NAME=0.4; "
+                             "with --align time, a trail camera whose clock is 60 s fast is "
+                             "NAME=60")
     parser.add_argument("--start", type=float, default=None, metavar="S",
                         help="with --videos: take frames from this common time on (s)")
     parser.add_argument("--end", type=float, default=None, metavar="S",
@@ -89,12 +99,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bundle-adjustment threads (-1 = all cores)")
 
 
+def _alignment(args) -> dict:
+    return {"align": args.align, "time_offsets_s": parse_time_offsets(args.time_offset),
+            "max_time_gap_s": args.max_time_gap}
+
+
 def _read_input(args):
-    video_only = [opt for opt, value in (("--video-offset", args.video_offset),
-                                         ("--start", args.start), ("--end", args.end))
+    video_only = [opt for opt, value in (("--start", args.start), ("--end", args.end))
                   if value is not None]
     if video_only and not args.videos:
         raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
+    if args.time_offset and not (args.videos or (args.images and args.align == "time")):
+        raise InputError("--time-offset belongs to --videos or to --images with --align time.")
+    if args.align != "auto" and not args.images:
+        raise InputError("--align belongs to --images (camera subfolders).")
     if args.videos:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --videos the camera names come "
@@ -102,8 +120,7 @@ def _read_input(args):
         from ..core.video_io import read_video_frame_sets
         frame_sets, names, times_s = read_video_frame_sets(
             args.videos, args.max_frame_sets or DEFAULT_VIDEO_FRAME_SETS,
-            parse_video_offsets(args.video_offset),
-            args.start, args.end)
+            parse_time_offsets(args.time_offset), args.start, args.end)
         log.info("video frame sets at %s s", ", ".join(f"{t:.2f}" for t in times_s))
         return frame_sets, names
     if args.images:
@@ -111,7 +128,8 @@ def _read_input(args):
             raise InputError("--topics belongs to --bag; with --images the camera names come "
                              "from the file or folder names.")
         from ..core.image_io import read_image_folder
-        return read_image_folder(args.images, max_frame_sets=args.max_frame_sets)
+        return read_image_folder(args.images, max_frame_sets=args.max_frame_sets,
+                                 **_alignment(args))
     if not args.topics:
         raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
                          "--topics /cam0/image_raw /cam1/image_raw.")
@@ -120,12 +138,12 @@ def _read_input(args):
                            max_frame_sets=args.max_frame_sets)
 
 
-def _exif_focals(directory, frame_sets, names) -> dict:
+def _exif_focals(args, frame_sets, names) -> dict:
     """{camera: focal px} from the EXIF of every image of the folder (core.exif), logged."""
     from ..core.exif import camera_exif_focals
     from ..core.image_io import list_image_folder
 
-    paths, _ = list_image_folder(directory)
+    paths, _ = list_image_folder(args.images, **_alignment(args))
     sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
     focals = camera_exif_focals(paths, names, sizes)
     if focals:
@@ -148,8 +166,8 @@ def parse_focal_px(values: Optional[list[str]]) -> dict:
     return out
 
 
-def parse_video_offsets(values: Optional[list[str]]) -> dict:
-    """--video-offset values -> {camera name: seconds}; InputError on a malformed value."""
+def parse_time_offsets(values: Optional[list[str]]) -> dict:
+    """--time-offset values -> {camera name: seconds}; InputError on a malformed value."""
     out = {}
     for value in values or []:
         name, _, number = value.rpartition("=")
@@ -158,7 +176,7 @@ def parse_video_offsets(values: Optional[list[str]]) -> dict:
         except ValueError:
             seconds = float("nan")
         if not name or not np.isfinite(seconds):
-            raise InputError(f"--video-offset {value!r}: expected NAME=SECONDS (cam1=0.4).")
+            raise InputError(f"--time-offset {value!r}: expected NAME=SECONDS (cam1=0.4).")
         out[name] = seconds
     return out
 
@@ -218,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
         frame_sets, names = _read_input(args)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
         if args.images and not args.ignore_exif:
-            config.exif_focal_px = _exif_focals(args.images, frame_sets, names)
+            config.exif_focal_px = _exif_focals(args, frame_sets, names)
         log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",
                  len(names), ", ".join(names), len(frame_sets), config.preset,
                  "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),

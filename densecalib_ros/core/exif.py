@@ -1,4 +1,5 @@
-"""Focal lengths from the EXIF metadata of image files (the offline command's image folders).
+"""Focal lengths and capture times from the EXIF metadata of image files (the offline command's
+image folders).
 
 Phones, DSLRs and many trail cameras record the lens focal length in EXIF. It is turned into
 pixels of the image as it is now, in one of two ways (COLMAP's image reader does the same):
@@ -14,12 +15,17 @@ EXIF describes the camera that took the picture, not what was done to the file a
 cropped image keeps its tags; digital zoom may not be recorded). So an EXIF focal is only where the
 SfM starts, like a user's --focal-px: the focal multi-start still tries the scaled and generic
 starts and keeps the one that fits all the matches best, and bundle adjustment refines the focal.
+
+Capture time: DateTimeOriginal (else IFD0 DateTime) with SubSecTimeOriginal, in seconds on the
+camera's own clock (the time zone is ignored: it is the same clock's offset for every image).
 """
 from __future__ import annotations
 
+import calendar
 import logging
 import math
 import os
+import time
 from typing import Optional, Sequence
 
 log = logging.getLogger(__name__)
@@ -41,6 +47,9 @@ _FOCAL_PLANE_X_RESOLUTION = 0xA20E
 _FOCAL_PLANE_RESOLUTION_UNIT = 0xA210
 _PIXEL_X_DIMENSION = 0xA002
 _PIXEL_Y_DIMENSION = 0xA003
+_DATETIME = 0x0132  # IFD0
+_DATETIME_ORIGINAL = 0x9003
+_SUBSEC_TIME_ORIGINAL = 0x9291
 
 
 def _positive(value) -> Optional[float]:
@@ -77,18 +86,42 @@ def focal_px_from_tags(tags: dict, image_size: tuple[int, int]) -> Optional[floa
     return focal
 
 
-def exif_focal_px(path: str | os.PathLike, image_size: tuple[int, int]) -> Optional[float]:
-    """Focal length [px] that the EXIF of the image file at `path` gives for its size
-    image_size (width, height) as loaded, or None (no EXIF, no focal tags, unreadable)."""
+def _read_tags(path: str | os.PathLike) -> tuple[dict, dict]:
+    """(IFD0 tags, Exif sub-IFD tags) of an image file; empty when it has none or is unreadable."""
     from PIL import Image
 
     try:
         with Image.open(path) as im:
-            tags = dict(im.getexif().get_ifd(_EXIF_IFD))
-    except Exception as exc:  # noqa: BLE001 - metadata is optional; the pixels were read already
+            exif = im.getexif()
+            return dict(exif), dict(exif.get_ifd(_EXIF_IFD))
+    except Exception as exc:  # noqa: BLE001 - metadata is optional; the pixels are read elsewhere
         log.debug("no EXIF from %s: %s", path, exc)
+        return {}, {}
+
+
+def exif_focal_px(path: str | os.PathLike, image_size: tuple[int, int]) -> Optional[float]:
+    """Focal length [px] that the EXIF of the image file at `path` gives for its size
+    image_size (width, height) as loaded, or None (no EXIF, no focal tags, unreadable)."""
+    return focal_px_from_tags(_read_tags(path)[1], image_size)
+
+
+def capture_time_from_tags(ifd0: dict, exif: dict) -> Optional[float]:
+    """Seconds (on the camera's clock, as if UTC) of DateTimeOriginal / DateTime + sub-seconds,
+    or None when the tags are missing or malformed."""
+    text = exif.get(_DATETIME_ORIGINAL) or ifd0.get(_DATETIME)
+    if not isinstance(text, str):
         return None
-    return focal_px_from_tags(tags, image_size)
+    try:
+        stamp = calendar.timegm(time.strptime(text.strip("\x00 ")[:19], "%Y:%m:%d %H:%M:%S"))
+    except ValueError:
+        return None
+    digits = "".join(ch for ch in str(exif.get(_SUBSEC_TIME_ORIGINAL, "")) if ch.isdigit())
+    return float(stamp) + (int(digits) / 10 ** len(digits) if digits else 0.0)
+
+
+def exif_capture_time_s(path: str | os.PathLike) -> Optional[float]:
+    """Capture time of the image file at `path` (capture_time_from_tags), or None."""
+    return capture_time_from_tags(*_read_tags(path))
 
 
 def camera_exif_focals(paths: Sequence[Sequence[str | os.PathLike]], camera_names: Sequence[str],

@@ -3,12 +3,22 @@
 Two layouts:
 - flat: DIR holds one image per camera; the file stem is the camera name (one frame set);
 - per camera: DIR holds one subfolder per camera (folder name = camera name) with time-aligned
-  images. Images are aligned by file stem when every camera has the same stems, otherwise by
-  sorted order (then every camera must have the same number of images).
+  images. How the images form frame sets (`align`):
+  - "name": by file stem (every camera has the same stems);
+  - "order": by sorted position; cameras with more images than the others contribute evenly
+    spaced ones (the k-th set is not the same moment in every camera: right for a static scene,
+    where only the rig and the background matter);
+  - "time": by EXIF capture time (camera traps, which each fire on their own): every image of the
+    camera with the fewest images opens a set, with each other camera's image nearest in time,
+    kept when all lie within max_time_gap_s; time_offsets_s[name] is how far that camera's clock
+    runs ahead of the others' (s);
+  - "auto" (default): "name" when the stems agree, else "order" when the counts agree, else an
+    error that names the two other choices.
 Hidden entries and files that are not images (by extension) are ignored.
 """
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 from typing import Optional
@@ -18,6 +28,10 @@ import numpy as np
 
 from .errors import InputError, NotEnoughCamerasError
 
+log = logging.getLogger(__name__)
+
+ALIGNMENTS = ("auto", "name", "order", "time")
+DEFAULT_MAX_TIME_GAP_S = 2.0  # a burst of trail-camera shots spans about this
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
 
 
@@ -35,13 +49,17 @@ def _images_in(directory: Path) -> list[Path]:
                   and p.suffix.lower() in IMAGE_EXTENSIONS)
 
 
-def list_image_folder(directory: str | os.PathLike
+def list_image_folder(directory: str | os.PathLike, align: str = "auto",
+                      time_offsets_s: Optional[dict[str, float]] = None,
+                      max_time_gap_s: float = DEFAULT_MAX_TIME_GAP_S
                       ) -> tuple[list[list[Path]], list[str]]:
-    """The image files of DIR per frame set and camera (layouts: module docstring).
+    """The image files of DIR per frame set and camera (layouts and `align`: module docstring).
 
     Returns (paths, camera_names) with paths[t][c] the file of camera c at time t. Raises
     InputError for a missing/ambiguous/misaligned folder, NotEnoughCamerasError for < 2 cameras.
     """
+    if align not in ALIGNMENTS:
+        raise InputError(f"Unknown image alignment {align!r}: use one of {', '.join(ALIGNMENTS)}.")
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError(f"Image folder {directory} does not exist or is not a folder.")
@@ -61,18 +79,8 @@ def list_image_folder(directory: str | os.PathLike
         paths, names = [files], names
     elif subdirs:
         names = [d.name for d in subdirs]
-        per_cam = [_images_in(d) for d in subdirs]
-        stems = [[p.stem for p in ps] for ps in per_cam]
-        if all(s == stems[0] for s in stems):
-            paths = [list(row) for row in zip(*per_cam)]
-        else:
-            counts = {n: len(ps) for n, ps in zip(names, per_cam)}
-            if len(set(counts.values())) != 1:
-                raise InputError(
-                    f"Camera subfolders of {directory} hold different numbers of images "
-                    f"({counts}) and different file names, so they cannot be aligned in time: give "
-                    "each time step the same file name in every camera folder.")
-            paths = [list(row) for row in zip(*per_cam)]
+        paths = _align(directory, names, [_images_in(d) for d in subdirs], align,
+                       time_offsets_s or {}, max_time_gap_s)
     else:
         raise InputError(f"No images ({', '.join(IMAGE_EXTENSIONS)}) in {directory} or in its "
                          "subfolders: put one image per camera (file name = camera name) or one "
@@ -84,12 +92,88 @@ def list_image_folder(directory: str | os.PathLike
     return paths, names
 
 
-def read_image_folder(directory: str | os.PathLike, max_frame_sets: Optional[int] = None
-                      ) -> tuple[list[list[np.ndarray]], list[str]]:
+def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: str,
+           time_offsets_s: dict[str, float], max_time_gap_s: float) -> list[list[Path]]:
+    """paths[t][c] of camera subfolders (module docstring)."""
+    unknown = sorted(set(time_offsets_s) - set(names))
+    if unknown:
+        raise InputError(f"Time offsets for unknown camera(s) {', '.join(unknown)}: the cameras "
+                         f"of {directory} are {', '.join(names)}.")
+    stems = [[p.stem for p in ps] for ps in per_cam]
+    counts = {n: len(ps) for n, ps in zip(names, per_cam)}
+    if align == "auto":
+        if all(s == stems[0] for s in stems):
+            align = "name"
+        elif len(set(counts.values())) == 1:
+            align = "order"
+        else:
+            raise InputError(
+                f"Camera subfolders of {directory} hold different numbers of images ({counts}) "
+                "and different file names, so they cannot be aligned by name or position. Give "
+                "each time step the same file name in every camera folder, or choose: "
+                "--align time (pair images by their EXIF capture time, e.g. camera traps) or "
+                "--align order (evenly spaced images of each camera; fine for a static scene).")
+    if align == "name":
+        if not all(s == stems[0] for s in stems):
+            differ = [n for n, s in zip(names, stems) if s != stems[0]]
+            raise InputError(f"--align name: the file names in {', '.join(differ)} differ from "
+                             f"those in {names[0]}; use --align order or --align time.")
+        return [list(row) for row in zip(*per_cam)]
+    if align == "order":
+        n = min(counts.values())
+        if len(set(counts.values())) > 1:
+            log.info("Pairing images by position: %d frame set(s) from %s image(s) per camera "
+                     "(not the same moments in every camera; fine for a static scene).", n,
+                     counts)
+        picks = [np.round(np.linspace(0, len(ps) - 1, n)).astype(int) for ps in per_cam]
+        return [[per_cam[c][picks[c][t]] for c in range(len(names))] for t in range(n)]
+    return _align_by_capture_time(names, per_cam, time_offsets_s, max_time_gap_s)
+
+
+def _align_by_capture_time(names: list[str], per_cam: list[list[Path]],
+                           time_offsets_s: dict[str, float], max_time_gap_s: float
+                           ) -> list[list[Path]]:
+    from .exif import exif_capture_time_s
+
+    times = []
+    for name, files in zip(names, per_cam):
+        offset = float(time_offsets_s.get(name, 0.0))
+        cam_times = []
+        for path in files:
+            t = exif_capture_time_s(path)
+            if t is None:
+                raise InputError(f"--align time: {path} has no EXIF capture time "
+                                 "(DateTimeOriginal); use --align order or name the files alike.")
+            cam_times.append(t - offset)
+        times.append(np.asarray(cam_times))
+    anchor = int(np.argmin([len(ps) for ps in per_cam]))
+    sets, nearest_miss = [], np.inf
+    for t_anchor in np.sort(times[anchor]):
+        picks = [int(np.argmin(np.abs(ts - t_anchor))) for ts in times]
+        gap = max(abs(times[c][i] - t_anchor) for c, i in enumerate(picks))
+        if gap <= max_time_gap_s:
+            sets.append([per_cam[c][i] for c, i in enumerate(picks)])
+        else:
+            nearest_miss = min(nearest_miss, gap)
+    if not sets:
+        raise InputError(
+            f"--align time: no image of {names[anchor]} has images of every other camera within "
+            f"{max_time_gap_s:g} s (nearest: {nearest_miss:.1f} s). If a camera's clock is off, "
+            "give --time-offset NAME=SECONDS (how far it runs ahead); else raise --max-time-gap, "
+            "or use --align order for a static scene.")
+    log.info("Paired %d frame set(s) by EXIF capture time (%d image(s) of %s had no partner "
+             "within %g s).", len(sets), len(times[anchor]) - len(sets), names[anchor],
+             max_time_gap_s)
+    return sets
+
+
+def read_image_folder(directory: str | os.PathLike, max_frame_sets: Optional[int] = None,
+                      **alignment) -> tuple[list[list[np.ndarray]], list[str]]:
     """Frame sets of an image folder: (frame_sets, camera_names), frame_sets[t][c] (H, W, 3)
     uint8 RGB. At most max_frame_sets evenly spaced time steps are read. Every image of a camera
-    must have the same size (the cameras are calibrated at one resolution)."""
-    paths, names = list_image_folder(directory)
+    must have the same size (the cameras are calibrated at one resolution). alignment:
+    list_image_folder's align, time_offsets_s, max_time_gap_s."""
+    paths, names = list_image_folder(directory, **alignment)
     if max_frame_sets is not None and len(paths) > max_frame_sets:
         keep = np.unique(np.round(np.linspace(0, len(paths) - 1, max_frame_sets)).astype(int))
         paths = [paths[i] for i in keep]
