@@ -21,6 +21,8 @@ SUBCOMMANDS = {
                  "write a generated rig's images and ground truth to a folder"),
     "report": ("densecalib_ros.commands.report",
                "print a calibration's intrinsics, fit and camera layout, or its change from another"),
+    "overlay": ("densecalib_ros.commands.overlay",
+                "draw each camera's reprojection residuals on its image"),
     "export": ("densecalib_ros.commands.export",
                "write a calibration as anipose calibration.toml or Kalibr camchain.yaml"),
 }

@@ -62,6 +62,12 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
             100 * metrics["cameras"][name]["focal_err"])
         assert report["change"][name]["projection_change_px"] == pytest.approx(
             metrics["cameras"][name]["projection"]["mean_px"], rel=1e-6)
+    # `densecalib overlay`: each camera's residuals drawn on its image, at the image's size
+    assert main(["overlay", str(out), "--images", str(rig_dir), "--out", str(tmp_path / "ov")]) == 0
+    assert "residual median" in capsys.readouterr().out
+    for name in names:
+        drawn = cv2.imread(str(tmp_path / "ov" / f"{name}.png"))
+        assert drawn is not None and drawn.shape == (480, 640, 3)
 
 
 def test_report_of_a_missing_calibration_says_what_it_needs(tmp_path, caplog):

@@ -117,14 +117,22 @@ def calibration_from_dict(data: dict) -> RigCalibration:
                          "cam_from_rig}.") from exc
 
 
+def calibration_folder(path: str | os.PathLike) -> Path:
+    """The folder of a calibration: `path` itself, or a node output_dir's `latest`."""
+    path = Path(path)
+    if path.is_file():
+        return path.parent
+    latest = path / "latest"
+    return latest if not (path / "calibration.json").exists() and \
+        (latest / "calibration.json").exists() else path
+
+
 def read_calibration(path: str | os.PathLike) -> RigCalibration:
     """A calibration.json, or the one in a folder; a node's output_dir (calibrations in
     time-stamped folders) gives its `latest`."""
     path = Path(path)
     if path.is_dir():
-        latest = path / "latest" / "calibration.json"
-        path = latest if not (path / "calibration.json").exists() and latest.exists() \
-            else path / "calibration.json"
+        path = calibration_folder(path) / "calibration.json"
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
