@@ -5,7 +5,7 @@ from PIL import Image
 
 from densecalib_ros.core.errors import InputError, NotEnoughCamerasError
 from densecalib_ros.core.exif import exif_capture_time_s
-from densecalib_ros.core.image_io import list_image_folder, read_image_folder
+from densecalib_ros.core.image_io import list_image_folder, read_image, read_image_folder
 
 
 def _write(path, value, size=(40, 30)):
@@ -107,3 +107,22 @@ def test_camera_traps_paired_by_capture_time(tmp_path):
     _write(tmp_path / "b" / "PICT004.png", 0)  # no EXIF
     with pytest.raises(InputError, match="PICT004.png has no EXIF capture time"):
         list_image_folder(tmp_path, align="time", time_offsets_s={"b": 60.0})
+
+
+def test_sixteen_bit_files_keep_their_contrast(tmp_path):
+    """A 12-bit machine-vision frame saved as 16-bit PNG and TIFF reads as the 8-bit image."""
+    rgb8 = np.random.default_rng(1).integers(0, 256, (30, 40, 3)).astype(np.uint8)
+    twelve = rgb8.astype(np.uint16) << 4
+    for name in ("a.png", "b.tif"):
+        assert cv2.imwrite(str(tmp_path / name), twelve[..., ::-1])
+        assert np.array_equal(read_image(tmp_path / name), rgb8)
+    assert cv2.imwrite(str(tmp_path / "g.png"), twelve[..., 0])  # 16-bit gray -> RGB
+    assert np.array_equal(read_image(tmp_path / "g.png"), np.repeat(rgb8[..., :1], 3, axis=2))
+
+
+def test_exif_orientation_is_applied(tmp_path):
+    """A phone photo stored landscape with 'rotate 90' in its EXIF is read upright."""
+    exif = Image.Exif()
+    exif[0x0112] = 6  # Orientation: rotate 90 deg clockwise to view
+    Image.fromarray(np.zeros((30, 40, 3), np.uint8)).save(tmp_path / "p.jpg", exif=exif)
+    assert read_image(tmp_path / "p.jpg").shape == (40, 30, 3)

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError, NotEnoughCamerasError
+from .image_encoding import to_pipeline_image
 
 log = logging.getLogger(__name__)
 
@@ -36,12 +37,19 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of an image file; InputError naming the file if it cannot be read."""
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    """(H, W, 3) uint8 RGB of an image file (EXIF orientation applied); InputError naming the file
+    if it cannot be read. 16-bit files (machine-vision cameras save 10-14-bit data in them) are
+    shifted down by their used bit depth, as ROS mono16 images are: OpenCV's own 8-bit
+    conversion divides by 256 and leaves a 12-bit image nearly black."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if bgr is None or bgr.size == 0:
         raise InputError(f"Cannot read image {path}: it is missing, empty or not an image "
                          f"format OpenCV can decode. Replace or remove the file.")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    if bgr.dtype not in (np.uint8, np.uint16):  # float TIFF / EXR: its own range, to 0..255
+        top = float(np.nanmax(bgr)) if np.isfinite(bgr).any() else 0.0
+        bgr = np.clip(np.nan_to_num(bgr) * (255.0 / top if top > 0 else 0.0), 0, 255)
+        bgr = bgr.astype(np.uint8)
+    return to_pipeline_image(bgr, "bgr")
 
 
 def _images_in(directory: Path) -> list[Path]:
