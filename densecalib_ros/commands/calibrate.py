@@ -152,33 +152,32 @@ def _exif_focals(args, frame_sets, names) -> dict:
     return focals
 
 
-def parse_focal_px(values: Optional[list[str]]) -> dict:
-    """--focal-px values -> {camera name or '*': px}; InputError on a malformed value."""
+def _named_numbers(values: Optional[list[str]], option: str, expected: str,
+                   unnamed: Optional[str] = None) -> dict:
+    """`option` values NAME=NUMBER (or a bare NUMBER, kept under `unnamed` when given) ->
+    {name: float}; InputError saying what was `expected` on a malformed value."""
     out = {}
     for value in values or []:
         name, _, number = value.rpartition("=")
         try:
-            px = float(number)
+            x = float(number)
         except ValueError:
-            raise InputError(f"--focal-px {value!r}: expected a number of pixels (800) or "
-                             "NAME=PX (cam0=800).") from None
-        out[name or "*"] = px
+            x = float("nan")
+        if not np.isfinite(x) or not (name or unnamed):
+            raise InputError(f"{option} {value!r}: expected {expected}.")
+        out[name or unnamed] = x
     return out
+
+
+def parse_focal_px(values: Optional[list[str]]) -> dict:
+    """--focal-px values -> {camera name or '*': px}; InputError on a malformed value."""
+    return _named_numbers(values, "--focal-px", "a number of pixels (800) or NAME=PX (cam0=800)",
+                          unnamed="*")
 
 
 def parse_time_offsets(values: Optional[list[str]]) -> dict:
     """--time-offset values -> {camera name: seconds}; InputError on a malformed value."""
-    out = {}
-    for value in values or []:
-        name, _, number = value.rpartition("=")
-        try:
-            seconds = float(number)
-        except ValueError:
-            seconds = float("nan")
-        if not name or not np.isfinite(seconds):
-            raise InputError(f"--time-offset {value!r}: expected NAME=SECONDS (cam1=0.4).")
-        out[name] = seconds
-    return out
+    return _named_numbers(values, "--time-offset", "NAME=SECONDS (cam1=0.4)")
 
 
 def parse_camera_lens(values: Optional[list[str]]) -> dict:
