@@ -23,6 +23,8 @@ SUBCOMMANDS = {
                "print a calibration's intrinsics, fit and camera layout, or its change from another"),
     "overlay": ("densecalib_ros.commands.overlay",
                 "draw each camera's reprojection residuals on its image"),
+    "undistort": ("densecalib_ros.commands.undistort",
+                  "resample images to distortion-free pinhole cameras, with their calibration"),
     "export": ("densecalib_ros.commands.export",
                "write a calibration as anipose calibration.toml or Kalibr camchain.yaml"),
 }

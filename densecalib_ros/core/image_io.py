@@ -57,6 +57,14 @@ def _images_in(directory: Path) -> list[Path]:
                   and p.suffix.lower() in IMAGE_EXTENSIONS)
 
 
+def camera_image_files(directory: str | os.PathLike, name: str) -> list[Path]:
+    """Every image file of camera `name` in DIR, in either layout: DIR/<name>/* or DIR/<name>.*"""
+    directory = Path(directory)
+    if (directory / name).is_dir():
+        return _images_in(directory / name)
+    return [p for p in _images_in(directory) if p.stem == name] if directory.is_dir() else []
+
+
 def list_image_folder(directory: str | os.PathLike, align: str = "auto",
                       time_offsets_s: Optional[dict[str, float]] = None,
                       max_time_gap_s: float = DEFAULT_MAX_TIME_GAP_S

@@ -1,0 +1,85 @@
+"""`densecalib undistort`: resample a rig's images to distortion-free pinhole cameras
+(core.undistort) and write them with the matching calibration (PINHOLE cameras, same
+extrinsics), all or nothing."""
+from __future__ import annotations
+
+import argparse
+import copy
+import logging
+from pathlib import Path
+
+import cv2
+
+from ..core.errors import InputError
+from ..core.undistort import DEFAULT_MAX_FOV_DEG
+
+log = logging.getLogger("densecalib.undistort")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("calibration", metavar="CALIBRATION",
+                        help="a calibration folder, a node's output_dir or a calibration.json")
+    parser.add_argument("--images", required=True, metavar="DIR",
+                        help="images to undistort: DIR/<camera>.<ext> or DIR/<camera>/*, as for "
+                             "calibrate; every image of each calibrated camera is written")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="output folder (replaced): the same layout as PNG, and "
+                             "calibration.json + <camera>.yaml of the undistorted cameras")
+    parser.add_argument("--max-fov", type=float, default=DEFAULT_MAX_FOV_DEG, metavar="DEG",
+                        help="widest view across the undistorted image (fisheye lenses; default "
+                             f"{DEFAULT_MAX_FOV_DEG:g} deg)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
+    from ..core.image_io import camera_image_files, read_image
+    from ..core.undistort import pinhole_for, undistortion_maps
+
+    try:
+        if not 0.0 < args.max_fov < 180.0:
+            raise InputError(f"--max-fov {args.max_fov:g}: give an angle between 0 and 180 deg.")
+        rig = read_calibration(args.calibration)
+        jobs = {name: camera_image_files(args.images, name) for name in rig.cameras}
+        missing = [n for n, files in jobs.items() if not files]
+        if len(missing) == len(jobs):
+            raise InputError(f"No images of the calibrated cameras ({', '.join(jobs)}) in "
+                             f"{args.images}: use DIR/<camera>.<ext> or DIR/<camera>/ images.")
+        for name in missing:
+            log.warning("No images of camera %s in %s: skipped.", name, args.images)
+        flat = not any((Path(args.images) / n).is_dir() for n in jobs)
+        out_rig = copy.deepcopy(rig)
+        out_rig.quality = {**rig.quality, "undistorted_from": str(args.calibration)}
+
+        def build(tmp: Path) -> None:
+            for name, files in jobs.items():
+                if not files:
+                    continue
+                source = rig.cameras[name].intrinsics
+                target = pinhole_for(source, args.max_fov)
+                map_x, map_y = undistortion_maps(source, target)
+                out_rig.cameras[name].intrinsics = target
+                for path in files:
+                    image = read_image(path)
+                    if (image.shape[1], image.shape[0]) != (source.width, source.height):
+                        raise InputError(f"{path} is {image.shape[1]}x{image.shape[0]}, but "
+                                         f"camera {name} was calibrated at {source.width}x"
+                                         f"{source.height}.")
+                    undistorted = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR,
+                                            borderMode=cv2.BORDER_CONSTANT)
+                    dest = tmp / f"{name}.png" if flat else tmp / name / f"{path.stem}.png"
+                    dest.parent.mkdir(parents=True, exist_ok=True)
+                    if not cv2.imwrite(str(dest), cv2.cvtColor(undistorted, cv2.COLOR_RGB2BGR)):
+                        raise InputError(f"Cannot write {dest}: check the disk and permissions.")
+                log.info("%s: %d image(s), focal %.1f px, principal point at the centre", name,
+                         len(files), target.params[0])
+            for name in missing:
+                del out_rig.cameras[name]
+            write_calibration_files(out_rig, tmp)
+
+        replace_directory_atomic(build, args.out)
+    except InputError as exc:
+        log.error("%s", exc)
+        return 2
+    print(f"wrote {args.out}: {sum(len(f) for f in jobs.values())} undistorted image(s) of "
+          f"{len(jobs) - len(missing)} camera(s) and their pinhole calibration")
+    return 0
