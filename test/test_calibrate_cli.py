@@ -114,7 +114,8 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     ("--known-baseline", "cam0 cam1 -2", "their distance in metres (> 0)"),
     ("--time-offset", "cam1=3", "--time-offset belongs to --videos or to --images with --align"),
     ("--align", "name --time-offset cam1=3", "--time-offset belongs to"),
-    ("--align", "time", "no EXIF capture time")])
+    ("--align", "time", "no EXIF capture time"),
+    ("--max-frame-sets", "0", "--max-frame-sets 0: give at least 1")])
 def test_options_are_checked_before_matching(rig_dir, tmp_path, caplog, option, value, message):
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),

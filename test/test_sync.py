@@ -1,12 +1,14 @@
 """Approximate-time synchronisation and the frame-set buffer (core.sync, shared by bag reader and
 node), plus the node's thread-safe message adapter (ros.sync)."""
+import logging
 import threading
 
 import numpy as np
 import pytest
 
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.sync import ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer
+from densecalib_ros.core.sync import (ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer,
+                                      evenly_spaced)
 
 MS = 1_000_000
 
@@ -99,3 +101,13 @@ def test_message_synchronizer_is_thread_safe():
     assert stats["matched"] == stats["buffered"] >= 1
     sets = sync.snapshot()
     assert all(s.items[0].header.stamp.sec == s.items[1].header.stamp.sec for s in sets)
+
+
+def test_evenly_spaced_keeps_the_ends_and_logs(caplog):
+    items = list(range(100))
+    with caplog.at_level(logging.INFO):
+        assert evenly_spaced(items, 5) == [0, 25, 50, 74, 99]
+    assert "Using 5 of 100 frame sets" in caplog.text
+    assert evenly_spaced(items[:3], 5) == [0, 1, 2] and evenly_spaced(items, None) == items
+    with pytest.raises(InputError, match="at least 1"):
+        evenly_spaced(items, 0)

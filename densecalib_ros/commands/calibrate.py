@@ -17,6 +17,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, ma
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
 from ..core.report import camera_table
+from ..core.sync import DEFAULT_MAX_FRAME_SETS
 from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
 
@@ -38,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--slop", type=float, default=0.02, metavar="S",
                         help="max stamp difference within a synchronised frame set (s, --bag)")
     parser.add_argument("--max-frame-sets", type=int, default=None, metavar="N",
-                        help="use at most N evenly spaced frame sets")
+                        help="use at most N evenly spaced frame sets (default "
+                             f"{DEFAULT_MAX_FRAME_SETS}; {DEFAULT_VIDEO_FRAME_SETS} from videos)")
     parser.add_argument("--align", choices=ALIGNMENTS, default="auto",
                         help="with --images and camera subfolders: pair images by file name, "
                              "sorted position, or EXIF capture time (default auto: name, else "
@@ -104,6 +106,14 @@ def _alignment(args) -> dict:
             "max_time_gap_s": args.max_time_gap}
 
 
+def _frame_sets(args, default: int) -> int:
+    if args.max_frame_sets is None:
+        return default
+    if args.max_frame_sets < 1:
+        raise InputError(f"--max-frame-sets {args.max_frame_sets}: give at least 1.")
+    return args.max_frame_sets
+
+
 def _read_input(args):
     video_only = [opt for opt, value in (("--start", args.start), ("--end", args.end))
                   if value is not None]
@@ -119,7 +129,7 @@ def _read_input(args):
                              "from the video file names.")
         from ..core.video_io import read_video_frame_sets
         frame_sets, names, times_s = read_video_frame_sets(
-            args.videos, args.max_frame_sets or DEFAULT_VIDEO_FRAME_SETS,
+            args.videos, _frame_sets(args, DEFAULT_VIDEO_FRAME_SETS),
             parse_time_offsets(args.time_offset), args.start, args.end)
         log.info("video frame sets at %s s", ", ".join(f"{t:.2f}" for t in times_s))
         return frame_sets, names
@@ -128,14 +138,15 @@ def _read_input(args):
             raise InputError("--topics belongs to --bag; with --images the camera names come "
                              "from the file or folder names.")
         from ..core.image_io import read_image_folder
-        return read_image_folder(args.images, max_frame_sets=args.max_frame_sets,
+        return read_image_folder(args.images,
+                                 max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS),
                                  **_alignment(args))
     if not args.topics:
         raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
                          "--topics /cam0/image_raw /cam1/image_raw.")
     from ..core.bag import read_frame_sets
     return read_frame_sets(args.bag, args.topics, slop_s=args.slop,
-                           max_frame_sets=args.max_frame_sets)
+                           max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS))
 
 
 def _exif_focals(args, frame_sets, names) -> dict:

@@ -18,7 +18,7 @@ import numpy as np
 
 from .errors import InputError
 from .image_encoding import decode_compressed, decode_raw
-from .sync import ApproximateTimeSynchronizer
+from .sync import ApproximateTimeSynchronizer, evenly_spaced
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
@@ -147,9 +147,7 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
                          "header stamps or raise slop_s.")
     sets.sort(key=lambda s: s.stamp_ns)
     sets = sets[::stride]
-    if max_frame_sets is not None and len(sets) > max_frame_sets:
-        keep = np.unique(np.round(np.linspace(0, len(sets) - 1, max_frame_sets)).astype(int))
-        sets = [sets[i] for i in keep]
+    sets = evenly_spaced(sets, max_frame_sets)
     # Pass 2: decode only the selected messages.
     wanted = {(c, pos): t for t, s in enumerate(sets) for c, pos in enumerate(s.items)}
     frame_sets: list[list[Optional[np.ndarray]]] = [[None] * len(topics) for _ in sets]

@@ -28,6 +28,7 @@ import numpy as np
 
 from .errors import InputError, NotEnoughCamerasError
 from .image_encoding import to_pipeline_image
+from .sync import evenly_spaced
 
 log = logging.getLogger(__name__)
 
@@ -190,9 +191,7 @@ def read_image_folder(directory: str | os.PathLike, max_frame_sets: Optional[int
     must have the same size (the cameras are calibrated at one resolution). alignment:
     list_image_folder's align, time_offsets_s, max_time_gap_s."""
     paths, names = list_image_folder(directory, **alignment)
-    if max_frame_sets is not None and len(paths) > max_frame_sets:
-        keep = np.unique(np.round(np.linspace(0, len(paths) - 1, max_frame_sets)).astype(int))
-        paths = [paths[i] for i in keep]
+    paths = evenly_spaced(paths, max_frame_sets)
     frame_sets = [[read_image(p) for p in row] for row in paths]
     for c, name in enumerate(names):
         sizes = {frame_sets[t][c].shape[:2] for t in range(len(frame_sets))}

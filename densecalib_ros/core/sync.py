@@ -11,10 +11,15 @@ frame sets.
 from __future__ import annotations
 
 import bisect
+import logging
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Optional
+
+import numpy as np
 
 from .errors import InputError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -122,3 +127,22 @@ class FrameSetBuffer:
 
     def __len__(self) -> int:
         return len(self._sets)
+
+
+# Frame sets a calibration reads from an image folder or a bag unless told otherwise: past a few
+# tens, sets add matching time and memory (every image is held decoded) more than information,
+# and a long bag or trail-camera folder would otherwise be read whole.
+DEFAULT_MAX_FRAME_SETS = 20
+
+
+def evenly_spaced(items: list, max_count: Optional[int], what: str = "frame sets") -> list:
+    """At most max_count items evenly spaced over `items` (first and last kept); None = all.
+    Logs when it leaves some out."""
+    if max_count is None or len(items) <= max_count:
+        return list(items)
+    if max_count < 1:
+        raise InputError(f"The number of {what} to use must be at least 1, got {max_count}.")
+    keep = np.unique(np.round(np.linspace(0, len(items) - 1, max_count)).astype(int))
+    log.info("Using %d of %d %s, evenly spaced (--max-frame-sets to change).", len(keep),
+             len(items), what)
+    return [items[i] for i in keep]
