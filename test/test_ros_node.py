@@ -317,11 +317,14 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert all(np.allclose(restarted_tf[k], published_tf[k], atol=1e-9) for k in published_tf)
 
     # A failing calibration (images of unrelated noise) changes nothing published or written.
+    # It uses one of the two buffered sets (max_frame_sets, evenly spaced over the buffer).
     rng = np.random.default_rng(5)
     noise = [[rng.integers(0, 256, (240, 320, 3), dtype=np.uint8) for _ in CAMERAS]
              for _ in range(2)]
     publish_frame_sets(ros, node, noise, first_stamp_s=100.0)
+    assert node.set_parameters([Parameter("max_frame_sets", value=1)])[0].successful
     response = caller.call(CALIBRATION_TIMEOUT_S)
+    assert any(s.startswith("calibrating 1 frame sets") for s in listener.snapshot()["status"])
     assert not response.success
     assert response.message.startswith("calibration failed after")
     assert f"still publishing the calibration of {latest.resolve().name}" in response.message

@@ -53,6 +53,7 @@ from ..core.errors import CalibrationError, InputError
 from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
 from ..core.matching import available_matchers
 from ..core.scale import with_known_baseline
+from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.types import RigCalibration
 from .conversions import camera_info_msg, rig_tf_message
 from .replay import BagReplayer
@@ -92,6 +93,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                        "skipped [s]", True, _range(0.0, 3600.0, False)),
     "min_frame_sets": (1, "frame sets needed before a calibration starts", False,
                        _range(1, 10000, True)),
+    "max_frame_sets": (DEFAULT_MAX_FRAME_SETS, "a calibration uses at most this many buffered "
+                       "frame sets, evenly spaced over the buffer", False, _range(1, 10000, True)),
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
     "camera_lens": (Parameter.Type.STRING_ARRAY,
                     "per camera its lens, pinhole or fisheye, for a rig mixing lenses (empty: "
@@ -149,6 +152,7 @@ class Settings:
     buffer_size: int
     min_interval_s: float
     min_frame_sets: int
+    max_frame_sets: int
     preset: str
     camera_lens: dict[str, str]
     pipeline: str
@@ -276,7 +280,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         image_topics=topics, camera_names=names, transports=transports,
         slop_s=float(v["slop_s"]), sync_queue_size=int(v["sync_queue_size"]),
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
-        min_frame_sets=int(v["min_frame_sets"]), preset=v["preset"],
+        min_frame_sets=int(v["min_frame_sets"]), max_frame_sets=int(v["max_frame_sets"]),
+        preset=v["preset"],
         camera_lens=dict(zip(names, lenses)), pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
         initial_focal_px=initial_focal_px,
@@ -502,6 +507,7 @@ class DenseCalibNode(Node):
                 f"{len(sets)} synchronised frame set(s) buffered, {s.min_frame_sets} needed "
                 f"(messages received per camera: {dict(zip(s.camera_names, stats['received']))}, "
                 f"slop {s.slop_s} s); check that every camera publishes with close header stamps")
+        sets = evenly_spaced(sets, s.max_frame_sets)
         self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
                          f"{s.matcher})")
         images = decode_frame_sets(sets)
