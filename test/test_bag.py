@@ -80,6 +80,9 @@ def test_slop_selects_sets_and_stride_and_max(tmp_path):
     # stride 2 over the 11 sets -> kept[0::2] (6 sets), then 3 evenly spaced: 0, 2 (rounded), 5
     expect = [kept[0::2][i] for i in (0, 2, 5)]
     assert [next(t for t in range(12) if np.array_equal(g[1], frames[t][1])) for g in got] == expect
+    _, _, used = read_frame_sets(bag, TOPICS[:2], slop_s=0.01, stride=2, max_frame_sets=3,
+                                 return_stamps=True)  # what a calibration records it used
+    assert used == [stamps[t] for t in expect]
 
 
 def test_iter_image_messages_gives_stamps_in_bag_order(tmp_path):

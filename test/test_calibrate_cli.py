@@ -35,6 +35,11 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     data = json.loads((out / "calibration.json").read_text())
     names = ["cam0", "cam1", "cam2", "cam3"]
     assert data["reference_camera"] == "cam0" and sorted(data["cameras"]) == names
+    # provenance: which files made each frame set, by which version, when
+    source = data["quality"]["input"]
+    assert source["source"] == "images" and source["path"] == str(rig_dir.resolve())
+    assert source["frame_sets"] == [[f"{n}/0000.png" for n in names]]
+    assert data["quality"]["densecalib_version"] and "T" in data["quality"]["calibrated_utc"]
     assert len(data["cameras"]["cam1"]["cam_from_rig"]) == 16
     assert data["cameras"]["cam1"]["model"] == "RADIAL"
     for name in names:  # standard deviations (core.uncertainty); the principal point was held

@@ -264,6 +264,9 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert response.success, response.message
     assert response.message.startswith("calibrated 4/4 cameras (cam0, cam1, cam2, cam3)")
     assert "reprojection RMS" in response.message and "2 frame sets" in response.message
+    source = node.calibration.quality["input"]
+    assert source["source"] == "topics" and source["topics"] == [c[0] for c in CAMERAS.values()]
+    assert [s[0] for s in source["frame_set_stamps_ns"]] == [1_000_000_000, 2_000_000_000]
     check_against_truth(listener, rig, node)
     assert response.message.endswith(
         "set_camera_info: cam0 ok, cam1 refused (no thanks), cam2 timeout, "

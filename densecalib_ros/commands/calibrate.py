@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -16,8 +17,9 @@ import numpy as np
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
+from ..core.export import record_provenance
 from ..core.report import camera_table
-from ..core.sync import DEFAULT_MAX_FRAME_SETS
+from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
 
@@ -114,7 +116,9 @@ def _frame_sets(args, default: int) -> int:
     return args.max_frame_sets
 
 
-def _read_input(args):
+def _read_input(args) -> tuple[list, list[str], dict, list]:
+    """(frame_sets, camera names, the input's record for quality["input"], image paths per set
+    (--images only, else []))."""
     video_only = [opt for opt, value in (("--start", args.start), ("--end", args.end))
                   if value is not None]
     if video_only and not args.videos:
@@ -132,29 +136,37 @@ def _read_input(args):
             args.videos, _frame_sets(args, DEFAULT_VIDEO_FRAME_SETS),
             parse_time_offsets(args.time_offset), args.start, args.end)
         log.info("video frame sets at %s s", ", ".join(f"{t:.2f}" for t in times_s))
-        return frame_sets, names
+        return frame_sets, names, {
+            "source": "videos", "path": str(Path(args.videos).resolve()),
+            "time_offsets_s": parse_time_offsets(args.time_offset),
+            "frame_set_times_s": times_s}, []
     if args.images:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --images the camera names come "
                              "from the file or folder names.")
-        from ..core.image_io import read_image_folder
-        return read_image_folder(args.images,
-                                 max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS),
-                                 **_alignment(args))
+        from ..core.image_io import list_image_folder, read_image_files
+        paths, names = list_image_folder(args.images, **_alignment(args))
+        paths = evenly_spaced(paths, _frame_sets(args, DEFAULT_MAX_FRAME_SETS))
+        root = Path(args.images).resolve()
+        return read_image_files(paths, names), names, {
+            "source": "images", "path": str(root),
+            "frame_sets": [[str(p.resolve().relative_to(root)) for p in row] for row in paths]
+        }, paths
     if not args.topics:
         raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
                          "--topics /cam0/image_raw /cam1/image_raw.")
     from ..core.bag import read_frame_sets
-    return read_frame_sets(args.bag, args.topics, slop_s=args.slop,
-                           max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS))
+    frame_sets, names, stamps = read_frame_sets(
+        args.bag, args.topics, slop_s=args.slop,
+        max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS), return_stamps=True)
+    return frame_sets, names, {"source": "bag", "path": str(Path(args.bag).resolve()),
+                               "topics": list(args.topics), "frame_set_stamps_ns": stamps}, []
 
 
-def _exif_focals(args, frame_sets, names) -> dict:
-    """{camera: focal px} from the EXIF of every image of the folder (core.exif), logged."""
+def _exif_focals(paths, frame_sets, names) -> dict:
+    """{camera: focal px} from the EXIF of the images used (core.exif), logged."""
     from ..core.exif import camera_exif_focals
-    from ..core.image_io import list_image_folder
 
-    paths, _ = list_image_folder(args.images, **_alignment(args))
     sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
     focals = camera_exif_focals(paths, names, sizes)
     if focals:
@@ -243,10 +255,10 @@ def run(args: argparse.Namespace) -> int:
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
-        frame_sets, names = _read_input(args)
+        frame_sets, names, source, paths = _read_input(args)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
         if args.images and not args.ignore_exif:
-            config.exif_focal_px = _exif_focals(args, frame_sets, names)
+            config.exif_focal_px = _exif_focals(paths, frame_sets, names)
         log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",
                  len(names), ", ".join(names), len(frame_sets), config.preset,
                  "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),
@@ -263,6 +275,7 @@ def run(args: argparse.Namespace) -> int:
         if baseline:
             from ..core.scale import with_known_baseline
             result = with_known_baseline(result, *baseline)
+        record_provenance(result.rig, source)
         replace_directory_atomic(
             lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction), args.out)
     except InputError as exc:

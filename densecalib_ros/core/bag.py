@@ -119,13 +119,14 @@ def iter_image_messages(bag_path: str | os.PathLike, topics: list[str]
 
 
 def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: float = 0.02,
-                    max_frame_sets: Optional[int] = None, stride: int = 1
-                    ) -> tuple[list[list[np.ndarray]], list[str]]:
+                    max_frame_sets: Optional[int] = None, stride: int = 1,
+                    return_stamps: bool = False) -> tuple:
     """Synchronised frame sets of a bag's image topics.
 
     Returns (frame_sets, camera_names): frame_sets[t][c] is camera c's image of set t, uint8 RGB
     (H, W, 3) or gray (H, W); camera c is topics[c], named by camera_names_from_topics. Sets are in
     stamp order; every `stride`-th set is kept, then at most `max_frame_sets` evenly spaced ones.
+    With return_stamps, a third value: stamps_ns[t][c], the header stamp of each image used.
     """
     if stride < 1:
         raise InputError(f"stride must be >= 1, got {stride}.")
@@ -157,6 +158,8 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
         seen[topic_index] += 1
         if t is not None:
             frame_sets[t][topic_index] = decode_image_message(msgtype, msg)
+    if return_stamps:
+        return frame_sets, names, [list(map(int, s.stamps_ns)) for s in sets]
     return frame_sets, names
 
 

@@ -8,6 +8,7 @@ cx_ros = cx_colmap - 0.5; distortion model names plumb_bob (k1 k2 p1 p2 k3), rat
 """
 from __future__ import annotations
 
+import datetime
 import json
 import os
 import shutil
@@ -138,6 +139,18 @@ def read_calibration(path: str | os.PathLike) -> RigCalibration:
     except (OSError, json.JSONDecodeError) as exc:
         raise InputError(f"Cannot read calibration file {path}: {exc}") from exc
     return calibration_from_dict(data)
+
+
+def record_provenance(rig: RigCalibration, source: dict) -> None:
+    """Note in rig.quality what the calibration was made from (`source`: e.g. the image files of
+    each frame set, the video times, or the bag's topics and stamps), by which densecalib version
+    and when: a calibration file that says how to reproduce it."""
+    from .. import __version__
+
+    rig.quality["input"] = source
+    rig.quality["densecalib_version"] = __version__
+    rig.quality["calibrated_utc"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
+        timespec="seconds")
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:

@@ -191,11 +191,16 @@ def read_image_folder(directory: str | os.PathLike, max_frame_sets: Optional[int
     must have the same size (the cameras are calibrated at one resolution). alignment:
     list_image_folder's align, time_offsets_s, max_time_gap_s."""
     paths, names = list_image_folder(directory, **alignment)
-    paths = evenly_spaced(paths, max_frame_sets)
+    return read_image_files(evenly_spaced(paths, max_frame_sets), names), names
+
+
+def read_image_files(paths: list[list[Path]], names: list[str]) -> list[list[np.ndarray]]:
+    """frame_sets[t][c] (H, W, 3) uint8 RGB of the files paths[t][c]; InputError when a camera's
+    images differ in size (the cameras are calibrated at one resolution)."""
     frame_sets = [[read_image(p) for p in row] for row in paths]
     for c, name in enumerate(names):
         sizes = {frame_sets[t][c].shape[:2] for t in range(len(frame_sets))}
         if len(sizes) > 1:
             raise InputError(f"Images of camera {name} have different sizes "
                              f"{sorted(sizes)}: use one resolution per camera.")
-    return frame_sets, names
+    return frame_sets

@@ -105,6 +105,13 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         made.append("lenses " + ", ".join(f"{n} {lens}" for n, lens in q["camera_lens"].items()))
     lines = [f"{len(rig.cameras)} camera(s), reference {rig.reference_camera}"
              + (f"; {', '.join(made)}" if made else "")]
+    source = q.get("input") or {}
+    if source:
+        where = ", ".join(source.get("topics", [])) if source.get("source") == "topics" \
+            else source.get("path", "?")
+        lines.append(f"from {source.get('source', '?')} {where}"
+                     + (f", densecalib {q['densecalib_version']}" if "densecalib_version" in q
+                        else "") + (f", {q['calibrated_utc']}" if "calibrated_utc" in q else ""))
     fit = []
     if "reprojection_rms_px" in q:
         fit.append(f"reprojection RMS {float(q['reprojection_rms_px']):.2f} px")

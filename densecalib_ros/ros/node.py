@@ -50,7 +50,8 @@ from ..core.bag import camera_names_from_topics
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, PipelineConfig,
                            make_config)
 from ..core.errors import CalibrationError, InputError
-from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
+from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
+                           write_calibration_files)
 from ..core.matching import available_matchers
 from ..core.scale import with_known_baseline
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
@@ -522,6 +523,9 @@ class DenseCalibNode(Node):
         if s.known_baseline_m > 0:
             result = with_known_baseline(result, *s.baseline_cameras, s.known_baseline_m)
         rig, reconstruction = result.rig, result.reconstruction
+        record_provenance(rig, {"source": "topics", "topics": list(s.image_topics),
+                                "frame_set_stamps_ns": [list(map(int, fs.stamps_ns))
+                                                        for fs in sets]})
         elapsed = time.perf_counter() - start
         out = self._write_files(rig, reconstruction)
         self._publish(rig, out)
