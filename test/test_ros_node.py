@@ -9,6 +9,7 @@ import re
 import threading
 import time
 
+import cv2
 import numpy as np
 import pytest
 
@@ -213,6 +214,15 @@ def test_parameters_are_validated(ros, tmp_path):
         assert node.set_parameters([Parameter("consensus_runs", value=1)])[0].successful
         assert pipeline_config(node.settings).consensus_runs == 1
         assert not node.set_parameters([Parameter("consensus_runs", value=0)])[0].successful
+        result = node.set_parameters([Parameter("mask_files", value=[str(tmp_path / "no.png")])])[0]
+        assert not result.successful and "Cannot read mask" in result.reason
+        mask = np.full((240, 320), 255, np.uint8)
+        mask[-20:] = 0
+        cv2.imwrite(str(tmp_path / "strip.png"), mask)
+        masks = ["", str(tmp_path / "strip.png"), "", ""]
+        assert node.set_parameters([Parameter("mask_files", value=masks)])[0].successful
+        camera_masks = pipeline_config(node.settings).camera_masks
+        assert list(camera_masks) == ["cam1"] and camera_masks["cam1"][-20:].all()
         assert pipeline_config(node.settings).initial_focal_px == {}
         assert node.set_parameters([Parameter("initial_focal_px", value=[800.0])])[0].successful
         assert pipeline_config(node.settings).initial_focal_px == {"*": 800.0}

@@ -98,6 +98,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "cameras, e.g. --known-baseline cam0 cam1 0.42 (SfM alone gives the "
                              "rig up to scale). With --previous, a metric previous calibration's "
                              "baseline is used when this is not given")
+    parser.add_argument("--mask", nargs="+", default=None, metavar="PATH|NAME=PATH",
+                        help="image of a camera's size, black where matches are not used (an "
+                             "info strip, the rig's own structure): one PATH for every camera or "
+                             "NAME=PATH per camera")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
     parser.add_argument("--threads", type=int, default=-1,
                         help="bundle-adjustment threads (-1 = all cores)")
@@ -203,6 +207,21 @@ def parse_time_offsets(values: Optional[list[str]]) -> dict:
     return _named_numbers(values, "--time-offset", "NAME=SECONDS (cam1=0.4)")
 
 
+def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
+    """--mask values -> {camera name: ignored pixels}: NAME=PATH for one camera (NAME one of
+    `names`; a path may itself hold '='), a bare PATH for every camera."""
+    from ..core.masks import read_mask
+
+    out = {}
+    for value in values or []:
+        name, sep, path = value.partition("=")
+        if sep and name in names:
+            out[name] = read_mask(path)
+        else:
+            out.update({n: read_mask(value) for n in names if n not in out})
+    return out
+
+
 def parse_camera_lens(values: Optional[list[str]]) -> dict:
     """--lens values -> {camera name: lens}; InputError on a malformed value."""
     out = {}
@@ -257,6 +276,7 @@ def run(args: argparse.Namespace) -> int:
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
         frame_sets, names, source, paths = _read_input(args)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
+        config.camera_masks = parse_masks(args.mask, names)
         if args.images and not args.ignore_exif:
             config.exif_focal_px = _exif_focals(paths, frame_sets, names)
         log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",

@@ -140,6 +140,9 @@ class PipelineConfig:
     # its lens's model (LENS_MODELS); a rig with any fisheye camera runs with the fisheye
     # preset's SfM options (resolve_camera_lenses).
     camera_lens: dict = field(default_factory=dict)
+    # Regions whose matches are not used (core/masks.py): camera name -> bool (H, W), True =
+    # ignored (an info strip, the rig's own structure). Cameras not named use the whole image.
+    camera_masks: dict = field(default_factory=dict)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 

@@ -315,10 +315,20 @@ def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
 
 
 def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,
-                     matcher=None, progress: Progress = None) -> list:
+                     matcher=None, progress: Progress = None,
+                     camera_names: Optional[Sequence[str]] = None) -> list:
     """One SiteMatchSet per frame set. matcher: an already loaded core.matching.Matcher to reuse
-    (else config.matcher is created and loaded here)."""
+    (else config.matcher is created and loaded here). With config.camera_masks (then
+    camera_names is needed), matches on masked regions are dropped (core.masks)."""
+    from .masks import apply_masks, check_masks
     from .matching import create_matcher
+
+    ignored = []
+    if config.camera_masks:
+        if camera_names is None:
+            raise ValueError("camera_masks need the camera names")
+        sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
+        ignored = check_masks(config.camera_masks, camera_names, sizes)
 
     if matcher is None:
         matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
@@ -326,6 +336,9 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     match_sets = []
     for t, frames in enumerate(frame_sets):
         match_sets.append(matcher.match(list(frames)))
+        if ignored:
+            log.debug("frame set %d: %d match(es) on masked regions dropped", t,
+                      apply_masks(match_sets[-1], ignored))
         say_progress(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})")
     return match_sets
 
@@ -473,13 +486,16 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     start = time.perf_counter()
     camera_names = list(camera_names)
     image_sizes = check_frame_sets(frame_sets, camera_names)
-    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress)
+    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
+                                  camera_names=camera_names)
     result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
                                     previous=previous, progress=progress)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
     if config.camera_lens:
         result.rig.quality["camera_lens"] = dict(config.camera_lens)
+    if config.camera_masks:
+        result.rig.quality["masked_cameras"] = sorted(config.camera_masks)
     if config.exif_focal_px:
         result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
                                                for n, f in config.exif_focal_px.items()}

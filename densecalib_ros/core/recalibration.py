@@ -57,7 +57,8 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     than `previous`, and the pipeline's CalibrationError subclasses when calibration fails."""
     camera_names = list(camera_names)
     image_sizes = check_frame_sets(frame_sets, camera_names)
-    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress)
+    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
+                                  camera_names=camera_names)
 
     result, why_not_previous = None, None
     if all(n in previous.cameras for n in camera_names):

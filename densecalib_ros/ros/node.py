@@ -52,6 +52,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, Pi
 from ..core.errors import CalibrationError, InputError
 from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
                            write_calibration_files)
+from ..core.masks import read_mask
 from ..core.matching import available_matchers
 from ..core.scale import with_known_baseline
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
@@ -100,6 +101,10 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "camera_lens": (Parameter.Type.STRING_ARRAY,
                     "per camera its lens, pinhole or fisheye, for a rig mixing lenses (empty: "
                     "the preset's for all)", False, {}),
+    "mask_files": (Parameter.Type.STRING_ARRAY,
+                   "images of the cameras' size, black where matches are not used (an info "
+                   "strip, the rig's own structure): empty, one for every camera, or one per "
+                   "camera ('' = none)", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
@@ -156,6 +161,7 @@ class Settings:
     max_frame_sets: int
     preset: str
     camera_lens: dict[str, str]
+    camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.masks)
     pipeline: str
     matcher: str
     share_intrinsics: bool
@@ -181,7 +187,7 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
                        consensus_runs=s.consensus_runs, initial_focal_px=s.initial_focal_px,
-                       camera_lens=s.camera_lens)
+                       camera_lens=s.camera_lens, camera_masks=s.camera_masks)
 
 
 def _topic_namespace(topic: str) -> str:
@@ -232,6 +238,12 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     if lenses and (len(lenses) != n or any(lens not in LENS_MODELS for lens in lenses)):
         raise InputError(f"camera_lens must be empty or give one lens per camera ({n}), each "
                          f"{' or '.join(LENS_MODELS)}, got {lenses}.")
+    mask_files = list(v["mask_files"])
+    if len(mask_files) == 1:
+        mask_files = mask_files * n
+    mask_files = _per_camera(mask_files, n, "mask_files", lambda i: "")
+    camera_masks = {name: read_mask(os.path.expanduser(path))
+                    for name, path in zip(names, mask_files) if path}
     if v["pipeline"] not in PIPELINES:
         raise InputError(f"pipeline must be one of {', '.join(PIPELINES)}, got {v['pipeline']!r}.")
     if v["matcher"] not in available_matchers():
@@ -283,7 +295,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), max_frame_sets=int(v["max_frame_sets"]),
         preset=v["preset"],
-        camera_lens=dict(zip(names, lenses)), pipeline=v["pipeline"],
+        camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks, pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
         initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),

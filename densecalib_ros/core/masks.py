@@ -1,0 +1,88 @@
+"""Image masks: regions of a camera's image whose matches are not used.
+
+What a camera sees that is not the scene: a trail camera's burnt-in info strip (date, temperature;
+the same glyphs at the same place in every camera, which match each other across cameras and
+survive the cycle checks), the rig's own structure in a fisheye's view, a lens hood, a moving
+arm. COLMAP's convention: a mask is an image of the camera's size, black (< 128) where features
+are ignored. Every match with an end in a masked region is dropped, in both directions, right
+after matching, so the sampling, SfM and all-match refinement never see it.
+"""
+from __future__ import annotations
+
+import os
+from typing import Optional, Sequence
+
+import cv2
+import numpy as np
+
+from .errors import InputError
+from .types import SiteMatchSet
+
+
+def read_mask(path: str | os.PathLike) -> np.ndarray:
+    """bool (H, W), True where the mask image at `path` is black (< 128): ignored pixels."""
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if gray is None or gray.size == 0:
+        raise InputError(f"Cannot read mask {path}: give an image file (black = ignore, white = "
+                         "use) of the camera's size.")
+    ignored = gray < 128
+    if ignored.all():
+        raise InputError(f"Mask {path} is black everywhere: it would ignore the whole image "
+                         "(black = ignore, white = use).")
+    return ignored
+
+
+def _ignored_at(ignored: np.ndarray, xy_px: np.ndarray) -> np.ndarray:
+    """Which COLMAP pixel positions (N, 2) fall on ignored pixels (NaN positions: False)."""
+    out = np.zeros(len(xy_px), dtype=bool)
+    ok = np.isfinite(xy_px).all(1)
+    h, w = ignored.shape
+    col = np.clip(np.floor(xy_px[ok, 0]).astype(int), 0, w - 1)
+    row = np.clip(np.floor(xy_px[ok, 1]).astype(int), 0, h - 1)
+    out[ok] = ignored[row, col]
+    return out
+
+
+def check_masks(masks: dict, camera_names: Sequence[str],
+                image_sizes: Sequence[tuple[int, int]]) -> list[Optional[np.ndarray]]:
+    """Per camera index its ignore mask or None, from {camera name: mask}; InputError for unknown
+    cameras or a mask whose size is not the camera's (width, height)."""
+    unknown = sorted(set(masks) - set(camera_names))
+    if unknown:
+        raise InputError(f"Masks for unknown camera(s) {', '.join(unknown)}: the cameras are "
+                         f"{', '.join(camera_names)}.")
+    out = []
+    for name, (w, h) in zip(camera_names, image_sizes):
+        mask = masks.get(name)
+        if mask is not None and mask.shape != (h, w):
+            raise InputError(f"The mask of camera {name} is {mask.shape[1]}x{mask.shape[0]}, its "
+                             f"images {w}x{h}: make the mask the images' size.")
+        out.append(mask)
+    return out
+
+
+def apply_masks(match_set: SiteMatchSet, ignored: Sequence[Optional[np.ndarray]]) -> int:
+    """Drop (in place) every match of match_set with an end on an ignored pixel; returns how many
+    were dropped."""
+    if not any(m is not None for m in ignored):
+        return 0
+    site_ignored = [_ignored_at(m, s) if m is not None else np.zeros(len(s), dtype=bool)
+                    for m, s in zip(ignored, match_set.sites)]
+    dropped = 0
+    for (i, j), pm in match_set.pairs.items():
+        valid = pm.target >= 0
+        drop = site_ignored[i] & valid
+        if ignored[j] is not None:
+            end = np.full((len(pm.target), 2), np.nan)
+            end[valid] = match_set.sites[j][pm.target[valid]]
+            if pm.target_xy_px is not None:
+                refined = np.isfinite(pm.target_xy_px).all(1)
+                end[refined] = pm.target_xy_px[refined]
+            on_site = site_ignored[j][np.maximum(pm.target, 0)]
+            drop |= valid & (_ignored_at(ignored[j], end) | on_site)
+        pm.target[drop] = -1
+        pm.certainty[drop] = 0.0
+        if pm.target_xy_px is not None:
+            pm.target_xy_px[drop] = np.nan
+        dropped += int(drop.sum())
+    return dropped
