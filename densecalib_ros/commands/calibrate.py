@@ -18,9 +18,9 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, ma
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
 from ..core.export import record_provenance
+from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.report import camera_table
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
-from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
 
 log = logging.getLogger("densecalib.calibrate")
@@ -151,11 +151,10 @@ def _read_input(args) -> tuple[list, list[str], dict, list]:
         from ..core.image_io import list_image_folder, read_image_files
         paths, names = list_image_folder(args.images, **_alignment(args))
         paths = evenly_spaced(paths, _frame_sets(args, DEFAULT_MAX_FRAME_SETS))
-        root = Path(args.images).resolve()
+        root = Path(args.images)  # the listed paths are under it (symlinks not followed)
         return read_image_files(paths, names), names, {
-            "source": "images", "path": str(root),
-            "frame_sets": [[str(p.resolve().relative_to(root)) for p in row] for row in paths]
-        }, paths
+            "source": "images", "path": str(root.resolve()),
+            "frame_sets": [[str(p.relative_to(root)) for p in row] for row in paths]}, paths
     if not args.topics:
         raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
                          "--topics /cam0/image_raw /cam1/image_raw.")
