@@ -1,0 +1,134 @@
+"""Where a rig's frame sets come from, for the commands that read them (calibrate, check): a folder
+of images (one per camera, or camera subfolders paired by name, position or EXIF time), one video
+per camera, or a rosbag2 bag. Each source is recorded as it was used (quality["input"])."""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
+from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
+from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
+
+log = logging.getLogger("densecalib.inputs")
+
+
+def add_input_arguments(parser: argparse.ArgumentParser) -> None:
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("--images", metavar="DIR",
+                     help="one image per camera (file stem = camera name) or one subfolder per "
+                          "camera with time-aligned images (see --align)")
+    src.add_argument("--videos", metavar="DIR",
+                     help="one video per camera (file stem = camera name) on one timeline; "
+                          f"--max-frame-sets (default {DEFAULT_VIDEO_FRAME_SETS}) frame sets are "
+                          "taken at evenly spaced times")
+    src.add_argument("--bag", metavar="PATH", help="rosbag2 bag (sqlite3 or mcap)")
+    parser.add_argument("--topics", nargs="+", metavar="TOPIC",
+                        help="image topics of the bag, one per camera (with --bag)")
+    parser.add_argument("--slop", type=float, default=0.02, metavar="S",
+                        help="max stamp difference within a synchronised frame set (s, --bag)")
+    parser.add_argument("--max-frame-sets", type=int, default=None, metavar="N",
+                        help="use at most N evenly spaced frame sets (default "
+                             f"{DEFAULT_MAX_FRAME_SETS}; {DEFAULT_VIDEO_FRAME_SETS} from videos)")
+    parser.add_argument("--align", choices=ALIGNMENTS, default="auto",
+                        help="with --images and camera subfolders: pair images by file name, "
+                             "sorted position, or EXIF capture time (default auto: name, else "
+                             "position when the counts agree)")
+    parser.add_argument("--max-time-gap", type=float, default=DEFAULT_MAX_TIME_GAP_S,
+                        metavar="S", help="with --align time: the most a frame set's capture "
+                                          f"times may differ (default {DEFAULT_MAX_TIME_GAP_S:g})")
+    parser.add_argument("--time-offset", nargs="+", default=None, metavar="NAME=S",
+                        help="how far this camera's time runs ahead of the others' (s): with "
+                             "--videos, a camera that started recording 0.4 s early is NAME=0.4; "
+                             "with --align time, a trail camera whose clock is 60 s fast is "
+                             "NAME=60")
+    parser.add_argument("--start", type=float, default=None, metavar="S",
+                        help="with --videos: take frames from this common time on (s)")
+    parser.add_argument("--end", type=float, default=None, metavar="S",
+                        help="with --videos: take frames up to this common time (s)")
+
+
+def _alignment(args) -> dict:
+    return {"align": args.align, "time_offsets_s": parse_time_offsets(args.time_offset),
+            "max_time_gap_s": args.max_time_gap}
+
+
+def _frame_sets(args, default: int) -> int:
+    if args.max_frame_sets is None:
+        return default
+    if args.max_frame_sets < 1:
+        raise InputError(f"--max-frame-sets {args.max_frame_sets}: give at least 1.")
+    return args.max_frame_sets
+
+
+def read_input(args) -> tuple[list, list[str], dict, list]:
+    """(frame_sets, camera names, the input's record for quality["input"], image paths per set
+    (--images only, else []))."""
+    video_only = [opt for opt, value in (("--start", args.start), ("--end", args.end))
+                  if value is not None]
+    if video_only and not args.videos:
+        raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
+    if args.time_offset and not (args.videos or (args.images and args.align == "time")):
+        raise InputError("--time-offset belongs to --videos or to --images with --align time.")
+    if args.align != "auto" and not args.images:
+        raise InputError("--align belongs to --images (camera subfolders).")
+    if args.videos:
+        if args.topics:
+            raise InputError("--topics belongs to --bag; with --videos the camera names come "
+                             "from the video file names.")
+        from ..core.video_io import read_video_frame_sets
+        frame_sets, names, times_s = read_video_frame_sets(
+            args.videos, _frame_sets(args, DEFAULT_VIDEO_FRAME_SETS),
+            parse_time_offsets(args.time_offset), args.start, args.end)
+        log.info("video frame sets at %s s", ", ".join(f"{t:.2f}" for t in times_s))
+        return frame_sets, names, {
+            "source": "videos", "path": str(Path(args.videos).resolve()),
+            "time_offsets_s": parse_time_offsets(args.time_offset),
+            "frame_set_times_s": times_s}, []
+    if args.images:
+        if args.topics:
+            raise InputError("--topics belongs to --bag; with --images the camera names come "
+                             "from the file or folder names.")
+        from ..core.image_io import list_image_folder, read_image_files
+        paths, names = list_image_folder(args.images, **_alignment(args))
+        paths = evenly_spaced(paths, _frame_sets(args, DEFAULT_MAX_FRAME_SETS))
+        root = Path(args.images)  # the listed paths are under it (symlinks not followed)
+        return read_image_files(paths, names), names, {
+            "source": "images", "path": str(root.resolve()),
+            "frame_sets": [[str(p.relative_to(root)) for p in row] for row in paths]}, paths
+    if not args.topics:
+        raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
+                         "--topics /cam0/image_raw /cam1/image_raw.")
+    from ..core.bag import read_frame_sets
+    frame_sets, names, stamps = read_frame_sets(
+        args.bag, args.topics, slop_s=args.slop,
+        max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS), return_stamps=True)
+    return frame_sets, names, {"source": "bag", "path": str(Path(args.bag).resolve()),
+                               "topics": list(args.topics), "frame_set_stamps_ns": stamps}, []
+
+
+def named_numbers(values: Optional[list[str]], option: str, expected: str,
+                   unnamed: Optional[str] = None) -> dict:
+    """`option` values NAME=NUMBER (or a bare NUMBER, kept under `unnamed` when given) ->
+    {name: float}; InputError saying what was `expected` on a malformed value."""
+    out = {}
+    for value in values or []:
+        name, _, number = value.rpartition("=")
+        try:
+            x = float(number)
+        except ValueError:
+            x = float("nan")
+        if not np.isfinite(x) or not (name or unnamed):
+            raise InputError(f"{option} {value!r}: expected {expected}.")
+        out[name or unnamed] = x
+    return out
+
+
+def parse_time_offsets(values: Optional[list[str]]) -> dict:
+    """--time-offset values -> {camera name: seconds}; InputError on a malformed value."""
+    return named_numbers(values, "--time-offset", "NAME=SECONDS (cam1=0.4)")
