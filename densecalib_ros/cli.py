@@ -21,6 +21,8 @@ SUBCOMMANDS = {
                  "write a generated rig's images and ground truth to a folder"),
     "report": ("densecalib_ros.commands.report",
                "print a calibration's intrinsics, fit and camera layout, or its change from another"),
+    "check": ("densecalib_ros.commands.check",
+              "does a calibration still fit new images of the rig? names cameras that moved"),
     "overlay": ("densecalib_ros.commands.overlay",
                 "draw each camera's reprojection residuals on its image"),
     "undistort": ("densecalib_ros.commands.undistort",

@@ -4,10 +4,16 @@ cameras, a right match lies on its epipolar line. A camera that was bumped or re
 breaks that for all of its pairs, the others keep fitting, so the check names the camera to look
 at, in seconds and without a recalibration.
 
-Error of a match (px): the angle between each ray and the epipolar plane of the other, times that
-camera's focal length, averaged over the two cameras. A pair's figure is the median over its
-matches (outliers of the matcher do not move a median). A bump that only translates a camera
-along its baselines leaves the epipolar planes in place and is not seen; bumps rotate cameras.
+Two figures:
+- per pair, the epipolar error of a match (px): the angle between each ray and the epipolar plane
+  of the other, times that camera's focal length, averaged over the two cameras; the pair's figure
+  is the median over its matches (the matcher's outliers do not move a median). It misses motion
+  along the epipolar lines: a camera panned about an axis across its baselines moves its points
+  mostly along them (0.5 deg of pan gave 0.6-1.6 px on a 1024-px rig where a tilt shows fully);
+- per camera triple, the transfer error (px): a point matched in two cameras is triangulated from
+  them and projected into the third, where it is compared with its match; with three cameras or
+  more this sees any rotation. The triple's figure is the median over its points.
+The camera to blame is the one in every failing figure (suspect_cameras).
 """
 from __future__ import annotations
 
@@ -19,8 +25,11 @@ import numpy as np
 
 from .types import RigCalibration, SiteMatchSet
 
-# A pair below this many matches over all frame sets gets no figure (its median would be noise).
+# A pair (or a camera's best source pair) below this many matches over all frame sets gets no
+# figure (its median would be noise).
 MIN_PAIR_MATCHES = 20
+# Transfer points need rays that meet at an angle: below this the triangulated depth is noise.
+MIN_TRIANGULATION_ANGLE_DEG = 2.0
 DEFAULT_TOLERANCE_PX = 2.0  # a pair fits when its median epipolar error is at most this
 
 
@@ -80,19 +89,111 @@ def epipolar_errors_px(rig: RigCalibration, camera_names: Sequence[str],
     return out
 
 
+def _match_ends(ms: SiteMatchSet, i: int, j: int, sites_i: np.ndarray) -> np.ndarray:
+    """Pixel positions in camera j of the matches of camera i's sites `sites_i` (NaN: none)."""
+    out = np.full((len(sites_i), 2), np.nan)
+    pm = ms.pairs.get((i, j))
+    if pm is None:
+        return out
+    target = pm.target[sites_i]
+    ok = target >= 0
+    out[ok] = ms.sites[j][target[ok]]
+    if pm.target_xy_px is not None:
+        refined = pm.target_xy_px[sites_i]
+        use = ok & np.isfinite(refined).all(1)
+        out[use] = refined[use]
+    return out
+
+
+def transfer_errors_px(rig: RigCalibration, camera_names: Sequence[str],
+                       match_sets: Sequence[SiteMatchSet]
+                       ) -> dict[str, dict[tuple[str, str], np.ndarray]]:
+    """errors[target][(a, b)]: transfer errors (px, module docstring) in camera `target` of the
+    points matched in a, b and target, triangulated from a and b, over all frame sets."""
+    cams = [n for n in camera_names if n in rig.cameras]
+    index = {n: camera_names.index(n) for n in cams}
+    colmap = {n: rig.cameras[n].intrinsics.to_pycolmap() for n in cams}
+    rig_from_cam = {n: np.linalg.inv(rig.cameras[n].cam_from_rig) for n in cams}
+    min_sin = np.sin(np.deg2rad(MIN_TRIANGULATION_ANGLE_DEG))
+    out: dict[str, dict[tuple[str, str], list]] = {n: {} for n in cams}
+    for a, b in itertools.combinations(cams, 2):
+        for target in cams:
+            if target in (a, b):
+                continue
+            errors = []
+            for ms in match_sets:
+                ia, ib, it = index[a], index[b], index[target]
+                sites = np.arange(len(ms.sites[ia]))
+                xy_b = _match_ends(ms, ia, ib, sites)
+                xy_t = _match_ends(ms, ia, it, sites)
+                ok = np.isfinite(xy_b).all(1) & np.isfinite(xy_t).all(1)
+                if not ok.any():
+                    continue
+                rays = []
+                for name, xy in ((a, ms.sites[ia][ok]), (b, xy_b[ok])):
+                    r = colmap[name].cam_ray_from_img(xy) @ rig_from_cam[name][:3, :3].T
+                    rays.append(r / np.linalg.norm(r, axis=1, keepdims=True))
+                o_a, o_b = rig_from_cam[a][:3, 3], rig_from_cam[b][:3, 3]
+                # closest points of the two rays o + s d (midpoint triangulation)
+                d_a, d_b, w = rays[0], rays[1], o_a - o_b
+                dot = np.einsum("ij,ij->i", d_a, d_b)
+                denom = 1.0 - dot ** 2
+                s_a = (dot * (d_b @ w) - (d_a @ w)) / np.where(denom > 0, denom, np.nan)
+                s_b = ((d_b @ w) - dot * (d_a @ w)) / np.where(denom > 0, denom, np.nan)
+                point = 0.5 * (o_a + s_a[:, None] * d_a + o_b + s_b[:, None] * d_b)
+                cam_t = rig.cameras[target].cam_from_rig
+                x_t = point @ cam_t[:3, :3].T + cam_t[:3, 3]
+                good = (np.sqrt(denom) > min_sin) & (s_a > 0) & (s_b > 0) & (x_t[:, 2] > 0)
+                if not good.any():
+                    continue
+                projected = np.asarray(colmap[target].img_from_cam(x_t[good]), float)
+                err = np.linalg.norm(projected - xy_t[ok][good], axis=1)
+                errors.append(err[np.isfinite(err)])
+            out[target][(a, b)] = np.concatenate(errors) if errors else np.zeros(0)
+    return out
+
+
+@dataclass
+class TransferCheck:
+    target: str
+    sources: tuple[str, str]  # the two cameras the points were triangulated from
+    num_points: int
+    median_error_px: float
+
+    @property
+    def cameras(self) -> tuple[str, str, str]:
+        return (*self.sources, self.target)
+
+    def fits(self, tolerance_px: float) -> bool:
+        return self.median_error_px <= tolerance_px
+
+
+def check_transfers(errors: dict[str, dict[tuple[str, str], np.ndarray]]) -> list[TransferCheck]:
+    """TransferCheck per (target, source pair) with at least MIN_PAIR_MATCHES points."""
+    return [TransferCheck(target, pair, len(e), float(np.median(e)))
+            for target, by_pair in errors.items() for pair, e in by_pair.items()
+            if len(e) >= MIN_PAIR_MATCHES]
+
+
+def best_transfer_per_camera(transfers: Sequence[TransferCheck]) -> list[TransferCheck]:
+    """Per target camera, its best-fitting transfer (the figure shown per camera)."""
+    best: dict[str, TransferCheck] = {}
+    for t in transfers:
+        if t.target not in best or t.median_error_px < best[t.target].median_error_px:
+            best[t.target] = t
+    return list(best.values())
+
+
 def check_pairs(errors: dict[tuple[str, str], np.ndarray]) -> list[PairCheck]:
     """PairCheck per pair with at least MIN_PAIR_MATCHES matches."""
     return [PairCheck(pair, len(e), float(np.median(e))) for pair, e in errors.items()
             if len(e) >= MIN_PAIR_MATCHES]
 
 
-def suspect_cameras(checks: Sequence[PairCheck], tolerance_px: float) -> list[str]:
-    """Cameras every one of whose checked pairs fails (with at least one pair failing): the ones
-    that moved. When one pair fails alone, neither of its cameras is named (either may have)."""
-    names = sorted({n for c in checks for n in c.cameras})
-    out = []
-    for name in names:
-        mine = [c for c in checks if name in c.cameras]
-        if mine and not any(c.fits(tolerance_px) for c in mine) and len(mine) >= 2:
-            out.append(name)
-    return out
+def suspect_cameras(figures: Sequence, tolerance_px: float) -> list[str]:
+    """The cameras common to every failing figure (PairCheck / TransferCheck): one camera when a
+    single camera moved and the others still check each other, several when these cameras cannot
+    tell which (three cameras, a move the pairs do not see), none when nothing fails or more than
+    one camera moved (no camera is in every failing figure)."""
+    failing = [set(f.cameras) for f in figures if not f.fits(tolerance_px)]
+    return sorted(set.intersection(*failing)) if failing else []

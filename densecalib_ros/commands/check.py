@@ -1,0 +1,82 @@
+"""`densecalib check`: does a calibration still fit the rig? Matches new images and holds every
+match against the calibration's epipolar geometry (core.consistency); names the cameras that no
+longer fit (bumped, refocused). Exit status: 0 every pair fits, 1 some do not, 2 unusable input."""
+from __future__ import annotations
+
+import argparse
+import logging
+
+from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
+                                best_transfer_per_camera, check_pairs, check_transfers,
+                                epipolar_errors_px, suspect_cameras, transfer_errors_px)
+from ..core.errors import InputError
+from .inputs import add_input_arguments, read_input
+
+log = logging.getLogger("densecalib.check")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("calibration", metavar="CALIBRATION",
+                        help="a calibration folder, a node's output_dir or a calibration.json")
+    add_input_arguments(parser)
+    parser.add_argument("--tolerance-px", type=float, default=DEFAULT_TOLERANCE_PX, metavar="PX",
+                        help="a camera pair fits when its median epipolar error is at most this "
+                             f"(default {DEFAULT_TOLERANCE_PX:g} px)")
+    parser.add_argument("--matcher", default="sift", help="matcher backend (default sift)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.config import make_config
+    from ..core.export import read_calibration
+    from ..core.pipeline import match_frame_sets
+
+    try:
+        rig = read_calibration(args.calibration)
+        frame_sets, names, _, _ = read_input(args)
+        known = [n for n in names if n in rig.cameras]
+        if len(known) < 2:
+            raise InputError(f"The images are of {', '.join(names)}; the calibration has "
+                             f"{', '.join(rig.cameras)}: at least two must be both.")
+        for c, name in enumerate(names):
+            if name in rig.cameras:
+                size = (frame_sets[0][c].shape[1], frame_sets[0][c].shape[0])
+                intr = rig.cameras[name].intrinsics
+                if size != (intr.width, intr.height):
+                    raise InputError(f"Camera {name}'s images are {size[0]}x{size[1]}, it was "
+                                     f"calibrated at {intr.width}x{intr.height}.")
+        match_sets = match_frame_sets(frame_sets, make_config(matcher=args.matcher))
+    except InputError as exc:
+        log.error("%s", exc)
+        return 2
+    pairs = check_pairs(epipolar_errors_px(rig, names, match_sets))
+    transfers = check_transfers(transfer_errors_px(rig, names, match_sets))
+    if not pairs:
+        log.error("No camera pair had %d matches: the images share too little to check the "
+                  "calibration (more frame sets, or a textured scene).", MIN_PAIR_MATCHES)
+        return 2
+    tol = args.tolerance_px
+    print(f"{'pair':<24} {'matches':>8} {'median epipolar error px':>25}")
+    for c in pairs:
+        print(f"{c.cameras[0] + ' - ' + c.cameras[1]:<24} {c.num_matches:>8} "
+              f"{c.median_error_px:>25.2f}{'' if c.fits(tol) else '  does not fit'}")
+    if transfers:
+        print(f"\n{'camera':<12} {'points':>7} {'median transfer error px':>25}  from (best)")
+        for c in best_transfer_per_camera(transfers):
+            print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
+                  f"{c.sources[0]} + {c.sources[1]}{'' if c.fits(tol) else '  does not fit'}")
+    figures = [*pairs, *transfers]
+    failing = [f for f in figures if not f.fits(tol)]
+    if not failing:
+        print(f"the calibration fits: every pair and transfer within {tol:g} px")
+        return 0
+    moved = suspect_cameras(figures, tol)
+    hint = f"; recalibrate, e.g. densecalib calibrate ... --previous {args.calibration}"
+    if len(moved) == 1:
+        verdict = f"{moved[0]} moved or changed"
+    elif moved:
+        verdict = f"one of {', '.join(moved)} moved or changed (these cameras cannot tell which)"
+    else:
+        verdict = (f"several cameras moved or changed ({len(failing)} of {len(figures)} figures "
+                   "fail)")
+    print(f"the calibration no longer fits: {verdict}{hint}")
+    return 1

@@ -1,0 +1,91 @@
+"""`densecalib check` (core.consistency): new images of a rig against its calibration. The true
+calibration fits; a camera panned by 0.5 deg (nearly along its epipolar lines) or refocused by 3 %
+is named by its transfer error, and on a 3-camera rig a tilted camera by the pair that still fits."""
+import copy
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from densecalib_ros.cli import main
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.consistency import (best_transfer_per_camera, check_pairs,
+                                             check_transfers, epipolar_errors_px,
+                                             suspect_cameras, transfer_errors_px)
+from densecalib_ros.core.export import calibration_to_dict
+from densecalib_ros.core.pipeline import match_frame_sets
+from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
+
+TOL = 2.0
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+                                seed=3))
+
+
+@pytest.fixture(scope="module")
+def match_sets(rig):
+    return match_frame_sets(rig.images, make_config(matcher="sift"))
+
+
+def _truth(rig):
+    return copy.deepcopy(rig.ground_truth())  # its intrinsics are the rig's own objects
+
+
+def _rotated(calibration, name, axis, deg):
+    cam = calibration.cameras[name]
+    cam.cam_from_rig = cam.cam_from_rig.copy()
+    cam.cam_from_rig[:3, :3] = Rotation.from_euler(axis, deg, degrees=True).as_matrix() @ \
+        cam.cam_from_rig[:3, :3]
+    return calibration
+
+
+def _verdict(calibration, names, match_sets):
+    pairs = check_pairs(epipolar_errors_px(calibration, names, match_sets))
+    transfers = check_transfers(transfer_errors_px(calibration, names, match_sets))
+    return pairs, best_transfer_per_camera(transfers), suspect_cameras([*pairs, *transfers], TOL)
+
+
+def test_true_calibration_fits(rig, match_sets):
+    pairs, cameras, moved = _verdict(_truth(rig), rig.names, match_sets)
+    assert len(pairs) == 6 and len(cameras) == 4 and moved == []
+    assert max(c.median_error_px for c in pairs) < 0.7
+    assert max(c.median_error_px for c in cameras) < 0.7
+
+
+def test_panned_or_refocused_camera_is_named(rig, match_sets):
+    panned = _rotated(_truth(rig), "cam2", "y", 0.5)
+    pairs, cameras, moved = _verdict(panned, rig.names, match_sets)
+    assert moved == ["cam2"]
+    assert {c.target: c.fits(TOL) for c in cameras} == {"cam0": True, "cam1": True,
+                                                         "cam2": False, "cam3": True}
+    refocused = _truth(rig)
+    refocused.cameras["cam1"].intrinsics.params[0] *= 1.03
+    assert _verdict(refocused, rig.names, match_sets)[2] == ["cam1"]
+
+
+def test_three_cameras_name_the_one_off_the_fitting_pair(rig, match_sets):
+    sub = [[fs[0], fs[1], fs[2]] for fs in rig.images]
+    tilted = _rotated(_truth(rig), "cam1", "x", 0.5)
+    del tilted.cameras["cam3"]
+    pairs, _, moved = _verdict(tilted, rig.names[:3], match_frame_sets(sub, make_config()))
+    assert moved == ["cam1"]
+    assert [c.cameras for c in pairs if c.fits(TOL)] == [("cam0", "cam2")]
+
+
+def test_check_command(rig, tmp_path, capsys):
+    write_rig(rig, tmp_path / "images")
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps(calibration_to_dict(_truth(rig))))
+    assert main(["check", str(good), "--images", str(tmp_path / "images")]) == 0
+    assert "the calibration fits" in capsys.readouterr().out
+    bumped = tmp_path / "bumped.json"
+    bumped.write_text(json.dumps(calibration_to_dict(_rotated(_truth(rig), "cam3", "y",
+                                                              0.6))))
+    assert main(["check", str(bumped), "--images", str(tmp_path / "images")]) == 1
+    assert "cam3 moved or changed" in capsys.readouterr().out
+    assert main(["check", str(tmp_path / "none.json"), "--images",
+                 str(tmp_path / "images")]) == 2
