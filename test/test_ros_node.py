@@ -84,8 +84,8 @@ class Ros:
                                             name=f"listener_{time.monotonic_ns()}",
                                             context=self.context))
 
-    def caller(self):
-        return self.add(TriggerCaller("/densecalib_node/calibrate",
+    def caller(self, service="calibrate"):
+        return self.add(TriggerCaller(f"/densecalib_node/{service}",
                                       name=f"caller_{time.monotonic_ns()}", context=self.context))
 
     def close(self):
@@ -314,6 +314,13 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert set(values["focal_std_px"].split(", ")) == {
         f"{n}={c.quality.focal_std_px:.1f}" for n, c in node.calibration.cameras.items()}
     assert len(values["projection_std_px"].split(", ")) == len(node.calibration.cameras)
+    # ~/check: the buffered images still fit the calibration just made from them.
+    checker = ros.caller("check")
+    response = checker.call(60.0)
+    assert response.success and response.message.startswith("the calibration fits"), \
+        response.message
+    assert "2 frame sets" in response.message and "transfer error px: cam0" in response.message
+    ros.remove(checker)
     published = camera_info_values(listener)
     published_tf = listener.rig_from_optical()
     files_before = sorted(p.name for p in out.iterdir())
@@ -328,6 +335,10 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert camera_info_values(listener) == published
     restarted_tf = listener.rig_from_optical()
     assert all(np.allclose(restarted_tf[k], published_tf[k], atol=1e-9) for k in published_tf)
+    checker = ros.caller("check")
+    response = checker.call(30.0)  # the loaded calibration, but nothing buffered to check it with
+    assert not response.success and "no synchronised frame sets buffered" in response.message
+    ros.remove(checker)
 
     # A failing calibration (images of unrelated noise) changes nothing published or written.
     # It uses one of the two buffered sets (max_frame_sets, evenly spaced over the buffer).

@@ -7,8 +7,7 @@ import argparse
 import logging
 
 from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
-                                best_transfer_per_camera, check_pairs, check_transfers,
-                                epipolar_errors_px, suspect_cameras, transfer_errors_px)
+                                best_transfer_per_camera, check_calibration)
 from ..core.errors import InputError
 from .inputs import add_input_arguments, read_input
 
@@ -48,35 +47,21 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         log.error("%s", exc)
         return 2
-    pairs = check_pairs(epipolar_errors_px(rig, names, match_sets))
-    transfers = check_transfers(transfer_errors_px(rig, names, match_sets))
-    if not pairs:
+    report = check_calibration(rig, names, match_sets, args.tolerance_px)
+    if not report.pairs:
         log.error("No camera pair had %d matches: the images share too little to check the "
                   "calibration (more frame sets, or a textured scene).", MIN_PAIR_MATCHES)
         return 2
     tol = args.tolerance_px
     print(f"{'pair':<24} {'matches':>8} {'median epipolar error px':>25}")
-    for c in pairs:
+    for c in report.pairs:
         print(f"{c.cameras[0] + ' - ' + c.cameras[1]:<24} {c.num_matches:>8} "
               f"{c.median_error_px:>25.2f}{'' if c.fits(tol) else '  does not fit'}")
-    if transfers:
+    if report.transfers:
         print(f"\n{'camera':<12} {'points':>7} {'median transfer error px':>25}  from (best)")
-        for c in best_transfer_per_camera(transfers):
+        for c in best_transfer_per_camera(report.transfers):
             print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
                   f"{c.sources[0]} + {c.sources[1]}{'' if c.fits(tol) else '  does not fit'}")
-    figures = [*pairs, *transfers]
-    failing = [f for f in figures if not f.fits(tol)]
-    if not failing:
-        print(f"the calibration fits: every pair and transfer within {tol:g} px")
-        return 0
-    moved = suspect_cameras(figures, tol)
-    hint = f"; recalibrate, e.g. densecalib calibrate ... --previous {args.calibration}"
-    if len(moved) == 1:
-        verdict = f"{moved[0]} moved or changed"
-    elif moved:
-        verdict = f"one of {', '.join(moved)} moved or changed (these cameras cannot tell which)"
-    else:
-        verdict = (f"several cameras moved or changed ({len(failing)} of {len(figures)} figures "
-                   "fail)")
-    print(f"the calibration no longer fits: {verdict}{hint}")
-    return 1
+    print(report.verdict() + ("" if report.fits else "; recalibrate, e.g. densecalib calibrate "
+                              f"... --previous {args.calibration}"))
+    return 0 if report.fits else 1

@@ -197,3 +197,51 @@ def suspect_cameras(figures: Sequence, tolerance_px: float) -> list[str]:
     one camera moved (no camera is in every failing figure)."""
     failing = [set(f.cameras) for f in figures if not f.fits(tolerance_px)]
     return sorted(set.intersection(*failing)) if failing else []
+
+
+@dataclass
+class ConsistencyReport:
+    pairs: list[PairCheck]
+    transfers: list[TransferCheck]
+    tolerance_px: float
+
+    @property
+    def figures(self) -> list:
+        return [*self.pairs, *self.transfers]
+
+    @property
+    def failing(self) -> list:
+        return [f for f in self.figures if not f.fits(self.tolerance_px)]
+
+    @property
+    def fits(self) -> bool:
+        return not self.failing
+
+    @property
+    def suspects(self) -> list[str]:
+        return suspect_cameras(self.figures, self.tolerance_px)
+
+    def verdict(self) -> str:
+        """One line: whether the calibration fits, else which camera moved."""
+        if self.fits:
+            worst = max((f.median_error_px for f in self.figures), default=float("nan"))
+            return (f"the calibration fits: {len(self.figures)} pair and transfer figures within "
+                    f"{self.tolerance_px:g} px (worst {worst:.2f} px)")
+        moved = self.suspects
+        if len(moved) == 1:
+            what = f"{moved[0]} moved or changed"
+        elif moved:
+            what = f"one of {', '.join(moved)} moved or changed (these cameras cannot tell which)"
+        else:
+            what = "several cameras moved or changed"
+        return (f"the calibration no longer fits: {what} ({len(self.failing)} of "
+                f"{len(self.figures)} figures above {self.tolerance_px:g} px)")
+
+
+def check_calibration(rig: RigCalibration, camera_names: Sequence[str],
+                      match_sets: Sequence[SiteMatchSet],
+                      tolerance_px: float = DEFAULT_TOLERANCE_PX) -> ConsistencyReport:
+    """All the figures of new matches against `rig` (module docstring)."""
+    return ConsistencyReport(check_pairs(epipolar_errors_px(rig, camera_names, match_sets)),
+                             check_transfers(transfer_errors_px(rig, camera_names, match_sets)),
+                             tolerance_px)

@@ -5,6 +5,9 @@ Interface (names relative to the node, default name `densecalib_node`):
 - subscribes: `image_topics` (sensor_msgs/Image or CompressedImage, sensor-data QoS);
 - service `~/calibrate` (std_srvs/Trigger): calibrates on the buffered frame sets; answers with a
   one-line summary, or the reason of the failure; a call while one runs is refused ("busy");
+- service `~/check` (std_srvs/Trigger): holds the buffered frame sets against the current
+  calibration without recalibrating (core.consistency); success = it still fits, the message
+  names a camera that moved;
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1), `/tf_static` (tf2_msgs/TFMessage,
   all cameras in one message, transient local, depth 1), `/diagnostics`
@@ -49,6 +52,7 @@ from tf2_msgs.msg import TFMessage
 from ..core.bag import camera_names_from_topics
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, PipelineConfig,
                            make_config)
+from ..core.consistency import DEFAULT_TOLERANCE_PX
 from ..core.errors import CalibrationError, InputError
 from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
                            write_calibration_files)
@@ -95,6 +99,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                        "skipped [s]", True, _range(0.0, 3600.0, False)),
     "min_frame_sets": (1, "frame sets needed before a calibration starts", False,
                        _range(1, 10000, True)),
+    "check_tolerance_px": (DEFAULT_TOLERANCE_PX, "~/check: a camera pair or triple fits when its "
+                           "median epipolar / transfer error is at most this [px]", False,
+                           _range(0.01, 1000.0, False)),
     "max_frame_sets": (DEFAULT_MAX_FRAME_SETS, "a calibration uses at most this many buffered "
                        "frame sets, evenly spaced over the buffer", False, _range(1, 10000, True)),
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
@@ -159,6 +166,7 @@ class Settings:
     min_interval_s: float
     min_frame_sets: int
     max_frame_sets: int
+    check_tolerance_px: float
     preset: str
     camera_lens: dict[str, str]
     camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.masks)
@@ -294,6 +302,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         slop_s=float(v["slop_s"]), sync_queue_size=int(v["sync_queue_size"]),
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), max_frame_sets=int(v["max_frame_sets"]),
+        check_tolerance_px=float(v["check_tolerance_px"]),
         preset=v["preset"],
         camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks, pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
@@ -366,6 +375,8 @@ class DenseCalibNode(Node):
             self.create_client(SetCameraInfo, srv, callback_group=self._client_group)
             for srv in s.set_camera_info_services]
         self.create_service(Trigger, "~/calibrate", self._on_calibrate,
+                            callback_group=self._service_group)
+        self.create_service(Trigger, "~/check", self._on_check,
                             callback_group=self._service_group)
 
         self._subscribe_known_topics()
@@ -506,6 +517,49 @@ class DenseCalibNode(Node):
         with self._state_lock:
             self._job = None
         job.done.set()
+
+    def _on_check(self, request, response):
+        """~/check: the buffer against the current calibration, in this service thread (matching
+        only: seconds); it holds the job slot so that no calibration swaps the matcher meanwhile."""
+        with self._state_lock:
+            busy = self._job is not None
+            if not busy:
+                self._job = _Job("check")
+        if busy:
+            response.success, response.message = False, "busy: a calibration or check is running"
+            return response
+        try:
+            response.success, response.message = self._check()
+        except (InputError, CalibrationError) as exc:
+            response.success, response.message = False, f"check failed: {exc}"
+        except Exception as exc:  # a bug must still answer the call
+            self.get_logger().error(f"check crashed: {exc!r}")
+            response.success, response.message = False, f"check crashed: {exc!r}"
+        finally:
+            with self._state_lock:
+                self._job = None
+        self._set_status(f"check: {response.message}")
+        return response
+
+    def _check(self) -> tuple[bool, str]:
+        from ..core.consistency import best_transfer_per_camera, check_calibration
+        from ..core.pipeline import match_frame_sets
+
+        s, rig = self.settings, self.calibration
+        if rig is None:
+            return False, "no calibration to check yet: call ~/calibrate first"
+        sets = evenly_spaced(self.sync.snapshot(), s.max_frame_sets)
+        if not sets:
+            return False, "no synchronised frame sets buffered to check the calibration with"
+        match_sets = match_frame_sets(decode_frame_sets(sets), pipeline_config(s),
+                                      matcher=self._matcher_for(s), camera_names=s.camera_names)
+        report = check_calibration(rig, s.camera_names, match_sets, s.check_tolerance_px)
+        if not report.pairs:
+            return False, "the buffered images share too few matches to check the calibration"
+        per_camera = ", ".join(f"{t.target} {t.median_error_px:.2f}"
+                               for t in best_transfer_per_camera(report.transfers))
+        return report.fits, (f"{report.verdict()}; {len(sets)} frame sets"
+                             + (f"; transfer error px: {per_camera}" if per_camera else ""))
 
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
