@@ -100,7 +100,8 @@ def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
         if sep and name in names:
             out[name] = read_mask(path)
         else:
-            out.update({n: read_mask(value) for n in names if n not in out})
+            mask = read_mask(value)
+            out.update({n: mask for n in names if n not in out})
     return out
 
 

@@ -530,7 +530,7 @@ class DenseCalibNode(Node):
             return response
         try:
             response.success, response.message = self._check()
-        except (InputError, CalibrationError) as exc:
+        except CalibrationError as exc:  # InputError included
             response.success, response.message = False, f"check failed: {exc}"
         except Exception as exc:  # a bug must still answer the call
             self.get_logger().error(f"check crashed: {exc!r}")
