@@ -4,6 +4,7 @@ is named by its transfer error, and on a 3-camera rig a tilted camera by the pai
 import copy
 import json
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -78,6 +79,12 @@ def test_check_command(rig, tmp_path, capsys):
     good = tmp_path / "good.json"
     good.write_text(json.dumps(calibration_to_dict(_truth(rig))))
     assert main(["check", str(good), "--images", str(tmp_path / "images")]) == 0
+    assert "the calibration fits" in capsys.readouterr().out
+    mask = np.full((480, 640), 255, np.uint8)
+    mask[:, :320] = 0  # the left half is not used: fewer matches, still a fit
+    cv2.imwrite(str(tmp_path / "half.png"), mask)
+    assert main(["check", str(good), "--images", str(tmp_path / "images"), "--mask",
+                 str(tmp_path / "half.png")]) == 0
     assert "the calibration fits" in capsys.readouterr().out
     bumped = tmp_path / "bumped.json"
     bumped.write_text(json.dumps(calibration_to_dict(_rotated(_truth(rig), "cam3", "y",

@@ -16,7 +16,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, ma
 from ..core.errors import CalibrationError, InputError
 from ..core.export import record_provenance
 from ..core.report import camera_table
-from .inputs import add_input_arguments, named_numbers, read_input
+from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
 
 log = logging.getLogger("densecalib.calibrate")
 
@@ -62,10 +62,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "cameras, e.g. --known-baseline cam0 cam1 0.42 (SfM alone gives the "
                              "rig up to scale). With --previous, a metric previous calibration's "
                              "baseline is used when this is not given")
-    parser.add_argument("--mask", nargs="+", default=None, metavar="PATH|NAME=PATH",
-                        help="image of a camera's size, black where matches are not used (an "
-                             "info strip, the rig's own structure): one PATH for every camera or "
-                             "NAME=PATH per camera")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
     parser.add_argument("--threads", type=int, default=-1,
                         help="bundle-adjustment threads (-1 = all cores)")
@@ -87,22 +83,6 @@ def parse_focal_px(values: Optional[list[str]]) -> dict:
     """--focal-px values -> {camera name or '*': px}; InputError on a malformed value."""
     return named_numbers(values, "--focal-px", "a number of pixels (800) or NAME=PX (cam0=800)",
                          unnamed="*")
-
-
-def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
-    """--mask values -> {camera name: ignored pixels}: NAME=PATH for one camera (NAME one of
-    `names`; a path may itself hold '='), a bare PATH for every camera."""
-    from ..core.masks import read_mask
-
-    out = {}
-    for value in values or []:
-        name, sep, path = value.partition("=")
-        if sep and name in names:
-            out[name] = read_mask(path)
-        else:
-            mask = read_mask(value)
-            out.update({n: mask for n in names if n not in out})
-    return out
 
 
 def parse_camera_lens(values: Optional[list[str]]) -> dict:

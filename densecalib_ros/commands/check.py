@@ -9,7 +9,7 @@ import logging
 from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
                                 best_transfer_per_camera, check_calibration)
 from ..core.errors import InputError
-from .inputs import add_input_arguments, read_input
+from .inputs import add_input_arguments, parse_masks, read_input
 
 log = logging.getLogger("densecalib.check")
 
@@ -43,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
                 if size != (intr.width, intr.height):
                     raise InputError(f"Camera {name}'s images are {size[0]}x{size[1]}, it was "
                                      f"calibrated at {intr.width}x{intr.height}.")
-        match_sets = match_frame_sets(frame_sets, make_config(matcher=args.matcher))
+        config = make_config(matcher=args.matcher, camera_masks=parse_masks(args.mask, names))
+        match_sets = match_frame_sets(frame_sets, config, camera_names=names)
     except InputError as exc:
         log.error("%s", exc)
         return 2

@@ -1,6 +1,7 @@
 """Where a rig's frame sets come from, for the commands that read them (calibrate, check): a folder
 of images (one per camera, or camera subfolders paired by name, position or EXIF time), one video
-per camera, or a rosbag2 bag. Each source is recorded as it was used (quality["input"])."""
+per camera, or a rosbag2 bag, and the masks of what in the images is not scene. Each source is
+recorded as it was used (quality["input"])."""
 from __future__ import annotations
 
 import argparse
@@ -51,6 +52,10 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --videos: take frames from this common time on (s)")
     parser.add_argument("--end", type=float, default=None, metavar="S",
                         help="with --videos: take frames up to this common time (s)")
+    parser.add_argument("--mask", nargs="+", default=None, metavar="PATH|NAME=PATH",
+                        help="image of a camera's size, black where matches are not used (an "
+                             "info strip, the rig's own structure): one PATH for every camera or "
+                             "NAME=PATH per camera")
 
 
 def _alignment(args) -> dict:
@@ -132,3 +137,19 @@ def named_numbers(values: Optional[list[str]], option: str, expected: str,
 def parse_time_offsets(values: Optional[list[str]]) -> dict:
     """--time-offset values -> {camera name: seconds}; InputError on a malformed value."""
     return named_numbers(values, "--time-offset", "NAME=SECONDS (cam1=0.4)")
+
+
+def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
+    """--mask values -> {camera name: ignored pixels}: NAME=PATH for one camera (NAME one of
+    `names`; a path may itself hold '='), a bare PATH for every camera."""
+    from ..core.masks import read_mask
+
+    out = {}
+    for value in values or []:
+        name, sep, path = value.partition("=")
+        if sep and name in names:
+            out[name] = read_mask(path)
+        else:
+            mask = read_mask(value)
+            out.update({n: mask for n in names if n not in out})
+    return out

@@ -324,6 +324,9 @@ class Outcome:
     message: str
 
 
+CHECK_JOB = "check"  # the reason of the job slot a ~/check holds
+
+
 @dataclass
 class _Job:
     reason: str
@@ -524,7 +527,7 @@ class DenseCalibNode(Node):
         with self._state_lock:
             busy = self._job is not None
             if not busy:
-                self._job = _Job("check")
+                self._job = _Job(CHECK_JOB)
         if busy:
             response.success, response.message = False, "busy: a calibration or check is running"
             return response
@@ -740,7 +743,10 @@ class DenseCalibNode(Node):
             status.level, status.message = DiagnosticStatus.OK, "calibrated"
         if self._last_failure and self.calibration is None:
             status.level = DiagnosticStatus.ERROR
-        values = {"state": "calibrating" if self.busy else "idle",
+        with self._state_lock:
+            job = self._job
+        state = "idle" if job is None else ("checking" if job.reason == CHECK_JOB else "calibrating")
+        values = {"state": state,
                   "status": self._status,
                   "buffered_frame_sets": str(stats["buffered"]),
                   "received_per_camera": str(stats["received"]),
