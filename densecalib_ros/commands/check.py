@@ -9,7 +9,7 @@ import logging
 from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
                                 best_transfer_per_camera, check_calibration)
 from ..core.errors import InputError
-from .inputs import add_input_arguments, parse_masks, read_input
+from .inputs import add_input_arguments, parse_masks, read_input, require_calibrated_cameras
 
 log = logging.getLogger("densecalib.check")
 
@@ -32,17 +32,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         rig = read_calibration(args.calibration)
         frame_sets, names, _, _ = read_input(args)
-        known = [n for n in names if n in rig.cameras]
-        if len(known) < 2:
-            raise InputError(f"The images are of {', '.join(names)}; the calibration has "
-                             f"{', '.join(rig.cameras)}: at least two must be both.")
-        for c, name in enumerate(names):
-            if name in rig.cameras:
-                size = (frame_sets[0][c].shape[1], frame_sets[0][c].shape[0])
-                intr = rig.cameras[name].intrinsics
-                if size != (intr.width, intr.height):
-                    raise InputError(f"Camera {name}'s images are {size[0]}x{size[1]}, it was "
-                                     f"calibrated at {intr.width}x{intr.height}.")
+        require_calibrated_cameras(rig, names, frame_sets[0], at_least=2)
         config = make_config(matcher=args.matcher, camera_masks=parse_masks(args.mask, names))
         match_sets = match_frame_sets(frame_sets, config, camera_names=names)
     except InputError as exc:

@@ -153,3 +153,19 @@ def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
             mask = read_mask(value)
             out.update({n: mask for n in names if n not in out})
     return out
+
+
+def require_calibrated_cameras(rig, names: list[str], frame_set: list, at_least: int) -> None:
+    """InputError unless at least `at_least` of the input's cameras are in the calibration `rig`,
+    each with images of its calibrated size (a command that holds images against a calibration)."""
+    known = [n for n in names if n in rig.cameras]
+    if len(known) < at_least:
+        raise InputError(f"The images are of {', '.join(names)}; the calibration has "
+                         f"{', '.join(rig.cameras)}: at least {at_least} must be in both.")
+    for name, image in zip(names, frame_set):
+        if name in rig.cameras:
+            intr = rig.cameras[name].intrinsics
+            if (image.shape[1], image.shape[0]) != (intr.width, intr.height):
+                raise InputError(f"Camera {name}'s images are {image.shape[1]}x{image.shape[0]}; "
+                                 f"it was calibrated at {intr.width}x{intr.height}: give the "
+                                 "images it was calibrated on, at their size.")

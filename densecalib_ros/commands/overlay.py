@@ -12,6 +12,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.export import calibration_folder, read_calibration
+from .inputs import add_input_arguments, read_input, require_calibrated_cameras
 
 log = logging.getLogger("densecalib.overlay")
 
@@ -20,9 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("calibration", metavar="CALIBRATION",
                         help="a calibration folder (as `densecalib calibrate` writes it) or a "
                              "node's output_dir (its latest calibration)")
-    parser.add_argument("--images", required=True, metavar="DIR",
-                        help="the cameras' images, as given to calibrate (the first image of each "
-                             "camera is drawn on)")
+    add_input_arguments(parser)  # as for calibrate; the first frame set is drawn on
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for <camera>.png")
     parser.add_argument("--scale", type=float, default=10.0,
                         help="residual lines are drawn this many times their length (default 10)")
@@ -31,7 +30,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import pycolmap
 
-    from ..core.image_io import list_image_folder, read_image
     from ..core.overlay import camera_residuals, draw_residuals
 
     try:
@@ -41,19 +39,16 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"No COLMAP model in {model}: overlay needs the folder that "
                              "`densecalib calibrate` (or the node) wrote, colmap/ included.")
         rec = pycolmap.Reconstruction(str(model))
-        paths, names = list_image_folder(args.images, align="order")
+        args.max_frame_sets = args.max_frame_sets or 1
+        frame_sets, names, _, _ = read_input(args)
+        require_calibrated_cameras(rig, names, frame_sets[0], at_least=1)
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        for name, cam in rig.cameras.items():
+        for name in rig.cameras:
             if name not in names:
-                log.warning("No image of camera %s in %s: skipped.", name, args.images)
+                log.warning("No image of camera %s in the input: skipped.", name)
                 continue
-            image = read_image(paths[0][names.index(name)])
-            size = (cam.intrinsics.width, cam.intrinsics.height)
-            if (image.shape[1], image.shape[0]) != size:
-                raise InputError(f"{paths[0][names.index(name)]} is {image.shape[1]}x"
-                                 f"{image.shape[0]}, but camera {name} was calibrated at "
-                                 f"{size[0]}x{size[1]}: give the images it was calibrated on.")
+            image = frame_sets[0][names.index(name)]
             observed, reprojected = camera_residuals(rec, name)
             drawn = draw_residuals(image, observed, reprojected, args.scale, name)
             cv2.imwrite(str(out / f"{name}.png"), cv2.cvtColor(drawn, cv2.COLOR_RGB2BGR))
