@@ -209,7 +209,7 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
         single = sfm_config("regular", distortion=200)
         single.global_init, single.global_multistart = start, False
         run = run_global(tracks, init, NAMES, single)
-        costs[start] = truncated_cost(run.state, cost_truncation_px(single))
+        costs[start] = truncated_cost(run.state, cost_truncation_px(single, tracks.num_cameras))
     kept = both.quality["global_init"]
     assert costs[kept] <= min(costs.values()) + 1e-6
     metrics = evaluate_calibration(rig_from_state(both.state, NAMES, both.failed),

@@ -278,3 +278,30 @@ def test_held_out_cost_counts_raw_matches_at_the_inlier_scale_not_b_err():
     turned.cam_from_world[2][:3, :3] = Rotation.from_euler("y", 0.3, degrees=True).as_matrix() \
         @ turned.cam_from_world[2][:3, :3]
     assert held_out_cost(turned, raw, 20.0, seed=0) > right + 0.05
+
+
+def test_truncated_cost_per_camera_truncation():
+    """A rig mixing lenses truncates each camera's errors at its own B_err (pinhole 20 px,
+    fisheye 100 px): the cost equals the hand-computed mean, and one value for all cameras
+    is the same as that value per camera."""
+    from densecalib_ros.core.config import resolve_camera_lenses
+    from densecalib_ros.core.incremental import cost_truncation_px, truncated_cost
+    from densecalib_ros.core.reconstruction import reprojection_errors, triangulate_tracks
+
+    cams, poses = gt_rig(4, seed=2)
+    tracks = gt_tracks(cams, poses, num_points=600, outlier_frac=0.2, seed=2)
+    state = SfMState.create(tracks, cams)
+    for c, pose in enumerate(poses):
+        state.cam_from_world[c] = pose
+    triangulate_tracks(state, max_error_px=100.0)
+    names = ["a", "b", "c", "d"]
+    cfg = resolve_camera_lenses(make_config("regular", camera_lens={"b": "fisheye"}), names).sfm
+    trunc = cost_truncation_px(cfg, 4)
+    assert list(trunc) == [20.0, 100.0, 20.0, 20.0]
+    err = reprojection_errors(state)
+    obs = tracks.observed() & (tracks.observed().sum(1) >= 2)[:, None]
+    expect = np.where(np.isfinite(err), np.minimum(err, trunc[None, :]), trunc[None, :])[obs].mean()
+    assert truncated_cost(state, trunc) == pytest.approx(expect)
+    assert truncated_cost(state, 20.0) == pytest.approx(truncated_cost(state, np.full(4, 20.0)))
+    assert truncated_cost(state, 20.0) < truncated_cost(state, trunc)  # outliers count more at 100
+    assert cost_truncation_px(make_config("regular").sfm, 4) == 20.0  # one lens: one value

@@ -87,7 +87,7 @@ def medoid(rigs: Sequence[RigCalibration], camera_names: Sequence[str],
 
 
 def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
-                       camera_names: Sequence[str], truncation_px: float, seed: int = 0
+                       camera_names: Sequence[str], truncation_px, seed: int = 0
                        ) -> np.ndarray:
     """Per rig, the truncated reprojection cost (incremental.truncated_cost, px) of the common
     tracks (a seeded sample of at most COMMON_TRACKS_MAX of all runs' tracks) triangulated from
@@ -106,7 +106,7 @@ def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tra
                                          else any_camera for n in camera_names])
         for c in shared:
             state.cam_from_world[c] = rig.cameras[camera_names[c]].cam_from_rig
-        triangulate_tracks(state, max_error_px=truncation_px, seed=seed)
+        triangulate_tracks(state, max_error_px=float(np.max(truncation_px)), seed=seed)
         costs.append(truncated_cost(state, truncation_px))
     return np.array(costs)
 
@@ -129,7 +129,7 @@ class Choice:
 
 
 def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
-               camera_names: Sequence[str], truncation_px: float, seed: int = 0) -> Choice:
+               camera_names: Sequence[str], truncation_px, seed: int = 0) -> Choice:
     """The run to keep: the medoid among the runs that fit the common tracks about as well as
     the best one (module docstring). When all runs agree within AGREEMENT_DEG, simply the
     medoid."""

@@ -417,7 +417,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     # needed): most cameras posed with plausible intrinsics, then the lowest truncated
     # reprojection cost, on the validation tracks where given (matches neither start was fitted
     # to), else on the tracks.
-    trunc = cost_truncation_px(config)
+    trunc = cost_truncation_px(config, tracks.num_cameras)
     judge = validation_tracks is not None and validation_tracks.num_tracks > 0
 
     def cost(state: SfMState) -> float:

@@ -352,9 +352,10 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             log.debug("focal start %s: implausible intrinsics %s", name, problems)
             continue
         if validation_tracks is not None and validation_tracks.num_tracks:
-            cost = held_out_cost(trial.state, validation_tracks, cost_truncation_px(config), seed)
+            cost = held_out_cost(trial.state, validation_tracks,
+                                 cost_truncation_px(config, tracks.num_cameras), seed)
         else:
-            cost = truncated_cost(trial.state, cost_truncation_px(config))
+            cost = truncated_cost(trial.state, cost_truncation_px(config, tracks.num_cameras))
         costs[name] = (-len(trial.state.registered()), cost)
         log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
                   -costs[name][0], costs[name][1])
@@ -416,7 +417,7 @@ def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraI
     if not finished.failed:
         return finished
     full = _incremental(tracks, start, camera_names, config, seed, say)
-    truncation = cost_truncation_px(config)
+    truncation = cost_truncation_px(config, tracks.num_cameras)
 
     def rank(r: IncrementalResult) -> tuple[int, float]:
         return -len(r.state.registered()), truncated_cost(r.state, truncation)
@@ -454,24 +455,31 @@ def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float,
     return out
 
 
-def held_out_cost(state: SfMState, tracks: Tracks, truncation_px: float, seed: int = 0) -> float:
+def held_out_cost(state: SfMState, tracks: Tracks, truncation_px, seed: int = 0) -> float:
     """truncated_cost of other tracks of the same cameras, triangulated from state's cameras;
     truncated at most at HELD_OUT_TRUNCATION_PX."""
-    truncation_px = min(truncation_px, HELD_OUT_TRUNCATION_PX)
+    truncation_px = np.minimum(truncation_px, HELD_OUT_TRUNCATION_PX)
     scratch = state.on_tracks(tracks)
-    triangulate_tracks(scratch, max_error_px=truncation_px, seed=seed)
+    triangulate_tracks(scratch, max_error_px=float(np.max(truncation_px)), seed=seed)
     return truncated_cost(scratch, truncation_px)
 
 
-def cost_truncation_px(config: SfMConfig) -> float:
-    return config.b_err_px if config.b_err_px is not None else TRUNCATION_FALLBACK_PX
+def cost_truncation_px(config: SfMConfig, num_cameras: int):
+    """Where the truncated cost stops counting an error: B_err, per camera (C,) where a rig mixing
+    lenses judges its pinhole cameras by the regular preset's (SfMConfig.outlier_thresholds_px);
+    TRUNCATION_FALLBACK_PX where B_err is off."""
+    thresholds = config.outlier_thresholds_px(num_cameras)
+    return thresholds if thresholds is not None else TRUNCATION_FALLBACK_PX
 
 
-def truncated_cost(state: SfMState, truncation_px: float) -> float:
+def truncated_cost(state: SfMState, truncation_px) -> float:
     """Mean over every observation, in registered cameras, of the tracks seen by >= 2 registered
     cameras of min(reprojection error, truncation_px); observations without a point (removed
-    or not triangulated) count truncation_px. Comparable between runs that register the same
-    cameras, since it is computed over the same observations."""
+    or not triangulated) count truncation_px. truncation_px: one value or one per camera (C,).
+    Comparable between runs that register the same cameras, since it is computed over the same
+    observations."""
+    truncation_px = np.broadcast_to(np.asarray(truncation_px, float),
+                                    (state.num_cameras,))[None, :]
     reg = np.zeros(state.num_cameras, dtype=bool)
     reg[state.registered()] = True
     obs = state.tracks.observed() & reg[None, :]

@@ -421,7 +421,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     if not results:
         raise first_error
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
-                        cost_truncation_px(config.sfm), config.sampling.seed)
+                        cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed)
     best, D, costs = choice.best, choice.disagreement_deg, choice.costs_px
     if choice.worse_fit:
         say_progress(progress, "consensus: the runs with seeds " + ", ".join(
