@@ -23,6 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .sampling import refined_targets_px
 from .types import RigCalibration, SiteMatchSet
 
 # A pair (or a camera's best source pair) below this many matches over all frame sets gets no
@@ -70,10 +71,7 @@ def epipolar_errors_px(rig: RigCalibration, camera_names: Sequence[str],
                 continue
             valid = np.flatnonzero(pm.target >= 0)
             xy_a = ms.sites[i][valid]
-            xy_b = ms.sites[j][pm.target[valid]].copy()
-            if pm.target_xy_px is not None:
-                refined = np.isfinite(pm.target_xy_px[valid]).all(1)
-                xy_b[refined] = pm.target_xy_px[valid][refined]
+            xy_b = refined_targets_px(ms, i, j, valid, pm.target[valid])
             ray_a = colmap[a].cam_ray_from_img(xy_a)
             ray_b = colmap[b].cam_ray_from_img(xy_b)
             ray_a /= np.linalg.norm(ray_a, axis=1, keepdims=True)
@@ -97,11 +95,7 @@ def _match_ends(ms: SiteMatchSet, i: int, j: int, sites_i: np.ndarray) -> np.nda
         return out
     target = pm.target[sites_i]
     ok = target >= 0
-    out[ok] = ms.sites[j][target[ok]]
-    if pm.target_xy_px is not None:
-        refined = pm.target_xy_px[sites_i]
-        use = ok & np.isfinite(refined).all(1)
-        out[use] = refined[use]
+    out[ok] = refined_targets_px(ms, i, j, sites_i[ok], target[ok])
     return out
 
 
@@ -117,39 +111,40 @@ def transfer_errors_px(rig: RigCalibration, camera_names: Sequence[str],
     min_sin = np.sin(np.deg2rad(MIN_TRIANGULATION_ANGLE_DEG))
     out: dict[str, dict[tuple[str, str], list]] = {n: {} for n in cams}
     for a, b in itertools.combinations(cams, 2):
-        for target in cams:
-            if target in (a, b):
+        o_a, o_b = rig_from_cam[a][:3, 3], rig_from_cam[b][:3, 3]
+        errors: dict[str, list] = {t: [] for t in cams if t not in (a, b)}
+        for ms in match_sets:
+            # Each point of a matched in b is triangulated once, then projected into every target.
+            ia, ib = index[a], index[b]
+            sites = np.arange(len(ms.sites[ia]))
+            xy_b = _match_ends(ms, ia, ib, sites)
+            in_b = np.isfinite(xy_b).all(1)
+            if not in_b.any():
                 continue
-            errors = []
-            for ms in match_sets:
-                ia, ib, it = index[a], index[b], index[target]
-                sites = np.arange(len(ms.sites[ia]))
-                xy_b = _match_ends(ms, ia, ib, sites)
-                xy_t = _match_ends(ms, ia, it, sites)
-                ok = np.isfinite(xy_b).all(1) & np.isfinite(xy_t).all(1)
-                if not ok.any():
-                    continue
-                rays = []
-                for name, xy in ((a, ms.sites[ia][ok]), (b, xy_b[ok])):
-                    r = colmap[name].cam_ray_from_img(xy) @ rig_from_cam[name][:3, :3].T
-                    rays.append(r / np.linalg.norm(r, axis=1, keepdims=True))
-                o_a, o_b = rig_from_cam[a][:3, 3], rig_from_cam[b][:3, 3]
-                # closest points of the two rays o + s d (midpoint triangulation)
-                d_a, d_b, w = rays[0], rays[1], o_a - o_b
-                dot = np.einsum("ij,ij->i", d_a, d_b)
-                denom = 1.0 - dot ** 2
-                s_a = (dot * (d_b @ w) - (d_a @ w)) / np.where(denom > 0, denom, np.nan)
-                s_b = ((d_b @ w) - dot * (d_a @ w)) / np.where(denom > 0, denom, np.nan)
-                point = 0.5 * (o_a + s_a[:, None] * d_a + o_b + s_b[:, None] * d_b)
+            rays = []
+            for name, xy in ((a, ms.sites[ia][in_b]), (b, xy_b[in_b])):
+                r = colmap[name].cam_ray_from_img(xy) @ rig_from_cam[name][:3, :3].T
+                rays.append(r / np.linalg.norm(r, axis=1, keepdims=True))
+            # closest points of the two rays o + s d (midpoint triangulation)
+            d_a, d_b, w = rays[0], rays[1], o_a - o_b
+            dot = np.einsum("ij,ij->i", d_a, d_b)
+            denom = 1.0 - dot ** 2
+            s_a = (dot * (d_b @ w) - (d_a @ w)) / np.where(denom > 0, denom, np.nan)
+            s_b = ((d_b @ w) - dot * (d_a @ w)) / np.where(denom > 0, denom, np.nan)
+            point = 0.5 * (o_a + s_a[:, None] * d_a + o_b + s_b[:, None] * d_b)
+            triangulated = (np.sqrt(denom) > min_sin) & (s_a > 0) & (s_b > 0)
+            for target in errors:
+                xy_t = _match_ends(ms, ia, index[target], sites[in_b])
                 cam_t = rig.cameras[target].cam_from_rig
                 x_t = point @ cam_t[:3, :3].T + cam_t[:3, 3]
-                good = (np.sqrt(denom) > min_sin) & (s_a > 0) & (s_b > 0) & (x_t[:, 2] > 0)
+                good = triangulated & np.isfinite(xy_t).all(1) & (x_t[:, 2] > 0)
                 if not good.any():
                     continue
                 projected = np.asarray(colmap[target].img_from_cam(x_t[good]), float)
-                err = np.linalg.norm(projected - xy_t[ok][good], axis=1)
-                errors.append(err[np.isfinite(err)])
-            out[target][(a, b)] = np.concatenate(errors) if errors else np.zeros(0)
+                err = np.linalg.norm(projected - xy_t[good], axis=1)
+                errors[target].append(err[np.isfinite(err)])
+        for target, errs in errors.items():
+            out[target][(a, b)] = np.concatenate(errs) if errs else np.zeros(0)
     return out
 
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from .errors import InputError
 
+BAYER_PATTERNS = ("rggb", "bggr", "gbrg", "grbg")  # ROS names: the first two rows' filters
 # encoding -> (channels, dtype, layout to reach RGB or gray); names as in sensor_msgs
 # image_encodings.hpp
 RAW_ENCODINGS = {
@@ -24,14 +25,14 @@ RAW_ENCODINGS = {
     "mono8": (1, np.uint8, "gray"), "8UC1": (1, np.uint8, "gray"),
     "8UC3": (3, np.uint8, "bgr"),
     "mono16": (1, np.uint16, "gray"), "16UC1": (1, np.uint16, "gray"),
-    **{f"bayer_{p}{bits}": (1, dtype, f"bayer_{p}") for p in ("rggb", "bggr", "gbrg", "grbg")
+    **{f"bayer_{p}{bits}": (1, dtype, f"bayer_{p}") for p in BAYER_PATTERNS
        for bits, dtype in ((8, np.uint8), (16, np.uint16))},
     # 4:2:2, two bytes per pixel: "yuv422"/"uyvy" is U Y0 V Y1, "yuv422_yuy2"/"yuyv" is Y0 U Y1 V
     "yuv422": (2, np.uint8, "uyvy"), "uyvy": (2, np.uint8, "uyvy"),
     "yuv422_yuy2": (2, np.uint8, "yuyv"), "yuyv": (2, np.uint8, "yuyv"),
 }
 COMPRESSED_FORMATS = ("jpeg", "png")
-BAYER8_ENCODINGS = ("bayer_rggb8", "bayer_bggr8", "bayer_gbrg8", "bayer_grbg8")
+BAYER8_ENCODINGS = tuple(f"bayer_{p}8" for p in BAYER_PATTERNS)
 
 # OpenCV names a Bayer pattern by the second row's second and third pixels, so ROS's rggb (first
 # row R G) is OpenCV's "BG"; test_conversions checks each pattern on a mosaiced image.

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError
+from .sampling import refined_targets_px
 from .types import SiteMatchSet
 
 
@@ -74,10 +75,8 @@ def apply_masks(match_set: SiteMatchSet, ignored: Sequence[Optional[np.ndarray]]
         drop = site_ignored[i] & valid
         if ignored[j] is not None:
             end = np.full((len(pm.target), 2), np.nan)
-            end[valid] = match_set.sites[j][pm.target[valid]]
-            if pm.target_xy_px is not None:
-                refined = np.isfinite(pm.target_xy_px).all(1)
-                end[refined] = pm.target_xy_px[refined]
+            rows = np.flatnonzero(valid)
+            end[rows] = refined_targets_px(match_set, i, j, rows, pm.target[rows])
             on_site = site_ignored[j][np.maximum(pm.target, 0)]
             drop |= valid & (_ignored_at(ignored[j], end) | on_site)
         pm.target[drop] = -1
