@@ -26,11 +26,12 @@ from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 from densecalib_ros.core.bag import read_frame_sets, write_image_bag  # noqa: E402
 from densecalib_ros.core.config import DEFAULT_PIPELINE, make_config  # noqa: E402
 from densecalib_ros.core.errors import InputError  # noqa: E402
-from densecalib_ros.core.export import read_calibration  # noqa: E402
+from densecalib_ros.core.export import camera_info_yaml, read_calibration  # noqa: E402
 from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
 from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
 from densecalib_ros.core.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
+from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402
 from densecalib_ros.ros.node import DenseCalibNode, pipeline_config  # noqa: E402
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
                                           TriggerCaller, wait_until)
@@ -242,6 +243,21 @@ def test_parameters_are_validated(ros, tmp_path):
         for bad in (["fisheye"], ["pinhole", "tele", "pinhole", "pinhole"]):
             result = node.set_parameters([Parameter("camera_lens", value=bad)])[0]
             assert not result.successful and "one lens per camera (4)" in result.reason
+        # Given intrinsics: one camera_info YAML per camera ('' = calibrate that one).
+        assert pipeline_config(node.settings).known_intrinsics == {}
+        lab = CameraIntrinsics("OPENCV", 320, 240, np.array([300.0, 300.0, 160.0, 120.0, -0.05,
+                                                             0.0, 0.0, 0.0]))
+        (tmp_path / "lab2.yaml").write_text(camera_info_yaml("lab_name", lab))
+        files = ["", "", str(tmp_path / "lab2.yaml"), ""]
+        assert node.set_parameters([Parameter("intrinsics_files", value=files)])[0].successful
+        known = pipeline_config(node.settings).known_intrinsics
+        assert list(known) == ["cam2"] and known["cam2"].model == "OPENCV"
+        result = node.set_parameters([Parameter("intrinsics_files", value=files[:2])])[0]
+        assert not result.successful and "intrinsics_files has 2 entries" in result.reason
+        result = node.set_parameters([Parameter("intrinsics_files",
+                                                value=[str(tmp_path / "lab2.yaml")])])[0]
+        assert not result.successful and "lab_name, which are not among" in result.reason
+        assert list(pipeline_config(node.settings).known_intrinsics) == ["cam2"]  # kept
     finally:
         ros.remove(node)
 

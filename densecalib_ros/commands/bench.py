@@ -15,7 +15,7 @@ log = logging.getLogger("densecalib.bench")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..core.bench import METHODS
+    from ..core.bench import ALL_METHODS, METHODS
 
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--quick", action="store_true",
@@ -33,8 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenes", nargs="+", default=None, metavar="PATTERN",
                         help="only scenes whose name contains one of these (e.g. fisheye, "
                              "strecha, 10cam); see --list")
-    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
-                        help="methods to run (default: all)")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=ALL_METHODS,
+                        help="methods to run (default: all but densecalib-given-intrinsics, "
+                             "which holds each camera's reference intrinsics: extrinsics only)")
     parser.add_argument("--threads", type=int, default=0,
                         help="threads per method (default: all cores)")
     parser.add_argument("--data-dir", default=None,

@@ -45,6 +45,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "starts from them instead of estimating them, and still refines "
                              "them. From a datasheet: focal_mm / pixel_pitch_mm, or "
                              "(width / 2) / tan(horizontal_fov / 2)")
+    parser.add_argument("--intrinsics", nargs="+", default=None, metavar="PATH|NAME=PATH",
+                        help="intrinsics to keep, for cameras calibrated before (in the lab with "
+                             "a target, or a previous calibration whose lenses were not touched): "
+                             "ROS camera_info YAML files (camera = the file's camera_name, or "
+                             "NAME=PATH), a folder of them, or a densecalib calibration; those "
+                             "cameras keep them exactly and only the extrinsics (and the other "
+                             "cameras' intrinsics) are calibrated")
+    parser.add_argument("--bag-camera-info", action="store_true",
+                        help="with --bag: keep the intrinsics the bag's CameraInfo topics carry "
+                             "(<image topic namespace>/camera_info, first message), like "
+                             "--intrinsics for every camera")
     parser.add_argument("--ignore-exif", action="store_true",
                         help="do not start from the focal lengths in the images' EXIF (use it "
                              "when the images were cropped, or taken with digital zoom)")
@@ -124,22 +135,46 @@ def _previous_baseline(previous) -> Optional[tuple]:
     return (*scale["cameras"], float(scale["baseline_m"]))
 
 
+def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> dict:
+    """`given` plus the intrinsics of the bag's CameraInfo topics (--bag-camera-info)."""
+    from ..core.bag import camera_info_topic, read_camera_infos
+    from ..core.known_intrinsics import intrinsics_from_camera_info
+
+    twice = sorted(set(given) & set(names))
+    if twice:
+        raise InputError(f"Intrinsics of {', '.join(twice)} given by --intrinsics and by "
+                         "--bag-camera-info: give each camera once.")
+    infos = read_camera_infos(args.bag, args.topics)
+    return {**given, **{name: intrinsics_from_camera_info(info, camera_info_topic(topic))
+                        for name, topic, info in zip(names, args.topics, infos)}}
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
-    from ..core.pipeline import run_calibration
+    from ..core.known_intrinsics import check_known_intrinsics, read_known_intrinsics
+    from ..core.pipeline import check_frame_sets, run_calibration
 
     try:
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.threads,
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
                      "initial_focal_px": parse_focal_px(args.focal_px),
-                     "camera_lens": parse_camera_lens(args.lens)}
+                     "camera_lens": parse_camera_lens(args.lens),
+                     "known_intrinsics": read_known_intrinsics(args.intrinsics or [])}
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
+        if args.bag_camera_info and not args.bag:
+            raise InputError("--bag-camera-info reads the CameraInfo topics of a bag: use it "
+                             "with --bag, or give camera_info YAML files with --intrinsics.")
         frame_sets, names, source, paths = read_input(args)
+        if args.bag_camera_info:
+            config.known_intrinsics = _bag_intrinsics(args, names, config.known_intrinsics)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
+        check_known_intrinsics(config.known_intrinsics, names, check_frame_sets(frame_sets, names))
         config.camera_masks = parse_masks(args.mask, names)
+        if config.known_intrinsics:
+            log.info("intrinsics given and kept for %s", ", ".join(sorted(config.known_intrinsics)))
         if args.images and not args.ignore_exif:
             config.exif_focal_px = _exif_focals(paths, frame_sets, names)
         log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",

@@ -118,6 +118,51 @@ def iter_image_messages(bag_path: str | os.PathLike, topics: list[str]
         reader.close()
 
 
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+
+
+def camera_info_topic(image_topic: str) -> str:
+    """The CameraInfo topic beside an image topic (image_transport's convention):
+    /rig/cam0/image_raw[/compressed] -> /rig/cam0/camera_info."""
+    parts = image_topic.rstrip("/").split("/")
+    if parts[-1] == "compressed":
+        parts = parts[:-1]
+    return "/".join(parts[:-1] + ["camera_info"])
+
+
+def read_camera_infos(bag_path: str | os.PathLike, image_topics: list[str]) -> list[dict]:
+    """Per image topic, the first message on its camera_info_topic as a camera_info YAML dict
+    (core.known_intrinsics.intrinsics_from_camera_info reads it). InputError when a topic is
+    missing from the bag or carries no message."""
+    store = _typestore()
+    reader = _open(bag_path)
+    try:
+        by_topic = {c.topic: c for c in reader.connections if c.msgtype == CAMERA_INFO_TYPE}
+        wanted = [camera_info_topic(t) for t in image_topics]
+        missing = [t for t in wanted if t not in by_topic]
+        if missing:
+            raise InputError(f"Bag {reader.path} has no CameraInfo topic {', '.join(missing)} "
+                             f"(its CameraInfo topics: {', '.join(sorted(by_topic)) or 'none'}): "
+                             "give the intrinsics as files with --intrinsics instead.")
+        first: dict[str, dict] = {}
+        for conn, _, raw in reader.messages(connections=[by_topic[t] for t in wanted]):
+            if conn.topic not in first:
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                first[conn.topic] = {
+                    "image_width": int(msg.width), "image_height": int(msg.height),
+                    "camera_matrix": {"data": [float(v) for v in msg.k]},
+                    "distortion_model": str(msg.distortion_model),
+                    "distortion_coefficients": {"data": [float(v) for v in msg.d]}}
+            if len(first) == len(wanted):
+                break
+    finally:
+        reader.close()
+    empty = [t for t in wanted if t not in first]
+    if empty:
+        raise InputError(f"No message on {', '.join(empty)} in bag {bag_path}.")
+    return [first[t] for t in wanted]
+
+
 def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: float = 0.02,
                     max_frame_sets: Optional[int] = None, stride: int = 1,
                     return_stamps: bool = False) -> tuple:
@@ -165,12 +210,14 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
 
 def write_image_bag(bag_path: str | os.PathLike, frame_sets: list[list[np.ndarray]],
                     topics: list[str], stamps_ns: list[int], *, storage: str = "sqlite3",
-                    encoding: str = "rgb8", frame_ids: Optional[list[str]] = None) -> None:
+                    encoding: str = "rgb8", frame_ids: Optional[list[str]] = None,
+                    camera_infos: Optional[list[dict]] = None) -> None:
     """Write frame_sets[t][c] (uint8 RGB (H, W, 3) or gray (H, W)) as a rosbag2 bag: topic c gets
     one message per set, header stamp stamps_ns[t][c] (or stamps_ns[t] for all cameras), log time =
     header stamp. encoding: rgb8, bgr8, mono8, mono16, bayer_<pattern>8 (sensor_msgs/Image) or
-    jpeg, png (CompressedImage). storage: sqlite3 or mcap. Used to make test bags and to export
-    rigs."""
+    jpeg, png (CompressedImage). storage: sqlite3 or mcap. camera_infos: per camera a
+    core.export.ros_camera_info dict, written once per frame set on camera_info_topic. Used to
+    make test bags and to export rigs."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from .image_encoding import COMPRESSED_FORMATS, encode_compressed, encode_raw
@@ -200,9 +247,25 @@ def write_image_bag(bag_path: str | os.PathLike, frame_sets: list[list[np.ndarra
                 h, w, step, raw = encode_raw(image, encoding)
                 msg = t[IMAGE_TYPE](header=header, height=h, width=w, encoding=encoding,
                                     is_bigendian=0, step=step, data=np.frombuffer(raw, np.uint8))
-            messages.append((int(stamps[c]), c, msg))
+            messages.append((int(stamps[c]), c, msg, msgtype))
+            if camera_infos:
+                info = camera_infos[c]
+                messages.append((int(stamps[c]), len(topics) + c, t[CAMERA_INFO_TYPE](
+                    header=header, height=int(info["image_height"]),
+                    width=int(info["image_width"]), distortion_model=info["distortion_model"],
+                    d=np.array(info["distortion_coefficients"]["data"], np.float64),
+                    k=np.array(info["camera_matrix"]["data"], np.float64),
+                    r=np.array(info["rectification_matrix"]["data"], np.float64),
+                    p=np.array(info["projection_matrix"]["data"], np.float64),
+                    binning_x=0, binning_y=0,
+                    roi=t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
+                                                              width=0, do_rectify=False)),
+                    CAMERA_INFO_TYPE))
     messages.sort(key=lambda m: (m[0], m[1]))
     with Writer(Path(bag_path), version=9, storage_plugin=plugins[storage]) as writer:
         conns = [writer.add_connection(topic, msgtype, typestore=store) for topic in topics]
-        for log_ns, c, msg in messages:
-            writer.write(conns[c], log_ns, store.serialize_cdr(msg, msgtype))
+        if camera_infos:
+            conns += [writer.add_connection(camera_info_topic(topic), CAMERA_INFO_TYPE,
+                                            typestore=store) for topic in topics]
+        for log_ns, c, msg, kind in messages:
+            writer.write(conns[c], log_ns, store.serialize_cdr(msg, kind))

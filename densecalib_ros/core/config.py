@@ -73,6 +73,9 @@ class SfMConfig:
     global_stage_iterations: dict = field(default_factory=lambda: {
         "extrinsics": 300, "focal": 200, "distortion": 200, "principal_point": 0, "model": 0})
     num_threads: int = -1  # -1 = all cores
+    # Cameras (indices) whose intrinsics the user gave (PipelineConfig.known_intrinsics;
+    # resolve_camera_lenses fills it): they start at those values and no step refines them.
+    fixed_intrinsics_cameras: tuple = ()
 
     def model_of(self, c: int) -> str:
         """Camera c's initial COLMAP model."""
@@ -143,6 +146,11 @@ class PipelineConfig:
     # Regions whose matches are not used (core/masks.py): camera name -> bool (H, W), True =
     # ignored (an info strip, the rig's own structure). Cameras not named use the whole image.
     camera_masks: dict = field(default_factory=dict)
+    # Intrinsics the user knows and wants kept (core/known_intrinsics.py: a lab calibration's
+    # camera_info YAML, a previous calibration): camera name -> CameraIntrinsics at the images'
+    # size. Those cameras start from them and keep them exactly: only the extrinsics (and the
+    # other cameras' intrinsics) are calibrated. Their lens follows from the model.
+    known_intrinsics: dict = field(default_factory=dict)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 
@@ -201,14 +209,24 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
     refined to OPENCV_FISHEYE; pinhole cameras stay RADIAL, their observations judged by the
     regular preset's B_err, and a pair of two pinhole cameras by its F_err
     (SfMConfig.pinhole_b_err_px, pinhole_f_err_px). Idempotent: a resolved config is returned
-    as it is. InputError on unknown cameras or lenses."""
+    as it is. InputError on unknown cameras or lenses.
+
+    Cameras of config.known_intrinsics get their model (a lens differing from the preset's makes
+    a rig mixing lenses) and are listed in sfm.fixed_intrinsics_cameras."""
+    known = dict(config.known_intrinsics or {})
     lenses = dict(config.camera_lens or {})
-    if not lenses or config.sfm.camera_models:
+    if config.sfm.camera_models or (not lenses and not known):
         return config
-    unknown = sorted(set(lenses) - set(camera_names))
+    unknown = sorted((set(lenses) | set(known)) - set(camera_names))
     if unknown:
-        raise InputError(f"Lens given for unknown camera(s) {', '.join(unknown)}: the cameras are "
-                         f"{', '.join(camera_names)}.")
+        raise InputError(f"Lens or intrinsics given for unknown camera(s) {', '.join(unknown)}: "
+                         f"the cameras are {', '.join(camera_names)} (an intrinsics file names "
+                         "its camera with NAME=PATH).")
+    clash = sorted(n for n in set(lenses) & set(known) if lenses[n] != lens_of_model(known[n].model))
+    if clash:
+        raise InputError(f"Camera(s) {', '.join(clash)}: the given intrinsics are of another lens "
+                         "than --lens says; leave out --lens for cameras with given intrinsics.")
+    lenses.update({n: lens_of_model(cam.model) for n, cam in known.items()})
     bad = {k: v for k, v in lenses.items() if v not in LENS_MODELS}
     if bad:
         raise InputError(f"Unknown lens {bad}: use {' or '.join(LENS_MODELS)} "
@@ -226,9 +244,12 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
         regular = make_config("regular", config.pipeline).sfm
         out.sfm.pinhole_b_err_px = regular.b_err_px
         out.sfm.pinhole_f_err_px = regular.f_err_px
-    # Cameras of the preset's lens keep its (possibly user-set) model.
-    out.sfm.camera_models = tuple(config.sfm.camera_model if lens == preset_lens
-                                  else LENS_MODELS[lens] for lens in per_camera)
+    # Cameras of the preset's lens keep its (possibly user-set) model; given intrinsics, theirs.
+    out.sfm.camera_models = tuple(
+        known[n].model if n in known else
+        config.sfm.camera_model if lens == preset_lens else LENS_MODELS[lens]
+        for n, lens in zip(camera_names, per_camera))
+    out.sfm.fixed_intrinsics_cameras = tuple(c for c, n in enumerate(camera_names) if n in known)
     return out
 
 

@@ -467,7 +467,10 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
         start, poses = poses_from_previous(previous, camera_names,
                                            [(c.width, c.height) for c in intrinsics],
                                            working_models(config, C))
-        state = SfMState.create(tracks, start, config.share_intrinsics)
+        for c in config.fixed_intrinsics_cameras:  # given intrinsics win over the previous ones
+            start[c] = intrinsics[c]
+        state = SfMState.create(tracks, start, config.share_intrinsics,
+                                config.fixed_intrinsics_cameras)
     elif init == "incremental":
         # The incremental pipeline needs its outlier threshold (B_err) to stay on track even
         # when the global preset has none.
@@ -483,7 +486,8 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
         poses = state.cam_from_world
         state.active = tracks.observed().copy()  # global: every observation, no B_err removal
     else:
-        state = SfMState.create(tracks, intrinsics, config.share_intrinsics)
+        state = SfMState.create(tracks, intrinsics, config.share_intrinsics,
+                                config.fixed_intrinsics_cameras)
         poses = rotation_averaging_poses(tracks, [state.camera(c) for c in range(C)],
                                          camera_names, seed)
     # Only the incremental initialisation can leave cameras without a pose (not registrable).

@@ -139,7 +139,8 @@ def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, 
     if pose_j is None:
         return np.inf, None
     scratch = SfMState(state.tracks, state.intrinsics, state.camera_block,
-                       [None] * state.num_cameras, state.points_xyz, state.active)
+                       [None] * state.num_cameras, state.points_xyz, state.active,
+                       state.fixed_blocks)
     scratch.cam_from_world[i], scratch.cam_from_world[j] = np.eye(4), pose_j
     _, _, err = midpoint_triangulation(scratch, rows)
     d = np.nanmean(err[:, [i, j]], axis=1)
@@ -190,10 +191,10 @@ def _pair_registration_focals(state: SfMState, c: int) -> list[float]:
     """Focal candidates for camera c: its current focal scaled by PAIR_REGISTRATION_FOCAL_SCALES,
     and the refined focal of every registered camera with the same image size (rigs often use
     identical cameras). Only the current focal when c's intrinsics are shared with a registered
-    camera (they are refined already)."""
+    camera (they are refined already) or given (held)."""
     cam = state.camera(c)
     f_c = float(cam.to_pycolmap().mean_focal_length())
-    if state.shares_intrinsics(c):
+    if state.shares_intrinsics(c) or state.intrinsics_fixed(c):
         return [f_c]
     out = [f_c * s for s in PAIR_REGISTRATION_FOCAL_SCALES]
     for r in state.registered():
@@ -263,12 +264,12 @@ def _place_from_pairs(state: SfMState, c: int, seed: int) -> bool:
 def _register_next(state: SfMState, c: int, config: SfMConfig) -> bool:
     """Absolute pose of camera c from 2D-3D correspondences to points seen by >= 2 registered
     cameras; focal and distortion are refined unless c shares an already registered camera's
-    intrinsics. Sets state.cam_from_world[c] and c's intrinsics on success."""
+    intrinsics or they are given. Sets state.cam_from_world[c] and c's intrinsics on success."""
     rows = np.flatnonzero(state.point_mask() & state.active[:, c])
     if len(rows) < MIN_REGISTRATION_POINTS:
         return False
     camera = state.camera(c).to_pycolmap()
-    block_in_use = state.shares_intrinsics(c)
+    block_in_use = state.shares_intrinsics(c) or state.intrinsics_fixed(c)
     T = absolute_pose(state.tracks.xy_px[rows, c], state.points_xyz[rows], camera,
                       refine_intrinsics=not block_in_use,
                       refine_iterations=config.absolute_pose_refine_iterations)
@@ -337,7 +338,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     `intrinsics` hold known focals: pipeline.calibrate_from_tracks).
     """
     say = progress or (lambda msg: None)
-    starts = {**focal_starts(intrinsics), **(extra_starts or {})}
+    starts = {**focal_starts(intrinsics, config.fixed_intrinsics_cameras), **(extra_starts or {})}
     sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
     costs, trials = {}, {}
     for name, start in starts.items():
@@ -379,9 +380,12 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     return result
 
 
-def focal_starts(intrinsics: Sequence[CameraIntrinsics]) -> dict[str, list[CameraIntrinsics]]:
+def focal_starts(intrinsics: Sequence[CameraIntrinsics], fixed: Sequence[int] = ()
+                 ) -> dict[str, list[CameraIntrinsics]]:
     """The multi-start's starting intrinsics by name: the initial focals scaled ("x1.30"), and for
-    perspective models the generic priors ("prior 0.85").
+    perspective models the generic priors ("prior 0.85"). The cameras in `fixed` (given
+    intrinsics) keep theirs in every start; when that is every camera there is one start,
+    "given".
 
     A prior is run even where it is within ~1.15x of a scaled start for every camera: it gives
     every camera the same focal where the scaled start keeps eq. 2's ratios between cameras, and
@@ -390,8 +394,11 @@ def focal_starts(intrinsics: Sequence[CameraIntrinsics]) -> dict[str, list[Camer
     0.6 and 0.85 had been right), AUC@3 94.4 -> 88.9."""
     # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate: the
     # eq. 2 step and the generic priors move only the perspective cameras (a rig mixing lenses).
-    perspective = ["FISHEYE" not in cam.model for cam in intrinsics]
-    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f) for f in FOCAL_SCALE_STARTS}
+    free = [c not in fixed for c in range(len(intrinsics))]
+    if not any(free):
+        return {"given": list(intrinsics)}
+    perspective = ["FISHEYE" not in cam.model and f for cam, f in zip(intrinsics, free)]
+    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f, free) for f in FOCAL_SCALE_STARTS}
     if any(perspective):
         starts.update({f"x{f:.2f}": _scaled_focals(intrinsics, f, perspective)
                        for f in EQ2_EXTRA_FOCAL_SCALE_STARTS})
@@ -493,7 +500,8 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                  camera_names: Sequence[str], config: SfMConfig, seed: int,
                  say: Callable[[str], None]) -> IncrementalResult:
     C = tracks.num_cameras
-    state = SfMState.create(tracks, intrinsics, config.share_intrinsics)
+    state = SfMState.create(tracks, intrinsics, config.share_intrinsics,
+                            config.fixed_intrinsics_cameras)
     b_err = config.b_err_px if config.b_err_px is not None else np.inf
     order = view_order(tracks)
     if len(order) < 2:

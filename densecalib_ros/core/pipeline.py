@@ -22,12 +22,13 @@ from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughCamerasError,
                      NotEnoughOverlapError)
 from .focal import estimate_initial_focals
+from .known_intrinsics import check_known_intrinsics, describe as describe_known
 from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .placement import repair_placements
 from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
-from .types import RigCalibration, RigCamera, Tracks
+from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
 from .uncertainty import calibration_uncertainty
 
 log = logging.getLogger(__name__)
@@ -190,8 +191,9 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     focal_px = np.asarray(focal_px, dtype=np.float64)
     say_progress(progress, "initial focals [px]: " + ", ".join(
         f"{n}={f:.0f}" for n, f in zip(camera_names, focal_px)))
-    init = initial_intrinsics(image_sizes, focal_px, config.sfm.models(C))
-    extra_starts = _eq2_start(filtered, two_view, image_sizes, config, progress) \
+    init = with_known_intrinsics(initial_intrinsics(image_sizes, focal_px, config.sfm.models(C)),
+                                 config, camera_names)
+    extra_starts = _eq2_start(filtered, two_view, image_sizes, config, camera_names, progress) \
         if known_focals else None
     validation = None
     if match_tracks is not None and match_tracks.num_tracks:
@@ -230,18 +232,34 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
 
 
 def _eq2_start(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, int]],
-               config: PipelineConfig, progress: Progress) -> Optional[dict]:
+               config: PipelineConfig, camera_names: Sequence[str],
+               progress: Progress) -> Optional[dict]:
     """{"eq. 2": intrinsics at the eq. 2 focals} where they can be estimated (every camera
-    perspective), else None."""
+    perspective, not every camera's intrinsics given), else None."""
     models = config.sfm.models(len(image_sizes))
-    if any("FISHEYE" in m for m in models):
+    if any("FISHEYE" in m for m in models) or \
+            len(config.sfm.fixed_intrinsics_cameras) == len(image_sizes):
         return None
     try:
         focal = initial_focals(tracks, two_view, image_sizes)
     except FocalInitError as exc:
         say_progress(progress, f"no eq. 2 start beside the known focals: {exc}")
         return None
-    return {"eq. 2": initial_intrinsics(image_sizes, focal, models)}
+    return {"eq. 2": with_known_intrinsics(initial_intrinsics(image_sizes, focal, models),
+                                           config, camera_names)}
+
+
+def with_known_intrinsics(intrinsics: Sequence[CameraIntrinsics], config: PipelineConfig,
+                          camera_names: Sequence[str]) -> list[CameraIntrinsics]:
+    """`intrinsics` with the cameras of config.known_intrinsics at their given values."""
+    known = config.known_intrinsics or {}
+    return [known.get(n, cam) for n, cam in zip(camera_names, intrinsics)]
+
+
+def _known_focals(config: PipelineConfig, camera_names: Sequence[str]) -> dict[str, float]:
+    """The mean focal [px] of every camera with given intrinsics."""
+    return {n: float(cam.to_pycolmap().mean_focal_length())
+            for n, cam in (config.known_intrinsics or {}).items() if n in camera_names}
 
 
 def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
@@ -251,7 +269,21 @@ def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
     first found: the user's config.initial_focal_px, a previous calibration's focal, the images'
     EXIF focal (config.exif_focal_px). NaN for a camera only EXIF could have named and did not:
     its focal is estimated (sampling.sample_tracks). InputError when the user's focals name
-    unknown cameras, are not positive, or leave a camera without a focal."""
+    unknown cameras, are not positive, or leave a camera without a focal. Given intrinsics
+    (config.known_intrinsics) override all of these for their cameras."""
+    focal = _start_focals(config, previous, camera_names, image_sizes)
+    known = _known_focals(config, camera_names)
+    if not known:
+        return focal
+    out = np.full(len(camera_names), np.nan) if focal is None else focal.astype(np.float64)
+    for c, name in enumerate(camera_names):
+        out[c] = known.get(name, out[c])
+    return out
+
+
+def _start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
+                  camera_names: Sequence[str], image_sizes: Sequence[tuple[int, int]]
+                  ) -> Optional[np.ndarray]:
     hint = dict(config.initial_focal_px or {})
     exif = {k: v for k, v in (config.exif_focal_px or {}).items() if k in camera_names}
     focal = _previous_focals(previous, camera_names, image_sizes)
@@ -272,6 +304,7 @@ def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
         elif not np.isfinite(out[c]) and name in exif:
             out[c] = float(exif[name])
     missing = [n for n, f in zip(camera_names, out) if not np.isfinite(f)]
+    missing = [n for n in missing if n not in _known_focals(config, camera_names)]
     if missing and hint:
         raise InputError(f"No initial focal length for camera(s) {', '.join(missing)}: give one "
                          "per camera, or one for all ('*', e.g. --focal-px 800).")
@@ -359,6 +392,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     With config.refine_on_all_matches and a keypoint matcher, every run's rig is refined last on
     all the matches (core.all_matches)."""
     config = resolve_camera_lenses(config, camera_names)
+    check_known_intrinsics(config.known_intrinsics or {}, camera_names, image_sizes)
     match_tracks = None
     if config.refine_on_all_matches:
         match_tracks = keypoint_tracks(match_sets, len(camera_names), seed=config.sampling.seed)
@@ -369,6 +403,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
         result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
                                  match_tracks, progress)
     add_uncertainty(result, camera_names, config)
+    if config.known_intrinsics:
+        result.rig.quality["given_intrinsics"] = describe_known(config.known_intrinsics)
     return result
 
 
@@ -377,11 +413,12 @@ def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],
     """Record each camera's standard deviations (core.uncertainty) in its quality, in place."""
     rig = result.rig
     pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
+    given = sorted(config.known_intrinsics or {})
     # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
     noise_px = float(rig.quality["reprojection_rms_px"]) / np.sqrt(2.0)
     try:
         sigmas = calibration_uncertainty(result.reconstruction, rig.reference_camera, noise_px,
-                                         pp_refined)
+                                         pp_refined, given)
     except (RuntimeError, ValueError) as exc:  # a diagnostic: never a reason to lose the result
         log.warning("no standard deviations for this calibration: %s", exc)
         return
@@ -459,7 +496,14 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
 
         intrinsics, poses = poses_from_previous(previous, camera_names, image_sizes,
                                                 working_models(config.sfm, len(camera_names)))
+        intrinsics = with_known_intrinsics(intrinsics, config, camera_names)
         sampled = sample_tracks(match_sets, config, cam_from_rig=poses, intrinsics=intrinsics)
+    elif len(config.sfm.fixed_intrinsics_cameras) == len(camera_names):
+        # Every camera's intrinsics given: the sampling's rays come from them (distortion
+        # included) instead of a pinhole or equidistant guess.
+        given = start_focals(config, previous, camera_names, image_sizes)
+        sampled = sample_tracks(match_sets, config, focal_px=given, intrinsics=[
+            config.known_intrinsics[n] for n in camera_names])
     else:
         given = start_focals(config, previous, camera_names, image_sizes)
         sampled = sample_tracks(match_sets, config, focal_px=given)

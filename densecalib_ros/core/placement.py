@@ -84,7 +84,8 @@ def _scratch(state: SfMState, cam_from_world: Sequence[Optional[np.ndarray]]) ->
     """A scratch state over the same tracks and intrinsics with the given poses and every
     observation active (tracks and intrinsics shared, not modified)."""
     return SfMState(state.tracks, state.intrinsics, state.camera_block, list(cam_from_world),
-                    np.full((state.tracks.num_tracks, 3), np.nan), state.tracks.observed())
+                    np.full((state.tracks.num_tracks, 3), np.nan), state.tracks.observed(),
+                    state.fixed_blocks)
 
 
 def pair_support(state: SfMState, a: int, b: int) -> int:
@@ -126,7 +127,7 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
     use = np.flatnonzero(ok)
     if len(use) > MAX_POSE_POINTS:  # a seeded subsample bounds the RANSAC's time
         use = np.sort(np.random.default_rng(c).choice(use, MAX_POSE_POINTS, replace=False))
-    shared = state.shares_intrinsics(c)
+    shared = state.shares_intrinsics(c) or state.intrinsics_fixed(c)  # held: one start
     starts = [(start, not shared) for start in _start_intrinsics(state, c, shared)]
     if len(starts) == 2 and len(left_out) == 1 and _focal_off_peers(
             state, c, peer_focal_px(state, c)) >= np.log(FOCAL_TIE_BREAK_RATIO):

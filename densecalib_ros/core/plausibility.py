@@ -96,10 +96,12 @@ def implausible_cameras(state: SfMState) -> dict[int, str]:
     """{camera index: problem} for the registered cameras of a reconstruction whose intrinsics
     fail `intrinsics_problem`; a fisheye's extent is that of its observations the reconstruction
     explains (reprojection error <= WELL_FIT_PX), so outlier matches in a circular fisheye's dark
-    corners do not count."""
+    corners do not count. Given intrinsics (held, never changed) are the user's to judge."""
     err = reprojection_errors(state)
     out = {}
     for c in state.registered():
+        if state.intrinsics_fixed(c):
+            continue
         fit = np.isfinite(err[:, c]) & (err[:, c] <= WELL_FIT_PX)
         problem = intrinsics_problem(state.camera(c), state.tracks.xy_px[fit, c])
         if problem is not None:

@@ -42,6 +42,8 @@ class SfMState:
     points_xyz: float64 (T, 3) world points, NaN where the track is not triangulated.
     active: bool (T, C) observations that take part in the reconstruction (observed, not
         removed as outliers).
+    fixed_blocks: intrinsics blocks the user gave (SfMConfig.fixed_intrinsics_cameras): no
+        bundle adjustment, registration or model change alters them.
     """
 
     tracks: Tracks
@@ -50,17 +52,22 @@ class SfMState:
     cam_from_world: list[Optional[np.ndarray]]
     points_xyz: np.ndarray
     active: np.ndarray
+    fixed_blocks: frozenset = frozenset()
 
     @classmethod
     def create(cls, tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
-               share_intrinsics: bool = False) -> "SfMState":
+               share_intrinsics: bool = False, fixed_cameras: Sequence[int] = ()) -> "SfMState":
         """intrinsics: one initial CameraIntrinsics per camera. With share_intrinsics, cameras of
-        the same model and image size share one block (the first such camera's values)."""
+        the same model and image size share one block (the first such camera's values).
+        fixed_cameras: cameras whose intrinsics are given and held; each keeps a block of its
+        own (sharing would let another camera's estimate overwrite them)."""
         blocks: list[CameraIntrinsics] = []
         camera_block = np.zeros(len(intrinsics), dtype=np.int64)
         keys: dict[tuple, int] = {}
+        fixed = set(int(c) for c in fixed_cameras)
         for c, cam in enumerate(intrinsics):
-            key = (cam.model, cam.width, cam.height) if share_intrinsics else c
+            key = (cam.model, cam.width, cam.height) if share_intrinsics and c not in fixed \
+                else ("camera", c)
             if key not in keys:
                 keys[key] = len(blocks)
                 blocks.append(CameraIntrinsics(cam.model, cam.width, cam.height,
@@ -69,7 +76,8 @@ class SfMState:
         T = tracks.num_tracks
         return cls(tracks=tracks, intrinsics=blocks, camera_block=camera_block,
                    cam_from_world=[None] * tracks.num_cameras,
-                   points_xyz=np.full((T, 3), np.nan), active=tracks.observed().copy())
+                   points_xyz=np.full((T, 3), np.nan), active=tracks.observed().copy(),
+                   fixed_blocks=frozenset(int(camera_block[c]) for c in fixed))
 
     @property
     def num_cameras(self) -> int:
@@ -82,7 +90,7 @@ class SfMState:
                          for c in self.intrinsics],
                         self.camera_block.copy(),
                         [None if T is None else T.copy() for T in self.cam_from_world],
-                        self.points_xyz.copy(), self.active.copy())
+                        self.points_xyz.copy(), self.active.copy(), self.fixed_blocks)
 
     def on_tracks(self, tracks: Tracks) -> "SfMState":
         """A copy of the cameras (poses, intrinsics) over other tracks of the same cameras: no
@@ -93,6 +101,10 @@ class SfMState:
 
     def camera(self, c: int) -> CameraIntrinsics:
         return self.intrinsics[int(self.camera_block[c])]
+
+    def intrinsics_fixed(self, c: int) -> bool:
+        """Whether camera c's intrinsics are given and held (fixed_blocks)."""
+        return int(self.camera_block[c]) in self.fixed_blocks
 
     def registered(self) -> list[int]:
         return [c for c, pose in enumerate(self.cam_from_world) if pose is not None]
@@ -215,7 +227,9 @@ def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
     config = pycolmap.BundleAdjustmentConfig()
     for c in state.registered():
         config.add_image(c + 1)
-    for c in stage.fixed_intrinsics_cameras:
+    held = set(stage.fixed_intrinsics_cameras) | {c for c in state.registered()
+                                                  if state.intrinsics_fixed(c)}
+    for c in sorted(held):
         config.set_constant_cam_intrinsics(int(state.camera_block[c]) + 1)
     for c in stage.fixed_pose_cameras:
         config.set_constant_rig_from_world_pose(c + 1)  # frame_id = image_id (trivial frames)
@@ -358,9 +372,10 @@ def convert_camera_models(state: SfMState, model: str) -> None:
     """Re-express every intrinsics block of `model`'s lens family (fisheye or not) in `model`,
     keeping the projection identical where the source model is a special case of it
     (RADIAL_FISHEYE -> OPENCV_FISHEYE, RADIAL -> OPENCV ...). Blocks of the other family (the
-    pinhole cameras of a rig mixing lenses) are left as they are."""
+    pinhole cameras of a rig mixing lenses) and given intrinsics (fixed_blocks) are left as
+    they are."""
     for b, cam in enumerate(state.intrinsics):
-        if cam.model == model or ("FISHEYE" in cam.model) != ("FISHEYE" in model):
+        if b in state.fixed_blocks or cam.model == model or ("FISHEYE" in cam.model) != ("FISHEYE" in model):
             continue
         state.intrinsics[b] = CameraIntrinsics(model, cam.width, cam.height,
                                                _convert_params(cam.model, model, cam.params))

@@ -32,7 +32,9 @@ def camera_table(rig: RigCalibration) -> str:
     COLMAP convention; its standard deviation where it was refined), the standard deviation of
     where a ray projects (proj_std: the intrinsics as a whole), distortion and the fit:
     reprojection RMS, observations (all / seen by >= 3 cameras) and the fraction of the image
-    covered by observations. Standard deviations: core.uncertainty ('-' where not estimated)."""
+    covered by observations. Standard deviations: core.uncertainty ('-' where not estimated,
+    'given' for intrinsics the user gave and the calibration kept)."""
+    given = set(rig.quality.get("given_intrinsics") or ())
     rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>9} {'f_std':>6} {'cx':>7} "
             f"{'cy':>7} {'pp_std':>6} {'proj_std':>8} {'rms_px':>6} {'obs':>6} {'obs3+':>6} "
             f"{'coverage':>8}  distortion"]
@@ -49,6 +51,8 @@ def camera_table(rig: RigCalibration) -> str:
             proj_std = _optional(q.projection_std_px, ".2f")
             fit = (f"{q.reprojection_rms_px:6.2f} {q.num_observations:6d} "
                    f"{_optional(q.num_multiview_observations, 'd'):>6} {q.coverage:8.2f}")
+        if name in given:
+            f_std, pp_std, proj_std = "given", "given", "given"
         rows.append(f"{name:<16} {k.model:<15} {f'{k.width}x{k.height}':>9} "
                     f"{mean_focal_px(k):9.1f} {f_std:>6} {cx:7.1f} {cy:7.1f} {pp_std:>6} "
                     f"{proj_std:>8} {fit}  {distortion_text(k)}")

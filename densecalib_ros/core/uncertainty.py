@@ -124,21 +124,22 @@ def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],
 
 
 def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: str,
-                            noise_px: float, pp_refined: Sequence[str] = ()
-                            ) -> dict[str, CameraUncertainty]:
+                            noise_px: float, pp_refined: Sequence[str] = (),
+                            given: Sequence[str] = ()) -> dict[str, CameraUncertainty]:
     """Per camera (image name) of `reconstruction` its CameraUncertainty. reference: the camera
     whose pose is held; noise_px: the standard deviation of one pixel coordinate of an
     observation (reprojection RMS / sqrt(2)); pp_refined:
-    the cameras whose principal point the calibration refined. Cameras whose covariance cannot
-    be estimated get None values."""
-    out = {}
+    the cameras whose principal point the calibration refined; given: the cameras whose
+    intrinsics were given and held (constant here too; their values are None). Cameras whose
+    covariance cannot be estimated get None values."""
+    out = {name: CameraUncertainty(None, None, None) for name in given}
     for refine_pp in (False, True):
         wanted = [im for im in reconstruction.images.values()
-                  if (im.name in pp_refined) == refine_pp]
+                  if (im.name in pp_refined) == refine_pp and im.name not in given]
         if not wanted:
             continue
         held = [im.name for im in reconstruction.images.values()
-                if refine_pp and im.name not in pp_refined]
+                if (refine_pp and im.name not in pp_refined) or im.name in given]
         cov, rec = _covariance(reconstruction, reference, refine_pp, held)
         for image in wanted:
             out[image.name] = (_camera_uncertainty(cov, rec, rec.images[image.image_id], noise_px,

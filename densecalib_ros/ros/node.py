@@ -56,6 +56,7 @@ from ..core.consistency import DEFAULT_TOLERANCE_PX
 from ..core.errors import CalibrationError, InputError
 from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
                            write_calibration_files)
+from ..core.known_intrinsics import read_known_intrinsics
 from ..core.masks import read_mask
 from ..core.matching import available_matchers
 from ..core.scale import with_known_baseline
@@ -112,6 +113,11 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                    "images of the cameras' size, black where matches are not used (an info "
                    "strip, the rig's own structure): empty, one for every camera, or one per "
                    "camera ('' = none)", False, {}),
+    "intrinsics_files": (Parameter.Type.STRING_ARRAY,
+                         "intrinsics to keep (cameras calibrated before: camera_info YAML or a "
+                         "densecalib calibration): empty, one file or folder naming its cameras, "
+                         "or one per camera ('' = calibrate that camera's intrinsics); only the "
+                         "extrinsics of those cameras are calibrated", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
@@ -170,6 +176,7 @@ class Settings:
     preset: str
     camera_lens: dict[str, str]
     camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.masks)
+    known_intrinsics: dict  # camera name -> CameraIntrinsics kept (core.known_intrinsics)
     pipeline: str
     matcher: str
     share_intrinsics: bool
@@ -195,7 +202,8 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
                        consensus_runs=s.consensus_runs, initial_focal_px=s.initial_focal_px,
-                       camera_lens=s.camera_lens, camera_masks=s.camera_masks)
+                       camera_lens=s.camera_lens, camera_masks=s.camera_masks,
+                       known_intrinsics=s.known_intrinsics)
 
 
 def _topic_namespace(topic: str) -> str:
@@ -252,6 +260,17 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     mask_files = _per_camera(mask_files, n, "mask_files", lambda i: "")
     camera_masks = {name: read_mask(os.path.expanduser(path))
                     for name, path in zip(names, mask_files) if path}
+    intrinsics_files = [os.path.expanduser(p) for p in v["intrinsics_files"]]
+    if len(intrinsics_files) == 1:
+        intrinsics_files = [p for p in intrinsics_files if p.strip()]
+    elif intrinsics_files:
+        intrinsics_files = [f"{name}={path}" for name, path in zip(
+            names, _per_camera(intrinsics_files, n, "intrinsics_files", None)) if path]
+    known_intrinsics = read_known_intrinsics(intrinsics_files)
+    unknown = sorted(set(known_intrinsics) - set(names))
+    if unknown:
+        raise InputError(f"intrinsics_files name camera(s) {', '.join(unknown)}, which are not "
+                         f"among {names}: give one file per camera in camera_names' order.")
     if v["pipeline"] not in PIPELINES:
         raise InputError(f"pipeline must be one of {', '.join(PIPELINES)}, got {v['pipeline']!r}.")
     if v["matcher"] not in available_matchers():
@@ -304,7 +323,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         min_frame_sets=int(v["min_frame_sets"]), max_frame_sets=int(v["max_frame_sets"]),
         check_tolerance_px=float(v["check_tolerance_px"]),
         preset=v["preset"],
-        camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks, pipeline=v["pipeline"],
+        camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks,
+        known_intrinsics=known_intrinsics, pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
         initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),

@@ -1,0 +1,160 @@
+"""Intrinsics the user already knows, read from the files other tools write, for an
+extrinsics-only calibration (PipelineConfig.known_intrinsics).
+
+A field rig is often made of cameras calibrated one by one in the lab (ROS camera_calibration's
+camera_info YAML) and then mounted where no target can be shown to all of them; or of cameras
+whose lenses were not touched since the last calibration while the mounts were bumped. Their
+intrinsics are then better known than a self-calibration from the scene can give them, and
+holding them leaves only the poses to estimate.
+
+Sources (one spec each: PATH, or NAME=PATH to say which camera a single-camera file is for):
+- a ROS camera_info YAML (camera_calibration, camera_info_manager, our own `<camera>.yaml`):
+  distortion_model plumb_bob (k1 k2 p1 p2 [k3]) -> OPENCV or FULL_OPENCV, rational_polynomial
+  -> FULL_OPENCV, equidistant (also "fisheye", "kannala_brandt") -> OPENCV_FISHEYE, no
+  distortion -> PINHOLE; the camera is the file's camera_name (its last path component) or,
+  failing that, the file stem;
+- a densecalib calibration (calibration.json, its folder, or a node output_dir): every camera in
+  it; a folder of camera_info YAMLs: every YAML in it.
+
+Pixel conventions: camera_info has the top-left pixel centre at (0, 0), COLMAP at (0.5, 0.5):
+cx_colmap = cx_ros + 0.5 (as core/export.py writes them).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+import yaml
+
+from .config import lens_of_model
+from .errors import InputError
+from .export import calibration_folder, read_calibration
+from .plausibility import intrinsics_problem
+from .types import CameraIntrinsics
+
+# camera_info distortion_model names (sensor_msgs/distortion_models and what drivers write)
+_FISHEYE_NAMES = ("equidistant", "fisheye", "kannala_brandt", "kannala_brandt4", "kb4")
+_PLUMB_BOB_NAMES = ("plumb_bob", "radtan", "")
+_RATIONAL_NAMES = ("rational_polynomial",)
+
+
+def intrinsics_from_camera_info(info: dict, source: str = "camera_info") -> CameraIntrinsics:
+    """CameraIntrinsics (COLMAP model and pixel convention) of a camera_info dict (the YAML's
+    content). InputError with the file named when a field is missing or the model unknown."""
+    try:
+        width, height = int(info["image_width"]), int(info["image_height"])
+        K = np.asarray(info["camera_matrix"]["data"], dtype=np.float64).reshape(3, 3)
+        model = str(info.get("distortion_model") or "").strip().lower()
+        raw = info.get("distortion_coefficients") or {}
+        D = [float(v) for v in (raw.get("data", []) if isinstance(raw, dict) else raw)]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{source} is not a camera_info YAML ({exc!r}): it needs image_width, "
+                         "image_height, camera_matrix.data (9 values), distortion_model and "
+                         "distortion_coefficients.data.") from exc
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5
+    if not (width > 0 and height > 0 and fx > 0 and fy > 0):
+        raise InputError(f"{source}: image size {width}x{height} and focal lengths {fx}, {fy} "
+                         "must be positive (is it an uncalibrated camera_info?).")
+    if model in _FISHEYE_NAMES:
+        if len(D) > 4 or (len(D) == 5 and D[4] != 0.0):
+            raise InputError(f"{source}: an equidistant model has 4 coefficients (k1..k4), "
+                             f"got {len(D)}.")
+        k = D + [0.0] * (4 - len(D))
+        return CameraIntrinsics("OPENCV_FISHEYE", width, height, np.array([fx, fy, cx, cy, *k]))
+    if model in _PLUMB_BOB_NAMES + _RATIONAL_NAMES:
+        if len(D) > 8 or (model in _PLUMB_BOB_NAMES and len(D) > 5):
+            raise InputError(f"{source}: {model or 'plumb_bob'} takes at most "
+                             f"{8 if model in _RATIONAL_NAMES else 5} coefficients, got {len(D)}.")
+        if not any(D):
+            return CameraIntrinsics("PINHOLE", width, height, np.array([fx, fy, cx, cy]))
+        k = D + [0.0] * (8 - len(D))  # k1 k2 p1 p2 k3 k4 k5 k6
+        if not any(k[4:]):
+            return CameraIntrinsics("OPENCV", width, height, np.array([fx, fy, cx, cy, *k[:4]]))
+        return CameraIntrinsics("FULL_OPENCV", width, height, np.array([fx, fy, cx, cy, *k]))
+    raise InputError(f"{source}: distortion_model {model!r} is not supported: use plumb_bob, "
+                     "rational_polynomial or equidistant.")
+
+
+def _camera_info_file(path: Path, name: Optional[str]) -> tuple[str, CameraIntrinsics]:
+    try:
+        info = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"Cannot read camera_info YAML {path}: {exc}") from exc
+    if not isinstance(info, dict):
+        raise InputError(f"{path} is not a camera_info YAML (no mapping at the top).")
+    stated = str(info.get("camera_name") or "").strip().strip("/").split("/")[-1]
+    return name or stated or path.stem, intrinsics_from_camera_info(info, str(path))
+
+
+def read_known_intrinsics(specs: Sequence[str]) -> dict[str, CameraIntrinsics]:
+    """Camera name -> CameraIntrinsics from specs (module docstring: PATH or NAME=PATH).
+    InputError on unreadable files, a camera named twice, or NAME= on a file of several cameras."""
+    out: dict[str, CameraIntrinsics] = {}
+    origin: dict[str, str] = {}
+    for spec in specs:
+        name, sep, path_text = str(spec).partition("=")
+        if not sep or "/" in name or not name:
+            name, path_text = None, str(spec)
+        path = Path(path_text).expanduser()
+        if not path.exists():
+            raise InputError(f"Intrinsics file {path} does not exist (give a camera_info YAML, a "
+                             "calibration.json or its folder, optionally as NAME=PATH).")
+        found: dict[str, CameraIntrinsics] = {}
+        if path.is_dir() and (calibration_folder(path) / "calibration.json").exists():
+            found = _from_calibration(path)
+        elif path.suffix == ".json":
+            found = _from_calibration(path)
+        elif path.is_dir():
+            for f in sorted(list(path.glob("*.yaml")) + list(path.glob("*.yml"))):
+                n, cam = _camera_info_file(f, None)
+                found[n] = cam
+            if not found:
+                raise InputError(f"{path} holds no calibration.json and no camera_info YAML.")
+        else:
+            n, cam = _camera_info_file(path, name)
+            found = {n: cam}
+        if name is not None and len(found) > 1:
+            raise InputError(f"{spec}: NAME= applies to a single-camera file, but {path} holds "
+                             f"{len(found)} cameras ({', '.join(found)}).")
+        for n, cam in found.items():
+            if n in out:
+                raise InputError(f"Intrinsics of camera {n!r} given twice ({origin[n]} and "
+                                 f"{path}): give each camera once.")
+            out[n], origin[n] = cam, str(path)
+    return out
+
+
+def _from_calibration(path: Path) -> dict[str, CameraIntrinsics]:
+    rig = read_calibration(path)
+    return {n: cam.intrinsics for n, cam in rig.cameras.items()}
+
+
+def check_known_intrinsics(known: dict, camera_names: Sequence[str],
+                           image_sizes: Sequence[tuple[int, int]]) -> None:
+    """InputError when given intrinsics name an unknown camera, were calibrated at another image
+    size than the camera's images, or are physically implausible (plausibility.py)."""
+    unknown = sorted(set(known) - set(camera_names))
+    if unknown:
+        raise InputError(f"Intrinsics given for unknown camera(s) {', '.join(unknown)}: the "
+                         f"cameras are {', '.join(camera_names)} (name a single-camera file "
+                         "with NAME=PATH).")
+    for name, (w, h) in zip(camera_names, image_sizes):
+        cam = known.get(name)
+        if cam is None:
+            continue
+        if (int(cam.width), int(cam.height)) != (int(w), int(h)):
+            raise InputError(
+                f"The intrinsics given for {name} are for {cam.width}x{cam.height} images, its "
+                f"images are {w}x{h}: give intrinsics calibrated at this resolution (a resized or "
+                "cropped stream needs its own).")
+        problem = intrinsics_problem(cam)
+        if problem is not None and lens_of_model(cam.model) == "pinhole":
+            # A fisheye's polynomial is only judged over what it images (not known here).
+            raise InputError(f"The intrinsics given for {name} are not usable: {problem}.")
+
+
+def describe(known: dict) -> dict:
+    """The given intrinsics as recorded in a calibration's quality: name -> model."""
+    return {n: cam.model for n, cam in sorted(known.items())}
+
