@@ -250,3 +250,21 @@ def test_bag_camera_info_topics_give_the_intrinsics(tmp_path, caplog):
         rc = main(["calibrate", "--images", str(tmp_path), "--out", str(tmp_path / "o"),
                    "--bag-camera-info"])
     assert rc == 2 and "use it with --bag" in caplog.text
+
+
+def test_recalibration_of_a_bumped_rig_can_keep_the_previous_intrinsics(rig):
+    """Mounts bumped, lenses untouched: --previous OLD --intrinsics OLD recalibrates the poses
+    from the previous calibration and keeps its intrinsics exactly."""
+    from densecalib_ros.core.bench import perturbed_calibration
+    from densecalib_ros.core.recalibration import recalibrate
+
+    gt = rig.ground_truth()
+    previous = perturbed_calibration(gt, 2.0, 0.05)
+    known = {n: c.intrinsics for n, c in previous.cameras.items()}
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, known_intrinsics=known)
+    result = recalibrate([rig.images[0]], rig.names, config, previous)
+    assert result.rig.quality["init"] == "previous calibration"
+    for n in rig.names:
+        np.testing.assert_array_equal(result.rig.cameras[n].intrinsics.params, known[n].params)
+    metrics = evaluate_calibration(result.rig, gt)
+    assert metrics["num_registered"] == 4 and metrics["auc3"] >= 80.0

@@ -350,7 +350,7 @@ def _fmt(value, spec: str, missing: str = "-") -> str:
     return format(value, spec)
 
 
-_HEADER = (f"{'method':<24}{'reg':>7}{'AUC@3':>8}{'AUC@30':>8}{'focal%':>8}{'proj px':>9}"
+_HEADER = (f"{'method':<28}{'reg':>7}{'AUC@3':>8}{'AUC@30':>8}{'focal%':>8}{'proj px':>9}"
            f"{'time s':>8}{'peak MiB':>10}  status")
 
 
@@ -362,7 +362,7 @@ def format_scene_table(entry: dict) -> str:
         m = r["metrics"]
         focal = m["median_focal_err"] * 100 if np.isfinite(m["median_focal_err"]) else None
         status = r["status"] if r["status"] == "ok" else f"{r['status']}: {r['message'][:60]}"
-        lines.append(f"{r['method']:<24}{m['num_registered']:>3}/{m['num_cameras']:<3}"
+        lines.append(f"{r['method']:<28}{m['num_registered']:>3}/{m['num_cameras']:<3}"
                      f"{m['auc3']:>8.1f}{m['auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(m['median_proj_err_px'], '9.2f'):>9}{_fmt(r['runtime_s'], '8.1f'):>8}"
                      f"{_fmt(r['peak_rss_mib'], '10.0f'):>10}  {status}")
@@ -418,18 +418,18 @@ def format_error_sigma_ratios(check: dict) -> str:
     for method, kinds in check.items():
         parts = [f"{kind} median {q['median']:.2f}, 90% {q['p90']:.2f}, max {q['max']:.2f} "
                  f"(n={q['n']})" for kind, q in kinds.items()]
-        lines.append(f"{method:<24}" + "; ".join(parts))
+        lines.append(f"{method:<28}" + ("; ".join(parts) or "no estimated intrinsics"))
     return "\n".join(lines)
 
 
 def format_summary(summary: list[dict]) -> str:
     lines = ["== summary (mean AUC over scenes, failures = 0; med@3 = median AUC@3 over scenes; "
              "focal, proj: medians of per-scene medians)",
-             f"{'lens':<9}{'method':<24}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'med@3':>7}{'AUC@30':>8}"
+             f"{'lens':<9}{'method':<28}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'med@3':>7}{'AUC@30':>8}"
              f"{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}"]
     for s in summary:
         focal = s["median_focal_err"] * 100 if np.isfinite(s["median_focal_err"]) else None
-        lines.append(f"{s['lens']:<9}{s['method']:<24}{s['num_scenes']:>7}"
+        lines.append(f"{s['lens']:<9}{s['method']:<28}{s['num_scenes']:>7}"
                      f"{s['registered']:>5}/{s['cameras']:<4}{s['mean_auc3']:>8.1f}"
                      f"{s['median_auc3']:>7.1f}{s['mean_auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(s['median_proj_err_px'], '9.2f'):>9}"

@@ -151,7 +151,10 @@ def check_known_intrinsics(known: dict, camera_names: Sequence[str],
         problem = intrinsics_problem(cam)
         if problem is not None and lens_of_model(cam.model) == "pinhole":
             # A fisheye's polynomial is only judged over what it images (not known here).
-            raise InputError(f"The intrinsics given for {name} are not usable: {problem}.")
+            raise InputError(f"The intrinsics given for {name} are not usable: {problem}. If "
+                             "it is a fisheye lens, its file should say distortion_model: "
+                             "equidistant; else calibrate its intrinsics again (or leave them "
+                             "out to self-calibrate them).")
 
 
 def describe(known: dict) -> dict:
