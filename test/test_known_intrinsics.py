@@ -94,6 +94,10 @@ def test_lab_camera_info_files_folders_and_calibrations_are_read(tmp_path):
     assert sorted(read_known_intrinsics([str(tmp_path / "calib")])) == ["a", "b"]
     assert read_known_intrinsics([str(tmp_path / "calib" / "calibration.json")])["b"].model \
         == "RADIAL"
+    # A previous calibration of more cameras than the rig has now: the rig's cameras only.
+    assert list(read_known_intrinsics([str(tmp_path / "calib")], ["b", "c"])) == ["b"]
+    with pytest.raises(InputError, match="none of the cameras c, d: name each file's camera"):
+        read_known_intrinsics([str(tmp_path / "calib")], ["c", "d"])
 
 
 @pytest.mark.parametrize("text, specs, message", [

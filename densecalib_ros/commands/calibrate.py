@@ -159,8 +159,7 @@ def run(args: argparse.Namespace) -> int:
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
                      "initial_focal_px": parse_focal_px(args.focal_px),
-                     "camera_lens": parse_camera_lens(args.lens),
-                     "known_intrinsics": read_known_intrinsics(args.intrinsics or [])}
+                     "camera_lens": parse_camera_lens(args.lens)}
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
@@ -168,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--bag-camera-info reads the CameraInfo topics of a bag: use it "
                              "with --bag, or give camera_info YAML files with --intrinsics.")
         frame_sets, names, source, paths = read_input(args)
+        config.known_intrinsics = read_known_intrinsics(args.intrinsics or [], names)
         if args.bag_camera_info:
             config.known_intrinsics = _bag_intrinsics(args, names, config.known_intrinsics)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching

@@ -87,9 +87,13 @@ def _camera_info_file(path: Path, name: Optional[str]) -> tuple[str, CameraIntri
     return name or stated or path.stem, intrinsics_from_camera_info(info, str(path))
 
 
-def read_known_intrinsics(specs: Sequence[str]) -> dict[str, CameraIntrinsics]:
+def read_known_intrinsics(specs: Sequence[str], camera_names: Optional[Sequence[str]] = None
+                          ) -> dict[str, CameraIntrinsics]:
     """Camera name -> CameraIntrinsics from specs (module docstring: PATH or NAME=PATH).
-    InputError on unreadable files, a camera named twice, or NAME= on a file of several cameras."""
+    camera_names: the rig's cameras, when known: a source of several cameras (a calibration or a
+    folder) then gives those of the rig only (a previous calibration may have had more
+    cameras), and InputError when it names none of them. InputError on unreadable files, a
+    camera named twice, or NAME= on a file of several cameras."""
     out: dict[str, CameraIntrinsics] = {}
     origin: dict[str, str] = {}
     for spec in specs:
@@ -117,6 +121,13 @@ def read_known_intrinsics(specs: Sequence[str]) -> dict[str, CameraIntrinsics]:
         if name is not None and len(found) > 1:
             raise InputError(f"{spec}: NAME= applies to a single-camera file, but {path} holds "
                              f"{len(found)} cameras ({', '.join(found)}).")
+        if camera_names is not None and len(found) > 1:
+            ours = {n: cam for n, cam in found.items() if n in camera_names}
+            if not ours:
+                raise InputError(f"{path} has intrinsics of {', '.join(sorted(found))}, none of "
+                                 f"the cameras {', '.join(camera_names)}: name each file's "
+                                 "camera with NAME=PATH.")
+            found = ours
         for n, cam in found.items():
             if n in out:
                 raise InputError(f"Intrinsics of camera {n!r} given twice ({origin[n]} and "

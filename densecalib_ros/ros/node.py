@@ -266,7 +266,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     elif intrinsics_files:
         intrinsics_files = [f"{name}={path}" for name, path in zip(
             names, _per_camera(intrinsics_files, n, "intrinsics_files", None)) if path]
-    known_intrinsics = read_known_intrinsics(intrinsics_files)
+    known_intrinsics = read_known_intrinsics(intrinsics_files, names)
     unknown = sorted(set(known_intrinsics) - set(names))
     if unknown:
         raise InputError(f"intrinsics_files name camera(s) {', '.join(unknown)}, which are not "
