@@ -272,3 +272,24 @@ def test_recalibration_of_a_bumped_rig_can_keep_the_previous_intrinsics(rig):
         np.testing.assert_array_equal(result.rig.cameras[n].intrinsics.params, known[n].params)
     metrics = evaluate_calibration(result.rig, gt)
     assert metrics["num_registered"] == 4 and metrics["auc3"] >= 80.0
+
+
+def test_keep_intrinsics_recalibrates_the_extrinsics_from_the_previous_calibration(tmp_path,
+                                                                                    caplog):
+    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
+                               seed=3))
+    write_rig(rig, tmp_path / "rig")
+    base = ["calibrate", "--images", str(tmp_path / "rig"), "--threads", "1",
+            "--consensus-runs", "1"]
+    assert main(base + ["--out", str(tmp_path / "old")]) == 0
+    assert main(base + ["--out", str(tmp_path / "new"), "--previous", str(tmp_path / "old"),
+                        "--keep-intrinsics"]) == 0
+    old, new = read_calibration(tmp_path / "old"), read_calibration(tmp_path / "new")
+    for n in rig.names:
+        np.testing.assert_array_equal(new.cameras[n].intrinsics.params,
+                                      old.cameras[n].intrinsics.params)
+    assert new.quality["init"] == "previous calibration"
+    assert evaluate_calibration(new, rig.ground_truth())["auc3"] >= 80.0
+    with caplog.at_level(logging.ERROR):
+        rc = main(base + ["--out", str(tmp_path / "o"), "--keep-intrinsics"])
+    assert rc == 2 and "give --previous OLD_OUT" in caplog.text

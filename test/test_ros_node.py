@@ -429,6 +429,26 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
         assert np.allclose(ta[:3, 3] * factor, tb[:3, 3], atol=1e-6)
         # metric translations close to the truth (the SfM scale is fixed by one pair only)
         assert np.linalg.norm(tb[:3, 3] - gt.cameras[name].cam_from_rig[:3, 3]) < 0.05 * baseline_m
+    # keep_intrinsics: a node restarted on the sqlite3 run's output recalibrates from the mcap
+    # bag with that calibration's intrinsics kept exactly.
+    node = ros.densecalib(tmp_path / "out_sqlite3", name="keep_node",
+                          replay_bag=str(tmp_path / "bag_mcap"), calibrate_after_replay=True,
+                          transports=["auto"], keep_intrinsics=True)
+    try:
+        assert wait_until(lambda: node.calibration is not a and node.calibration is not None
+                          and "init" in node.calibration.quality or node._last_failure,
+                          CALIBRATION_TIMEOUT_S, 0.1)
+        assert node._last_failure is None, node._last_failure
+        kept = node.calibration
+        assert sorted(kept.quality["given_intrinsics"]) == sorted(CAMERAS)
+        for name in CAMERAS:
+            np.testing.assert_array_equal(kept.cameras[name].intrinsics.params,
+                                          a.cameras[name].intrinsics.params)
+        errors = relative_pose_errors({n: c.cam_from_rig for n, c in kept.cameras.items()},
+                                      {n: c.cam_from_rig for n, c in gt.cameras.items()})
+        assert max(e.rot_err_deg for e in errors) < 1.0
+    finally:
+        ros.remove(node)
     # ... and to the same result as the ROS-free path: core.bag + calibrate_rig on the same bag.
     frame_sets, names = read_frame_sets(tmp_path / "bag_mcap", topics, slop_s=0.01)
     offline = calibrate_rig(frame_sets, list(CAMERAS),

@@ -67,6 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a previous calibration of these cameras (folder, a node output_dir, "
                              "or calibration.json): start from it, report what changed, and "
                              "refuse a worse result")
+    parser.add_argument("--keep-intrinsics", action="store_true",
+                        help="with --previous: keep its intrinsics and calibrate the extrinsics "
+                             "only (mounts bumped, lenses untouched; not after a refocus or zoom)")
     parser.add_argument("--known-baseline", nargs=3, default=None,
                         metavar=("CAM_A", "CAM_B", "METRES"),
                         help="metric scale: the distance between the optical centres of two "
@@ -163,11 +166,22 @@ def run(args: argparse.Namespace) -> int:
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
+        if args.keep_intrinsics and not args.previous:
+            raise InputError("--keep-intrinsics keeps the intrinsics of the --previous "
+                             "calibration: give --previous OLD_OUT, or the files with "
+                             "--intrinsics.")
         if args.bag_camera_info and not args.bag:
             raise InputError("--bag-camera-info reads the CameraInfo topics of a bag: use it "
                              "with --bag, or give camera_info YAML files with --intrinsics.")
         frame_sets, names, source, paths = read_input(args)
         config.known_intrinsics = read_known_intrinsics(args.intrinsics or [], names)
+        previous = None
+        if args.previous:
+            from ..core.export import read_calibration
+            previous = read_calibration(args.previous)
+        if args.keep_intrinsics:  # --intrinsics, where given, win over the previous ones
+            config.known_intrinsics = {**{n: c.intrinsics for n, c in previous.cameras.items()
+                                          if n in names}, **config.known_intrinsics}
         if args.bag_camera_info:
             config.known_intrinsics = _bag_intrinsics(args, names, config.known_intrinsics)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
@@ -182,10 +196,8 @@ def run(args: argparse.Namespace) -> int:
                  "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),
                  config.pipeline, config.matcher)
         baseline = parse_known_baseline(args.known_baseline, names)
-        if args.previous:
-            from ..core.export import read_calibration
+        if previous is not None:
             from ..core.recalibration import recalibrate
-            previous = read_calibration(args.previous)
             baseline = baseline or _previous_baseline(previous)
             result = recalibrate(frame_sets, names, config, previous)
         else:

@@ -118,6 +118,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                          "densecalib calibration): empty, one file or folder naming its cameras, "
                          "or one per camera ('' = calibrate that camera's intrinsics); only the "
                          "extrinsics of those cameras are calibrated", False, {}),
+    "keep_intrinsics": (False, "recalibrations keep the last good calibration's intrinsics and "
+                        "calibrate the extrinsics only (mounts bumped, lenses untouched; off "
+                        "after a refocus or zoom)", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
@@ -177,6 +180,7 @@ class Settings:
     camera_lens: dict[str, str]
     camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.masks)
     known_intrinsics: dict  # camera name -> CameraIntrinsics kept (core.known_intrinsics)
+    keep_intrinsics: bool
     pipeline: str
     matcher: str
     share_intrinsics: bool
@@ -324,7 +328,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         check_tolerance_px=float(v["check_tolerance_px"]),
         preset=v["preset"],
         camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks,
-        known_intrinsics=known_intrinsics, pipeline=v["pipeline"],
+        known_intrinsics=known_intrinsics, keep_intrinsics=bool(v["keep_intrinsics"]),
+        pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
         initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),
@@ -602,6 +607,11 @@ class DenseCalibNode(Node):
                          f"{s.matcher})")
         images = decode_frame_sets(sets)
         config = pipeline_config(s)
+        if s.keep_intrinsics and self.calibration is not None:
+            # intrinsics_files, where given, win over the last calibration's
+            last = {n: c.intrinsics for n, c in self.calibration.cameras.items()
+                    if n in s.camera_names}
+            config.known_intrinsics = {**last, **config.known_intrinsics}
         progress = lambda msg: self._set_status(f"calibrating: {msg}")  # noqa: E731
         if self.calibration is not None:  # start from it; a worse result is refused
             result = recalibrate(images, s.camera_names, config, self.calibration,
