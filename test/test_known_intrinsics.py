@@ -69,6 +69,8 @@ def test_camera_info_we_write_reads_back_to_the_same_projection(model, params):
 
 
 def test_lab_camera_info_files_folders_and_calibrations_are_read(tmp_path):
+    import yaml
+
     (tmp_path / "left.yaml").write_text(LAB_YAML)
     known = read_known_intrinsics([str(tmp_path / "left.yaml")])
     cam = known["left"]  # the last component of camera_name
@@ -82,6 +84,14 @@ def test_lab_camera_info_files_folders_and_calibrations_are_read(tmp_path):
         "narrow_stereo/left", ""))
     folder = read_known_intrinsics([str(fisheye.parent)])
     assert folder["right"].model == "OPENCV_FISHEYE"  # no camera_name: the file stem
+    k3 = tmp_path / "k3.yaml"  # plumb_bob with k3: FULL_OPENCV, written back as plumb_bob
+    k3.write_text(LAB_YAML.replace("cols: 4", "cols: 5").replace("0.001573]", "0.001573, 0.02]"))
+    with_k3 = read_known_intrinsics([str(k3)])["left"]
+    assert with_k3.model == "FULL_OPENCV" and with_k3.params[8] == 0.02
+    written = yaml.safe_load(camera_info_yaml("left", with_k3))
+    assert written["distortion_model"] == "plumb_bob"
+    assert written["distortion_coefficients"]["data"] == [-0.054041, 0.008165, -0.00724,
+                                                          0.001573, 0.02]
     none = tmp_path / "none.yaml"
     none.write_text(LAB_YAML.replace("[-0.054041, 0.008165, -0.007240, 0.001573]", "[]"))
     assert read_known_intrinsics([str(none)])["left"].model == "PINHOLE"

@@ -43,6 +43,8 @@ def ros_camera_info(name: str, intrinsics: CameraIntrinsics) -> dict:
                          f"{', '.join(sorted(_PINHOLE_LIKE))}.")
     ros_model, split = _PINHOLE_LIKE[model]
     fx, fy, cx, cy, dist = split([float(v) for v in intrinsics.params])
+    if ros_model == "rational_polynomial" and not any(dist[5:]):
+        ros_model, dist = "plumb_bob", dist[:5]  # k1 k2 p1 p2 k3 (a lab plumb_bob read back)
     cx, cy = cx - 0.5, cy - 0.5  # COLMAP -> ROS/OpenCV pixel convention
     k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
     return {
