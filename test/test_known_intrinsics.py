@@ -167,6 +167,32 @@ def test_given_intrinsics_are_held_exactly_and_the_rest_is_calibrated(rig, pipel
         assert metrics["median_focal_err"] <= 0.02
         free = [n for n in rig.names if n not in given]
         assert all(result.rig.cameras[n].quality.focal_std_px > 0 for n in free)
+        # the right intrinsics fit the scene: judged, and no warning
+        assert set(result.rig.quality["given_intrinsics_fit"]) == set(given)
+        assert not result.rig.quality.get("warnings")
+
+
+def test_given_intrinsics_the_scene_contradicts_are_named(rig):
+    """Two cameras' files 10 % off in focal: still held (the user's choice), but the calibration
+    warns, naming them, since freed they fit the scene clearly better."""
+    gt = rig.ground_truth()
+    known = {}
+    for n in rig.names[:2]:
+        cam = gt.cameras[n].intrinsics
+        params = cam.params.copy()
+        params[0] *= 0.9
+        known[n] = CameraIntrinsics(cam.model, cam.width, cam.height, params)
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
+                         known_intrinsics=known)
+    result = run_calibration([rig.images[0]], rig.names, config)
+    np.testing.assert_array_equal(result.rig.cameras["cam0"].intrinsics.params,
+                                  known["cam0"].params)
+    fit = result.rig.quality["given_intrinsics_fit"]
+    assert all(fit[n]["median_px"] > 1.3 * fit[n]["median_px_refined"] for n in known)
+    assert all(fit[n]["focal_change_pct"] > 5.0 for n in known)
+    [warning] = result.rig.quality["warnings"]
+    assert warning.startswith("The given intrinsics do not fit the scene") and \
+        "cam0 from" in warning and "cam1 from" in warning
 
 
 def test_a_given_fisheye_camera_makes_a_rig_mixing_lenses():

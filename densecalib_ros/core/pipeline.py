@@ -22,7 +22,8 @@ from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughCamerasError,
                      NotEnoughOverlapError)
 from .focal import estimate_initial_focals
-from .known_intrinsics import check_known_intrinsics, describe as describe_known
+from .known_intrinsics import (check_known_intrinsics, describe as describe_known,
+                               given_intrinsics_fit, given_intrinsics_warnings)
 from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .placement import repair_placements
 from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
@@ -215,6 +216,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         state = refine_on_tracks(state, match_tracks, camera_names, config.sfm, seed)
         say_progress(progress, f"refined on all {match_tracks.num_tracks} keypoint-match tracks: "
                                f"{int(state.point_mask().sum())} points")
+    fit = given_intrinsics_fit(state, camera_names, config.sfm.num_threads)
     runtime = time.perf_counter() - start
     rig = rig_from_state(state, camera_names, sfm.failed, dict(
         pipeline=config.pipeline, preset=config.preset, sfm_runtime_s=runtime,
@@ -223,6 +225,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         moved_cameras=moved))
     if config.pipeline == "global":
         rig.quality.update(sfm.quality)  # init, gauge camera, residuals per BA stage
+    if fit:
+        rig.quality["given_intrinsics_fit"] = fit  # judged in calibrate_from_matches
     reconstruction, _ = build_reconstruction(state, camera_names)
     say_progress(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
                    f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
@@ -405,6 +409,12 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     add_uncertainty(result, camera_names, config)
     if config.known_intrinsics:
         result.rig.quality["given_intrinsics"] = describe_known(config.known_intrinsics)
+        for warning in given_intrinsics_warnings(result.rig.quality.get("given_intrinsics_fit",
+                                                                        {})):
+            log.warning("%s", warning)
+            if progress is not None:
+                progress(warning)
+            result.rig.quality.setdefault("warnings", []).append(warning)
     return result
 
 
