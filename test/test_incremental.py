@@ -305,3 +305,26 @@ def test_truncated_cost_per_camera_truncation():
     assert truncated_cost(state, 20.0) == pytest.approx(truncated_cost(state, np.full(4, 20.0)))
     assert truncated_cost(state, 20.0) < truncated_cost(state, trunc)  # outliers count more at 100
     assert cost_truncation_px(make_config("regular").sfm, 4) == 20.0  # one lens: one value
+
+
+def test_first_pair_starts_are_the_pairs_sharing_most_tracks():
+    """With every camera's intrinsics given the multi-start runs from first pairs instead of
+    focals: those sharing at least MIN_PAIR_CORRESPONDENCES tracks, most first, at most
+    MAX_FIRST_PAIR_STARTS."""
+    from densecalib_ros.core.incremental import (MAX_FIRST_PAIR_STARTS,
+                                                 MIN_PAIR_CORRESPONDENCES, first_pair_starts)
+
+    counts = {(0, 1): 40, (0, 2): MIN_PAIR_CORRESPONDENCES, (1, 2): 60,
+              (2, 3): MIN_PAIR_CORRESPONDENCES - 1}
+    rows = []
+    for (i, j), n in counts.items():
+        for _ in range(n):
+            xy = np.full((4, 2), np.nan)
+            xy[[i, j]] = 1.0
+            rows.append(xy)
+    T = len(rows)
+    tracks = Tracks(np.array(rows), np.full(T, 2, np.int32), np.zeros(T), np.zeros(T, np.int32))
+    assert first_pair_starts(tracks) == [(1, 2), (0, 1), (0, 2)]
+    many = Tracks(np.zeros((20, 10, 2)), np.full(20, 2, np.int32), np.zeros(20),
+                  np.zeros(20, np.int32))  # every camera sees every track
+    assert len(first_pair_starts(many)) == MAX_FIRST_PAIR_STARTS

@@ -155,7 +155,10 @@ def test_given_intrinsics_are_held_exactly_and_the_rest_is_calibrated(rig, pipel
         known = {n: gt.cameras[n].intrinsics for n in given}
         config = make_config("regular", pipeline, matcher="sift", sfm__num_threads=1,
                              consensus_runs=1, known_intrinsics=known)
-        result = run_calibration([rig.images[0]], rig.names, config)
+        messages = []
+        result = run_calibration([rig.images[0]], rig.names, config, progress=messages.append)
+        # every camera given: the multi-start explores first pairs instead of focals
+        assert any("given, first pair cam" in m for m in messages) == (len(given) == 4)
         for n in given:
             cam = result.rig.cameras[n]
             assert cam.intrinsics.model == known[n].model

@@ -62,6 +62,13 @@ EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
 # than the ~1.4x a start may be off and still converge.
 PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6)
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
+# With every camera's intrinsics given there is no focal to explore; the run's other lottery is
+# its first pair (eq. 3 picks among the first three views, on few points). So the multi-start runs
+# from up to this many first pairs instead (the most shared tracks first; about the focal
+# multi-start's number of runs). Measured on a generated 4-camera rig 35 deg apart with the true
+# intrinsics: eq. 3's pair ended 5.5 deg wrong (cost 1.51 px), the pair with the 5th most tracks
+# right (0.16 deg, cost 0.93 px; the lowest).
+MAX_FIRST_PAIR_STARTS = 8
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
 # Truncation (and triangulation gate) of the cost on raw keypoint matches (held_out_cost): COLMAP's
 # two-view inlier threshold, the scale of a right match's error on a right rig. Raw matches are not
@@ -338,13 +345,19 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     `intrinsics` hold known focals: pipeline.calibrate_from_tracks).
     """
     say = progress or (lambda msg: None)
-    starts = {**focal_starts(intrinsics, config.fixed_intrinsics_cameras), **(extra_starts or {})}
+    starts = {name: (start, None) for name, start in
+              {**focal_starts(intrinsics, config.fixed_intrinsics_cameras),
+               **(extra_starts or {})}.items()}
     sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
+    if len(config.fixed_intrinsics_cameras) == tracks.num_cameras and \
+            config.brute_force_first_pair:
+        starts.update({f"given, first pair {camera_names[i]}/{camera_names[j]}":
+                       (list(intrinsics), (i, j)) for i, j in first_pair_starts(sub)})
     costs, trials = {}, {}
-    for name, start in starts.items():
+    for name, (start, pair) in starts.items():
         messages: list[str] = []
         try:
-            trial = _incremental(sub, start, camera_names, config, seed, messages.append)
+            trial = _incremental(sub, start, camera_names, config, seed, messages.append, pair)
         except NotEnoughOverlapError:
             continue
         trials[name] = (trial, messages)
@@ -360,7 +373,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         costs[name] = (-len(trial.state.registered()), cost)
         log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
                   -costs[name][0], costs[name][1])
-    best = min(costs, key=costs.get) if costs else "x1.00"
+    best = min(costs, key=costs.get) if costs else next(iter(starts))
     if costs:
         judged_on = (f"{validation_tracks.num_tracks} keypoint-match tracks"
                      if validation_tracks is not None and validation_tracks.num_tracks
@@ -373,11 +386,23 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         for msg in messages:
             say(msg)
         if sub is not tracks:
-            result = _on_all_tracks(tracks, result, starts[best], camera_names, config, seed, say)
+            result = _on_all_tracks(tracks, result, *starts[best], camera_names, config, seed,
+                                    say)
     else:
-        result = _incremental(tracks, starts[best], camera_names, config, seed, say)
+        start, pair = starts[best]
+        result = _incremental(tracks, start, camera_names, config, seed, say, pair)
     drop_implausible_cameras(result.state, result.failed, camera_names, say)
     return result
+
+
+def first_pair_starts(tracks: Tracks) -> list[tuple[int, int]]:
+    """The camera pairs (i < j) sharing at least MIN_PAIR_CORRESPONDENCES tracks, the most
+    shared first, at most MAX_FIRST_PAIR_STARTS."""
+    obs = tracks.observed().astype(np.int64)
+    shared = obs.T @ obs
+    pairs = [(i, j) for i, j in itertools.combinations(range(tracks.num_cameras), 2)
+             if shared[i, j] >= MIN_PAIR_CORRESPONDENCES]
+    return sorted(pairs, key=lambda p: -shared[p])[:MAX_FIRST_PAIR_STARTS]
 
 
 def focal_starts(intrinsics: Sequence[CameraIntrinsics], fixed: Sequence[int] = ()
@@ -408,8 +433,9 @@ def focal_starts(intrinsics: Sequence[CameraIntrinsics], fixed: Sequence[int] = 
 
 
 def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraIntrinsics],
-                   camera_names: Sequence[str], config: SfMConfig, seed: int,
-                   say: Callable[[str], None]) -> IncrementalResult:
+                   first_pair: Optional[tuple[int, int]], camera_names: Sequence[str],
+                   config: SfMConfig, seed: int, say: Callable[[str], None]
+                   ) -> IncrementalResult:
     """The winning subsample trial carried to all tracks: its cameras finished on every track.
 
     Not a fresh incremental run from the trial's start: on 7000 tracks that run takes another,
@@ -423,7 +449,7 @@ def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraI
         f"{int(finished.state.point_mask().sum())} points")
     if not finished.failed:
         return finished
-    full = _incremental(tracks, start, camera_names, config, seed, say)
+    full = _incremental(tracks, start, camera_names, config, seed, say, first_pair)
     truncation = cost_truncation_px(config, tracks.num_cameras)
 
     def rank(r: IncrementalResult) -> tuple[int, float]:
@@ -498,7 +524,10 @@ def truncated_cost(state: SfMState, truncation_px) -> float:
 
 def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                  camera_names: Sequence[str], config: SfMConfig, seed: int,
-                 say: Callable[[str], None]) -> IncrementalResult:
+                 say: Callable[[str], None],
+                 first_pair: Optional[tuple[int, int]] = None) -> IncrementalResult:
+    """One incremental run; first_pair: start from this camera pair instead of choosing among the
+    first three views by eq. 3."""
     C = tracks.num_cameras
     state = SfMState.create(tracks, intrinsics, config.share_intrinsics,
                             config.fixed_intrinsics_cameras)
@@ -511,6 +540,8 @@ def _incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     head = order[:3]
     candidates = list(itertools.combinations(head, 2)) if config.brute_force_first_pair \
         else [tuple(head[:2])]
+    if first_pair is not None:
+        candidates = [first_pair]
     best = (np.inf, None, None)
     for i, j in candidates:
         cost, pose = _first_pair_candidate(state, i, j, b_err, seed)
