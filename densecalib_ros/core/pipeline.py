@@ -22,9 +22,9 @@ from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughCamerasError,
                      NotEnoughOverlapError)
 from .focal import estimate_initial_focals
+from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .known_intrinsics import (check_known_intrinsics, describe as describe_known,
                                given_intrinsics_fit, given_intrinsics_warnings)
-from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .placement import repair_placements
 from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
