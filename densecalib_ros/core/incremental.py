@@ -64,10 +64,11 @@ PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6)
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 # With every camera's intrinsics given there is no focal to explore; the run's other lottery is
 # its first pair (eq. 3 picks among the first three views, on few points). So the multi-start runs
-# from up to this many first pairs instead (the most shared tracks first; about the focal
-# multi-start's number of runs). Measured on a generated 4-camera rig 35 deg apart with the true
-# intrinsics: eq. 3's pair ended 5.5 deg wrong (cost 1.51 px), the pair with the 5th most tracks
-# right (0.16 deg, cost 0.93 px; the lowest).
+# from first pairs instead (the most shared tracks first), as many as the focal multi-start of the
+# same lenses would have run (7 perspective, 3 fisheye: no slower than self-calibrating), at most
+# this many. Measured on a generated 4-camera rig 35 deg apart with the true intrinsics: eq. 3's
+# pair ended 5.5 deg wrong (cost 1.51 px), the pair with the 5th most tracks right (0.16 deg,
+# cost 0.93 px; the lowest).
 MAX_FIRST_PAIR_STARTS = 8
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
 # Truncation (and triangulation gate) of the cost on raw keypoint matches (held_out_cost): COLMAP's
@@ -351,8 +352,9 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
     if len(config.fixed_intrinsics_cameras) == tracks.num_cameras and \
             config.brute_force_first_pair:
+        budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
         starts.update({f"given, first pair {camera_names[i]}/{camera_names[j]}":
-                       (list(intrinsics), (i, j)) for i, j in first_pair_starts(sub)})
+                       (list(intrinsics), (i, j)) for i, j in first_pair_starts(sub, budget)})
     costs, trials = {}, {}
     for name, (start, pair) in starts.items():
         messages: list[str] = []
@@ -395,14 +397,15 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     return result
 
 
-def first_pair_starts(tracks: Tracks) -> list[tuple[int, int]]:
+def first_pair_starts(tracks: Tracks, max_pairs: int = MAX_FIRST_PAIR_STARTS
+                      ) -> list[tuple[int, int]]:
     """The camera pairs (i < j) sharing at least MIN_PAIR_CORRESPONDENCES tracks, the most
-    shared first, at most MAX_FIRST_PAIR_STARTS."""
+    shared first, at most min(max_pairs, MAX_FIRST_PAIR_STARTS)."""
     obs = tracks.observed().astype(np.int64)
     shared = obs.T @ obs
     pairs = [(i, j) for i, j in itertools.combinations(range(tracks.num_cameras), 2)
              if shared[i, j] >= MIN_PAIR_CORRESPONDENCES]
-    return sorted(pairs, key=lambda p: -shared[p])[:MAX_FIRST_PAIR_STARTS]
+    return sorted(pairs, key=lambda p: -shared[p])[:min(max_pairs, MAX_FIRST_PAIR_STARTS)]
 
 
 def focal_starts(intrinsics: Sequence[CameraIntrinsics], fixed: Sequence[int] = ()
