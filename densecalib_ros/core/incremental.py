@@ -343,7 +343,9 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     does and still fit the matches it never saw worse (a 3-camera rig: 0.33 vs 0.41 px on its
     samples, 2.17 vs 2.02 px on the other matches), so the left-out matches judge more fairly.
     extra_starts: more named starting intrinsics for the multi-start (the eq. 2 estimate where
-    `intrinsics` hold known focals: pipeline.calibrate_from_tracks).
+    `intrinsics` hold known focals: pipeline.calibrate_from_tracks). Where every camera's
+    intrinsics are given (config.fixed_intrinsics_cameras) there is one focal start, and the
+    multi-start runs from first pairs instead (first_pair_starts, MAX_FIRST_PAIR_STARTS).
     """
     say = progress or (lambda msg: None)
     starts = {name: (start, None) for name, start in
