@@ -121,13 +121,18 @@ def iter_image_messages(bag_path: str | os.PathLike, topics: list[str]
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 
 
-def camera_info_topic(image_topic: str) -> str:
-    """The CameraInfo topic beside an image topic (image_transport's convention):
-    /rig/cam0/image_raw[/compressed] -> /rig/cam0/camera_info."""
+def topic_namespace(image_topic: str) -> str:
+    """The namespace of an image topic, where its camera's CameraInfo and set_camera_info live
+    (image_transport's convention): /rig/cam0/image_raw[/compressed] -> /rig/cam0."""
     parts = image_topic.rstrip("/").split("/")
     if parts[-1] == "compressed":
         parts = parts[:-1]
-    return "/".join(parts[:-1] + ["camera_info"])
+    return "/".join(parts[:-1])
+
+
+def camera_info_topic(image_topic: str) -> str:
+    """The CameraInfo topic beside an image topic: /rig/cam0/image_raw -> /rig/cam0/camera_info."""
+    return f"{topic_namespace(image_topic)}/camera_info"
 
 
 def read_camera_infos(bag_path: str | os.PathLike, image_topics: list[str]) -> list[dict]:

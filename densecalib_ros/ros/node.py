@@ -49,7 +49,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from ..core.bag import camera_names_from_topics
+from ..core.bag import camera_info_topic, camera_names_from_topics, topic_namespace
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, PipelineConfig,
                            make_config)
 from ..core.consistency import DEFAULT_TOLERANCE_PX
@@ -210,13 +210,6 @@ def pipeline_config(s: Settings) -> PipelineConfig:
                        known_intrinsics=s.known_intrinsics)
 
 
-def _topic_namespace(topic: str) -> str:
-    parts = topic.rstrip("/").split("/")
-    if parts[-1] == "compressed":
-        parts = parts[:-1]
-    return "/".join(parts[:-1])
-
-
 def _per_camera(values: list[str], n: int, what: str, default) -> list[str]:
     if not values:
         return [default(i) for i in range(n)]
@@ -296,9 +289,9 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         raise InputError(f"rig_frame {rig_frame!r} and frame_names {frames} must all differ "
                          "(a transform from a frame to itself is invalid in tf).")
     info_topics = _per_camera(list(v["camera_info_topics"]), n, "camera_info_topics",
-                              lambda i: f"{_topic_namespace(topics[i])}/camera_info")
+                              lambda i: camera_info_topic(topics[i]))
     services = _per_camera(list(v["set_camera_info_services"]), n, "set_camera_info_services",
-                           lambda i: f"{_topic_namespace(topics[i])}/set_camera_info")
+                           lambda i: f"{topic_namespace(topics[i])}/set_camera_info")
     for what, lst in (("camera_info_topics", info_topics),
                       ("set_camera_info_services", services)):
         if len(set(lst)) != n:
