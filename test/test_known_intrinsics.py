@@ -84,6 +84,13 @@ def test_lab_camera_info_files_folders_and_calibrations_are_read(tmp_path):
         "narrow_stereo/left", ""))
     folder = read_known_intrinsics([str(fisheye.parent)])
     assert folder["right"].model == "OPENCV_FISHEYE"  # no camera_name: the file stem
+    (fisheye.parent / "again.yaml").write_text(fisheye.read_text().replace(
+        "camera_name: \n", "camera_name: right\n").replace("cols: 4", "cols: 5").replace(
+        "0.001573]", "0.001573, 0.0]"))  # a fifth, zero coefficient: accepted
+    assert read_known_intrinsics([str(fisheye.parent / "again.yaml")])["right"].params[-1] \
+        == 0.001573
+    with pytest.raises(InputError, match="Two files in .* are for camera 'right'"):
+        read_known_intrinsics([str(fisheye.parent)])
     k3 = tmp_path / "k3.yaml"  # plumb_bob with k3: FULL_OPENCV, written back as plumb_bob
     k3.write_text(LAB_YAML.replace("cols: 4", "cols: 5").replace("0.001573]", "0.001573, 0.02]"))
     with_k3 = read_known_intrinsics([str(k3)])["left"]

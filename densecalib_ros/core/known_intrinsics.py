@@ -57,10 +57,10 @@ def intrinsics_from_camera_info(info: dict, source: str = "camera_info") -> Came
         raise InputError(f"{source}: image size {width}x{height} and focal lengths {fx}, {fy} "
                          "must be positive (is it an uncalibrated camera_info?).")
     if model in _FISHEYE_NAMES:
-        if len(D) > 4 or (len(D) == 5 and D[4] != 0.0):
+        if len(D) > 5 or (len(D) == 5 and D[4] != 0.0):  # a fifth, zero, is written by some
             raise InputError(f"{source}: an equidistant model has 4 coefficients (k1..k4), "
                              f"got {len(D)}.")
-        k = D + [0.0] * (4 - len(D))
+        k = D[:4] + [0.0] * (4 - len(D[:4]))
         return CameraIntrinsics("OPENCV_FISHEYE", width, height, np.array([fx, fy, cx, cy, *k]))
     if model in _PLUMB_BOB_NAMES + _RATIONAL_NAMES:
         if len(D) > 8 or (model in _PLUMB_BOB_NAMES and len(D) > 5):
@@ -112,6 +112,9 @@ def read_known_intrinsics(specs: Sequence[str], camera_names: Optional[Sequence[
         elif path.is_dir():
             for f in sorted(list(path.glob("*.yaml")) + list(path.glob("*.yml"))):
                 n, cam = _camera_info_file(f, None)
+                if n in found:
+                    raise InputError(f"Two files in {path} are for camera {n!r} (camera_name): "
+                                     "give the files one by one as NAME=PATH.")
                 found[n] = cam
             if not found:
                 raise InputError(f"{path} holds no calibration.json and no camera_info YAML.")
