@@ -339,3 +339,32 @@ def test_keep_intrinsics_recalibrates_the_extrinsics_from_the_previous_calibrati
     with caplog.at_level(logging.ERROR):
         rc = main(base + ["--out", str(tmp_path / "o"), "--keep-intrinsics"])
     assert rc == 2 and "give --previous OLD_OUT" in caplog.text
+
+
+def test_anipose_and_kalibr_files_give_every_camera_they_hold(tmp_path):
+    """An arena's anipose calibration.toml or a Kalibr camchain (as `densecalib export` writes
+    them) read back to each camera's projection; camera names as the files and topics give
+    them."""
+    from densecalib_ros.core.interchange import anipose_toml, kalibr_camchain_yaml
+    from densecalib_ros.core.types import RigCalibration, RigCamera
+
+    cams = {"left_cam": CameraIntrinsics("OPENCV", 640, 480, np.array(
+                [500.0, 498.0, 322.0, 238.0, -0.12, 0.03, 0.001, -0.002])),
+            "top": CameraIntrinsics("OPENCV_FISHEYE", 800, 600, np.array(
+                [300.0, 301.0, 401.0, 299.0, 0.05, -0.01, 0.002, -0.0005]))}
+    rig = RigCalibration("left_cam", {n: RigCamera(n, c, np.eye(4)) for n, c in cams.items()})
+    (tmp_path / "calibration.toml").write_text(anipose_toml(rig))
+    (tmp_path / "camchain.yaml").write_text(kalibr_camchain_yaml(rig))
+    for f in ("calibration.toml", "camchain.yaml"):
+        known = read_known_intrinsics([str(tmp_path / f)])
+        assert sorted(known) == ["left_cam", "top"], f
+        for n, cam in cams.items():
+            rays = _rays(max_angle_deg=60.0 if "FISHEYE" in cam.model else 35.0)
+            assert known[n].model == cam.model
+            np.testing.assert_allclose(known[n].to_pycolmap().img_from_cam(rays),
+                                       cam.to_pycolmap().img_from_cam(rays), atol=1e-9)
+    assert sorted(read_known_intrinsics([str(tmp_path)])) == ["left_cam", "top"]  # the folder
+    (tmp_path / "omni.yaml").write_text("cam0:\n  camera_model: omni\n  intrinsics: [1, 2, 3, 4]"
+                                        "\n  resolution: [640, 480]\n")
+    with pytest.raises(InputError, match="only pinhole with radtan or equidistant"):
+        read_known_intrinsics([str(tmp_path / "omni.yaml")])

@@ -49,7 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="intrinsics to keep, for cameras calibrated before (in the lab with "
                              "a target, or a previous calibration whose lenses were not touched): "
                              "ROS camera_info YAML files (camera = the file's camera_name, or "
-                             "NAME=PATH), a folder of them, or a densecalib calibration; those "
+                             "NAME=PATH), a folder of them, a densecalib calibration, an anipose "
+                             "calibration.toml or a Kalibr camchain; those "
                              "cameras keep them exactly and only the extrinsics (and the other "
                              "cameras' intrinsics) are calibrated")
     parser.add_argument("--bag-camera-info", action="store_true",

@@ -14,7 +14,11 @@ Sources (one spec each: PATH, or NAME=PATH to say which camera a single-camera f
   distortion -> PINHOLE; the camera is the file's camera_name (its last path component) or,
   failing that, the file stem;
 - a densecalib calibration (calibration.json, its folder, or a node output_dir): every camera in
-  it; a folder of camera_info YAMLs: every YAML in it.
+  it; a folder of camera_info YAMLs: every YAML in it;
+- an anipose / aniposelib `calibration.toml` (animal-pose arenas: each `[cam_i]`'s name, size,
+  matrix, distortions, fisheye) and a Kalibr camchain YAML (each `camN` with a pinhole camera
+  model, radtan or equidistant; the camera named from its rostopic as `--bag` names it), as
+  core/interchange.py writes them: every camera in them.
 
 Pixel conventions: camera_info has the top-left pixel centre at (0, 0), COLMAP at (0.5, 0.5):
 cx_colmap = cx_ros + 0.5 (as core/export.py writes them).
@@ -76,15 +80,73 @@ def intrinsics_from_camera_info(info: dict, source: str = "camera_info") -> Came
                      "rational_polynomial or equidistant.")
 
 
-def _camera_info_file(path: Path, name: Optional[str]) -> tuple[str, CameraIntrinsics]:
+def _yaml_file(path: Path, name: Optional[str]) -> dict[str, CameraIntrinsics]:
+    """The camera of a camera_info YAML, or the cameras of a Kalibr camchain."""
     try:
         info = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
         raise InputError(f"Cannot read camera_info YAML {path}: {exc}") from exc
     if not isinstance(info, dict):
         raise InputError(f"{path} is not a camera_info YAML (no mapping at the top).")
+    if "camera_matrix" not in info and any(isinstance(v, dict) and "intrinsics" in v
+                                           for v in info.values()):
+        return _kalibr_camchain(info, path)
     stated = str(info.get("camera_name") or "").strip().strip("/").split("/")[-1]
-    return name or stated or path.stem, intrinsics_from_camera_info(info, str(path))
+    return {name or stated or path.stem: intrinsics_from_camera_info(info, str(path))}
+
+
+def _kalibr_camchain(chain: dict, path: Path) -> dict[str, CameraIntrinsics]:
+    from .bag import camera_names_from_topics
+
+    cams = {k: v for k, v in chain.items() if isinstance(v, dict) and "intrinsics" in v}
+    out = []
+    for key, cam in cams.items():
+        try:
+            fu, fv, pu, pv = (float(v) for v in cam["intrinsics"])
+            w, h = (int(v) for v in cam["resolution"])
+            model = str(cam.get("distortion_model", "none"))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{path}: {key} is not a Kalibr camera ({exc!r}): it needs "
+                             "intrinsics [fu, fv, pu, pv] and resolution [w, h].") from exc
+        if cam.get("camera_model", "pinhole") != "pinhole" or \
+                model not in ("radtan", "equidistant", "none"):
+            raise InputError(f"{path}: {key} is a {cam.get('camera_model')} camera with "
+                             f"{model} distortion; only pinhole with radtan or equidistant "
+                             "distortion can be read.")
+        out.append((str(cam.get("rostopic") or f"/{key}/image_raw"), intrinsics_from_camera_info(
+            {"image_width": w, "image_height": h,
+             "camera_matrix": {"data": [fu, 0.0, pu, 0.0, fv, pv, 0.0, 0.0, 1.0]},
+             "distortion_model": "equidistant" if model == "equidistant" else "plumb_bob",
+             "distortion_coefficients": {"data": list(cam.get("distortion_coeffs") or [])}},
+            f"{path} ({key})")))
+    names = camera_names_from_topics([topic for topic, _ in out])
+    return {n: cam for n, (_, cam) in zip(names, out)}
+
+
+def _anipose_toml(path: Path) -> dict[str, CameraIntrinsics]:
+    import tomllib
+
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"Cannot read anipose calibration {path}: {exc}") from exc
+    out = {}
+    for key, cam in data.items():
+        if not (key.startswith("cam_") and isinstance(cam, dict)):
+            continue
+        try:
+            name, (w, h) = str(cam["name"]), cam["size"]
+            info = {"image_width": w, "image_height": h,
+                    "camera_matrix": {"data": np.asarray(cam["matrix"], float).ravel().tolist()},
+                    "distortion_model": "equidistant" if cam.get("fisheye") else "plumb_bob",
+                    "distortion_coefficients": {"data": list(cam.get("distortions") or [])}}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{path}: [{key}] is not an anipose camera ({exc!r}): it needs name, "
+                             "size and matrix.") from exc
+        out[name] = intrinsics_from_camera_info(info, f"{path} [{key}]")
+    if not out:
+        raise InputError(f"{path} holds no [cam_N] camera tables (an anipose calibration.toml).")
+    return out
 
 
 def read_known_intrinsics(specs: Sequence[str], camera_names: Optional[Sequence[str]] = None
@@ -109,18 +171,21 @@ def read_known_intrinsics(specs: Sequence[str], camera_names: Optional[Sequence[
             found = _from_calibration(path)
         elif path.suffix == ".json":
             found = _from_calibration(path)
+        elif path.suffix == ".toml":
+            found = _anipose_toml(path)
+        elif path.is_dir() and (path / "calibration.toml").is_file():  # an anipose project
+            found = _anipose_toml(path / "calibration.toml")
         elif path.is_dir():
             for f in sorted(list(path.glob("*.yaml")) + list(path.glob("*.yml"))):
-                n, cam = _camera_info_file(f, None)
-                if n in found:
-                    raise InputError(f"Two files in {path} are for camera {n!r} (camera_name): "
-                                     "give the files one by one as NAME=PATH.")
-                found[n] = cam
+                for n, cam in _yaml_file(f, None).items():
+                    if n in found:
+                        raise InputError(f"Two files in {path} are for camera {n!r}: give the "
+                                         "files one by one as NAME=PATH.")
+                    found[n] = cam
             if not found:
                 raise InputError(f"{path} holds no calibration.json and no camera_info YAML.")
         else:
-            n, cam = _camera_info_file(path, name)
-            found = {n: cam}
+            found = _yaml_file(path, name)
         if name is not None and len(found) > 1:
             raise InputError(f"{spec}: NAME= applies to a single-camera file, but {path} holds "
                              f"{len(found)} cameras ({', '.join(found)}).")

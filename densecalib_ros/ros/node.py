@@ -114,8 +114,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                    "strip, the rig's own structure): empty, one for every camera, or one per "
                    "camera ('' = none)", False, {}),
     "intrinsics_files": (Parameter.Type.STRING_ARRAY,
-                         "intrinsics to keep (cameras calibrated before: camera_info YAML or a "
-                         "densecalib calibration): empty, one file or folder naming its cameras, "
+                         "intrinsics to keep (cameras calibrated before: camera_info YAML, a "
+                         "densecalib calibration, an anipose calibration.toml or a Kalibr "
+                         "camchain): empty, one file or folder naming its cameras, "
                          "or one per camera ('' = calibrate that camera's intrinsics); only the "
                          "extrinsics of those cameras are calibrated", False, {}),
     "keep_intrinsics": (False, "recalibrations keep the last good calibration's intrinsics and "
