@@ -146,8 +146,8 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 
     twice = sorted(set(given) & set(names))
     if twice:
-        raise InputError(f"Intrinsics of {', '.join(twice)} given by --intrinsics and by "
-                         "--bag-camera-info: give each camera once.")
+        raise InputError(f"Intrinsics of {', '.join(twice)} given twice (by --intrinsics or "
+                         "--keep-intrinsics, and by --bag-camera-info): give each camera once.")
     infos = read_camera_infos(args.bag, args.topics)
     return {**given, **{name: intrinsics_from_camera_info(info, camera_info_topic(topic))
                         for name, topic, info in zip(names, args.topics, infos)}}
@@ -155,7 +155,8 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
-    from ..core.known_intrinsics import check_known_intrinsics, read_known_intrinsics
+    from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
+                                         with_previous_intrinsics)
     from ..core.pipeline import check_frame_sets, run_calibration
 
     try:
@@ -180,9 +181,9 @@ def run(args: argparse.Namespace) -> int:
         if args.previous:
             from ..core.export import read_calibration
             previous = read_calibration(args.previous)
-        if args.keep_intrinsics:  # --intrinsics, where given, win over the previous ones
-            config.known_intrinsics = {**{n: c.intrinsics for n, c in previous.cameras.items()
-                                          if n in names}, **config.known_intrinsics}
+        if args.keep_intrinsics:
+            config.known_intrinsics = with_previous_intrinsics(config.known_intrinsics,
+                                                               previous, names)
         if args.bag_camera_info:
             config.known_intrinsics = _bag_intrinsics(args, names, config.known_intrinsics)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching

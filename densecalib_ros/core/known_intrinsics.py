@@ -236,6 +236,13 @@ def check_known_intrinsics(known: dict, camera_names: Sequence[str],
                              "out to self-calibrate them).")
 
 
+def with_previous_intrinsics(known: dict, previous, camera_names: Sequence[str]) -> dict:
+    """`known` plus the intrinsics of a previous RigCalibration for the rig's other cameras
+    (keep the intrinsics on recalibration; the ones given explicitly win)."""
+    return {**{n: c.intrinsics for n, c in previous.cameras.items() if n in camera_names},
+            **known}
+
+
 def describe(known: dict) -> dict:
     """The given intrinsics as recorded in a calibration's quality: name -> model."""
     return {n: cam.model for n, cam in sorted(known.items())}

@@ -56,7 +56,7 @@ from ..core.consistency import DEFAULT_TOLERANCE_PX
 from ..core.errors import CalibrationError, InputError
 from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
                            write_calibration_files)
-from ..core.known_intrinsics import read_known_intrinsics
+from ..core.known_intrinsics import read_known_intrinsics, with_previous_intrinsics
 from ..core.masks import read_mask
 from ..core.matching import available_matchers
 from ..core.scale import with_known_baseline
@@ -602,10 +602,8 @@ class DenseCalibNode(Node):
         images = decode_frame_sets(sets)
         config = pipeline_config(s)
         if s.keep_intrinsics and self.calibration is not None:
-            # intrinsics_files, where given, win over the last calibration's
-            last = {n: c.intrinsics for n, c in self.calibration.cameras.items()
-                    if n in s.camera_names}
-            config.known_intrinsics = {**last, **config.known_intrinsics}
+            config.known_intrinsics = with_previous_intrinsics(
+                config.known_intrinsics, self.calibration, s.camera_names)
         progress = lambda msg: self._set_status(f"calibrating: {msg}")  # noqa: E731
         if self.calibration is not None:  # start from it; a worse result is refused
             result = recalibrate(images, s.camera_names, config, self.calibration,
