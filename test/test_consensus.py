@@ -126,3 +126,46 @@ def test_a_run_that_left_out_a_camera_is_kept_when_the_full_runs_fit_clearly_wor
     lone = RigCalibration("a", {n: right.cameras[n] for n in ["a", "d"]})
     only_b = RigCalibration("b", {n: right.cameras[n] for n in ["b", "c"]})
     assert np.isnan(common_track_costs([lone, only_b], runs_tracks[:2], names, 20.0)).all()
+
+
+def test_runs_refined_on_the_same_tracks_are_judged_by_their_fit_to_them_not_by_vote():
+    """Every run was refined last on the same keypoint-match tracks: the one that fits them best
+    is kept even where most runs agree on another rig, as long as it registered as many cameras;
+    a run that fits best only by leaving a camera out is not kept. Without such tracks the vote
+    among the runs that fit the common tracks about equally decides."""
+    import sfm_fixtures
+    from densecalib_ros.core.consensus import WORSE_FIT_RATIO, choose_run
+
+    names = ["a", "b", "c", "d"]
+    cams, poses = sfm_fixtures.gt_rig(4, seed=5)
+    right = sfm_fixtures.gt_calibration(names, cams, poses)
+    c_cam = right.cameras["c"]
+    nearly_pose = c_cam.cam_from_rig.copy()
+    nearly_pose[:3, :3] = _rotation_z(3.0) @ nearly_pose[:3, :3]
+    nearly = RigCalibration("a", {**right.cameras, "c": RigCamera("c", c_cam.intrinsics,
+                                                                  nearly_pose)})
+    partial = RigCalibration("a", {n: right.cameras[n] for n in ["a", "b", "c"]})
+    matches = sfm_fixtures.gt_tracks(cams, poses, num_points=1500, seed=11)
+    runs_tracks = [sfm_fixtures.gt_tracks(cams, poses, num_points=300, seed=s) for s in range(4)]
+
+    rigs = [nearly, right, nearly, nearly]
+    choice = choose_run(rigs, runs_tracks, names, truncation_px=20.0, refined_on=matches)
+    assert choice.by_fit and choice.best == 1
+    assert choice.costs_px[1] < choice.costs_px[0] < WORSE_FIT_RATIO * 20.0
+    vote = choose_run(rigs, runs_tracks, names, truncation_px=20.0)
+    assert not vote.by_fit
+    if 0 not in vote.worse_fit:  # 3 deg may or may not count as clearly worse on 4 cameras
+        assert vote.best in (0, 2, 3)
+
+    # The run without d fits a, b and c best; the full runs, with b turned by 0.1 deg, about as
+    # well: a full run is kept.
+    b_cam = right.cameras["b"]
+    turned_pose = b_cam.cam_from_rig.copy()
+    turned_pose[:3, :3] = _rotation_z(0.1) @ turned_pose[:3, :3]
+    turned = RigCalibration("a", {**right.cameras, "b": RigCamera("b", b_cam.intrinsics,
+                                                                  turned_pose)})
+    with_partial = choose_run([turned, partial, turned], runs_tracks[:3], names,
+                              truncation_px=20.0, refined_on=matches)
+    assert with_partial.costs_px[1] < with_partial.costs_px[0] < \
+        WORSE_FIT_RATIO * with_partial.costs_px[1]
+    assert with_partial.best in (0, 2) and with_partial.by_fit

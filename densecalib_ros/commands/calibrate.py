@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "when the images were cropped, or taken with digital zoom)")
     parser.add_argument("--consensus-runs", type=int, default=5, metavar="N",
                         help="sample + SfM up to N times with different seeds and keep the run "
-                             "that agrees best with the others (default 5; it stops after 3 runs "
+                             "that fits all keypoint matches best (default 5; it stops after 3 runs "
                              "that agree; 1 = a single run)")
     parser.add_argument("--previous", metavar="PATH", default=None,
                         help="a previous calibration of these cameras (folder, a node output_dir, "

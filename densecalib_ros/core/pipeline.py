@@ -11,7 +11,7 @@ from __future__ import annotations
 import copy
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -51,6 +51,9 @@ class CalibrationResult:
     tracks: Tracks  # the tracks SfM ran on (after the F_err filter)
     focal_init_px: np.ndarray  # (C,) initial focal lengths
     stats: dict = field(default_factory=dict)
+    # The final SfM state (on the keypoint-match tracks when the rig was refined on them): what
+    # a later search (core.focal_hops) continues from.
+    state: Optional[SfMState] = None
 
 
 def say_progress(progress: Progress, msg: str) -> None:
@@ -232,7 +235,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                    f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
                    f"points ({runtime:.1f} s)")
     return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
-                             focal_init_px=focal_px)
+                             focal_init_px=focal_px, state=state)
 
 
 def _eq2_start(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, int]],
@@ -444,7 +447,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            match_tracks: Optional[Tracks], progress: Progress
                            ) -> CalibrationResult:
     from .consensus import (AGREEMENT_DEG, EARLY_STOP_RUNS, choose_run, disagreement_warning,
-                            medoid)
+                            medoid, rig_disagreement_deg)
+    from .focal_hops import hop_focals
     from .incremental import cost_truncation_px
 
     results, seeds, failed, first_error = [], [], 0, None
@@ -468,22 +472,36 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     if not results:
         raise first_error
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
-                        cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed)
+                        cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed,
+                        refined_on=match_tracks)
     best, D, costs = choice.best, choice.disagreement_deg, choice.costs_px
     if choice.worse_fit:
         say_progress(progress, "consensus: the runs with seeds " + ", ".join(
             f"{seeds[k]} ({costs[k]:.2f} px)" for k in choice.worse_fit) + " fit the common "
             f"tracks clearly worse than seed {seeds[int(np.nanargmin(costs))]} "
             f"({np.nanmin(costs):.2f} px) and are not kept")
-    others = np.delete(D[best], best)
     result = results[best]
+    why = (f"fits the {match_tracks.num_tracks} keypoint-match tracks best ({costs[best]:.3f} px)"
+           if choice.by_fit else "agrees best with the others")
+    say_progress(progress, f"consensus: kept the run with seed {seeds[best]}, which {why}")
+    others = np.delete(D[best], best)
+    if D.max() >= AGREEMENT_DEG and match_tracks is not None and match_tracks.num_tracks \
+            and result.state is not None:
+        # The runs found different minima: search around the kept one (core.focal_hops).
+        state, hops = hop_focals(result.state, match_tracks, camera_names, config.sfm,
+                                 config.sampling.seed, lambda m: say_progress(progress, m))
+        if hops:
+            result = _with_state(result, state, camera_names, config)
+            result.rig.quality["focal_hops"] = hops
+            others = np.array([rig_disagreement_deg(result.rig, r.rig, camera_names)
+                               for k, r in enumerate(results) if k != best])
     result.rig.quality.update(
         consensus_runs=len(results), consensus_failed_runs=failed, consensus_seed=seeds[best],
-        consensus_worse_fit_runs=len(choice.worse_fit),
+        consensus_worse_fit_runs=len(choice.worse_fit), consensus_kept_by_fit=choice.by_fit,
         consensus_disagreement_deg=float(np.median(others)) if len(others) else 0.0)
-    say_progress(progress, f"consensus: the run with seed {seeds[best]} agrees best with the "
-                           f"other {len(results) - 1} (median disagreement "
-                           f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg)")
+    say_progress(progress, f"consensus: median disagreement of the result with the other "
+                           f"{len(results) - 1} runs "
+                           f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg")
     warning = disagreement_warning(result.rig.quality["consensus_disagreement_deg"], len(results))
     if warning:
         log.warning("%s", warning)
@@ -492,6 +510,20 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
         # show it to whoever looks at the calibration later.
         result.rig.quality.setdefault("warnings", []).append(warning)
     return result
+
+
+def _with_state(result: CalibrationResult, state: SfMState, camera_names: Sequence[str],
+                config: PipelineConfig) -> CalibrationResult:
+    """`result` with its rig and reconstruction rebuilt from another state of the same cameras
+    (the quality's per-run records kept, the fit figures recomputed)."""
+    failed = [camera_names.index(n) for n in result.rig.failed_cameras]
+    quality = dict(result.rig.quality)
+    rig = rig_from_state(state, camera_names, failed, quality)
+    if "given_intrinsics_fit" in quality:
+        rig.quality["given_intrinsics_fit"] = given_intrinsics_fit(state, camera_names,
+                                                                   config.sfm.num_threads)
+    reconstruction, _ = build_reconstruction(state, camera_names)
+    return replace(result, rig=rig, reconstruction=reconstruction, state=state)
 
 
 def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],

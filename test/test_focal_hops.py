@@ -1,0 +1,56 @@
+"""Focal hops (core.focal_hops): a one-camera-at-a-time focal search from a finished rig."""
+import numpy as np
+
+import sfm_fixtures
+from densecalib_ros.core.config import SfMConfig
+from densecalib_ros.core.focal_hops import _hop_cameras, _kicked, hop_focals
+from densecalib_ros.core.reconstruction import SfMState, triangulate_tracks
+
+NAMES = ["a", "b", "c", "d"]
+
+
+def _state(cams, poses, tracks, share=False, fixed=()):
+    state = SfMState.create(tracks, cams, share, fixed)
+    for c, T in enumerate(poses):
+        state.cam_from_world[c] = T
+    triangulate_tracks(state, max_error_px=4.0)
+    return state
+
+
+def test_a_rig_at_its_best_fit_is_returned_unchanged():
+    """From the true rig (noisy matches with outliers) no kick ends in a clearly better fit:
+    nothing is kept and the input state comes back as it was."""
+    cams, poses = sfm_fixtures.gt_rig(4, seed=3)
+    tracks = sfm_fixtures.gt_tracks(cams, poses, num_points=800, seed=3)
+    state = _state(cams, poses, tracks)
+    before = [state.camera(c).params.copy() for c in range(4)]
+    out, hops = hop_focals(state, tracks, NAMES, SfMConfig(num_threads=1))
+    assert hops == [] and out is state
+    for c in range(4):
+        np.testing.assert_array_equal(state.camera(c).params, before[c])
+
+
+def test_a_kicked_camera_gets_the_new_focal_and_a_pose_fitted_to_it():
+    """The kick sets the focal and re-poses the camera from the other cameras' points: its
+    pose fits its observations at the new focal, unlike the old pose."""
+    cams, poses = sfm_fixtures.gt_rig(4, seed=4)
+    tracks = sfm_fixtures.gt_tracks(cams, poses, num_points=800, noise_px=0.0,
+                                    outlier_frac=0.0, seed=4)
+    state = _state(cams, poses, tracks)
+    f = float(state.camera(2).params[0])
+    trial = _kicked(state, 2, 0.8 * f, seed=0)
+    assert trial is not None
+    assert abs(trial.camera(2).params[0] - 0.8 * f) < 1e-6
+    assert state.camera(2).params[0] == f  # the input is left alone
+    assert not np.allclose(trial.cam_from_world[2], state.cam_from_world[2])
+    for c in (0, 1, 3):
+        np.testing.assert_array_equal(trial.cam_from_world[c], state.cam_from_world[c])
+
+
+def test_given_and_shared_intrinsics_are_kicked_once_or_not_at_all():
+    cams, poses = sfm_fixtures.gt_rig(4, seed=5)
+    tracks = sfm_fixtures.gt_tracks(cams, poses, num_points=200, seed=5)
+    assert _hop_cameras(_state(cams, poses, tracks)) == [0, 1, 2, 3]
+    assert _hop_cameras(_state(cams, poses, tracks, fixed=(1, 3))) == [0, 2]
+    shared = _state(cams, poses, tracks, share=True)  # one block: one kick moves all four
+    assert _hop_cameras(shared) == [0]
