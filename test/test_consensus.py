@@ -139,11 +139,7 @@ def test_runs_refined_on_the_same_tracks_are_judged_by_their_fit_to_them_not_by_
     names = ["a", "b", "c", "d"]
     cams, poses = sfm_fixtures.gt_rig(4, seed=5)
     right = sfm_fixtures.gt_calibration(names, cams, poses)
-    c_cam = right.cameras["c"]
-    nearly_pose = c_cam.cam_from_rig.copy()
-    nearly_pose[:3, :3] = _rotation_z(3.0) @ nearly_pose[:3, :3]
-    nearly = RigCalibration("a", {**right.cameras, "c": RigCamera("c", c_cam.intrinsics,
-                                                                  nearly_pose)})
+    nearly = _turned(right, "c", 3.0)
     partial = RigCalibration("a", {n: right.cameras[n] for n in ["a", "b", "c"]})
     matches = sfm_fixtures.gt_tracks(cams, poses, num_points=1500, seed=11)
     runs_tracks = [sfm_fixtures.gt_tracks(cams, poses, num_points=300, seed=s) for s in range(4)]
@@ -159,13 +155,18 @@ def test_runs_refined_on_the_same_tracks_are_judged_by_their_fit_to_them_not_by_
 
     # The run without d fits a, b and c best; the full runs, with b turned by 0.1 deg, about as
     # well: a full run is kept.
-    b_cam = right.cameras["b"]
-    turned_pose = b_cam.cam_from_rig.copy()
-    turned_pose[:3, :3] = _rotation_z(0.1) @ turned_pose[:3, :3]
-    turned = RigCalibration("a", {**right.cameras, "b": RigCamera("b", b_cam.intrinsics,
-                                                                  turned_pose)})
+    turned = _turned(right, "b", 0.1)
     with_partial = choose_run([turned, partial, turned], runs_tracks[:3], names,
                               truncation_px=20.0, refined_on=matches)
     assert with_partial.costs_px[1] < with_partial.costs_px[0] < \
         WORSE_FIT_RATIO * with_partial.costs_px[1]
     assert with_partial.best in (0, 2) and with_partial.by_fit
+
+
+def _turned(rig, name, deg):
+    """rig with camera `name` turned by deg about its z axis (intrinsics kept)."""
+    cam = rig.cameras[name]
+    pose = cam.cam_from_rig.copy()
+    pose[:3, :3] = _rotation_z(deg) @ pose[:3, :3]
+    return RigCalibration(rig.reference_camera,
+                          {**rig.cameras, name: RigCamera(name, cam.intrinsics, pose)})
