@@ -481,7 +481,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
             f"tracks clearly worse than seed {seeds[int(np.nanargmin(costs))]} "
             f"({np.nanmin(costs):.2f} px) and are not kept")
     result = results[best]
-    why = (f"fits the {match_tracks.num_tracks} keypoint-match tracks best ({costs[best]:.3f} px)"
+    why = (f"fits the keypoint-match tracks best ({costs[best]:.3f} px on a common sample)"
            if choice.by_fit else "agrees best with the others")
     say_progress(progress, f"consensus: kept the run with seed {seeds[best]}, which {why}")
     others = np.delete(D[best], best)
