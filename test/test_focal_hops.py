@@ -3,7 +3,7 @@ import numpy as np
 
 import sfm_fixtures
 from densecalib_ros.core.config import SfMConfig
-from densecalib_ros.core.focal_hops import _hop_cameras, _kicked, hop_focals
+from densecalib_ros.core.focal_hops import _hop_cameras, _kicked, _points_without, hop_focals
 from densecalib_ros.core.reconstruction import SfMState, triangulate_tracks
 
 NAMES = ["a", "b", "c", "d"]
@@ -38,7 +38,7 @@ def test_a_kicked_camera_gets_the_new_focal_and_a_pose_fitted_to_it():
                                     outlier_frac=0.0, seed=4)
     state = _state(cams, poses, tracks)
     f = float(state.camera(2).params[0])
-    trial = _kicked(state, 2, 0.8 * f, seed=0)
+    trial = _kicked(state, 2, 0.8 * f, _points_without(state, 2, seed=0))
     assert trial is not None
     assert abs(trial.camera(2).params[0] - 0.8 * f) < 1e-6
     assert state.camera(2).params[0] == f  # the input is left alone
