@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from opencv_reference import opencv_pixels
 from scipy.spatial.transform import Rotation
 
 from densecalib_ros.cli import main
@@ -58,14 +59,6 @@ def _colmap_pixels(cam, pts_rig):
     return cam.intrinsics.to_pycolmap().img_from_cam(x) - 0.5  # COLMAP -> OpenCV pixel centres
 
 
-def _opencv_pixels(pts, k, dist, rvec, tvec, fisheye):
-    if fisheye:
-        out, _ = cv2.fisheye.projectPoints(pts.reshape(-1, 1, 3), rvec, tvec, k, dist)
-    else:
-        out, _ = cv2.projectPoints(pts.reshape(-1, 1, 3), rvec, tvec, k, dist)
-    return out.reshape(-1, 2)
-
-
 def test_anipose_toml_projects_like_our_cameras(rig):
     data = tomllib.loads(anipose_toml(rig))
     pts = _points_seen_by_all(rig)
@@ -77,9 +70,9 @@ def test_anipose_toml_projects_like_our_cameras(rig):
         fisheye = section.get("fisheye", False)
         assert fisheye == (cam.intrinsics.model == "OPENCV_FISHEYE")
         assert len(section["distortions"]) == (4 if fisheye else 5)
-        got = _opencv_pixels(pts, np.array(section["matrix"]), np.array(section["distortions"]),
-                             np.array(section["rotation"]), np.array(section["translation"]),
-                             fisheye)
+        got = opencv_pixels(pts, np.array(section["matrix"]), np.array(section["distortions"]),
+                            fisheye, np.array(section["rotation"]),
+                            np.array(section["translation"]))
         assert np.abs(got - _colmap_pixels(cam, pts)).max() < 1e-6
     assert data["metadata"]["error"] == 0.8
 
@@ -102,8 +95,8 @@ def test_kalibr_camchain_chains_back_to_the_rig(rig):
         k = np.array([[fu, 0, pu], [0, fv, pv], [0, 0, 1]])
         fisheye = entry["distortion_model"] == "equidistant"
         assert fisheye == (cam.intrinsics.model == "OPENCV_FISHEYE")
-        got = _opencv_pixels(pts, k, np.array(entry["distortion_coeffs"]),
-                             cv2.Rodrigues(cam_from_rig[:3, :3])[0], cam_from_rig[:3, 3], fisheye)
+        got = opencv_pixels(pts, k, np.array(entry["distortion_coeffs"]), fisheye,
+                            cv2.Rodrigues(cam_from_rig[:3, :3])[0], cam_from_rig[:3, 3])
         assert np.abs(got - _colmap_pixels(cam, pts)).max() < 1e-6
 
 

@@ -3,11 +3,14 @@ them, checked against the images, and held exactly while the extrinsics are cali
 import json
 import logging
 import os
+import tempfile
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 import pytest
+from opencv_reference import opencv_pixels
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.config import make_config
@@ -123,7 +126,9 @@ def test_lab_camera_info_files_folders_and_calibrations_are_read(tmp_path):
     (LAB_YAML.replace("290.738946", "0.0"), ["{f}"], "must be positive"),
     (LAB_YAML, ["{f}", "{f}"], "given twice"),
     (LAB_YAML, ["{d}/nope.yaml"], "does not exist"),
-    (LAB_YAML, ["x={d}/calib"], "NAME= applies to a single-camera file")])
+    (LAB_YAML, ["x={d}/calib"], "NAME= applies to a single-camera file"),
+    ("%YAML:1.0\n---\nimage_width: 640\n", ["{f}"], "has no 3x3 camera matrix"),
+    ("%YAML:1.0\n---\ncamera_matrix: [ 1, 2\n", ["{f}"], "Cannot read OpenCV calibration")])
 def test_unusable_intrinsics_files_are_refused_with_what_to_do(tmp_path, text, specs, message):
     f = tmp_path / "cam.yaml"
     f.write_text(text)
@@ -368,3 +373,141 @@ def test_anipose_and_kalibr_files_give_every_camera_they_hold(tmp_path):
                                         "\n  resolution: [640, 480]\n")
     with pytest.raises(InputError, match="only pinhole with radtan or equidistant"):
         read_known_intrinsics([str(tmp_path / "omni.yaml")])
+
+
+# An OpenCV stereo file as stereoCalibrate's samples write it (OpenCV 3/4 header, plain
+# sequences for the distortion, no image size), cut down from the image_pipeline fisheye data.
+STEREO_YML = """%YAML:1.0
+---
+K1: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 2.8688726950603882e+02, 0., 3.9595246153268397e+02, 0.,
+       2.8699658002140251e+02, 2.7128814725595669e+02, 0., 0., 1. ]
+K2: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 2.9061975245351334e+02, 0., 4.0124860319383106e+02, 0.,
+       2.9033957900883007e+02, 2.7039299202312253e+02, 0., 0., 1. ]
+D1: [ -2.3670549365179198e-02, -2.8102292297192123e-02,
+    1.3429146781797114e-02, -2.9185133621709137e-03 ]
+D2: [ -4.5677439473878714e-02, -7.9639894165110144e-03,
+    5.2092995286682044e-03, -1.6389276670477719e-03 ]
+T: [ -1.1703102538044161e-01, -5.8735929934837467e-05, -2.2387324441349573e-03 ]
+"""
+
+
+@pytest.mark.parametrize("ext", ["yml", "xml"])
+@pytest.mark.parametrize("fisheye", [False, True])
+def test_opencv_calibration_files_read_back_to_opencvs_projection(tmp_path, ext, fisheye):
+    """A file as OpenCV's calibration sample writes it (FileStorage YAML or XML: image size,
+    fisheye_model, camera_matrix, distortion_coefficients) gives a camera projecting every ray
+    where OpenCV does; the camera is the file stem or NAME=."""
+    import cv2
+
+    K = np.array([[500.0, 0.0, 321.3], [0.0, 502.0, 238.7], [0.0, 0.0, 1.0]])
+    D = np.array([[0.05, -0.01, 0.002, -0.0005]]) if fisheye else \
+        np.array([[-0.12, 0.03, 0.001, -0.002, 0.01]])
+    path = tmp_path / f"lab_cam.{ext}"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("image_width", 640), ("image_height", 480), ("flags", 0),
+                       ("fisheye_model", int(fisheye)), ("camera_matrix", K),
+                       ("distortion_coefficients", D), ("avg_reprojection_error", 0.3)):
+        fs.write(key, value)
+    fs.release()
+    [(name, cam)] = read_known_intrinsics([str(path)]).items()
+    assert name == "lab_cam" and (cam.width, cam.height) == (640, 480)
+    assert cam.model == ("OPENCV_FISHEYE" if fisheye else "FULL_OPENCV")
+    rays = _rays(max_angle_deg=60.0 if fisheye else 30.0)
+    np.testing.assert_allclose(cam.to_pycolmap().img_from_cam(rays),
+                               opencv_pixels(rays, K, D, fisheye) + 0.5, atol=1e-6)
+    assert list(read_known_intrinsics([f"cam3={path}"])) == ["cam3"]
+
+
+def test_opencv_stereo_files_name_their_cameras_in_order_and_take_the_images_size(tmp_path):
+    """K1/D1, K2/D2 of a stereo file: named with NAME1,NAME2=PATH; 4 coefficients are
+    cv::fisheye's; without an image size in the file, the cameras take their images' size, and
+    a principal point far from those images' centre (another resolution) is refused."""
+    path = tmp_path / "cam_stereo.yml"
+    path.write_text(STEREO_YML)
+    known = read_known_intrinsics([f"left,right={path}"], ["left", "right", "top"])
+    assert sorted(known) == ["left", "right"]
+    assert all(cam.model == "OPENCV_FISHEYE" and (cam.width, cam.height) == (0, 0)
+               for cam in known.values())
+    np.testing.assert_allclose(known["right"].params, [
+        290.61975245351334, 290.33957900883007, 401.74860319383106, 270.89299202312253,
+        -4.5677439473878714e-02, -7.9639894165110144e-03, 5.2092995286682044e-03,
+        -1.6389276670477719e-03])
+    sized = check_known_intrinsics(known, ["left", "right", "top"], [(800, 503)] * 3)
+    assert [(c.width, c.height) for c in sized.values()] == [(800, 503)] * 2
+    assert (known["left"].width, known["left"].height) == (0, 0)  # the input is not changed
+    with pytest.raises(InputError, match=r"principal point \(396, 272\) px is far from the "
+                                         "centre of its 1600x1006 images"):
+        check_known_intrinsics(known, ["left", "right"], [(1600, 1006), (800, 503)])
+    with pytest.raises(InputError, match="stereo calibration of two cameras .* name them in "
+                                         "order, e.g. left,right="):
+        read_known_intrinsics([str(path)])
+    (tmp_path / "cam.yaml").write_text(LAB_YAML)
+    with pytest.raises(InputError, match="NAME1,NAME2= names the two cameras of an OpenCV "
+                                         "stereo file"):
+        read_known_intrinsics([f"a,b={tmp_path / 'cam.yaml'}"])
+
+
+def test_intrinsics_without_image_size_are_held_at_their_images_size(rig):
+    """The pipeline gives size-less given intrinsics (an OpenCV stereo file) their images' size
+    and holds them exactly."""
+    gt = rig.ground_truth()
+    lines = ["%YAML:1.0", "---"]
+    for i, n in enumerate(rig.names[:2], start=1):
+        f, cx, cy, k1, k2 = map(float, gt.cameras[n].intrinsics.params)  # RADIAL, COLMAP px
+        lines += [f"M{i}: !!opencv-matrix", "   rows: 3", "   cols: 3", "   dt: d",
+                  f"   data: [ {f!r}, 0., {cx - 0.5!r}, 0., {f!r}, {cy - 0.5!r}, 0., 0., 1. ]",
+                  f"D{i}: [ {k1!r}, {k2!r}, 0., 0., 0. ]"]
+    path = Path(tempfile.mkdtemp()) / "intrinsics.yml"
+    path.write_text("\n".join(lines) + "\n")
+    known = read_known_intrinsics([f"{rig.names[0]},{rig.names[1]}={path}"], rig.names)
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
+                         known_intrinsics=known)
+    result = run_calibration([rig.images[0]], rig.names, config)
+    rays = _rays()
+    for n in rig.names[:2]:
+        cam = result.rig.cameras[n].intrinsics
+        assert cam.model == "OPENCV" and (cam.width, cam.height) == (640, 480)
+        np.testing.assert_array_equal(cam.params, known[n].params)
+        np.testing.assert_allclose(cam.to_pycolmap().img_from_cam(rays),
+                                   gt.cameras[n].intrinsics.to_pycolmap().img_from_cam(rays),
+                                   atol=1e-9)
+    assert evaluate_calibration(result.rig, gt)["auc3"] >= 80.0
+
+
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+@pytest.mark.data
+def test_real_opencv_stereo_file_gives_the_intrinsics_of_the_real_fisheye_bag(tmp_path):
+    """The target-based OpenCV stereo calibration of the real fisheye pair (cam_stereo.yml: no
+    image size, 4 fisheye coefficients) kept for the bag's cameras: the right camera's rotation
+    from the scene lies within 1 deg of the file's own stereo rotation R."""
+    import cv2
+
+    stereo = SHARED_DATA / "ros_fisheye_stereo_checkerboard" / "stereo" / "cam_stereo.yml"
+    bag = SHARED_DATA / "ros2bag_fisheye_stereo_derived" / "fisheye_stereo_bag"
+    if not (stereo.exists() and bag.exists()):
+        pytest.skip(f"shared data absent: {stereo} or {bag}")
+    out = tmp_path / "out"
+    assert main(["calibrate", "--bag", str(bag), "--topics", "/stereo/left/image_raw",
+                 "/stereo/right/image_raw", "--preset", "fisheye", "--intrinsics",
+                 f"stereo_left,stereo_right={stereo}", "--max-frame-sets", "5",
+                 "--consensus-runs", "1", "--out", str(out)]) == 0
+    rig = read_calibration(out)
+    fs = cv2.FileStorage(str(stereo), cv2.FILE_STORAGE_READ)
+    K2, R_right_from_left = fs.getNode("K2").mat(), fs.getNode("R").mat()
+    fs.release()
+    right = rig.cameras["stereo_right"].intrinsics
+    assert right.model == "OPENCV_FISHEYE" and (right.width, right.height) == (800, 503)
+    np.testing.assert_allclose(right.params[:4], [K2[0, 0], K2[1, 1], K2[0, 2] + 0.5,
+                                                  K2[1, 2] + 0.5])
+    rot = rig.cameras["stereo_right"].cam_from_rig[:3, :3] @ R_right_from_left.T
+    assert np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))) < 1.0

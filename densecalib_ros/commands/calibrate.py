@@ -50,7 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "a target, or a previous calibration whose lenses were not touched): "
                              "ROS camera_info YAML files (camera = the file's camera_name, or "
                              "NAME=PATH), a folder of them, a densecalib calibration, an anipose "
-                             "calibration.toml or a Kalibr camchain; those "
+                             "calibration.toml, a Kalibr camchain or an OpenCV calibration "
+                             "file (a stereo file's two cameras named in order: "
+                             "left,right=PATH); those "
                              "cameras keep them exactly and only the extrinsics (and the other "
                              "cameras' intrinsics) are calibrated")
     parser.add_argument("--bag-camera-info", action="store_true",
@@ -187,7 +189,8 @@ def run(args: argparse.Namespace) -> int:
         if args.bag_camera_info:
             config.known_intrinsics = _bag_intrinsics(args, names, config.known_intrinsics)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
-        check_known_intrinsics(config.known_intrinsics, names, check_frame_sets(frame_sets, names))
+        config.known_intrinsics = check_known_intrinsics(
+            config.known_intrinsics, names, check_frame_sets(frame_sets, names))
         config.camera_masks = parse_masks(args.mask, names)
         if config.known_intrinsics:
             log.info("intrinsics given and kept for %s", ", ".join(sorted(config.known_intrinsics)))

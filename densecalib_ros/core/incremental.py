@@ -151,7 +151,9 @@ def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, 
                        state.fixed_blocks)
     scratch.cam_from_world[i], scratch.cam_from_world[j] = np.eye(4), pose_j
     _, _, err = midpoint_triangulation(scratch, rows)
-    d = np.nanmean(err[:, [i, j]], axis=1)
+    pair_err = err[:, [i, j]]  # nan where behind a camera: the mean of the finite ones
+    seen = np.isfinite(pair_err).sum(axis=1)
+    d = np.where(seen > 0, np.nansum(pair_err, axis=1) / np.maximum(seen, 1), np.nan)
     front = np.isfinite(d) & (d <= max_error_px)
     n = int(front.sum())
     if n < MIN_PAIR_CORRESPONDENCES:

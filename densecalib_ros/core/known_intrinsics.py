@@ -7,7 +7,8 @@ whose lenses were not touched since the last calibration while the mounts were b
 intrinsics are then better known than a self-calibration from the scene can give them, and
 holding them leaves only the poses to estimate.
 
-Sources (one spec each: PATH, or NAME=PATH to say which camera a single-camera file is for):
+Sources (one spec each: PATH, or NAME=PATH to say which camera a single-camera file is for,
+NAME1,NAME2=PATH for the two cameras of an OpenCV stereo file):
 - a ROS camera_info YAML (camera_calibration, camera_info_manager, our own `<camera>.yaml`):
   distortion_model plumb_bob (k1 k2 p1 p2 [k3]) -> OPENCV or FULL_OPENCV, rational_polynomial
   -> FULL_OPENCV, equidistant (also "fisheye", "kannala_brandt") -> OPENCV_FISHEYE, no
@@ -18,7 +19,15 @@ Sources (one spec each: PATH, or NAME=PATH to say which camera a single-camera f
 - an anipose / aniposelib `calibration.toml` (animal-pose arenas: each `[cam_i]`'s name, size,
   matrix, distortions, fisheye) and a Kalibr camchain YAML (each `camN` with a pinhole camera
   model, radtan or equidistant; the camera named from its rostopic as `--bag` names it), as
-  core/interchange.py writes them: every camera in them.
+  core/interchange.py writes them: every camera in them;
+- an OpenCV FileStorage file (YAML `%YAML:1.0` with `!!opencv-matrix`, or XML), as OpenCV's
+  calibration sample and tutorial write it (`camera_matrix`, `distortion_coefficients`,
+  `image_width`, `image_height`, `fisheye_model`): the camera is the file stem or NAME=; or a
+  stereo file (`K1`/`M1`, `D1`, `K2`/`M2`, `D2`, as stereoCalibrate's samples write it), whose
+  two cameras are named in order with NAME1,NAME2=PATH. A file without image size is for the
+  size of its camera's images (check_known_intrinsics fills it in and checks that the principal
+  point lies near their centre). The lens: `fisheye_model` when the file has it, else 4
+  coefficients are cv::fisheye's k1..k4 (cv::calibrateCamera writes 5, 8, 12 or 14).
 
 Pixel conventions: camera_info has the top-left pixel centre at (0, 0), COLMAP at (0.5, 0.5):
 cx_colmap = cx_ros + 0.5 (as core/export.py writes them).
@@ -37,15 +46,27 @@ from .export import calibration_folder, read_calibration
 from .plausibility import intrinsics_problem
 from .types import CameraIntrinsics
 
+# Width and height of intrinsics read from a file without image size (OpenCV stereo files):
+# the size of the camera's images (check_known_intrinsics).
+UNKNOWN_SIZE = (0, 0)
+
+# A file without image size is refused for images whose centre is farther than this fraction
+# of their width (height) from its principal point: a lens is centred within a few percent,
+# and intrinsics calibrated at twice or half the resolution put it at the edge or a quarter.
+MAX_PRINCIPAL_POINT_OFFSET = 0.2
+
 # camera_info distortion_model names (sensor_msgs/distortion_models and what drivers write)
 _FISHEYE_NAMES = ("equidistant", "fisheye", "kannala_brandt", "kannala_brandt4", "kb4")
 _PLUMB_BOB_NAMES = ("plumb_bob", "radtan", "")
 _RATIONAL_NAMES = ("rational_polynomial",)
 
 
-def intrinsics_from_camera_info(info: dict, source: str = "camera_info") -> CameraIntrinsics:
+def intrinsics_from_camera_info(info: dict, source: str = "camera_info", *,
+                                size_from_images: bool = False) -> CameraIntrinsics:
     """CameraIntrinsics (COLMAP model and pixel convention) of a camera_info dict (the YAML's
-    content). InputError with the file named when a field is missing or the model unknown."""
+    content). InputError with the file named when a field is missing or the model unknown.
+    size_from_images: the source has no image size; the result is 0x0 (UNKNOWN_SIZE) until
+    check_known_intrinsics gives it its images' size."""
     try:
         width, height = int(info["image_width"]), int(info["image_height"])
         K = np.asarray(info["camera_matrix"]["data"], dtype=np.float64).reshape(3, 3)
@@ -57,7 +78,8 @@ def intrinsics_from_camera_info(info: dict, source: str = "camera_info") -> Came
                          "image_height, camera_matrix.data (9 values), distortion_model and "
                          "distortion_coefficients.data.") from exc
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5
-    if not (width > 0 and height > 0 and fx > 0 and fy > 0):
+    sized = not (size_from_images and (width, height) == UNKNOWN_SIZE)
+    if not (((width > 0 and height > 0) or not sized) and fx > 0 and fy > 0):
         raise InputError(f"{source}: image size {width}x{height} and focal lengths {fx}, {fy} "
                          "must be positive (is it an uncalibrated camera_info?).")
     if model in _FISHEYE_NAMES:
@@ -93,6 +115,92 @@ def _yaml_file(path: Path, name: Optional[str]) -> dict[str, CameraIntrinsics]:
         return _kalibr_camchain(info, path)
     stated = str(info.get("camera_name") or "").strip().strip("/").split("/")[-1]
     return {name or stated or path.stem: intrinsics_from_camera_info(info, str(path))}
+
+
+def _is_opencv_storage(path: Path) -> bool:
+    """Whether the file is an OpenCV FileStorage (its YAML dialect is not YAML 1.1 that PyYAML
+    reads: a `%YAML:1.0` header, `!!opencv-matrix` tags)."""
+    try:
+        head = path.read_bytes()[:4096].decode("utf-8", "replace")
+    except OSError:
+        return False
+    return (head.lstrip().startswith("%YAML:") or "!!opencv-matrix" in head
+            or "<opencv_storage>" in head)
+
+
+def _numbers(node) -> Optional[list[float]]:
+    """The values of an OpenCV FileNode: an opencv-matrix, a sequence or a number; None when
+    the node is absent."""
+    if node.empty() or node.isNone():
+        return None
+    if node.isMap():
+        mat = node.mat()
+        return None if mat is None else [float(v) for v in np.asarray(mat).ravel()]
+    if node.isSeq():
+        return [node.at(i).real() for i in range(node.size())]
+    return [node.real()]
+
+
+def _opencv_camera(fs, matrix_keys: Sequence[str], dist_keys: Sequence[str], source: str,
+                   fisheye_flag: Optional[bool]) -> CameraIntrinsics:
+    def first(keys):
+        for key in keys:
+            values = _numbers(fs.getNode(key))
+            if values is not None:
+                return values
+        return None
+
+    K, D = first(matrix_keys), first(dist_keys)
+    if K is None or len(K) != 9:
+        raise InputError(f"{source} has no 3x3 camera matrix ({' or '.join(matrix_keys)}).")
+    D = D or []
+    while len(D) > 8 and D[-1] == 0.0:  # thin-prism and tilt terms (12, 14), when unused
+        D = D[:-1]
+    width = _numbers(fs.getNode("image_width")) or [0]
+    height = _numbers(fs.getNode("image_height")) or [0]
+    fisheye = fisheye_flag if fisheye_flag is not None else len(D) == 4
+    return intrinsics_from_camera_info(
+        {"image_width": int(width[0]), "image_height": int(height[0]),
+         "camera_matrix": {"data": K},
+         "distortion_model": "equidistant" if fisheye else "rational_polynomial",
+         "distortion_coefficients": {"data": D}}, source, size_from_images=True)
+
+
+def _opencv_file(path: Path, names: Sequence[str]) -> dict[str, CameraIntrinsics]:
+    """The camera of an OpenCV calibration file (named NAME= or by the file stem), or the two
+    cameras of an OpenCV stereo file (named in order by NAME1,NAME2=)."""
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        opened = fs.isOpened()
+    except (cv2.error, SystemError) as exc:
+        raise InputError(f"Cannot read OpenCV calibration {path}: {exc}") from exc
+    if not opened:
+        raise InputError(f"Cannot open OpenCV calibration {path}.")
+    try:
+        flag = _numbers(fs.getNode("fisheye_model"))
+        fisheye = None if flag is None else bool(flag[0])
+        stereo = [i for i in (1, 2) if _numbers(fs.getNode(f"D{i}")) is not None]
+        if stereo != [1, 2]:
+            cam = _opencv_camera(fs, ("camera_matrix", "cameraMatrix", "K", "M"),
+                                 ("distortion_coefficients", "distCoeffs", "dist_coeffs", "D"),
+                                 str(path), fisheye)
+            if len(names) > 1:
+                raise InputError(f"{path} holds one camera (an OpenCV calibration), but "
+                                 f"{len(names)} names were given for it.")
+            return {names[0] if names else path.stem: cam}
+        if len(names) != 2:
+            raise InputError(f"{path} is an OpenCV stereo calibration of two cameras (K1/D1, "
+                             f"K2/D2): name them in order, e.g. left,right={path}.")
+        return {names[i - 1]: _opencv_camera(fs, (f"K{i}", f"M{i}", f"cameraMatrix{i}"),
+                                             (f"D{i}", f"distCoeffs{i}"),
+                                             f"{path} (camera {i})", fisheye)
+                for i in (1, 2)}
+    except cv2.error as exc:  # a node of another type than its key's
+        raise InputError(f"Cannot read OpenCV calibration {path}: {exc}") from exc
+    finally:
+        fs.release()
 
 
 def _kalibr_camchain(chain: dict, path: Path) -> dict[str, CameraIntrinsics]:
@@ -160,14 +268,22 @@ def read_known_intrinsics(specs: Sequence[str], camera_names: Optional[Sequence[
     origin: dict[str, str] = {}
     for spec in specs:
         name, sep, path_text = str(spec).partition("=")
-        if not sep or "/" in name or not name:
-            name, path_text = None, str(spec)
+        names = [n.strip() for n in name.split(",")]
+        if not sep or "/" in name or not all(names):
+            names, path_text = [], str(spec)
+        name = names[0] if len(names) == 1 else None
         path = Path(path_text).expanduser()
         if not path.exists():
             raise InputError(f"Intrinsics file {path} does not exist (give a camera_info YAML, a "
                              "calibration.json or its folder, optionally as NAME=PATH).")
         found: dict[str, CameraIntrinsics] = {}
-        if path.is_dir() and (calibration_folder(path) / "calibration.json").exists():
+        if path.is_file() and _is_opencv_storage(path):
+            found = _opencv_file(path, names)
+        elif len(names) > 1:
+            raise InputError(f"{spec}: NAME1,NAME2= names the two cameras of an OpenCV stereo "
+                             f"file; {path} is not one (name a single-camera file with "
+                             "NAME=PATH).")
+        elif path.is_dir() and (calibration_folder(path) / "calibration.json").exists():
             found = _from_calibration(path)
         elif path.suffix == ".json":
             found = _from_calibration(path)
@@ -177,7 +293,8 @@ def read_known_intrinsics(specs: Sequence[str], camera_names: Optional[Sequence[
             found = _anipose_toml(path / "calibration.toml")
         elif path.is_dir():
             for f in sorted(list(path.glob("*.yaml")) + list(path.glob("*.yml"))):
-                for n, cam in _yaml_file(f, None).items():
+                for n, cam in (_opencv_file(f, []) if _is_opencv_storage(f)
+                               else _yaml_file(f, None)).items():
                     if n in found:
                         raise InputError(f"Two files in {path} are for camera {n!r}: give the "
                                          "files one by one as NAME=PATH.")
@@ -210,18 +327,32 @@ def _from_calibration(path: Path) -> dict[str, CameraIntrinsics]:
 
 
 def check_known_intrinsics(known: dict, camera_names: Sequence[str],
-                           image_sizes: Sequence[tuple[int, int]]) -> None:
-    """InputError when given intrinsics name an unknown camera, were calibrated at another image
-    size than the camera's images, or are physically implausible (plausibility.py)."""
+                           image_sizes: Sequence[tuple[int, int]]) -> dict:
+    """`known` with the intrinsics of files without image size (UNKNOWN_SIZE) given their
+    images' size. InputError when given intrinsics name an unknown camera, were calibrated at
+    another image size than the camera's images, or are physically implausible
+    (plausibility.py); for files without image size, when the principal point is not near the
+    images' centre (the file is for another resolution)."""
     unknown = sorted(set(known) - set(camera_names))
     if unknown:
         raise InputError(f"Intrinsics given for unknown camera(s) {', '.join(unknown)}: the "
                          f"cameras are {', '.join(camera_names)} (name a single-camera file "
                          "with NAME=PATH).")
+    known = dict(known)
     for name, (w, h) in zip(camera_names, image_sizes):
         cam = known.get(name)
         if cam is None:
             continue
+        if (int(cam.width), int(cam.height)) == UNKNOWN_SIZE:
+            cam = known[name] = CameraIntrinsics(cam.model, int(w), int(h), cam.params.copy())
+            pp_px = np.asarray(cam.params[2:4])  # the file's models: fx fy cx cy first
+            off = np.abs(pp_px / [w, h] - 0.5)
+            if np.any(off > MAX_PRINCIPAL_POINT_OFFSET):
+                raise InputError(
+                    f"The intrinsics given for {name} have no image size, and their principal "
+                    f"point ({pp_px[0]:.0f}, {pp_px[1]:.0f}) px is far from the centre of its "
+                    f"{w}x{h} images: they are for another resolution. Give intrinsics "
+                    "calibrated at this resolution.")
         if (int(cam.width), int(cam.height)) != (int(w), int(h)):
             raise InputError(
                 f"The intrinsics given for {name} are for {cam.width}x{cam.height} images, its "
@@ -234,6 +365,7 @@ def check_known_intrinsics(known: dict, camera_names: Sequence[str],
                              "it is a fisheye lens, its file should say distortion_model: "
                              "equidistant; else calibrate its intrinsics again (or leave them "
                              "out to self-calibrate them).")
+    return known
 
 
 def with_previous_intrinsics(known: dict, previous, camera_names: Sequence[str]) -> dict:

@@ -399,7 +399,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     With config.refine_on_all_matches and a keypoint matcher, every run's rig is refined last on
     all the matches (core.all_matches)."""
     config = resolve_camera_lenses(config, camera_names)
-    check_known_intrinsics(config.known_intrinsics or {}, camera_names, image_sizes)
+    config = replace(config, known_intrinsics=check_known_intrinsics(
+        config.known_intrinsics or {}, camera_names, image_sizes))
     match_tracks = None
     if config.refine_on_all_matches:
         match_tracks = keypoint_tracks(match_sets, len(camera_names), seed=config.sampling.seed)

@@ -115,8 +115,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                    "camera ('' = none)", False, {}),
     "intrinsics_files": (Parameter.Type.STRING_ARRAY,
                          "intrinsics to keep (cameras calibrated before: camera_info YAML, a "
-                         "densecalib calibration, an anipose calibration.toml or a Kalibr "
-                         "camchain): empty, one file or folder naming its cameras, "
+                         "densecalib calibration, an anipose calibration.toml, a Kalibr "
+                         "camchain or an OpenCV calibration file, a stereo one as "
+                         "'left,right=PATH'): empty, one file or folder naming its cameras, "
                          "or one per camera ('' = calibrate that camera's intrinsics); only the "
                          "extrinsics of those cameras are calibrated", False, {}),
     "keep_intrinsics": (False, "recalibrations keep the last good calibration's intrinsics and "
