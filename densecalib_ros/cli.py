@@ -28,7 +28,8 @@ SUBCOMMANDS = {
     "undistort": ("densecalib_ros.commands.undistort",
                   "resample images to distortion-free pinhole cameras, with their calibration"),
     "export": ("densecalib_ros.commands.export",
-               "write a calibration as anipose calibration.toml or Kalibr camchain.yaml"),
+               "write a calibration as anipose calibration.toml, Kalibr camchain.yaml or "
+               "OpenCV FileStorage files"),
 }
 
 

@@ -120,3 +120,37 @@ def test_export_command(rig, tmp_path, capsys, caplog):
         assert main(["export", str(tmp_path / "none"), "--format", "kalibr",
                      "--out", str(tmp_path / "c.yaml")]) == 2
     assert not (tmp_path / "c.yaml").exists()
+
+
+def test_opencv_files_load_in_opencv_and_read_back_as_given_intrinsics(rig, tmp_path, capsys):
+    """`densecalib export --format opencv`: each <camera>.yml, loaded with cv2.FileStorage as
+    OpenCV programs load it and projected with its R, T by OpenCV, gives our pixels; the folder
+    reads back as given intrinsics (--intrinsics DIR) with the same projections."""
+    from densecalib_ros.core.known_intrinsics import read_known_intrinsics
+
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    out = tmp_path / "opencv"
+    assert main(["export", str(calib), "--format", "opencv", "--out", str(out)]) == 0
+    assert "left.yml, top.yml, right.yml" in capsys.readouterr().out
+    pts = _points_seen_by_all(rig)
+    for name, cam in rig.cameras.items():
+        fs = cv2.FileStorage(str(out / f"{name}.yml"), cv2.FILE_STORAGE_READ)
+        size = (int(fs.getNode("image_width").real()), int(fs.getNode("image_height").real()))
+        fisheye = bool(int(fs.getNode("fisheye_model").real()))
+        got = opencv_pixels(pts, fs.getNode("camera_matrix").mat(),
+                            fs.getNode("distortion_coefficients").mat(), fisheye,
+                            cv2.Rodrigues(fs.getNode("R").mat())[0], fs.getNode("T").mat())
+        fs.release()
+        assert size == (cam.intrinsics.width, cam.intrinsics.height)
+        assert fisheye == (cam.intrinsics.model == "OPENCV_FISHEYE")
+        assert np.abs(got - _colmap_pixels(cam, pts)).max() < 1e-6
+    known = read_known_intrinsics([str(out)])
+    assert sorted(known) == ["left", "right", "top"]
+    for name, cam in rig.cameras.items():
+        x = pts @ cam.cam_from_rig[:3, :3].T + cam.cam_from_rig[:3, 3]
+        np.testing.assert_allclose(known[name].to_pycolmap().img_from_cam(x),
+                                   cam.intrinsics.to_pycolmap().img_from_cam(x), atol=1e-6)
+    (tmp_path / "f.yml").write_text("x")
+    assert main(["export", str(calib), "--format", "opencv", "--out",
+                 str(tmp_path / "f.yml")]) == 2

@@ -8,7 +8,14 @@
   `camN` with pinhole intrinsics [fu, fv, pu, pv], radtan or equidistant distortion, resolution,
   rostopic, and T_cn_cnm1 (camN from cam(N-1)) for N >= 1.
 
-Both take the camera parameters from core.export.ros_camera_info (ROS = OpenCV conventions), so the
+- OpenCV FileStorage YAML, one `<camera>.yml` per camera (what OpenCV's calibration sample and
+  tutorial write and OpenCV-based programs load with `fs["camera_matrix"]`): image_width,
+  image_height, fisheye_model (0/1), camera_matrix, distortion_coefficients (k1 k2 p1 p2 k3
+  [k4 k5 k6], or fisheye k1..k4), and R, T of cam_from_rig (x_cam = R x_rig + T, as
+  stereoCalibrate's R, T from the first camera: for a stereo pair the second camera's R, T are
+  the stereo extrinsics).
+
+All take the camera parameters from core.export.ros_camera_info (ROS = OpenCV conventions), so the
 pixel convention and the distortion mapping live in one place. Translations are in the rig's
 units: metres when a known baseline set the scale, else the reconstruction's arbitrary unit
 (the files say which in a comment).
@@ -24,7 +31,9 @@ from .errors import InputError
 from .export import ros_camera_info
 from .types import RigCalibration
 
-FORMATS = ("anipose", "kalibr")
+FORMATS = ("anipose", "kalibr", "opencv")
+# Formats written as a folder of files, one per camera, rather than one file
+FOLDER_FORMATS = ("opencv",)
 DEFAULT_TOPIC_PATTERN = "/{name}/image_raw"
 
 
@@ -40,6 +49,8 @@ def _lens(name: str, rig: RigCalibration, fmt: str) -> tuple[dict, list[float], 
     model = info["distortion_model"]
     if model == "equidistant":
         return info, dist, True
+    if fmt == "opencv" and model == "rational_polynomial":
+        return info, dist, False  # cv::calibrateCamera's CALIB_RATIONAL_MODEL, 8 coefficients
     if model != "plumb_bob" or (fmt == "kalibr" and dist[4] != 0.0):
         raise InputError(f"Camera {name} ({rig.cameras[name].intrinsics.model}) has a lens model "
                          f"{fmt} cannot hold: it takes pinhole + radial-tangential "
@@ -105,9 +116,34 @@ def kalibr_camchain_yaml(rig: RigCalibration,
     return "\n".join(lines) + "\n"
 
 
+def opencv_files(rig: RigCalibration) -> dict[str, str]:
+    """File name -> OpenCV FileStorage YAML text of each camera (format in the module
+    docstring)."""
+    out = {}
+    for name, cam in rig.cameras.items():
+        info, dist, fisheye = _lens(name, rig, "opencv")
+        cam_from_rig = np.asarray(cam.cam_from_rig, dtype=np.float64)
+        fs = cv2.FileStorage(f"{name}.yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+        fs.writeComment(f"densecalib calibration of camera {name}; R, T: cam_from_rig (rig = "
+                        f"the reference camera {rig.reference_camera}), T in {_units(rig)}")
+        fs.write("camera_name", name)
+        fs.write("image_width", int(info["image_width"]))
+        fs.write("image_height", int(info["image_height"]))
+        fs.write("fisheye_model", int(fisheye))
+        fs.write("camera_matrix", np.asarray(info["camera_matrix"]["data"], float).reshape(3, 3))
+        fs.write("distortion_coefficients", np.asarray(dist, dtype=np.float64).reshape(-1, 1))
+        fs.write("reference_camera", rig.reference_camera)
+        fs.write("R", cam_from_rig[:3, :3])
+        fs.write("T", cam_from_rig[:3, 3].reshape(3, 1))
+        out[f"{name}.yml"] = fs.releaseAndGetString()
+    return out
+
+
 def export_text(rig: RigCalibration, fmt: str, **options) -> str:
     if fmt == "anipose":
         return anipose_toml(rig)
     if fmt == "kalibr":
         return kalibr_camchain_yaml(rig, **options)
+    if fmt in FOLDER_FORMATS:
+        raise InputError(f"Format {fmt} is a folder of files: use opencv_files.")
     raise InputError(f"Unknown export format {fmt!r}: use one of {', '.join(FORMATS)}.")
