@@ -9,8 +9,9 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import DisconnectedViewGraphError, InputError
-from densecalib_ros.core.global_sfm import (gauge_scores, rotation_averaging_poses,
-                                            run_global, staged_bundle_adjustment,
+from densecalib_ros.core.global_sfm import (CENTRE_GRID, gauge_scores,
+                                            rotation_averaging_poses, run_global,
+                                            snapped_centres, staged_bundle_adjustment,
                                             to_gauge_frame, triangulate_tracks)
 from densecalib_ros.core.incremental import initial_intrinsics
 from densecalib_ros.core.metrics import evaluate_calibration, relative_pose_errors
@@ -70,6 +71,40 @@ def test_rotation_averaging_recovers_truth_from_exact_tracks():
     errors = relative_pose_errors(dict(zip(NAMES, est)), dict(zip(NAMES, poses)))
     assert max(e.rot_err_deg for e in errors) < 0.05
     assert max(e.trans_dir_err_deg for e in errors) < 0.5
+
+
+def _centres(poses):
+    return np.array([-T[:3, :3].T @ T[:3, 3] for T in poses])
+
+
+def test_global_positioning_gives_the_same_poses_every_run():
+    """pycolmap's positioning runs Ceres on every core, whose sums come out in varying order;
+    the poses it hands on are the same from run to run all the same (snapped_centres)."""
+    cams, poses = gt_rig(seed=3)
+    tracks = gt_tracks(cams, poses, noise_px=0.5, outlier_frac=0.05, seed=3)
+    runs = [rotation_averaging_poses(tracks, cams, NAMES) for _ in range(4)]
+    for run in runs[1:]:
+        for T, T0 in zip(run, runs[0]):
+            np.testing.assert_array_equal(T, T0)
+
+
+def test_snapped_centres_absorb_noise_far_below_the_grid_and_keep_the_rig():
+    cams, poses = gt_rig(seed=3)
+    rng = np.random.default_rng(0)
+    centres = _centres(poses)
+    size = np.median(np.linalg.norm(centres[1:] - centres[0], axis=1))
+    snapped = snapped_centres(poses)
+    moved = []
+    for T in poses:  # each centre moved by ~1e-9 of the rig's size, as a thread reordering does
+        P = T.copy()
+        P[:3, 3] -= P[:3, :3] @ (1e-9 * size * rng.normal(size=3))
+        moved.append(P)
+    for T, T_moved, T_orig in zip(snapped, snapped_centres(moved), poses):
+        np.testing.assert_array_equal(T, T_moved)
+        np.testing.assert_array_equal(T[:3, :3], T_orig[:3, :3])  # rotations untouched
+    got = _centres(snapped)
+    assert np.all(got[0] == 0.0)  # camera 0 at the origin
+    assert np.abs(got - (centres - centres[0])).max() <= 2 * CENTRE_GRID * size
 
 
 def test_gauge_frame_is_the_gauge_camera_and_keeps_residuals():

@@ -60,6 +60,7 @@ MIN_PAIR_TRACKS = MIN_PAIR_CORRESPONDENCES  # shared tracks that make a view-gra
 # Triangulation RANSAC threshold: loose, because the initial poses (rotation averaging, a moved
 # rig) can be a degree off, i.e. ~10-20 px at typical focal lengths; BA's Cauchy loss does the rest.
 MAX_POSITIONING_TRACKS = 4000  # tracks given to global positioning (its cost grows with them)
+CENTRE_GRID = 1e-5  # x the rig's size: global positioning's centres are rounded to it
 MIN_CAMERA_OBSERVATIONS = 10  # a camera with fewer point observations after BA has failed
 INCREMENTAL_B_ERR_PX = 20.0  # the paper's incremental B_err (regular / fisheye), used when the
 INCREMENTAL_B_ERR_FISHEYE_PX = 100.0  # global preset (no B_err) starts from the incremental result
@@ -225,7 +226,31 @@ def rotation_averaging_poses(tracks: Tracks, intrinsics: Sequence[CameraIntrinsi
             "Global positioning could not place every camera from the shared tracks: the view "
             "graph is too weak. Add frame sets with common, textured content, or use the "
             "incremental pipeline.")
-    return poses
+    return snapped_centres(poses)
+
+
+def snapped_centres(cam_from_world: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """The poses with camera 0 moved to the origin and every camera centre rounded to a grid of
+    about CENTRE_GRID x the rig's size (a power of two, so the grid itself does not wobble).
+
+    pycolmap's global positioning runs Ceres on every core (the thread count is not exposed),
+    and the order in which the threads add up terms varies: on a generated 4-camera rig the
+    centres differed by up to 7e-9 of the rig's size from run to run, and the staged BA after
+    it (outlier cuts, the choice between two starts) turned that into rigs 40 px of focal
+    apart in one run of three. Rounding makes the start identical unless a centre lies within
+    that noise of a grid line (~1e-3 per coordinate); the BA refines the centres anyway."""
+    centres = np.array([-T[:3, :3].T @ T[:3, 3] for T in cam_from_world])
+    centres -= centres[0]
+    size = np.median(np.linalg.norm(centres[1:], axis=1)) if len(centres) > 1 else 0.0
+    if not (np.isfinite(size) and size > 0):
+        return [np.array(T, dtype=np.float64) for T in cam_from_world]
+    step = 2.0 ** np.round(np.log2(size * CENTRE_GRID))
+    out = []
+    for T, centre in zip(cam_from_world, np.round(centres / step) * step):
+        snapped = np.array(T, dtype=np.float64)
+        snapped[:3, 3] = -snapped[:3, :3] @ centre
+        out.append(snapped)
+    return out
 
 
 def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
