@@ -399,10 +399,10 @@ T: [ -1.1703102538044161e-01, -5.8735929934837467e-05, -2.2387324441349573e-03 ]
 """
 
 
-@pytest.mark.parametrize("ext", ["yml", "xml"])
+@pytest.mark.parametrize("ext", ["yml", "xml", "json"])
 @pytest.mark.parametrize("fisheye", [False, True])
 def test_opencv_calibration_files_read_back_to_opencvs_projection(tmp_path, ext, fisheye):
-    """A file as OpenCV's calibration sample writes it (FileStorage YAML or XML: image size,
+    """A file as OpenCV's calibration sample writes it (FileStorage YAML, XML or JSON: image size,
     fisheye_model, camera_matrix, distortion_coefficients) gives a camera projecting every ray
     where OpenCV does; the camera is the file stem or NAME=."""
     import cv2

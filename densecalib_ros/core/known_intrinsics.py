@@ -20,7 +20,7 @@ NAME1,NAME2=PATH for the two cameras of an OpenCV stereo file):
   matrix, distortions, fisheye) and a Kalibr camchain YAML (each `camN` with a pinhole camera
   model, radtan or equidistant; the camera named from its rostopic as `--bag` names it), as
   core/interchange.py writes them: every camera in them;
-- an OpenCV FileStorage file (YAML `%YAML:1.0` with `!!opencv-matrix`, or XML), as OpenCV's
+- an OpenCV FileStorage file (YAML `%YAML:1.0` with `!!opencv-matrix`, XML or JSON), as OpenCV's
   calibration sample and tutorial write it (`camera_matrix`, `distortion_coefficients`,
   `image_width`, `image_height`, `fisheye_model`): the camera is the file stem or NAME=; or a
   stereo file (`K1`/`M1`, `D1`, `K2`/`M2`, `D2`, as stereoCalibrate's samples write it), whose
@@ -118,13 +118,14 @@ def _yaml_file(path: Path, name: Optional[str]) -> dict[str, CameraIntrinsics]:
 
 
 def _is_opencv_storage(path: Path) -> bool:
-    """Whether the file is an OpenCV FileStorage (its YAML dialect is not YAML 1.1 that PyYAML
-    reads: a `%YAML:1.0` header, `!!opencv-matrix` tags)."""
+    """Whether the file is an OpenCV FileStorage: its YAML dialect is not the YAML 1.1 that
+    PyYAML reads (a `%YAML:1.0` header, `!!opencv-matrix` tags); its XML and JSON forms name
+    their matrices' type_id opencv-matrix too."""
     try:
         head = path.read_bytes()[:4096].decode("utf-8", "replace")
     except OSError:
         return False
-    return (head.lstrip().startswith("%YAML:") or "!!opencv-matrix" in head
+    return (head.lstrip().startswith("%YAML:") or "opencv-matrix" in head
             or "<opencv_storage>" in head)
 
 
