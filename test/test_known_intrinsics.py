@@ -3,7 +3,6 @@ them, checked against the images, and held exactly while the extrinsics are cali
 import json
 import logging
 import os
-import tempfile
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -455,7 +454,7 @@ def test_opencv_stereo_files_name_their_cameras_in_order_and_take_the_images_siz
         read_known_intrinsics([f"a,b={tmp_path / 'cam.yaml'}"])
 
 
-def test_intrinsics_without_image_size_are_held_at_their_images_size(rig):
+def test_intrinsics_without_image_size_are_held_at_their_images_size(rig, tmp_path):
     """The pipeline gives size-less given intrinsics (an OpenCV stereo file) their images' size
     and holds them exactly."""
     gt = rig.ground_truth()
@@ -465,7 +464,7 @@ def test_intrinsics_without_image_size_are_held_at_their_images_size(rig):
         lines += [f"M{i}: !!opencv-matrix", "   rows: 3", "   cols: 3", "   dt: d",
                   f"   data: [ {f!r}, 0., {cx - 0.5!r}, 0., {f!r}, {cy - 0.5!r}, 0., 0., 1. ]",
                   f"D{i}: [ {k1!r}, {k2!r}, 0., 0., 0. ]"]
-    path = Path(tempfile.mkdtemp()) / "intrinsics.yml"
+    path = tmp_path / "intrinsics.yml"
     path.write_text("\n".join(lines) + "\n")
     known = read_known_intrinsics([f"{rig.names[0]},{rig.names[1]}={path}"], rig.names)
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
