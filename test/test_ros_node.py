@@ -378,6 +378,55 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
         ros.remove(n)
 
 
+def test_stereo_pair_camera_info_carry_the_pair_rectification(ros, tmp_path):
+    """With stereo_pair set, the last good calibration is republished with the pair's stereo
+    rectification in R and P (Tx = -fx' baseline), the other cameras with R = I; a pair in the
+    wrong order falls back to R = I with the reason, and changing the parameter republishes."""
+    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.stereo import rectify_pair
+    from densecalib_ros.core.types import RigCalibration, RigCamera
+
+    lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, -0.05, 0.01]))
+    poses = {"cam0": np.eye(4)}
+    for name, x, y in (("cam1", 0.1, 0.002), ("cam2", 0.2, 0.0), ("cam3", 0.3, 0.005)):
+        poses[name] = np.eye(4)
+        poses[name][:3, 3] = [-x, y, 0.001]  # cameras in a row, cam0 leftmost
+    rig = RigCalibration("cam0", {n: RigCamera(n, lens, p) for n, p in poses.items()},
+                         metric_scale=True)
+    write_calibration_files(rig, tmp_path / "20260101T000000Z")
+    os.symlink("20260101T000000Z", tmp_path / "latest")
+    with pytest.raises(InputError, match="stereo_pair must be empty or two different cameras"):
+        ros.densecalib(tmp_path, name="bad_pair", stereo_pair=["cam0", "cam9"])
+    node = ros.densecalib(tmp_path, stereo_pair=["cam0", "cam1"])
+    listener = ros.listener(node)
+    try:
+        def published(name, field):
+            info = listener.snapshot()["camera_info"].get(name)
+            return None if info is None else np.array(getattr(info, field))
+
+        assert wait_until(lambda: len(listener.snapshot()["camera_info"]) == 4, 10.0)
+        want = rectify_pair(rig, "cam0", "cam1")
+        np.testing.assert_allclose(published("cam0", "r"), want.rect_from_left.ravel())
+        np.testing.assert_allclose(published("cam1", "p"), want.projection_right.ravel())
+        p_right = published("cam1", "p")
+        assert -p_right[3] / p_right[0] == pytest.approx(np.linalg.norm([0.1, 0.002, 0.001]))
+        np.testing.assert_allclose(published("cam2", "r"), np.eye(3).ravel())
+        assert node.stereo_problem is None
+        # the pair named right-to-left: not rectifiable for stereo_image_proc, so R = I again
+        assert node.set_parameters([Parameter("stereo_pair",
+                                              value=["cam1", "cam0"])])[0].successful
+        assert wait_until(lambda: np.allclose(published("cam0", "r"), np.eye(3).ravel()), 10.0)
+        assert "--pair cam0 cam1" in node.stereo_problem
+        assert node.set_parameters([Parameter("stereo_pair",
+                                              value=["cam2", "cam3"])])[0].successful
+        assert wait_until(lambda: not np.allclose(published("cam3", "r"), np.eye(3).ravel()),
+                          10.0)
+        np.testing.assert_allclose(published("cam0", "r"), np.eye(3).ravel())
+    finally:
+        ros.remove(listener)
+        ros.remove(node)
+
+
 def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_path):
     """Shutdown (destroy_node) while a calibration runs: the worker's publishing no longer kills
     its thread, so the job is still answered and nobody is left waiting on it."""

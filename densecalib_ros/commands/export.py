@@ -1,5 +1,6 @@
 """`densecalib export`: write a calibration on disk in another tool's format (anipose's
-calibration.toml, Kalibr's camchain.yaml, OpenCV FileStorage files; core.interchange)."""
+calibration.toml, Kalibr's camchain.yaml, OpenCV FileStorage files, a rectified stereo pair for
+ROS's stereo_image_proc or OpenCV; core.interchange, core.stereo)."""
 from __future__ import annotations
 
 import argparse
@@ -8,8 +9,9 @@ from pathlib import Path
 
 from ..core.errors import InputError
 from ..core.export import read_calibration, write_text_atomic
-from ..core.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS, export_text,
-                                opencv_files)
+from ..core.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS, STEREO_FORMATS,
+                                export_text, opencv_files, opencv_stereo_yaml, ros_stereo_files)
+from ..core.stereo import stereo_pair
 
 log = logging.getLogger("densecalib.export")
 
@@ -22,9 +24,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="anipose: aniposelib calibration.toml; kalibr: Kalibr camchain.yaml; "
                              "opencv: one OpenCV FileStorage <camera>.yml per camera "
                              "(camera_matrix, distortion_coefficients, image size, "
-                             "fisheye_model, R and T of cam_from_rig)")
+                             "fisheye_model, R and T of cam_from_rig); ros-stereo: the rectified "
+                             "camera_info YAMLs of a stereo pair (<left>.yaml, <right>.yaml) for "
+                             "camera_info_manager and stereo_image_proc; opencv-stereo: one "
+                             "FileStorage file of a pair (K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
     parser.add_argument("--out", required=True, metavar="FILE|DIR",
-                        help="file to write (replaced); opencv: the folder for the files")
+                        help="file to write (replaced); opencv, ros-stereo: the folder for the "
+                             "files")
+    parser.add_argument("--pair", nargs=2, metavar=("LEFT", "RIGHT"),
+                        help="ros-stereo, opencv-stereo: the two cameras, left one first "
+                             "(default for a two-camera rig: its cameras, ordered left to right)")
+    parser.add_argument("--alpha", type=float, default=0.0,
+                        help="ros-stereo, opencv-stereo: rectified view, 0 = only valid pixels "
+                             "(as ROS's stereo calibrator), 1 = every source pixel "
+                             "(cv2.stereoRectify's alpha, the fisheye balance; default 0)")
     parser.add_argument("--topic-pattern", default=DEFAULT_TOPIC_PATTERN, metavar="PATTERN",
                         help="kalibr: each camera's rostopic, {name} = camera name "
                              f"(default {DEFAULT_TOPIC_PATTERN})")
@@ -34,19 +47,32 @@ def run(args: argparse.Namespace) -> int:
     try:
         rig = read_calibration(args.calibration)
         options = {"topic_pattern": args.topic_pattern} if args.format == "kalibr" else {}
-        if args.format in FOLDER_FORMATS:
+        if args.pair and args.format not in STEREO_FORMATS:
+            raise InputError(f"--pair names a stereo pair; it goes with --format "
+                             f"{' or '.join(STEREO_FORMATS)}, not {args.format}.")
+        if args.format in STEREO_FORMATS:
+            rect = stereo_pair(rig, args.pair, args.alpha,
+                               left_to_right=args.format == "ros-stereo")
+            files = (ros_stereo_files(rig, rect) if args.format == "ros-stereo"
+                     else {None: opencv_stereo_yaml(rig, rect)})
+        elif args.format in FOLDER_FORMATS:
             files = opencv_files(rig)
-            if Path(args.out).is_file():
-                raise InputError(f"{args.out} is a file; --format {args.format} writes one file "
-                                 "per camera into a folder: give a folder.")
         else:
             files = {None: export_text(rig, args.format, **options)}
+        if args.format in FOLDER_FORMATS and Path(args.out).is_file():
+            raise InputError(f"{args.out} is a file; --format {args.format} writes one file "
+                             "per camera into a folder: give a folder.")
     except InputError as exc:
         log.error("%s", exc)
         return 2
     for name, text in files.items():  # name None: the one file of a single-file format
         write_text_atomic(args.out if name is None else Path(args.out) / name, text)
     listed = ", ".join(name for name in files if name)
-    print(f"wrote {args.out} ({args.format}, {len(rig.cameras)} cameras"
-          f"{': ' + listed if listed else ''})")
+    if args.format in STEREO_FORMATS:
+        print(f"wrote {args.out} ({args.format}: {rect.left} left, {rect.right} right, baseline "
+              f"{rect.baseline:.6g} {'m' if rect.metric else 'rig units (not metric)'}"
+              f"{'; ' + listed if listed else ''})")
+    else:
+        print(f"wrote {args.out} ({args.format}, {len(rig.cameras)} cameras"
+              f"{': ' + listed if listed else ''})")
     return 0

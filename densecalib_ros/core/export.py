@@ -14,6 +14,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -35,8 +36,12 @@ _PINHOLE_LIKE = {
 }
 
 
-def ros_camera_info(name: str, intrinsics: CameraIntrinsics) -> dict:
-    """The CameraInfo content of one camera in ROS conventions (plain lists, row-major)."""
+def ros_camera_info(name: str, intrinsics: CameraIntrinsics,
+                    rectification: Optional[np.ndarray] = None,
+                    projection: Optional[np.ndarray] = None) -> dict:
+    """The CameraInfo content of one camera in ROS conventions (plain lists, row-major).
+    rectification (3x3, rect_from_cam) and projection (3x4) are a stereo pair's (core.stereo);
+    a lone camera gets the identity and P = [K | 0]."""
     model = intrinsics.model
     if model not in _PINHOLE_LIKE:
         raise InputError(f"Camera model {model} has no ROS CameraInfo equivalent: use one of "
@@ -47,6 +52,9 @@ def ros_camera_info(name: str, intrinsics: CameraIntrinsics) -> dict:
         ros_model, dist = "plumb_bob", dist[:5]  # k1 k2 p1 p2 k3 (a lab plumb_bob read back)
     cx, cy = cx - 0.5, cy - 0.5  # COLMAP -> ROS/OpenCV pixel convention
     k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
+    r = np.eye(3) if rectification is None else np.asarray(rectification, np.float64)
+    p = (np.array([[fx, 0.0, cx, 0.0], [0.0, fy, cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
+         if projection is None else np.asarray(projection, np.float64))
     return {
         "image_width": int(intrinsics.width),
         "image_height": int(intrinsics.height),
@@ -55,15 +63,17 @@ def ros_camera_info(name: str, intrinsics: CameraIntrinsics) -> dict:
         "distortion_model": ros_model,
         "distortion_coefficients": {"rows": 1, "cols": len(dist), "data": [float(d) for d in dist]},
         "rectification_matrix": {"rows": 3, "cols": 3,
-                                 "data": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]},
-        "projection_matrix": {"rows": 3, "cols": 4,
-                              "data": [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]},
+                                 "data": [float(v) for v in r.reshape(-1)]},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in p.reshape(-1)]},
     }
 
 
-def camera_info_yaml(name: str, intrinsics: CameraIntrinsics) -> str:
-    """camera_info YAML text as written by camera_calibration / read by camera_info_manager."""
-    info = ros_camera_info(name, intrinsics)
+def camera_info_yaml(name: str, intrinsics: CameraIntrinsics,
+                     rectification: Optional[np.ndarray] = None,
+                     projection: Optional[np.ndarray] = None) -> str:
+    """camera_info YAML text as written by camera_calibration / read by camera_info_manager
+    (rectification, projection: see ros_camera_info)."""
+    info = ros_camera_info(name, intrinsics, rectification, projection)
 
     def mat(key):
         m = info[key]

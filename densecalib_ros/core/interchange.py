@@ -14,6 +14,11 @@
   [k4 k5 k6], or fisheye k1..k4), and R, T of cam_from_rig (x_cam = R x_rig + T, as
   stereoCalibrate's R, T from the first camera: for a stereo pair the second camera's R, T are
   the stereo extrinsics).
+- A stereo pair (core.stereo), for stereo matchers that work on rectified images:
+  `ros-stereo`, the two camera_info YAMLs ROS's stereo calibrator writes (left.yaml, right.yaml:
+  rectification_matrix R1/R2 and projection_matrix P1/P2, the right one with Tx = -fx' baseline),
+  read by camera_info_manager and used by stereo_image_proc; `opencv-stereo`, one FileStorage file
+  with K1 D1 K2 D2 (read back by --intrinsics LEFT,RIGHT=FILE), R T E F R1 R2 P1 P2 Q.
 
 All take the camera parameters from core.export.ros_camera_info (ROS = OpenCV conventions), so the
 pixel convention and the distortion mapping live in one place. Translations are in the rig's
@@ -28,12 +33,15 @@ import cv2
 import numpy as np
 
 from .errors import InputError
-from .export import ros_camera_info
+from .export import camera_info_yaml, ros_camera_info
+from .stereo import StereoRectification
 from .types import RigCalibration
 
-FORMATS = ("anipose", "kalibr", "opencv")
+FORMATS = ("anipose", "kalibr", "opencv", "ros-stereo", "opencv-stereo")
 # Formats written as a folder of files, one per camera, rather than one file
-FOLDER_FORMATS = ("opencv",)
+FOLDER_FORMATS = ("opencv", "ros-stereo")
+# Formats of one camera pair (core.stereo)
+STEREO_FORMATS = ("ros-stereo", "opencv-stereo")
 DEFAULT_TOPIC_PATTERN = "/{name}/image_raw"
 
 
@@ -137,6 +145,51 @@ def opencv_files(rig: RigCalibration) -> dict[str, str]:
         fs.write("T", cam_from_rig[:3, 3].reshape(3, 1))
         out[f"{name}.yml"] = fs.releaseAndGetString()
     return out
+
+
+def ros_stereo_files(rig: RigCalibration, rect: StereoRectification) -> dict[str, str]:
+    """File name -> camera_info YAML of the pair's two cameras with their rectification."""
+    out = {}
+    for name, rect_from_cam, projection in (
+            (rect.left, rect.rect_from_left, rect.projection_left),
+            (rect.right, rect.rect_from_right, rect.projection_right)):
+        out[f"{name}.yaml"] = (
+            f"# densecalib stereo pair {rect.left} (left) / {rect.right} (right); baseline "
+            f"{rect.baseline:.6g} {_units(rig)}\n"
+            + camera_info_yaml(name, rig.cameras[name].intrinsics, rect_from_cam, projection))
+    return out
+
+
+def opencv_stereo_yaml(rig: RigCalibration, rect: StereoRectification) -> str:
+    """OpenCV FileStorage YAML of the pair: the stereo samples' K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q
+    (x_right = R x_left + T, E = [T]x R), plus the image size, fisheye_model and the camera names."""
+    rot, t = rect.right_from_left[:3, :3], rect.right_from_left[:3, 3]
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    essential = tx @ rot
+    fs = cv2.FileStorage("stereo.yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    fs.writeComment(f"densecalib stereo pair: K1 D1 = {rect.left} (left), K2 D2 = {rect.right} "
+                    f"(right); x_right = R x_left + T; T and Q in {_units(rig)}")
+    fs.write("left_camera", rect.left)
+    fs.write("right_camera", rect.right)
+    fs.write("image_width", rect.width)
+    fs.write("image_height", rect.height)
+    fs.write("fisheye_model", int(rect.fisheye))
+    fs.write("K1", rect.k_left)
+    fs.write("D1", rect.d_left.reshape(-1, 1))
+    fs.write("K2", rect.k_right)
+    fs.write("D2", rect.d_right.reshape(-1, 1))
+    fs.write("R", rot)
+    fs.write("T", t.reshape(3, 1))
+    fs.write("E", essential)
+    # F, as stereoCalibrate's, relates undistorted pixels (K times normalised coordinates)
+    fs.write("F", np.linalg.inv(rect.k_right).T @ essential @ np.linalg.inv(rect.k_left))
+    fs.write("R1", rect.rect_from_left)
+    fs.write("R2", rect.rect_from_right)
+    fs.write("P1", rect.projection_left)
+    fs.write("P2", rect.projection_right)
+    fs.write("Q", rect.disparity_to_depth)
+    fs.write("baseline", rect.baseline)
+    return fs.releaseAndGetString()
 
 
 def export_text(rig: RigCalibration, fmt: str, **options) -> str:

@@ -24,7 +24,8 @@ NAME1,NAME2=PATH for the two cameras of an OpenCV stereo file):
   calibration sample and tutorial write it (`camera_matrix`, `distortion_coefficients`,
   `image_width`, `image_height`, `fisheye_model`): the camera is the file stem or NAME=; or a
   stereo file (`K1`/`M1`, `D1`, `K2`/`M2`, `D2`, as stereoCalibrate's samples write it), whose
-  two cameras are named in order with NAME1,NAME2=PATH. A file without image size is for the
+  two cameras are named in order with NAME1,NAME2=PATH (or by its `left_camera`, `right_camera`,
+  as `densecalib export --format opencv-stereo` writes them). A file without image size is for the
   size of its camera's images (check_known_intrinsics fills it in and checks that the principal
   point lies near their centre). The lens: `fisheye_model` when the file has it, else 4
   coefficients are cv::fisheye's k1..k4 (cv::calibrateCamera writes 5, 8, 12 or 14).
@@ -191,6 +192,10 @@ def _opencv_file(path: Path, names: Sequence[str]) -> dict[str, CameraIntrinsics
                 raise InputError(f"{path} holds one camera (an OpenCV calibration), but "
                                  f"{len(names)} names were given for it.")
             return {names[0] if names else path.stem: cam}
+        if not names:  # densecalib's own stereo export names its cameras
+            names = [fs.getNode(k).string() if fs.getNode(k).isString() else ""
+                     for k in ("left_camera", "right_camera")]
+            names = names if all(names) else []
         if len(names) != 2:
             raise InputError(f"{path} is an OpenCV stereo calibration of two cameras (K1/D1, "
                              f"K2/D2): name them in order, e.g. left,right={path}.")

@@ -60,10 +60,11 @@ def message_stamp_ns(msg) -> int:
     return stamp_ns(msg.header)
 
 
-def camera_info_msg(name: str, intrinsics: CameraIntrinsics, frame_id: str,
-                    t_ns: int) -> CameraInfo:
-    """CameraInfo of one calibrated camera (K, D, R = I, P = [K | 0]) in ROS conventions."""
-    info = ros_camera_info(name, intrinsics)
+def camera_info_msg(name: str, intrinsics: CameraIntrinsics, frame_id: str, t_ns: int,
+                    rectification=None, projection=None) -> CameraInfo:
+    """CameraInfo of one calibrated camera in ROS conventions: K, D, and R = I, P = [K | 0], or a
+    stereo pair's rectification R and projection P (core.stereo)."""
+    info = ros_camera_info(name, intrinsics, rectification, projection)
     msg = CameraInfo(width=info["image_width"], height=info["image_height"],
                      distortion_model=info["distortion_model"])
     msg.k = [float(v) for v in info["camera_matrix"]["data"]]

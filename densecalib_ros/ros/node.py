@@ -9,7 +9,8 @@ Interface (names relative to the node, default name `densecalib_node`):
   calibration without recalibrating (core.consistency); success = it still fits, the message
   names a camera that moved;
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
-  (sensor_msgs/CameraInfo, reliable, transient local, depth 1), `/tf_static` (tf2_msgs/TFMessage,
+  (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pair`'s with their
+  stereo rectification R, P, republished when that parameter changes), `/tf_static` (tf2_msgs/TFMessage,
   all cameras in one message, transient local, depth 1), `/diagnostics`
   (diagnostic_msgs/DiagnosticArray, 1 Hz);
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
@@ -60,6 +61,7 @@ from ..core.known_intrinsics import read_known_intrinsics, with_previous_intrins
 from ..core.masks import read_mask
 from ..core.matching import available_matchers
 from ..core.scale import with_known_baseline
+from ..core.stereo import stereo_pair
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.types import RigCalibration
 from .conversions import camera_info_msg, rig_tf_message
@@ -145,6 +147,11 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "camera_info_topics": (Parameter.Type.STRING_ARRAY,
                            "CameraInfo topic per camera (default <image topic ns>/camera_info)",
                            True, {}),
+    "stereo_pair": (Parameter.Type.STRING_ARRAY,
+                    "two cameras, left one first, whose CameraInfo (published and sent to "
+                    "set_camera_info) carry their stereo rectification (R, and P with Tx = -fx' "
+                    "baseline) for stereo_image_proc; empty: R = I, P = [K | 0] for every camera",
+                    False, {}),
     "call_set_camera_info": (False, "after a calibration, call each camera's set_camera_info",
                              False, {}),
     "set_camera_info_services": (Parameter.Type.STRING_ARRAY,
@@ -193,6 +200,7 @@ class Settings:
     rig_frame: str
     frame_names: list[str]
     camera_info_topics: list[str]
+    stereo_pair: list[str]
     call_set_camera_info: bool
     set_camera_info_services: list[str]
     set_camera_info_timeout_s: float
@@ -299,6 +307,10 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         if len(set(lst)) != n:
             raise InputError(f"The default {what} collide ({lst}): set {what} explicitly, one per "
                              "camera.")
+    pair = list(v["stereo_pair"])
+    if pair and (len(pair) != 2 or len(set(pair)) != 2 or any(c not in names for c in pair)):
+        raise InputError(f"stereo_pair must be empty or two different cameras of {names}, left "
+                         f"one first, got {pair}.")
     baseline_cams = list(v["baseline_cameras"])
     if v["known_baseline_m"] > 0:
         if len(baseline_cams) != 2 or len(set(baseline_cams)) != 2 or \
@@ -330,7 +342,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         consensus_runs=int(v["consensus_runs"]),
         max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
-        frame_names=frames, camera_info_topics=info_topics,
+        frame_names=frames, camera_info_topics=info_topics, stereo_pair=pair,
         call_set_camera_info=bool(v["call_set_camera_info"]), set_camera_info_services=services,
         set_camera_info_timeout_s=float(v["set_camera_info_timeout_s"]),
         known_baseline_m=float(v["known_baseline_m"]), baseline_cameras=baseline_cams,
@@ -378,6 +390,7 @@ class DenseCalibNode(Node):
         self.calibration_dir: Optional[Path] = None
         self._calibrated_at: Optional[float] = None  # time.time() of the published calibration
         self._last_failure: Optional[str] = None
+        self.stereo_problem: Optional[str] = None  # why stereo_pair's CameraInfo lack R, P
         self._status = "idle"
         self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
 
@@ -437,7 +450,9 @@ class DenseCalibNode(Node):
             new = parse_settings(self._parameter_values(ours))
         except InputError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        self.settings = new
+        old, self.settings = self.settings, new
+        if new.stereo_pair != old.stereo_pair and self.calibration is not None:
+            self._publish_camera_infos(self.calibration, self.get_clock().now().nanoseconds)
         return SetParametersResult(successful=True)
 
     # ----------------------------------------------------------------- intake
@@ -632,6 +647,8 @@ class DenseCalibNode(Node):
             message += f"; {rig.quality['change_summary']} (started {rig.quality['init']})"
         for warning in rig.quality.get("warnings", []):
             message += f"; warning: {warning}"
+        if self.stereo_problem:
+            message += f"; warning: {self.stereo_problem}"
         if s.call_set_camera_info:
             message += "; set_camera_info: " + self._call_set_camera_info(rig)
         return Outcome(True, message)
@@ -692,30 +709,53 @@ class DenseCalibNode(Node):
         s = self.settings
         t_ns = self.get_clock().now().nanoseconds
         frames = dict(zip(s.camera_names, s.frame_names))
-        for name, pub in zip(s.camera_names, self._info_pubs):
-            if name in rig.cameras:
-                pub.publish(camera_info_msg(name, rig.cameras[name].intrinsics, frames[name], t_ns))
+        self._publish_camera_infos(rig, t_ns)
         self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns))
         self.calibration, self.calibration_dir = rig, directory
         self._calibrated_at = time.time() if calibrated_at is None else calibrated_at
         self._publish_diagnostics()
+
+    def _publish_camera_infos(self, rig: RigCalibration, t_ns: int) -> None:
+        infos = self._camera_infos(rig, t_ns)
+        for name, pub in zip(self.settings.camera_names, self._info_pubs):
+            if name in infos:
+                pub.publish(infos[name])
+
+    def _camera_infos(self, rig: RigCalibration, t_ns: int) -> dict:
+        """CameraInfo per calibrated camera, the stereo_pair's with their rectification. A pair
+        that cannot be rectified (see core.stereo) keeps R = I and sets self.stereo_problem."""
+        s = self.settings
+        frames = dict(zip(s.camera_names, s.frame_names))
+        rectified, self.stereo_problem = {}, None
+        if s.stereo_pair and all(c in rig.cameras for c in s.stereo_pair):
+            try:
+                pair = stereo_pair(rig, s.stereo_pair)
+                rectified = {pair.left: (pair.rect_from_left, pair.projection_left),
+                             pair.right: (pair.rect_from_right, pair.projection_right)}
+            except InputError as exc:
+                self.stereo_problem = f"stereo_pair not rectified: {exc}"
+                self.get_logger().warning(self.stereo_problem)
+        elif s.stereo_pair:
+            self.stereo_problem = (f"stereo_pair not rectified: {', '.join(s.stereo_pair)} not "
+                                   "all calibrated")
+        return {name: camera_info_msg(name, cam.intrinsics, frames[name], t_ns,
+                                      *rectified.get(name, (None, None)))
+                for name, cam in rig.cameras.items() if name in frames}
 
     def _call_set_camera_info(self, rig: RigCalibration) -> str:
         """Call every calibrated camera's set_camera_info concurrently, waiting at most
         set_camera_info_timeout_s in all; returns the per-camera outcome ("cam0 ok, cam1 timeout,
         ...")."""
         s = self.settings
-        frames = dict(zip(s.camera_names, s.frame_names))
+        infos = self._camera_infos(rig, self.get_clock().now().nanoseconds)
         calls = []  # (camera, client, future or None when the service is not there)
         for name, client in zip(s.camera_names, self._set_info_clients):
-            if name not in rig.cameras:
+            if name not in infos:
                 continue
             future = None
             if client.service_is_ready():
                 request = SetCameraInfo.Request()
-                request.camera_info = camera_info_msg(name, rig.cameras[name].intrinsics,
-                                                      frames[name],
-                                                      self.get_clock().now().nanoseconds)
+                request.camera_info = infos[name]
                 future = client.call_async(request)
             calls.append((name, client, future))
         deadline = time.monotonic() + s.set_camera_info_timeout_s
