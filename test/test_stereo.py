@@ -97,6 +97,36 @@ def test_ros_stereo_files_put_points_on_one_row_at_their_depth(lens, tmp_path, c
     assert np.abs(depth / true_depth - 1).max() < 1e-5
 
 
+def test_a_degenerate_opencv_view_falls_back_to_a_centred_one(caplog):
+    """A fisheye seeing beyond 180 deg across its diagonal (f = 95 px at 320x240) makes
+    cv2.fisheye.stereoRectify's view degenerate (principal point hundreds of pixels outside the
+    image); the pair then gets a centred view with the same rotations that still puts points
+    on one row at their depth, and Q gives them back."""
+    lens = CameraIntrinsics("OPENCV_FISHEYE", 320, 240,
+                            np.array([95.0, 96.0, 161.0, 119.0, 0.03, -0.01, 0.002, 0.0]))
+    pose = _pose([2, -4, 1], [-0.3, 0.01, 0.02])
+    rig = RigCalibration("a", {"a": RigCamera("a", lens, np.eye(4)),
+                               "b": RigCamera("b", lens, pose)}, metric_scale=True)
+    caplog.set_level(logging.WARNING)
+    rect = stereo_pair(rig, None)
+    assert "degenerate" in caplog.text
+    for p in (rect.projection_left, rect.projection_right):
+        assert np.allclose(p[:2, 2], [159.5, 119.5]) and p[0, 0] == pytest.approx(95.5)
+    pts = _scene()
+    pts = pts[pts[:, 2] > 3]
+    infos = {name: {"camera_matrix": {"data": k.ravel()}, "distortion_coefficients": {"data": d},
+                    "rectification_matrix": {"data": r.ravel()},
+                    "projection_matrix": {"data": p.ravel()}}
+             for name, k, d, r, p in (
+                 ("a", rect.k_left, rect.d_left, rect.rect_from_left, rect.projection_left),
+                 ("b", rect.k_right, rect.d_right, rect.rect_from_right, rect.projection_right))}
+    ul, ur = (_rectified(rig, n, pts, infos[n], True) for n in ("a", "b"))
+    assert np.abs(ul[:, 1] - ur[:, 1]).max() < 1e-6
+    xyd = np.column_stack([ul, ul[:, 0] - ur[:, 0]]).reshape(-1, 1, 3)
+    got = cv2.perspectiveTransform(xyd, rect.disparity_to_depth).reshape(-1, 3)
+    assert np.abs(got - pts @ rect.rect_from_left.T).max() < 1e-6
+
+
 def test_opencv_stereo_file_holds_the_pair_and_reads_back(tmp_path, capsys):
     rig = _rig("pinhole")
     out = tmp_path / "stereo.yml"

@@ -73,3 +73,60 @@ def test_command_writes_images_and_pinhole_calibration(tmp_path, capsys):
     cv2.imwrite(str(images / "a" / "0000.jpg"), np.zeros((100, 100, 3), np.uint8))
     assert main(["undistort", str(calib), "--images", str(images), "--out", str(out)]) == 2
     assert (out / "b" / "0001.png").exists()
+
+
+@pytest.mark.parametrize("lens", [RADIAL, FISHEYE], ids=["radial", "fisheye"])
+def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys):
+    """--stereo-pair: the images are resampled as cv2.initUndistortRectifyMap (fisheye: its
+    cv2.fisheye version) resamples them with the pair's R and P from `export --format
+    ros-stereo`, and the calibration written is the rectified pair: PINHOLE cameras from P, the
+    right one translated along x only, with no rotation."""
+    import yaml
+    from scipy.spatial.transform import Rotation
+
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_euler("xyz", [2, -4, 1], degrees=True).as_matrix()
+    pose[:3, 3] = [-0.3, 0.01, 0.02]
+    third = np.eye(4)
+    third[:3, 3] = [0.0, -0.3, 0.0]
+    rig = RigCalibration("a", {"a": RigCamera("a", lens, np.eye(4)),
+                               "b": RigCamera("b", lens, pose),
+                               "c": RigCamera("c", RADIAL, third)}, metric_scale=True)
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    images = tmp_path / "images"
+    images.mkdir()
+    rng = np.random.default_rng(3)
+    texture = cv2.resize(rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), (320, 240),
+                         interpolation=cv2.INTER_CUBIC)
+    for name in ("a", "b", "c"):
+        cv2.imwrite(str(images / f"{name}.png"), texture)
+    out = tmp_path / "rectified"
+    assert main(["undistort", str(calib), "--images", str(images), "--out", str(out),
+                 "--stereo-pair", "a", "b"]) == 0
+    assert "2 rectified image(s) of 2 camera(s)" in capsys.readouterr().out
+    assert main(["export", str(calib), "--format", "ros-stereo", "--pair", "a", "b",
+                 "--out", str(tmp_path / "stereo")]) == 0
+    result = read_calibration(out)
+    assert sorted(result.cameras) == ["a", "b"] and result.reference_camera == "a"
+    right = result.cameras["b"].cam_from_rig
+    np.testing.assert_allclose(right[:3, :3], np.eye(3), atol=1e-9)
+    assert right[0, 3] == pytest.approx(-np.linalg.norm([-0.3, 0.01, 0.02]))
+    assert np.abs(right[1:3, 3]).max() < 1e-9
+    for name in ("a", "b"):
+        info = yaml.safe_load((tmp_path / "stereo" / f"{name}.yaml").read_text())
+        k = np.array(info["camera_matrix"]["data"]).reshape(3, 3)
+        d = np.array(info["distortion_coefficients"]["data"])
+        r = np.array(info["rectification_matrix"]["data"]).reshape(3, 3)
+        p = np.array(info["projection_matrix"]["data"]).reshape(3, 4)
+        init = cv2.fisheye.initUndistortRectifyMap if lens is FISHEYE else \
+            cv2.initUndistortRectifyMap
+        map_x, map_y = init(k, d, r, p, (320, 240), cv2.CV_32FC1)
+        np.testing.assert_allclose(result.cameras[name].intrinsics.params,
+                                   [p[0, 0], p[1, 1], p[0, 2] + 0.5, p[1, 2] + 0.5])
+        theirs = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_CONSTANT)
+        ours = cv2.imread(str(out / f"{name}.png"))
+        inside = (map_x > 1) & (map_x < 318) & (map_y > 1) & (map_y < 238)
+        assert inside.mean() > 0.6
+        assert np.abs(ours[inside].astype(int) - theirs[inside]).max() <= 1

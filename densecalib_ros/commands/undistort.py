@@ -1,6 +1,7 @@
 """`densecalib undistort`: resample a rig's images to distortion-free pinhole cameras
 (core.undistort) and write them with the matching calibration (PINHOLE cameras, same
-extrinsics), all or nothing."""
+extrinsics), all or nothing; or, with --stereo-pair, a pair's images rectified (core.stereo) with
+the calibration of the rectified pair."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +10,7 @@ import logging
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from ..core.errors import InputError
 from ..core.undistort import DEFAULT_MAX_FOV_DEG
@@ -28,17 +30,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-fov", type=float, default=DEFAULT_MAX_FOV_DEG, metavar="DEG",
                         help="widest view across the undistorted image (fisheye lenses; default "
                              f"{DEFAULT_MAX_FOV_DEG:g} deg)")
+    parser.add_argument("--stereo-pair", nargs=2, metavar=("LEFT", "RIGHT"),
+                        help="instead: rectify these two cameras' images as a stereo pair "
+                             "(corresponding points on one row; as cv2.initUndistortRectifyMap "
+                             "with the pair's R and P, see `export --format ros-stereo`); the "
+                             "output calibration holds the rectified pair, LEFT as reference")
+    parser.add_argument("--alpha", type=float, default=0.0,
+                        help="with --stereo-pair: 0 = only valid pixels (default), 1 = every "
+                             "source pixel")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
     from ..core.image_io import camera_image_files, read_image
-    from ..core.undistort import pinhole_for, undistortion_maps
+    from ..core.stereo import stereo_pair
+    from ..core.undistort import pinhole_for, rectified_pinhole, undistortion_maps
 
     try:
         if not 0.0 < args.max_fov < 180.0:
             raise InputError(f"--max-fov {args.max_fov:g}: give an angle between 0 and 180 deg.")
         rig = read_calibration(args.calibration)
+        # camera -> (target camera, rotation of the target from the source camera or None)
+        targets = {name: (pinhole_for(cam.intrinsics, args.max_fov), None)
+                   for name, cam in rig.cameras.items()}
+        if args.stereo_pair:
+            rect = stereo_pair(rig, args.stereo_pair, args.alpha, left_to_right=False)
+            targets = {
+                rect.left: (rectified_pinhole(rect.projection_left, rect.width, rect.height),
+                            rect.rect_from_left),
+                rect.right: (rectified_pinhole(rect.projection_right, rect.width, rect.height),
+                             rect.rect_from_right)}
+            rig = _rectified_rig(rig, targets)
         jobs = {name: camera_image_files(args.images, name) for name in rig.cameras}
         missing = [n for n, files in jobs.items() if not files]
         if len(missing) == len(jobs):
@@ -55,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
                 if not files:
                     continue
                 source = rig.cameras[name].intrinsics
-                target = pinhole_for(source, args.max_fov)
-                map_x, map_y = undistortion_maps(source, target)
+                target, target_from_source = targets[name]
+                map_x, map_y = undistortion_maps(source, target, target_from_source)
                 out_rig.cameras[name].intrinsics = target
                 for path in files:
                     image = read_image(path)
@@ -70,16 +92,41 @@ def run(args: argparse.Namespace) -> int:
                     dest.parent.mkdir(parents=True, exist_ok=True)
                     if not cv2.imwrite(str(dest), cv2.cvtColor(undistorted, cv2.COLOR_RGB2BGR)):
                         raise InputError(f"Cannot write {dest}: check the disk and permissions.")
-                log.info("%s: %d image(s), focal %.1f px, principal point at the centre", name,
-                         len(files), target.params[0])
+                log.info("%s: %d image(s), focal %.1f px, principal point (%.1f, %.1f)", name,
+                         len(files), target.params[0], target.params[2] - 0.5,
+                         target.params[3] - 0.5)
             for name in missing:
                 del out_rig.cameras[name]
+            if missing and args.stereo_pair:
+                raise InputError(f"No images of camera {', '.join(missing)} of the stereo pair "
+                                 f"in {args.images}.")
             write_calibration_files(out_rig, tmp)
 
         replace_directory_atomic(build, args.out)
     except InputError as exc:
         log.error("%s", exc)
         return 2
-    print(f"wrote {args.out}: {sum(len(f) for f in jobs.values())} undistorted image(s) of "
+    what = "rectified" if args.stereo_pair else "undistorted"
+    print(f"wrote {args.out}: {sum(len(f) for f in jobs.values())} {what} image(s) of "
           f"{len(jobs) - len(missing)} camera(s) and their pinhole calibration")
     return 0
+
+
+def _rectified_rig(rig, targets):
+    """The rig of the rectified pair: the two cameras (keeping the source intrinsics until the
+    images are resampled), each turned into its rectified frame, expressed from the left one."""
+    from ..core.types import RigCalibration, RigCamera
+
+    turned = {}
+    for name, (_, rect_from_cam) in targets.items():
+        pose = np.eye(4)
+        pose[:3, :3] = rect_from_cam
+        turned[name] = pose @ rig.cameras[name].cam_from_rig
+    left = next(iter(targets))
+    rig_from_left = np.linalg.inv(turned[left])
+    return RigCalibration(
+        reference_camera=left,
+        cameras={name: RigCamera(name, rig.cameras[name].intrinsics, pose @ rig_from_left)
+                 for name, pose in turned.items()},
+        quality={**rig.quality, "stereo_rectified_pair": list(targets)},
+        metric_scale=rig.metric_scale)

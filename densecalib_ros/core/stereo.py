@@ -26,6 +26,7 @@ import numpy as np
 from .errors import InputError
 from .export import ros_camera_info
 from .types import RigCalibration
+from .undistort import DEFAULT_MAX_FOV_DEG as FALLBACK_MAX_FOV_DEG  # widest rectified view
 
 log = logging.getLogger("densecalib.stereo")
 
@@ -121,6 +122,15 @@ def rectify_pair(rig: RigCalibration, left: str, right: str, alpha: float = 0.0
     else:
         r1, r2, p1, p2, q, _, _ = cv2.stereoRectify(
             k1, d1, k2, d2, size, rot, t, flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha)
+    focal = float(np.mean([k1[0, 0], k1[1, 1], k2[0, 0], k2[1, 1]]))
+    if not _usable_view(p1, p2, size, focal):
+        # OpenCV fits the rectified view to the undistorted image border; for a lens that sees
+        # beyond 180 deg that border is at infinity and the fit degenerates (seen with
+        # cv2.fisheye.stereoRectify). Its rotations stay right; take a centred view instead.
+        log.warning("OpenCV's rectified view of %s and %s is degenerate (focal %.3g px, "
+                    "principal point (%.4g, %.4g)); using a centred view of at most %g deg "
+                    "across.", left, right, p1[0, 0], p1[0, 2], p1[1, 2], FALLBACK_MAX_FOV_DEG)
+        p1, p2, q = _centred_view(r2 @ t, size, focal)
     return StereoRectification(
         left=left, right=right, width=int(size[0]), height=int(size[1]), fisheye=fisheye,
         k_left=k1, d_left=d1.ravel(), k_right=k2, d_right=d2.ravel(),
@@ -128,6 +138,37 @@ def rectify_pair(rig: RigCalibration, left: str, right: str, alpha: float = 0.0
         rect_from_right=np.asarray(r2, np.float64), projection_left=np.asarray(p1, np.float64),
         projection_right=np.asarray(p2, np.float64), disparity_to_depth=np.asarray(q, np.float64),
         baseline=baseline, metric=bool(rig.metric_scale))
+
+
+def _usable_view(p1: np.ndarray, p2: np.ndarray, size: tuple[int, int], focal: float) -> bool:
+    """Whether rectified projections are usable: finite, a focal within a factor 4 of the
+    cameras' own, principal points inside the image."""
+    w, h = size
+    for p in (p1, p2):
+        if not np.isfinite(p).all() or not focal / 4 <= p[0, 0] <= 4 * focal:
+            return False
+        if not (0 <= p[0, 2] <= w and 0 <= p[1, 2] <= h):
+            return False
+    return True
+
+
+def _centred_view(t_rect: np.ndarray, size: tuple[int, int], focal: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """P1, P2, Q of a rectified view with the principal point at the image centre and the
+    cameras' focal, widened to show at most FALLBACK_MAX_FOV_DEG across the width. t_rect: the
+    right camera's translation in the rectified frame (along x, or y for a vertical pair)."""
+    w, h = size
+    f = max(focal, (w / 2.0) / np.tan(np.radians(FALLBACK_MAX_FOV_DEG) / 2.0))
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    p1 = np.array([[f, 0.0, cx, 0.0], [0.0, f, cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    p2 = p1.copy()
+    t_rect = np.asarray(t_rect, dtype=np.float64).ravel()
+    axis = 0 if abs(t_rect[0]) >= abs(t_rect[1]) else 1
+    p2[axis, 3] = f * t_rect[axis]
+    # Q maps (x, y, disparity, 1) to the point in the left rectified frame (homogeneous)
+    q = np.array([[1.0, 0.0, 0.0, -cx], [0.0, 1.0, 0.0, -cy], [0.0, 0.0, 0.0, f],
+                  [0.0, 0.0, -1.0 / t_rect[axis], 0.0]])
+    return p1, p2, q
 
 
 def stereo_pair(rig: RigCalibration, pair: Optional[Sequence[str]], alpha: float = 0.0,

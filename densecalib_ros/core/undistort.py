@@ -7,8 +7,14 @@ camera's focal length, unless that would show more than max_fov_deg across the w
 lenses): then the focal grows until the width spans max_fov_deg. Output pixels whose ray the
 original camera does not image (outside a fisheye's circle, beyond the modelled field) are black.
 The rig's extrinsics are unchanged: undistorting rotates nothing.
+
+A stereo pair can instead be resampled to its rectified cameras (core.stereo): pinholes from the
+pair's projection matrices P1, P2, turned by R1, R2 so that corresponding points share a row, as
+cv2.initUndistortRectifyMap does with the same R and P.
 """
 from __future__ import annotations
+
+from typing import Optional
 
 import numpy as np
 
@@ -30,15 +36,28 @@ def pinhole_for(intrinsics: CameraIntrinsics,
     return CameraIntrinsics("PINHOLE", w, h, np.array([focal, focal, w / 2.0, h / 2.0]))
 
 
-def undistortion_maps(source: CameraIntrinsics, target: CameraIntrinsics
+def rectified_pinhole(projection: np.ndarray, width: int, height: int) -> CameraIntrinsics:
+    """The PINHOLE camera (COLMAP pixel convention) of a rectified camera's 3x4 projection
+    matrix P (OpenCV/ROS convention, as core.stereo gives it)."""
+    p = np.asarray(projection, dtype=np.float64)
+    return CameraIntrinsics("PINHOLE", int(width), int(height),
+                            np.array([p[0, 0], p[1, 1], p[0, 2] + 0.5, p[1, 2] + 0.5]))
+
+
+def undistortion_maps(source: CameraIntrinsics, target: CameraIntrinsics,
+                      target_from_source: Optional[np.ndarray] = None
                       ) -> tuple[np.ndarray, np.ndarray]:
     """cv2.remap maps (float32, target's H x W, OpenCV pixel convention): for each target pixel,
-    where the same ray falls in the source image; -1 where the source does not image it."""
+    where the same ray falls in the source image; -1 where the source does not image it.
+    target_from_source: the 3x3 rotation of the target camera's frame from the source's (a
+    stereo rectification R1 or R2); default none."""
     src, dst = source.to_pycolmap(), target.to_pycolmap()
     xs = np.arange(target.width) + 0.5
     ys = np.arange(target.height) + 0.5
     xy = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)
     rays = dst.cam_ray_from_img(xy)
+    if target_from_source is not None:  # row vectors: ray_src = R^T ray_tgt
+        rays = rays @ np.asarray(target_from_source, dtype=np.float64)
     src_xy = np.asarray(src.img_from_cam(rays), float)
     ok = np.isfinite(src_xy).all(1)
     # A ray the source model folds back (fisheye beyond its invertible field) lands on a pixel
