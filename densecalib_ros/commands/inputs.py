@@ -43,11 +43,12 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-time-gap", type=float, default=DEFAULT_MAX_TIME_GAP_S,
                         metavar="S", help="with --align time: the most a frame set's capture "
                                           f"times may differ (default {DEFAULT_MAX_TIME_GAP_S:g})")
-    parser.add_argument("--time-offset", nargs="+", default=None, metavar="NAME=S",
+    parser.add_argument("--time-offset", nargs="+", default=None, metavar="NAME=S|auto",
                         help="how far this camera's time runs ahead of the others' (s): with "
                              "--videos, a camera that started recording 0.4 s early is NAME=0.4; "
                              "with --align time, a trail camera whose clock is 60 s fast is "
-                             "NAME=60")
+                             "NAME=60. With --videos, `auto` finds every offset from what moves "
+                             "in the first 2 minutes of the videos")
     parser.add_argument("--start", type=float, default=None, metavar="S",
                         help="with --videos: take frames from this common time on (s)")
     parser.add_argument("--end", type=float, default=None, metavar="S",
@@ -80,6 +81,9 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
         raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
     if args.time_offset and not (args.videos or (args.images and args.align == "time")):
         raise InputError("--time-offset belongs to --videos or to --images with --align time.")
+    if args.time_offset and "auto" in args.time_offset and not args.videos:
+        raise InputError("--time-offset auto finds offsets from videos (--videos); with --align "
+                         "time give NAME=SECONDS values.")
     if args.align != "auto" and not args.images:
         raise InputError("--align belongs to --images (camera subfolders).")
     if args.videos:
@@ -87,14 +91,18 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
             raise InputError("--topics belongs to --bag; with --videos the camera names come "
                              "from the video file names.")
         from ..core.video_io import read_video_frame_sets
+        record = {}
+        if args.time_offset and "auto" in args.time_offset:
+            offsets, record = _estimated_video_offsets(args)
+        else:
+            offsets = parse_time_offsets(args.time_offset)
         frame_sets, names, times_s = read_video_frame_sets(
-            args.videos, _frame_sets(args, DEFAULT_VIDEO_FRAME_SETS),
-            parse_time_offsets(args.time_offset), args.start, args.end)
+            args.videos, _frame_sets(args, DEFAULT_VIDEO_FRAME_SETS), offsets, args.start,
+            args.end)
         log.info("video frame sets at %s s", ", ".join(f"{t:.2f}" for t in times_s))
         return frame_sets, names, {
             "source": "videos", "path": str(Path(args.videos).resolve()),
-            "time_offsets_s": parse_time_offsets(args.time_offset),
-            "frame_set_times_s": times_s}, []
+            "time_offsets_s": offsets, **record, "frame_set_times_s": times_s}, []
     if args.images:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --images the camera names come "
@@ -115,6 +123,24 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
         max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS), return_stamps=True)
     return frame_sets, names, {"source": "bag", "path": str(Path(args.bag).resolve()),
                                "topics": list(args.topics), "frame_set_stamps_ns": stamps}, []
+
+
+def _estimated_video_offsets(args) -> tuple[dict, dict]:
+    """--time-offset auto: ({camera: offset s}, the estimate's record for quality["input"])."""
+    from ..core.video_io import list_video_folder
+    from ..core.video_sync import estimate_video_offsets
+
+    if args.time_offset != ["auto"]:
+        raise InputError(f"--time-offset {' '.join(args.time_offset)}: give `auto` alone or "
+                         "NAME=S values, not both.")
+    paths, names = list_video_folder(args.videos)
+    estimates = estimate_video_offsets(paths, names)
+    offsets = {name: round(est.offset_s, 4) for name, est in estimates.items()}
+    log.info("time offsets from the videos' motion (s, from %s): %s", names[0],
+             ", ".join(f"{n}={o:+.3f}" for n, o in offsets.items()))
+    return offsets, {"time_offsets_estimated": {
+        name: {"offset_s": offsets[name], "correlation": round(est.correlation, 3)}
+        for name, est in estimates.items()}}
 
 
 def named_numbers(values: Optional[list[str]], option: str, expected: str,

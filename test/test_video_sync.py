@@ -1,0 +1,109 @@
+"""Time offsets of a rig's videos from their motion (core.video_sync, `--time-offset auto`):
+videos of one moving object seen by three cameras with different views, gains, frame rates and
+start times give back each camera's start within half a frame; a static scene is refused with
+what to do."""
+import argparse
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import cv2
+import numpy as np
+import pytest
+
+from densecalib_ros.commands.inputs import add_input_arguments, read_input
+from densecalib_ros.core.errors import InputError
+from densecalib_ros.core.video_io import list_video_folder
+from densecalib_ros.core.video_sync import estimate_video_offsets
+
+WORLD_H, WORLD_W = 360, 640
+DURATION_S = 20.0
+# camera -> (fps, recording start in world time [s], view (y0, y1, x0, x1) of the world, gain)
+CAMERAS = {"cam0": (25.0, 0.0, (0, 360, 0, 560), 1.0),
+           "cam1": (30.0, -0.7, (20, 360, 60, 640), 0.8),   # started 0.7 s before cam0
+           "cam2": (25.0, 1.23, (0, 330, 40, 600), 1.15)}   # started 1.23 s after cam0
+
+
+def _path(seed=0):
+    """World position (x, y) [px] of an animal over time: rests and dashes of random speed and
+    heading, tabulated every millisecond from before the first to after the last recording."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(-3.0, DURATION_S + 3.0, 0.001)
+    speed = np.zeros_like(t)
+    start = 0
+    while start < len(t):
+        length = int(rng.uniform(0.2, 1.2) * 1000)
+        speed[start:start + length] = rng.choice([0.0, rng.uniform(60, 400)])
+        start += length
+    heading = np.cumsum(rng.normal(0, 0.02, len(t)))
+    pos = np.zeros((len(t), 2))
+    pos[0] = (WORLD_W / 2, WORLD_H / 2)
+    for i in range(1, len(t)):
+        step = speed[i] * 0.001 * np.array([np.cos(heading[i]), np.sin(heading[i])])
+        nxt = pos[i - 1] + step
+        if not (40 < nxt[0] < WORLD_W - 40 and 40 < nxt[1] < WORLD_H - 40):
+            heading[i:] += np.pi  # turn back at the arena wall
+            nxt = pos[i - 1] - step
+        pos[i] = nxt
+    return t, pos
+
+
+def _write_videos(folder, moving=True):
+    rng = np.random.default_rng(1)
+    floor = cv2.resize(rng.integers(60, 120, (36, 64), dtype=np.uint8), (WORLD_W, WORLD_H),
+                       interpolation=cv2.INTER_LINEAR)
+    t_path, pos = _path()
+    for name, (fps, start_s, (y0, y1, x0, x1), gain) in CAMERAS.items():
+        writer = cv2.VideoWriter(str(folder / f"{name}.avi"), cv2.VideoWriter_fourcc(*"MJPG"),
+                                 fps, (320, 200))
+        assert writer.isOpened()
+        for k in range(int(DURATION_S * fps)):
+            world = floor.copy()
+            if moving:
+                x, y = pos[np.searchsorted(t_path, start_s + k / fps)]
+                cv2.circle(world, (int(round(x)), int(round(y))), 22, 230, -1)
+                cv2.circle(world, (int(round(x)) + 8, int(round(y))), 7, 20, -1)
+            view = cv2.resize(world[y0:y1, x0:x1], (320, 200), interpolation=cv2.INTER_AREA)
+            view = np.clip(view.astype(np.float32) * gain + rng.normal(0, 2, view.shape), 0, 255)
+            writer.write(cv2.cvtColor(view.astype(np.uint8), cv2.COLOR_GRAY2BGR))
+        writer.release()
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("arena")
+    _write_videos(folder)
+    return folder
+
+
+def test_offsets_found_within_half_a_frame(videos):
+    paths, names = list_video_folder(videos)
+    estimates = estimate_video_offsets(paths, names)
+    for name, (fps, start_s, _, _) in CAMERAS.items():
+        truth = CAMERAS["cam0"][1] - start_s  # an early start is a positive offset
+        assert abs(estimates[name].offset_s - truth) < 0.5 / fps, (name, estimates[name])
+    assert estimates["cam1"].correlation > 0.5
+
+
+def test_auto_offsets_place_the_frame_sets(videos):
+    parser = argparse.ArgumentParser()
+    add_input_arguments(parser)
+    args = parser.parse_args(["--videos", str(videos), "--time-offset", "auto",
+                              "--max-frame-sets", "3"])
+    frame_sets, names, record, _ = read_input(args)
+    assert names == list(CAMERAS) and len(frame_sets) == 3
+    assert record["time_offsets_s"]["cam1"] == pytest.approx(0.7, abs=0.02)
+    assert record["time_offsets_estimated"]["cam2"]["offset_s"] == pytest.approx(-1.23, abs=0.02)
+    # the common span starts when the last camera (cam2) started
+    assert record["frame_set_times_s"][0] > 1.23
+    mixed = parser.parse_args(["--videos", str(videos), "--time-offset", "auto", "cam1=0.7"])
+    with pytest.raises(InputError, match="give `auto` alone"):
+        read_input(mixed)
+
+
+def test_a_static_scene_gives_no_offsets(tmp_path):
+    _write_videos(tmp_path, moving=False)
+    paths, names = list_video_folder(tmp_path)
+    with pytest.raises(InputError, match="does not determine the time offset of cam1.*"
+                                         "--time-offset NAME=S"):
+        estimate_video_offsets(paths, names)
