@@ -422,6 +422,9 @@ def test_stereo_pair_camera_info_carry_the_pair_rectification(ros, tmp_path):
         assert wait_until(lambda: not np.allclose(published("cam3", "r"), np.eye(3).ravel()),
                           10.0)
         np.testing.assert_allclose(published("cam0", "r"), np.eye(3).ravel())
+        rig.metric_scale = False  # a pair without a known baseline is rectified, with a caveat
+        infos = node._camera_infos(rig, 0)
+        assert infos["cam3"].p[3] < 0 and "arbitrary units" in node.stereo_problem
     finally:
         ros.remove(listener)
         ros.remove(node)

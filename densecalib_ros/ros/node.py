@@ -732,6 +732,10 @@ class DenseCalibNode(Node):
                 pair = stereo_pair(rig, s.stereo_pair)
                 rectified = {pair.left: (pair.rect_from_left, pair.projection_left),
                              pair.right: (pair.rect_from_right, pair.projection_right)}
+                if not pair.metric:
+                    self.stereo_problem = ("stereo_pair rectified, but without metric scale: "
+                                           "its baseline and stereo depths are in arbitrary "
+                                           "units (set known_baseline_m and baseline_cameras)")
             except InputError as exc:
                 self.stereo_problem = f"stereo_pair not rectified: {exc}"
                 self.get_logger().warning(self.stereo_problem)
