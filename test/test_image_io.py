@@ -126,3 +126,57 @@ def test_exif_orientation_is_applied(tmp_path):
     exif[0x0112] = 6  # Orientation: rotate 90 deg clockwise to view
     Image.fromarray(np.zeros((30, 40, 3), np.uint8)).save(tmp_path / "p.jpg", exif=exif)
     assert read_image(tmp_path / "p.jpg").shape == (40, 30, 3)
+
+
+def _trap_times(rng, events, rate_s=600.0):
+    """Capture times of `events` animal passes (bursts of 1-3 shots 1 s apart) over the days."""
+    starts = np.cumsum(rng.exponential(rate_s, events))
+    return [t + k for t in starts for k in range(int(rng.integers(1, 4)))]
+
+
+def test_camera_trap_clock_offsets_found_from_capture_times():
+    """Three traps: b's clock runs an hour and 7.5 s fast (daylight saving and drift), c's was
+    reset to its factory date; each also fires alone on what only it sees."""
+    from densecalib_ros.core.clock_offsets import estimate_clock_offsets
+
+    rng = np.random.default_rng(4)
+    shared = _trap_times(rng, 12)
+    truth = {"a": 0.0, "b": 3607.5, "c": -8.3e8}
+    times = {}
+    for name, offset in truth.items():
+        jitter = rng.uniform(-0.6, 0.6, len(shared))  # trigger delays differ per camera
+        own = _trap_times(rng, 6)
+        times[name] = np.concatenate([np.asarray(shared) + jitter, own]) + offset
+    estimates = estimate_clock_offsets(times, gap_s=2.0)
+    for name, offset in truth.items():
+        assert estimates[name].offset_s == pytest.approx(offset, abs=0.5)
+        assert estimates[name].paired_shots >= len(shared) - 2
+    # a time-lapse every 5 minutes in both cameras pairs equally at every multiple: refused
+    lapse = {"a": np.arange(50) * 300.0, "b": np.arange(50) * 300.0 + 1234.0}
+    with pytest.raises(InputError, match="do not settle the clock offset of b.*--time-offset"):
+        estimate_clock_offsets(lapse, gap_s=2.0)
+
+
+def test_time_offset_auto_pairs_the_traps_files(tmp_path):
+    """--align time --time-offset auto on real EXIF files: b's clock runs 60 s fast."""
+    import argparse
+
+    from densecalib_ros.commands.inputs import add_input_arguments, read_input
+
+    for i, (hh_mm_ss, alone) in enumerate([("10:00:05", False), ("10:07:30", False),
+                                           ("10:20:10", False), ("10:33:00", True),
+                                           ("11:02:44", False)]):
+        _write_shot(tmp_path / "a" / f"IMG_{i:04d}.jpg", f"2026:05:01 {hh_mm_ss}")
+        if not alone:
+            h, m, s = map(int, hh_mm_ss.split(":"))
+            t = h * 3600 + m * 60 + s + 60 + (i % 2)  # 60 s fast, triggered up to 1 s later
+            _write_shot(tmp_path / "b" / f"PICT{i:03d}.jpg",
+                        f"2026:05:01 {t // 3600:02d}:{t // 60 % 60:02d}:{t % 60:02d}")
+    parser = argparse.ArgumentParser()
+    add_input_arguments(parser)
+    args = parser.parse_args(["--images", str(tmp_path), "--align", "time", "--time-offset",
+                              "auto"])
+    frame_sets, names, record, paths = read_input(args)
+    assert names == ["a", "b"] and len(frame_sets) == 4
+    assert record["time_offsets_s"]["b"] == pytest.approx(60.5, abs=0.6)
+    assert [p.name for p in paths[3]] == ["IMG_0004.jpg", "PICT004.jpg"]

@@ -47,8 +47,9 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how far this camera's time runs ahead of the others' (s): with "
                              "--videos, a camera that started recording 0.4 s early is NAME=0.4; "
                              "with --align time, a trail camera whose clock is 60 s fast is "
-                             "NAME=60. With --videos, `auto` finds every offset from what moves "
-                             "in the first 2 minutes of the videos")
+                             "NAME=60. `auto` finds them: with --videos from what moves in "
+                             "their first 2 minutes, with --align time from which capture times "
+                             "pair up")
     parser.add_argument("--start", type=float, default=None, metavar="S",
                         help="with --videos: take frames from this common time on (s)")
     parser.add_argument("--end", type=float, default=None, metavar="S",
@@ -60,8 +61,22 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _alignment(args) -> dict:
-    return {"align": args.align, "time_offsets_s": parse_time_offsets(args.time_offset),
-            "max_time_gap_s": args.max_time_gap}
+    offsets = (_estimated_clock_offsets(args) if args.time_offset == ["auto"]
+               else parse_time_offsets(args.time_offset))
+    return {"align": args.align, "time_offsets_s": offsets, "max_time_gap_s": args.max_time_gap}
+
+
+def _estimated_clock_offsets(args) -> dict:
+    """--align time --time-offset auto: {camera: clock offset s} from the capture times."""
+    from ..core.clock_offsets import estimate_clock_offsets
+    from ..core.image_io import capture_times_by_camera
+
+    estimates = estimate_clock_offsets(capture_times_by_camera(args.images), args.max_time_gap)
+    offsets = {name: est.offset_s for name, est in estimates.items()}
+    log.info("clock offsets from the capture times (s, from %s): %s", next(iter(offsets)),
+             ", ".join(f"{n}={o:+.2f} ({estimates[n].paired_shots} shots paired)"
+                       for n, o in offsets.items()))
+    return offsets
 
 
 def _frame_sets(args, default: int) -> int:
@@ -81,9 +96,9 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
         raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
     if args.time_offset and not (args.videos or (args.images and args.align == "time")):
         raise InputError("--time-offset belongs to --videos or to --images with --align time.")
-    if args.time_offset and "auto" in args.time_offset and not args.videos:
-        raise InputError("--time-offset auto finds offsets from videos (--videos); with --align "
-                         "time give NAME=SECONDS values.")
+    if args.time_offset and "auto" in args.time_offset and args.time_offset != ["auto"]:
+        raise InputError(f"--time-offset {' '.join(args.time_offset)}: give `auto` alone or "
+                         "NAME=S values, not both.")
     if args.align != "auto" and not args.images:
         raise InputError("--align belongs to --images (camera subfolders).")
     if args.videos:
@@ -108,11 +123,14 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
             raise InputError("--topics belongs to --bag; with --images the camera names come "
                              "from the file or folder names.")
         from ..core.image_io import list_image_folder, read_image_files
-        paths, names = list_image_folder(args.images, **_alignment(args))
+        alignment = _alignment(args)
+        paths, names = list_image_folder(args.images, **alignment)
         paths = evenly_spaced(paths, _frame_sets(args, DEFAULT_MAX_FRAME_SETS))
         root = Path(args.images)  # the listed paths are under it (symlinks not followed)
+        record = {"time_offsets_s": alignment["time_offsets_s"]} \
+            if alignment["time_offsets_s"] else {}
         return read_image_files(paths, names), names, {
-            "source": "images", "path": str(root.resolve()),
+            "source": "images", "path": str(root.resolve()), **record,
             "frame_sets": [[str(p.relative_to(root)) for p in row] for row in paths]}, paths
     if not args.topics:
         raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
@@ -130,9 +148,6 @@ def _estimated_video_offsets(args) -> tuple[dict, dict]:
     from ..core.video_io import list_video_folder
     from ..core.video_sync import estimate_video_offsets
 
-    if args.time_offset != ["auto"]:
-        raise InputError(f"--time-offset {' '.join(args.time_offset)}: give `auto` alone or "
-                         "NAME=S values, not both.")
     paths, names = list_video_folder(args.videos)
     estimates = estimate_video_offsets(paths, names)
     offsets = {name: round(est.offset_s, 4) for name, est in estimates.items()}

@@ -147,22 +147,34 @@ def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: 
     return _align_by_capture_time(names, per_cam, time_offsets_s, max_time_gap_s)
 
 
-def _align_by_capture_time(names: list[str], per_cam: list[list[Path]],
-                           time_offsets_s: dict[str, float], max_time_gap_s: float
-                           ) -> list[list[Path]]:
+def _capture_times_s(files: list[Path]) -> np.ndarray:
     from .exif import exif_capture_time_s
 
     times = []
-    for name, files in zip(names, per_cam):
-        offset = float(time_offsets_s.get(name, 0.0))
-        cam_times = []
-        for path in files:
-            t = exif_capture_time_s(path)
-            if t is None:
-                raise InputError(f"--align time: {path} has no EXIF capture time "
-                                 "(DateTimeOriginal); use --align order or name the files alike.")
-            cam_times.append(t - offset)
-        times.append(np.asarray(cam_times))
+    for path in files:
+        t = exif_capture_time_s(path)
+        if t is None:
+            raise InputError(f"--align time: {path} has no EXIF capture time "
+                             "(DateTimeOriginal); use --align order or name the files alike.")
+        times.append(t)
+    return np.asarray(times, dtype=np.float64)
+
+
+def capture_times_by_camera(directory: str | os.PathLike) -> dict[str, np.ndarray]:
+    """{camera: EXIF capture times [s] of its images} of a folder of camera subfolders."""
+    directory = Path(directory)
+    subdirs = sorted(p for p in directory.iterdir() if p.is_dir() and not p.name.startswith(".")
+                     and _images_in(p)) if directory.is_dir() else []
+    if len(subdirs) < 2:
+        raise InputError(f"--align time needs one subfolder of images per camera in {directory}.")
+    return {d.name: _capture_times_s(_images_in(d)) for d in subdirs}
+
+
+def _align_by_capture_time(names: list[str], per_cam: list[list[Path]],
+                           time_offsets_s: dict[str, float], max_time_gap_s: float
+                           ) -> list[list[Path]]:
+    times = [_capture_times_s(files) - float(time_offsets_s.get(name, 0.0))
+             for name, files in zip(names, per_cam)]
     anchor = int(np.argmin([len(ps) for ps in per_cam]))
     sets, nearest_miss = [], np.inf
     for t_anchor in np.sort(times[anchor]):
