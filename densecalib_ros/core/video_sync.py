@@ -6,7 +6,8 @@ so each video's motion energy over time (mean absolute difference of consecutive
 small grey images) is, up to gain, the same signal shifted by that video's offset. The offset of
 each camera from the reference camera (the first by name) is the lag that maximises the
 normalised cross-correlation of the two signals, refined to a fraction of a frame by a parabola
-through the peak. The signals are detrended over SMOOTHING_S first: lighting drifts and
+through the peak. The signals are first averaged over the slowest camera's frame period (so all
+see motion at one time resolution) and detrended over SMOOTHING_S: lighting drifts and
 auto-exposure move every pixel slowly and would otherwise dominate.
 
 An offset is only reported when the peak is both high (MIN_PEAK_CORRELATION) and unique (no other
@@ -49,8 +50,10 @@ class OffsetEstimate:
 
 def motion_signal(info: VideoInfo, window_s: float) -> tuple[np.ndarray, np.ndarray]:
     """(times_s, energy) of a video's first window_s seconds: energy[k] = mean |frame k+1 -
-    frame k| (grey levels, frames shrunk to SIGNAL_WIDTH_PX wide), at the time frame k+1 starts
-    showing, (k + 1) / fps, in the video's own time. Frames are read in order (no seeking)."""
+    frame k| (grey levels, frames shrunk to SIGNAL_WIDTH_PX wide), at the middle of the motion it
+    measures, between frames k and k+1: (k + 0.5) / fps in the video's own time (cameras at
+    different frame rates would otherwise be biased by half their frame periods). Frames are read
+    in order (no seeking)."""
     cap = cv2.VideoCapture(str(info.path))
     if not cap.isOpened():
         raise InputError(f"Cannot open video {info.path} to find its time offset.")
@@ -69,19 +72,26 @@ def motion_signal(info: VideoInfo, window_s: float) -> tuple[np.ndarray, np.ndar
             previous = small
     finally:
         cap.release()
-    times = (np.arange(len(energy)) + 1.0) / info.fps
+    times = (np.arange(len(energy)) + 0.5) / info.fps
     return times, np.asarray(energy, dtype=np.float64)
 
 
-def _detrended(times: np.ndarray, energy: np.ndarray, step_s: float) -> np.ndarray:
-    """energy resampled every step_s from time 0, minus its moving mean over SMOOTHING_S."""
-    grid = np.arange(0.0, times[-1] + 1e-9, step_s)
-    x = np.interp(grid, times, energy)
-    k = max(1, int(round(SMOOTHING_S / step_s)))
+def _moving_mean(x: np.ndarray, k: int) -> np.ndarray:
+    """Centred moving mean over k samples, the edges normalised by the samples averaged."""
+    if k <= 1:
+        return x
     kernel = np.ones(k) / k
-    # moving mean with the edges normalised by the samples actually averaged
-    trend = np.convolve(x, kernel, "same") / np.convolve(np.ones_like(x), kernel, "same")
-    return x - trend
+    return np.convolve(x, kernel, "same") / np.convolve(np.ones_like(x), kernel, "same")
+
+
+def _detrended(times: np.ndarray, energy: np.ndarray, step_s: float,
+               resolution_s: float) -> np.ndarray:
+    """energy resampled every step_s from time 0, averaged over resolution_s (the slowest
+    camera's frame period: a camera at 60 fps sees motion a 10 fps one cannot, which would only
+    decorrelate them), minus its moving mean over SMOOTHING_S."""
+    grid = np.arange(0.0, times[-1] + 1e-9, step_s)
+    x = _moving_mean(np.interp(grid, times, energy), int(round(resolution_s / step_s)))
+    return x - _moving_mean(x, max(1, int(round(SMOOTHING_S / step_s))))
 
 
 def _correlations(ref: np.ndarray, other: np.ndarray, max_lag: int) -> np.ndarray:
@@ -103,9 +113,10 @@ def _correlations(ref: np.ndarray, other: np.ndarray, max_lag: int) -> np.ndarra
 
 
 def estimate_offset(ref: tuple[np.ndarray, np.ndarray], other: tuple[np.ndarray, np.ndarray],
-                    step_s: float) -> OffsetEstimate:
-    """Offset of `other` from `ref`, each a (times_s, energy) motion signal."""
-    a, b = _detrended(*ref, step_s), _detrended(*other, step_s)
+                    step_s: float, resolution_s: float) -> OffsetEstimate:
+    """Offset of `other` from `ref`, each a (times_s, energy) motion signal, compared every
+    step_s at a time resolution of resolution_s."""
+    a, b = (_detrended(*sig, step_s, resolution_s) for sig in (ref, other))
     max_lag = int(max(len(a), len(b)))
     ncc = _correlations(a, b, max_lag)
     if not np.isfinite(ncc).any():
@@ -135,10 +146,11 @@ def estimate_video_offsets(paths: Sequence[Path], names: Sequence[str],
         raise InputError(f"The videos of {', '.join(short)} are too short to find time offsets "
                          "from their motion: give them with --time-offset NAME=S.")
     step_s = 1.0 / max(info.fps for info in infos)  # finer: the parabola through the peak
+    resolution_s = 1.0 / min(info.fps for info in infos)
     out = {names[0]: OffsetEstimate(0.0, 1.0, float("nan"))}
     unsure = []
     for name, signal in zip(names[1:], signals[1:]):
-        est = estimate_offset(signals[0], signal, step_s)
+        est = estimate_offset(signals[0], signal, step_s, resolution_s)
         out[name] = est
         log.info("time offset of %s from %s: %+.3f s (correlation %.2f, next best %.2f)", name,
                  names[0], est.offset_s, est.correlation, est.second_correlation)
