@@ -79,6 +79,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "cameras, e.g. --known-baseline cam0 cam1 0.42 (SfM alone gives the "
                              "rig up to scale). With --previous, a metric previous calibration's "
                              "baseline is used when this is not given")
+    parser.add_argument("--floor", nargs="?", const="upright", choices=("upright", "top"),
+                        help="find the floor in the scene points and record the floor frame "
+                             "(z up, heights above the floor; anipose export uses it as world). "
+                             "The cameras are upright (image up = world up; the default), or "
+                             "`top`: they all look straight down onto the floor")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
     parser.add_argument("--threads", type=int, default=-1,
                         help="bundle-adjustment threads (-1 = all cores)")
@@ -155,6 +160,28 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
                         for name, topic, info in zip(names, args.topics, infos)}}
 
 
+def _record_floor(result, view: str) -> None:
+    """quality["floor"] of the calibrated rig (core.floor), or a warning when there is none: the
+    calibration itself is kept either way."""
+    from ..core.floor import find_floor, reconstruction_points_in_rig
+
+    try:
+        if result.reconstruction is None:
+            raise InputError("the calibration has no scene points (dense matcher without "
+                             "keypoint matches)")
+        floor = find_floor(reconstruction_points_in_rig(result.reconstruction, result.rig),
+                           result.rig, view)
+    except InputError as exc:
+        warning = f"no floor frame: {exc}"
+        log.warning("%s", warning)
+        result.rig.quality.setdefault("warnings", []).append(warning)
+        return
+    result.rig.quality["floor"] = floor.to_dict()
+    unit = "m" if result.rig.metric_scale else "units"
+    log.info("floor: %d points (rms %.3g %s); camera heights %s", floor.num_points, floor.rms,
+             unit, ", ".join(f"{n} {h:.3g}" for n, h in floor.camera_heights.items()))
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
@@ -210,6 +237,8 @@ def run(args: argparse.Namespace) -> int:
         if baseline:
             from ..core.scale import with_known_baseline
             result = with_known_baseline(result, *baseline)
+        if args.floor:
+            _record_floor(result, args.floor)
         record_provenance(result.rig, source)
         replace_directory_atomic(
             lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction), args.out)

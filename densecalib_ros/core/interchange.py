@@ -3,7 +3,8 @@
 - anipose / aniposelib `calibration.toml` (multi-camera animal pose: anipose, DeepLabCut 3D,
   freemocap): per camera `[cam_i]` with name, size [w, h], matrix (OpenCV pixel convention),
   distortions (OpenCV k1 k2 p1 p2 k3, or fisheye k1..k4 with `fisheye = true`), rotation
-  (Rodrigues vector) and translation of cam_from_world; world = our rig frame.
+  (Rodrigues vector) and translation of cam_from_world; world = our rig frame, or the floor frame
+  of a calibration that found one (calibrate --floor).
 - Kalibr camchain YAML (read by OpenVINS, VINS-Fusion, ORB-SLAM3's converters, ...): per camera
   `camN` with pinhole intrinsics [fu, fv, pu, pv], radtan or equidistant distortion, resolution,
   rostopic, and T_cn_cnm1 (camN from cam(N-1)) for N >= 1.
@@ -72,20 +73,27 @@ def _toml_list(values) -> str:
 
 
 def anipose_toml(rig: RigCalibration) -> str:
-    """aniposelib CameraGroup.load() text (format in the module docstring)."""
-    lines = [f"# densecalib rig calibration; world = the rig frame (reference camera "
-             f"{rig.reference_camera}); translations in {_units(rig)}", ""]
+    """aniposelib CameraGroup.load() text (format in the module docstring). World = the floor
+    frame when the calibration has one (calibrate --floor: z up, so triangulated points come out
+    as heights above the floor), else the rig frame."""
+    floor = rig.quality.get("floor")
+    rig_from_world = np.eye(4) if not floor else \
+        np.linalg.inv(np.asarray(floor["floor_from_rig"], float).reshape(4, 4))
+    world = ("the floor frame (z up, origin on the floor)" if floor else
+             f"the rig frame (reference camera {rig.reference_camera})")
+    lines = [f"# densecalib rig calibration; world = {world}; translations in {_units(rig)}",
+             ""]
     for i, name in enumerate(rig.cameras):
         info, dist, fisheye = _lens(name, rig, "anipose")
         k = np.asarray(info["camera_matrix"]["data"], float).reshape(3, 3)
-        cam_from_rig = np.asarray(rig.cameras[name].cam_from_rig, float)
-        rvec = cv2.Rodrigues(cam_from_rig[:3, :3])[0].ravel()
+        cam_from_world = np.asarray(rig.cameras[name].cam_from_rig, float) @ rig_from_world
+        rvec = cv2.Rodrigues(cam_from_world[:3, :3])[0].ravel()
         lines += [f"[cam_{i}]", f"name = {json.dumps(name)}",
                   f"size = [ {info['image_width']}, {info['image_height']},]",
                   "matrix = [ " + ", ".join(_toml_list(row) for row in k) + ",]",
                   f"distortions = {_toml_list(dist)}",
                   f"rotation = {_toml_list(rvec)}",
-                  f"translation = {_toml_list(cam_from_rig[:3, 3])}"]
+                  f"translation = {_toml_list(cam_from_world[:3, 3])}"]
         if fisheye:
             lines.append("fisheye = true")
         lines.append("")

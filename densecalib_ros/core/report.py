@@ -131,6 +131,12 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         lines.append(f"warning: {warning}")
     if "change_summary" in q:
         lines.append(f"{q['change_summary']} (started {q.get('init', '?')})")
+    floor = q.get("floor")
+    if floor:
+        unit = "m" if rig.metric_scale else "units"
+        lines.append(f"floor: {floor['num_points']} points within {floor['rms']:.3g} {unit} "
+                     "(rms); camera heights " + ", ".join(
+                         f"{n} {h:.3g}" for n, h in floor["camera_heights"].items()) + f" {unit}")
     scale = q.get("scale_from_baseline")
     lines.append(f"scale: metric, from the {scale['baseline_m']} m baseline "
                  f"{scale['cameras'][0]}-{scale['cameras'][1]}" if rig.metric_scale and scale
