@@ -430,6 +430,43 @@ def test_stereo_pair_camera_info_carry_the_pair_rectification(ros, tmp_path):
         ros.remove(node)
 
 
+def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
+    """With floor on, a calibration that found its floor (calibrate --floor) is republished with
+    floor_frame -> rig_frame beside the cameras on /tf_static; bad floor settings are refused."""
+    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.types import RigCalibration, RigCamera
+
+    lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
+    poses = {name: np.eye(4) for name in CAMERAS}
+    for i, name in enumerate(CAMERAS):
+        poses[name][:3, 3] = [-0.2 * i, 0.0, 0.0]
+    floor_from_rig = np.eye(4)
+    floor_from_rig[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # optical y down = floor -z
+    floor_from_rig[:3, 3] = [0.0, 0.0, 1.5]  # the reference camera 1.5 m above the floor
+    rig = RigCalibration("cam0", {n: RigCamera(n, lens, p) for n, p in poses.items()},
+                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
+                                            "num_points": 500, "rms": 0.002,
+                                            "camera_heights": {n: 1.5 for n in CAMERAS}}},
+                         metric_scale=True)
+    write_calibration_files(rig, tmp_path / "20260101T000000Z")
+    os.symlink("20260101T000000Z", tmp_path / "latest")
+    with pytest.raises(InputError, match="floor must be '' \\(off\\) or one of upright, top"):
+        ros.densecalib(tmp_path, name="bad_floor", floor="sideways")
+    with pytest.raises(InputError, match="floor_frame 'rig' must be a valid tf frame id"):
+        ros.densecalib(tmp_path, name="bad_floor_frame", floor="upright", floor_frame="rig")
+    node = ros.densecalib(tmp_path, floor="upright")
+    listener = ros.listener(node)
+    try:
+        assert wait_until(lambda: "rig" in listener.rig_from_optical(), 10.0)
+        np.testing.assert_allclose(listener.rig_from_optical()["rig"], floor_from_rig, atol=1e-9)
+        parents = {t.child_frame_id: t.header.frame_id
+                   for t in listener.snapshot()["tf_static"][-1].transforms}
+        assert parents == {"rig": "floor", **{f"{n}_optical_frame": "rig" for n in CAMERAS}}
+    finally:
+        ros.remove(listener)
+        ros.remove(node)
+
+
 def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_path):
     """Shutdown (destroy_node) while a calibration runs: the worker's publishing no longer kills
     its thread, so the job is still answered and nobody is left waiting on it."""

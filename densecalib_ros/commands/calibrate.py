@@ -160,28 +160,6 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
                         for name, topic, info in zip(names, args.topics, infos)}}
 
 
-def _record_floor(result, view: str) -> None:
-    """quality["floor"] of the calibrated rig (core.floor), or a warning when there is none: the
-    calibration itself is kept either way."""
-    from ..core.floor import find_floor, reconstruction_points_in_rig
-
-    try:
-        if result.reconstruction is None:
-            raise InputError("the calibration has no scene points (dense matcher without "
-                             "keypoint matches)")
-        floor = find_floor(reconstruction_points_in_rig(result.reconstruction, result.rig),
-                           result.rig, view)
-    except InputError as exc:
-        warning = f"no floor frame: {exc}"
-        log.warning("%s", warning)
-        result.rig.quality.setdefault("warnings", []).append(warning)
-        return
-    result.rig.quality["floor"] = floor.to_dict()
-    unit = "m" if result.rig.metric_scale else "units"
-    log.info("floor: %d points (rms %.3g %s); camera heights %s", floor.num_points, floor.rms,
-             unit, ", ".join(f"{n} {h:.3g}" for n, h in floor.camera_heights.items()))
-
-
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
@@ -238,7 +216,8 @@ def run(args: argparse.Namespace) -> int:
             from ..core.scale import with_known_baseline
             result = with_known_baseline(result, *baseline)
         if args.floor:
-            _record_floor(result, args.floor)
+            from ..core.floor import record_floor
+            record_floor(result, args.floor)
         record_provenance(result.rig, source)
         replace_directory_atomic(
             lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction), args.out)

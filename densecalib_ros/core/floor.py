@@ -19,12 +19,15 @@ x along the reference camera's viewing direction laid flat on the floor. Units a
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import InputError
 from .types import RigCalibration
+
+log = logging.getLogger(__name__)
 
 MAX_TILT_DEG = 60.0
 MAX_TOP_VIEW_DEG = 45.0
@@ -186,3 +189,24 @@ def _rig_units_per_world_unit(reconstruction, rig: RigCalibration) -> float:
                                   + poses[rig.reference_camera][:3, :3].T
                                   @ poses[rig.reference_camera][:3, 3]))
     return in_rig / world if world > 0 else 1.0
+
+
+def record_floor(result, view: str = "upright") -> None:
+    """Find the floor of a pipeline CalibrationResult and record it in rig.quality["floor"]
+    (Floor.to_dict), or, when there is none, say why in rig.quality["warnings"]: the
+    calibration itself is worth keeping either way."""
+    rig = result.rig
+    try:
+        if result.reconstruction is None:
+            raise InputError("the calibration has no scene points (dense matcher without "
+                             "keypoint matches)")
+        floor = find_floor(reconstruction_points_in_rig(result.reconstruction, rig), rig, view)
+    except InputError as exc:
+        warning = f"no floor frame: {exc}"
+        log.warning("%s", warning)
+        rig.quality.setdefault("warnings", []).append(warning)
+        return
+    rig.quality["floor"] = floor.to_dict()
+    unit = "m" if rig.metric_scale else "units"
+    log.info("floor: %d points (rms %.3g %s); camera heights %s", floor.num_points, floor.rms,
+             unit, ", ".join(f"{n} {h:.3g}" for n, h in floor.camera_heights.items()))

@@ -9,6 +9,8 @@ rig_from_cam = inverse(cam_from_rig) (tf's convention: the child frame's pose in
 """
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
@@ -102,10 +104,16 @@ def transform_to_matrix(msg: TransformStamped) -> np.ndarray:
 
 
 def rig_tf_message(rig: RigCalibration, rig_frame: str, optical_frames: dict[str, str],
-                   t_ns: int) -> TFMessage:
+                   t_ns: int, floor_frame: Optional[str] = None) -> TFMessage:
     """All cameras' extrinsics in one TFMessage: rig_frame -> optical_frames[name] for each
-    calibrated camera (the transform is rig_from_cam = inverse(cam_from_rig))."""
+    calibrated camera (the transform is rig_from_cam = inverse(cam_from_rig)); with floor_frame
+    and a calibration that found its floor (core.floor), also floor_frame -> rig_frame."""
     transforms = [transform_msg(rig_frame, optical_frames[name],
                                 np.linalg.inv(np.asarray(cam.cam_from_rig, dtype=np.float64)), t_ns)
                   for name, cam in rig.cameras.items()]
+    floor = rig.quality.get("floor")
+    if floor_frame and floor:
+        transforms.append(transform_msg(
+            floor_frame, rig_frame,
+            np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4), t_ns))
     return TFMessage(transforms=transforms)

@@ -11,7 +11,8 @@ Interface (names relative to the node, default name `densecalib_node`):
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pair`'s with their
   stereo rectification R, P, republished when that parameter changes), `/tf_static` (tf2_msgs/TFMessage,
-  all cameras in one message, transient local, depth 1), `/diagnostics`
+  all cameras in one message, transient local, depth 1; with `floor` on, also floor_frame ->
+  rig_frame), `/diagnostics`
   (diagnostic_msgs/DiagnosticArray, 1 Hz);
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
 - files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/) written
@@ -57,6 +58,7 @@ from ..core.consistency import DEFAULT_TOLERANCE_PX
 from ..core.errors import CalibrationError, InputError
 from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
                            write_calibration_files)
+from ..core.floor import VIEWS as FLOOR_VIEWS, record_floor
 from ..core.known_intrinsics import read_known_intrinsics, with_previous_intrinsics
 from ..core.masks import read_mask
 from ..core.matching import available_matchers
@@ -142,6 +144,11 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                    "'latest' symlink", True, {}),
     "rig_frame": ("rig", "parent frame of the cameras' transforms on /tf_static (the reference "
                   "camera's optical frame coincides with it)", True, {}),
+    "floor": ("", "after each calibration find the floor in the scene points and publish "
+              "floor_frame -> rig_frame on /tf_static: '' (off), 'upright' (cameras mounted "
+              "upright) or 'top' (all looking straight down); see `calibrate --floor`", False, {}),
+    "floor_frame": ("floor", "frame of the floor (z up), the parent of rig_frame when floor is "
+                    "on", True, {}),
     "frame_names": (Parameter.Type.STRING_ARRAY,
                     "optical frame per camera (default <camera>_optical_frame)", True, {}),
     "camera_info_topics": (Parameter.Type.STRING_ARRAY,
@@ -198,6 +205,8 @@ class Settings:
     max_image_side_px: int
     output_dir: Path
     rig_frame: str
+    floor: str
+    floor_frame: str
     frame_names: list[str]
     camera_info_topics: list[str]
     stereo_pair: list[str]
@@ -298,6 +307,13 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     if rig_frame in frames or len(set(frames)) != n:
         raise InputError(f"rig_frame {rig_frame!r} and frame_names {frames} must all differ "
                          "(a transform from a frame to itself is invalid in tf).")
+    if v["floor"] not in ("", *FLOOR_VIEWS):
+        raise InputError(f"floor must be '' (off) or one of {', '.join(FLOOR_VIEWS)}, got "
+                         f"{v['floor']!r}.")
+    floor_frame = v["floor_frame"]
+    if not _FRAME_RE.match(floor_frame) or floor_frame in frames + [rig_frame]:
+        raise InputError(f"floor_frame {floor_frame!r} must be a valid tf frame id that differs "
+                         f"from rig_frame and frame_names.")
     info_topics = _per_camera(list(v["camera_info_topics"]), n, "camera_info_topics",
                               lambda i: camera_info_topic(topics[i]))
     services = _per_camera(list(v["set_camera_info_services"]), n, "set_camera_info_services",
@@ -342,6 +358,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         consensus_runs=int(v["consensus_runs"]),
         max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
+        floor=v["floor"], floor_frame=floor_frame,
         frame_names=frames, camera_info_topics=info_topics, stereo_pair=pair,
         call_set_camera_info=bool(v["call_set_camera_info"]), set_camera_info_services=services,
         set_camera_info_timeout_s=float(v["set_camera_info_timeout_s"]),
@@ -629,6 +646,8 @@ class DenseCalibNode(Node):
                                      matcher=self._matcher_for(s), progress=progress)
         if s.known_baseline_m > 0:
             result = with_known_baseline(result, *s.baseline_cameras, s.known_baseline_m)
+        if s.floor:
+            record_floor(result, s.floor)
         rig, reconstruction = result.rig, result.reconstruction
         record_provenance(rig, {"source": "topics", "topics": list(s.image_topics),
                                 "frame_set_stamps_ns": [list(map(int, fs.stamps_ns))
@@ -710,7 +729,8 @@ class DenseCalibNode(Node):
         t_ns = self.get_clock().now().nanoseconds
         frames = dict(zip(s.camera_names, s.frame_names))
         self._publish_camera_infos(rig, t_ns)
-        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns))
+        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns,
+                                            s.floor_frame if s.floor else None))
         self.calibration, self.calibration_dir = rig, directory
         self._calibrated_at = time.time() if calibrated_at is None else calibrated_at
         self._publish_diagnostics()
