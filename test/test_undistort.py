@@ -89,9 +89,20 @@ def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys)
     pose[:3, 3] = [-0.3, 0.01, 0.02]
     third = np.eye(4)
     third[:3, 3] = [0.0, -0.3, 0.0]
+    floor_from_rig = np.eye(4)
+    floor_from_rig[:3, :3] = Rotation.from_euler("xyz", [-100, 3, 20], degrees=True).as_matrix()
+    floor_from_rig[:3, 3] = [0.2, -0.1, 1.4]
+
+    def height(calibration, name):  # of the camera's centre, in its calibration's floor frame
+        centre = np.linalg.inv(calibration.cameras[name].cam_from_rig)[:, 3]
+        return (np.reshape(calibration.quality["floor"]["floor_from_rig"], (4, 4)) @ centre)[2]
+
     rig = RigCalibration("a", {"a": RigCamera("a", lens, np.eye(4)),
                                "b": RigCamera("b", lens, pose),
-                               "c": RigCamera("c", RADIAL, third)}, metric_scale=True)
+                               "c": RigCamera("c", RADIAL, third)}, metric_scale=True,
+                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
+                                            "num_points": 100, "rms": 0.01,
+                                            "camera_heights": {"a": 1.0, "b": 1.0, "c": 1.0}}})
     calib = tmp_path / "calibration.json"
     calib.write_text(json.dumps(calibration_to_dict(rig)))
     images = tmp_path / "images"
@@ -113,6 +124,9 @@ def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys)
     np.testing.assert_allclose(right[:3, :3], np.eye(3), atol=1e-9)
     assert right[0, 3] == pytest.approx(-np.linalg.norm([-0.3, 0.01, 0.02]))
     assert np.abs(right[1:3, 3]).max() < 1e-9
+    for name in ("a", "b"):  # the floor frame follows the new rig frame
+        assert height(result, name) == pytest.approx(height(rig, name), abs=1e-9)
+    assert sorted(result.quality["floor"]["camera_heights"]) == ["a", "b"]
     for name in ("a", "b"):
         info = yaml.safe_load((tmp_path / "stereo" / f"{name}.yaml").read_text())
         k = np.array(info["camera_matrix"]["data"]).reshape(3, 3)

@@ -124,9 +124,16 @@ def _rectified_rig(rig, targets):
         turned[name] = pose @ rig.cameras[name].cam_from_rig
     left = next(iter(targets))
     rig_from_left = np.linalg.inv(turned[left])
+    quality = {**rig.quality, "stereo_rectified_pair": list(targets)}
+    if "floor" in quality:  # the floor frame, from the new rig frame (the rectified left camera)
+        floor = dict(quality["floor"])
+        floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
+        floor["floor_from_rig"] = (floor_from_rig @ rig_from_left).ravel().tolist()
+        floor["camera_heights"] = {n: h for n, h in floor["camera_heights"].items()
+                                   if n in targets}
+        quality["floor"] = floor
     return RigCalibration(
         reference_camera=left,
         cameras={name: RigCamera(name, rig.cameras[name].intrinsics, pose @ rig_from_left)
                  for name, pose in turned.items()},
-        quality={**rig.quality, "stereo_rectified_pair": list(targets)},
-        metric_scale=rig.metric_scale)
+        quality=quality, metric_scale=rig.metric_scale)
