@@ -117,7 +117,7 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     ("--known-baseline", "cam0 cam0 0.5", "expected two different cameras of cam0, cam1"),
     ("--known-baseline", "cam0 cam9 0.5", "expected two different cameras"),
     ("--known-baseline", "cam0 cam1 -2", "their distance in metres (> 0)"),
-    ("--time-offset", "cam1=3", "--time-offset belongs to --videos or to --images with --align"),
+    ("--time-offset", "cam1=3", "--time-offset belongs to --videos, --bag or"),
     ("--align", "name --time-offset cam1=3", "--time-offset belongs to"),
     ("--align", "time", "no EXIF capture time"),
     ("--max-frame-sets", "0", "--max-frame-sets 0: give at least 1")])

@@ -21,8 +21,10 @@ from densecalib_ros.core.stereo import stereo_pair
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 LENSES = {
-    "pinhole": (CameraIntrinsics("RADIAL", 1024, 768, np.array([810.0, 515.3, 380.2, -0.12, 0.03])),
-                CameraIntrinsics("RADIAL", 1024, 768, np.array([795.0, 509.9, 385.0, 0.04, -0.01]))),
+    "pinhole": (CameraIntrinsics("RADIAL", 1024, 768,
+                                 np.array([810.0, 515.3, 380.2, -0.12, 0.03])),
+                CameraIntrinsics("RADIAL", 1024, 768,
+                                 np.array([795.0, 509.9, 385.0, 0.04, -0.01]))),
     "fisheye": (CameraIntrinsics("OPENCV_FISHEYE", 1280, 960, np.array(
                     [402.0, 403.5, 641.0, 478.5, 0.05, -0.02, 0.004, -0.0007])),
                 CameraIntrinsics("OPENCV_FISHEYE", 1280, 960, np.array(

@@ -47,9 +47,10 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how far this camera's time runs ahead of the others' (s): with "
                              "--videos, a camera that started recording 0.4 s early is NAME=0.4; "
                              "with --align time, a trail camera whose clock is 60 s fast is "
-                             "NAME=60. `auto` finds them: with --videos from what moves in "
-                             "their first 2 minutes, with --align time from which capture times "
-                             "pair up")
+                             "NAME=60; with --bag, a topic whose stamping clock runs 0.4 s "
+                             "ahead is NAME=0.4. `auto` finds them: with --videos and --bag from "
+                             "what moves in their first 2 minutes, with --align time from which "
+                             "capture times pair up")
     parser.add_argument("--start", type=float, default=None, metavar="S",
                         help="with --videos: take frames from this common time on (s)")
     parser.add_argument("--end", type=float, default=None, metavar="S",
@@ -94,8 +95,10 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
                   if value is not None]
     if video_only and not args.videos:
         raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
-    if args.time_offset and not (args.videos or (args.images and args.align == "time")):
-        raise InputError("--time-offset belongs to --videos or to --images with --align time.")
+    if args.time_offset and not (args.videos or args.bag or
+                                 (args.images and args.align == "time")):
+        raise InputError("--time-offset belongs to --videos, --bag or --images with --align "
+                         "time.")
     if args.time_offset and "auto" in args.time_offset and args.time_offset != ["auto"]:
         raise InputError(f"--time-offset {' '.join(args.time_offset)}: give `auto` alone or "
                          "NAME=S values, not both.")
@@ -135,18 +138,39 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
     if not args.topics:
         raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
                          "--topics /cam0/image_raw /cam1/image_raw.")
-    from ..core.bag import read_frame_sets
+    from ..core.bag import camera_names_from_topics, read_frame_sets
+    names = camera_names_from_topics(args.topics)
+    record = {}
+    if args.time_offset == ["auto"]:
+        from ..core.motion_sync import bag_offsets
+        estimates = bag_offsets(args.bag, args.topics, names)
+        offsets = {name: round(est.offset_s, 4) for name, est in estimates.items()}
+        log.info("clock offsets of the topics from their motion (s, from %s): %s", names[0],
+                 ", ".join(f"{n}={o:+.3f}" for n, o in offsets.items()))
+        record = {"time_offsets_estimated": {
+            name: {"offset_s": offsets[name], "correlation": round(est.correlation, 3)}
+            for name, est in estimates.items()}}
+    else:
+        offsets = parse_time_offsets(args.time_offset)
+        unknown = sorted(set(offsets) - set(names))
+        if unknown:
+            raise InputError(f"--time-offset names unknown camera(s) {', '.join(unknown)}: the "
+                             f"bag's cameras are {', '.join(names)} (from --topics).")
     frame_sets, names, stamps = read_frame_sets(
         args.bag, args.topics, slop_s=args.slop,
-        max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS), return_stamps=True)
+        max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS), return_stamps=True,
+        stamp_offsets_s=[float(offsets.get(n, 0.0)) for n in names])
+    if offsets:
+        record = {"time_offsets_s": offsets, **record}
     return frame_sets, names, {"source": "bag", "path": str(Path(args.bag).resolve()),
-                               "topics": list(args.topics), "frame_set_stamps_ns": stamps}, []
+                               "topics": list(args.topics), **record,
+                               "frame_set_stamps_ns": stamps}, []
 
 
 def _estimated_video_offsets(args) -> tuple[dict, dict]:
     """--time-offset auto: ({camera: offset s}, the estimate's record for quality["input"])."""
     from ..core.video_io import list_video_folder
-    from ..core.video_sync import estimate_video_offsets
+    from ..core.motion_sync import estimate_video_offsets
 
     paths, names = list_video_folder(args.videos)
     estimates = estimate_video_offsets(paths, names)

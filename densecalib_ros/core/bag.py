@@ -170,8 +170,10 @@ def read_camera_infos(bag_path: str | os.PathLike, image_topics: list[str]) -> l
 
 def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: float = 0.02,
                     max_frame_sets: Optional[int] = None, stride: int = 1,
-                    return_stamps: bool = False) -> tuple:
-    """Synchronised frame sets of a bag's image topics.
+                    return_stamps: bool = False,
+                    stamp_offsets_s: Optional[list[float]] = None) -> tuple:
+    """Synchronised frame sets of a bag's image topics; stamp_offsets_s[c]: how far topic c's
+    stamping clock runs ahead of the others' (s), taken off its stamps before synchronising.
 
     Returns (frame_sets, camera_names): frame_sets[t][c] is camera c's image of set t, uint8 RGB
     (H, W, 3) or gray (H, W); camera c is topics[c], named by camera_names_from_topics. Sets are in
@@ -189,13 +191,15 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
     sync = ApproximateTimeSynchronizer(len(topics), slop_s, queue_size=1000)
     counts = [0] * len(topics)
     sets = []
+    offsets_ns = [int(round(o * 1e9)) for o in (stamp_offsets_s or [0.0] * len(topics))]
     for topic_index, stamp, _, _, _ in iter_image_messages(bag_path, topics):
-        sets.extend(sync.add(topic_index, stamp, counts[topic_index]))
+        sets.extend(sync.add(topic_index, stamp - offsets_ns[topic_index], counts[topic_index]))
         counts[topic_index] += 1
     if not sets:
         raise InputError(f"No synchronised frame sets in {bag_path} for topics {topics} with "
                          f"slop {slop_s} s (messages per topic: {counts}); check the topics' "
-                         "header stamps or raise slop_s.")
+                         "header stamps, raise the slop, or give the cameras' clock offsets "
+                         "(--time-offset NAME=S, or auto).")
     sets.sort(key=lambda s: s.stamp_ns)
     sets = sets[::stride]
     sets = evenly_spaced(sets, max_frame_sets)
@@ -208,8 +212,9 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
         seen[topic_index] += 1
         if t is not None:
             frame_sets[t][topic_index] = decode_image_message(msgtype, msg)
-    if return_stamps:
-        return frame_sets, names, [list(map(int, s.stamps_ns)) for s in sets]
+    if return_stamps:  # the header stamps as recorded
+        return frame_sets, names, [[int(t) + o for t, o in zip(s.stamps_ns, offsets_ns)]
+                                   for s in sets]
     return frame_sets, names
 
 

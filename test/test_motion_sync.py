@@ -1,4 +1,4 @@
-"""Time offsets of a rig's videos from their motion (core.video_sync, `--time-offset auto`):
+"""Time offsets of a rig's videos from their motion (core.motion_sync, `--time-offset auto`):
 videos of one moving object seen by three cameras with different views, gains, frame rates and
 start times give back each camera's start within half a frame; a static scene is refused with
 what to do."""
@@ -14,7 +14,7 @@ import pytest
 from densecalib_ros.commands.inputs import add_input_arguments, read_input
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.video_io import list_video_folder
-from densecalib_ros.core.video_sync import estimate_video_offsets
+from densecalib_ros.core.motion_sync import estimate_video_offsets
 
 WORLD_H, WORLD_W = 360, 640
 DURATION_S = 20.0
@@ -51,24 +51,35 @@ def _path(seed=0):
     return t, pos
 
 
-def _write_videos(folder, moving=True, cameras=CAMERAS, codec=("MJPG", ".avi")):
-    rng = np.random.default_rng(1)
+def _views(cameras, moving=True, size=(320, 200), seed=1):
+    """camera -> generator of its grey frames (frame k at world time start + k / fps)."""
+    rng = np.random.default_rng(seed)
     floor = cv2.resize(rng.integers(60, 120, (36, 64), dtype=np.uint8), (WORLD_W, WORLD_H),
                        interpolation=cv2.INTER_LINEAR)
     t_path, pos = _path()
-    for name, (fps, start_s, (y0, y1, x0, x1), gain) in cameras.items():
-        writer = cv2.VideoWriter(str(folder / f"{name}{codec[1]}"),
-                                 cv2.VideoWriter_fourcc(*codec[0]), fps, (320, 200))
-        assert writer.isOpened()
+
+    def frames(fps, start_s, view_box, gain):
+        y0, y1, x0, x1 = view_box
         for k in range(int(DURATION_S * fps)):
             world = floor.copy()
             if moving:
                 x, y = pos[np.searchsorted(t_path, start_s + k / fps)]
                 cv2.circle(world, (int(round(x)), int(round(y))), 22, 230, -1)
                 cv2.circle(world, (int(round(x)) + 8, int(round(y))), 7, 20, -1)
-            view = cv2.resize(world[y0:y1, x0:x1], (320, 200), interpolation=cv2.INTER_AREA)
-            view = np.clip(view.astype(np.float32) * gain + rng.normal(0, 2, view.shape), 0, 255)
-            writer.write(cv2.cvtColor(view.astype(np.uint8), cv2.COLOR_GRAY2BGR))
+            view = cv2.resize(world[y0:y1, x0:x1], size, interpolation=cv2.INTER_AREA)
+            view = view.astype(np.float32) * gain + rng.normal(0, 2, view.shape)
+            yield np.clip(view, 0, 255).astype(np.uint8)
+
+    return {name: frames(*spec) for name, spec in cameras.items()}
+
+
+def _write_videos(folder, moving=True, cameras=CAMERAS, codec=("MJPG", ".avi")):
+    for name, frames in _views(cameras, moving).items():
+        writer = cv2.VideoWriter(str(folder / f"{name}{codec[1]}"),
+                                 cv2.VideoWriter_fourcc(*codec[0]), cameras[name][0], (320, 200))
+        assert writer.isOpened()
+        for frame in frames:
+            writer.write(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
         writer.release()
 
 
@@ -120,3 +131,42 @@ def test_a_static_scene_gives_no_offsets(tmp_path):
     with pytest.raises(InputError, match="does not determine the time offset of cam1.*"
                                          "--time-offset NAME=S"):
         estimate_video_offsets(paths, names)
+
+
+def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path):
+    """A bag whose cam1 stamps run 0.35 s ahead and cam2's 0.8 s behind cam0's: synchronised by
+    stamps alone, its frame sets join images taken up to 0.8 s apart (at 25 fps every offset
+    leaves a partner within the slop); --time-offset auto finds the clocks from the motion."""
+    from densecalib_ros.core.bag import write_image_bag
+
+    clocks = {"cam0": 0.0, "cam1": 0.35, "cam2": -0.8}
+    phases = {"cam0": 0.0, "cam1": 0.006, "cam2": 0.013}  # capture moments within the slop
+    spec = {n: (25.0, phases[n], CAMERAS[n][2], CAMERAS[n][3]) for n in CAMERAS}
+    views = _views(spec, size=(160, 100))
+    frames = [list(fs) for fs in zip(*views.values())]  # frames[k][c]
+    stamps = [[int(round((k / 25.0 + phases[n] + clocks[n]) * 1e9)) for n in CAMERAS]
+              for k in range(len(frames))]
+    bag = tmp_path / "arena_bag"
+    topics = [f"/{n}/image_raw" for n in CAMERAS]
+    write_image_bag(bag, frames, topics, stamps, encoding="mono8")
+    parser = argparse.ArgumentParser()
+    add_input_arguments(parser)
+
+
+    def spread_s(row):  # of the moments a frame set's images were taken
+        taken = [t * 1e-9 - clocks[n] for t, n in zip(row, CAMERAS)]
+        return max(taken) - min(taken)
+
+    plain = parser.parse_args(["--bag", str(bag), "--topics", *topics, "--max-frame-sets", "4"])
+    assert all(spread_s(row) > 0.3 for row in read_input(plain)[2]["frame_set_stamps_ns"])
+    args = parser.parse_args(["--bag", str(bag), "--topics", *topics, "--max-frame-sets", "4",
+                              "--time-offset", "auto"])
+    frame_sets, names, record, _ = read_input(args)
+    assert names == list(CAMERAS) and len(frame_sets) == 4
+    for name, clock in clocks.items():
+        assert record["time_offsets_s"][name] == pytest.approx(clock, abs=0.5 / 25.0)
+    # each set's images were taken together: their recorded stamps differ by the clocks
+    assert all(spread_s(row) < 0.02 for row in record["frame_set_stamps_ns"])
+    manual = parser.parse_args(["--bag", str(bag), "--topics", *topics, "--max-frame-sets", "4",
+                                "--time-offset", "cam1=0.35", "cam2=-0.8"])
+    assert len(read_input(manual)[0]) == 4
