@@ -190,6 +190,8 @@ def test_parameters_are_validated(ros, tmp_path):
         ros.densecalib(tmp_path, name="bad3", known_baseline_m=0.5)
     with pytest.raises(InputError, match="transports must be one of"):
         ros.densecalib(tmp_path, name="bad4", transports=["theora"])
+    with pytest.raises(InputError, match="stamp_offsets_s must be empty or one offset"):
+        ros.densecalib(tmp_path, name="bad5", stamp_offsets_s=[0.1])
     node = ros.densecalib(tmp_path, name="params_node")
     try:
         result = node.set_parameters([Parameter("matcher", value="nonexistent")])[0]

@@ -111,3 +111,28 @@ def test_evenly_spaced_keeps_the_ends_and_logs(caplog):
     assert evenly_spaced(items[:3], 5) == [0, 1, 2] and evenly_spaced(items, None) == items
     with pytest.raises(InputError, match="at least 1"):
         evenly_spaced(items, 0)
+
+
+def test_message_synchronizer_takes_clock_offsets_off_the_stamps():
+    """Stream 1's clock runs 0.35 s ahead: at 25 Hz its stamps still find partners within the
+    slop, 9 frames off; with its offset given, each set holds the images taken together."""
+    pytest.importorskip("rclpy")
+    from sensor_msgs.msg import Image
+
+    from densecalib_ros.ros.sync import MessageSynchronizer
+
+    def run(offsets):
+        sync = MessageSynchronizer(2, slop_s=0.02, buffer_size=1000, stamp_offsets_s=offsets)
+        for k in range(100):
+            for stream, clock_ns in ((0, 0), (1, 350_000_000)):
+                msg = Image()
+                stamp = k * 40_000_000 + clock_ns
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+                msg.header.frame_id = str(k)  # the moment it was taken
+                sync.add(stream, msg)
+        return [(int(s.items[0].header.frame_id), int(s.items[1].header.frame_id))
+                for s in sync.snapshot()]
+
+    assert all(b - a == -9 for a, b in run(None))
+    together = run([0.0, 0.35])
+    assert len(together) >= 90 and all(a == b for a, b in together)

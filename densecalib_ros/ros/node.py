@@ -96,6 +96,11 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                    "is compressed), raw (Image) or compressed (CompressedImage)", True, {}),
     "slop_s": (0.02, "approximate-time synchronisation: max stamp spread within a frame set [s]",
                True, _range(0.0, 10.0, False)),
+    "stamp_offsets_s": (Parameter.Type.DOUBLE_ARRAY,
+                        "per camera, how far its stamping clock runs ahead of the others' [s] "
+                        "(cameras on unsynchronised computers; `densecalib calibrate --bag ... "
+                        "--time-offset auto` measures them from a recording): empty = all 0",
+                        True, {}),
     "sync_queue_size": (10, "pending messages per topic while waiting for partners", True,
                         _range(1, 1000, True)),
     "buffer_size": (50, "frame sets kept for calibration; the oldest is dropped when full", True,
@@ -186,6 +191,7 @@ class Settings:
     camera_names: list[str]
     transports: list[str]
     slop_s: float
+    stamp_offsets_s: list[float]
     sync_queue_size: int
     buffer_size: int
     min_interval_s: float
@@ -264,6 +270,11 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     if any(t not in TRANSPORTS for t in transports):
         raise InputError(f"transports must be one of {', '.join(TRANSPORTS)} per topic, got "
                          f"{transports}.")
+    stamp_offsets = [float(o) for o in v["stamp_offsets_s"]]
+    if stamp_offsets and (len(stamp_offsets) != n
+                          or not all(math.isfinite(o) for o in stamp_offsets)):
+        raise InputError(f"stamp_offsets_s must be empty or one offset [s] per camera ({n}), got "
+                         f"{stamp_offsets}.")
     if v["preset"] not in PRESETS:
         raise InputError(f"preset must be one of {', '.join(PRESETS)}, got {v['preset']!r}.")
     lenses = list(v["camera_lens"])
@@ -345,7 +356,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
                          "an .mcap/.db3 file, or leave it empty.")
     return Settings(
         image_topics=topics, camera_names=names, transports=transports,
-        slop_s=float(v["slop_s"]), sync_queue_size=int(v["sync_queue_size"]),
+        slop_s=float(v["slop_s"]), stamp_offsets_s=stamp_offsets or [0.0] * n,
+        sync_queue_size=int(v["sync_queue_size"]),
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), max_frame_sets=int(v["max_frame_sets"]),
         check_tolerance_px=float(v["check_tolerance_px"]),
@@ -412,7 +424,7 @@ class DenseCalibNode(Node):
         self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
 
         self.sync = MessageSynchronizer(len(s.image_topics), s.slop_s, s.buffer_size,
-                                        s.min_interval_s, s.sync_queue_size)
+                                        s.min_interval_s, s.sync_queue_size, s.stamp_offsets_s)
         self._sub_group = MutuallyExclusiveCallbackGroup()
         self._timer_group = MutuallyExclusiveCallbackGroup()
         self._service_group = ReentrantCallbackGroup()
@@ -628,7 +640,8 @@ class DenseCalibNode(Node):
             raise InputError(
                 f"{len(sets)} synchronised frame set(s) buffered, {s.min_frame_sets} needed "
                 f"(messages received per camera: {dict(zip(s.camera_names, stats['received']))}, "
-                f"slop {s.slop_s} s); check that every camera publishes with close header stamps")
+                f"slop {s.slop_s} s); check that every camera publishes with close header stamps "
+                "(cameras on unsynchronised clocks: set stamp_offsets_s)")
         sets = evenly_spaced(sets, s.max_frame_sets)
         self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
                          f"{s.matcher})")
@@ -649,9 +662,13 @@ class DenseCalibNode(Node):
         if s.floor:
             record_floor(result, s.floor)
         rig, reconstruction = result.rig, result.reconstruction
-        record_provenance(rig, {"source": "topics", "topics": list(s.image_topics),
-                                "frame_set_stamps_ns": [list(map(int, fs.stamps_ns))
-                                                        for fs in sets]})
+        offsets = ({"stamp_offsets_s": dict(zip(s.camera_names, s.stamp_offsets_s))}
+                   if any(s.stamp_offsets_s) else {})
+        record_provenance(rig, {"source": "topics", "topics": list(s.image_topics), **offsets,
+                                "frame_set_stamps_ns": [  # as the headers had them
+                                    [int(t) + int(round(o * 1e9))
+                                     for t, o in zip(fs.stamps_ns, s.stamp_offsets_s)]
+                                    for fs in sets]})
         elapsed = time.perf_counter() - start
         out = self._write_files(rig, reconstruction)
         self._publish(rig, out)

@@ -17,7 +17,11 @@ class MessageSynchronizer:
     """Image messages of N streams -> approximate-time frame sets in a bounded buffer."""
 
     def __init__(self, num_streams: int, slop_s: float, buffer_size: int,
-                 min_interval_s: float = 0.0, queue_size: int = 10):
+                 min_interval_s: float = 0.0, queue_size: int = 10,
+                 stamp_offsets_s: list[float] | None = None):
+        """stamp_offsets_s[c]: how far stream c's stamping clock runs ahead of the others' (s),
+        taken off its stamps before matching (the buffered sets carry the corrected stamps)."""
+        self._offsets_ns = [int(round(o * 1e9)) for o in (stamp_offsets_s or [0.0] * num_streams)]
         self._lock = threading.Lock()
         self._sync = ApproximateTimeSynchronizer(num_streams, slop_s, queue_size)
         self._buffer = FrameSetBuffer(buffer_size, min_interval_s)
@@ -26,7 +30,8 @@ class MessageSynchronizer:
     def add(self, stream: int, msg, stamp_ns: int | None = None) -> int:
         """Add stream `stream`'s message (stamp from its header unless given); returns the number
         of frame sets it added to the buffer."""
-        t = message_stamp_ns(msg) if stamp_ns is None else int(stamp_ns)
+        t = (message_stamp_ns(msg) if stamp_ns is None else int(stamp_ns)) \
+            - self._offsets_ns[stream]
         with self._lock:
             self.received[stream] += 1
             return sum(self._buffer.push(s) for s in self._sync.add(stream, t, msg))
