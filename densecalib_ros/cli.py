@@ -27,9 +27,11 @@ SUBCOMMANDS = {
                 "draw each camera's reprojection residuals on its image"),
     "undistort": ("densecalib_ros.commands.undistort",
                   "resample images to distortion-free pinhole cameras, with their calibration"),
+    "triangulate": ("densecalib_ros.commands.triangulate",
+                    "3D points (and distances) from their pixels in two or more cameras"),
     "export": ("densecalib_ros.commands.export",
-               "write a calibration as anipose calibration.toml, Kalibr camchain.yaml or "
-               "OpenCV FileStorage files"),
+               "write a calibration as anipose calibration.toml, Kalibr camchain.yaml, "
+               "OpenCV FileStorage files or a rectified stereo pair"),
 }
 
 
