@@ -17,6 +17,9 @@ SUBCOMMANDS = {
               "accuracy benchmark against COLMAP/GLOMAP on generated rigs and real images"),
     "bench-sampling": ("densecalib_ros.commands.bench_sampling",
                        "matcher + cycle-sampling quality per backend on generated rigs"),
+    "bench-stereo": ("densecalib_ros.commands.bench_stereo",
+                     "the real fisheye stereo pair against its own checkerboard: rectified rows "
+                     "and measured squares vs its target-based calibrations"),
     "generate": ("densecalib_ros.commands.generate",
                  "write a generated rig's images and ground truth to a folder"),
     "report": ("densecalib_ros.commands.report",

@@ -3,8 +3,17 @@ projections of a random point cloud plus noise and outliers, so the SfM stages a
 own. World frame: the cloud fills x in [-3, 3], y in [-2, 2], z in [4.5, 9].
 Imported as `sfm_fixtures` (pytest puts test/ on sys.path)."""
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
+
+
+def pose(euler_deg, t):
+    """4x4 transform with the rotation of xyz Euler angles [deg] and the translation t."""
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_euler("xyz", euler_deg, degrees=True).as_matrix()
+    m[:3, 3] = t
+    return m
 
 
 def look_at(centre, target):

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from scipy.spatial.transform import Rotation
+from sfm_fixtures import pose as _pose
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
@@ -30,13 +30,6 @@ LENSES = {
                 CameraIntrinsics("OPENCV_FISHEYE", 1280, 960, np.array(
                     [398.0, 399.0, 636.0, 482.0, 0.04, -0.01, 0.002, -0.0004]))),
 }
-
-
-def _pose(euler_deg, t):
-    m = np.eye(4)
-    m[:3, :3] = Rotation.from_euler("xyz", euler_deg, degrees=True).as_matrix()
-    m[:3, 3] = t
-    return m
 
 
 def _rig(lens="pinhole", right_pose=None, metric=True):
@@ -220,39 +213,18 @@ def test_unscaled_rig_and_converged_pair_are_written_with_warnings(caplog):
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def _board_corners(path):
-    """Sub-pixel inner corners of the real set's checkerboard (6x8), or None."""
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    found, corners = cv2.findChessboardCorners(
-        img, (6, 8), cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-    if not found:
-        return None
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
-    return cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), criteria).reshape(-1, 2)
-
-
-def _row_error_mrad(pairs, left, right):
-    """Median over pairs of the median |y_left - y_right| of rectified corners, in units of the
-    rectified focal length (mrad), for camera_info dicts left and right (fisheye lenses)."""
-    def rect(c, info):
-        k = np.array(info["camera_matrix"]["data"]).reshape(3, 3)
-        d = np.array(info["distortion_coefficients"]["data"]).reshape(-1, 1)
-        r = np.array(info["rectification_matrix"]["data"]).reshape(3, 3)
-        p = np.array(info["projection_matrix"]["data"]).reshape(3, 4)
-        return cv2.fisheye.undistortPoints(c.reshape(-1, 1, 2), k, d, R=r, P=p).reshape(-1, 2)
-    f = left["projection_matrix"]["data"][0]
-    return float(np.median([np.median(np.abs(rect(cl, left)[:, 1] - rect(cr, right)[:, 1]))
-                            for cl, cr in pairs]) / f * 1000)
-
-
 @pytest.mark.data
-def test_real_fisheye_pair_rectifies_checkerboard_rows_as_well_as_its_target_calibration(
-        tmp_path):
+def test_real_fisheye_pair_rectifies_and_measures_as_well_as_its_target_calibration(tmp_path):
     """Target-free calibration of the real fisheye bag (20 of the 46 stereo pairs, scene only),
-    exported as ROS stereo camera_info: the checkerboard corners of the 23 pairs the bag does not
-    hold land on the same rectified row at least as well as with the target-based stereo
-    calibration of those very images (cam_stereo.yml, cv2.fisheye.stereoCalibrate). The board is
-    hand-held and the pairs are not all in sync, hence medians over pairs."""
+    exported as ROS stereo camera_info: on the 23 pairs the bag does not hold, the checkerboard's
+    corners land on one rectified row at least as well as with the set's two target-based
+    calibrations of those very images, and the board's squares measure within 3 % of what the
+    target-based stereo calibration measures at the same baseline (core.stereo_checkerboard,
+    `densecalib bench-stereo`)."""
+    from densecalib_ros.core.export import read_calibration
+    from densecalib_ros.core.stereo_checkerboard import (corner_pairs, evaluate, row_error_mrad,
+                                                         ros_yaml_camera)
+
     folder = SHARED_DATA / "ros_fisheye_stereo_checkerboard" / "stereo"
     bag = SHARED_DATA / "ros2bag_fisheye_stereo_derived" / "fisheye_stereo_bag"
     if not (folder.exists() and bag.exists()):
@@ -260,29 +232,16 @@ def test_real_fisheye_pair_rectifies_checkerboard_rows_as_well_as_its_target_cal
     out = tmp_path / "out"
     assert main(["calibrate", "--bag", str(bag), "--topics", "/stereo/left/image_raw",
                  "/stereo/right/image_raw", "--preset", "fisheye", "--known-baseline",
-                 "stereo_left", "stereo_right", "0.117", "--out", str(out)]) == 0
+                 "stereo_left", "stereo_right", "0.11705", "--out", str(out)]) == 0
     assert main(["export", str(out), "--format", "ros-stereo", "--out",
                  str(tmp_path / "stereo")]) == 0
-    ours = [yaml.safe_load((tmp_path / "stereo" / f"stereo_{s}.yaml").read_text())
-            for s in ("left", "right")]
-    assert ours[1]["projection_matrix"]["data"][3] / ours[1]["projection_matrix"]["data"][0] \
-        == pytest.approx(-0.117)
-    pairs = []
-    for index in range(1, 46, 2):  # the bag holds pairs 0, 2, ..., 38
-        corners = [_board_corners(folder / f"{side}-{index:04d}.png")
-                   for side in ("left", "right")]
-        if all(c is not None for c in corners):
-            pairs.append(corners)
-    assert len(pairs) >= 15
-    fs = cv2.FileStorage(str(folder / "cam_stereo.yml"), cv2.FILE_STORAGE_READ)
-
-    def node(key):
-        n = fs.getNode(key)
-        return [n.at(i).real() for i in range(n.size())] if n.isSeq() else \
-            n.mat().ravel().tolist()
-    target = [{"camera_matrix": {"data": node(f"K{i}")},
-               "distortion_coefficients": {"data": node(f"D{i}")},
-               "rectification_matrix": {"data": node(f"R{i}")},
-               "projection_matrix": {"data": node(f"P{i}")}} for i in (1, 2)]
-    ours_mrad, target_mrad = _row_error_mrad(pairs, *ours), _row_error_mrad(pairs, *target)
-    assert ours_mrad <= target_mrad, (ours_mrad, target_mrad)
+    figures = evaluate(folder, read_calibration(out))
+    assert figures["pairs"] >= 15
+    rows = figures["row_error_mrad"]
+    assert rows["ours"] <= min(rows["cam_stereo.yml"], rows["left/right.yaml"]), rows
+    exported = [ros_yaml_camera(tmp_path / "stereo" / f"stereo_{s}.yaml")
+                for s in ("left", "right")]  # the files as written give the same figure
+    assert row_error_mrad(corner_pairs(folder, range(1, 46, 2)), *exported) == \
+        pytest.approx(rows["ours"], rel=1e-6)
+    sizes = figures["square_size"]
+    assert sizes["ours"] == pytest.approx(sizes["cam_stereo.yml"], rel=0.03), sizes

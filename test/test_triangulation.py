@@ -7,20 +7,13 @@ import logging
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from sfm_fixtures import pose as _pose
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.export import calibration_to_dict
 from densecalib_ros.core.triangulation import triangulate
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
-
-
-def _pose(euler_deg, t):
-    m = np.eye(4)
-    m[:3, :3] = Rotation.from_euler("xyz", euler_deg, degrees=True).as_matrix()
-    m[:3, 3] = t
-    return m
 
 
 @pytest.fixture
