@@ -110,8 +110,11 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
                              "from the video file names.")
         from ..core.video_io import read_video_frame_sets
         record = {}
-        if args.time_offset and "auto" in args.time_offset:
-            offsets, record = _estimated_video_offsets(args)
+        if args.time_offset == ["auto"]:
+            from ..core.motion_sync import estimate_video_offsets
+            from ..core.video_io import list_video_folder
+            offsets, record = _motion_offsets(
+                estimate_video_offsets(*list_video_folder(args.videos)), "videos")
         else:
             offsets = parse_time_offsets(args.time_offset)
         frame_sets, names, times_s = read_video_frame_sets(
@@ -143,13 +146,7 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
     record = {}
     if args.time_offset == ["auto"]:
         from ..core.motion_sync import bag_offsets
-        estimates = bag_offsets(args.bag, args.topics, names)
-        offsets = {name: round(est.offset_s, 4) for name, est in estimates.items()}
-        log.info("clock offsets of the topics from their motion (s, from %s): %s", names[0],
-                 ", ".join(f"{n}={o:+.3f}" for n, o in offsets.items()))
-        record = {"time_offsets_estimated": {
-            name: {"offset_s": offsets[name], "correlation": round(est.correlation, 3)}
-            for name, est in estimates.items()}}
+        offsets, record = _motion_offsets(bag_offsets(args.bag, args.topics, names), "topics")
     else:
         offsets = parse_time_offsets(args.time_offset)
         unknown = sorted(set(offsets) - set(names))
@@ -167,15 +164,10 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
                                "frame_set_stamps_ns": stamps}, []
 
 
-def _estimated_video_offsets(args) -> tuple[dict, dict]:
-    """--time-offset auto: ({camera: offset s}, the estimate's record for quality["input"])."""
-    from ..core.video_io import list_video_folder
-    from ..core.motion_sync import estimate_video_offsets
-
-    paths, names = list_video_folder(args.videos)
-    estimates = estimate_video_offsets(paths, names)
+def _motion_offsets(estimates: dict, what: str) -> tuple[dict, dict]:
+    """({camera: offset s}, the record for quality["input"]) of core.motion_sync estimates."""
     offsets = {name: round(est.offset_s, 4) for name, est in estimates.items()}
-    log.info("time offsets from the videos' motion (s, from %s): %s", names[0],
+    log.info("time offsets from the %s' motion (s, from %s): %s", what, next(iter(offsets)),
              ", ".join(f"{n}={o:+.3f}" for n, o in offsets.items()))
     return offsets, {"time_offsets_estimated": {
         name: {"offset_s": offsets[name], "correlation": round(est.correlation, 3)}
