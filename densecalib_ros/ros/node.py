@@ -10,10 +10,9 @@ Interface (names relative to the node, default name `densecalib_node`):
   names a camera that moved;
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pair`'s with their
-  stereo rectification R, P, republished when that parameter changes), `/tf_static` (tf2_msgs/TFMessage,
-  all cameras in one message, transient local, depth 1; with `floor` on, also floor_frame ->
-  rig_frame), `/diagnostics`
-  (diagnostic_msgs/DiagnosticArray, 1 Hz);
+  stereo rectification R, P, republished when that parameter changes), `/tf_static`
+  (tf2_msgs/TFMessage, all cameras in one message, transient local, depth 1; with `floor` on,
+  also floor_frame -> rig_frame), `/diagnostics` (diagnostic_msgs/DiagnosticArray, 1 Hz);
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
 - files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/) written
   atomically, then the `output_dir/latest` symlink is swapped atomically. At start-up the
