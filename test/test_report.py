@@ -92,3 +92,15 @@ def test_report_names_missing_cameras_and_warnings(rig):
     assert "missing from this calibration: cam3" in text
     assert "over its 6 camera pair(s)" in text  # pairs with cam3 count as failures
     assert "lenses cam3 fisheye" in rig_report(rig)
+
+
+def test_overall_lines_give_the_time_offsets_and_how_they_were_found(rig):
+    rig.quality["input"] = {"source": "videos", "path": "/rec",
+                            "time_offsets_s": {"cam0": 0.0, "cam1": 0.7},
+                            "time_offsets_estimated": {"cam0": {"correlation": 1.0},
+                                                       "cam1": {"correlation": 0.88}}}
+    line = next(li for li in overall_lines(rig) if li.startswith("time offsets"))
+    assert "cam1 +0.700 (correlation 0.88)" in line and "found from the images' motion" in line
+    rig.quality["input"] = {"source": "topics", "topics": ["/a", "/b"],
+                            "stamp_offsets_s": {"cam0": 0.0, "cam1": -0.2}}
+    assert "time offsets (s, ahead of the others): cam0 +0.000, cam1 -0.200" in overall_lines(rig)

@@ -116,6 +116,14 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         lines.append(f"from {source.get('source', '?')} {where}"
                      + (f", densecalib {q['densecalib_version']}" if "densecalib_version" in q
                         else "") + (f", {q['calibrated_utc']}" if "calibrated_utc" in q else ""))
+        offsets = source.get("time_offsets_s") or source.get("stamp_offsets_s")
+        if offsets:
+            estimated = source.get("time_offsets_estimated") or {}
+            lines.append("time offsets (s, ahead of the others): " + ", ".join(
+                f"{n} {float(o):+.3f}" + (f" (correlation {estimated[n]['correlation']:.2f})"
+                                          if n in estimated and n != next(iter(estimated))
+                                          else "") for n, o in offsets.items())
+                + (" (found from the images' motion)" if estimated else ""))
     fit = []
     if "reprojection_rms_px" in q:
         fit.append(f"reprojection RMS {float(q['reprojection_rms_px']):.2f} px")
