@@ -179,4 +179,5 @@ def test_time_offset_auto_pairs_the_traps_files(tmp_path):
     frame_sets, names, record, paths = read_input(args)
     assert names == ["a", "b"] and len(frame_sets) == 4
     assert record["time_offsets_s"]["b"] == pytest.approx(60.5, abs=0.6)
+    assert record["time_offsets_estimated"]["b"]["paired_shots"] == 4
     assert [p.name for p in paths[3]] == ["IMG_0004.jpg", "PICT004.jpg"]

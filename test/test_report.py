@@ -104,3 +104,9 @@ def test_overall_lines_give_the_time_offsets_and_how_they_were_found(rig):
     rig.quality["input"] = {"source": "topics", "topics": ["/a", "/b"],
                             "stamp_offsets_s": {"cam0": 0.0, "cam1": -0.2}}
     assert "time offsets (s, ahead of the others): cam0 +0.000, cam1 -0.200" in overall_lines(rig)
+    rig.quality["input"] = {"source": "images", "path": "/traps",
+                            "time_offsets_s": {"cam0": 0.0, "cam1": 3607.5},
+                            "time_offsets_estimated": {"cam0": {"paired_shots": 12},
+                                                       "cam1": {"paired_shots": 11}}}
+    line = next(li for li in overall_lines(rig) if li.startswith("time offsets"))
+    assert "cam1 +3607.500 (11 shots paired)" in line and "from the capture times" in line

@@ -61,23 +61,32 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                              "NAME=PATH per camera")
 
 
-def _alignment(args) -> dict:
-    offsets = (_estimated_clock_offsets(args) if args.time_offset == ["auto"]
-               else parse_time_offsets(args.time_offset))
-    return {"align": args.align, "time_offsets_s": offsets, "max_time_gap_s": args.max_time_gap}
+def _alignment(args) -> tuple[dict, dict]:
+    """(list_image_folder's alignment arguments, the estimated offsets' record for
+    quality["input"] when --time-offset auto found them)."""
+    record = {}
+    if args.time_offset == ["auto"]:
+        offsets, record = _estimated_clock_offsets(args)
+    else:
+        offsets = parse_time_offsets(args.time_offset)
+    return ({"align": args.align, "time_offsets_s": offsets,
+             "max_time_gap_s": args.max_time_gap}, record)
 
 
-def _estimated_clock_offsets(args) -> dict:
-    """--align time --time-offset auto: {camera: clock offset s} from the capture times."""
+def _estimated_clock_offsets(args) -> tuple[dict, dict]:
+    """--align time --time-offset auto: ({camera: clock offset s}, its record) from the capture
+    times (core.clock_offsets)."""
     from ..core.clock_offsets import estimate_clock_offsets
     from ..core.image_io import capture_times_by_camera
 
     estimates = estimate_clock_offsets(capture_times_by_camera(args.images), args.max_time_gap)
-    offsets = {name: est.offset_s for name, est in estimates.items()}
+    offsets = {name: round(est.offset_s, 3) for name, est in estimates.items()}
     log.info("clock offsets from the capture times (s, from %s): %s", next(iter(offsets)),
              ", ".join(f"{n}={o:+.2f} ({estimates[n].paired_shots} shots paired)"
                        for n, o in offsets.items()))
-    return offsets
+    return offsets, {"time_offsets_estimated": {
+        name: {"offset_s": offsets[name], "paired_shots": est.paired_shots}
+        for name, est in estimates.items()}}
 
 
 def _frame_sets(args, default: int) -> int:
@@ -129,12 +138,12 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
             raise InputError("--topics belongs to --bag; with --images the camera names come "
                              "from the file or folder names.")
         from ..core.image_io import list_image_folder, read_image_files
-        alignment = _alignment(args)
+        alignment, record = _alignment(args)
         paths, names = list_image_folder(args.images, **alignment)
         paths = evenly_spaced(paths, _frame_sets(args, DEFAULT_MAX_FRAME_SETS))
         root = Path(args.images)  # the listed paths are under it (symlinks not followed)
-        record = {"time_offsets_s": alignment["time_offsets_s"]} \
-            if alignment["time_offsets_s"] else {}
+        if alignment["time_offsets_s"]:
+            record = {"time_offsets_s": alignment["time_offsets_s"], **record}
         return read_image_files(paths, names), names, {
             "source": "images", "path": str(root.resolve()), **record,
             "frame_sets": [[str(p.relative_to(root)) for p in row] for row in paths]}, paths

@@ -119,11 +119,19 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         offsets = source.get("time_offsets_s") or source.get("stamp_offsets_s")
         if offsets:
             estimated = source.get("time_offsets_estimated") or {}
+            reference = next(iter(estimated), None)
+
+            def how(name):  # the evidence behind an estimated offset
+                e = estimated.get(name) if name != reference else None
+                if not e:
+                    return ""
+                return (f" (correlation {e['correlation']:.2f})" if "correlation" in e
+                        else f" ({e['paired_shots']} shots paired)")
+            found = ("" if not estimated else " (found from the capture times)"
+                     if "paired_shots" in estimated[reference] else
+                     " (found from the images' motion)")
             lines.append("time offsets (s, ahead of the others): " + ", ".join(
-                f"{n} {float(o):+.3f}" + (f" (correlation {estimated[n]['correlation']:.2f})"
-                                          if n in estimated and n != next(iter(estimated))
-                                          else "") for n, o in offsets.items())
-                + (" (found from the images' motion)" if estimated else ""))
+                f"{n} {float(o):+.3f}{how(n)}" for n, o in offsets.items()) + found)
     fit = []
     if "reprojection_rms_px" in q:
         fit.append(f"reprojection RMS {float(q['reprojection_rms_px']):.2f} px")
