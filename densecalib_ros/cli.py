@@ -30,6 +30,8 @@ SUBCOMMANDS = {
                 "draw each camera's reprojection residuals on its image"),
     "undistort": ("densecalib_ros.commands.undistort",
                   "resample images to distortion-free pinhole cameras, with their calibration"),
+    "sync": ("densecalib_ros.commands.sync",
+             "time offsets between the cameras' videos, bag topics or camera-trap shots"),
     "triangulate": ("densecalib_ros.commands.triangulate",
                     "3D points (and distances) from their pixels in two or more cameras"),
     "export": ("densecalib_ros.commands.export",

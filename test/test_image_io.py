@@ -157,7 +157,7 @@ def test_camera_trap_clock_offsets_found_from_capture_times():
         estimate_clock_offsets(lapse, gap_s=2.0)
 
 
-def test_time_offset_auto_pairs_the_traps_files(tmp_path):
+def test_time_offset_auto_pairs_the_traps_files(tmp_path, capsys):
     """--align time --time-offset auto on real EXIF files: b's clock runs 60 s fast."""
     import argparse
 
@@ -181,3 +181,6 @@ def test_time_offset_auto_pairs_the_traps_files(tmp_path):
     assert record["time_offsets_s"]["b"] == pytest.approx(60.5, abs=0.6)
     assert record["time_offsets_estimated"]["b"]["paired_shots"] == 4
     assert [p.name for p in paths[3]] == ["IMG_0004.jpg", "PICT004.jpg"]
+    from densecalib_ros.cli import main
+    assert main(["sync", "--images", str(tmp_path)]) == 0  # the offsets alone
+    assert "4 shots paired" in capsys.readouterr().out

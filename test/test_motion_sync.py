@@ -3,6 +3,7 @@ videos of one moving object seen by three cameras with different views, gains, f
 start times give back each camera's start within half a frame; a static scene is refused with
 what to do."""
 import argparse
+import json
 import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -170,3 +171,18 @@ def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path):
     manual = parser.parse_args(["--bag", str(bag), "--topics", *topics, "--max-frame-sets", "4",
                                 "--time-offset", "cam1=0.35", "cam2=-0.8"])
     assert len(read_input(manual)[0]) == 4
+
+
+def test_sync_command_prints_the_offsets(videos, capsys, caplog):
+    from densecalib_ros.cli import main
+
+    assert main(["sync", "--videos", str(videos), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["reference"] == "cam0"
+    assert data["offsets_s"]["cam2"] == pytest.approx(-1.23, abs=0.01)
+    assert main(["sync", "--videos", str(videos)]) == 0
+    out = capsys.readouterr().out
+    assert "calibrate with: --time-offset cam1=0.70" in out and "correlation" in out
+    with caplog.at_level("ERROR"):
+        assert main(["sync", "--bag", str(videos)]) == 2
+    assert "--bag needs --topics" in caplog.text
