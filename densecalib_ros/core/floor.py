@@ -174,21 +174,19 @@ def reconstruction_points_in_rig(reconstruction, rig: RigCalibration) -> np.ndar
 
 
 def _rig_units_per_world_unit(reconstruction, rig: RigCalibration) -> float:
-    """Ratio of a distance between two camera centres in the rig file to the same distance in
-    the reconstruction (the two are refined to the same shape but saved at their own scales)."""
+    """Ratio of the distance between the reference camera and the camera farthest from it in
+    the rig file to the same distance in the reconstruction (the two are refined to one shape
+    but may be saved at their own scales)."""
+    from .scale import camera_distance
+
     centres = {im.name: np.asarray(im.projection_center()) for im in
                reconstruction.images.values() if im.name in rig.cameras}
-    names = sorted(centres, key=lambda n: -np.linalg.norm(centres[n] - centres[
-        rig.reference_camera]) if rig.reference_camera in centres else 0)
-    if rig.reference_camera not in centres or len(names) < 2:
+    ref = rig.reference_camera
+    if ref not in centres or len(centres) < 2:
         return 1.0
-    far = names[0]
-    world = float(np.linalg.norm(centres[far] - centres[rig.reference_camera]))
-    poses = {n: np.asarray(rig.cameras[n].cam_from_rig) for n in (far, rig.reference_camera)}
-    in_rig = float(np.linalg.norm(-poses[far][:3, :3].T @ poses[far][:3, 3]
-                                  + poses[rig.reference_camera][:3, :3].T
-                                  @ poses[rig.reference_camera][:3, 3]))
-    return in_rig / world if world > 0 else 1.0
+    far = max(centres, key=lambda n: float(np.linalg.norm(centres[n] - centres[ref])))
+    world = float(np.linalg.norm(centres[far] - centres[ref]))
+    return camera_distance(rig, ref, far) / world if world > 0 else 1.0
 
 
 def record_floor(result, view: str = "upright") -> None:
