@@ -380,8 +380,8 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
         ros.remove(n)
 
 
-def test_stereo_pair_camera_info_carry_the_pair_rectification(ros, tmp_path):
-    """With stereo_pair set, the last good calibration is republished with the pair's stereo
+def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
+    """With stereo_pairs set, the last good calibration is republished with each pair's stereo
     rectification in R and P (Tx = -fx' baseline), the other cameras with R = I; a pair in the
     wrong order falls back to R = I with the reason, and changing the parameter republishes."""
     from densecalib_ros.core.export import write_calibration_files
@@ -397,9 +397,10 @@ def test_stereo_pair_camera_info_carry_the_pair_rectification(ros, tmp_path):
                          metric_scale=True)
     write_calibration_files(rig, tmp_path / "20260101T000000Z")
     os.symlink("20260101T000000Z", tmp_path / "latest")
-    with pytest.raises(InputError, match="stereo_pair must be empty or two different cameras"):
-        ros.densecalib(tmp_path, name="bad_pair", stereo_pair=["cam0", "cam9"])
-    node = ros.densecalib(tmp_path, stereo_pair=["cam0", "cam1"])
+    for bad in (["cam0", "cam9"], ["cam0", "cam1", "cam1", "cam2"], ["cam0"]):
+        with pytest.raises(InputError, match="stereo_pairs must list pairs of cameras"):
+            ros.densecalib(tmp_path, name="bad_pair", stereo_pairs=bad)
+    node = ros.densecalib(tmp_path, stereo_pairs=["cam0", "cam1"])
     listener = ros.listener(node)
     try:
         def published(name, field):
@@ -415,15 +416,24 @@ def test_stereo_pair_camera_info_carry_the_pair_rectification(ros, tmp_path):
         np.testing.assert_allclose(published("cam2", "r"), np.eye(3).ravel())
         assert node.stereo_problem is None
         # the pair named right-to-left: not rectifiable for stereo_image_proc, so R = I again
-        assert node.set_parameters([Parameter("stereo_pair",
+        assert node.set_parameters([Parameter("stereo_pairs",
                                               value=["cam1", "cam0"])])[0].successful
         assert wait_until(lambda: np.allclose(published("cam0", "r"), np.eye(3).ravel()), 10.0)
         assert "--pair cam0 cam1" in node.stereo_problem
-        assert node.set_parameters([Parameter("stereo_pair",
+        assert node.set_parameters([Parameter("stereo_pairs",
                                               value=["cam2", "cam3"])])[0].successful
         assert wait_until(lambda: not np.allclose(published("cam3", "r"), np.eye(3).ravel()),
                           10.0)
         np.testing.assert_allclose(published("cam0", "r"), np.eye(3).ravel())
+        # two pairs at once (front and rear heads): each camera gets its own pair's R and P
+        assert node.set_parameters([Parameter("stereo_pairs", value=[
+            "cam0", "cam1", "cam2", "cam3"])])[0].successful
+        assert wait_until(lambda: not np.allclose(published("cam0", "r"), np.eye(3).ravel()),
+                          10.0)
+        rear = rectify_pair(rig, "cam2", "cam3")
+        np.testing.assert_allclose(published("cam3", "p"), rear.projection_right.ravel())
+        np.testing.assert_allclose(published("cam1", "p"), want.projection_right.ravel())
+        assert node.stereo_problem is None
         rig.metric_scale = False  # a pair without a known baseline is rectified, with a caveat
         infos = node._camera_infos(rig, 0)
         assert infos["cam3"].p[3] < 0 and "arbitrary units" in node.stereo_problem

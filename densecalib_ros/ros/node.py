@@ -9,7 +9,7 @@ Interface (names relative to the node, default name `densecalib_node`):
   calibration without recalibrating (core.consistency); success = it still fits, the message
   names a camera that moved;
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
-  (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pair`'s with their
+  (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pairs`' with their
   stereo rectification R, P, republished when that parameter changes), `/tf_static`
   (tf2_msgs/TFMessage, all cameras in one message, transient local, depth 1; with `floor` on,
   also floor_frame -> rig_frame), `/diagnostics` (diagnostic_msgs/DiagnosticArray, 1 Hz);
@@ -158,11 +158,12 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "camera_info_topics": (Parameter.Type.STRING_ARRAY,
                            "CameraInfo topic per camera (default <image topic ns>/camera_info)",
                            True, {}),
-    "stereo_pair": (Parameter.Type.STRING_ARRAY,
-                    "two cameras, left one first, whose CameraInfo (published and sent to "
-                    "set_camera_info) carry their stereo rectification (R, and P with Tx = -fx' "
-                    "baseline) for stereo_image_proc; empty: R = I, P = [K | 0] for every camera",
-                    False, {}),
+    "stereo_pairs": (Parameter.Type.STRING_ARRAY,
+                     "stereo pairs, each as its left then its right camera (e.g. [front_left, "
+                     "front_right, rear_left, rear_right]), whose CameraInfo (published and sent "
+                     "to set_camera_info) carry the pair's stereo rectification (R, and P with "
+                     "Tx = -fx' baseline) for stereo_image_proc; empty: R = I, P = [K | 0] for "
+                     "every camera", False, {}),
     "call_set_camera_info": (False, "after a calibration, call each camera's set_camera_info",
                              False, {}),
     "set_camera_info_services": (Parameter.Type.STRING_ARRAY,
@@ -214,7 +215,7 @@ class Settings:
     floor_frame: str
     frame_names: list[str]
     camera_info_topics: list[str]
-    stereo_pair: list[str]
+    stereo_pairs: list[tuple[str, str]]
     call_set_camera_info: bool
     set_camera_info_services: list[str]
     set_camera_info_timeout_s: float
@@ -333,10 +334,13 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         if len(set(lst)) != n:
             raise InputError(f"The default {what} collide ({lst}): set {what} explicitly, one per "
                              "camera.")
-    pair = list(v["stereo_pair"])
-    if pair and (len(pair) != 2 or len(set(pair)) != 2 or any(c not in names for c in pair)):
-        raise InputError(f"stereo_pair must be empty or two different cameras of {names}, left "
-                         f"one first, got {pair}.")
+    paired = list(v["stereo_pairs"])
+    if len(paired) % 2 or len(set(paired)) != len(paired) or any(c not in names
+                                                                 for c in paired):
+        raise InputError(f"stereo_pairs must list pairs of cameras of {names}, each as left then "
+                         f"right, no camera twice (a CameraInfo holds one rectification), got "
+                         f"{paired}.")
+    pairs = list(zip(paired[::2], paired[1::2]))
     baseline_cams = list(v["baseline_cameras"])
     if v["known_baseline_m"] > 0:
         if len(baseline_cams) != 2 or len(set(baseline_cams)) != 2 or \
@@ -370,7 +374,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
         floor=v["floor"], floor_frame=floor_frame,
-        frame_names=frames, camera_info_topics=info_topics, stereo_pair=pair,
+        frame_names=frames, camera_info_topics=info_topics, stereo_pairs=pairs,
         call_set_camera_info=bool(v["call_set_camera_info"]), set_camera_info_services=services,
         set_camera_info_timeout_s=float(v["set_camera_info_timeout_s"]),
         known_baseline_m=float(v["known_baseline_m"]), baseline_cameras=baseline_cams,
@@ -418,7 +422,7 @@ class DenseCalibNode(Node):
         self.calibration_dir: Optional[Path] = None
         self._calibrated_at: Optional[float] = None  # time.time() of the published calibration
         self._last_failure: Optional[str] = None
-        self.stereo_problem: Optional[str] = None  # why stereo_pair's CameraInfo lack R, P
+        self.stereo_problem: Optional[str] = None  # why stereo_pairs' CameraInfo lack R, P
         self._status = "idle"
         self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
 
@@ -479,7 +483,7 @@ class DenseCalibNode(Node):
         except InputError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         old, self.settings = self.settings, new
-        if new.stereo_pair != old.stereo_pair and self.calibration is not None:
+        if new.stereo_pairs != old.stereo_pairs and self.calibration is not None:
             self._publish_camera_infos(self.calibration, self.get_clock().now().nanoseconds)
         return SetParametersResult(successful=True)
 
@@ -758,26 +762,29 @@ class DenseCalibNode(Node):
                 pub.publish(infos[name])
 
     def _camera_infos(self, rig: RigCalibration, t_ns: int) -> dict:
-        """CameraInfo per calibrated camera, the stereo_pair's with their rectification. A pair
-        that cannot be rectified (see core.stereo) keeps R = I and sets self.stereo_problem."""
+        """CameraInfo per calibrated camera, the stereo_pairs' with their rectification. A pair
+        that cannot be rectified (see core.stereo) keeps R = I, and self.stereo_problem says
+        why."""
         s = self.settings
         frames = dict(zip(s.camera_names, s.frame_names))
-        rectified, self.stereo_problem = {}, None
-        if s.stereo_pair and all(c in rig.cameras for c in s.stereo_pair):
+        rectified, problems = {}, []
+        for left, right in s.stereo_pairs:
+            if left not in rig.cameras or right not in rig.cameras:
+                problems.append(f"stereo pair {left}-{right} not rectified: not both calibrated")
+                continue
             try:
-                pair = stereo_pair(rig, s.stereo_pair)
-                rectified = {pair.left: (pair.rect_from_left, pair.projection_left),
-                             pair.right: (pair.rect_from_right, pair.projection_right)}
-                if not pair.metric:
-                    self.stereo_problem = ("stereo_pair rectified, but without metric scale: "
-                                           "its baseline and stereo depths are in arbitrary "
-                                           "units (set known_baseline_m and baseline_cameras)")
+                pair = stereo_pair(rig, (left, right))
             except InputError as exc:
-                self.stereo_problem = f"stereo_pair not rectified: {exc}"
-                self.get_logger().warning(self.stereo_problem)
-        elif s.stereo_pair:
-            self.stereo_problem = (f"stereo_pair not rectified: {', '.join(s.stereo_pair)} not "
-                                   "all calibrated")
+                problems.append(f"stereo pair {left}-{right} not rectified: {exc}")
+                self.get_logger().warning(problems[-1])
+                continue
+            rectified[left] = (pair.rect_from_left, pair.projection_left)
+            rectified[right] = (pair.rect_from_right, pair.projection_right)
+            if not pair.metric:
+                problems.append(f"stereo pair {left}-{right} rectified, but without metric "
+                                "scale: its baseline and stereo depths are in arbitrary units "
+                                "(set known_baseline_m and baseline_cameras)")
+        self.stereo_problem = "; ".join(problems) or None
         return {name: camera_info_msg(name, cam.intrinsics, frames[name], t_ns,
                                       *rectified.get(name, (None, None)))
                 for name, cam in rig.cameras.items() if name in frames}
