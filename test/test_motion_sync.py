@@ -186,3 +186,21 @@ def test_sync_command_prints_the_offsets(videos, capsys, caplog):
     with caplog.at_level("ERROR"):
         assert main(["sync", "--bag", str(videos)]) == 2
     assert "--bag needs --topics" in caplog.text
+
+
+def test_cameras_seeing_different_halves_are_tied_through_a_third(tmp_path):
+    """cam0 sees the arena's left 60 %, cam2 its right 60 %, cam1 all of it: cam0 and cam2 share
+    little motion, but each shares enough with cam1, and every pair is compared."""
+    from densecalib_ros.core.motion_sync import estimate_offset, motion_signal
+    from densecalib_ros.core.video_io import probe_video
+
+    halves = {"cam0": (25.0, 0.0, (0, 360, 0, 380), 1.0),
+              "cam1": (25.0, -0.7, (0, 360, 0, 640), 0.8),
+              "cam2": (25.0, 1.23, (0, 360, 260, 640), 1.15)}
+    _write_videos(tmp_path, cameras=halves)
+    estimates = estimate_video_offsets(*list_video_folder(tmp_path))
+    for name, (fps, start_s, _, _) in halves.items():
+        assert abs(estimates[name].offset_s - (0.0 - start_s)) < 0.5 / fps, name
+    direct = estimate_offset(*(motion_signal(probe_video(tmp_path / f"{n}.avi"), 120.0)
+                               for n in ("cam0", "cam2")), 0.04, 0.04)
+    assert estimates["cam2"].correlation > direct.correlation  # from its pair with cam1

@@ -12,9 +12,10 @@ are first averaged over the slowest camera's frame period (so all see motion at 
 resolution) and detrended over SMOOTHING_S: lighting drifts and auto-exposure move every pixel
 slowly and would otherwise dominate.
 
-An offset is only reported when the peak is both high (MIN_PEAK_CORRELATION) and unique (no other
-lag more than UNIQUE_PEAK_SEPARATION_S away reaches MAX_SECOND_PEAK_RATIO of it): a static scene
-or periodic motion gives no answer, and the error says to give the offsets by hand.
+A pair's offset is only used when its peak is both high (MIN_PEAK_CORRELATION) and unique (no
+other lag more than UNIQUE_PEAK_SEPARATION_S away reaches MAX_SECOND_PEAK_RATIO of it); every pair
+of cameras is compared and the offsets are fitted to the pairs used (offsets_from_motion). A
+static scene or periodic motion gives no answer, and the error says to give the offsets by hand.
 
 Convention as core.video_io: the frame of camera c at common time t is t + offset_c seconds into
 its own time (a video's file time, a bag topic's header stamps); a camera that started recording
@@ -153,12 +154,25 @@ def estimate_offset(ref: tuple[np.ndarray, np.ndarray], other: tuple[np.ndarray,
     return OffsetEstimate((peak - max_lag + shift) * step_s, float(ncc[peak]), second)
 
 
+def _sure(est: OffsetEstimate) -> bool:
+    """A peak high enough and unique enough to be an offset (module docstring)."""
+    return bool(est.correlation >= MIN_PEAK_CORRELATION
+                and est.second_correlation <= MAX_SECOND_PEAK_RATIO * est.correlation)
+
+
 def offsets_from_motion(signals: dict[str, tuple[np.ndarray, np.ndarray]],
                         frame_periods_s: Sequence[float], window_s: float,
                         ) -> dict[str, OffsetEstimate]:
     """Offset of every camera's motion signal (times_s, energy) from the first one's; the
-    cameras' frame periods set the comparison step and resolution. InputError naming the cameras
-    whose offset the motion does not determine."""
+    cameras' frame periods set the comparison step and resolution.
+
+    Every pair of cameras is compared, not only each camera with the first: cameras on opposite
+    sides of an arena see different halves of what moves, and may share too little motion with
+    each other while both share enough with a third. The offsets are the weighted least-squares
+    solution over the pairs with a sure peak (weight: the peak correlation); a pair that then
+    disagrees by more than two of the slowest frames is dropped, the worst first. Each camera
+    reports the estimate of its strongest pair. InputError naming the cameras that no chain of
+    sure pairs ties to the first."""
     names = list(signals)
     short = [n for n, (t, _) in signals.items() if len(t) < 10]
     if short:
@@ -166,24 +180,54 @@ def offsets_from_motion(signals: dict[str, tuple[np.ndarray, np.ndarray]],
                          "offsets from their motion: give them with --time-offset NAME=S.")
     step_s = min(frame_periods_s)  # finer: the parabola through the peak
     resolution_s = max(frame_periods_s)
-    reference = signals[names[0]]
+    pairs = {}
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            est = estimate_offset(signals[names[i]], signals[names[j]], step_s, resolution_s)
+            pairs[(i, j)] = est
+            log.info("time offset of %s from %s: %+.3f s (correlation %.2f, next best %.2f)",
+                     names[j], names[i], est.offset_s, est.correlation, est.second_correlation)
+    edges = {ij: est for ij, est in pairs.items() if _sure(est)}
+    while True:
+        reached, frontier = {0}, [0]
+        while frontier:
+            k = frontier.pop()
+            for i, j in edges:
+                for a, b in ((i, j), (j, i)):
+                    if a == k and b not in reached:
+                        reached.add(b)
+                        frontier.append(b)
+        if len(reached) < len(names):
+            def best(k):  # the camera's strongest pair, for the message
+                est = max((e for ij, e in pairs.items() if k in ij), key=lambda e: e.correlation)
+                return (f"{names[k]} (correlation at most {est.correlation:.2f}, another lag "
+                        f"{est.second_correlation:.2f})")
+            raise InputError(
+                "The motion in the images does not determine the time offset of "
+                f"{', '.join(best(k) for k in range(len(names)) if k not in reached)} from "
+                f"{names[0]}: the first {window_s:g} s show too little shared movement, or a "
+                "repeating one. Give the offsets with --time-offset NAME=S (e.g. from a clap or "
+                "a light switched on in view of every camera).")
+        keys = list(edges)
+        rows = np.zeros((len(keys), len(names)))
+        for r, (i, j) in enumerate(keys):
+            rows[r, i], rows[r, j] = -1.0, 1.0
+        w = np.sqrt([edges[k].correlation for k in keys])
+        b = np.array([edges[k].offset_s for k in keys])
+        x = np.zeros(len(names))  # the first camera's offset is 0
+        x[1:] = np.linalg.lstsq(rows[:, 1:] * w[:, None], b * w, rcond=None)[0]
+        residuals = np.abs(rows @ x - b)
+        worst = int(np.argmax(residuals))
+        if residuals[worst] <= 2.0 * resolution_s:
+            break
+        log.info("dropped the pair %s-%s: %.3f s off the other pairs", names[keys[worst][0]],
+                 names[keys[worst][1]], residuals[worst])
+        del edges[keys[worst]]
     out = {names[0]: OffsetEstimate(0.0, 1.0, float("nan"))}
-    unsure = []
-    for name in names[1:]:
-        est = estimate_offset(reference, signals[name], step_s, resolution_s)
-        out[name] = est
-        log.info("time offset of %s from %s: %+.3f s (correlation %.2f, next best %.2f)", name,
-                 names[0], est.offset_s, est.correlation, est.second_correlation)
-        if not (est.correlation >= MIN_PEAK_CORRELATION
-                and est.second_correlation <= MAX_SECOND_PEAK_RATIO * est.correlation):
-            unsure.append(f"{name} (correlation {est.correlation:.2f}, another lag "
-                          f"{est.second_correlation:.2f})")
-    if unsure:
-        raise InputError(
-            f"The motion in the images does not determine the time offset of "
-            f"{', '.join(unsure)} from {names[0]}: the first {window_s:g} s show too little "
-            "shared movement, or a repeating one. Give the offsets with --time-offset NAME=S "
-            "(e.g. from a clap or a light switched on in view of every camera).")
+    for k in range(1, len(names)):
+        strongest = max((e for ij, e in edges.items() if k in ij), key=lambda e: e.correlation)
+        out[names[k]] = OffsetEstimate(float(x[k]), strongest.correlation,
+                                       strongest.second_correlation)
     return out
 
 
