@@ -3,7 +3,6 @@ the one with every camera above it that faces their image-up (or, seen from stra
 largest they all look down on); walls, a ceiling and a smaller table top are passed over; a
 generated room calibrated from its images gets its true floor, camera heights in metres with a
 known baseline, and anipose's world becomes the floor frame."""
-import json
 import tomllib
 
 import cv2
