@@ -444,7 +444,8 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
 
 def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
     """With floor on, a calibration that found its floor (calibrate --floor) is republished with
-    floor_frame -> rig_frame beside the cameras on /tf_static; bad floor settings are refused."""
+    floor_frame -> rig_frame beside the cameras on /tf_static, and without it once floor is
+    turned off; bad floor settings are refused."""
     from densecalib_ros.core.export import write_calibration_files
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
@@ -474,6 +475,12 @@ def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
         parents = {t.child_frame_id: t.header.frame_id
                    for t in listener.snapshot()["tf_static"][-1].transforms}
         assert parents == {"rig": "floor", **{f"{n}_optical_frame": "rig" for n in CAMERAS}}
+        # turned off, and on again, at run time: /tf_static is replaced at once each time
+        assert node.set_parameters([Parameter("floor", value="")])[0].successful
+        assert wait_until(lambda: "rig" not in listener.rig_from_optical(), 10.0)
+        assert set(listener.rig_from_optical()) == {f"{n}_optical_frame" for n in CAMERAS}
+        assert node.set_parameters([Parameter("floor", value="top")])[0].successful
+        assert wait_until(lambda: "rig" in listener.rig_from_optical(), 10.0)
     finally:
         ros.remove(listener)
         ros.remove(node)

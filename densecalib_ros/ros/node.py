@@ -150,7 +150,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                   "camera's optical frame coincides with it)", True, {}),
     "floor": ("", "after each calibration find the floor in the scene points and publish "
               "floor_frame -> rig_frame on /tf_static: '' (off), 'upright' (cameras mounted "
-              "upright) or 'top' (all looking straight down); see `calibrate --floor`", False, {}),
+              "upright) or 'top' (all looking straight down); see `calibrate --floor`. Changed "
+              "at run time, /tf_static is republished at once (with the current calibration's "
+              "floor, if it has one)", False, {}),
     "floor_frame": ("floor", "frame of the floor (z up), the parent of rig_frame when floor is "
                     "on", True, {}),
     "frame_names": (Parameter.Type.STRING_ARRAY,
@@ -398,6 +400,11 @@ class _Job:
     outcome: Optional[Outcome] = None
 
 
+def _floor_parent(s: Settings) -> Optional[str]:
+    """The frame published above rig_frame, or None with floor off."""
+    return s.floor_frame if s.floor else None
+
+
 class DenseCalibNode(Node):
     """The calibration node (module docstring: interface and threading)."""
 
@@ -483,8 +490,12 @@ class DenseCalibNode(Node):
         except InputError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         old, self.settings = self.settings, new
-        if new.stereo_pairs != old.stereo_pairs and self.calibration is not None:
-            self._publish_camera_infos(self.calibration, self.get_clock().now().nanoseconds)
+        if self.calibration is not None:
+            t_ns = self.get_clock().now().nanoseconds
+            if new.stereo_pairs != old.stereo_pairs:
+                self._publish_camera_infos(self.calibration, t_ns)
+            if _floor_parent(new) != _floor_parent(old):
+                self._publish_tf(self.calibration, t_ns)
         return SetParametersResult(successful=True)
 
     # ----------------------------------------------------------------- intake
@@ -745,15 +756,21 @@ class DenseCalibNode(Node):
                  calibrated_at: Optional[float] = None) -> None:
         """Publish CameraInfo per calibrated camera and all extrinsics in one /tf_static message;
         calibrated_at: when the calibration was made (time.time(); default now), for its age."""
-        s = self.settings
         t_ns = self.get_clock().now().nanoseconds
-        frames = dict(zip(s.camera_names, s.frame_names))
         self._publish_camera_infos(rig, t_ns)
-        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns,
-                                            s.floor_frame if s.floor else None))
+        self._publish_tf(rig, t_ns)
         self.calibration, self.calibration_dir = rig, directory
         self._calibrated_at = time.time() if calibrated_at is None else calibrated_at
         self._publish_diagnostics()
+
+    def _publish_tf(self, rig: RigCalibration, t_ns: int) -> None:
+        """Replace the latched /tf_static message: the cameras, and floor_frame -> rig_frame
+        when floor is on and the calibration found its floor. Turning floor off republishes
+        without it, so late joiners never see it (tf2 listeners that already hold it keep it:
+        tf2 never forgets a static transform)."""
+        s = self.settings
+        frames = dict(zip(s.camera_names, s.frame_names))
+        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns, _floor_parent(s)))
 
     def _publish_camera_infos(self, rig: RigCalibration, t_ns: int) -> None:
         infos = self._camera_infos(rig, t_ns)
