@@ -32,6 +32,8 @@ SUBCOMMANDS = {
                   "resample images to distortion-free pinhole cameras, with their calibration"),
     "sync": ("densecalib_ros.commands.sync",
              "time offsets between the cameras' videos, bag topics or camera-trap shots"),
+    "floor": ("densecalib_ros.commands.floor",
+              "find the floor in a written calibration's scene points and record the floor frame"),
     "triangulate": ("densecalib_ros.commands.triangulate",
                     "3D points (and distances) from their pixels in two or more cameras"),
     "export": ("densecalib_ros.commands.export",

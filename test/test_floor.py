@@ -2,7 +2,9 @@
 the one with every camera above it that faces their image-up (or, seen from straight above, the
 largest they all look down on); walls, a ceiling and a smaller table top are passed over; a
 generated room calibrated from its images gets its true floor, camera heights in metres with a
-known baseline, and anipose's world becomes the floor frame."""
+known baseline, and anipose's world becomes the floor frame; `densecalib floor` finds it again
+in a written calibration."""
+import json
 import tomllib
 
 import cv2
@@ -87,7 +89,7 @@ def test_top_view_rig_takes_the_largest_plane_all_cameras_look_down_on():
         pose[:3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ pose[:3]
     rig, rig_from_world = _rig(poses)
     pts_rig = world @ rig_from_world[:3, :3].T + rig_from_world[:3, 3]
-    with pytest.raises(InputError, match="use --floor top"):  # their image-ups say nothing
+    with pytest.raises(InputError, match="use the top view"):  # their image-ups say nothing
         find_floor(pts_rig, rig)
     floor = find_floor(pts_rig, rig, view="top")
     _check(floor, rig_from_world, {f"cam{i}": 2.5 for i in range(3)})
@@ -130,3 +132,23 @@ def test_calibrate_floor_on_a_generated_room(tmp_path, capsys):
         centre = -rot.T @ np.array(cam["translation"])  # in anipose's world: the floor frame
         assert centre[2] == pytest.approx(rig.center(i)[2], rel=0.02)
     assert "world = the floor frame" in (tmp_path / "c.toml").read_text()
+
+    # `densecalib floor` finds it again in the saved model of a calibration made without it
+    path = out / "calibration.json"
+    data = json.loads(path.read_text())
+    data["quality"].pop("floor")
+    data["quality"]["warnings"] = ["no floor frame: (as if not found)"]
+    path.write_text(json.dumps(data))
+    assert main(["floor", str(out), "--dry-run"]) == 0
+    assert "floor: " in capsys.readouterr().out and json.loads(path.read_text()) == data
+    assert main(["floor", str(out)]) == 0
+    again = read_calibration(out).quality
+    assert "warnings" not in again
+    np.testing.assert_allclose(again["floor"]["floor_from_rig"], floor["floor_from_rig"],
+                               atol=1e-9)
+    # without the model there are no scene points: an error, the file untouched
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    (bare / "calibration.json").write_text(json.dumps(data))
+    assert main(["floor", str(bare)]) == 2
+    assert json.loads((bare / "calibration.json").read_text()) == data

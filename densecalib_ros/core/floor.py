@@ -20,7 +20,9 @@ x along the reference camera's viewing direction laid flat on the floor. Units a
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -39,6 +41,7 @@ RANSAC_ITERATIONS = 2000
 # a flat floor lie within ~0.5 % of the scene's size of it
 INLIER_FRACTION_OF_SCENE = 0.01
 CAMERAS_ABOVE_FRACTION = 0.9
+NO_FLOOR_WARNING = "no floor frame: "  # how record_floor's warning in rig.quality begins
 
 
 @dataclass(frozen=True)
@@ -133,7 +136,8 @@ def find_floor(points_rig: np.ndarray, rig: RigCalibration, view: str = "upright
     best = max(floors, key=lambda c: len(c[2]), default=None)
     if best is None:
         need = ("the cameras upright (image up = world up; if they all look straight down, "
-                "use --floor top)" if view == "upright" else
+                "use the top view: calibrate --floor top, densecalib floor --view top)"
+                if view == "upright" else
                 f"every camera looking down onto it (within {MAX_TOP_VIEW_DEG:g} deg)")
         raise InputError("No floor found among the scene's planes (" + "; ".join(seen or [
             "none"]) + "): the floor needs many matched points with every camera above it, and "
@@ -200,11 +204,37 @@ def record_floor(result, view: str = "upright") -> None:
                              "keypoint matches)")
         floor = find_floor(reconstruction_points_in_rig(result.reconstruction, rig), rig, view)
     except InputError as exc:
-        warning = f"no floor frame: {exc}"
+        warning = f"{NO_FLOOR_WARNING}{exc}"
         log.warning("%s", warning)
         rig.quality.setdefault("warnings", []).append(warning)
         return
-    rig.quality["floor"] = floor.to_dict()
+    set_floor(rig, floor)
     unit = "m" if rig.metric_scale else "units"
     log.info("floor: %d points (rms %.3g %s); camera heights %s", floor.num_points, floor.rms,
              unit, ", ".join(f"{n} {h:.3g}" for n, h in floor.camera_heights.items()))
+
+
+def find_floor_of_saved_calibration(folder: str | os.PathLike, rig: RigCalibration,
+                                    view: str = "upright") -> Floor:
+    """The floor of a calibration already written (`densecalib floor`): found in the scene points
+    of the COLMAP model saved beside its calibration.json (folder/colmap), so a rig calibrated
+    without --floor, or whose floor was not found as "upright", needs no new calibration."""
+    import pycolmap
+
+    model = Path(folder) / "colmap"
+    if not any((model / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
+        raise InputError(f"{folder} has no COLMAP model ({model}) with the scene points: "
+                         "calibrate again with --floor (a dense matcher without keypoint "
+                         "matches writes none).")
+    reconstruction = pycolmap.Reconstruction(str(model))
+    return find_floor(reconstruction_points_in_rig(reconstruction, rig), rig, view)
+
+
+def set_floor(rig: RigCalibration, floor: Floor) -> None:
+    """Record `floor` in rig.quality["floor"], dropping an earlier "no floor" warning."""
+    rig.quality["floor"] = floor.to_dict()
+    warnings = [w for w in rig.quality.get("warnings", []) if not w.startswith(NO_FLOOR_WARNING)]
+    if warnings:
+        rig.quality["warnings"] = warnings
+    else:
+        rig.quality.pop("warnings", None)

@@ -147,12 +147,8 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         lines.append(f"warning: {warning}")
     if "change_summary" in q:
         lines.append(f"{q['change_summary']} (started {q.get('init', '?')})")
-    floor = q.get("floor")
-    if floor:
-        unit = "m" if rig.metric_scale else "units"
-        lines.append(f"floor: {floor['num_points']} points within {floor['rms']:.3g} {unit} "
-                     "(rms); camera heights " + ", ".join(
-                         f"{n} {h:.3g}" for n, h in floor["camera_heights"].items()) + f" {unit}")
+    if q.get("floor"):
+        lines.append(format_floor(rig))
     scale = q.get("scale_from_baseline")
     lines.append(f"scale: metric, from the {scale['baseline_m']} m baseline "
                  f"{scale['cameras'][0]}-{scale['cameras'][1]}" if rig.metric_scale and scale
@@ -182,3 +178,12 @@ def rig_report(rig: RigCalibration, against: Optional[RigCalibration] = None,
         if only_there:
             parts.append(f"missing from this calibration: {', '.join(only_there)}")
     return "\n".join(parts)
+
+
+def format_floor(rig: RigCalibration) -> str:
+    """One line on the floor recorded in rig.quality["floor"] (core.floor)."""
+    floor = rig.quality["floor"]
+    unit = "m" if rig.metric_scale else "units"
+    return (f"floor: {floor['num_points']} points within {floor['rms']:.3g} {unit} (rms); camera "
+            "heights " + ", ".join(f"{n} {h:.3g}" for n, h in floor["camera_heights"].items())
+            + f" {unit}")
