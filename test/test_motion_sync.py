@@ -16,9 +16,8 @@ from densecalib_ros.commands.inputs import add_input_arguments, read_input
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.video_io import list_video_folder
 from densecalib_ros.core.motion_sync import estimate_video_offsets
+from motion_fixtures import arena_views
 
-WORLD_H, WORLD_W = 360, 640
-DURATION_S = 20.0
 # camera -> (fps, recording start in world time [s], view (y0, y1, x0, x1) of the world, gain)
 CAMERAS = {"cam0": (25.0, 0.0, (0, 360, 0, 560), 1.0),
            "cam1": (30.0, -0.7, (20, 360, 60, 640), 0.8),   # started 0.7 s before cam0
@@ -28,54 +27,8 @@ MIXED_RATES = {name: (fps, *rest) for (name, (_, *rest)), fps in zip(CAMERAS.ite
                                                                       (10.0, 60.0, 25.0))}
 
 
-def _path(seed=0):
-    """World position (x, y) [px] of an animal over time: rests and dashes of random speed and
-    heading, tabulated every millisecond from before the first to after the last recording."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(-3.0, DURATION_S + 3.0, 0.001)
-    speed = np.zeros_like(t)
-    start = 0
-    while start < len(t):
-        length = int(rng.uniform(0.2, 1.2) * 1000)
-        speed[start:start + length] = rng.choice([0.0, rng.uniform(60, 400)])
-        start += length
-    heading = np.cumsum(rng.normal(0, 0.02, len(t)))
-    pos = np.zeros((len(t), 2))
-    pos[0] = (WORLD_W / 2, WORLD_H / 2)
-    for i in range(1, len(t)):
-        step = speed[i] * 0.001 * np.array([np.cos(heading[i]), np.sin(heading[i])])
-        nxt = pos[i - 1] + step
-        if not (40 < nxt[0] < WORLD_W - 40 and 40 < nxt[1] < WORLD_H - 40):
-            heading[i:] += np.pi  # turn back at the arena wall
-            nxt = pos[i - 1] - step
-        pos[i] = nxt
-    return t, pos
-
-
-def _views(cameras, moving=True, size=(320, 200), seed=1):
-    """camera -> generator of its grey frames (frame k at world time start + k / fps)."""
-    rng = np.random.default_rng(seed)
-    floor = cv2.resize(rng.integers(60, 120, (36, 64), dtype=np.uint8), (WORLD_W, WORLD_H),
-                       interpolation=cv2.INTER_LINEAR)
-    t_path, pos = _path()
-
-    def frames(fps, start_s, view_box, gain):
-        y0, y1, x0, x1 = view_box
-        for k in range(int(DURATION_S * fps)):
-            world = floor.copy()
-            if moving:
-                x, y = pos[np.searchsorted(t_path, start_s + k / fps)]
-                cv2.circle(world, (int(round(x)), int(round(y))), 22, 230, -1)
-                cv2.circle(world, (int(round(x)) + 8, int(round(y))), 7, 20, -1)
-            view = cv2.resize(world[y0:y1, x0:x1], size, interpolation=cv2.INTER_AREA)
-            view = view.astype(np.float32) * gain + rng.normal(0, 2, view.shape)
-            yield np.clip(view, 0, 255).astype(np.uint8)
-
-    return {name: frames(*spec) for name, spec in cameras.items()}
-
-
 def _write_videos(folder, moving=True, cameras=CAMERAS, codec=("MJPG", ".avi")):
-    for name, frames in _views(cameras, moving).items():
+    for name, frames in arena_views(cameras, moving).items():
         writer = cv2.VideoWriter(str(folder / f"{name}{codec[1]}"),
                                  cv2.VideoWriter_fourcc(*codec[0]), cameras[name][0], (320, 200))
         assert writer.isOpened()
@@ -143,7 +96,7 @@ def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path):
     clocks = {"cam0": 0.0, "cam1": 0.35, "cam2": -0.8}
     phases = {"cam0": 0.0, "cam1": 0.006, "cam2": 0.013}  # capture moments within the slop
     spec = {n: (25.0, phases[n], CAMERAS[n][2], CAMERAS[n][3]) for n in CAMERAS}
-    views = _views(spec, size=(160, 100))
+    views = arena_views(spec, size=(160, 100))
     frames = [list(fs) for fs in zip(*views.values())]  # frames[k][c]
     stamps = [[int(round((k / 25.0 + phases[n] + clocks[n]) * 1e9)) for n in CAMERAS]
               for k in range(len(frames))]

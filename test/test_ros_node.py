@@ -35,6 +35,7 @@ from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402
 from densecalib_ros.ros.node import DenseCalibNode, pipeline_config  # noqa: E402
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
                                           TriggerCaller, wait_until)
+from motion_fixtures import arena_views  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -196,6 +197,8 @@ def test_parameters_are_validated(ros, tmp_path):
     try:
         result = node.set_parameters([Parameter("matcher", value="nonexistent")])[0]
         assert not result.successful and "matcher must be one of" in result.reason
+        result = node.set_parameters([Parameter("stamp_offsets_s", value=[0.1, 0.2])])[0]
+        assert not result.successful and "one offset [s] per camera (4)" in result.reason
         result = node.set_parameters([Parameter("min_frame_sets", value=100)])[0]
         assert not result.successful and "cannot exceed buffer_size" in result.reason
         result = node.set_parameters([Parameter("image_topics", value=["/a", "/b"])])[0]
@@ -483,6 +486,68 @@ def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
         assert wait_until(lambda: "rig" in listener.rig_from_optical(), 10.0)
     finally:
         ros.remove(listener)
+        ros.remove(node)
+
+
+def test_sync_service_measures_the_stamp_offsets(ros, tmp_path):
+    """Cameras whose drivers stamp by clocks up to 1.1 s apart film an animal walking: ~/sync
+    finds the clocks' offsets from the motion in the images received (raw and compressed) and
+    sets stamp_offsets_s, dropping the frame sets paired by the old ones; from then on each
+    frame set joins images taken together. Without motion tracking, or before enough images,
+    ~/sync says what to do and changes nothing."""
+    clocks = {"cam0": 0.0, "cam1": 0.3, "cam2": -0.45, "cam3": 1.1}
+    phases = {"cam0": 0.0, "cam1": 0.002, "cam2": 0.004, "cam3": 0.006}  # within the slop
+    boxes = {"cam0": (0, 360, 0, 560), "cam1": (20, 360, 60, 640), "cam2": (0, 330, 40, 600),
+             "cam3": (0, 360, 0, 640)}
+    fps = 12
+    views = arena_views({n: (fps, phases[n], boxes[n], 1.0) for n in CAMERAS}, size=(160, 100))
+    frames = zip(*views.values())  # one tick: every camera's next frame
+    untracked = ros.densecalib(tmp_path / "a")
+    caller = ros.caller("sync")
+    try:
+        response = caller.call(10.0)
+        assert not response.success and "set sync_window_s > 0" in response.message
+    finally:
+        ros.remove(untracked)
+    # slop and queue wide enough for stamps alone to pair frames taken up to 70 ms apart (and
+    # 1.1 s = 13 frames late): the wrong ones
+    node = ros.densecalib(tmp_path / "b", sync_window_s=30.0, slop_s=0.07,
+                          sync_queue_size=30)
+    drivers = [ros.add(CameraPublisherNode(name, topic, encoding, context=ros.context))
+               for name, (topic, encoding, _) in CAMERAS.items()]
+
+    def publish(ticks, first_tick):
+        for k, images in zip(range(first_tick, first_tick + ticks), frames):
+            for driver, name, image in zip(drivers, CAMERAS, images):
+                stamp_s = 5.0 + k / fps + phases[name] + clocks[name]
+                driver.publish_image(image, int(round(stamp_s * 1e9)))
+            time.sleep(0.005)  # lets the executor keep up: best-effort topics drop frames
+
+    try:
+        assert wait_until(lambda: None not in node._image_subs, 10.0), "topics not discovered"
+        assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 10.0)
+        response = caller.call(10.0)
+        assert not response.success and "too short" in response.message
+        assert node.settings.stamp_offsets_s == [0.0] * 4
+        publish(fps * 15, 0)  # 15 s of the animal walking
+        buffered = len(node.sync)
+        assert buffered > 0
+        response = caller.call(30.0)
+        assert response.success, response.message
+        assert f"{buffered} buffered frame sets dropped" in response.message
+        measured = dict(zip(CAMERAS, node.get_parameter("stamp_offsets_s").value))
+        for name, clock in clocks.items():
+            assert measured[name] == pytest.approx(clock, abs=0.25 / fps), (name, measured)
+        assert len(node.sync) == 0
+        publish(fps * 2, fps * 15)
+        assert wait_until(lambda: len(node.sync) >= 3, 5.0), node.sync.stats()
+        for frame_set in node.sync.snapshot():  # corrected stamps = when the images were taken
+            taken = np.array(frame_set.stamps_ns) * 1e-9 - np.array(list(phases.values()))
+            assert np.ptp(taken) < 0.5 / fps, frame_set.stamps_ns
+    finally:
+        for d in drivers:
+            ros.remove(d)
+        ros.remove(caller)
         ros.remove(node)
 
 

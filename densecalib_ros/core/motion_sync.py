@@ -24,6 +24,7 @@ its own time (a video's file time, a bag topic's header stamps); a camera that s
 from __future__ import annotations
 
 import logging
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
@@ -43,6 +44,8 @@ MIN_OVERLAP_FRACTION = 0.5  # lags are searched while the signals overlap by thi
 MIN_PEAK_CORRELATION = 0.3
 MAX_SECOND_PEAK_RATIO = 0.8
 UNIQUE_PEAK_SEPARATION_S = 0.5
+BY_HAND = "give the offsets with --time-offset NAME=S"
+MIN_SIGNAL_SAMPLES = 10
 
 
 @dataclass(frozen=True)
@@ -56,11 +59,13 @@ class MotionEnergy:
     """Accumulates a camera's motion signal from its frames in time order: energy between
     consecutive frames = mean |difference| of the frames shrunk to SIGNAL_WIDTH_PX wide in grey,
     placed midway between their times (cameras at different frame rates would otherwise be biased
-    by half their frame periods)."""
+    by half their frame periods). With max_span_s, only the latest max_span_s seconds are kept
+    (a live stream)."""
 
-    def __init__(self):
-        self.times_s: list[float] = []
-        self.energy: list[float] = []
+    def __init__(self, max_span_s: Optional[float] = None):
+        self.times_s: deque[float] = deque()
+        self.energy: deque[float] = deque()
+        self.max_span_s = max_span_s
         self._previous = None  # (time_s, shrunk grey frame)
 
     def add(self, time_s: float, image: np.ndarray) -> None:
@@ -72,6 +77,10 @@ class MotionEnergy:
         if self._previous is not None and self._previous[1].shape == small.shape:
             self.times_s.append(0.5 * (self._previous[0] + time_s))
             self.energy.append(float(np.mean(np.abs(small - self._previous[1]))))
+            while self.max_span_s is not None and \
+                    self.times_s[-1] - self.times_s[0] > self.max_span_s:
+                self.times_s.popleft()
+                self.energy.popleft()
         self._previous = (float(time_s), small)
 
     def signal(self) -> tuple[np.ndarray, np.ndarray]:
@@ -160,9 +169,16 @@ def _sure(est: OffsetEstimate) -> bool:
                 and est.second_correlation <= MAX_SECOND_PEAK_RATIO * est.correlation)
 
 
+def _require_signals(signals: dict, by_hand: str) -> None:
+    short = [n for n, (t, _) in signals.items() if len(t) < MIN_SIGNAL_SAMPLES]
+    if short:
+        raise InputError(f"The recordings of {', '.join(short)} are too short to find time "
+                         f"offsets from their motion: {by_hand}.")
+
+
 def offsets_from_motion(signals: dict[str, tuple[np.ndarray, np.ndarray]],
                         frame_periods_s: Sequence[float], window_s: float,
-                        ) -> dict[str, OffsetEstimate]:
+                        by_hand: str = BY_HAND) -> dict[str, OffsetEstimate]:
     """Offset of every camera's motion signal (times_s, energy) from the first one's; the
     cameras' frame periods set the comparison step and resolution.
 
@@ -172,12 +188,9 @@ def offsets_from_motion(signals: dict[str, tuple[np.ndarray, np.ndarray]],
     solution over the pairs with a sure peak (weight: the peak correlation); a pair that then
     disagrees by more than two of the slowest frames is dropped, the worst first. Each camera
     reports the estimate of its strongest pair. InputError naming the cameras that no chain of
-    sure pairs ties to the first."""
+    sure pairs ties to the first; its message ends with `by_hand` (how to give the offsets)."""
     names = list(signals)
-    short = [n for n, (t, _) in signals.items() if len(t) < 10]
-    if short:
-        raise InputError(f"The recordings of {', '.join(short)} are too short to find time "
-                         "offsets from their motion: give them with --time-offset NAME=S.")
+    _require_signals(signals, by_hand)
     step_s = min(frame_periods_s)  # finer: the parabola through the peak
     resolution_s = max(frame_periods_s)
     pairs = {}
@@ -205,9 +218,9 @@ def offsets_from_motion(signals: dict[str, tuple[np.ndarray, np.ndarray]],
             raise InputError(
                 "The motion in the images does not determine the time offset of "
                 f"{', '.join(best(k) for k in range(len(names)) if k not in reached)} from "
-                f"{names[0]}: the first {window_s:g} s show too little shared movement, or a "
-                "repeating one. Give the offsets with --time-offset NAME=S (e.g. from a clap or "
-                "a light switched on in view of every camera).")
+                f"{names[0]}: the {window_s:g} s compared show too little shared movement, or "
+                f"a repeating one. Let something move in view of every camera, or {by_hand} "
+                "(e.g. from a clap or a light switched on in view of every camera).")
         keys = list(edges)
         rows = np.zeros((len(keys), len(names)))
         for r, (i, j) in enumerate(keys):
@@ -248,7 +261,6 @@ def bag_offsets(bag_path, topics: Sequence[str], names: Sequence[str],
 
     motions = [MotionEnergy() for _ in topics]
     first_ns: list[Optional[int]] = [None] * len(topics)
-    stamps: list[list[int]] = [[] for _ in topics]
     done = [False] * len(topics)
     t0 = None
     for index, stamp, _, msgtype, msg in iter_image_messages(bag_path, list(topics)):
@@ -259,15 +271,20 @@ def bag_offsets(bag_path, topics: Sequence[str], names: Sequence[str],
             if all(done):
                 break  # every topic's window is read
             continue
-        stamps[index].append(stamp)
         motions[index].add((stamp - t0) * 1e-9, decode_image_message(msgtype, msg))
-    periods = [float(np.median(np.diff(st))) * 1e-9 if len(st) > 1 else float("nan")
-               for st in stamps]
+    return stream_offsets({name: m.signal() for name, m in zip(names, motions)}, window_s)
+
+
+def stream_offsets(signals: dict[str, tuple[np.ndarray, np.ndarray]], window_s: float,
+                   by_hand: str = BY_HAND) -> dict[str, OffsetEstimate]:
+    """Offset of every stream's stamping clock from the first stream's, from their motion
+    signals (MotionEnergy.signal of a bag's topics, or of the images a node receives), each
+    stream's frame period its median frame interval."""
+    _require_signals(signals, by_hand)
+    periods = [float(np.median(np.diff(t))) for t, _ in signals.values()]
     if not all(np.isfinite(p) and p > 0 for p in periods):
-        raise InputError("Every topic needs a stream of images with increasing header stamps to "
-                         "find time offsets from their motion: give them with --time-offset "
-                         "NAME=S.")
-    signals = {name: m.signal() for name, m in zip(names, motions)}
-    start = min(t[0] for t, _ in signals.values() if len(t))
+        raise InputError("Every camera needs a stream of images with increasing header stamps "
+                         f"to find time offsets from their motion: {by_hand}.")
+    start = min(t[0] for t, _ in signals.values())
     signals = {n: (t - start, e) for n, (t, e) in signals.items()}  # the grid starts at 0
-    return offsets_from_motion(signals, periods, window_s)
+    return offsets_from_motion(signals, periods, window_s, by_hand)

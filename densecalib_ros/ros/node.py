@@ -8,6 +8,8 @@ Interface (names relative to the node, default name `densecalib_node`):
 - service `~/check` (std_srvs/Trigger): holds the buffered frame sets against the current
   calibration without recalibrating (core.consistency); success = it still fits, the message
   names a camera that moved;
+- service `~/sync` (std_srvs/Trigger): measures the cameras' stamp offsets from what moves in
+  their latest `sync_window_s` seconds of images (core.motion_sync) and sets `stamp_offsets_s`;
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pairs`' with their
   stereo rectification R, P, republished when that parameter changes), `/tf_static`
@@ -97,9 +99,14 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                True, _range(0.0, 10.0, False)),
     "stamp_offsets_s": (Parameter.Type.DOUBLE_ARRAY,
                         "per camera, how far its stamping clock runs ahead of the others' [s] "
-                        "(cameras on unsynchronised computers; `densecalib calibrate --bag ... "
-                        "--time-offset auto` measures them from a recording): empty = all 0",
-                        True, {}),
+                        "(cameras on unsynchronised computers; ~/sync measures them from the "
+                        "images, as `densecalib calibrate --bag ... --time-offset auto` does "
+                        "from a recording): empty = all 0. Changed at run time, the buffered "
+                        "frame sets are dropped (they were paired by the old offsets)",
+                        False, {}),
+    "sync_window_s": (0.0, "track each camera's motion over its latest this many seconds, for "
+                      "~/sync to measure stamp_offsets_s from (costs a half-size decode of every "
+                      "image); 0 = off", True, _range(0.0, 3600.0, False)),
     "sync_queue_size": (10, "pending messages per topic while waiting for partners", True,
                         _range(1, 1000, True)),
     "buffer_size": (50, "frame sets kept for calibration; the oldest is dropped when full", True,
@@ -194,6 +201,7 @@ class Settings:
     transports: list[str]
     slop_s: float
     stamp_offsets_s: list[float]
+    sync_window_s: float
     sync_queue_size: int
     buffer_size: int
     min_interval_s: float
@@ -362,6 +370,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     return Settings(
         image_topics=topics, camera_names=names, transports=transports,
         slop_s=float(v["slop_s"]), stamp_offsets_s=stamp_offsets or [0.0] * n,
+        sync_window_s=float(v["sync_window_s"]),
         sync_queue_size=int(v["sync_queue_size"]),
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), max_frame_sets=int(v["max_frame_sets"]),
@@ -434,8 +443,8 @@ class DenseCalibNode(Node):
         self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
 
         self.sync = MessageSynchronizer(len(s.image_topics), s.slop_s, s.buffer_size,
-                                        s.min_interval_s, s.sync_queue_size, s.stamp_offsets_s)
-        self._sub_group = MutuallyExclusiveCallbackGroup()
+                                        s.min_interval_s, s.sync_queue_size, s.stamp_offsets_s,
+                                        s.sync_window_s)
         self._timer_group = MutuallyExclusiveCallbackGroup()
         self._service_group = ReentrantCallbackGroup()
         self._client_group = ReentrantCallbackGroup()
@@ -452,6 +461,8 @@ class DenseCalibNode(Node):
         self.create_service(Trigger, "~/calibrate", self._on_calibrate,
                             callback_group=self._service_group)
         self.create_service(Trigger, "~/check", self._on_check,
+                            callback_group=self._service_group)
+        self.create_service(Trigger, "~/sync", self._on_sync,
                             callback_group=self._service_group)
 
         self._subscribe_known_topics()
@@ -490,6 +501,12 @@ class DenseCalibNode(Node):
         except InputError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         old, self.settings = self.settings, new
+        if new.stamp_offsets_s != old.stamp_offsets_s:
+            dropped = self.sync.set_offsets(new.stamp_offsets_s)
+            self.get_logger().info(
+                "stamp offsets [s]: " + ", ".join(f"{n} {o:+.4f}" for n, o in zip(
+                    new.camera_names, new.stamp_offsets_s))
+                + f"; {dropped} buffered frame sets dropped (paired by the old offsets)")
         if self.calibration is not None:
             t_ns = self.get_clock().now().nanoseconds
             if new.stereo_pairs != old.stereo_pairs:
@@ -504,7 +521,9 @@ class DenseCalibNode(Node):
         msg_type = CompressedImage if compressed else Image
         self._image_subs[i] = self.create_subscription(
             msg_type, s.image_topics[i], lambda msg, i=i: self.sync.add(i, msg),
-            qos_profile_sensor_data, callback_group=self._sub_group)
+            qos_profile_sensor_data, callback_group=MutuallyExclusiveCallbackGroup())
+        # a group per camera: each camera's messages stay in order, and one camera's callback
+        # does not hold the others' (the executor spins idle meanwhile, and drops frames)
         self.get_logger().info(f"camera {s.camera_names[i]}: subscribed to {s.image_topics[i]} "
                                f"({msg_type.__name__})")
 
@@ -622,6 +641,28 @@ class DenseCalibNode(Node):
         self._set_status(f"check: {response.message}")
         return response
 
+    def _on_sync(self, request, response):
+        """~/sync: measure the cameras' stamp offsets from the motion in their latest
+        sync_window_s seconds (core.motion_sync) and set stamp_offsets_s to them; on failure
+        the offsets stay as they were."""
+        s = self.settings
+        try:
+            estimates = self.sync.measure_offsets(s.camera_names)
+        except InputError as exc:
+            response.success, response.message = False, f"sync failed: {exc}"
+        else:
+            offsets = [estimates[n].offset_s for n in s.camera_names]
+            dropped = len(self.sync)
+            result = self.set_parameters([Parameter("stamp_offsets_s", value=offsets)])[0]
+            response.success = result.successful
+            response.message = ("stamp offsets [s]: " + ", ".join(
+                f"{n} {e.offset_s:+.4f}" + (f" (correlation {e.correlation:.2f})" if i else "")
+                for i, (n, e) in enumerate((n, estimates[n]) for n in s.camera_names))
+                + (f"; stamp_offsets_s set, {dropped} buffered frame sets dropped (paired by the "
+                   "old offsets)" if result.successful else f"; not set: {result.reason}"))
+        self._set_status(f"sync: {response.message}")
+        return response
+
     def _check(self) -> tuple[bool, str]:
         from ..core.consistency import best_transfer_per_camera, check_calibration
         from ..core.pipeline import match_frame_sets
@@ -655,7 +696,8 @@ class DenseCalibNode(Node):
                 f"{len(sets)} synchronised frame set(s) buffered, {s.min_frame_sets} needed "
                 f"(messages received per camera: {dict(zip(s.camera_names, stats['received']))}, "
                 f"slop {s.slop_s} s); check that every camera publishes with close header stamps "
-                "(cameras on unsynchronised clocks: set stamp_offsets_s)")
+                "(cameras on unsynchronised clocks: set stamp_offsets_s, or measure them with "
+                "~/sync and sync_window_s > 0)")
         sets = evenly_spaced(sets, s.max_frame_sets)
         self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
                          f"{s.matcher})")

@@ -1,40 +1,90 @@
 """Thread-safe adapter from image messages to buffered frame sets (core.sync does the matching).
 
-Subscription callbacks call `add` (cheap: no decoding); the calibration worker takes a `snapshot`
-and decodes it with `decode_frame_sets`.
+Subscription callbacks call `add` (cheap: no decoding, unless motion is tracked for measuring
+stamp offsets); the calibration worker takes a `snapshot` and decodes it with
+`decode_frame_sets`.
 """
 from __future__ import annotations
 
 import threading
+from typing import Optional
 
 import numpy as np
 
+from ..core.errors import InputError
+from ..core.motion_sync import MotionEnergy, OffsetEstimate, stream_offsets
 from ..core.sync import ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer
-from .conversions import image_msg_to_numpy, message_stamp_ns
+from .conversions import image_msg_to_numpy, message_stamp_ns, motion_image
+
+BY_HAND = "set stamp_offsets_s by hand"
 
 
 class MessageSynchronizer:
-    """Image messages of N streams -> approximate-time frame sets in a bounded buffer."""
+    """Image messages of N streams -> approximate-time frame sets in a bounded buffer; with
+    motion_window_s > 0, also each stream's motion over its latest motion_window_s seconds (by
+    its own header stamps), from which `measure_offsets` finds the streams' stamp offsets."""
 
     def __init__(self, num_streams: int, slop_s: float, buffer_size: int,
                  min_interval_s: float = 0.0, queue_size: int = 10,
-                 stamp_offsets_s: list[float] | None = None):
+                 stamp_offsets_s: list[float] | None = None, motion_window_s: float = 0.0):
         """stamp_offsets_s[c]: how far stream c's stamping clock runs ahead of the others' (s),
         taken off its stamps before matching (the buffered sets carry the corrected stamps)."""
+        self._slop_s, self._queue_size = slop_s, queue_size
         self._offsets_ns = [int(round(o * 1e9)) for o in (stamp_offsets_s or [0.0] * num_streams)]
         self._lock = threading.Lock()
         self._sync = ApproximateTimeSynchronizer(num_streams, slop_s, queue_size)
         self._buffer = FrameSetBuffer(buffer_size, min_interval_s)
         self.received = [0] * num_streams
+        self.motion_window_s = motion_window_s
+        self._motion_lock = threading.Lock()
+        self._motion = ([MotionEnergy(motion_window_s) for _ in range(num_streams)]
+                        if motion_window_s > 0 else None)
+        self._motion_t0_ns: Optional[int] = None  # the first stamp: float seconds stay exact
 
     def add(self, stream: int, msg, stamp_ns: int | None = None) -> int:
         """Add stream `stream`'s message (stamp from its header unless given); returns the number
         of frame sets it added to the buffer."""
-        t = (message_stamp_ns(msg) if stamp_ns is None else int(stamp_ns)) \
-            - self._offsets_ns[stream]
+        stamp = message_stamp_ns(msg) if stamp_ns is None else int(stamp_ns)
+        if self._motion is not None:
+            self._add_motion(stream, stamp, msg)
+        t = stamp - self._offsets_ns[stream]
         with self._lock:
             self.received[stream] += 1
             return sum(self._buffer.push(s) for s in self._sync.add(stream, t, msg))
+
+    def _add_motion(self, stream: int, stamp_ns: int, msg) -> None:
+        try:
+            image = motion_image(msg)
+        except InputError:
+            return  # an undecodable image: the calibration reports it when it decodes the sets
+        with self._motion_lock:
+            if self._motion_t0_ns is None:
+                self._motion_t0_ns = stamp_ns
+            self._motion[stream].add((stamp_ns - self._motion_t0_ns) * 1e-9, image)
+
+    def measure_offsets(self, names: list[str]) -> dict[str, OffsetEstimate]:
+        """Each stream's stamp offset from the first's (core.motion_sync's convention, that of
+        stamp_offsets_s) from the motion in its latest motion_window_s seconds; InputError when
+        motion is not tracked or does not determine them."""
+        if self._motion is None:
+            raise InputError("Motion is not tracked: set sync_window_s > 0 (e.g. 60) when the "
+                             "node starts, let something move in view of every camera, then "
+                             f"call sync; or {BY_HAND}.")
+        with self._motion_lock:
+            signals = {name: m.signal() for name, m in zip(names, self._motion)}
+        return stream_offsets(signals, self.motion_window_s, BY_HAND)
+
+    def set_offsets(self, stamp_offsets_s: list[float]) -> int:
+        """Match from now on with new stamp offsets. Sets already matched with the old ones, and
+        messages still waiting for partners, are dropped: they may pair the wrong frames.
+        Returns the number of buffered frame sets dropped."""
+        with self._lock:
+            self._offsets_ns = [int(round(o * 1e9)) for o in stamp_offsets_s]
+            dropped = len(self._buffer)
+            self._sync = ApproximateTimeSynchronizer(len(self._offsets_ns), self._slop_s,
+                                                     self._queue_size)
+            self._buffer = FrameSetBuffer(self._buffer.capacity, self._buffer.min_interval_s)
+            return dropped
 
     def snapshot(self) -> list[FrameSet]:
         with self._lock:
