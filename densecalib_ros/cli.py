@@ -32,6 +32,9 @@ SUBCOMMANDS = {
                   "resample images to distortion-free pinhole cameras, with their calibration"),
     "sync": ("densecalib_ros.commands.sync",
              "time offsets between the cameras' videos, bag topics or camera-trap shots"),
+    "scale": ("densecalib_ros.commands.scale",
+              "give a written calibration metric scale from a measured distance between two "
+              "scene points (or two cameras)"),
     "floor": ("densecalib_ros.commands.floor",
               "find the floor in a written calibration's scene points and record the floor frame"),
     "triangulate": ("densecalib_ros.commands.triangulate",

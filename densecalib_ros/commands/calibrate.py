@@ -215,6 +215,9 @@ def run(args: argparse.Namespace) -> int:
         if baseline:
             from ..core.scale import with_known_baseline
             result = with_known_baseline(result, *baseline)
+        if previous is not None:
+            from ..core.scale import warn_if_scale_lost
+            warn_if_scale_lost(result.rig, previous)
         if args.floor:
             from ..core.floor import record_floor
             record_floor(result, args.floor)

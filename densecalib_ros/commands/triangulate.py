@@ -30,7 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the points as JSON")
 
 
-def _observations(values: list[str]) -> dict:
+def parse_observations(values: list[str], option: str = "--point") -> dict:
+    """["cam0=512.5,300", "cam2=640,310.2"] -> {camera: (x, y)}; InputError naming `option`."""
     out = {}
     for value in values:
         name, sep, xy = value.partition("=")
@@ -39,9 +40,9 @@ def _observations(values: list[str]) -> dict:
         except ValueError:
             x = y = float("nan")
         if not sep or not name or not (np.isfinite(x) and np.isfinite(y)):
-            raise InputError(f"--point {value!r}: expected CAMERA=X,Y (e.g. cam0=512.5,300).")
+            raise InputError(f"{option} {value!r}: expected CAMERA=X,Y (e.g. cam0=512.5,300).")
         if name in out:
-            raise InputError(f"--point names camera {name} twice.")
+            raise InputError(f"{option} names camera {name} twice.")
         out[name] = (x, y)
     return out
 
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.pixel_sigma > 0:
             raise InputError(f"--pixel-sigma {args.pixel_sigma:g}: give a positive pixel error.")
         rig = read_calibration(args.calibration)
-        points = [triangulate(rig, _observations(values), args.pixel_sigma)
+        points = [triangulate(rig, parse_observations(values), args.pixel_sigma)
                   for values in args.point]
     except InputError as exc:
         log.error("%s", exc)

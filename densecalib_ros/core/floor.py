@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .scale import rig_units_per_model_unit
 from .types import RigCalibration
 
 log = logging.getLogger(__name__)
@@ -174,23 +175,7 @@ def reconstruction_points_in_rig(reconstruction, rig: RigCalibration) -> np.ndar
     # the reconstruction's unit may differ from the rig file's (scale_reconstruction_to_baseline
     # keeps both metric; otherwise scale them to the rig's by the reference's baseline)
     points = xyz @ rig_from_world[:3, :3].T + rig_from_world[:3, 3]
-    return points * _rig_units_per_world_unit(reconstruction, rig)
-
-
-def _rig_units_per_world_unit(reconstruction, rig: RigCalibration) -> float:
-    """Ratio of the distance between the reference camera and the camera farthest from it in
-    the rig file to the same distance in the reconstruction (the two are refined to one shape
-    but may be saved at their own scales)."""
-    from .scale import camera_distance
-
-    centres = {im.name: np.asarray(im.projection_center()) for im in
-               reconstruction.images.values() if im.name in rig.cameras}
-    ref = rig.reference_camera
-    if ref not in centres or len(centres) < 2:
-        return 1.0
-    far = max(centres, key=lambda n: float(np.linalg.norm(centres[n] - centres[ref])))
-    world = float(np.linalg.norm(centres[far] - centres[ref]))
-    return camera_distance(rig, ref, far) / world if world > 0 else 1.0
+    return points * rig_units_per_model_unit(reconstruction, rig)
 
 
 def record_floor(result, view: str = "upright") -> None:

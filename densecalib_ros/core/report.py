@@ -149,11 +149,14 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         lines.append(f"{q['change_summary']} (started {q.get('init', '?')})")
     if q.get("floor"):
         lines.append(format_floor(rig))
-    scale = q.get("scale_from_baseline")
-    lines.append(f"scale: metric, from the {scale['baseline_m']} m baseline "
-                 f"{scale['cameras'][0]}-{scale['cameras'][1]}" if rig.metric_scale and scale
+    baseline, points = q.get("scale_from_baseline"), q.get("scale_from_points")
+    lines.append(f"scale: metric, from the {baseline['baseline_m']} m baseline "
+                 f"{baseline['cameras'][0]}-{baseline['cameras'][1]}"
+                 if rig.metric_scale and baseline
+                 else f"scale: metric, from {points['distance_m']:.4g} m between two scene points "
+                 f"(1 sigma {100 * points['relative_std']:.2g} %)" if rig.metric_scale and points
                  else "scale: metric" if rig.metric_scale
-                 else "scale: arbitrary (no known baseline was given)")
+                 else "scale: arbitrary (no known baseline or distance was given)")
     return lines
 
 

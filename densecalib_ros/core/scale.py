@@ -1,4 +1,6 @@
-"""Metric scale from a known baseline: SfM recovers the rig only up to scale."""
+"""Metric scale: SfM recovers the rig only up to scale. It comes from a known baseline (the
+distance between two cameras' optical centres) or a known distance between two scene points
+(`densecalib scale`), and every length of the calibration is multiplied by one factor."""
 from __future__ import annotations
 
 import copy
@@ -23,10 +25,38 @@ def camera_distance(rig: RigCalibration, camera_a: str, camera_b: str) -> float:
     return float(np.linalg.norm(centres[0] - centres[1]))
 
 
+# quality keys saying where a metric scale came from; a new scale replaces them all
+SCALE_RECORDS = ("scale_from_baseline", "scale_from_points")
+MAX_SCALE_RELATIVE_STD = 0.02  # a scale from scene points less sure than this gets a warning
+
+
+def scaled_rig(rig: RigCalibration, factor: float, record: dict) -> RigCalibration:
+    """A copy of `rig` with every length multiplied by `factor` (the cameras' translations and
+    the floor frame's origin, fit and camera heights; angles and pixels are unchanged), marked
+    metric, its scale's origin `record` ({SCALE_RECORDS key: details}) replacing any earlier."""
+    scaled = copy.deepcopy(rig)
+    for cam in scaled.cameras.values():
+        cam.cam_from_rig = np.array(cam.cam_from_rig, dtype=np.float64)
+        cam.cam_from_rig[:3, 3] *= factor
+    floor = scaled.quality.get("floor")
+    if floor:
+        floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
+        floor_from_rig[:3, 3] *= factor  # floor(s p) = s floor(p): only the offset scales
+        floor["floor_from_rig"] = floor_from_rig.ravel().tolist()
+        floor["rms"] = float(floor["rms"]) * factor
+        floor["camera_heights"] = {n: float(h) * factor
+                                   for n, h in floor["camera_heights"].items()}
+    for key in SCALE_RECORDS:
+        scaled.quality.pop(key, None)
+    scaled.quality.update(record)
+    scaled.metric_scale = True
+    return scaled
+
+
 def apply_known_baseline(rig: RigCalibration, camera_a: str, camera_b: str,
                          baseline_m: float) -> RigCalibration:
-    """A copy of `rig` with every cam_from_rig translation scaled so that the optical centres of
-    `camera_a` and `camera_b` are `baseline_m` metres apart; marks the result metric."""
+    """A copy of `rig` scaled (scaled_rig) so that the optical centres of `camera_a` and
+    `camera_b` are `baseline_m` metres apart."""
     if not baseline_m > 0:
         raise InputError(f"The known baseline must be > 0 metres, got {baseline_m}.")
     if camera_a == camera_b:
@@ -35,15 +65,69 @@ def apply_known_baseline(rig: RigCalibration, camera_a: str, camera_b: str,
     if not distance > 1e-12:
         raise InputError(f"Cameras {camera_a!r} and {camera_b!r} share one optical centre in the "
                          "calibration: choose two cameras that are apart to fix the scale.")
-    scaled = copy.deepcopy(rig)
-    for cam in scaled.cameras.values():
-        cam.cam_from_rig = np.array(cam.cam_from_rig, dtype=np.float64)
-        cam.cam_from_rig[:3, 3] *= baseline_m / distance
-    scaled.metric_scale = True
-    scaled.quality["scale_from_baseline"] = {"cameras": [camera_a, camera_b],
-                                             "baseline_m": float(baseline_m),
-                                             "factor": float(baseline_m / distance)}
+    factor = baseline_m / distance
+    return scaled_rig(rig, factor, {"scale_from_baseline": {
+        "cameras": [camera_a, camera_b], "baseline_m": float(baseline_m), "factor": factor}})
+
+
+def apply_known_distance(rig: RigCalibration, point_a: dict, point_b: dict, distance_m: float,
+                         pixel_sigma: float = 1.0) -> RigCalibration:
+    """A copy of `rig` scaled (scaled_rig) so that two scene points are `distance_m` metres
+    apart: a measured length in the scene (a door's width, a tape laid on the floor) where the
+    cameras' own distances are unknown (CCTV, a forensic scene). Each point is given by its
+    pixels in two or more cameras, {camera: (x, y)} OpenCV pixels (core.triangulation). The
+    scale's relative standard deviation, from the points' covariances at `pixel_sigma`, is
+    recorded; above MAX_SCALE_RELATIVE_STD it is also a warning."""
+    from .triangulation import triangulate
+
+    if not distance_m > 0:
+        raise InputError(f"The known distance must be > 0 metres, got {distance_m}.")
+    a, b = triangulate(rig, point_a, pixel_sigma), triangulate(rig, point_b, pixel_sigma)
+    between = a.xyz_rig - b.xyz_rig
+    distance = float(np.linalg.norm(between))
+    if not distance > 1e-12:
+        raise InputError("The two points triangulate to one place: give the pixels of two "
+                         "different scene points, as far apart as the scene allows.")
+    direction = between / distance
+    relative_std = float(np.sqrt(direction @ (a.covariance_rig + b.covariance_rig) @ direction)
+                         ) / distance
+    factor = distance_m / distance
+    scaled = scaled_rig(rig, factor, {"scale_from_points": {
+        "points": [{n: list(map(float, xy)) for n, xy in p.items()} for p in (point_a, point_b)],
+        "distance_m": float(distance_m), "factor": factor, "relative_std": relative_std,
+        "pixel_sigma": float(pixel_sigma)}})
+    problems = [f"point {k}: {w}" for k, p in (("A", a), ("B", b)) for w in p.warnings]
+    if relative_std > MAX_SCALE_RELATIVE_STD:
+        problems.append(f"the scale is only known to {100 * relative_std:.1f} % (1 sigma at "
+                        f"{pixel_sigma:g} px): choose points farther apart, nearer the cameras, "
+                        "or seen from directions further apart")
+    for problem in problems:
+        warning = f"scale from points: {problem}"
+        log.warning("%s", warning)
+        scaled.quality.setdefault("warnings", []).append(warning)
     return scaled
+
+
+def rig_units_per_model_unit(reconstruction, rig: RigCalibration) -> float:
+    """Ratio of the distance between the reference camera and the camera farthest from it in
+    the rig file to the same distance in a pycolmap.Reconstruction of it (the two are refined to
+    one shape but may be saved at their own scales)."""
+    centres = {im.name: np.asarray(im.projection_center()) for im in
+               reconstruction.images.values() if im.name in rig.cameras}
+    ref = rig.reference_camera
+    if ref not in centres or len(centres) < 2:
+        return 1.0
+    far = max(centres, key=lambda n: float(np.linalg.norm(centres[n] - centres[ref])))
+    model = float(np.linalg.norm(centres[far] - centres[ref]))
+    return camera_distance(rig, ref, far) / model if model > 0 else 1.0
+
+
+def scale_reconstruction(reconstruction, factor: float) -> None:
+    """Scale a pycolmap.Reconstruction in place about its world origin (camera centres and
+    points) by `factor`."""
+    import pycolmap
+
+    reconstruction.transform(pycolmap.Sim3d(factor, pycolmap.Rotation3d(), np.zeros(3)))
 
 
 def scale_reconstruction_to_baseline(reconstruction, camera_a: str, camera_b: str,
@@ -52,12 +136,9 @@ def scale_reconstruction_to_baseline(reconstruction, camera_a: str, camera_b: st
     points) so that the images named camera_a and camera_b are baseline_m metres apart, so the
     COLMAP model written beside a metric calibration is metric too. Its world frame is the SfM
     frame, whose unit differs from the rig file's, hence a factor of its own."""
-    import pycolmap
-
     centres = {im.name: np.asarray(im.projection_center()) for im in reconstruction.images.values()}
     distance = float(np.linalg.norm(centres[camera_a] - centres[camera_b]))
-    reconstruction.transform(pycolmap.Sim3d(baseline_m / distance, pycolmap.Rotation3d(),
-                                            np.zeros(3)))
+    scale_reconstruction(reconstruction, baseline_m / distance)
 
 
 def with_known_baseline(result, camera_a: str, camera_b: str, baseline_m: float):
@@ -76,3 +157,17 @@ def with_known_baseline(result, camera_a: str, camera_b: str, baseline_m: float)
     if result.reconstruction is not None:
         scale_reconstruction_to_baseline(result.reconstruction, camera_a, camera_b, baseline_m)
     return dataclasses.replace(result, rig=rig)
+
+
+def warn_if_scale_lost(rig: RigCalibration, previous: RigCalibration | None) -> None:
+    """A recalibration of a metric calibration that came out up to scale (its scale was from
+    scene points, which moved cameras no longer see where they did, and no baseline was given):
+    say so in rig.quality["warnings"]."""
+    if previous is None or not previous.metric_scale or rig.metric_scale:
+        return
+    warning = ("no metric scale: the previous calibration was metric"
+               + (" from two scene points" if "scale_from_points" in previous.quality else "")
+               + ", this one is up to scale; give a known baseline, or measure again with "
+               "`densecalib scale`")
+    log.warning("%s", warning)
+    rig.quality.setdefault("warnings", []).append(warning)

@@ -64,7 +64,7 @@ from ..core.floor import VIEWS as FLOOR_VIEWS, record_floor
 from ..core.known_intrinsics import read_known_intrinsics, with_previous_intrinsics
 from ..core.masks import read_mask
 from ..core.matching import available_matchers
-from ..core.scale import with_known_baseline
+from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.types import RigCalibration
@@ -716,6 +716,7 @@ class DenseCalibNode(Node):
                                      matcher=self._matcher_for(s), progress=progress)
         if s.known_baseline_m > 0:
             result = with_known_baseline(result, *s.baseline_cameras, s.known_baseline_m)
+        warn_if_scale_lost(result.rig, self.calibration)
         if s.floor:
             record_floor(result, s.floor)
         rig, reconstruction = result.rig, result.reconstruction

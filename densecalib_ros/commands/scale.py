@@ -1,0 +1,88 @@
+"""`densecalib scale`: give a written calibration its metric scale afterwards (core.scale), from
+a known distance between two scene points or between two cameras; every length in it (camera
+positions, the floor frame, the saved COLMAP model) is multiplied by one factor."""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+
+import pycolmap
+
+from ..core.errors import InputError
+from ..core.export import (calibration_folder, calibration_to_dict, read_calibration,
+                           replace_directory_atomic, write_text_atomic)
+from ..core.scale import (apply_known_baseline, apply_known_distance, rig_units_per_model_unit,
+                          scale_reconstruction)
+from ..core.triangulation import DEFAULT_PIXEL_SIGMA
+from .triangulate import parse_observations
+
+log = logging.getLogger("densecalib.scale")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("calibration", metavar="CALIBRATION",
+                        help="a calibration folder or a node's output_dir")
+    how = parser.add_mutually_exclusive_group(required=True)
+    how.add_argument("--distance", type=float, metavar="METRES",
+                     help="the measured distance between the two --point's")
+    how.add_argument("--baseline", nargs=3, metavar=("CAM_A", "CAM_B", "METRES"),
+                     help="the measured distance between two cameras' optical centres (as "
+                          "calibrate --known-baseline)")
+    parser.add_argument("--point", action="append", nargs="+", metavar="CAMERA=X,Y",
+                        help="with --distance, twice: one end of the measured length, by its "
+                             "pixel in each camera that sees it (at least two; OpenCV/ROS "
+                             "pixels of the original images), e.g. --point cam0=512.5,300 "
+                             "cam2=640,310.2")
+    parser.add_argument("--pixel-sigma", type=float, default=DEFAULT_PIXEL_SIGMA, metavar="PX",
+                        help="assumed pixel error (1 sigma) for the scale's standard deviation "
+                             f"(default {DEFAULT_PIXEL_SIGMA:g})")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="print the scale found, leave the calibration as it is")
+
+
+def _scaled(args, rig):
+    if args.baseline:
+        cam_a, cam_b, metres = args.baseline
+        try:
+            baseline_m = float(metres)
+        except ValueError:
+            raise InputError(f"--baseline {' '.join(args.baseline)}: the distance must be a "
+                             "number of metres, e.g. --baseline cam0 cam1 0.5.") from None
+        return apply_known_baseline(rig, cam_a, cam_b, baseline_m)
+    if not args.point or len(args.point) != 2:
+        raise InputError("--distance needs the two ends of the measured length: --point "
+                         "CAM=X,Y CAM=X,Y ... twice.")
+    if not args.pixel_sigma > 0:
+        raise InputError(f"--pixel-sigma {args.pixel_sigma:g}: give a positive pixel error.")
+    return apply_known_distance(rig, *(parse_observations(p) for p in args.point),
+                                args.distance, args.pixel_sigma)
+
+
+def run(args: argparse.Namespace) -> int:
+    folder = calibration_folder(args.calibration)
+    try:
+        rig = read_calibration(folder)
+        scaled = _scaled(args, rig)
+    except InputError as exc:
+        log.error("%s The calibration is unchanged.", exc)
+        return 2
+    record = scaled.quality.get("scale_from_points") or scaled.quality["scale_from_baseline"]
+    factor = record["factor"]
+    sure = (f" (1 sigma {100 * record['relative_std']:.2g} %)" if "relative_std" in record
+            else "")
+    print(f"scale: x {factor:.6g}{sure}: the rig's lengths are now metres"
+          + ("" if not rig.metric_scale else " (it was metric before: that scale is replaced)"))
+    if args.dry_run:
+        return 0
+    model = folder / "colmap"
+    if (model / "points3D.bin").is_file() or (model / "points3D.txt").is_file():
+        reconstruction = pycolmap.Reconstruction(str(model))
+        # the model keeps its own unit: bring it to the new rig's (metres)
+        scale_reconstruction(reconstruction, factor * rig_units_per_model_unit(reconstruction, rig))
+        replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), model)
+    write_text_atomic(folder / "calibration.json",
+                      json.dumps(calibration_to_dict(scaled), indent=2) + "\n")
+    log.info("wrote %s; files exported from it before (anipose, stereo, ...) keep the old scale: "
+             "export them again", (folder / "calibration.json").resolve())
+    return 0
