@@ -147,3 +147,55 @@ def test_opencv_files_load_in_opencv_and_read_back_as_given_intrinsics(rig, tmp_
     (tmp_path / "f.yml").write_text("x")
     assert main(["export", str(calib), "--format", "opencv", "--out",
                  str(tmp_path / "f.yml")]) == 2
+
+
+def _matlab_pixels(pts_world, params):
+    """MATLAB's worldToImage with its cameraParameters (what DANNCE reimplements): row vectors
+    x_cam = X r + t, then MATLAB's radial-tangential distortion, then [x y 1] K; 1-based."""
+    x_cam = pts_world @ params["r"] + params["t"]
+    x, y = x_cam[:, 0] / x_cam[:, 2], x_cam[:, 1] / x_cam[:, 2]
+    k = np.zeros(3)
+    k[:params["RDistort"].size] = params["RDistort"].ravel()
+    p1, p2 = params["TDistort"].ravel()
+    r2 = x * x + y * y
+    radial = 1 + k[0] * r2 + k[1] * r2 ** 2 + k[2] * r2 ** 3
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return (np.column_stack([xd, yd, np.ones_like(xd)]) @ params["K"])[:, :2]
+
+
+def test_dannce_files_project_like_our_cameras_in_matlab_convention(rig, tmp_path, capsys,
+                                                                    caplog):
+    """Each camera's hires_cam<i>_params.mat, read back with scipy and projected with MATLAB's
+    model (independently of ours), lands where our camera puts the point, +1 px (MATLAB's
+    pixels are 1-based); t is in mm; the world is the floor frame when there is one; a fisheye
+    camera is refused with what to do."""
+    from scipy.io import loadmat
+
+    from densecalib_ros.core.interchange import dannce_files
+
+    with pytest.raises(InputError, match="top has a fisheye lens.*undistort"):
+        dannce_files(rig)
+    del rig.cameras["top"]
+    floor_from_rig = _pose([-100, 10, 0], [0.2, -1.5, 0.1])
+    rig.quality["floor"] = {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
+                            "rms": 0.0, "camera_heights": {}}
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    out = tmp_path / "dannce"
+    assert main(["export", str(calib), "--format", "dannce", "--out", str(out)]) == 0
+    assert "hires_cam1_params.mat, hires_cam2_params.mat" in capsys.readouterr().out
+    assert "hires_cam2_params.mat = Camera2 = right" in (out / "cameras.txt").read_text()
+    pts_rig = _points_seen_by_all(rig)
+    pts_floor_mm = 1000.0 * (pts_rig @ floor_from_rig[:3, :3].T + floor_from_rig[:3, 3])
+    for i, name in enumerate(["left", "right"], start=1):
+        params = loadmat(out / f"hires_cam{i}_params.mat")
+        assert params["t"].shape == (1, 3) and params["TDistort"].shape == (1, 2)
+        got = _matlab_pixels(pts_floor_mm, params)
+        assert np.abs(got - (_colmap_pixels(rig.cameras[name], pts_rig) + 1.0)).max() < 1e-6
+
+    rig.metric_scale = False
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    with caplog.at_level(logging.WARNING):
+        assert main(["export", str(calib), "--format", "dannce", "--out", str(out)]) == 0
+    assert "no metric scale" in caplog.text

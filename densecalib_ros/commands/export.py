@@ -10,7 +10,8 @@ from pathlib import Path
 from ..core.errors import InputError
 from ..core.export import read_calibration, write_text_atomic
 from ..core.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS, STEREO_FORMATS,
-                                export_text, opencv_files, opencv_stereo_yaml, ros_stereo_files)
+                                dannce_files, export_text, opencv_files, opencv_stereo_yaml,
+                                ros_stereo_files)
 from ..core.stereo import stereo_pair
 
 log = logging.getLogger("densecalib.export")
@@ -24,13 +25,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="anipose: aniposelib calibration.toml; kalibr: Kalibr camchain.yaml; "
                              "opencv: one OpenCV FileStorage <camera>.yml per camera "
                              "(camera_matrix, distortion_coefficients, image size, "
-                             "fisheye_model, R and T of cam_from_rig); ros-stereo: the rectified "
+                             "fisheye_model, R and T of cam_from_rig); dannce: DANNCE / Label3D "
+                             "hires_cam<i>_params.mat per camera (MATLAB convention, mm, world = "
+                             "the floor frame if any); ros-stereo: the rectified "
                              "camera_info YAMLs of a stereo pair (<left>.yaml, <right>.yaml) for "
                              "camera_info_manager and stereo_image_proc; opencv-stereo: one "
                              "FileStorage file of a pair (K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
     parser.add_argument("--out", required=True, metavar="FILE|DIR",
-                        help="file to write (replaced); opencv, ros-stereo: the folder for the "
-                             "files")
+                        help="file to write (replaced); opencv, dannce, ros-stereo: the folder "
+                             "for the files")
     parser.add_argument("--pair", nargs=2, metavar=("LEFT", "RIGHT"),
                         help="ros-stereo, opencv-stereo: the two cameras, left one first "
                              "(default for a two-camera rig: its cameras, ordered left to right)")
@@ -55,6 +58,11 @@ def run(args: argparse.Namespace) -> int:
                                left_to_right=args.format == "ros-stereo")
             files = (ros_stereo_files(rig, rect) if args.format == "ros-stereo"
                      else {None: opencv_stereo_yaml(rig, rect)})
+        elif args.format == "dannce":
+            files = dannce_files(rig)
+            if not rig.metric_scale:
+                log.warning("the calibration has no metric scale: DANNCE's volumes are in "
+                            "millimetres (give a known baseline, or `densecalib scale` it first)")
         elif args.format in FOLDER_FORMATS:
             files = opencv_files(rig)
         else:

@@ -15,6 +15,11 @@
   [k4 k5 k6], or fisheye k1..k4), and R, T of cam_from_rig (x_cam = R x_rig + T, as
   stereoCalibrate's R, T from the first camera: for a stereo pair the second camera's R, T are
   the stereo extrinsics).
+- DANNCE / Label3D (rodent 3D pose in arenas; MATLAB's camera model), one
+  `hires_cam<i>_params.mat` per camera with K (MATLAB's IntrinsicMatrix: the transpose of
+  OpenCV's, principal point + 1 for MATLAB's 1-based pixels), r and t (row vectors:
+  x_cam = X_world r + t, so r = R' of cam_from_world; t in millimetres for a metric rig, as
+  DANNCE's volumes are), RDistort [k1 k2 (k3)] and TDistort [p1 p2]; world as anipose's.
 - A stereo pair (core.stereo), for stereo matchers that work on rectified images:
   `ros-stereo`, the two camera_info YAMLs ROS's stereo calibrator writes (left.yaml, right.yaml:
   rectification_matrix R1/R2 and projection_matrix P1/P2, the right one with Tx = -fx' baseline),
@@ -38,9 +43,9 @@ from .export import camera_info_yaml, ros_camera_info
 from .stereo import StereoRectification
 from .types import RigCalibration
 
-FORMATS = ("anipose", "kalibr", "opencv", "ros-stereo", "opencv-stereo")
+FORMATS = ("anipose", "kalibr", "opencv", "dannce", "ros-stereo", "opencv-stereo")
 # Formats written as a folder of files, one per camera, rather than one file
-FOLDER_FORMATS = ("opencv", "ros-stereo")
+FOLDER_FORMATS = ("opencv", "dannce", "ros-stereo")
 # Formats of one camera pair (core.stereo)
 STEREO_FORMATS = ("ros-stereo", "opencv-stereo")
 DEFAULT_TOPIC_PATTERN = "/{name}/image_raw"
@@ -63,8 +68,8 @@ def _lens(name: str, rig: RigCalibration, fmt: str) -> tuple[dict, list[float], 
     if model != "plumb_bob" or (fmt == "kalibr" and dist[4] != 0.0):
         raise InputError(f"Camera {name} ({rig.cameras[name].intrinsics.model}) has a lens model "
                          f"{fmt} cannot hold: it takes pinhole + radial-tangential "
-                         f"({'k1 k2 p1 p2' if fmt == 'kalibr' else 'k1 k2 p1 p2 k3'}) or "
-                         "equidistant fisheye.")
+                         f"({'k1 k2 p1 p2' if fmt == 'kalibr' else 'k1 k2 p1 p2 k3'})"
+                         + ("." if fmt == "dannce" else " or equidistant fisheye."))
     return info, (dist[:4] if fmt == "kalibr" else dist), False
 
 
@@ -72,15 +77,20 @@ def _toml_list(values) -> str:
     return "[ " + ", ".join(repr(float(v)) for v in values) + ",]"
 
 
-def anipose_toml(rig: RigCalibration) -> str:
-    """aniposelib CameraGroup.load() text (format in the module docstring). World = the floor
-    frame when the calibration has one (calibrate --floor: z up, so triangulated points come out
-    as heights above the floor), else the rig frame."""
+def _world(rig: RigCalibration) -> tuple[np.ndarray, str]:
+    """(rig_from_world, its description) of the world frame of arena tools: the floor frame when
+    the calibration has one (calibrate --floor: z up, so triangulated points come out as heights
+    above the floor), else the rig frame."""
     floor = rig.quality.get("floor")
-    rig_from_world = np.eye(4) if not floor else \
-        np.linalg.inv(np.asarray(floor["floor_from_rig"], float).reshape(4, 4))
-    world = ("the floor frame (z up, origin on the floor)" if floor else
-             f"the rig frame (reference camera {rig.reference_camera})")
+    if floor:
+        return (np.linalg.inv(np.asarray(floor["floor_from_rig"], float).reshape(4, 4)),
+                "the floor frame (z up, origin on the floor)")
+    return np.eye(4), f"the rig frame (reference camera {rig.reference_camera})"
+
+
+def anipose_toml(rig: RigCalibration) -> str:
+    """aniposelib CameraGroup.load() text (format in the module docstring), in _world."""
+    rig_from_world, world = _world(rig)
     lines = [f"# densecalib rig calibration; world = {world}; translations in {_units(rig)}",
              ""]
     for i, name in enumerate(rig.cameras):
@@ -155,6 +165,41 @@ def opencv_files(rig: RigCalibration) -> dict[str, str]:
     return out
 
 
+def dannce_files(rig: RigCalibration) -> dict[str, bytes]:
+    """File name -> MATLAB .mat bytes of each camera's `hires_cam<i>_params.mat` (i from 1 in the
+    rig's camera order), as DANNCE and Label3D load them, plus `cameras.txt` naming the cameras
+    (format in the module docstring)."""
+    import io
+
+    from scipy.io import savemat
+
+    rig_from_world, world = _world(rig)
+    to_file_units = 1000.0 if rig.metric_scale else 1.0  # DANNCE works in millimetres
+    out, names = {}, []
+    for i, name in enumerate(rig.cameras, start=1):
+        info, dist, fisheye = _lens(name, rig, "dannce")
+        if fisheye:
+            raise InputError(f"Camera {name} has a fisheye lens, which DANNCE's MATLAB camera "
+                             "model cannot hold: `densecalib undistort` its videos to pinhole "
+                             "ones and export that calibration.")
+        k = np.asarray(info["camera_matrix"]["data"], float).reshape(3, 3)
+        matlab_k = k.T.copy()
+        matlab_k[2, :2] += 1.0  # MATLAB's top-left pixel centre is (1, 1), OpenCV's (0, 0)
+        cam_from_world = np.asarray(rig.cameras[name].cam_from_rig, float) @ rig_from_world
+        k1, k2, p1, p2, k3 = dist[:5]
+        buffer = io.BytesIO()
+        savemat(buffer, {"K": matlab_k, "r": cam_from_world[:3, :3].T,
+                         "t": cam_from_world[:3, 3].reshape(1, 3) * to_file_units,
+                         "RDistort": np.array([[k1, k2, k3]] if k3 else [[k1, k2]]),
+                         "TDistort": np.array([[p1, p2]])})
+        out[f"hires_cam{i}_params.mat"] = buffer.getvalue()
+        names.append(f"hires_cam{i}_params.mat = Camera{i} = {name}")
+    units = "millimetres" if rig.metric_scale else _units(rig)
+    out["cameras.txt"] = ("\n".join([f"# densecalib rig calibration for DANNCE / Label3D; world = "
+                                      f"{world}; t in {units}", *names]) + "\n").encode()
+    return out
+
+
 def ros_stereo_files(rig: RigCalibration, rect: StereoRectification) -> dict[str, str]:
     """File name -> camera_info YAML of the pair's two cameras with their rectification."""
     out = {}
@@ -206,5 +251,5 @@ def export_text(rig: RigCalibration, fmt: str, **options) -> str:
     if fmt == "kalibr":
         return kalibr_camchain_yaml(rig, **options)
     if fmt in FOLDER_FORMATS:
-        raise InputError(f"Format {fmt} is a folder of files: use opencv_files.")
+        raise InputError(f"Format {fmt} is a folder of files: use {fmt.replace('-', '_')}_files.")
     raise InputError(f"Unknown export format {fmt!r}: use one of {', '.join(FORMATS)}.")
