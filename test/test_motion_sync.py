@@ -87,7 +87,7 @@ def test_a_static_scene_gives_no_offsets(tmp_path):
         estimate_video_offsets(paths, names)
 
 
-def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path):
+def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path, capsys):
     """A bag whose cam1 stamps run 0.35 s ahead and cam2's 0.8 s behind cam0's: synchronised by
     stamps alone, its frame sets join images taken up to 0.8 s apart (at 25 fps every offset
     leaves a partner within the slop); --time-offset auto finds the clocks from the motion."""
@@ -124,6 +124,12 @@ def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path):
     manual = parser.parse_args(["--bag", str(bag), "--topics", *topics, "--max-frame-sets", "4",
                                 "--time-offset", "cam1=0.35", "cam2=-0.8"])
     assert len(read_input(manual)[0]) == 4
+    from densecalib_ros.cli import main
+
+    assert main(["sync", "--bag", str(bag), "--topics", *topics]) == 0
+    node_line = capsys.readouterr().out.splitlines()[-1]
+    offsets = json.loads(node_line.split(":=")[1])  # the node parameter, in the topics' order
+    assert offsets == pytest.approx(list(clocks.values()), abs=0.5 / 25.0)
 
 
 def test_sync_command_prints_the_offsets(videos, capsys, caplog):

@@ -62,4 +62,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {n:20s} {e.offset_s:+10.3f}   {'reference' if n == names[0] else evidence[n]}")
     option = " ".join(f"{n}={e.offset_s:.3f}" for n, e in estimates.items() if n != names[0])
     print(f"calibrate with: --time-offset {option}")
+    if args.bag:  # the same clocks stamp the live topics: the node takes them as they are
+        print("densecalib_node (image_topics in this order): stamp_offsets_s:=["
+              + ", ".join(f"{e.offset_s:.4f}" for e in estimates.values()) + "]")
     return 0
