@@ -9,7 +9,6 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2
-import numpy as np
 import pytest
 
 from densecalib_ros.commands.inputs import add_input_arguments, read_input

@@ -4,12 +4,10 @@ add a floor frame, or to look for it again with `--view top`."""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, calibration_to_dict, read_calibration,
-                           write_text_atomic)
+from ..core.export import calibration_folder, read_calibration, write_calibration_json
 from ..core.floor import VIEWS, find_floor_of_saved_calibration, set_floor
 from ..core.report import format_floor
 
@@ -40,9 +38,8 @@ def run(args: argparse.Namespace) -> int:
     print(format_floor(rig))
     if args.dry_run:
         return 0
-    write_text_atomic(folder / "calibration.json",
-                      json.dumps(calibration_to_dict(rig), indent=2) + "\n")
+    path = write_calibration_json(rig, folder)
     log.info("%s the floor frame in %s; files exported from it before (anipose, stereo, ...) "
              "are unchanged: export them again", "replaced" if replaced else "recorded",
-             (folder / "calibration.json").resolve())
+             path.resolve())
     return 0

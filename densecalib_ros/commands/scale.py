@@ -4,14 +4,13 @@ positions, the floor frame, the saved COLMAP model) is multiplied by one factor.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 
 import pycolmap
 
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, calibration_to_dict, read_calibration,
-                           replace_directory_atomic, write_text_atomic)
+from ..core.export import (calibration_folder, read_calibration, replace_directory_atomic,
+                           write_calibration_json)
 from ..core.scale import (apply_known_baseline, apply_known_distance, rig_units_per_model_unit,
                           scale_reconstruction)
 from ..core.triangulation import DEFAULT_PIXEL_SIGMA
@@ -81,8 +80,7 @@ def run(args: argparse.Namespace) -> int:
         # the model keeps its own unit: bring it to the new rig's (metres)
         scale_reconstruction(reconstruction, factor * rig_units_per_model_unit(reconstruction, rig))
         replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), model)
-    write_text_atomic(folder / "calibration.json",
-                      json.dumps(calibration_to_dict(scaled), indent=2) + "\n")
+    path = write_calibration_json(scaled, folder)
     log.info("wrote %s; files exported from it before (anipose, stereo, ...) keep the old scale: "
-             "export them again", (folder / "calibration.json").resolve())
+             "export them again", path.resolve())
     return 0

@@ -182,12 +182,18 @@ def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
         raise
 
 
+def write_calibration_json(rig: RigCalibration, directory: str | os.PathLike) -> Path:
+    """(Re)write `directory`/calibration.json atomically; returns its path."""
+    path = Path(directory) / "calibration.json"
+    write_text_atomic(path, json.dumps(calibration_to_dict(rig), indent=2) + "\n")
+    return path
+
+
 def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction=None) -> None:
     """Write calibration.json, <camera>.yaml per camera and (optionally) the COLMAP model under
     `directory`/colmap into `directory`, which must not exist yet or is replaced as a whole."""
     directory.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(directory / "calibration.json",
-                      json.dumps(calibration_to_dict(rig), indent=2) + "\n")
+    write_calibration_json(rig, directory)
     for name, cam in rig.cameras.items():
         write_text_atomic(directory / f"{name}.yaml", camera_info_yaml(name, cam.intrinsics))
     if reconstruction is not None:
