@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _scaled(args, rig):
     if args.baseline:
+        if args.point:
+            raise InputError("--point goes with --distance (a length in the scene); --baseline "
+                             "names two cameras instead.")
         cam_a, cam_b, metres = args.baseline
         try:
             baseline_m = float(metres)
