@@ -534,7 +534,8 @@ def test_sync_service_measures_the_stamp_offsets(ros, tmp_path):
         assert buffered > 0
         response = caller.call(30.0)
         assert response.success, response.message
-        assert f"{buffered} buffered frame sets dropped" in response.message
+        dropped = re.search(r"(\d+) buffered frame sets dropped", response.message)
+        assert dropped and int(dropped.group(1)) >= buffered  # the last ones may still arrive
         measured = dict(zip(CAMERAS, node.get_parameter("stamp_offsets_s").value))
         for name, clock in clocks.items():
             assert measured[name] == pytest.approx(clock, abs=0.25 / fps), (name, measured)
