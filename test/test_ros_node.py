@@ -5,6 +5,7 @@ republishes the last good calibration; a failing calibration leaves every output
 written with `rosbags` (sqlite3 raw, mcap compressed) replay into the node to the same result;
 parameters are validated."""
 import os
+from pathlib import Path
 import re
 import threading
 import time
@@ -263,6 +264,30 @@ def test_parameters_are_validated(ros, tmp_path):
                                                 value=[str(tmp_path / "lab2.yaml")])])[0]
         assert not result.successful and "lab_name, which are not among" in result.reason
         assert list(pipeline_config(node.settings).known_intrinsics) == ["cam2"]  # kept
+    finally:
+        ros.remove(node)
+
+
+def test_the_config_file_lists_every_parameter_and_starts_the_node(ros, tmp_path):
+    """config/densecalib.yaml, what users copy: every parameter is there (optional lists
+    commented out), with its default, and the node starts from it."""
+    import yaml
+
+    from densecalib_ros.ros.node import PARAMETERS
+
+    text = (Path(__file__).resolve().parents[1] / "config" / "densecalib.yaml").read_text()
+    values = yaml.safe_load(text)["/**"]["ros__parameters"]
+    assert set(values) <= set(PARAMETERS)
+    assert [n for n in PARAMETERS if not re.search(rf"^\s*#?\s*{n}:", text, re.M)] == []
+    for name, value in values.items():
+        default = PARAMETERS[name][0]
+        if not isinstance(default, Parameter.Type):  # the EXAMPLE lists have no default
+            assert value == default, name
+    values.pop("output_dir")
+    node = ros.densecalib(tmp_path, name="from_config", camera_names=None, transports=None,
+                          **values)
+    try:
+        assert node.settings.camera_names == ["cam0", "cam1", "cam2"]
     finally:
         ros.remove(node)
 
