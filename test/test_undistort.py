@@ -144,3 +144,48 @@ def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys)
         inside = (map_x > 1) & (map_x < 318) & (map_y > 1) & (map_y < 238)
         assert inside.mean() > 0.6
         assert np.abs(ours[inside].astype(int) - theirs[inside]).max() <= 1
+
+
+def test_command_undistorts_videos_frame_by_frame(tmp_path, capsys, caplog):
+    """--videos: every frame of each camera's video, resampled with the same tables as the
+    images are (compared frame by frame with the image path on the decoded input frames), at
+    the same frame rate; a missing camera is skipped, a video of another size refused."""
+    rig = RigCalibration("a", {"a": RigCamera("a", FISHEYE, np.eye(4)),
+                               "b": RigCamera("b", RADIAL, np.eye(4))})
+    calib = tmp_path / "calib"
+    calib.mkdir()
+    (calib / "calibration.json").write_text(json.dumps(calibration_to_dict(rig)))
+    rng = np.random.default_rng(0)
+    texture = cv2.resize(rng.integers(0, 255, (24, 32, 3), dtype=np.uint8), (320, 240),
+                         interpolation=cv2.INTER_CUBIC)
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    writer = cv2.VideoWriter(str(videos / "a.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 15.0,
+                             (320, 240))
+    for k in range(6):
+        writer.write(np.roll(texture, 7 * k, axis=1))
+    writer.release()
+    out = tmp_path / "undistorted"
+    assert main(["undistort", str(calib), "--videos", str(videos), "--out", str(out),
+                 "--codec", "MJPG"]) == 0
+    assert "1 undistorted video(s) (6 frames) of 1 camera(s)" in capsys.readouterr().out
+    target = read_calibration(out).cameras["a"].intrinsics
+    assert target.model == "PINHOLE" and "b" not in read_calibration(out).cameras
+    map_x, map_y = undistortion_maps(FISHEYE, target)
+    source, result = cv2.VideoCapture(str(videos / "a.avi")), cv2.VideoCapture(str(out / "a.avi"))
+    assert result.get(cv2.CAP_PROP_FPS) == pytest.approx(15.0)
+    for _ in range(6):
+        expected = cv2.remap(source.read()[1], map_x, map_y, cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_CONSTANT).astype(float)
+        got = result.read()[1].astype(float)
+        assert got.shape == (target.height, target.width, 3)
+        assert 10 * np.log10(255 ** 2 / np.mean((got - expected) ** 2)) > 30  # PSNR, dB
+    assert not result.read()[0]
+    writer = cv2.VideoWriter(str(videos / "b.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 15.0,
+                             (160, 120))
+    writer.write(np.zeros((120, 160, 3), np.uint8))
+    writer.release()
+    with caplog.at_level("ERROR"):
+        assert main(["undistort", str(calib), "--videos", str(videos), "--out", str(out)]) == 2
+    assert "b.avi is 160x120, but its camera was calibrated at 320x240" in caplog.text
+    assert (out / "a.avi").exists()  # the earlier output is untouched

@@ -1,5 +1,5 @@
-"""`densecalib undistort`: resample a rig's images to distortion-free pinhole cameras
-(core.undistort) and write them with the matching calibration (PINHOLE cameras, same
+"""`densecalib undistort`: resample a rig's images (or videos) to distortion-free pinhole
+cameras (core.undistort) and write them with the matching calibration (PINHOLE cameras, same
 extrinsics), all or nothing; or, with --stereo-pair, a pair's images rectified (core.stereo) with
 the calibration of the rectified pair."""
 from __future__ import annotations
@@ -17,15 +17,25 @@ from ..core.undistort import DEFAULT_MAX_FOV_DEG
 
 log = logging.getLogger("densecalib.undistort")
 
+VIDEO_CODECS = {"mp4v": ".mp4", "MJPG": ".avi"}  # fourcc -> container (OpenCV's FFmpeg writes both)
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("calibration", metavar="CALIBRATION",
                         help="a calibration folder, a node's output_dir or a calibration.json")
-    parser.add_argument("--images", required=True, metavar="DIR",
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--images", metavar="DIR",
                         help="images to undistort: DIR/<camera>.<ext> or DIR/<camera>/*, as for "
                              "calibrate; every image of each calibrated camera is written")
+    source.add_argument("--videos", metavar="DIR",
+                        help="videos to undistort: DIR/<camera>.<ext> (mp4, avi, mov, ...), "
+                             "every frame, at the same frame rate (for tools that need pinhole "
+                             "videos, e.g. DANNCE with fisheye cameras)")
+    parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default="mp4v",
+                        help="with --videos: mp4v (.mp4, default) or MJPG (.avi, larger, less "
+                             "loss); the frames are re-encoded either way")
     parser.add_argument("--out", required=True, metavar="DIR",
-                        help="output folder (replaced): the same layout as PNG, and "
+                        help="output folder (replaced): the same layout (images as PNG), and "
                              "calibration.json + <camera>.yaml of the undistorted cameras")
     parser.add_argument("--max-fov", type=float, default=DEFAULT_MAX_FOV_DEG, metavar="DEG",
                         help="widest view across the undistorted image (fisheye lenses; default "
@@ -61,14 +71,19 @@ def run(args: argparse.Namespace) -> int:
                 rect.right: (rectified_pinhole(rect.projection_right, rect.width, rect.height),
                              rect.rect_from_right)}
             rig = _rectified_rig(rig, targets)
-        jobs = {name: camera_image_files(args.images, name) for name in rig.cameras}
+        source_dir = args.images or args.videos
+        what = "videos" if args.videos else "images"
+        jobs = {name: (_camera_video(args.videos, name) if args.videos
+                       else camera_image_files(args.images, name)) for name in rig.cameras}
         missing = [n for n, files in jobs.items() if not files]
         if len(missing) == len(jobs):
-            raise InputError(f"No images of the calibrated cameras ({', '.join(jobs)}) in "
-                             f"{args.images}: use DIR/<camera>.<ext> or DIR/<camera>/ images.")
+            raise InputError(f"No {what} of the calibrated cameras ({', '.join(jobs)}) in "
+                             f"{source_dir}: use DIR/<camera>.<ext>"
+                             + ("" if args.videos else " or DIR/<camera>/ images") + ".")
         for name in missing:
-            log.warning("No images of camera %s in %s: skipped.", name, args.images)
-        flat = not any((Path(args.images) / n).is_dir() for n in jobs)
+            log.warning("No %s of camera %s in %s: skipped.", what, name, source_dir)
+        flat = args.videos or not any((Path(args.images) / n).is_dir() for n in jobs)
+        frames = {}  # camera -> frames written (videos)
         out_rig = copy.deepcopy(rig)
         out_rig.quality = {**rig.quality, "undistorted_from": str(args.calibration)}
 
@@ -80,6 +95,13 @@ def run(args: argparse.Namespace) -> int:
                 target, target_from_source = targets[name]
                 map_x, map_y = undistortion_maps(source, target, target_from_source)
                 out_rig.cameras[name].intrinsics = target
+                if args.videos:
+                    dest = tmp / f"{name}{VIDEO_CODECS[args.codec]}"
+                    frames[name] = _remap_video(files[0], dest, (map_x, map_y), source, target,
+                                                args.codec)
+                    log.info("%s: %d frames, focal %.1f px", name, frames[name],
+                             target.params[0])
+                    continue
                 for path in files:
                     image = read_image(path)
                     if (image.shape[1], image.shape[0]) != (source.width, source.height):
@@ -98,18 +120,62 @@ def run(args: argparse.Namespace) -> int:
             for name in missing:
                 del out_rig.cameras[name]
             if missing and args.stereo_pair:
-                raise InputError(f"No images of camera {', '.join(missing)} of the stereo pair "
-                                 f"in {args.images}.")
+                raise InputError(f"No {what} of camera {', '.join(missing)} of the stereo pair "
+                                 f"in {source_dir}.")
             write_calibration_files(out_rig, tmp)
 
         replace_directory_atomic(build, args.out)
     except InputError as exc:
         log.error("%s", exc)
         return 2
-    what = "rectified" if args.stereo_pair else "undistorted"
-    print(f"wrote {args.out}: {sum(len(f) for f in jobs.values())} {what} image(s) of "
-          f"{len(jobs) - len(missing)} camera(s) and their pinhole calibration")
+    done = "rectified" if args.stereo_pair else "undistorted"
+    count = (f"{len(frames)} {done} video(s) ({sum(frames.values())} frames)" if args.videos
+             else f"{sum(len(f) for f in jobs.values())} {done} image(s)")
+    print(f"wrote {args.out}: {count} of {len(jobs) - len(missing)} camera(s) and their pinhole "
+          "calibration")
     return 0
+
+
+def _camera_video(directory: str, name: str) -> list[Path]:
+    """[the video of camera `name` in directory] (DIR/<name>.<video ext>), or []."""
+    from ..core.video_io import VIDEO_EXTENSIONS
+
+    return sorted(p for p in Path(directory).glob(f"{name}.*")
+                  if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS)[:1]
+
+
+def _remap_video(path: Path, dest: Path, maps, source, target, codec: str) -> int:
+    """Write every frame of video `path` resampled by maps (map_x, map_y) to dest at the same
+    frame rate; returns the number of frames."""
+    from ..core.video_io import probe_video
+
+    info = probe_video(path)
+    if (info.width, info.height) != (source.width, source.height):
+        raise InputError(f"{path} is {info.width}x{info.height}, but its camera was calibrated "
+                         f"at {source.width}x{source.height}.")
+    cap = cv2.VideoCapture(str(path))
+    writer = cv2.VideoWriter(str(dest), cv2.VideoWriter_fourcc(*codec), info.fps,
+                             (target.width, target.height))
+    if not writer.isOpened():
+        cap.release()
+        raise InputError(f"Cannot write {dest} with codec {codec}: try --codec "
+                         f"{'MJPG' if codec != 'MJPG' else 'mp4v'}, and check the disk.")
+    count = 0
+    try:
+        while True:
+            ok, frame = cap.read()
+            if not ok or frame is None:
+                break
+            writer.write(cv2.remap(frame, *maps, cv2.INTER_LINEAR,
+                                   borderMode=cv2.BORDER_CONSTANT))
+            count += 1
+    finally:
+        cap.release()
+        writer.release()
+    if count == 0:
+        raise InputError(f"No frame of {path} could be decoded: is it a video OpenCV's FFmpeg "
+                         "reads?")
+    return count
 
 
 def _rectified_rig(rig, targets):

@@ -180,7 +180,7 @@ def dannce_files(rig: RigCalibration) -> dict[str, bytes]:
         info, dist, fisheye = _lens(name, rig, "dannce")
         if fisheye:
             raise InputError(f"Camera {name} has a fisheye lens, which DANNCE's MATLAB camera "
-                             "model cannot hold: `densecalib undistort` its videos to pinhole "
+                             "model cannot hold: `densecalib undistort --videos` them to pinhole "
                              "ones and export that calibration.")
         k = np.asarray(info["camera_matrix"]["data"], float).reshape(3, 3)
         matlab_k = k.T.copy()
