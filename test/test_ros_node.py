@@ -540,6 +540,7 @@ def test_sync_service_measures_the_stamp_offsets(ros, tmp_path):
                           sync_queue_size=30)
     drivers = [ros.add(CameraPublisherNode(name, topic, encoding, context=ros.context))
                for name, (topic, encoding, _) in CAMERAS.items()]
+    listener = ros.listener(node)
 
     def publish(ticks, first_tick):
         for k, images in zip(range(first_tick, first_tick + ticks), frames):
@@ -570,11 +571,15 @@ def test_sync_service_measures_the_stamp_offsets(ros, tmp_path):
         for frame_set in node.sync.snapshot():  # corrected stamps = when the images were taken
             taken = np.array(frame_set.stamps_ns) * 1e-9 - np.array(list(phases.values()))
             assert np.ptp(taken) < 0.5 / fps, frame_set.stamps_ns
+
+        def diagnosed():
+            last = listener.snapshot()["diagnostics"][-1:]
+            return last and {v.key: v.value for v in last[0].status[0].values}.get(
+                "stamp_offsets_s", "").startswith("cam0=+0.0000, cam1=+0.3")
+        assert wait_until(diagnosed, 5.0)  # the offsets in use, on /diagnostics
     finally:
-        for d in drivers:
-            ros.remove(d)
-        ros.remove(caller)
-        ros.remove(node)
+        for other in [*drivers, listener, caller, node]:
+            ros.remove(other)
 
 
 def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_path):

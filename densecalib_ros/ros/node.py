@@ -922,6 +922,10 @@ class DenseCalibNode(Node):
                   "buffered_frame_sets": str(stats["buffered"]),
                   "received_per_camera": str(stats["received"]),
                   "dropped_oldest_frame_sets": str(stats["dropped_oldest"])}
+        if any(self.settings.stamp_offsets_s):
+            values["stamp_offsets_s"] = ", ".join(
+                f"{n}={o:+.4f}" for n, o in zip(self.settings.camera_names,
+                                                self.settings.stamp_offsets_s))
         if self.calibration is not None:
             rms = self.calibration.quality.get("reprojection_rms_px", float("nan"))
             values.update(
