@@ -9,6 +9,7 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2
+import numpy as np
 import pytest
 
 from densecalib_ros.commands.inputs import add_input_arguments, read_input
@@ -162,3 +163,37 @@ def test_cameras_seeing_different_halves_are_tied_through_a_third(tmp_path):
     direct = estimate_offset(*(motion_signal(probe_video(tmp_path / f"{n}.avi"), 120.0)
                                for n in ("cam0", "cam2")), 0.04, 0.04)
     assert estimates["cam2"].correlation > direct.correlation  # from its pair with cam1
+
+
+def test_trim_writes_videos_whose_frame_k_shows_one_instant(tmp_path, capsys, caplog):
+    """sync --trim: three 25 fps videos started at 0, -0.7 and +1.23 s are cut (by the measured
+    offsets) to start within half a frame of one another, with as many frames each, every
+    trimmed frame the source frame sync.json names; given offsets cut the same way."""
+    same_rate = {name: (25.0, *rest) for name, (_, *rest) in CAMERAS.items()}
+    folder = tmp_path / "arena"
+    folder.mkdir()
+    _write_videos(folder, cameras=same_rate)
+    from densecalib_ros.cli import main
+
+    out = tmp_path / "trimmed"
+    assert main(["sync", "--videos", str(folder), "--trim", str(out), "--codec", "MJPG"]) == 0
+    assert "3 videos starting together" in capsys.readouterr().out
+    cuts = json.loads((out / "sync.json").read_text())["cameras"]
+    assert len({c["frames"] for c in cuts.values()}) == 1
+    shown = [same_rate[n][1] + c["first_frame"] / 25.0 for n, c in cuts.items()]  # world time
+    assert max(shown) - min(shown) <= 0.5 / 25.0 + 1e-9
+    for name, cut in cuts.items():
+        source, trimmed = (cv2.VideoCapture(str(p)) for p in (folder / f"{name}.avi",
+                                                               out / cut["file"]))
+        source.set(cv2.CAP_PROP_POS_FRAMES, cut["first_frame"])
+        a, b = (c.read()[1].astype(float) for c in (source, trimmed))
+        assert 10 * np.log10(255 ** 2 / np.mean((a - b) ** 2)) > 30  # the same frame, re-encoded
+    given = tmp_path / "given"
+    assert main(["sync", "--videos", str(folder), "--trim", str(given), "--codec", "MJPG",
+                 "--time-offset", "cam1=0.7", "cam2=-1.23", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert {n: c["first_frame"] for n, c in data["trimmed"].items()} == \
+        {n: c["first_frame"] for n, c in cuts.items()}
+    with caplog.at_level("ERROR"):
+        assert main(["sync", "--videos", str(folder), "--time-offset", "cam1=0.7"]) == 2
+    assert "it goes with --trim" in caplog.text

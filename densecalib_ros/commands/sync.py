@@ -1,7 +1,8 @@
 """`densecalib sync`: the time offsets between a rig's recordings, without calibrating
 (core.motion_sync for videos and bags, core.clock_offsets for camera-trap shots): what to trim
 or shift so that downstream tools (anipose triangulation, a video editor) see synchronised
-cameras, and what `--time-offset` or the node's stamp_offsets_s should be."""
+cameras (`--trim` writes the videos so cut), and what `--time-offset` or the node's
+stamp_offsets_s should be."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +10,7 @@ import json
 import logging
 
 from ..core.errors import InputError
+from ..core.video_io import VIDEO_CODECS
 
 log = logging.getLogger("densecalib.sync")
 
@@ -24,13 +26,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--images: how far apart shots taken together may be stamped "
                              "(default as calibrate's --max-time-gap)")
     parser.add_argument("--json", action="store_true", help="print the offsets as JSON")
+    parser.add_argument("--trim", metavar="OUT",
+                        help="--videos: also write the videos cut to start at one moment (and, "
+                             "at equal frame rates, to one length) into OUT, so that frame k "
+                             "shows the same instant in every camera (anipose, Label3D); "
+                             "re-encoded, with sync.json giving each cut")
+    parser.add_argument("--time-offset", nargs="+", metavar="NAME=S",
+                        help="--videos --trim: cut by these offsets (calibrate's convention) "
+                             "instead of measuring them")
+    parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default="mp4v",
+                        help="--trim: mp4v (.mp4, default) or MJPG (.avi)")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         if args.topics and not args.bag:
             raise InputError("--topics belongs to --bag.")
-        if args.videos:
+        if (args.trim or args.time_offset) and not args.videos:
+            raise InputError("--trim and --time-offset go with --videos.")
+        if args.time_offset and not args.trim:
+            raise InputError("--time-offset gives the offsets: it goes with --trim.")
+        if args.videos and args.time_offset:
+            from ..core.motion_sync import OffsetEstimate
+            from ..core.video_io import list_video_folder
+            from .inputs import parse_time_offsets
+            names = list_video_folder(args.videos)[1]
+            given = parse_time_offsets(args.time_offset)
+            unknown = sorted(set(given) - set(names))
+            if unknown:
+                raise InputError(f"--time-offset names unknown camera(s) {', '.join(unknown)}: "
+                                 f"the videos are of {', '.join(names)}.")
+            estimates = {n: OffsetEstimate(float(given.get(n, 0.0)), float("nan"), float("nan"))
+                         for n in names}
+            evidence = {n: "given" for n in names}
+        elif args.videos:
             from ..core.motion_sync import estimate_video_offsets
             from ..core.video_io import list_video_folder
             estimates = estimate_video_offsets(*list_video_folder(args.videos))
@@ -52,9 +81,20 @@ def run(args: argparse.Namespace) -> int:
         log.error("%s", exc)
         return 2
     names = list(estimates)
+    if args.trim:
+        try:
+            trims = _write_trimmed(args.videos, estimates, args.trim, args.codec)
+        except InputError as exc:
+            log.error("%s", exc)
+            return 2
+        if not args.json:
+            residual = ", ".join(f"{n} {1000 * c['start_offset_s']:+.1f}" for n, c in trims.items())
+            print(f"wrote {args.trim}: {len(trims)} videos starting together (residual start "
+                  f"offsets ms: {residual}; at most half a frame)")
     if args.json:
         print(json.dumps({"reference": names[0], "offsets_s": {
-            n: float(e.offset_s) for n, e in estimates.items()}}, indent=2))
+            n: float(e.offset_s) for n, e in estimates.items()},
+            **({"trimmed": trims} if args.trim else {})}, indent=2))
         return 0
     print(f"time offsets from {names[0]} (s; positive: the camera's time runs ahead, e.g. it "
           "started recording earlier)")
@@ -66,3 +106,34 @@ def run(args: argparse.Namespace) -> int:
         print("densecalib_node (image_topics in this order): stamp_offsets_s:=["
               + ", ".join(f"{e.offset_s:.4f}" for e in estimates.values()) + "]")
     return 0
+
+
+def _write_trimmed(video_dir, estimates: dict, out, codec: str) -> dict:
+    """Write the videos of video_dir cut to one start (core.video_io.synchronising_trims) into
+    out (replaced as a whole, with sync.json); returns the cuts by camera."""
+    from ..core.export import replace_directory_atomic
+    from ..core.video_io import list_video_folder, probe_video, synchronising_trims, transcode_video
+
+    paths, names = list_video_folder(video_dir)
+    infos = [probe_video(p) for p in paths]
+    offsets = [estimates[n].offset_s for n in names]
+    trims = synchronising_trims(infos, offsets)
+    if len({info.fps for info in infos}) > 1:
+        log.warning("the videos have different frame rates (%s): they start together but frame k "
+                    "is not the same instant in all; tools that index frames need one rate",
+                    ", ".join(f"{n} {i.fps:g}" for n, i in zip(names, infos)))
+    record = {"source": str(video_dir), "offsets_s": dict(zip(names, offsets)), "cameras": {}}
+
+    def build(tmp):
+        for name, info, trim in zip(names, infos, trims):
+            dest = tmp / f"{name}{VIDEO_CODECS[codec]}"
+            written = transcode_video(info, dest, codec, trim.first_frame, trim.num_frames)
+            record["cameras"][name] = {"file": dest.name, "first_frame": trim.first_frame,
+                                       "frames": written, "fps": info.fps,
+                                       "start_offset_s": trim.start_s - trims[0].start_s}
+            log.info("%s: frames %d..%d of %s (%d)", name, trim.first_frame,
+                     trim.first_frame + written - 1, info.path.name, written)
+        (tmp / "sync.json").write_text(json.dumps(record, indent=2) + "\n")
+
+    replace_directory_atomic(build, out)
+    return record["cameras"]

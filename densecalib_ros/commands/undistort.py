@@ -14,10 +14,10 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.undistort import DEFAULT_MAX_FOV_DEG
+from ..core.video_io import VIDEO_CODECS
 
 log = logging.getLogger("densecalib.undistort")
 
-VIDEO_CODECS = {"mp4v": ".mp4", "MJPG": ".avi"}  # fourcc -> container (OpenCV's FFmpeg writes both)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -147,35 +147,15 @@ def _camera_video(directory: str, name: str) -> list[Path]:
 def _remap_video(path: Path, dest: Path, maps, source, target, codec: str) -> int:
     """Write every frame of video `path` resampled by maps (map_x, map_y) to dest at the same
     frame rate; returns the number of frames."""
-    from ..core.video_io import probe_video
+    from ..core.video_io import probe_video, transcode_video
 
     info = probe_video(path)
     if (info.width, info.height) != (source.width, source.height):
         raise InputError(f"{path} is {info.width}x{info.height}, but its camera was calibrated "
                          f"at {source.width}x{source.height}.")
-    cap = cv2.VideoCapture(str(path))
-    writer = cv2.VideoWriter(str(dest), cv2.VideoWriter_fourcc(*codec), info.fps,
-                             (target.width, target.height))
-    if not writer.isOpened():
-        cap.release()
-        raise InputError(f"Cannot write {dest} with codec {codec}: try --codec "
-                         f"{'MJPG' if codec != 'MJPG' else 'mp4v'}, and check the disk.")
-    count = 0
-    try:
-        while True:
-            ok, frame = cap.read()
-            if not ok or frame is None:
-                break
-            writer.write(cv2.remap(frame, *maps, cv2.INTER_LINEAR,
-                                   borderMode=cv2.BORDER_CONSTANT))
-            count += 1
-    finally:
-        cap.release()
-        writer.release()
-    if count == 0:
-        raise InputError(f"No frame of {path} could be decoded: is it a video OpenCV's FFmpeg "
-                         "reads?")
-    return count
+    return transcode_video(info, dest, codec, size=(target.width, target.height),
+                           transform=lambda frame: cv2.remap(frame, *maps, cv2.INTER_LINEAR,
+                                                             borderMode=cv2.BORDER_CONSTANT))
 
 
 def _rectified_rig(rig, targets):

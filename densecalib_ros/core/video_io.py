@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import cv2
 import numpy as np
@@ -27,6 +27,7 @@ from .errors import InputError, NotEnoughCamerasError
 VIDEO_EXTENSIONS = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".mts",
                     ".ts", ".wmv")
 DEFAULT_VIDEO_FRAME_SETS = 8
+VIDEO_CODECS = {"mp4v": ".mp4", "MJPG": ".avi"}  # fourcc -> container (OpenCV's FFmpeg writes both)
 # A frame count read from a container can be an estimate (duration x fps); the last frames may
 # not decode, so a failed read steps back this many frames before giving up.
 _READ_BACKOFF_FRAMES = 5
@@ -167,3 +168,58 @@ def read_video_frame_sets(directory: str | os.PathLike,
         finally:
             cap.release()
     return frame_sets, names, [float(t) for t in times]
+
+
+def transcode_video(info: VideoInfo, dest: str | os.PathLike, codec: str = "mp4v",
+                    first_frame: int = 0, num_frames: Optional[int] = None,
+                    transform: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+                    size: Optional[tuple[int, int]] = None) -> int:
+    """Write frames first_frame .. first_frame + num_frames - 1 (default: to the end) of a video
+    to dest at its frame rate, each BGR frame passed through `transform` (of output size
+    (width, height) `size`, default the input's); returns the number written. Frames are read
+    in order (decoders seek to key frames only)."""
+    size = size or (info.width, info.height)
+    cap = _open(info.path)
+    writer = cv2.VideoWriter(str(dest), cv2.VideoWriter_fourcc(*codec), info.fps, size)
+    if not writer.isOpened():
+        cap.release()
+        raise InputError(f"Cannot write {dest} with codec {codec}: try another codec "
+                         f"({', '.join(VIDEO_CODECS)}), and check the disk.")
+    count = index = 0
+    try:
+        while num_frames is None or count < num_frames:
+            ok, frame = cap.read()
+            if not ok or frame is None:
+                break
+            if index >= first_frame:
+                writer.write(frame if transform is None else transform(frame))
+                count += 1
+            index += 1
+    finally:
+        cap.release()
+        writer.release()
+    if count == 0:
+        raise InputError(f"No frame of {info.path} from frame {first_frame} on could be decoded.")
+    return count
+
+
+@dataclass(frozen=True)
+class Trim:
+    first_frame: int  # the first frame kept
+    num_frames: int
+    start_s: float  # common time of the first frame kept
+
+
+def synchronising_trims(infos: list[VideoInfo], offsets_s: list[float]) -> list[Trim]:
+    """Per video, the frames to keep so that all start at the same moment (the latest camera's
+    start, within half a frame) and, at equal frame rates, have as many frames: frame index k
+    then shows the same instant in every video, what tools that take synchronised videos
+    (anipose) assume."""
+    first, last = common_span_s(infos, offsets_s)
+    starts = [int(round((first + off) * info.fps)) for info, off in zip(infos, offsets_s)]
+    counts = [min(info.num_frames - k, int(np.floor((last - first) * info.fps)))
+              for info, k in zip(infos, starts)]
+    if len({info.fps for info in infos}) == 1:
+        counts = [min(counts)] * len(infos)
+    return [Trim(k, max(0, n), k / info.fps - off)
+            for info, off, k, n in zip(infos, offsets_s, starts, counts)]
