@@ -85,7 +85,8 @@ def test_scale_command_from_a_measured_length_in_the_scene(tmp_path, caplog):
     metric = read_calibration(out)
     assert metric.metric_scale and metric.quality["scale_from_points"]["relative_std"] < 0.02
     for a, b in (("cam0", "cam1"), ("cam1", "cam3"), ("cam0", "cam2")):
-        truth = float(np.linalg.norm(rig.center(rig.names.index(a)) - rig.center(rig.names.index(b))))
+        ia, ib = rig.names.index(a), rig.names.index(b)
+        truth = float(np.linalg.norm(rig.center(ia) - rig.center(ib)))
         assert camera_distance(metric, a, b) == pytest.approx(truth, rel=0.02), (a, b)
     for i, name in enumerate(rig.names):  # the scene's floor is z = 0, in metres
         assert metric.quality["floor"]["camera_heights"][name] == pytest.approx(

@@ -22,8 +22,9 @@ Interface (names relative to the node, default name `densecalib_node`):
 
 Threads: subscription callbacks (one callback group per camera) only append messages to the
 synchroniser (and, with sync_window_s > 0, add a small grey copy to the camera's motion signal);
-a calibration runs in its own worker thread; the service callback (reentrant group, multi-threaded executor) waits for
-its result while the executor keeps serving subscriptions, timers and other service calls.
+a calibration runs in its own worker thread; the service callback (reentrant group,
+multi-threaded executor) waits for its result while the executor keeps serving subscriptions,
+timers and other service calls.
 """
 from __future__ import annotations
 
