@@ -43,6 +43,12 @@ _TO_RGB = {
 }
 
 
+def _byte_buffer(data) -> np.ndarray:
+    """A message's `data` (bytes, array.array, list or numpy array) as a uint8 array."""
+    return np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(),
+                         dtype=np.uint8)
+
+
 def raw_to_array(encoding: str, height: int, width: int, step: int, data,
                  is_bigendian: bool = False) -> np.ndarray:
     """The pixels of a sensor_msgs/Image as stored: (H, W) or (H, W, C), dtype uint8/uint16,
@@ -54,8 +60,7 @@ def raw_to_array(encoding: str, height: int, width: int, step: int, data,
     if layout in ("uyvy", "yuyv") and width % 2:
         raise InputError(f"Malformed {encoding} image: 4:2:2 needs an even width, got {width}.")
     itemsize = np.dtype(dtype).itemsize
-    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(),
-                        dtype=np.uint8)
+    buf = _byte_buffer(data)
     row_bytes = width * channels * itemsize
     if step < row_bytes or buf.size < step * height:
         raise InputError(f"Malformed {encoding} image: {width}x{height} needs step >= {row_bytes} "
@@ -88,12 +93,13 @@ def decode_raw(encoding: str, height: int, width: int, step: int, data,
     return to_pipeline_image(pixels, RAW_ENCODINGS[encoding][2])
 
 
-def decode_compressed(fmt: str, data) -> np.ndarray:
+def decode_compressed(fmt: str, data, half_grey: bool = False) -> np.ndarray:
     """sensor_msgs/CompressedImage fields -> uint8 RGB (H, W, 3) or gray (H, W).
-    `fmt` is e.g. "jpeg", "png", "rgb8; jpeg compressed bgr8" (image_transport's format)."""
-    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(),
-                        dtype=np.uint8)
-    image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    `fmt` is e.g. "jpeg", "png", "rgb8; jpeg compressed bgr8" (image_transport's format).
+    half_grey: grey at half size instead, which JPEG decodes in a fraction of the time."""
+    buf = _byte_buffer(data)
+    image = cv2.imdecode(buf, cv2.IMREAD_REDUCED_GRAYSCALE_2 if half_grey
+                         else cv2.IMREAD_UNCHANGED)
     if image is None:
         raise InputError(f"Cannot decode a CompressedImage of format {fmt!r} ({buf.size} bytes): "
                          "expected jpeg or png data.")

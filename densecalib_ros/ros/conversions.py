@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from typing import Optional
 
-import cv2
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
@@ -20,7 +19,6 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
 from ..core.bag import stamp_ns
-from ..core.errors import InputError
 from ..core.export import ros_camera_info
 from ..core.image_encoding import decode_compressed, decode_raw, encode_compressed, encode_raw
 from ..core.types import CameraIntrinsics, RigCalibration
@@ -45,13 +43,7 @@ def motion_image(msg) -> np.ndarray:
     of a full decode on every frame of a live stream."""
     if hasattr(msg, "encoding"):
         return image_msg_to_numpy(msg)
-    data = msg.data
-    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(),
-                        dtype=np.uint8)
-    image = cv2.imdecode(buf, cv2.IMREAD_REDUCED_GRAYSCALE_2)
-    if image is None:
-        raise InputError(f"Cannot decode a CompressedImage of format {msg.format!r}.")
-    return image
+    return decode_compressed(msg.format, msg.data, half_grey=True)
 
 
 def numpy_to_image_msg(image: np.ndarray, encoding: str, t_ns: int, frame_id: str) -> Image:
