@@ -189,3 +189,34 @@ def test_command_undistorts_videos_frame_by_frame(tmp_path, capsys, caplog):
         assert main(["undistort", str(calib), "--videos", str(videos), "--out", str(out)]) == 2
     assert "b.avi is 160x120, but its camera was calibrated at 320x240" in caplog.text
     assert (out / "a.avi").exists()  # the earlier output is untouched
+
+
+def test_stereo_pair_videos_are_rectified(tmp_path, capsys):
+    """--videos with --stereo-pair: both videos' frames rectified with the pair's tables, the
+    output calibration the rectified pair (the right camera translated along x only)."""
+    pose = np.eye(4)
+    pose[:3, 3] = [-0.3, 0.01, 0.02]
+    rig = RigCalibration("a", {"a": RigCamera("a", RADIAL, np.eye(4)),
+                               "b": RigCamera("b", RADIAL, pose)}, metric_scale=True)
+    calib = tmp_path / "calib"
+    calib.mkdir()
+    (calib / "calibration.json").write_text(json.dumps(calibration_to_dict(rig)))
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for name in ("a", "b"):
+        writer = cv2.VideoWriter(str(videos / f"{name}.avi"), cv2.VideoWriter_fourcc(*"MJPG"),
+                                 10.0, (320, 240))
+        for k in range(4):
+            writer.write(np.full((240, 320, 3), 40 * k, np.uint8))
+        writer.release()
+    out = tmp_path / "rectified"
+    assert main(["undistort", str(calib), "--videos", str(videos), "--out", str(out),
+                 "--stereo-pair", "a", "b"]) == 0
+    assert "2 rectified video(s) (8 frames) of 2 camera(s)" in capsys.readouterr().out
+    pair = read_calibration(out)
+    right_from_left = pair.cameras["b"].cam_from_rig
+    assert np.allclose(right_from_left[:3, :3], np.eye(3), atol=1e-9)
+    assert np.allclose(right_from_left[1:3, 3], 0.0, atol=1e-9)
+    for name in ("a", "b"):
+        cap = cv2.VideoCapture(str(out / f"{name}.mp4"))
+        assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 4
