@@ -17,6 +17,21 @@ FISHEYE = CameraIntrinsics("OPENCV_FISHEYE", 320, 240,
                            np.array([95.0, 96.0, 161.0, 119.0, 0.03, -0.01, 0.002, 0.0]))
 
 
+def _write_calibration(rig, folder):
+    folder.mkdir()
+    (folder / "calibration.json").write_text(json.dumps(calibration_to_dict(rig)))
+    return folder
+
+
+def _write_video(path, frames, fps):
+    """An MJPG .avi of BGR frames (H, W, 3) uint8."""
+    height, width = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (width, height))
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+
+
 def _opencv_maps(source, target):
     info = ros_camera_info("c", source)
     k = np.array(info["camera_matrix"]["data"]).reshape(3, 3)
@@ -53,9 +68,7 @@ def test_command_writes_images_and_pinhole_calibration(tmp_path, capsys):
     pose[:3, 3] = [0.4, 0.0, 0.0]
     rig = RigCalibration("a", {"a": RigCamera("a", RADIAL, np.eye(4)),
                                "b": RigCamera("b", FISHEYE, pose)}, metric_scale=True)
-    calib = tmp_path / "calib"
-    calib.mkdir()
-    (calib / "calibration.json").write_text(json.dumps(calibration_to_dict(rig)))
+    calib = _write_calibration(rig, tmp_path / "calib")
     images = tmp_path / "images"
     for name in ("a", "b"):
         (images / name).mkdir(parents=True)
@@ -152,19 +165,13 @@ def test_command_undistorts_videos_frame_by_frame(tmp_path, capsys, caplog):
     the same frame rate; a missing camera is skipped, a video of another size refused."""
     rig = RigCalibration("a", {"a": RigCamera("a", FISHEYE, np.eye(4)),
                                "b": RigCamera("b", RADIAL, np.eye(4))})
-    calib = tmp_path / "calib"
-    calib.mkdir()
-    (calib / "calibration.json").write_text(json.dumps(calibration_to_dict(rig)))
+    calib = _write_calibration(rig, tmp_path / "calib")
     rng = np.random.default_rng(0)
     texture = cv2.resize(rng.integers(0, 255, (24, 32, 3), dtype=np.uint8), (320, 240),
                          interpolation=cv2.INTER_CUBIC)
     videos = tmp_path / "videos"
     videos.mkdir()
-    writer = cv2.VideoWriter(str(videos / "a.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 15.0,
-                             (320, 240))
-    for k in range(6):
-        writer.write(np.roll(texture, 7 * k, axis=1))
-    writer.release()
+    _write_video(videos / "a.avi", [np.roll(texture, 7 * k, axis=1) for k in range(6)], 15.0)
     out = tmp_path / "undistorted"
     assert main(["undistort", str(calib), "--videos", str(videos), "--out", str(out),
                  "--codec", "MJPG"]) == 0
@@ -181,10 +188,7 @@ def test_command_undistorts_videos_frame_by_frame(tmp_path, capsys, caplog):
         assert got.shape == (target.height, target.width, 3)
         assert 10 * np.log10(255 ** 2 / np.mean((got - expected) ** 2)) > 30  # PSNR, dB
     assert not result.read()[0]
-    writer = cv2.VideoWriter(str(videos / "b.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 15.0,
-                             (160, 120))
-    writer.write(np.zeros((120, 160, 3), np.uint8))
-    writer.release()
+    _write_video(videos / "b.avi", [np.zeros((120, 160, 3), np.uint8)], 15.0)
     with caplog.at_level("ERROR"):
         assert main(["undistort", str(calib), "--videos", str(videos), "--out", str(out)]) == 2
     assert "b.avi is 160x120, but its camera was calibrated at 320x240" in caplog.text
@@ -198,17 +202,12 @@ def test_stereo_pair_videos_are_rectified(tmp_path, capsys):
     pose[:3, 3] = [-0.3, 0.01, 0.02]
     rig = RigCalibration("a", {"a": RigCamera("a", RADIAL, np.eye(4)),
                                "b": RigCamera("b", RADIAL, pose)}, metric_scale=True)
-    calib = tmp_path / "calib"
-    calib.mkdir()
-    (calib / "calibration.json").write_text(json.dumps(calibration_to_dict(rig)))
+    calib = _write_calibration(rig, tmp_path / "calib")
     videos = tmp_path / "videos"
     videos.mkdir()
     for name in ("a", "b"):
-        writer = cv2.VideoWriter(str(videos / f"{name}.avi"), cv2.VideoWriter_fourcc(*"MJPG"),
-                                 10.0, (320, 240))
-        for k in range(4):
-            writer.write(np.full((240, 320, 3), 40 * k, np.uint8))
-        writer.release()
+        _write_video(videos / f"{name}.avi", [np.full((240, 320, 3), 40 * k, np.uint8)
+                                              for k in range(4)], 10.0)
     out = tmp_path / "rectified"
     assert main(["undistort", str(calib), "--videos", str(videos), "--out", str(out),
                  "--stereo-pair", "a", "b"]) == 0

@@ -6,11 +6,9 @@ from __future__ import annotations
 import argparse
 import logging
 
-import pycolmap
-
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, read_calibration, replace_directory_atomic,
-                           write_calibration_json)
+from ..core.export import (calibration_folder, read_calibration, read_saved_model,
+                           replace_directory_atomic, write_calibration_json)
 from ..core.scale import (apply_known_baseline, apply_known_distance, rig_units_per_model_unit,
                           scale_reconstruction)
 from ..core.triangulation import DEFAULT_PIXEL_SIGMA
@@ -77,12 +75,11 @@ def run(args: argparse.Namespace) -> int:
           + ("" if not rig.metric_scale else " (it was metric before: that scale is replaced)"))
     if args.dry_run:
         return 0
-    model = folder / "colmap"
-    if (model / "points3D.bin").is_file() or (model / "points3D.txt").is_file():
-        reconstruction = pycolmap.Reconstruction(str(model))
+    reconstruction = read_saved_model(folder)
+    if reconstruction is not None:
         # the model keeps its own unit: bring it to the new rig's (metres)
         scale_reconstruction(reconstruction, factor * rig_units_per_model_unit(reconstruction, rig))
-        replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), model)
+        replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), folder / "colmap")
     path = write_calibration_json(scaled, folder)
     log.info("wrote %s; files exported from it before (anipose, stereo, ...) keep the old scale: "
              "export them again", path.resolve())

@@ -189,6 +189,17 @@ def write_calibration_json(rig: RigCalibration, directory: str | os.PathLike) ->
     return path
 
 
+def read_saved_model(folder: str | os.PathLike):
+    """The pycolmap.Reconstruction that write_calibration_files saved in folder/colmap, or None
+    when there is none (a dense matcher without keypoint matches writes no model)."""
+    import pycolmap
+
+    model = Path(folder) / "colmap"
+    if not any((model / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
+        return None
+    return pycolmap.Reconstruction(str(model))
+
+
 def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction=None) -> None:
     """Write calibration.json, <camera>.yaml per camera and (optionally) the COLMAP model under
     `directory`/colmap into `directory`, which must not exist yet or is replaced as a whole."""

@@ -204,14 +204,13 @@ def find_floor_of_saved_calibration(folder: str | os.PathLike, rig: RigCalibrati
     """The floor of a calibration already written (`densecalib floor`): found in the scene points
     of the COLMAP model saved beside its calibration.json (folder/colmap), so a rig calibrated
     without --floor, or whose floor was not found as "upright", needs no new calibration."""
-    import pycolmap
+    from .export import read_saved_model
 
-    model = Path(folder) / "colmap"
-    if not any((model / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
-        raise InputError(f"{folder} has no COLMAP model ({model}) with the scene points: "
-                         "calibrate again with --floor (a dense matcher without keypoint "
-                         "matches writes none).")
-    reconstruction = pycolmap.Reconstruction(str(model))
+    reconstruction = read_saved_model(folder)
+    if reconstruction is None:
+        raise InputError(f"{folder} has no COLMAP model ({Path(folder) / 'colmap'}) with the "
+                         "scene points: calibrate again with --floor (a dense matcher without "
+                         "keypoint matches writes none).")
     return find_floor(reconstruction_points_in_rig(reconstruction, rig), rig, view)
 
 
