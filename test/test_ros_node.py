@@ -514,6 +514,67 @@ def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
         ros.remove(node)
 
 
+def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
+    """`densecalib scale` on a running node's output_dir, then ~/reload: the node publishes the
+    scaled calibration (cameras and floor); `latest` pointed at a calibration of other cameras:
+    ~/reload refuses and the scaled one stays published."""
+    from densecalib_ros.cli import main
+    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.types import RigCalibration, RigCamera
+
+    lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
+    poses = {name: np.eye(4) for name in CAMERAS}
+    for i, name in enumerate(CAMERAS):
+        poses[name][:3, 3] = [-0.2 * i, 0.0, 0.0]
+    floor_from_rig = np.eye(4)
+    floor_from_rig[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]
+    floor_from_rig[:3, 3] = [0.0, 0.0, 1.5]
+    rig = RigCalibration("cam0", {n: RigCamera(n, lens, p) for n, p in poses.items()},
+                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
+                                            "num_points": 500, "rms": 0.002,
+                                            "camera_heights": {n: 1.5 for n in CAMERAS}}})
+    write_calibration_files(rig, tmp_path / "20260101T000000Z")
+    os.symlink("20260101T000000Z", tmp_path / "latest")
+    node = ros.densecalib(tmp_path, floor="upright")
+    listener, reloader = ros.listener(node), ros.caller("reload")
+    try:
+        def cam1_x():
+            return listener.rig_from_optical().get("cam1_optical_frame", np.eye(4))[0, 3]
+
+        assert wait_until(lambda: cam1_x() == pytest.approx(0.2), 10.0)
+        # cam0-cam1 measured 0.5 m: every length x 2.5
+        assert main(["scale", str(tmp_path), "--baseline", "cam0", "cam1", "0.5"]) == 0
+        assert cam1_x() == pytest.approx(0.2)  # the node does not watch its files
+        response = reloader.call(30.0)
+        assert response.success, response.message
+        assert response.message.startswith(
+            f"published {(tmp_path / '20260101T000000Z').resolve()}: 4 cameras")
+        assert response.message.endswith("metric and with its floor")
+        assert wait_until(lambda: cam1_x() == pytest.approx(0.5), 10.0)
+        assert listener.rig_from_optical()["rig"][2, 3] == pytest.approx(3.75)
+        assert node.calibration.metric_scale
+
+        # `latest` onto a calibration of cameras the node does not have: refused, nothing changes
+        other = RigCalibration("left", {"left": RigCamera("left", lens, np.eye(4)),
+                                        "right": RigCamera("right", lens, poses["cam1"])})
+        write_calibration_files(other, tmp_path / "20260202T000000Z")
+        (tmp_path / "latest").unlink()
+        os.symlink("20260202T000000Z", tmp_path / "latest")
+        response = reloader.call(30.0)
+        assert not response.success
+        assert "['left', 'right'], which are not among camera_names" in response.message
+        assert response.message.endswith("still publishing the calibration of "
+                                         f"{(tmp_path / '20260101T000000Z').resolve()}")
+        time.sleep(0.5)
+        assert cam1_x() == pytest.approx(0.5) and node.calibration.metric_scale
+        (tmp_path / "latest").unlink()
+        response = reloader.call(30.0)
+        assert not response.success and "no calibration under" in response.message
+    finally:
+        for n in (reloader, listener, node):
+            ros.remove(n)
+
+
 def test_sync_service_measures_the_stamp_offsets(ros, tmp_path):
     """Cameras whose drivers stamp by clocks up to 1.1 s apart film an animal walking: ~/sync
     finds the clocks' offsets from the motion in the images received (raw and compressed) and

@@ -7,7 +7,8 @@ import argparse
 import logging
 
 from ..core.errors import InputError
-from ..core.export import calibration_folder, read_calibration, write_calibration_json
+from ..core.export import (calibration_folder, node_reload_hint, read_calibration,
+                           write_calibration_json)
 from ..core.floor import VIEWS, find_floor_of_saved_calibration, set_floor
 from ..core.report import format_floor
 
@@ -40,6 +41,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     path = write_calibration_json(rig, folder)
     log.info("%s the floor frame in %s; files exported from it before (anipose, stereo, ...) "
-             "are unchanged: export them again", "replaced" if replaced else "recorded",
-             path.resolve())
+             "are unchanged: export them again%s", "replaced" if replaced else "recorded",
+             path.resolve(), node_reload_hint(folder))
     return 0

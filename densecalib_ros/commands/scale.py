@@ -7,7 +7,7 @@ import argparse
 import logging
 
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, read_calibration, read_saved_model,
+from ..core.export import (calibration_folder, node_reload_hint, read_calibration, read_saved_model,
                            replace_directory_atomic, write_calibration_json)
 from ..core.scale import (apply_known_baseline, apply_known_distance, rig_units_per_model_unit,
                           scale_reconstruction)
@@ -82,5 +82,5 @@ def run(args: argparse.Namespace) -> int:
         replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), folder / "colmap")
     path = write_calibration_json(scaled, folder)
     log.info("wrote %s; files exported from it before (anipose, stereo, ...) keep the old scale: "
-             "export them again", path.resolve())
+             "export them again%s", path.resolve(), node_reload_hint(folder))
     return 0

@@ -140,6 +140,14 @@ def calibration_folder(path: str | os.PathLike) -> Path:
         (latest / "calibration.json").exists() else path
 
 
+def node_reload_hint(folder: Path) -> str:
+    """For a calibration changed in a node's output_dir: how the running node publishes it."""
+    if folder.name != "latest":
+        return ""
+    return ("; a densecalib_node running on this output_dir publishes it after `ros2 service "
+            "call /densecalib_node/reload std_srvs/srv/Trigger` (or a restart)")
+
+
 def read_calibration(path: str | os.PathLike) -> RigCalibration:
     """A calibration.json, or the one in a folder; a node's output_dir (calibrations in
     time-stamped folders) gives its `latest`."""

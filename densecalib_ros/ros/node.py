@@ -10,6 +10,9 @@ Interface (names relative to the node, default name `densecalib_node`):
   names a camera that moved;
 - service `~/sync` (std_srvs/Trigger): measures the cameras' stamp offsets from what moves in
   their latest `sync_window_s` seconds of images (core.motion_sync) and sets `stamp_offsets_s`;
+- service `~/reload` (std_srvs/Trigger): publishes the calibration under `output_dir/latest`
+  again, after `densecalib scale` / `floor` changed it or `latest` was pointed at another one;
+  one that cannot be loaded leaves the current one published;
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pairs`' with their
   stereo rectification R, P, republished when that parameter changes), `/tf_static`
@@ -401,7 +404,8 @@ class Outcome:
     message: str
 
 
-CHECK_JOB = "check"  # the reason of the job slot a ~/check holds
+CHECK_JOB = "check"  # the reasons of the job slot a ~/check and a ~/reload hold
+RELOAD_JOB = "reload"
 
 
 @dataclass
@@ -470,6 +474,8 @@ class DenseCalibNode(Node):
                             callback_group=self._service_group)
         self.create_service(Trigger, "~/sync", self._on_sync,
                             callback_group=self._service_group)
+        self.create_service(Trigger, "~/reload", self._on_reload,
+                            callback_group=self._service_group)
 
         self._subscribe_known_topics()
         if None in self._image_subs:
@@ -477,7 +483,9 @@ class DenseCalibNode(Node):
                                                       callback_group=self._timer_group)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=self._timer_group)
 
-        self._load_last_calibration()
+        loaded, message = self._load_last_calibration()
+        (self.get_logger().info if loaded or "no calibration" in message else
+         self.get_logger().error)(f"start-up: {message}")
         if s.replay_bag:
             self._replayer = BagReplayer(s.replay_bag, s.image_topics, self._on_replayed_message,
                                          rate=s.replay_rate, on_done=self._on_replay_done,
@@ -780,24 +788,56 @@ class DenseCalibNode(Node):
         os.replace(tmp_link, root / "latest")
         return out
 
-    def _load_last_calibration(self) -> None:
+    def _load_last_calibration(self) -> tuple[bool, str]:
+        """Publish the calibration under output_dir/latest; (published?, what happened). Anything
+        wrong with it leaves the current calibration published."""
         latest = self.settings.output_dir / "latest"
         if not latest.exists():
-            self.get_logger().info(f"no previous calibration under {latest}")
-            return
+            return False, f"no calibration under {latest}"
         try:
             rig = read_calibration(latest)
         except InputError as exc:
-            self.get_logger().error(f"ignoring the previous calibration: {exc}")
-            return
+            return False, f"not loaded: {exc}"
         unknown = [c for c in rig.cameras if c not in self.settings.camera_names]
         if unknown:
-            self.get_logger().warning(
-                f"ignoring the previous calibration in {latest.resolve()}: its cameras {unknown} "
-                f"are not among camera_names {self.settings.camera_names}")
-            return
+            return False, (f"not loaded: the calibration in {latest.resolve()} has cameras "
+                           f"{unknown}, which are not among camera_names "
+                           f"{self.settings.camera_names}")
         self._publish(rig, latest.resolve(), (latest / "calibration.json").stat().st_mtime)
-        self.get_logger().info(f"republished the last good calibration {latest.resolve()}")
+        rms = rig.quality.get("reprojection_rms_px", float("nan"))
+        extras = [x for x, on in (("metric", rig.metric_scale),
+                                  ("with its floor", bool(rig.quality.get("floor")) and
+                                   _floor_parent(self.settings) is not None)) if on]
+        return True, (f"published {latest.resolve()}: {len(rig.cameras)} cameras "
+                      f"({', '.join(rig.cameras)}), reprojection RMS {rms:.2f} px"
+                      + (f", {' and '.join(extras)}" if extras else ""))
+
+    def _on_reload(self, request, response):
+        """~/reload: publish the calibration under output_dir/latest again, after it was changed
+        on disk (`densecalib scale` or `floor` on output_dir) or pointed at another one (a
+        calibration made offline). Holds the job slot: a calibration ending meanwhile would
+        publish over it."""
+        with self._state_lock:
+            busy = self._job is not None
+            if not busy:
+                self._job = _Job(RELOAD_JOB)
+        if busy:
+            response.success = False
+            response.message = ("busy: a calibration or check is running; call ~/reload when "
+                                "it has ended")
+            return response
+        try:
+            response.success, response.message = self._load_last_calibration()
+        except Exception as exc:  # a bug or an OS error must still answer the call
+            self.get_logger().error(f"reload crashed: {exc!r}")
+            response.success, response.message = False, f"reload crashed: {exc!r}"
+        finally:
+            with self._state_lock:
+                self._job = None
+        if not response.success and self.calibration_dir is not None:
+            response.message += f"; still publishing the calibration of {self.calibration_dir}"
+        self._set_status(f"reload: {response.message}")
+        return response
 
     def _publish(self, rig: RigCalibration, directory: Path,
                  calibrated_at: Optional[float] = None) -> None:
@@ -919,7 +959,8 @@ class DenseCalibNode(Node):
             status.level = DiagnosticStatus.ERROR
         with self._state_lock:
             job = self._job
-        state = "idle" if job is None else ("checking" if job.reason == CHECK_JOB else "calibrating")
+        state = ("idle" if job is None else
+                 {CHECK_JOB: "checking", RELOAD_JOB: "reloading"}.get(job.reason, "calibrating"))
         values = {"state": state,
                   "status": self._status,
                   "buffered_frame_sets": str(stats["buffered"]),
