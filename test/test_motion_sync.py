@@ -87,6 +87,20 @@ def test_a_static_scene_gives_no_offsets(tmp_path):
         estimate_video_offsets(paths, names)
 
 
+def _stamps(bag, topic):
+    """The header stamps [ns] of a bag topic's messages, in bag order."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        assert conns, topic
+        return [(lambda h: h.stamp.sec * 1_000_000_000 + h.stamp.nanosec)(
+            store.deserialize_cdr(raw, c.msgtype).header)
+            for c, _, raw in reader.messages(connections=conns)]
+
+
 def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path, capsys):
     """A bag whose cam1 stamps run 0.35 s ahead and cam2's 0.8 s behind cam0's: synchronised by
     stamps alone, its frame sets join images taken up to 0.8 s apart (at 25 fps every offset
@@ -102,7 +116,17 @@ def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path, capsy
               for k in range(len(frames))]
     bag = tmp_path / "arena_bag"
     topics = [f"/{n}/image_raw" for n in CAMERAS]
-    write_image_bag(bag, frames, topics, stamps, encoding="mono8")
+    overview = [f[0] for f in frames]  # a fourth image topic that is not one of the cameras
+    write_image_bag(bag, [f + [o] for f, o in zip(frames, overview)],
+                    topics + ["/overview/image_raw"],
+                    [s + [s[0]] for s in stamps], encoding="mono8",
+                    camera_infos=[{"image_width": 160, "image_height": 100,
+                                   "distortion_model": "plumb_bob",
+                                   "distortion_coefficients": {"data": [0.0] * 5},
+                                   "camera_matrix": {"data": [100, 0, 80, 0, 100, 50, 0, 0, 1]},
+                                   "rectification_matrix": {"data": [1, 0, 0, 0, 1, 0, 0, 0, 1]},
+                                   "projection_matrix": {"data": [100, 0, 80, 0, 0, 100, 50, 0,
+                                                                  0, 0, 1, 0]}}] * 4)
     parser = argparse.ArgumentParser()
     add_input_arguments(parser)
 
@@ -130,6 +154,47 @@ def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path, capsy
     node_line = capsys.readouterr().out.splitlines()[-1]
     offsets = json.loads(node_line.split(":=")[1])  # the node parameter, in the topics' order
     assert offsets == pytest.approx(list(clocks.values()), abs=0.5 / 25.0)
+
+    # --restamp: a copy whose stamps synchronise without offsets; camera_info moved with its
+    # camera, a topic that is not a camera's (/overview) and the log times as recorded
+    from densecalib_ros.core.bag import iter_image_messages
+
+    restamped = tmp_path / "restamped"
+    assert main(["sync", "--bag", str(bag), "--topics", *topics, "--restamp",
+                 str(restamped)]) == 0
+    out = capsys.readouterr().out
+    assert "/cam1/image_raw 500, /cam1/camera_info 500" in out, out
+    same = parser.parse_args(["--bag", str(restamped), "--topics", *topics,
+                              "--max-frame-sets", "4"])
+    frame_sets, _, record, _ = read_input(same)
+    assert len(frame_sets) == 4
+    assert all(max(row) - min(row) < 0.02e9 for row in record["frame_set_stamps_ns"])
+    all_topics = topics + ["/overview/image_raw"]
+    before = list(iter_image_messages(bag, all_topics))
+    after = list(iter_image_messages(restamped, all_topics))
+    assert [(i, log) for i, _, log, _, _ in before] == [(i, log) for i, _, log, _, _ in after]
+    moved = {}
+    for (i, s0, _, _, m0), (_, s1, _, _, m1) in zip(before, after):
+        moved.setdefault(i, set()).add(s0 - s1)
+        assert np.array_equal(m0.data, m1.data)
+    assert moved[0] == {0} and moved[3] == {0}  # the reference camera and /overview
+    assert len(moved[1]) == len(moved[2]) == 1
+    assert abs(moved[1].pop() - 0.35e9) < 0.5e9 / 25 and abs(moved[2].pop() + 0.8e9) < 0.5e9 / 25
+    for i, topic in enumerate(topics):  # each CameraInfo keeps its image's stamp
+        assert _stamps(restamped, f"/{topic.split('/')[1]}/camera_info") == \
+            [s for j, s, _, _, _ in after if j == i]
+    # given offsets give exactly those; an existing folder is never overwritten
+    exact = tmp_path / "exact"
+    assert main(["sync", "--bag", str(bag), "--topics", *topics, "--restamp", str(exact),
+                 "--time-offset", "cam1=0.35", "cam2=-0.8", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["restamped"]["cam2"] == {
+        "/cam2/image_raw": 500, "/cam2/camera_info": 500}
+    shifted = [s for i, s, _, _, _ in iter_image_messages(exact, topics) if i == 2]
+    original = [s for i, s, _, _, _ in iter_image_messages(bag, topics) if i == 2]
+    assert [a - b for a, b in zip(original, shifted)] == [-800_000_000] * len(original)
+    assert main(["sync", "--bag", str(bag), "--topics", *topics, "--restamp", str(exact),
+                 "--time-offset", "cam1=0.35"]) == 2
+    assert len(list(iter_image_messages(exact, topics))) == len(original) * 3
 
 
 def test_sync_command_prints_the_offsets(videos, capsys, caplog):

@@ -1,8 +1,8 @@
 """`densecalib sync`: the time offsets between a rig's recordings, without calibrating
 (core.motion_sync for videos and bags, core.clock_offsets for camera-trap shots): what to trim
 or shift so that downstream tools (anipose triangulation, a video editor) see synchronised
-cameras (`--trim` writes the videos so cut), and what `--time-offset` or the node's
-stamp_offsets_s should be."""
+cameras (`--trim` writes the videos so cut, `--restamp` a bag with the stamps moved onto one
+clock), and what `--time-offset` or the node's stamp_offsets_s should be."""
 from __future__ import annotations
 
 import argparse
@@ -31,8 +31,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "at equal frame rates, to one length) into OUT, so that frame k "
                              "shows the same instant in every camera (anipose, Label3D); "
                              "re-encoded, with sync.json giving each cut")
+    parser.add_argument("--restamp", metavar="OUT",
+                        help="--bag: also write a copy of the bag into the new folder OUT with "
+                             "every camera's header stamps (its image topic, other transports "
+                             "and camera_info) moved onto the first camera's clock, so that "
+                             "tools synchronising on stamps pair images taken together; other "
+                             "topics and the log times as recorded")
     parser.add_argument("--time-offset", nargs="+", metavar="NAME=S",
-                        help="--videos --trim: cut by these offsets (calibrate's convention) "
+                        help="--trim or --restamp: use these offsets (calibrate's convention) "
                              "instead of measuring them")
     parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default="mp4v",
                         help="--trim: mp4v (.mp4, default) or MJPG (.avi)")
@@ -42,31 +48,24 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.topics and not args.bag:
             raise InputError("--topics belongs to --bag.")
-        if (args.trim or args.time_offset) and not args.videos:
-            raise InputError("--trim and --time-offset go with --videos.")
-        if args.time_offset and not args.trim:
-            raise InputError("--time-offset gives the offsets: it goes with --trim.")
-        if args.videos and args.time_offset:
-            from ..core.motion_sync import OffsetEstimate
-            from ..core.video_io import list_video_folder
-            from .inputs import parse_time_offsets
-            names = list_video_folder(args.videos)[1]
-            given = parse_time_offsets(args.time_offset)
-            unknown = sorted(set(given) - set(names))
-            if unknown:
-                raise InputError(f"--time-offset names unknown camera(s) {', '.join(unknown)}: "
-                                 f"the videos are of {', '.join(names)}.")
-            estimates = {n: OffsetEstimate(float(given.get(n, 0.0)), float("nan"), float("nan"))
-                         for n in names}
-            evidence = {n: "given" for n in names}
+        if args.trim and not args.videos:
+            raise InputError("--trim goes with --videos.")
+        if args.restamp and not args.bag:
+            raise InputError("--restamp goes with --bag.")
+        if args.time_offset and not (args.trim or args.restamp):
+            raise InputError("--time-offset gives the offsets: it goes with --trim or "
+                             "--restamp.")
+        if args.bag and not args.topics:
+            raise InputError("--bag needs --topics: the image topic of every camera.")
+        if args.time_offset:
+            estimates = _given_offsets(args)
+            evidence = {n: "given" for n in estimates}
         elif args.videos:
             from ..core.motion_sync import estimate_video_offsets
             from ..core.video_io import list_video_folder
             estimates = estimate_video_offsets(*list_video_folder(args.videos))
             evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
         elif args.bag:
-            if not args.topics:
-                raise InputError("--bag needs --topics: the image topic of every camera.")
             from ..core.bag import camera_names_from_topics
             from ..core.motion_sync import bag_offsets
             estimates = bag_offsets(args.bag, args.topics, camera_names_from_topics(args.topics))
@@ -91,10 +90,24 @@ def run(args: argparse.Namespace) -> int:
             residual = ", ".join(f"{n} {1000 * c['start_offset_s']:+.1f}" for n, c in trims.items())
             print(f"wrote {args.trim}: {len(trims)} videos starting together (residual start "
                   f"offsets ms: {residual}; at most half a frame)")
+    if args.restamp:
+        try:
+            restamped = _write_restamped(args.bag, args.topics, estimates, args.restamp)
+        except InputError as exc:
+            log.error("%s", exc)
+            return 2
+        if not args.json:
+            moved = "; ".join(
+                f"{n} {-estimates[n].offset_s:+.4f} s ("
+                + ", ".join(f"{t} {k}" for t, k in restamped[n].items()) + ")"
+                for n in names[1:])
+            print(f"wrote {args.restamp}: header stamps moved onto {names[0]}'s clock: {moved}; "
+                  "other topics and the log times as recorded")
     if args.json:
         print(json.dumps({"reference": names[0], "offsets_s": {
             n: float(e.offset_s) for n, e in estimates.items()},
-            **({"trimmed": trims} if args.trim else {})}, indent=2))
+            **({"trimmed": trims} if args.trim else {}),
+            **({"restamped": restamped} if args.restamp else {})}, indent=2))
         return 0
     print(f"time offsets from {names[0]} (s; positive: the camera's time runs ahead, e.g. it "
           "started recording earlier)")
@@ -137,3 +150,45 @@ def _write_trimmed(video_dir, estimates: dict, out, codec: str) -> dict:
 
     replace_directory_atomic(build, out)
     return record["cameras"]
+
+
+def _given_offsets(args) -> dict:
+    """--time-offset NAME=S ... as estimates for the cameras of --videos or --topics (0 for the
+    cameras not named)."""
+    from ..core.motion_sync import OffsetEstimate
+    from .inputs import parse_time_offsets
+
+    if args.videos:
+        from ..core.video_io import list_video_folder
+        names, what = list_video_folder(args.videos)[1], "videos"
+    else:
+        from ..core.bag import camera_names_from_topics
+        names, what = camera_names_from_topics(args.topics), "topics"
+    given = parse_time_offsets(args.time_offset)
+    unknown = sorted(set(given) - set(names))
+    if unknown:
+        raise InputError(f"--time-offset names unknown camera(s) {', '.join(unknown)}: the "
+                         f"{what} are of {', '.join(names)}.")
+    return {n: OffsetEstimate(float(given.get(n, 0.0)), float("nan"), float("nan"))
+            for n in names}
+
+
+def _write_restamped(bag, topics: list[str], estimates: dict, out) -> dict:
+    """Copy the bag into out with each camera's clock topics (core.bag.clock_topics) restamped
+    by its offset; returns camera -> {topic: messages restamped}."""
+    from ..core.bag import clock_topics, recorded_topics, restamp_bag
+
+    recorded = recorded_topics(bag)
+    by_camera, offsets_ns = {}, {}
+    for name, topic in zip(estimates, topics):
+        by_camera[name] = clock_topics(recorded, topic)
+        for t in by_camera[name]:
+            if t in offsets_ns:
+                raise InputError(f"{t} would be restamped for two cameras: list image topics "
+                                 "of different cameras (one per camera).")
+            offsets_ns[t] = int(round(estimates[name].offset_s * 1e9))
+    note = json.dumps({"restamped_by": "densecalib sync --restamp", "source": str(bag),
+                       "offsets_s": {n: e.offset_s for n, e in estimates.items()},
+                       "topics": by_camera})
+    counts = restamp_bag(bag, out, {t: o for t, o in offsets_ns.items() if o}, note)
+    return {n: {t: counts.get(t, 0) for t in ts} for n, ts in by_camera.items()}

@@ -279,3 +279,107 @@ def write_image_bag(bag_path: str | os.PathLike, frame_sets: list[list[np.ndarra
                                             typestore=store) for topic in topics]
         for log_ns, c, msg, kind in messages:
             writer.write(conns[c], log_ns, store.serialize_cdr(msg, kind))
+
+
+def clock_topics(topics: list[str], image_topic: str) -> list[str]:
+    """The topics of `topics` that an image topic's camera stamps by its clock: the image topic,
+    its other transports (image_raw/compressed, ...) and its CameraInfo (image_transport's
+    naming)."""
+    base = image_topic.rstrip("/")
+    if base.endswith("/compressed"):
+        base = base[:-len("/compressed")]
+    info = camera_info_topic(image_topic)
+    mine = [t for t in topics if t == base or t.startswith(base + "/") or t == info]
+    return sorted(mine, key=lambda t: (t == info, t))  # the images first
+
+
+def recorded_topics(bag_path: str | os.PathLike) -> list[str]:
+    """Every topic recorded in a bag."""
+    reader = _open(bag_path)
+    try:
+        return sorted({c.topic for c in reader.connections})
+    finally:
+        reader.close()
+
+
+def _bag_storage(path: Path) -> str:
+    return "mcap" if path.suffix == ".mcap" or any(path.glob("*.mcap")) else "sqlite3"
+
+
+def restamp_bag(src: str | os.PathLike, dst: str | os.PathLike, offsets_ns: dict[str, int],
+                note: str = "") -> dict[str, int]:
+    """Copy bag `src` into the new rosbag2 folder `dst` (same storage and compression) with the
+    header stamps of each topic in offsets_ns moved back by its offset [ns] (stamp - offset: the
+    camera's clock ran that far ahead), so that downstream tools synchronising on stamps see the
+    cameras on one clock. Every other topic, and every message's log time (the recorder's
+    clock), is copied as recorded. `note` goes into the bag's metadata (custom_data). Returns
+    the messages restamped per topic. dst must not exist (a bag is never overwritten); a failed
+    copy leaves no dst behind."""
+    import shutil
+
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    dst = Path(dst)
+    if dst.exists():
+        raise InputError(f"{dst} exists already: give a new folder for the restamped bag (a bag "
+                         "is never overwritten).")
+    store = _typestore()
+    reader = _open(src)
+    counts = {topic: 0 for topic in offsets_ns}
+    try:
+        recorded = {c.topic for c in reader.connections}
+        missing = sorted(set(offsets_ns) - recorded)
+        if missing:
+            raise InputError(f"Topic(s) {', '.join(missing)} are not in bag {src}.")
+        for conn in reader.connections:
+            if conn.topic in offsets_ns and conn.msgtype not in store.types:
+                raise InputError(f"Cannot restamp {conn.topic}: its type {conn.msgtype} is not a "
+                                 "standard ROS 2 message type.")
+            first_field = store.get_msgdef(conn.msgtype).fields[0] \
+                if conn.topic in offsets_ns else None
+            if first_field and (first_field[0], first_field[1][-1]) != (
+                    "header", "std_msgs/msg/Header"):
+                raise InputError(f"Cannot restamp {conn.topic}: {conn.msgtype} has no header "
+                                 "as its first field.")
+        writer = Writer(dst, version=9, storage_plugin=StoragePlugin[
+            _bag_storage(Path(src)).upper()])
+        mode = str(reader.compression_mode or "").lower()
+        if mode in ("file", "message"):
+            writer.set_compression(CompressionMode[mode.upper()], CompressionFormat.ZSTD)
+        writer.open()
+        try:
+            out_conns = {}
+            for conn in reader.connections:
+                if not conn.msgdef.data and conn.msgtype not in store.types:
+                    raise InputError(f"Cannot copy {conn.topic}: the bag does not define its "
+                                     f"type {conn.msgtype} (an old bag format).")
+                definition = (dict(msgdef=conn.msgdef.data, rihs01=conn.digest)
+                              if conn.msgdef.data else dict(typestore=store))
+                out_conns[conn.id] = writer.add_connection(
+                    conn.topic, conn.msgtype, serialization_format=conn.ext.serialization_format,
+                    offered_qos_profiles=conn.ext.offered_qos_profiles, **definition)
+            if note:
+                writer.set_custom_data("densecalib", note)
+            for conn, log_ns, raw in reader.messages():
+                offset = offsets_ns.get(conn.topic)
+                if offset is not None:
+                    msg = store.deserialize_cdr(raw, conn.msgtype)
+                    stamp = stamp_ns(msg.header) - int(offset)
+                    if stamp < 0:
+                        raise InputError(f"{conn.topic}: a stamp of {stamp_ns(msg.header)} ns "
+                                         f"less the offset {offset} ns is negative: is the "
+                                         "offset's sign right (positive = the camera's clock "
+                                         "runs ahead)?")
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp,
+                                                                            1_000_000_000)
+                    raw = store.serialize_cdr(msg, conn.msgtype)
+                    counts[conn.topic] += 1
+                writer.write(out_conns[conn.id], log_ns, raw)
+        finally:
+            writer.close()
+    except BaseException:
+        shutil.rmtree(dst, ignore_errors=True)
+        raise
+    finally:
+        reader.close()
+    return counts
