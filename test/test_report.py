@@ -110,3 +110,82 @@ def test_overall_lines_give_the_time_offsets_and_how_they_were_found(rig):
                                                        "cam1": {"paired_shots": 11}}}
     line = next(li for li in overall_lines(rig) if li.startswith("time offsets"))
     assert "cam1 +3607.500 (11 shots paired)" in line and "from the capture times" in line
+
+
+def _upright_rig(with_floor: bool):
+    """Three upright cameras at floor-frame (x, y, height) (0, 0, 1), (1, 0, 2), (2, 0.5, 1.5),
+    all looking along the floor's +y at a textured wall at y = 3."""
+    from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+
+    cam_from_floor_rotation = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+    lens = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
+    cam_from_floor = {}
+    for name, position in (("cam0", (0, 0, 1)), ("cam1", (1, 0, 2)), ("cam2", (2, 0.5, 1.5))):
+        pose = np.eye(4)
+        pose[:3, :3] = cam_from_floor_rotation
+        pose[:3, 3] = -cam_from_floor_rotation @ np.array(position, dtype=float)
+        cam_from_floor[name] = pose
+    floor_from_rig = np.linalg.inv(cam_from_floor["cam0"])
+    quality = {"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 100,
+                         "rms": 0.01, "camera_heights": {}}} if with_floor else {}
+    rig = RigCalibration("cam0", {n: RigCamera(n, lens, p @ floor_from_rig)
+                                  for n, p in cam_from_floor.items()},
+                         quality=quality, metric_scale=True)
+    xs, zs = np.meshgrid(np.linspace(-1, 3, 60), np.linspace(0, 3, 40))
+    wall_floor = np.column_stack([xs.ravel(), np.full(xs.size, 3.0), zs.ravel(), np.ones(xs.size)])
+    wall_rig = (wall_floor @ np.linalg.inv(floor_from_rig).T)[:, :3]
+    return rig, wall_rig
+
+
+def _dots(panel):
+    """Pixel centre (x, y) of each camera's dot in a layout panel."""
+    import cv2
+
+    from densecalib_ros.core.layout_plot import _colours
+
+    out = []
+    for colour in _colours(3):
+        mask = np.all(panel == colour, axis=2).astype(np.uint8)
+        core = cv2.erode(mask, np.ones((5, 5), np.uint8))  # the filled dot, not lines or text
+        ys, xs = np.nonzero(core)
+        assert len(xs), colour
+        out.append((xs.mean(), ys.mean()))
+    return np.array(out)
+
+
+def test_layout_plot_shows_the_cameras_from_above_and_the_side():
+    from densecalib_ros.core.layout_plot import PANEL_PX, draw_layout, half_fov_rad
+
+    rig, wall = _upright_rig(with_floor=True)
+    assert half_fov_rad(rig.cameras["cam0"].intrinsics, 0) == pytest.approx(np.arctan(320 / 500))
+    image = draw_layout(rig, wall)
+    assert image.shape == (PANEL_PX, 2 * PANEL_PX, 3)
+    top, side = image[:, :PANEL_PX], image[:, PANEL_PX:]
+    dots = _dots(top)
+    assert dots[0, 0] < dots[1, 0] < dots[2, 0]  # floor x to the right
+    assert dots[2, 1] < dots[0, 1] - 30 and abs(dots[0, 1] - dots[1, 1]) < 3  # cam2: further y
+    rows = np.nonzero(np.all(top[40:-60] == (150, 150, 150), axis=2))[0] + 40  # no title, bar
+    assert len(rows) > 50 and rows.max() < dots[:, 1].min()  # the wall seen edge-on, beyond
+    heights = _dots(side)[:, 1]  # image y: smaller is higher
+    assert heights[1] < heights[2] < heights[0]
+    # no floor: "up" from the upright cameras' image-up, x along cam0's view: the same heights
+    rig, wall = _upright_rig(with_floor=False)
+    side = draw_layout(rig, wall)[:, PANEL_PX:]
+    heights = _dots(side)[:, 1]
+    assert heights[1] < heights[2] < heights[0]
+    assert abs((heights[0] - heights[1]) - 2 * (heights[0] - heights[2])) < 4  # 1 m vs 0.5 m
+
+
+def test_report_plot_command(tmp_path, caplog):
+    import cv2
+
+    from densecalib_ros.cli import main
+    from densecalib_ros.core.export import write_calibration_files
+
+    rig, _ = _upright_rig(with_floor=True)
+    write_calibration_files(rig, tmp_path / "calib")
+    assert main(["report", str(tmp_path / "calib"), "--plot", str(tmp_path / "rig.png")]) == 0
+    assert cv2.imread(str(tmp_path / "rig.png")).shape == (640, 1280, 3)
+    assert "without scene points" in caplog.text  # no COLMAP model saved with this one
+    assert main(["report", str(tmp_path / "calib"), "--plot", str(tmp_path / "rig.jpg")]) == 2
+    assert "give a .png file name" in caplog.text

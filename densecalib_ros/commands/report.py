@@ -25,6 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "previous one, or a ground_truth.json): report the change from it")
     parser.add_argument("--json", action="store_true",
                         help="print the report as JSON on stdout instead of text")
+    parser.add_argument("--plot", metavar="PNG",
+                        help="also draw the rig seen from above and from the side (cameras, "
+                             "their fields of view, the scene points of the saved COLMAP model, "
+                             "a scale bar) into this PNG file")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,6 +38,12 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         log.error("%s", exc)
         return 2
+    if args.plot:
+        try:
+            _write_plot(args.calibration, rig, args.plot)
+        except InputError as exc:
+            log.error("%s", exc)
+            return 2
     if not args.json:
         print(rig_report(rig, against, against_label=args.against or ""))
         return 0
@@ -44,3 +54,28 @@ def run(args: argparse.Namespace) -> int:
         out["pose_agreement"] = pose_agreement(against, rig)
     print(json.dumps(out, indent=1))
     return 0
+
+
+def _write_plot(calibration, rig, path) -> None:
+    """The layout picture (core.layout_plot) of the calibration, with its saved scene points."""
+    import cv2
+
+    from ..core.export import calibration_folder, read_saved_model, write_text_atomic
+    from ..core.floor import reconstruction_points_in_rig
+    from ..core.layout_plot import draw_layout
+
+    if not str(path).lower().endswith(".png"):
+        raise InputError(f"--plot {path}: give a .png file name.")
+    reconstruction = read_saved_model(calibration_folder(calibration))
+    points = None
+    if reconstruction is None:
+        log.warning("no saved COLMAP model beside the calibration: the plot shows the cameras "
+                    "without scene points")
+    else:
+        points = reconstruction_points_in_rig(reconstruction, rig)
+    ok, png = cv2.imencode(".png", draw_layout(rig, points))
+    if not ok:
+        raise InputError(f"Could not encode the plot for {path}.")
+    write_text_atomic(path, png.tobytes())
+    log.info("wrote %s: %d cameras, %d scene points", path, len(rig.cameras),
+             0 if points is None else len(points))
