@@ -199,3 +199,50 @@ def test_dannce_files_project_like_our_cameras_in_matlab_convention(rig, tmp_pat
     with caplog.at_level(logging.WARNING):
         assert main(["export", str(calib), "--format", "dannce", "--out", str(out)]) == 0
     assert "no metric scale" in caplog.text
+
+
+def _jarvis_pixels(pts_world, calib_file):
+    """JARVIS's reprojection (jarvis/utils/reprojection.py, re-derived here): its files read with
+    cv2.FileStorage, cameraMatrix = [R; T'] intrinsicMatrix on row vectors, then radial k1, k2 on
+    the pixel offsets from the principal point scaled by the focal lengths; 0-based pixels."""
+    fs = cv2.FileStorage(str(calib_file), cv2.FILE_STORAGE_READ)
+    r, t = fs.getNode("R").mat(), fs.getNode("T").mat().reshape(1, 3)
+    k, dist = fs.getNode("intrinsicMatrix").mat(), fs.getNode("distortionCoefficients").mat()
+    fs.release()
+    homogeneous = np.column_stack([pts_world, np.ones(len(pts_world))]) @ np.vstack([r, t]) @ k
+    dx = homogeneous[:, 0] / homogeneous[:, 2] - k[2, 0]
+    dy = homogeneous[:, 1] / homogeneous[:, 2] - k[2, 1]
+    r2 = (dx / k[0, 0]) ** 2 + (dy / k[1, 1]) ** 2
+    distort = 1 + (dist[0, 0] + dist[0, 1] * r2) * r2
+    return np.column_stack([dx * distort + k[2, 0], dy * distort + k[2, 1]])
+
+
+def test_jarvis_files_project_like_our_cameras(rig, tmp_path, capsys, caplog):
+    """Each camera's <camera>.yaml, projected as JARVIS does (k1, k2 only), lands where our
+    camera puts the point (RADIAL cameras: exactly); T is in mm in the floor frame; a fisheye is
+    refused; distortion JARVIS leaves out is named."""
+    from densecalib_ros.core.interchange import jarvis_files
+
+    with pytest.raises(InputError, match="top has a fisheye lens, which JARVIS's"):
+        jarvis_files(rig)
+    del rig.cameras["top"]
+    floor_from_rig = _pose([-100, 10, 0], [0.2, -1.5, 0.1])
+    rig.quality["floor"] = {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
+                            "rms": 0.0, "camera_heights": {}}
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    out = tmp_path / "jarvis"
+    assert main(["export", str(calib), "--format", "jarvis", "--out", str(out)]) == 0
+    assert "left.yaml, right.yaml" in capsys.readouterr().out
+    pts_rig = _points_seen_by_all(rig)
+    pts_floor_mm = 1000.0 * (pts_rig @ floor_from_rig[:3, :3].T + floor_from_rig[:3, 3])
+    for name in ("left", "right"):
+        got = _jarvis_pixels(pts_floor_mm, out / f"{name}.yaml")
+        assert np.abs(got - _colmap_pixels(rig.cameras[name], pts_rig)).max() < 1e-6
+    # an OPENCV camera with tangential distortion: written, and the loss named
+    rig.cameras["right"].intrinsics = CameraIntrinsics(
+        "OPENCV", 1024, 768, np.array([795.0, 797.0, 509.9, 385.0, 0.04, -0.01, 1e-3, -2e-3]))
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    with caplog.at_level(logging.WARNING):
+        assert main(["export", str(calib), "--format", "jarvis", "--out", str(out)]) == 0
+    assert "distortion of right are left out" in caplog.text

@@ -1,6 +1,7 @@
 """`densecalib export`: write a calibration on disk in another tool's format (anipose's
-calibration.toml, Kalibr's camchain.yaml, OpenCV FileStorage files, a rectified stereo pair for
-ROS's stereo_image_proc or OpenCV; core.interchange, core.stereo)."""
+calibration.toml, Kalibr's camchain.yaml, OpenCV FileStorage files, DANNCE's and JARVIS's per-camera
+files, a rectified stereo pair for ROS's stereo_image_proc or OpenCV; core.interchange,
+core.stereo)."""
 from __future__ import annotations
 
 import argparse
@@ -10,8 +11,8 @@ from pathlib import Path
 from ..core.errors import InputError
 from ..core.export import read_calibration, write_text_atomic
 from ..core.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS, STEREO_FORMATS,
-                                dannce_files, export_text, opencv_files, opencv_stereo_yaml,
-                                ros_stereo_files)
+                                dannce_files, export_text, jarvis_files, opencv_files,
+                                opencv_stereo_yaml, ros_stereo_files)
 from ..core.stereo import stereo_pair
 
 log = logging.getLogger("densecalib.export")
@@ -27,13 +28,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(camera_matrix, distortion_coefficients, image size, "
                              "fisheye_model, R and T of cam_from_rig); dannce: DANNCE / Label3D "
                              "hires_cam<i>_params.mat per camera (MATLAB convention, mm, world = "
-                             "the floor frame if any); ros-stereo: the rectified "
+                             "the floor frame if any); jarvis: JARVIS-MoCap <camera>.yaml per "
+                             "camera (transposed K and R, T in mm, world as dannce); ros-stereo: "
+                             "the rectified "
                              "camera_info YAMLs of a stereo pair (<left>.yaml, <right>.yaml) for "
                              "camera_info_manager and stereo_image_proc; opencv-stereo: one "
                              "FileStorage file of a pair (K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
     parser.add_argument("--out", required=True, metavar="FILE|DIR",
-                        help="file to write (replaced); opencv, dannce, ros-stereo: the folder "
-                             "for the files")
+                        help="file to write (replaced); opencv, dannce, jarvis, ros-stereo: the "
+                             "folder for the files")
     parser.add_argument("--pair", nargs=2, metavar=("LEFT", "RIGHT"),
                         help="ros-stereo, opencv-stereo: the two cameras, left one first "
                              "(default for a two-camera rig: its cameras, ordered left to right)")
@@ -58,11 +61,19 @@ def run(args: argparse.Namespace) -> int:
                                left_to_right=args.format == "ros-stereo")
             files = (ros_stereo_files(rig, rect) if args.format == "ros-stereo"
                      else {None: opencv_stereo_yaml(rig, rect)})
-        elif args.format == "dannce":
-            files = dannce_files(rig)
+        elif args.format in ("dannce", "jarvis"):
+            if args.format == "dannce":
+                files = dannce_files(rig)
+            else:
+                files, ignored = jarvis_files(rig)
+                if ignored:
+                    log.warning("JARVIS projects with k1 and k2 only: the tangential and k3 "
+                                "distortion of %s are left out of its projections",
+                                ", ".join(ignored))
             if not rig.metric_scale:
-                log.warning("the calibration has no metric scale: DANNCE's volumes are in "
-                            "millimetres (give a known baseline, or `densecalib scale` it first)")
+                log.warning("the calibration has no metric scale: %s works in millimetres "
+                            "(give a known baseline, or `densecalib scale` it first)",
+                            args.format.upper())
         elif args.format in FOLDER_FORMATS:
             files = opencv_files(rig)
         else:

@@ -20,6 +20,12 @@
   OpenCV's, principal point + 1 for MATLAB's 1-based pixels), r and t (row vectors:
   x_cam = X_world r + t, so r = R' of cam_from_world; t in millimetres for a metric rig, as
   DANNCE's volumes are), RDistort [k1 k2 (k3)] and TDistort [p1 p2]; world as anipose's.
+- JARVIS (JARVIS-MoCap's HybridNet, 3D pose in arenas), one OpenCV FileStorage `<camera>.yaml`
+  per camera as its calibration folders hold them: intrinsicMatrix (the transpose of OpenCV's K,
+  OpenCV's 0-based pixels), distortionCoefficients (k1 k2 p1 p2 k3; JARVIS's projection uses k1
+  and k2), R and T (x_cam = X_world R + T on row vectors, so R = R' of cam_from_world; T in
+  millimetres for a metric rig); world as anipose's. Taken from JARVIS's own loader
+  (`jarvis/utils/reprojection.py`: cameraMatrix = ([R; T] intrinsicMatrix)').
 - A stereo pair (core.stereo), for stereo matchers that work on rectified images:
   `ros-stereo`, the two camera_info YAMLs ROS's stereo calibrator writes (left.yaml, right.yaml:
   rectification_matrix R1/R2 and projection_matrix P1/P2, the right one with Tx = -fx' baseline),
@@ -43,9 +49,9 @@ from .export import camera_info_yaml, ros_camera_info
 from .stereo import StereoRectification
 from .types import RigCalibration
 
-FORMATS = ("anipose", "kalibr", "opencv", "dannce", "ros-stereo", "opencv-stereo")
+FORMATS = ("anipose", "kalibr", "opencv", "dannce", "jarvis", "ros-stereo", "opencv-stereo")
 # Formats written as a folder of files, one per camera, rather than one file
-FOLDER_FORMATS = ("opencv", "dannce", "ros-stereo")
+FOLDER_FORMATS = ("opencv", "dannce", "jarvis", "ros-stereo")
 # Formats of one camera pair (core.stereo)
 STEREO_FORMATS = ("ros-stereo", "opencv-stereo")
 DEFAULT_TOPIC_PATTERN = "/{name}/image_raw"
@@ -69,7 +75,8 @@ def _lens(name: str, rig: RigCalibration, fmt: str) -> tuple[dict, list[float], 
         raise InputError(f"Camera {name} ({rig.cameras[name].intrinsics.model}) has a lens model "
                          f"{fmt} cannot hold: it takes pinhole + radial-tangential "
                          f"({'k1 k2 p1 p2' if fmt == 'kalibr' else 'k1 k2 p1 p2 k3'})"
-                         + ("." if fmt == "dannce" else " or equidistant fisheye."))
+                         + ("." if fmt in ("dannce", "jarvis") else
+                            " or equidistant fisheye."))
     return info, (dist[:4] if fmt == "kalibr" else dist), False
 
 
@@ -178,10 +185,7 @@ def dannce_files(rig: RigCalibration) -> dict[str, bytes]:
     out, names = {}, []
     for i, name in enumerate(rig.cameras, start=1):
         info, dist, fisheye = _lens(name, rig, "dannce")
-        if fisheye:
-            raise InputError(f"Camera {name} has a fisheye lens, which DANNCE's MATLAB camera "
-                             "model cannot hold: `densecalib undistort --videos` them to pinhole "
-                             "ones and export that calibration.")
+        _refuse_fisheye(name, fisheye, "DANNCE")
         k = np.asarray(info["camera_matrix"]["data"], float).reshape(3, 3)
         matlab_k = k.T.copy()
         matlab_k[2, :2] += 1.0  # MATLAB's top-left pixel centre is (1, 1), OpenCV's (0, 0)
@@ -198,6 +202,38 @@ def dannce_files(rig: RigCalibration) -> dict[str, bytes]:
     out["cameras.txt"] = ("\n".join([f"# densecalib rig calibration for DANNCE / Label3D; world = "
                                       f"{world}; t in {units}", *names]) + "\n").encode()
     return out
+
+
+def _refuse_fisheye(name: str, fisheye: bool, tool: str) -> None:
+    if fisheye:
+        raise InputError(f"Camera {name} has a fisheye lens, which {tool}'s camera model cannot "
+                         "hold: `densecalib undistort --videos` them to pinhole ones and export "
+                         "that calibration.")
+
+
+def jarvis_files(rig: RigCalibration) -> tuple[dict[str, str], list[str]]:
+    """(file name -> JARVIS calibration YAML of each camera (format in the module docstring),
+    the cameras whose p1, p2 or k3 JARVIS's projection leaves out)."""
+    rig_from_world, world = _world(rig)
+    to_file_units = 1000.0 if rig.metric_scale else 1.0  # JARVIS works in millimetres
+    units = "millimetres" if rig.metric_scale else _units(rig)
+    out, ignored = {}, []
+    for name, cam in rig.cameras.items():
+        info, dist, fisheye = _lens(name, rig, "jarvis")
+        _refuse_fisheye(name, fisheye, "JARVIS")
+        if any(abs(d) > 1e-12 for d in dist[2:5]):
+            ignored.append(name)
+        k = np.asarray(info["camera_matrix"]["data"], float).reshape(3, 3)
+        cam_from_world = np.asarray(cam.cam_from_rig, float) @ rig_from_world
+        fs = cv2.FileStorage(f"{name}.yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+        fs.writeComment(f"densecalib calibration of camera {name} for JARVIS; world = {world}; "
+                        f"T in {units}")
+        fs.write("intrinsicMatrix", k.T)
+        fs.write("distortionCoefficients", np.asarray(dist[:5], np.float64).reshape(1, 5))
+        fs.write("R", cam_from_world[:3, :3].T)
+        fs.write("T", cam_from_world[:3, 3].reshape(3, 1) * to_file_units)
+        out[f"{name}.yaml"] = fs.releaseAndGetString()
+    return out, ignored
 
 
 def ros_stereo_files(rig: RigCalibration, rect: StereoRectification) -> dict[str, str]:
