@@ -404,7 +404,15 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert wait_until(lambda: len(late.snapshot()["camera_info"]) == 4, 10.0)
     assert camera_info_values(late) == published
     assert wait_until(lambda: diag_state() and "last calibration failed" in diag_state()[1], 5.0)
-    for n in (late, listener, node, caller):
+    # ~/clear: the buffered sets are gone, the next calibration waits for new ones
+    clearer = ros.caller("clear")
+    response = clearer.call(10.0)
+    assert response.success and response.message.startswith("dropped 2 buffered frame sets")
+    assert len(node.sync) == 0 and clearer.call(10.0).message.startswith("dropped 0")
+    response = caller.call(30.0)
+    assert not response.success and "0 synchronised frame set(s) buffered" in response.message
+    assert camera_info_values(late) == published
+    for n in (clearer, late, listener, node, caller):
         ros.remove(n)
 
 

@@ -13,6 +13,8 @@ Interface (names relative to the node, default name `densecalib_node`):
 - service `~/reload` (std_srvs/Trigger): publishes the calibration under `output_dir/latest`
   again, after `densecalib scale` / `floor` changed it or `latest` was pointed at another one;
   one that cannot be loaded leaves the current one published;
+- service `~/clear` (std_srvs/Trigger): drops the buffered frame sets (after the rig was moved:
+  the next calibration uses only images received since);
 - publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pairs`' with their
   stereo rectification R, P, republished when that parameter changes), `/tf_static`
@@ -476,6 +478,8 @@ class DenseCalibNode(Node):
                             callback_group=self._service_group)
         self.create_service(Trigger, "~/reload", self._on_reload,
                             callback_group=self._service_group)
+        self.create_service(Trigger, "~/clear", self._on_clear,
+                            callback_group=self._service_group)
 
         self._subscribe_known_topics()
         if None in self._image_subs:
@@ -673,6 +677,17 @@ class DenseCalibNode(Node):
                 + (f"; stamp_offsets_s set, {dropped} buffered frame sets dropped (paired by the "
                    "old offsets)" if result.successful else f"; not set: {result.reason}"))
         self._set_status(f"sync: {response.message}")
+        return response
+
+    def _on_clear(self, request, response):
+        """~/clear: drop the buffered frame sets, so that the next ~/calibrate or ~/check uses
+        only images received from now on (after the rig was moved or a lens refocused). A
+        running calibration keeps the frame sets it took."""
+        dropped = self.sync.clear()
+        response.success = True
+        response.message = (f"dropped {dropped} buffered frame sets; "
+                            f"{self.settings.min_frame_sets} needed to calibrate")
+        self._set_status(f"clear: {response.message}")
         return response
 
     def _check(self) -> tuple[bool, str]:

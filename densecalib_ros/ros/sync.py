@@ -80,11 +80,20 @@ class MessageSynchronizer:
         Returns the number of buffered frame sets dropped."""
         with self._lock:
             self._offsets_ns = [int(round(o * 1e9)) for o in stamp_offsets_s]
-            dropped = len(self._buffer)
-            self._sync = ApproximateTimeSynchronizer(len(self._offsets_ns), self._slop_s,
-                                                     self._queue_size)
-            self._buffer = FrameSetBuffer(self._buffer.capacity, self._buffer.min_interval_s)
-            return dropped
+            return self._clear()
+
+    def clear(self) -> int:
+        """Drop the buffered frame sets and the messages waiting for partners (the motion
+        signals stay); returns the number of frame sets dropped."""
+        with self._lock:
+            return self._clear()
+
+    def _clear(self) -> int:
+        dropped = len(self._buffer)
+        self._sync = ApproximateTimeSynchronizer(len(self._offsets_ns), self._slop_s,
+                                                 self._queue_size)
+        self._buffer = FrameSetBuffer(self._buffer.capacity, self._buffer.min_interval_s)
+        return dropped
 
     def snapshot(self) -> list[FrameSet]:
         with self._lock:
