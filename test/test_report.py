@@ -141,10 +141,10 @@ def _dots(panel):
     """Pixel centre (x, y) of each camera's dot in a layout panel."""
     import cv2
 
-    from densecalib_ros.core.layout_plot import _colours
+    from densecalib_ros.core.layout_plot import camera_colours
 
     out = []
-    for colour in _colours(3):
+    for colour in camera_colours(3):
         mask = np.all(panel == colour, axis=2).astype(np.uint8)
         core = cv2.erode(mask, np.ones((5, 5), np.uint8))  # the filled dot, not lines or text
         ys, xs = np.nonzero(core)
@@ -189,3 +189,64 @@ def test_report_plot_command(tmp_path, caplog):
     assert "without scene points" in caplog.text  # no COLMAP model saved with this one
     assert main(["report", str(tmp_path / "calib"), "--plot", str(tmp_path / "rig.jpg")]) == 2
     assert "give a .png file name" in caplog.text
+
+
+def _read_ascii_ply(path):
+    """(vertex table (N, 6): x y z r g b, faces (F, 3), comments) of an ASCII PLY file."""
+    lines = path.read_text().splitlines()
+    assert lines[:2] == ["ply", "format ascii 1.0"]
+    end = lines.index("end_header")
+    counts = {line.split()[1]: int(line.split()[2]) for line in lines[:end]
+              if line.startswith("element ")}
+    rows = lines[end + 1:]
+    assert len(rows) == counts["vertex"] + counts["face"]
+    vertices = np.array([[float(v) for v in row.split()] for row in rows[:counts["vertex"]]])
+    faces = np.array([[int(v) for v in row.split()] for row in rows[counts["vertex"]:]])
+    assert (faces[:, 0] == 3).all()
+    return vertices, faces[:, 1:], [line for line in lines[:end] if line.startswith("comment")]
+
+
+def test_scene_ply_has_the_cameras_as_pyramids_and_the_points(tmp_path, caplog):
+    """export --format ply: each camera a pyramid with its apex at the camera's floor-frame
+    position and its base through the rays of the image corners, the wall points at y = 3."""
+    from densecalib_ros.cli import main
+    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.scene_ply import PYRAMID_FRACTION, scene_ply
+
+    rig, wall = _upright_rig(with_floor=True)
+    path = tmp_path / "scene.ply"
+    path.write_text(scene_ply(rig, wall))
+    vertices, faces, comments = _read_ascii_ply(path)
+    assert len(vertices) == 15 + len(wall) and len(faces) == 12 and faces.max() < 15
+    assert "floor frame" in comments[0] and "metres" in comments[0]
+    depth = PYRAMID_FRACTION * 2.0  # the cameras span 2 m in x
+    for i, position in enumerate([(0, 0, 1), (1, 0, 2), (2, 0.5, 1.5)]):
+        apex, base = vertices[5 * i, :3], vertices[5 * i + 1:5 * i + 5, :3]
+        np.testing.assert_allclose(apex, position, atol=1e-9)
+        offsets = base - apex  # looking along +y; image x = floor x, image up = floor z
+        np.testing.assert_allclose(offsets[:, 1], depth, atol=1e-9)
+        np.testing.assert_allclose(offsets[0], [-depth * 320 / 500, depth, depth * 240 / 500],
+                                   atol=1e-9)  # the top-left corner: left and up
+        np.testing.assert_allclose(offsets[2], [depth * 320 / 500, depth, -depth * 240 / 500],
+                                   atol=1e-9)
+    np.testing.assert_allclose(vertices[15:, 1], 3.0, atol=1e-6)
+    assert (vertices[15:, 3:] == 128).all() and not (vertices[:15, 3:] == 128).all()
+
+    write_calibration_files(rig, tmp_path / "calib")  # no COLMAP model: the cameras alone
+    assert main(["export", str(tmp_path / "calib"), "--format", "ply", "--out",
+                 str(tmp_path / "cameras.ply")]) == 0
+    assert len(_read_ascii_ply(tmp_path / "cameras.ply")[0]) == 15
+    assert "without scene points" in caplog.text
+
+
+def test_corner_rays_of_a_fisheye_keep_their_angle():
+    from densecalib_ros.core.scene_ply import corner_rays
+    from densecalib_ros.core.types import CameraIntrinsics
+
+    def angles(focal):
+        lens = CameraIntrinsics("OPENCV_FISHEYE", 640, 480,
+                                np.array([focal, focal, 320, 240, 0, 0, 0, 0.0]))
+        return np.degrees(np.arccos(corner_rays(lens)[:, 2]))
+
+    np.testing.assert_allclose(angles(400.0), np.degrees(400 / 400.0))  # equidistant: r / f
+    np.testing.assert_allclose(angles(200.0), 80.0)  # past 80 deg: held at 80

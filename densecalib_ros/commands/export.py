@@ -33,7 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the rectified "
                              "camera_info YAMLs of a stereo pair (<left>.yaml, <right>.yaml) for "
                              "camera_info_manager and stereo_image_proc; opencv-stereo: one "
-                             "FileStorage file of a pair (K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q)")
+                             "FileStorage file of a pair (K1 D1 K2 D2 R T E F R1 R2 P1 P2 Q); "
+                             "ply: the cameras as coloured pyramids and the scene points of the "
+                             "saved COLMAP model, for CloudCompare, MeshLab or Blender (world "
+                             "as dannce)")
     parser.add_argument("--out", required=True, metavar="FILE|DIR",
                         help="file to write (replaced); opencv, dannce, jarvis, ros-stereo: the "
                              "folder for the files")
@@ -76,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
                             args.format.upper())
         elif args.format in FOLDER_FORMATS:
             files = opencv_files(rig)
+        elif args.format == "ply":
+            files = {None: _scene_ply(args.calibration, rig)}
         else:
             files = {None: export_text(rig, args.format, **options)}
         if args.format in FOLDER_FORMATS and Path(args.out).is_file():
@@ -95,3 +100,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.out} ({args.format}, {len(rig.cameras)} cameras"
               f"{': ' + listed if listed else ''})")
     return 0
+
+
+def _scene_ply(calibration, rig) -> str:
+    from ..core.export import calibration_folder, read_saved_model
+    from ..core.floor import reconstruction_points_in_rig
+    from ..core.scene_ply import scene_ply
+
+    reconstruction = read_saved_model(calibration_folder(calibration))
+    if reconstruction is None:
+        log.warning("no saved COLMAP model beside the calibration: the PLY has the cameras "
+                    "without scene points")
+        return scene_ply(rig)
+    return scene_ply(rig, reconstruction_points_in_rig(reconstruction, rig))

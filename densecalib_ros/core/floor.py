@@ -160,6 +160,17 @@ def find_floor(points_rig: np.ndarray, rig: RigCalibration, view: str = "upright
     return Floor(floor_from_rig, int(len(inliers)), rms, heights)
 
 
+def world_from_rig(rig: RigCalibration) -> tuple[np.ndarray, str]:
+    """(4x4 world_from_rig, the world's description) of the world frame that exports and views
+    use: the floor frame when the calibration has one (z up, so points come out as heights above
+    the floor), else the rig frame."""
+    floor = rig.quality.get("floor")
+    if floor:
+        return (np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4),
+                "the floor frame (z up, origin on the floor)")
+    return np.eye(4), f"the rig frame (reference camera {rig.reference_camera})"
+
+
 def reconstruction_points_in_rig(reconstruction, rig: RigCalibration) -> np.ndarray:
     """(N, 3) scene points of a pycolmap.Reconstruction in the rig frame (its reference camera's
     image gives the rig's pose in the reconstruction's world)."""

@@ -46,10 +46,12 @@ import numpy as np
 
 from .errors import InputError
 from .export import camera_info_yaml, ros_camera_info
+from .floor import world_from_rig
 from .stereo import StereoRectification
 from .types import RigCalibration
 
-FORMATS = ("anipose", "kalibr", "opencv", "dannce", "jarvis", "ros-stereo", "opencv-stereo")
+FORMATS = ("anipose", "kalibr", "opencv", "dannce", "jarvis", "ros-stereo", "opencv-stereo",
+           "ply")  # ply: the cameras with the scene points (core.scene_ply)
 # Formats written as a folder of files, one per camera, rather than one file
 FOLDER_FORMATS = ("opencv", "dannce", "jarvis", "ros-stereo")
 # Formats of one camera pair (core.stereo)
@@ -85,14 +87,10 @@ def _toml_list(values) -> str:
 
 
 def _world(rig: RigCalibration) -> tuple[np.ndarray, str]:
-    """(rig_from_world, its description) of the world frame of arena tools: the floor frame when
-    the calibration has one (calibrate --floor: z up, so triangulated points come out as heights
-    above the floor), else the rig frame."""
-    floor = rig.quality.get("floor")
-    if floor:
-        return (np.linalg.inv(np.asarray(floor["floor_from_rig"], float).reshape(4, 4)),
-                "the floor frame (z up, origin on the floor)")
-    return np.eye(4), f"the rig frame (reference camera {rig.reference_camera})"
+    """(rig_from_world, its description) of the world frame of arena tools (floor.world_from_rig:
+    the floor frame when the calibration has one, else the rig frame)."""
+    world_from_rig_, world = world_from_rig(rig)
+    return np.linalg.inv(world_from_rig_), world
 
 
 def anipose_toml(rig: RigCalibration) -> str:

@@ -16,6 +16,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from .floor import world_from_rig
 from .types import CameraIntrinsics, RigCalibration
 
 PANEL_PX = 640
@@ -28,10 +29,8 @@ _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 def plot_from_rig(rig: RigCalibration) -> tuple[np.ndarray, str]:
     """The 4x4 transform from the rig frame to the plot frame (module docstring) and its name."""
-    floor = rig.quality.get("floor")
-    if floor:
-        return (np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4),
-                "the floor frame")
+    if rig.quality.get("floor"):
+        return world_from_rig(rig)[0], "the floor frame"
     poses = [np.asarray(c.cam_from_rig, dtype=np.float64) for c in rig.cameras.values()]
     up = -sum(p[1, :3] for p in poses)  # each camera's image-up (-y) in the rig frame
     if np.linalg.norm(up) < 1e-6:
@@ -67,7 +66,7 @@ def _nice_length(span: float) -> float:
     return next(m * power for m in (5.0, 2.0, 1.0) if m * power <= raw * 1.5)
 
 
-def _colours(n: int) -> list[tuple[int, int, int]]:
+def camera_colours(n: int) -> list[tuple[int, int, int]]:
     out = []
     for i in range(n):
         r, g, b = colorsys.hsv_to_rgb(i / max(n, 1), 0.85, 0.8)
@@ -99,7 +98,7 @@ def _panel(title: str, axes: tuple[int, int], centres: np.ndarray, rays: list, p
         inside = (uv >= 0).all(1) & (uv[:, 0] < PANEL_PX) & (uv[:, 1] < PANEL_PX)
         image[uv[inside, 1], uv[inside, 0]] = _POINT_GREY
     wedge = 0.12 * span
-    for i, (name, colour) in enumerate(zip(names, _colours(len(names)))):
+    for i, (name, colour) in enumerate(zip(names, camera_colours(len(names)))):
         c = px(cam2[i])[0]
         for ray in rays[i]:  # field-of-view edges, then the optical axis
             end = px(cam2[i] + wedge * ray[list(axes)])[0]

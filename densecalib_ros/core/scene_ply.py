@@ -1,0 +1,86 @@
+"""A calibrated rig and its scene points as one PLY file (ASCII), for point-cloud viewers
+(CloudCompare, MeshLab, Blender): every camera as a coloured pyramid (apex at its optical
+centre, base through the rays of its image corners, open at the base), the scene points of the
+saved COLMAP model in grey. World = the floor frame when the calibration has one (z up), else the
+rig frame; lengths in metres when the rig is metric, else in its arbitrary unit (the header's
+comments say which).
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import numpy as np
+
+from .floor import world_from_rig
+from .layout_plot import camera_colours
+from .types import CameraIntrinsics, RigCalibration
+
+POINT_GREY = (128, 128, 128)
+PYRAMID_FRACTION = 0.08  # pyramid depth, of the camera positions' extent (or of the scene's)
+_MAX_CORNER_ANGLE_RAD = math.radians(80.0)  # wide fisheye corners: the base stays in front
+
+
+def corner_rays(intrinsics: CameraIntrinsics) -> np.ndarray:
+    """(4, 3) unit rays (camera frame) through the image's corners, clockwise from top-left,
+    distortion included; rays past 80 deg off the axis (fisheye) are pulled back to 80 deg."""
+    w, h = intrinsics.width, intrinsics.height
+    corners = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
+    camera = intrinsics.to_pycolmap()
+    if "FISHEYE" in intrinsics.model:  # normalised coordinates end at 90 deg: go by the angle
+        centre = np.array([float(camera.principal_point_x), float(camera.principal_point_y)])
+        focal = float(camera.mean_focal_length())
+        offsets = corners - centre
+        theta = np.minimum(np.linalg.norm(offsets, axis=1) / focal, _MAX_CORNER_ANGLE_RAD)
+        direction = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+        rays = np.column_stack([direction * np.sin(theta)[:, None], np.cos(theta)])
+    else:
+        xy = camera.cam_from_img(corners)
+        rays = np.column_stack([xy, np.ones(4)])
+    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+def scene_ply(rig: RigCalibration, points_rig: Optional[np.ndarray] = None) -> str:
+    """The PLY text (module docstring) of the rig and optional rig-frame scene points (N, 3)."""
+    world_from_rig_, world = world_from_rig(rig)
+    rotation, shift = world_from_rig_[:3, :3], world_from_rig_[:3, 3]
+    points = np.zeros((0, 3))
+    if points_rig is not None and len(points_rig):
+        points = np.asarray(points_rig, np.float64).reshape(-1, 3)
+        points = points[np.isfinite(points).all(1)] @ rotation.T + shift
+    names = list(rig.cameras)
+    centres, rig_from_cams = [], []
+    for name in names:
+        cam_from_rig = np.asarray(rig.cameras[name].cam_from_rig, np.float64)
+        rig_from_cams.append(cam_from_rig[:3, :3].T)
+        centres.append(rotation @ (-cam_from_rig[:3, :3].T @ cam_from_rig[:3, 3]) + shift)
+    centres = np.array(centres)
+    extent = float(np.ptp(centres, axis=0).max()) if len(centres) > 1 else 0.0
+    if extent <= 0 and len(points):
+        extent = float(np.ptp(np.percentile(points, [5, 95], axis=0), axis=0).max())
+    depth = PYRAMID_FRACTION * (extent if extent > 0 else 1.0)
+    vertices, colours, faces = [], [], []
+    for i, (name, colour) in enumerate(zip(names, camera_colours(len(names)))):
+        rgb = colour[::-1]  # camera_colours gives BGR
+        base = len(vertices)
+        rays = corner_rays(rig.cameras[name].intrinsics)
+        corner_depths = depth / rays[:, 2]  # the base at `depth` along the optical axis
+        corners = centres[i] + (rotation @ rig_from_cams[i] @ (rays * corner_depths[:, None]).T).T
+        vertices += [centres[i], *corners]
+        colours += [rgb] * 5
+        faces += [(base, base + 1 + k, base + 1 + (k + 1) % 4) for k in range(4)]
+    vertices = np.round(np.array(vertices + list(points)).reshape(-1, 3), 9) + 0.0  # no -0, 1e-33
+    colours += [POINT_GREY] * len(points)
+    units = "metres" if rig.metric_scale else "arbitrary units (no metric scale)"
+    header = ["ply", "format ascii 1.0",
+              f"comment densecalib rig calibration; world = {world}; lengths in {units}",
+              "comment cameras (pyramids, apex = optical centre, vertices 5i..5i+4): "
+              + ", ".join(names),
+              f"element vertex {len(vertices)}", "property double x", "property double y",
+              "property double z", "property uchar red", "property uchar green",
+              "property uchar blue", f"element face {len(faces)}",
+              "property list uchar int vertex_indices", "end_header"]
+    body = [f"{x:.9g} {y:.9g} {z:.9g} {r} {g} {b}"
+            for (x, y, z), (r, g, b) in zip(vertices, colours)]
+    body += [f"3 {a} {b} {c}" for a, b, c in faces]
+    return "\n".join(header + body) + "\n"
