@@ -62,6 +62,17 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
                  "--against", str(rig_dir / "ground_truth.json")]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["pose_agreement"]["auc3"] == pytest.approx(metrics["auc3"])
+    # report --plot and export --format ply read the saved model: its points, in their colours
+    assert main(["report", str(out), "--plot", str(tmp_path / "rig.png")]) == 0
+    assert (tmp_path / "rig.png").stat().st_size > 1000
+    capsys.readouterr()
+    assert main(["export", str(out), "--format", "ply", "--out", str(tmp_path / "scene.ply")]) == 0
+    ply = (tmp_path / "scene.ply").read_text().splitlines()
+    num_points = len(pycolmap.Reconstruction(str(out / "colmap")).points3D)
+    assert f"element vertex {5 * len(names) + num_points}" in ply
+    point_rgb = np.array([row.split()[3:] for row in ply[ply.index("end_header") + 1:][
+        5 * len(names):5 * len(names) + num_points]], int)
+    assert point_rgb.std() > 10  # the scene's texture, not one grey
     for name in names:
         assert abs(report["change"][name]["focal_change_pct"]) == pytest.approx(
             100 * metrics["cameras"][name]["focal_err"])

@@ -36,6 +36,33 @@ def test_generated_rig_recovers_ground_truth(rig):
     assert result.rig.quality["reprojection_rms_px"] < 5.0
     assert result.reconstruction.num_reg_images() == 4
     assert {im.name for im in result.reconstruction.images.values()} == set(rig.names)
+    # the points carry the scene's colour: that of the reference image where they project
+    rec = result.reconstruction
+    image = next(im for im in rec.images.values() if im.name == rig.names[0])
+    xyz = np.array([p.xyz for p in rec.points3D.values()])
+    colours = np.array([p.color for p in rec.points3D.values()], dtype=float)
+    in_cam = xyz @ image.cam_from_world().rotation.matrix().T + image.cam_from_world().translation
+    uv = np.floor(rec.cameras[image.camera_id].img_from_cam(in_cam)).astype(int)
+    h, w = rig.images[0][0].shape[:2]
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    seen = rig.images[0][0][uv[inside, 1], uv[inside, 0]].reshape(inside.sum(), -1)[:, :3]
+    error = np.abs(colours[inside] - seen).mean()
+    shuffled = np.abs(colours[inside] - np.random.default_rng(0).permutation(seen)).mean()
+    assert inside.sum() > 50 and error < 0.5 * shuffled, (error, shuffled)
+
+
+def test_point_colours_average_the_pixels_of_each_tracks_frame_set():
+    from densecalib_ros.core.reconstruction import point_colours
+    from densecalib_ros.core.types import Tracks
+
+    sets = [[np.zeros((4, 6, 3), np.uint8), np.full((4, 6), 50, np.uint8)],
+            [np.zeros((4, 6, 3), np.uint8), np.zeros((4, 6), np.uint8)]]
+    sets[0][0][2, 5] = (100, 0, 200)
+    sets[1][0][1, 0] = (10, 20, 30)
+    xy = np.array([[[5.9, 2.0], [0.5, 0.5]],  # pixel (5, 2) of set 0's colour image; grey 50
+                   [[0.2, 1.7], [np.nan, np.nan]]])  # set 1: pixel (0, 1) alone
+    tracks = Tracks(xy, np.array([2, 2], np.int32), np.zeros(2), np.array([0, 1], np.int32))
+    np.testing.assert_array_equal(point_colours(tracks, sets), [[75, 25, 125], [10, 20, 30]])
 
 
 def test_rig_mixing_lenses_gets_each_cameras_lens_model():

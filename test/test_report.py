@@ -231,6 +231,9 @@ def test_scene_ply_has_the_cameras_as_pyramids_and_the_points(tmp_path, caplog):
                                    atol=1e-9)
     np.testing.assert_allclose(vertices[15:, 1], 3.0, atol=1e-6)
     assert (vertices[15:, 3:] == 128).all() and not (vertices[:15, 3:] == 128).all()
+    colours = np.random.default_rng(0).integers(0, 256, (len(wall), 3))
+    path.write_text(scene_ply(rig, wall, colours))
+    np.testing.assert_array_equal(_read_ascii_ply(path)[0][15:, 3:], colours)
 
     write_calibration_files(rig, tmp_path / "calib")  # no COLMAP model: the cameras alone
     assert main(["export", str(tmp_path / "calib"), "--format", "ply", "--out",

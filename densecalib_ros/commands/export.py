@@ -103,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _scene_ply(calibration, rig) -> str:
+    import numpy as np
+
     from ..core.export import calibration_folder, read_saved_model
     from ..core.floor import reconstruction_points_in_rig
     from ..core.scene_ply import scene_ply
@@ -112,4 +114,7 @@ def _scene_ply(calibration, rig) -> str:
         log.warning("no saved COLMAP model beside the calibration: the PLY has the cameras "
                     "without scene points")
         return scene_ply(rig)
-    return scene_ply(rig, reconstruction_points_in_rig(reconstruction, rig))
+    colours = np.array([p.color for p in reconstruction.points3D.values()], np.uint8)
+    if len(colours) and not colours.any():  # a model saved before points were coloured
+        colours = None
+    return scene_ply(rig, reconstruction_points_in_rig(reconstruction, rig), colours)

@@ -26,7 +26,8 @@ from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremen
 from .known_intrinsics import (check_known_intrinsics, describe as describe_known,
                                given_intrinsics_fit, given_intrinsics_warnings)
 from .placement import repair_placements
-from .reconstruction import SfMState, build_reconstruction, camera_quality, reprojection_errors
+from .reconstruction import (SfMState, build_reconstruction, camera_quality, colour_points,
+                             reprojection_errors)
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
 from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
@@ -577,6 +578,7 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
                                   camera_names=camera_names)
     result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
                                     previous=previous, progress=progress)
+    with_point_colours(result, frame_sets)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
     if config.camera_lens:
@@ -587,6 +589,13 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
                                                for n, f in config.exif_focal_px.items()}
     return result
+
+
+def with_point_colours(result: CalibrationResult,
+                       frame_sets: Sequence[Sequence[np.ndarray]]) -> None:
+    """Colour the result's reconstruction points from the images (reconstruction.colour_points)."""
+    if result.reconstruction is not None and result.state is not None:
+        colour_points(result.reconstruction, result.state, frame_sets)
 
 
 def calibrate_rig(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],

@@ -19,8 +19,8 @@ import numpy as np
 from .change import calibration_change, change_summary
 from .config import PipelineConfig
 from .errors import CalibrationError
-from .pipeline import (CalibrationResult, Progress, say_progress, calibrate_from_matches, check_frame_sets,
-                       match_frame_sets)
+from .pipeline import (CalibrationResult, Progress, calibrate_from_matches, check_frame_sets,
+                       match_frame_sets, say_progress, with_point_colours)
 from .types import RigCalibration
 
 log = logging.getLogger(__name__)
@@ -92,4 +92,5 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     result.rig.quality["change_vs_previous"] = {n: vars(c) for n, c in change.items()}
     result.rig.quality["change_summary"] = change_summary(change)
     say_progress(progress, result.rig.quality["change_summary"])
+    with_point_colours(result, frame_sets)
     return result

@@ -173,6 +173,41 @@ def build_reconstruction(state: SfMState, camera_names: Sequence[str]
     return rec, track_of_point
 
 
+def point_colours(tracks: Tracks, frame_sets: Sequence[Sequence[np.ndarray]]) -> np.ndarray:
+    """uint8 (T, 3) RGB per track: the mean of the pixels it was observed at, each in its camera's
+    image of the track's frame set (grey images give grey). Tracks hold COLMAP pixel coordinates
+    (pixel i spans [i, i + 1))."""
+    total = np.zeros((tracks.num_tracks, 3))
+    count = np.zeros(tracks.num_tracks)
+    observed = tracks.observed()
+    for time in np.unique(tracks.time_index):
+        in_set = tracks.time_index == time
+        for c in range(tracks.num_cameras):
+            rows = np.flatnonzero(in_set & observed[:, c])
+            if not len(rows):
+                continue
+            image = np.asarray(frame_sets[int(time)][c])
+            h, w = image.shape[:2]
+            x = np.clip(np.floor(tracks.xy_px[rows, c, 0]).astype(np.int64), 0, w - 1)
+            y = np.clip(np.floor(tracks.xy_px[rows, c, 1]).astype(np.int64), 0, h - 1)
+            pixels = image[y, x].reshape(len(rows), -1)[:, :3].astype(np.float64)
+            total[rows] += pixels if pixels.shape[1] == 3 else np.repeat(pixels[:, :1], 3, 1)
+            count[rows] += 1
+    return np.round(total / np.maximum(count, 1)[:, None]).astype(np.uint8)
+
+
+def colour_points(rec: pycolmap.Reconstruction, state: SfMState,
+                  frame_sets: Sequence[Sequence[np.ndarray]]) -> None:
+    """Give the points of `rec` (build_reconstruction of `state`) the colour of the images
+    (point_colours): the saved model then shows the scene in a viewer (export --format ply)."""
+    colours = point_colours(state.tracks, frame_sets)
+    observed = state.tracks.observed()
+    rows_of_camera = {c: np.flatnonzero(observed[:, c]) for c in state.registered()}
+    for point in rec.points3D.values():
+        element = point.track.elements[0]  # image_id = camera + 1, point2D = its rank (build_)
+        point.color = colours[rows_of_camera[element.image_id - 1][element.point2D_idx]]
+
+
 def read_reconstruction(state: SfMState, rec: pycolmap.Reconstruction,
                         track_of_point: dict[int, int]) -> None:
     """Copy intrinsics, poses and points of `rec` (built by build_reconstruction) into state."""

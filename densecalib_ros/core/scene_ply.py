@@ -1,9 +1,9 @@
 """A calibrated rig and its scene points as one PLY file (ASCII), for point-cloud viewers
 (CloudCompare, MeshLab, Blender): every camera as a coloured pyramid (apex at its optical
 centre, base through the rays of its image corners, open at the base), the scene points of the
-saved COLMAP model in grey. World = the floor frame when the calibration has one (z up), else the
-rig frame; lengths in metres when the rig is metric, else in its arbitrary unit (the header's
-comments say which).
+saved COLMAP model in their colour in the images (grey for a model saved without colours).
+World = the floor frame when the calibration has one (z up), else the rig frame; lengths in
+metres when the rig is metric, else in its arbitrary unit (the header's comments say which).
 """
 from __future__ import annotations
 
@@ -40,14 +40,19 @@ def corner_rays(intrinsics: CameraIntrinsics) -> np.ndarray:
     return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-def scene_ply(rig: RigCalibration, points_rig: Optional[np.ndarray] = None) -> str:
-    """The PLY text (module docstring) of the rig and optional rig-frame scene points (N, 3)."""
+def scene_ply(rig: RigCalibration, points_rig: Optional[np.ndarray] = None,
+              point_colours: Optional[np.ndarray] = None) -> str:
+    """The PLY text (module docstring) of the rig and optional rig-frame scene points (N, 3),
+    coloured by point_colours (N, 3) RGB uint8 if given, else grey."""
     world_from_rig_, world = world_from_rig(rig)
     rotation, shift = world_from_rig_[:3, :3], world_from_rig_[:3, 3]
-    points = np.zeros((0, 3))
+    points, point_rgb = np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
     if points_rig is not None and len(points_rig):
         points = np.asarray(points_rig, np.float64).reshape(-1, 3)
-        points = points[np.isfinite(points).all(1)] @ rotation.T + shift
+        point_rgb = (np.full((len(points), 3), POINT_GREY, np.uint8) if point_colours is None
+                     else np.asarray(point_colours, np.uint8).reshape(-1, 3))
+        finite = np.isfinite(points).all(1)
+        points, point_rgb = points[finite] @ rotation.T + shift, point_rgb[finite]
     names = list(rig.cameras)
     centres, rig_from_cams = [], []
     for name in names:
@@ -70,7 +75,7 @@ def scene_ply(rig: RigCalibration, points_rig: Optional[np.ndarray] = None) -> s
         colours += [rgb] * 5
         faces += [(base, base + 1 + k, base + 1 + (k + 1) % 4) for k in range(4)]
     vertices = np.round(np.array(vertices + list(points)).reshape(-1, 3), 9) + 0.0  # no -0, 1e-33
-    colours += [POINT_GREY] * len(points)
+    colours += [tuple(int(v) for v in rgb) for rgb in point_rgb]
     units = "metres" if rig.metric_scale else "arbitrary units (no metric scale)"
     header = ["ply", "format ascii 1.0",
               f"comment densecalib rig calibration; world = {world}; lengths in {units}",
