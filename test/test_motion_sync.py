@@ -254,11 +254,18 @@ def test_trim_writes_videos_whose_frame_k_shows_one_instant(tmp_path, capsys, ca
         a, b = (c.read()[1].astype(float) for c in (source, trimmed))
         assert 10 * np.log10(255 ** 2 / np.mean((a - b) ** 2)) > 30  # the same frame, re-encoded
     given = tmp_path / "given"
-    assert main(["sync", "--videos", str(folder), "--trim", str(given), "--codec", "MJPG",
+    assert main(["sync", "--videos", str(folder), "--trim", str(given), "--codec", "FFV1",
                  "--time-offset", "cam1=0.7", "cam2=-1.23", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert {n: c["first_frame"] for n, c in data["trimmed"].items()} == \
         {n: c["first_frame"] for n, c in cuts.items()}
+    cut = data["trimmed"]["cam2"]  # FFV1 is lossless: every frame as decoded from the source
+    assert cut["file"] == "cam2.mkv"
+    source, trimmed = (cv2.VideoCapture(str(p)) for p in (folder / "cam2.avi", given / "cam2.mkv"))
+    source.set(cv2.CAP_PROP_POS_FRAMES, cut["first_frame"])
+    for _ in range(cut["frames"]):
+        assert np.array_equal(source.read()[1], trimmed.read()[1])
+    assert not trimmed.read()[0]
     with caplog.at_level("ERROR"):
         assert main(["sync", "--videos", str(folder), "--time-offset", "cam1=0.7"]) == 2
     assert "it goes with --trim" in caplog.text

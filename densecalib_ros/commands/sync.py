@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--trim or --restamp: use these offsets (calibrate's convention) "
                              "instead of measuring them")
     parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default="mp4v",
-                        help="--trim: mp4v (.mp4, default) or MJPG (.avi)")
+                        help="--trim: mp4v (.mp4, default), MJPG (.avi) or FFV1 (.mkv, lossless)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -32,8 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "every frame, at the same frame rate (for tools that need pinhole "
                              "videos, e.g. DANNCE with fisheye cameras)")
     parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default="mp4v",
-                        help="with --videos: mp4v (.mp4, default) or MJPG (.avi, larger, less "
-                             "loss); the frames are re-encoded either way")
+                        help="with --videos: mp4v (.mp4, default), MJPG (.avi, larger, less "
+                             "loss) or FFV1 (.mkv, lossless, largest)")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="output folder (replaced): the same layout (images as PNG), and "
                              "calibration.json + <camera>.yaml of the undistorted cameras")

@@ -27,7 +27,9 @@ from .errors import InputError, NotEnoughCamerasError
 VIDEO_EXTENSIONS = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".mts",
                     ".ts", ".wmv")
 DEFAULT_VIDEO_FRAME_SETS = 8
-VIDEO_CODECS = {"mp4v": ".mp4", "MJPG": ".avi"}  # fourcc -> container (OpenCV's FFmpeg writes both)
+# fourcc -> container (OpenCV's FFmpeg writes them): mp4v and MJPG lossy, FFV1 lossless (every
+# frame decodes to the pixels written; large files, and not every player reads it)
+VIDEO_CODECS = {"mp4v": ".mp4", "MJPG": ".avi", "FFV1": ".mkv"}
 # A frame count read from a container can be an estimate (duration x fps); the last frames may
 # not decode, so a failed read steps back this many frames before giving up.
 _READ_BACKOFF_FRAMES = 5
