@@ -164,6 +164,22 @@ def _matlab_pixels(pts_world, params):
     return (np.column_stack([xd, yd, np.ones_like(xd)]) @ params["K"])[:, :2]
 
 
+def _export_pinholes_on_a_floor(rig, tmp_path, fmt):
+    """The rig without its fisheye camera, given a floor, exported as fmt: (calibration.json,
+    the export folder, rig-frame points all cameras see, those points in the floor frame in mm)."""
+    del rig.cameras["top"]
+    floor_from_rig = _pose([-100, 10, 0], [0.2, -1.5, 0.1])
+    rig.quality["floor"] = {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
+                            "rms": 0.0, "camera_heights": {}}
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    out = tmp_path / fmt
+    assert main(["export", str(calib), "--format", fmt, "--out", str(out)]) == 0
+    pts_rig = _points_seen_by_all(rig)
+    return (calib, out, pts_rig,
+            1000.0 * (pts_rig @ floor_from_rig[:3, :3].T + floor_from_rig[:3, 3]))
+
+
 def test_dannce_files_project_like_our_cameras_in_matlab_convention(rig, tmp_path, capsys,
                                                                     caplog):
     """Each camera's hires_cam<i>_params.mat, read back with scipy and projected with MATLAB's
@@ -176,18 +192,9 @@ def test_dannce_files_project_like_our_cameras_in_matlab_convention(rig, tmp_pat
 
     with pytest.raises(InputError, match="top has a fisheye lens.*undistort"):
         dannce_files(rig)
-    del rig.cameras["top"]
-    floor_from_rig = _pose([-100, 10, 0], [0.2, -1.5, 0.1])
-    rig.quality["floor"] = {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
-                            "rms": 0.0, "camera_heights": {}}
-    calib = tmp_path / "calibration.json"
-    calib.write_text(json.dumps(calibration_to_dict(rig)))
-    out = tmp_path / "dannce"
-    assert main(["export", str(calib), "--format", "dannce", "--out", str(out)]) == 0
+    calib, out, pts_rig, pts_floor_mm = _export_pinholes_on_a_floor(rig, tmp_path, "dannce")
     assert "hires_cam1_params.mat, hires_cam2_params.mat" in capsys.readouterr().out
     assert "hires_cam2_params.mat = Camera2 = right" in (out / "cameras.txt").read_text()
-    pts_rig = _points_seen_by_all(rig)
-    pts_floor_mm = 1000.0 * (pts_rig @ floor_from_rig[:3, :3].T + floor_from_rig[:3, 3])
     for i, name in enumerate(["left", "right"], start=1):
         params = loadmat(out / f"hires_cam{i}_params.mat")
         assert params["t"].shape == (1, 3) and params["TDistort"].shape == (1, 2)
@@ -225,17 +232,8 @@ def test_jarvis_files_project_like_our_cameras(rig, tmp_path, capsys, caplog):
 
     with pytest.raises(InputError, match="top has a fisheye lens, which JARVIS's"):
         jarvis_files(rig)
-    del rig.cameras["top"]
-    floor_from_rig = _pose([-100, 10, 0], [0.2, -1.5, 0.1])
-    rig.quality["floor"] = {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
-                            "rms": 0.0, "camera_heights": {}}
-    calib = tmp_path / "calibration.json"
-    calib.write_text(json.dumps(calibration_to_dict(rig)))
-    out = tmp_path / "jarvis"
-    assert main(["export", str(calib), "--format", "jarvis", "--out", str(out)]) == 0
+    calib, out, pts_rig, pts_floor_mm = _export_pinholes_on_a_floor(rig, tmp_path, "jarvis")
     assert "left.yaml, right.yaml" in capsys.readouterr().out
-    pts_rig = _points_seen_by_all(rig)
-    pts_floor_mm = 1000.0 * (pts_rig @ floor_from_rig[:3, :3].T + floor_from_rig[:3, 3])
     for name in ("left", "right"):
         got = _jarvis_pixels(pts_floor_mm, out / f"{name}.yaml")
         assert np.abs(got - _colmap_pixels(rig.cameras[name], pts_rig)).max() < 1e-6
