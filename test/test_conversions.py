@@ -193,3 +193,23 @@ def test_tf_message_holds_rig_from_cam(conv):
                         msg.transforms[1].transform.translation.y,
                         msg.transforms[1].transform.translation.z],
                        -cam_from_rig[:3, :3].T @ cam_from_rig[:3, 3])
+
+
+def test_point_cloud_round_trip_and_rviz_layout():
+    pytest.importorskip("rclpy", reason="ROS message tests need rclpy (ROS 2 Jazzy)")
+    from densecalib_ros.ros.conversions import point_cloud_msg, point_cloud_to_numpy
+
+    rng = np.random.default_rng(3)
+    xyz, rgb = rng.normal(size=(50, 3)), rng.integers(0, 256, (50, 3)).astype(np.uint8)
+    msg = point_cloud_msg(xyz, rgb, "rig", 1_500_000_000)
+    assert (msg.header.frame_id, msg.header.stamp.sec, msg.header.stamp.nanosec) == ("rig", 1,
+                                                                                  500_000_000)
+    assert [(f.name, f.offset, f.datatype) for f in msg.fields] == [
+        ("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("rgb", 12, 7)]  # FLOAT32 = 7, as RViz reads
+    assert (msg.width, msg.height, msg.point_step, len(msg.data)) == (50, 1, 16, 800)
+    back_xyz, back_rgb = point_cloud_to_numpy(msg)
+    np.testing.assert_allclose(back_xyz, xyz, rtol=1e-6, atol=1e-6)  # float32
+    np.testing.assert_array_equal(back_rgb, rgb)
+    packed = np.frombuffer(bytes(msg.data), np.uint32).reshape(50, 4)[:, 3]
+    assert packed[0] == (int(rgb[0, 0]) << 16) | (int(rgb[0, 1]) << 8) | int(rgb[0, 2])
+    assert point_cloud_msg(np.zeros((0, 3)), None, "rig", 0).width == 0

@@ -27,12 +27,15 @@ from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 from densecalib_ros.core.bag import read_frame_sets, write_image_bag  # noqa: E402
 from densecalib_ros.core.config import DEFAULT_PIPELINE, make_config  # noqa: E402
 from densecalib_ros.core.errors import InputError  # noqa: E402
-from densecalib_ros.core.export import camera_info_yaml, read_calibration  # noqa: E402
+from densecalib_ros.core.export import (camera_info_yaml, read_calibration,  # noqa: E402
+                                        read_saved_model)
+from densecalib_ros.core.floor import reconstruction_points_in_rig  # noqa: E402
 from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
 from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
 from densecalib_ros.core.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
 from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402
+from densecalib_ros.ros.conversions import point_cloud_to_numpy  # noqa: E402
 from densecalib_ros.ros.node import DenseCalibNode, pipeline_config  # noqa: E402
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
                                           TriggerCaller, wait_until)
@@ -85,6 +88,7 @@ class Ros:
         topics = dict(zip(node.settings.camera_names, node.settings.camera_info_topics))
         return self.add(CalibrationListener(topics, "/densecalib_node/status",
                                             name=f"listener_{time.monotonic_ns()}",
+                                            points_topic="/densecalib_node/points",
                                             context=self.context))
 
     def caller(self, service="calibrate"):
@@ -340,6 +344,16 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert sorted(p.name for p in latest.iterdir()) == [
         "calibration.json", "cam0.yaml", "cam1.yaml", "cam2.yaml", "cam3.yaml", "colmap"]
     assert calibration_values(read_calibration(latest)) == calibration_values(node.calibration)
+    # ~/points: the saved model's scene points in the rig frame, in their image colours
+    assert wait_until(lambda: listener.snapshot()["points"], 5.0)
+    cloud = listener.snapshot()["points"][-1]
+    assert cloud.header.frame_id == "rig"
+    xyz, rgb = point_cloud_to_numpy(cloud)
+    model = read_saved_model(latest)
+    assert len(xyz) == model.num_points3D() > 50
+    np.testing.assert_allclose(xyz, reconstruction_points_in_rig(model, node.calibration),
+                               rtol=1e-5, atol=1e-5)
+    assert rgb.std() > 10
     assert wait_until(lambda: any(s.startswith("done: calibrated")
                                   for s in listener.snapshot()["status"]), 5.0)
     assert any(s.startswith("calibrating: matched frame set")
@@ -379,6 +393,8 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert wait_until(lambda: len(listener.snapshot()["camera_info"]) == 4 and
                       listener.rig_from_optical(), 10.0)
     assert camera_info_values(listener) == published
+    assert wait_until(lambda: listener.snapshot()["points"], 5.0)  # republished from the files
+    assert len(point_cloud_to_numpy(listener.snapshot()["points"][-1])[0]) == len(xyz)
     restarted_tf = listener.rig_from_optical()
     assert all(np.allclose(restarted_tf[k], published_tf[k], atol=1e-9) for k in published_tf)
     checker = ros.caller("check")
@@ -403,6 +419,8 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     late = ros.listener(node)  # a subscriber arriving now still gets the good calibration
     assert wait_until(lambda: len(late.snapshot()["camera_info"]) == 4, 10.0)
     assert camera_info_values(late) == published
+    assert wait_until(lambda: late.snapshot()["points"], 5.0)
+    assert len(point_cloud_to_numpy(late.snapshot()["points"][-1])[0]) == len(xyz)
     assert wait_until(lambda: diag_state() and "last calibration failed" in diag_state()[1], 5.0)
     # ~/clear: the buffered sets are gone, the next calibration waits for new ones
     clearer = ros.caller("clear")
@@ -550,6 +568,8 @@ def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
             return listener.rig_from_optical().get("cam1_optical_frame", np.eye(4))[0, 3]
 
         assert wait_until(lambda: cam1_x() == pytest.approx(0.2), 10.0)
+        assert wait_until(lambda: listener.snapshot()["points"], 5.0)
+        assert listener.snapshot()["points"][-1].width == 0  # no COLMAP model saved: no points
         # cam0-cam1 measured 0.5 m: every length x 2.5
         assert main(["scale", str(tmp_path), "--baseline", "cam0", "cam1", "0.5"]) == 0
         assert cam1_x() == pytest.approx(0.2)  # the node does not watch its files

@@ -15,7 +15,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from tf2_msgs.msg import TFMessage
 
 from ..core.bag import stamp_ns
@@ -65,6 +65,41 @@ def numpy_to_compressed_msg(image: np.ndarray, fmt: str, t_ns: int,
     msg.header.stamp = time_from_ns(t_ns)
     msg.header.frame_id = frame_id
     return msg
+
+
+# x, y, z float32 and rgb packed into a float32's bytes (0x00RRGGBB): what RViz's PointCloud2
+# display and PCL's PointXYZRGB read.
+_CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+
+
+def point_cloud_msg(points_xyz: np.ndarray, colours_rgb: Optional[np.ndarray], frame_id: str,
+                    t_ns: int) -> PointCloud2:
+    """(N, 3) points in frame_id and (N, 3) uint8 RGB colours (None: grey) -> an unorganised
+    sensor_msgs/PointCloud2 (fields x y z rgb)."""
+    points = np.asarray(points_xyz, np.float64).reshape(-1, 3)
+    rgb = (np.full((len(points), 3), 128, np.uint32) if colours_rgb is None
+           else np.asarray(colours_rgb, np.uint32).reshape(-1, 3))
+    cloud = np.empty(len(points), _CLOUD_DTYPE)
+    cloud["x"], cloud["y"], cloud["z"] = points.T
+    cloud["rgb"] = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+    msg = PointCloud2(height=1, width=len(points), is_bigendian=False,
+                      point_step=_CLOUD_DTYPE.itemsize, row_step=_CLOUD_DTYPE.itemsize * len(points),
+                      is_dense=True)
+    msg.fields = [PointField(name=name, offset=_CLOUD_DTYPE.fields[name][1],
+                             datatype=PointField.FLOAT32, count=1)
+                  for name in ("x", "y", "z", "rgb")]
+    msg.data = cloud.tobytes()
+    msg.header.stamp = time_from_ns(t_ns)
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def point_cloud_to_numpy(msg: PointCloud2) -> tuple[np.ndarray, np.ndarray]:
+    """A point_cloud_msg message -> ((N, 3) float points, (N, 3) uint8 RGB)."""
+    cloud = np.frombuffer(bytes(msg.data), _CLOUD_DTYPE, count=msg.width * msg.height)
+    rgb = np.column_stack([(cloud["rgb"] >> shift) & 0xFF for shift in (16, 8, 0)])
+    return (np.column_stack([cloud["x"], cloud["y"], cloud["z"]]).astype(np.float64),
+            rgb.astype(np.uint8))
 
 
 def message_stamp_ns(msg) -> int:

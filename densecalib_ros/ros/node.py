@@ -19,7 +19,9 @@ Interface (names relative to the node, default name `densecalib_node`):
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pairs`' with their
   stereo rectification R, P, republished when that parameter changes), `/tf_static`
   (tf2_msgs/TFMessage, all cameras in one message, transient local, depth 1; with `floor` on,
-  also floor_frame -> rig_frame), `/diagnostics` (diagnostic_msgs/DiagnosticArray, 1 Hz);
+  also floor_frame -> rig_frame), `~/points` (sensor_msgs/PointCloud2, transient local, depth
+  1: the calibration's scene points in rig_frame, x y z rgb), `/diagnostics`
+  (diagnostic_msgs/DiagnosticArray, 1 Hz);
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
 - files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/) written
   atomically, then the `output_dir/latest` symlink is swapped atomically. At start-up the
@@ -42,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -53,7 +56,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from sensor_msgs.srv import SetCameraInfo
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -74,7 +77,7 @@ from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.types import RigCalibration
-from .conversions import camera_info_msg, rig_tf_message
+from .conversions import camera_info_msg, point_cloud_msg, rig_tf_message
 from .replay import BagReplayer
 from .sync import MessageSynchronizer, decode_frame_sets
 
@@ -466,6 +469,7 @@ class DenseCalibNode(Node):
         self._info_pubs = [self.create_publisher(CameraInfo, topic, LATCHED_QOS)
                            for topic in s.camera_info_topics]
         self._tf_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED_QOS)
+        self._points_pub = self.create_publisher(PointCloud2, "~/points", LATCHED_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._set_info_clients = [
             self.create_client(SetCameraInfo, srv, callback_group=self._client_group)
@@ -861,6 +865,7 @@ class DenseCalibNode(Node):
         t_ns = self.get_clock().now().nanoseconds
         self._publish_camera_infos(rig, t_ns)
         self._publish_tf(rig, t_ns)
+        self._publish_points(rig, directory, t_ns)
         self.calibration, self.calibration_dir = rig, directory
         self._calibrated_at = time.time() if calibrated_at is None else calibrated_at
         self._publish_diagnostics()
@@ -873,6 +878,24 @@ class DenseCalibNode(Node):
         s = self.settings
         frames = dict(zip(s.camera_names, s.frame_names))
         self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns, _floor_parent(s)))
+
+    def _publish_points(self, rig: RigCalibration, directory: Path, t_ns: int) -> None:
+        """Replace the latched ~/points cloud with the scene points of the calibration's saved
+        COLMAP model, in rig_frame and the rig's units, in their image colours (RViz shows the
+        scene beside the camera frames); an empty cloud when it saved none."""
+        from ..core.export import read_saved_model
+        from ..core.floor import reconstruction_points_in_rig
+
+        points, colours = np.zeros((0, 3)), None
+        try:
+            model = read_saved_model(directory)
+            if model is not None and model.num_points3D():
+                points = reconstruction_points_in_rig(model, rig)
+                colours = np.array([p.color for p in model.points3D.values()], np.uint8)
+        except Exception as exc:  # an unreadable model costs the view, never the calibration
+            self.get_logger().warning(f"no scene points published: {exc}")
+        self._points_pub.publish(point_cloud_msg(points, colours, self.settings.rig_frame,
+                                                 t_ns))
 
     def _publish_camera_infos(self, rig: RigCalibration, t_ns: int) -> None:
         infos = self._camera_infos(rig, t_ns)

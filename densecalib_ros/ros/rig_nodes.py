@@ -11,7 +11,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -50,16 +50,22 @@ class CameraPublisherNode(Node):
 class CalibrationListener(Node):
     """Subscribes to what the calibration node publishes: CameraInfo per camera and /tf_static
     (transient local, so a listener started later still gets the last calibration), the node's
-    status and /diagnostics. Thread-safe accessors for the latest messages."""
+    status, /diagnostics and (points_topic) its scene points. Thread-safe accessors for the
+    latest messages."""
 
     def __init__(self, camera_info_topics: dict[str, str], status_topic: str,
-                 name: str = "densecalib_listener", **node_kwargs):
+                 name: str = "densecalib_listener", points_topic: Optional[str] = None,
+                 **node_kwargs):
         super().__init__(name, **node_kwargs)
         self._lock = threading.Lock()
         self.camera_info: dict[str, CameraInfo] = {}
         self.tf_static: list[TFMessage] = []
         self.status: list[str] = []
         self.diagnostics: list[DiagnosticArray] = []
+        self.points: list[PointCloud2] = []
+        if points_topic:
+            self.create_subscription(PointCloud2, points_topic,
+                                     lambda m: self._store("points", m), LATCHED_QOS)
         for camera, topic in camera_info_topics.items():
             self.create_subscription(CameraInfo, topic,
                                      lambda m, c=camera: self._store("camera_info", m, c),
@@ -78,6 +84,8 @@ class CalibrationListener(Node):
                 self.tf_static.append(msg)
             elif kind == "status":
                 self.status.append(msg.data)
+            elif kind == "points":
+                self.points.append(msg)
             else:
                 self.diagnostics.append(msg)
 
@@ -92,7 +100,8 @@ class CalibrationListener(Node):
     def snapshot(self) -> dict:
         with self._lock:
             return {"camera_info": dict(self.camera_info), "tf_static": list(self.tf_static),
-                    "status": list(self.status), "diagnostics": list(self.diagnostics)}
+                    "status": list(self.status), "diagnostics": list(self.diagnostics),
+                    "points": list(self.points)}
 
 
 def wait_until(predicate: Callable[[], bool], timeout_s: float, period_s: float = 0.02) -> bool:
