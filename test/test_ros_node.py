@@ -381,6 +381,16 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
         response.message
     assert "2 frame sets" in response.message and "transfer error px: cam0" in response.message
     ros.remove(checker)
+    # floor turned on after calibrating without it: found in the saved scene points, recorded in
+    # calibration.json and published; turned off again: gone from /tf_static
+    assert "floor" not in read_calibration(latest).quality
+    assert node.set_parameters([Parameter("floor", value="upright")])[0].successful
+    assert wait_until(lambda: "rig" in listener.rig_from_optical(), 10.0), \
+        listener.snapshot()["status"][-2:]
+    assert read_calibration(latest).quality["floor"]["num_points"] > 30
+    assert any(s.startswith("floor: found in") for s in listener.snapshot()["status"])
+    assert node.set_parameters([Parameter("floor", value="")])[0].successful
+    assert wait_until(lambda: "rig" not in listener.rig_from_optical(), 10.0)
     published = camera_info_values(listener)
     published_tf = listener.rig_from_optical()
     files_before = sorted(p.name for p in out.iterdir())
@@ -491,6 +501,13 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
         rig.metric_scale = False  # a pair without a known baseline is rectified, with a caveat
         infos = node._camera_infos(rig, 0)
         assert infos["cam3"].p[3] < 0 and "arbitrary units" in node.stereo_problem
+        # floor turned on for a calibration that saved no scene points: said, nothing changes
+        assert node.set_parameters([Parameter("floor", value="upright")])[0].successful
+        assert wait_until(lambda: any("floor: not found in 20260101T000000Z" in s and
+                                      "no COLMAP model" in s
+                                      for s in listener.snapshot()["status"]), 10.0)
+        assert "floor" not in read_calibration(tmp_path / "latest").quality
+        assert "rig" not in listener.rig_from_optical()
     finally:
         ros.remove(listener)
         ros.remove(node)

@@ -68,7 +68,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, Pi
 from ..core.consistency import DEFAULT_TOLERANCE_PX
 from ..core.errors import CalibrationError, InputError
 from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
-                           write_calibration_files)
+                           write_calibration_files, write_calibration_json)
 from ..core.floor import VIEWS as FLOOR_VIEWS, record_floor
 from ..core.known_intrinsics import read_known_intrinsics, with_previous_intrinsics
 from ..core.masks import read_mask
@@ -167,9 +167,10 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                   "camera's optical frame coincides with it)", True, {}),
     "floor": ("", "after each calibration find the floor in the scene points and publish "
               "floor_frame -> rig_frame on /tf_static: '' (off), 'upright' (cameras mounted "
-              "upright) or 'top' (all looking straight down); see `calibrate --floor`. Changed "
-              "at run time, /tf_static is republished at once (with the current calibration's "
-              "floor, if it has one)", False, {}),
+              "upright) or 'top' (all looking straight down); see `calibrate --floor`. Turned "
+              "on at run time, the current calibration's floor (found now in its saved scene "
+              "points if it has none, and recorded in its calibration.json) is published at "
+              "once; turned off, /tf_static is republished without it", False, {}),
     "floor_frame": ("floor", "frame of the floor (z up), the parent of rig_frame when floor is "
                     "on", True, {}),
     "frame_names": (Parameter.Type.STRING_ARRAY,
@@ -534,8 +535,27 @@ class DenseCalibNode(Node):
             if new.stereo_pairs != old.stereo_pairs:
                 self._publish_camera_infos(self.calibration, t_ns)
             if _floor_parent(new) != _floor_parent(old):
+                if new.floor and not self.calibration.quality.get("floor"):
+                    self._find_floor_of_current_calibration(new.floor)
                 self._publish_tf(self.calibration, t_ns)
         return SetParametersResult(successful=True)
+
+    def _find_floor_of_current_calibration(self, view: str) -> None:
+        """`floor` turned on for a calibration made without it: find the floor in its saved
+        scene points (as `densecalib floor` does) and record it in its calibration.json, so that
+        it is published now and after a restart. No floor found: the calibration stays as it is
+        and the status says why."""
+        from ..core.floor import find_floor_of_saved_calibration, set_floor
+
+        try:
+            floor = find_floor_of_saved_calibration(self.calibration_dir, self.calibration, view)
+        except InputError as exc:
+            self._set_status(f"floor: not found in {self.calibration_dir.name}: {exc}")
+            return
+        set_floor(self.calibration, floor)
+        write_calibration_json(self.calibration, self.calibration_dir)
+        self._set_status(f"floor: found in {self.calibration_dir.name} ({floor.num_points} "
+                         f"points) and recorded in its calibration.json")
 
     # ----------------------------------------------------------------- intake
     def _subscribe(self, i: int, compressed: bool) -> None:
