@@ -23,7 +23,8 @@ SUBCOMMANDS = {
     "generate": ("densecalib_ros.commands.generate",
                  "write a generated rig's images and ground truth to a folder"),
     "report": ("densecalib_ros.commands.report",
-               "print a calibration's intrinsics, fit and camera layout, or its change from another"),
+               "print a calibration's intrinsics, fit and camera layout, or its change from another; "
+               "--plot draws the rig from above and the side"),
     "check": ("densecalib_ros.commands.check",
               "does a calibration still fit new images of the rig? names cameras that moved"),
     "overlay": ("densecalib_ros.commands.overlay",
@@ -31,7 +32,8 @@ SUBCOMMANDS = {
     "undistort": ("densecalib_ros.commands.undistort",
                   "resample images to distortion-free pinhole cameras, with their calibration"),
     "sync": ("densecalib_ros.commands.sync",
-             "time offsets between the cameras' videos, bag topics or camera-trap shots"),
+             "time offsets between the cameras' videos, bag topics or camera-trap shots; videos cut "
+             "to start together (--trim), a bag restamped onto one clock (--restamp)"),
     "scale": ("densecalib_ros.commands.scale",
               "give a written calibration metric scale from a measured distance between two "
               "scene points (or two cameras)"),
@@ -40,8 +42,8 @@ SUBCOMMANDS = {
     "triangulate": ("densecalib_ros.commands.triangulate",
                     "3D points (and distances) from their pixels in two or more cameras"),
     "export": ("densecalib_ros.commands.export",
-               "write a calibration as anipose calibration.toml, Kalibr camchain.yaml, "
-               "OpenCV FileStorage files or a rectified stereo pair"),
+               "write a calibration for other tools: anipose, Kalibr, OpenCV, DANNCE, JARVIS, a "
+               "rectified stereo pair (ROS, OpenCV), or a PLY of the cameras and scene"),
 }
 
 
