@@ -179,13 +179,16 @@ def _write_restamped(bag, topics: list[str], estimates: dict, out) -> dict:
     from ..core.bag import clock_topics, recorded_topics, restamp_bag
 
     recorded = recorded_topics(bag)
-    by_camera, offsets_ns = {}, {}
+    by_camera, offsets_ns, owner = {}, {}, {}
     for name, topic in zip(estimates, topics):
         by_camera[name] = clock_topics(recorded, topic)
         for t in by_camera[name]:
-            if t in offsets_ns:
-                raise InputError(f"{t} would be restamped for two cameras: list image topics "
-                                 "of different cameras (one per camera).")
+            if t in owner:
+                raise InputError(f"{t} belongs to the camera of {owner[t]} and to that of "
+                                 f"{topic}: it cannot be moved onto both clocks. Restamping "
+                                 "needs each camera's topics in a namespace of its own "
+                                 "(/cam0/image_raw, /cam0/camera_info).")
+            owner[t] = topic
             offsets_ns[t] = int(round(estimates[name].offset_s * 1e9))
     note = json.dumps({"restamped_by": "densecalib sync --restamp", "source": str(bag),
                        "offsets_s": {n: e.offset_s for n, e in estimates.items()},
