@@ -594,8 +594,12 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
 def with_point_colours(result: CalibrationResult,
                        frame_sets: Sequence[Sequence[np.ndarray]]) -> None:
     """Colour the result's reconstruction points from the images (reconstruction.colour_points)."""
-    if result.reconstruction is not None and result.state is not None:
+    if result.reconstruction is None or result.state is None:
+        return
+    try:
         colour_points(result.reconstruction, result.state, frame_sets)
+    except Exception as exc:  # colours are for viewing: they never cost a calibration
+        log.warning("scene points left uncoloured: %r", exc)
 
 
 def calibrate_rig(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
