@@ -54,7 +54,7 @@ def _strip_observations(out):
                if p.has_point3D() and p.xy[1] > 480 - STRIP_PX)
 
 
-def test_info_strip_is_used_unless_masked(tmp_path):
+def test_info_strip_is_used_unless_masked(tmp_path, capsys):
     rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                seed=3))
     for frames in rig.images:  # a trail camera's info strip: the same in every camera
@@ -68,17 +68,26 @@ def test_info_strip_is_used_unless_masked(tmp_path):
     mask[-STRIP_PX:] = 0
     cv2.imwrite(str(tmp_path / "strip.png"), mask)
     common = ["--matcher", "sift", "--threads", "1", "--consensus-runs", "1"]
-    plain, masked = tmp_path / "plain", tmp_path / "masked"
-    assert main(["calibrate", "--images", str(images), "--out", str(plain), *common]) == 0
+    plain, masked, found = tmp_path / "plain", tmp_path / "masked", tmp_path / "found"
+    assert main(["calibrate", "--images", str(images), "--out", str(plain), *common,
+                 "--keep-info-strips"]) == 0
     assert main(["calibrate", "--images", str(images), "--out", str(masked), *common,
                  "--mask", str(tmp_path / "strip.png")]) == 0
+    assert main(["calibrate", "--images", str(images), "--out", str(found), *common]) == 0
     assert _strip_observations(plain) > 0  # the strip's text matched across cameras
     assert _strip_observations(masked) == 0
-    calibration = read_calibration(masked)
-    # the strip's matches fit no camera model (2.5 px RMS in one camera here): masked, the fit is
-    # closer
-    assert calibration.quality["reprojection_rms_px"] < \
-        read_calibration(plain).quality["reprojection_rms_px"]
-    assert calibration.quality["masked_cameras"] == ["cam0", "cam1", "cam2", "cam3"]
-    metrics = evaluate_calibration(calibration, rig.ground_truth())
-    assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
+    assert _strip_observations(found) == 0  # found by itself (core.info_strip) and ignored
+    assert read_calibration(found).quality["info_strips"] == {
+        n: f"{STRIP_PX + 4} px at the bottom" for n in rig.names}  # the bar + a 4 px margin
+    assert "info_strips" not in read_calibration(masked).quality  # the user's mask rules
+    assert main(["report", str(found)]) == 0
+    assert "info strips ignored: cam0 52 px at the bottom, cam1 52 px" in capsys.readouterr().out
+    for out in (masked, found):
+        calibration = read_calibration(out)
+        # the strip's matches fit no camera model (2.5 px RMS in one camera here): without them
+        # the fit is closer
+        assert calibration.quality["reprojection_rms_px"] < \
+            read_calibration(plain).quality["reprojection_rms_px"]
+        metrics = evaluate_calibration(calibration, rig.ground_truth())
+        assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
+    assert read_calibration(masked).quality["masked_cameras"] == ["cam0", "cam1", "cam2", "cam3"]

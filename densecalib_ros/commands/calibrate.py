@@ -197,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
         config.known_intrinsics = check_known_intrinsics(
             config.known_intrinsics, names, check_frame_sets(frame_sets, names))
         config.camera_masks = parse_masks(args.mask, names)
+        config.detect_info_strips = not args.keep_info_strips
         if config.known_intrinsics:
             log.info("intrinsics given and kept for %s", ", ".join(sorted(config.known_intrinsics)))
         if args.images and not args.ignore_exif:

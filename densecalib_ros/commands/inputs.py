@@ -56,9 +56,13 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--end", type=float, default=None, metavar="S",
                         help="with --videos: take frames up to this common time (s)")
     parser.add_argument("--mask", nargs="+", default=None, metavar="PATH|NAME=PATH",
-                        help="image of a camera's size, black where matches are not used (an "
-                             "info strip, the rig's own structure): one PATH for every camera or "
-                             "NAME=PATH per camera")
+                        help="image of a camera's size, black where matches are not used (the "
+                             "rig's own structure, a lens hood, an info strip): one PATH for "
+                             "every camera or NAME=PATH per camera")
+    parser.add_argument("--keep-info-strips", action="store_true",
+                        help="do not look for burnt-in info strips (a trail camera's bar of "
+                             "date and temperature along the top or bottom edge), whose rows "
+                             "are otherwise ignored in cameras without a --mask")
 
 
 def _alignment(args) -> tuple[dict, dict]:

@@ -146,6 +146,10 @@ class PipelineConfig:
     # Regions whose matches are not used (core/masks.py): camera name -> bool (H, W), True =
     # ignored (an info strip, the rig's own structure). Cameras not named use the whole image.
     camera_masks: dict = field(default_factory=dict)
+    # Find burnt-in info strips (a trail camera's bar of date and temperature along the top or
+    # bottom edge) and ignore their rows, for the cameras without a camera_masks entry
+    # (core/info_strip.py): their glyphs match across cameras and fit no geometry.
+    detect_info_strips: bool = True
     # Intrinsics the user knows and wants kept (core/known_intrinsics.py: a lab calibration's
     # camera_info YAML, a previous calibration): camera name -> CameraIntrinsics at the images'
     # size. Those cameras start from them and keep them exactly: only the extrinsics (and the

@@ -355,6 +355,32 @@ def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
     return sizes
 
 
+def info_strips(frame_sets: Sequence[Sequence[np.ndarray]],
+                camera_names: Optional[Sequence[str]], config: PipelineConfig) -> dict:
+    """Camera name -> the info strips (core.info_strip) found in its images, for the cameras
+    without a mask of the user's; {} when config.detect_info_strips is off."""
+    from .info_strip import find_info_strips
+
+    if not config.detect_info_strips or camera_names is None or not frame_sets:
+        return {}
+    found = find_info_strips(frame_sets, camera_names)
+    return {n: strips for n, strips in found.items() if n not in config.camera_masks}
+
+
+def info_strip_masks(frame_sets: Sequence[Sequence[np.ndarray]],
+                     camera_names: Optional[Sequence[str]], config: PipelineConfig) -> dict:
+    """Camera name -> bool mask of its info strips (info_strips), for core.masks."""
+    from .info_strip import strips_mask
+
+    masks = {}
+    for name, strips in info_strips(frame_sets, camera_names, config).items():
+        height, width = frame_sets[0][list(camera_names).index(name)].shape[:2]
+        masks[name] = strips_mask(strips, height, width)
+        log.info("camera %s: its info strip (%s) is ignored", name,
+                 ", ".join(s.describe() for s in strips))
+    return masks
+
+
 def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,
                      matcher=None, progress: Progress = None,
                      camera_names: Optional[Sequence[str]] = None) -> list:
@@ -365,11 +391,12 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     from .matching import create_matcher
 
     ignored = []
-    if config.camera_masks:
+    masks = {**info_strip_masks(frame_sets, camera_names, config), **config.camera_masks}
+    if masks:
         if camera_names is None:
             raise ValueError("camera_masks need the camera names")
         sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
-        ignored = check_masks(config.camera_masks, camera_names, sizes)
+        ignored = check_masks(masks, camera_names, sizes)
 
     if matcher is None:
         matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
@@ -585,10 +612,20 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         result.rig.quality["camera_lens"] = dict(config.camera_lens)
     if config.camera_masks:
         result.rig.quality["masked_cameras"] = sorted(config.camera_masks)
+    record_info_strips(result, frame_sets, camera_names, config)
     if config.exif_focal_px:
         result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
                                                for n, f in config.exif_focal_px.items()}
     return result
+
+
+def record_info_strips(result: CalibrationResult, frame_sets: Sequence[Sequence[np.ndarray]],
+                       camera_names: Sequence[str], config: PipelineConfig) -> None:
+    """Note the info strips that were ignored in rig.quality["info_strips"] (camera -> what)."""
+    strips = info_strips(frame_sets, camera_names, config)
+    if strips:
+        result.rig.quality["info_strips"] = {
+            n: ", ".join(s.describe() for s in found) for n, found in strips.items()}
 
 
 def with_point_colours(result: CalibrationResult,

@@ -20,7 +20,8 @@ from .change import calibration_change, change_summary
 from .config import PipelineConfig
 from .errors import CalibrationError
 from .pipeline import (CalibrationResult, Progress, calibrate_from_matches, check_frame_sets,
-                       match_frame_sets, say_progress, with_point_colours)
+                       match_frame_sets, record_info_strips, say_progress,
+                       with_point_colours)
 from .types import RigCalibration
 
 log = logging.getLogger(__name__)
@@ -93,4 +94,5 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     result.rig.quality["change_summary"] = change_summary(change)
     say_progress(progress, result.rig.quality["change_summary"])
     with_point_colours(result, frame_sets)
+    record_info_strips(result, frame_sets, camera_names, config)
     return result

@@ -143,6 +143,9 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         lines.append(", ".join(fit))
     if rig.failed_cameras:
         lines.append("not registered: " + ", ".join(rig.failed_cameras))
+    if q.get("info_strips"):
+        lines.append("info strips ignored: " + ", ".join(
+            f"{n} {what}" for n, what in q["info_strips"].items()))
     for warning in q.get("warnings", []) or []:
         lines.append(f"warning: {warning}")
     if "change_summary" in q:

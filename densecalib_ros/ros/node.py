@@ -138,6 +138,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                    "images of the cameras' size, black where matches are not used (an info "
                    "strip, the rig's own structure): empty, one for every camera, or one per "
                    "camera ('' = none)", False, {}),
+    "detect_info_strips": (True, "find burnt-in info strips (a trail camera's bar of date and "
+                           "temperature along the top or bottom edge) and ignore their rows in "
+                           "cameras without a mask_files entry", False, {}),
     "intrinsics_files": (Parameter.Type.STRING_ARRAY,
                          "intrinsics to keep (cameras calibrated before: camera_info YAML, a "
                          "densecalib calibration, an anipose calibration.toml, a Kalibr "
@@ -222,6 +225,7 @@ class Settings:
     preset: str
     camera_lens: dict[str, str]
     camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.masks)
+    detect_info_strips: bool
     known_intrinsics: dict  # camera name -> CameraIntrinsics kept (core.known_intrinsics)
     keep_intrinsics: bool
     pipeline: str
@@ -253,6 +257,7 @@ def pipeline_config(s: Settings) -> PipelineConfig:
                        sfm__share_intrinsics=s.share_intrinsics,
                        consensus_runs=s.consensus_runs, initial_focal_px=s.initial_focal_px,
                        camera_lens=s.camera_lens, camera_masks=s.camera_masks,
+                       detect_info_strips=s.detect_info_strips,
                        known_intrinsics=s.known_intrinsics)
 
 
@@ -388,6 +393,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         check_tolerance_px=float(v["check_tolerance_px"]),
         preset=v["preset"],
         camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks,
+        detect_info_strips=bool(v["detect_info_strips"]),
         known_intrinsics=known_intrinsics, keep_intrinsics=bool(v["keep_intrinsics"]),
         pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
