@@ -65,10 +65,10 @@ def _grey(image: np.ndarray) -> np.ndarray:
 
 def strip_rows(image: np.ndarray, side: str) -> int:
     """Height [px] of an info strip along `side` of one image (module docstring), 0 if none."""
-    grey = _grey(image)
-    height = grey.shape[0]
-    rows = grey if side == "top" else grey[::-1]
+    height = np.asarray(image).shape[0]
     limit = int(MAX_STRIP_FRACTION * height)
+    edge_rows = image[:limit + 1] if side == "top" else image[::-1][:limit + 1]
+    rows = _grey(edge_rows)  # only the rows a strip may take, from the edge inward
     edge = EDGE_PX
     bar = float(np.median(rows[0]))
     n, text_rows, last_text_row, most_glyphs = 0, 0, -1, 0
