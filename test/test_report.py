@@ -253,3 +253,38 @@ def test_corner_rays_of_a_fisheye_keep_their_angle():
 
     np.testing.assert_allclose(angles(400.0), np.degrees(400 / 400.0))  # equidistant: r / f
     np.testing.assert_allclose(angles(200.0), 80.0)  # past 80 deg: held at 80
+
+
+def test_layout_plot_against_another_calibration_rings_where_a_camera_was():
+    """--against: the other calibration's cameras as grey rings joined to the cameras now; cam2,
+    0.3 m further along the floor's x now, has its ring 0.3 m to the left of its dot."""
+    import cv2
+
+    from densecalib_ros.core.errors import InputError
+    from densecalib_ros.core.layout_plot import PANEL_PX, _BEFORE, centres_as_in, draw_layout
+
+    rig, wall = _upright_rig(with_floor=True)
+    before = copy.deepcopy(rig)
+    floor_from_rig = np.asarray(rig.quality["floor"]["floor_from_rig"]).reshape(4, 4)
+    shift_rig = np.linalg.inv(floor_from_rig)[:3, :3] @ [-0.3, 0.0, 0.0]  # 0.3 m back in floor x
+    before.cameras["cam2"].cam_from_rig[:3, 3] -= before.cameras["cam2"].cam_from_rig[:3, :3] @ \
+        shift_rig
+    moved = centres_as_in(rig, before) - centres_as_in(rig, rig)
+    np.testing.assert_allclose(np.linalg.norm(moved, axis=1), [0, 0, 0.3], atol=1e-9)
+    top = draw_layout(rig, wall, against=before)[:, :PANEL_PX]
+    dots = _dots(top)
+    px_per_m = dots[1, 0] - dots[0, 0]  # cam0 and cam1 are 1 m apart in x
+    ring = np.nonzero(cv2.inRange(top, np.array(_BEFORE) - 40, np.array(_BEFORE) + 40))
+    was = dots[2] - [0.3 * px_per_m, 0.0]
+    near = np.hypot(ring[1] - was[0], ring[0] - was[1]) < 10
+    assert near.sum() > 20  # the ring around where cam2 was
+    # an up-to-scale calibration is brought to this one's unit (by the median of the cameras'
+    # distance ratios: with a moved camera among only two, that is a compromise)
+    scaled = copy.deepcopy(rig)
+    scaled.metric_scale = False
+    for cam in scaled.cameras.values():
+        cam.cam_from_rig[:3, 3] *= 3.0
+    np.testing.assert_allclose(centres_as_in(rig, scaled), centres_as_in(rig, rig), atol=1e-9)
+    before.reference_camera = "cam1"  # rig frames of different cameras: refused
+    with pytest.raises(InputError, match="different reference cameras"):
+        draw_layout(rig, wall, against=before)

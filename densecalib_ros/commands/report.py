@@ -28,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG",
                         help="also draw the rig seen from above and from the side (cameras, "
                              "their fields of view, the scene points of the saved COLMAP model, "
-                             "a scale bar) into this PNG file")
+                             "a scale bar; with --against, where its cameras were, as grey "
+                             "rings) into this PNG file")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.plot:
         try:
-            _write_plot(args.calibration, rig, args.plot)
+            _write_plot(args.calibration, rig, args.plot, against)
         except InputError as exc:
             log.error("%s", exc)
             return 2
@@ -56,8 +57,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_plot(calibration, rig, path) -> None:
-    """The layout picture (core.layout_plot) of the calibration, with its saved scene points."""
+def _write_plot(calibration, rig, path, against=None) -> None:
+    """The layout picture (core.layout_plot) of the calibration, with its saved scene points
+    (and where `against`'s cameras were)."""
     import cv2
 
     from ..core.export import calibration_folder, read_saved_model, write_text_atomic
@@ -73,7 +75,7 @@ def _write_plot(calibration, rig, path) -> None:
                     "without scene points")
     else:
         points = reconstruction_points_in_rig(reconstruction, rig)
-    ok, png = cv2.imencode(".png", draw_layout(rig, points))
+    ok, png = cv2.imencode(".png", draw_layout(rig, points, against=against))
     if not ok:
         raise InputError(f"Could not encode the plot for {path}.")
     write_text_atomic(path, png.tobytes())

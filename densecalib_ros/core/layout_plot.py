@@ -16,6 +16,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from .errors import InputError
 from .floor import world_from_rig
 from .types import CameraIntrinsics, RigCalibration
 
@@ -23,6 +24,7 @@ PANEL_PX = 640
 MAX_POINTS = 50_000  # drawn; a random subset beyond
 _BACKGROUND = (255, 255, 255)
 _POINT_GREY = (150, 150, 150)
+_BEFORE = (90, 90, 90)  # the other calibration's cameras (--against)
 _TEXT = (30, 30, 30)
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
@@ -75,12 +77,17 @@ def camera_colours(n: int) -> list[tuple[int, int, int]]:
 
 
 def _panel(title: str, axes: tuple[int, int], centres: np.ndarray, rays: list, points: np.ndarray,
-           names: list[str], unit: str) -> np.ndarray:
-    """One view: the plot-frame coordinates `axes` (e.g. (0, 1) = x right, y up on the image)."""
+           names: list[str], unit: str, before: Optional[np.ndarray] = None) -> np.ndarray:
+    """One view: the plot-frame coordinates `axes` (e.g. (0, 1) = x right, y up on the image).
+    before: (C, 3) the cameras' centres in another calibration (NaN: not in it), drawn as grey
+    rings joined to where the cameras are now."""
     image = np.full((PANEL_PX, PANEL_PX, 3), _BACKGROUND, np.uint8)
     cam2 = centres[:, axes]
     pts2 = points[:, axes] if len(points) else np.zeros((0, 2))
-    lo, hi = cam2.min(0), cam2.max(0)
+    old2 = before[:, axes] if before is not None else np.zeros((0, 2))
+    known = np.isfinite(old2).all(1)
+    lo = np.vstack([cam2, old2[known]]).min(0)
+    hi = np.vstack([cam2, old2[known]]).max(0)
     if len(pts2) >= 20:  # the bulk of the scene, not its stray points
         lo = np.minimum(lo, np.percentile(pts2, 5, axis=0))
         hi = np.maximum(hi, np.percentile(pts2, 95, axis=0))
@@ -97,6 +104,10 @@ def _panel(title: str, axes: tuple[int, int], centres: np.ndarray, rays: list, p
         uv = np.round(px(pts2)).astype(int)
         inside = (uv >= 0).all(1) & (uv[:, 0] < PANEL_PX) & (uv[:, 1] < PANEL_PX)
         image[uv[inside, 1], uv[inside, 0]] = _POINT_GREY
+    for i in np.flatnonzero(known):  # where the other calibration had each camera
+        was, now = (tuple(np.round(px(xy)[0]).astype(int)) for xy in (old2[i], cam2[i]))
+        cv2.line(image, was, now, _BEFORE, 1, cv2.LINE_AA)
+        cv2.circle(image, was, 7, _BEFORE, 2, cv2.LINE_AA)
     wedge = 0.12 * span
     for i, (name, colour) in enumerate(zip(names, camera_colours(len(names)))):
         c = px(cam2[i])[0]
@@ -116,11 +127,35 @@ def _panel(title: str, axes: tuple[int, int], centres: np.ndarray, rays: list, p
     return image
 
 
+def centres_as_in(rig: RigCalibration, other: RigCalibration) -> np.ndarray:
+    """(C, 3) the optical centres of rig's cameras in `other`, in rig's frame and unit (NaN for
+    cameras `other` lacks): both frames are their reference camera's, so they must share it; an
+    up-to-scale calibration is brought to the other's unit by the cameras' distances from it."""
+    if other.reference_camera != rig.reference_camera:
+        raise InputError(f"The calibrations have different reference cameras "
+                         f"({rig.reference_camera}, {other.reference_camera}): their rig frames "
+                         "cannot be drawn together.")
+
+    def centre(cal, name):
+        pose = np.asarray(cal.cameras[name].cam_from_rig, dtype=np.float64)
+        return -pose[:3, :3].T @ pose[:3, 3]
+
+    common = [n for n in rig.cameras if n in other.cameras and n != rig.reference_camera]
+    factor = 1.0
+    if common and not (rig.metric_scale and other.metric_scale):
+        factor = float(np.median([np.linalg.norm(centre(rig, n)) /
+                                  max(np.linalg.norm(centre(other, n)), 1e-12) for n in common]))
+    return np.array([factor * centre(other, n) if n in other.cameras else np.full(3, np.nan)
+                     for n in rig.cameras])
+
+
 def draw_layout(rig: RigCalibration, points_rig: Optional[np.ndarray] = None,
-                seed: int = 0) -> np.ndarray:
+                seed: int = 0, against: Optional[RigCalibration] = None) -> np.ndarray:
     """The rig's top and side views side by side (BGR uint8, PANEL_PX x 2 PANEL_PX): cameras as
     dots with their names, optical axis (thick) and field of view (thin), scene points (rig
-    frame, (N, 3), optional) in grey, a scale bar in metres or the rig's unit."""
+    frame, (N, 3), optional) in grey, a scale bar in metres or the rig's unit; with `against`
+    (another calibration of the rig, e.g. the previous one), where its cameras were, as grey
+    rings joined to where they are now (centres_as_in)."""
     plot_from_rig_, frame_name = plot_from_rig(rig)
     rotation, shift = plot_from_rig_[:3, :3], plot_from_rig_[:3, 3]
     names = list(rig.cameras)
@@ -144,8 +179,12 @@ def draw_layout(rig: RigCalibration, points_rig: Optional[np.ndarray] = None,
             points = points[np.random.default_rng(seed).choice(len(points), MAX_POINTS,
                                                                replace=False)]
         points = points @ rotation.T + shift
+    before = None
+    if against is not None:
+        before = centres_as_in(rig, against) @ rotation.T + shift
     unit = "m" if rig.metric_scale else "units (no metric scale)"
     top = _panel(f"top view ({frame_name})", (0, 1), centres, rays_top, points,
-                 names, unit)
-    side = _panel("side view (x right, z up)", (0, 2), centres, rays_side, points, names, unit)
+                 names, unit, before)
+    side = _panel("side view (x right, z up)", (0, 2), centres, rays_side, points, names, unit,
+                  before)
     return np.hstack([top, side])
