@@ -1,7 +1,9 @@
 """Ground-truth rigs and tracks for the SfM tests (test_global_sfm, test_incremental): exact
 projections of a random point cloud plus noise and outliers, so the SfM stages are tested on their
-own. World frame: the cloud fills x in [-3, 3], y in [-2, 2], z in [4.5, 9].
+own. World frame: the cloud fills x in [-3, 3], y in [-2, 2], z in [4.5, 9]. Also turned_image:
+what a camera sees after a bump that turned it (the recalibration tests).
 Imported as `sfm_fixtures` (pytest puts test/ on sys.path)."""
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -100,3 +102,17 @@ def gt_calibration(names, cams, poses):
     ref_inv = np.linalg.inv(poses[0])
     return RigCalibration(names[0], {n: RigCamera(n, cam, T @ ref_inv)
                                      for n, cam, T in zip(names, cams, poses)})
+
+
+def turned_image(image, intrinsics, cam_new_from_cam):
+    """What a camera sees after turning about its optical centre (cam_new_from_cam: 3x3), lens
+    distortion included: each new pixel's ray, back in the old camera, sampled there."""
+    camera = intrinsics.to_pycolmap()
+    h, w = image.shape[:2]
+    xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)  # COLMAP pixel centres
+    rays_new = np.column_stack([camera.cam_from_img(np.column_stack([xs.ravel(), ys.ravel()])),
+                                np.ones(xs.size)])
+    source = camera.img_from_cam(rays_new @ cam_new_from_cam)  # rows: R^T ray (new -> old)
+    maps = (source - 0.5).reshape(h, w, 2).astype(np.float32)
+    return cv2.remap(image, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)

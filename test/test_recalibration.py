@@ -14,6 +14,7 @@ from densecalib_ros.core.pipeline import run_calibration
 from densecalib_ros.core.recalibration import CalibrationRejectedError, recalibrate
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from densecalib_ros.core.types import CameraIntrinsics, RigCamera
+from sfm_fixtures import turned_image
 
 
 def _rotz(deg):
@@ -79,3 +80,35 @@ def test_worse_result_is_refused_so_the_previous_stays(rig, config):
         extra.intrinsics.model, 640, 480, extra.intrinsics.params.copy()), extra.cam_from_rig)
     with pytest.raises(CalibrationRejectedError, match="cam_gone"):
         recalibrate([rig.images[0]], rig.names, config, previous)
+
+
+def test_recalibration_uses_only_the_frame_sets_since_a_bump():
+    """A buffer holding two frame sets from before cam2 was turned by 2 deg and two from after:
+    the sets from before fit the previous calibration and are left out, and the new calibration
+    has cam2 where it is now. (Calibrated with all four, the result was refused as worse than
+    the previous one, RMS 4.1 px: the old sets contradict the new.)"""
+    from densecalib_ros.core.metrics import relative_pose_errors
+
+    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+                               num_time_steps=4, seed=5))
+    truth = rig.ground_truth()
+    truth.quality["reprojection_rms_px"] = 0.5
+    turn = _rotz(2.0)[:3, :3] @ np.array([[1, 0, 0], [0, np.cos(0.02), -np.sin(0.02)],
+                                          [0, np.sin(0.02), np.cos(0.02)]])
+    frame_sets = [list(fs) for fs in rig.images]
+    for t in (2, 3):
+        frame_sets[t][2] = turned_image(frame_sets[t][2], truth.cameras["cam2"].intrinsics, turn)
+    now = copy.deepcopy(truth)
+    now.cameras["cam2"].cam_from_rig[:3, :3] = turn @ now.cameras["cam2"].cam_from_rig[:3, :3]
+    now.cameras["cam2"].cam_from_rig[:3, 3] = turn @ now.cameras["cam2"].cam_from_rig[:3, 3]
+    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    result = recalibrate(frame_sets, rig.names, config, truth)
+    assert result.rig.quality["frame_sets_before_change"] == 2
+    est = {n: c.cam_from_rig for n, c in result.rig.cameras.items()}
+    errors_now = relative_pose_errors(est, {n: c.cam_from_rig for n, c in now.cameras.items()})
+    assert max(e.rot_err_deg for e in errors_now) < 0.5, errors_now
+    change = result.rig.quality["change_vs_previous"]
+    assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
+    # the same four sets with nothing changed: all are used
+    unchanged = recalibrate([list(fs) for fs in rig.images], rig.names, config, truth)
+    assert "frame_sets_before_change" not in unchanged.rig.quality

@@ -444,6 +444,36 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
         ros.remove(n)
 
 
+def test_recalibration_after_a_bump_leaves_out_the_frame_sets_from_before(ros, rig, tmp_path):
+    """Calibrated, then cam2 turned by 2 deg and two more frame sets buffered: ~/calibrate leaves
+    out the two older sets (they still fit the previous calibration) and says so."""
+    from scipy.spatial.transform import Rotation
+
+    from sfm_fixtures import turned_image
+
+    node = ros.densecalib(tmp_path / "calib")
+    caller = ros.caller()
+    try:
+        publish_frame_sets(ros, node, rig.images)
+        assert caller.call(CALIBRATION_TIMEOUT_S).success
+        turn = Rotation.from_euler("z", 2.0, degrees=True).as_matrix()
+        lens = rig.ground_truth().cameras["cam2"].intrinsics
+        turned = [[turned_image(im, lens, turn) if c == 2 else im for c, im in enumerate(fs)]
+                  for fs in rig.images]
+        publish_frame_sets(ros, node, turned, first_stamp_s=10.0)
+        response = caller.call(CALIBRATION_TIMEOUT_S)
+        assert response.success, response.message
+        assert "from 2 frame sets" in response.message
+        assert "the 2 older frame sets still fitted the previous calibration" in response.message
+        stamps = node.calibration.quality["input"]["frame_set_stamps_ns"]
+        assert [row[0] for row in stamps] == [10_000_000_000, 11_000_000_000]
+        change = node.calibration.quality["change_vs_previous"]
+        assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
+    finally:
+        for n in (caller, node):
+            ros.remove(n)
+
+
 def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
     """With stereo_pairs set, the last good calibration is republished with each pair's stereo
     rectification in R and P (Tx = -fx' baseline), the other cameras with R = I; a pair in the

@@ -7,6 +7,13 @@ give an acceptable result (a camera missing, reprojection error much larger than
 calibrates from scratch on the same matches. A result that is still worse than the previous
 calibration is refused with CalibrationRejectedError, so callers keep the last good calibration.
 Either way the result says how much every camera changed.
+
+The frame sets may straddle the change: a node's buffer holds the last seconds of images, and a
+camera bumped a moment before the service call leaves most of them from before. Calibrated
+together, the old images pull the rig back to where it was. So each frame set is first held
+against the previous calibration (core.consistency, as `check` does); when sets that fit it are
+followed by sets that do not, the rig changed in between, and only the sets since the change are
+calibrated (quality["frame_sets_before_change"] counts the ones left out).
 """
 from __future__ import annotations
 
@@ -18,6 +25,7 @@ import numpy as np
 
 from .change import calibration_change, change_summary
 from .config import PipelineConfig
+from .consistency import DEFAULT_TOLERANCE_PX, check_calibration
 from .errors import CalibrationError
 from .pipeline import (CalibrationResult, Progress, calibrate_from_matches, check_frame_sets,
                        match_frame_sets, record_info_strips, say_progress,
@@ -49,6 +57,21 @@ def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:
     return None
 
 
+def sets_since_change(previous: RigCalibration, camera_names: Sequence[str],
+                      match_sets: Sequence, tolerance_px: float = DEFAULT_TOLERANCE_PX
+                      ) -> tuple[int, list[Optional[bool]]]:
+    """(index of the first frame set after the last one that fits `previous`, when a later one
+    does not fit it; else 0 = all, per set whether it fits it (None: too few matches to tell))."""
+    fits: list[Optional[bool]] = []
+    for match_set in match_sets:
+        report = check_calibration(previous, camera_names, [match_set], tolerance_px)
+        fits.append(report.fits if report.figures else None)
+    last_fit = max((t for t, f in enumerate(fits) if f), default=None)
+    if last_fit is None or not any(f is False for f in fits[last_fit + 1:]):
+        return 0, fits  # never fitted (all changed, or all unknown), or still fits at the end
+    return last_fit + 1, fits
+
+
 def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
                 config: PipelineConfig, previous: RigCalibration, *, matcher=None,
                 progress: Progress = None) -> CalibrationResult:
@@ -60,6 +83,13 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     image_sizes = check_frame_sets(frame_sets, camera_names)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
                                   camera_names=camera_names)
+    before_change, _ = sets_since_change(previous, camera_names, match_sets)
+    if before_change:
+        say_progress(progress, f"the first {before_change} of {len(match_sets)} frame sets fit "
+                               "the previous calibration and the later ones do not: the rig "
+                               f"changed in between; calibrating from the "
+                               f"{len(match_sets) - before_change} since")
+        frame_sets, match_sets = frame_sets[before_change:], match_sets[before_change:]
 
     result, why_not_previous = None, None
     if all(n in previous.cameras for n in camera_names):
@@ -93,6 +123,8 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     result.rig.quality["change_vs_previous"] = {n: vars(c) for n, c in change.items()}
     result.rig.quality["change_summary"] = change_summary(change)
     say_progress(progress, result.rig.quality["change_summary"])
+    if before_change:
+        result.rig.quality["frame_sets_before_change"] = before_change
     with_point_colours(result, frame_sets)
     record_info_strips(result, frame_sets, camera_names, config)
     return result

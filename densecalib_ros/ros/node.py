@@ -776,6 +776,7 @@ class DenseCalibNode(Node):
         if s.floor:
             record_floor(result, s.floor)
         rig, reconstruction = result.rig, result.reconstruction
+        sets = sets[rig.quality.get("frame_sets_before_change", 0):]  # those calibrated
         offsets = ({"stamp_offsets_s": dict(zip(s.camera_names, s.stamp_offsets_s))}
                    if any(s.stamp_offsets_s) else {})
         record_provenance(rig, {"source": "topics", "topics": list(s.image_topics), **offsets,
@@ -795,6 +796,10 @@ class DenseCalibNode(Node):
                    f"RMS {rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
         if "change_summary" in rig.quality:
             message += f"; {rig.quality['change_summary']} (started {rig.quality['init']})"
+        if rig.quality.get("frame_sets_before_change"):
+            message += (f"; the {rig.quality['frame_sets_before_change']} older frame sets "
+                        "still fitted the previous calibration and were left out: the rig "
+                        "changed after them")
         for warning in rig.quality.get("warnings", []):
             message += f"; warning: {warning}"
         if self.stereo_problem:
