@@ -93,3 +93,26 @@ def test_check_command(rig, tmp_path, capsys):
     assert "no longer fits: cam3 moved or changed" in capsys.readouterr().out
     assert main(["check", str(tmp_path / "none.json"), "--images",
                  str(tmp_path / "images")]) == 2
+
+
+def test_a_pair_is_judged_on_its_self_consistent_matches():
+    """Raw matches of cameras far apart can be mostly wrong: 30 true matches among 70 random
+    ones; the consensus keeps the true ones, so the median error of the calibrated geometry is
+    the true matches' (before, the median was an outlier's and the true calibration "moved")."""
+    from densecalib_ros.core.consistency import self_consistent
+
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-2, -1, 4], [2, 1, 8], (30, 3))
+    b_from_a = np.eye(4)
+    b_from_a[:3, :3] = Rotation.from_euler("y", -70, degrees=True).as_matrix()
+    b_from_a[:3, 3] = [3.0, 0.0, 2.0]
+    ray_a = points / np.linalg.norm(points, axis=1, keepdims=True)
+    in_b = points @ b_from_a[:3, :3].T + b_from_a[:3, 3]
+    ray_b = in_b / np.linalg.norm(in_b, axis=1, keepdims=True)
+    junk = rng.normal(size=(70, 3)) * [0.4, 0.3, 0.0] + [0, 0, 1]
+    junk_b = rng.normal(size=(70, 3)) * [0.4, 0.3, 0.0] + [0, 0, 1]
+    rays_a = np.vstack([ray_a, junk / np.linalg.norm(junk, axis=1, keepdims=True)])
+    rays_b = np.vstack([ray_b, junk_b / np.linalg.norm(junk_b, axis=1, keepdims=True)])
+    keep = self_consistent(rays_a, rays_b, 4.0 / 800.0)
+    assert keep[:30].all() and keep[30:].sum() <= 3
+    assert not self_consistent(rays_a[30:], rays_b[30:], 4.0 / 800.0).any()  # no geometry
