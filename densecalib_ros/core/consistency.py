@@ -39,6 +39,7 @@ DEFAULT_TOLERANCE_PX = 2.0  # a pair fits when its median epipolar error is at m
 # the cameras' focal): what is left out are the matcher's outliers, not a moved camera's matches.
 CONSENSUS_PX = 4.0
 MIN_RAY_Z = 0.1  # rays further than ~84 deg off the axis (fisheye) take no part in the consensus
+MAX_JUDGED_MATCHES = 1000  # per pair: a seeded random subset beyond
 
 
 @dataclass
@@ -85,6 +86,9 @@ def epipolar_errors_px(rig: RigCalibration, camera_names: Sequence[str],
             out[(a, b)] = np.zeros(0)
             continue
         ray_a, ray_b = np.concatenate(rays_a), np.concatenate(rays_b)
+        if len(ray_a) > MAX_JUDGED_MATCHES:  # a median needs no more; the consensus costs less
+            pick = np.random.default_rng(0).choice(len(ray_a), MAX_JUDGED_MATCHES, replace=False)
+            ray_a, ray_b = ray_a[pick], ray_b[pick]
         ray_a /= np.linalg.norm(ray_a, axis=1, keepdims=True)
         ray_b /= np.linalg.norm(ray_b, axis=1, keepdims=True)
         agree = self_consistent(ray_a, ray_b, CONSENSUS_PX / np.sqrt(focal[a] * focal[b]))
@@ -114,7 +118,7 @@ def self_consistent(ray_a: np.ndarray, ray_b: np.ndarray, threshold_rad: float) 
         return keep
     x_a = ray_a[front, :2] / ray_a[front, 2:]
     x_b = ray_b[front, :2] / ray_b[front, 2:]
-    _, inliers = cv2.findEssentialMat(x_a, x_b, np.eye(3), method=cv2.RANSAC, prob=0.999,
+    _, inliers = cv2.findEssentialMat(x_a, x_b, np.eye(3), method=cv2.USAC_DEFAULT, prob=0.999,
                                       threshold=float(threshold_rad))
     if inliers is None or int(inliers.sum()) < MIN_PAIR_MATCHES:
         return keep
