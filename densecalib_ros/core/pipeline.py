@@ -367,31 +367,35 @@ def info_strips(frame_sets: Sequence[Sequence[np.ndarray]],
     return {n: strips for n, strips in found.items() if n not in config.camera_masks}
 
 
-def info_strip_masks(frame_sets: Sequence[Sequence[np.ndarray]],
-                     camera_names: Optional[Sequence[str]], config: PipelineConfig) -> dict:
+def _info_strip_masks(strips: dict, frame_sets: Sequence[Sequence[np.ndarray]],
+                      camera_names: Sequence[str]) -> dict:
     """Camera name -> bool mask of its info strips (info_strips), for core.masks."""
     from .info_strip import strips_mask
 
     masks = {}
-    for name, strips in info_strips(frame_sets, camera_names, config).items():
+    for name, found in strips.items():
         height, width = frame_sets[0][list(camera_names).index(name)].shape[:2]
-        masks[name] = strips_mask(strips, height, width)
+        masks[name] = strips_mask(found, height, width)
         log.info("camera %s: its info strip (%s) is ignored", name,
-                 ", ".join(s.describe() for s in strips))
+                 ", ".join(s.describe() for s in found))
     return masks
 
 
 def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,
                      matcher=None, progress: Progress = None,
-                     camera_names: Optional[Sequence[str]] = None) -> list:
+                     camera_names: Optional[Sequence[str]] = None,
+                     strips: Optional[dict] = None) -> list:
     """One SiteMatchSet per frame set. matcher: an already loaded core.matching.Matcher to reuse
     (else config.matcher is created and loaded here). With config.camera_masks (then
-    camera_names is needed), matches on masked regions are dropped (core.masks)."""
+    camera_names is needed), matches on masked regions are dropped (core.masks), and on the
+    info strips found (`strips` as info_strips gives them; None: looked for here)."""
     from .masks import apply_masks, check_masks
     from .matching import create_matcher
 
     ignored = []
-    masks = {**info_strip_masks(frame_sets, camera_names, config), **config.camera_masks}
+    if strips is None:
+        strips = info_strips(frame_sets, camera_names, config)
+    masks = {**_info_strip_masks(strips, frame_sets, camera_names), **config.camera_masks}
     if masks:
         if camera_names is None:
             raise ValueError("camera_masks need the camera names")
@@ -601,8 +605,9 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     start = time.perf_counter()
     camera_names = list(camera_names)
     image_sizes = check_frame_sets(frame_sets, camera_names)
+    strips = info_strips(frame_sets, camera_names, config)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
-                                  camera_names=camera_names)
+                                  camera_names=camera_names, strips=strips)
     result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
                                     previous=previous, progress=progress)
     with_point_colours(result, frame_sets)
@@ -612,17 +617,16 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         result.rig.quality["camera_lens"] = dict(config.camera_lens)
     if config.camera_masks:
         result.rig.quality["masked_cameras"] = sorted(config.camera_masks)
-    record_info_strips(result, frame_sets, camera_names, config)
+    record_info_strips(result, strips)
     if config.exif_focal_px:
         result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
                                                for n, f in config.exif_focal_px.items()}
     return result
 
 
-def record_info_strips(result: CalibrationResult, frame_sets: Sequence[Sequence[np.ndarray]],
-                       camera_names: Sequence[str], config: PipelineConfig) -> None:
-    """Note the info strips that were ignored in rig.quality["info_strips"] (camera -> what)."""
-    strips = info_strips(frame_sets, camera_names, config)
+def record_info_strips(result: CalibrationResult, strips: dict) -> None:
+    """Note the info strips that were ignored (info_strips) in rig.quality["info_strips"]
+    (camera -> what)."""
     if strips:
         result.rig.quality["info_strips"] = {
             n: ", ".join(s.describe() for s in found) for n, found in strips.items()}

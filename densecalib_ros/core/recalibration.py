@@ -28,7 +28,7 @@ from .config import PipelineConfig
 from .consistency import DEFAULT_TOLERANCE_PX, check_calibration
 from .errors import CalibrationError
 from .pipeline import (CalibrationResult, Progress, calibrate_from_matches, check_frame_sets,
-                       match_frame_sets, record_info_strips, say_progress,
+                       info_strips, match_frame_sets, record_info_strips, say_progress,
                        with_point_colours)
 from .types import RigCalibration
 
@@ -81,8 +81,9 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     than `previous`, and the pipeline's CalibrationError subclasses when calibration fails."""
     camera_names = list(camera_names)
     image_sizes = check_frame_sets(frame_sets, camera_names)
+    strips = info_strips(frame_sets, camera_names, config)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
-                                  camera_names=camera_names)
+                                  camera_names=camera_names, strips=strips)
     before_change, _ = sets_since_change(previous, camera_names, match_sets)
     if before_change:
         say_progress(progress, f"the first {before_change} of {len(match_sets)} frame sets fit "
@@ -126,5 +127,5 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     if before_change:
         result.rig.quality["frame_sets_before_change"] = before_change
     with_point_colours(result, frame_sets)
-    record_info_strips(result, frame_sets, camera_names, config)
+    record_info_strips(result, strips)
     return result
