@@ -204,7 +204,7 @@ def colour_points(rec: pycolmap.Reconstruction, state: SfMState,
     observed = state.tracks.observed()
     rows_of_camera = {c: np.flatnonzero(observed[:, c]) for c in state.registered()}
     for point in rec.points3D.values():
-        element = point.track.elements[0]  # image_id = camera + 1, point2D = its rank (build_)
+        element = point.track.elements[0]  # image_id = camera + 1, point2D_idx = its rank
         point.color = colours[rows_of_camera[element.image_id - 1][element.point2D_idx]]
 
 
