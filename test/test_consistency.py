@@ -116,3 +116,7 @@ def test_a_pair_is_judged_on_its_self_consistent_matches():
     keep = self_consistent(rays_a, rays_b, 4.0 / 800.0)
     assert keep[:30].all() and keep[30:].sum() <= 3
     assert not self_consistent(rays_a[30:], rays_b[30:], 4.0 / 800.0).any()  # no geometry
+    # the same matches seen ~80-100 deg off the axes (a fisheye pair overlapping at its borders)
+    turn = Rotation.from_euler("y", 90, degrees=True).as_matrix()
+    keep = self_consistent(rays_a @ turn.T, rays_b @ turn.T, 4.0 / 800.0)
+    assert keep[:30].all() and keep[30:].sum() <= 3

@@ -38,7 +38,7 @@ DEFAULT_TOLERANCE_PX = 2.0  # a pair fits when its median epipolar error is at m
 # Matches are judged only when they agree with their own two-view geometry within this (px at
 # the cameras' focal): what is left out are the matcher's outliers, not a moved camera's matches.
 CONSENSUS_PX = 4.0
-MIN_RAY_Z = 0.1  # rays further than ~84 deg off the axis (fisheye) take no part in the consensus
+MIN_RAY_Z = 0.1  # rays ~84 deg or more from the pair's mean ray take no part in the consensus
 MAX_JUDGED_MATCHES = 1000  # per pair: a seeded random subset beyond
 
 
@@ -103,6 +103,18 @@ def epipolar_errors_px(rig: RigCalibration, camera_names: Sequence[str],
     return out
 
 
+def _towards_z(direction: np.ndarray) -> np.ndarray:
+    """A rotation (3x3) taking `direction` to +z."""
+    import cv2
+
+    d = direction / max(np.linalg.norm(direction), 1e-12)
+    axis = np.cross(d, [0.0, 0.0, 1.0])
+    angle = np.arctan2(np.linalg.norm(axis), d[2])
+    if np.linalg.norm(axis) < 1e-12:
+        return np.eye(3) if d[2] > 0 else np.diag([1.0, -1.0, -1.0])
+    return cv2.Rodrigues(axis / np.linalg.norm(axis) * angle)[0]
+
+
 def self_consistent(ray_a: np.ndarray, ray_b: np.ndarray, threshold_rad: float) -> np.ndarray:
     """bool (N,): the matches (unit rays in two cameras) that agree with the two-view geometry
     most of them agree on (an essential matrix by RANSAC), whatever the calibration says. Raw
@@ -113,6 +125,12 @@ def self_consistent(ray_a: np.ndarray, ray_b: np.ndarray, threshold_rad: float) 
     import cv2
 
     keep = np.zeros(len(ray_a), dtype=bool)
+    if len(ray_a) < MIN_PAIR_MATCHES:
+        return keep
+    # Turn each camera's rays about its centre so that their mean points along z (a known
+    # rotation leaves the two-view consensus as it is): a fisheye pair that overlaps at its
+    # image borders keeps its rays normalisable.
+    ray_a, ray_b = ray_a @ _towards_z(ray_a.mean(0)).T, ray_b @ _towards_z(ray_b.mean(0)).T
     front = (ray_a[:, 2] > MIN_RAY_Z) & (ray_b[:, 2] > MIN_RAY_Z)  # normalisable rays
     if front.sum() < MIN_PAIR_MATCHES:
         return keep
