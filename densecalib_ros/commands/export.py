@@ -103,18 +103,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _scene_ply(calibration, rig) -> str:
-    import numpy as np
-
-    from ..core.export import calibration_folder, read_saved_model
-    from ..core.floor import reconstruction_points_in_rig
+    from ..core.export import calibration_folder
+    from ..core.floor import saved_scene_points
     from ..core.scene_ply import scene_ply
 
-    reconstruction = read_saved_model(calibration_folder(calibration))
-    if reconstruction is None:
+    scene = saved_scene_points(calibration_folder(calibration), rig)
+    if scene is None:
         log.warning("no saved COLMAP model beside the calibration: the PLY has the cameras "
                     "without scene points")
         return scene_ply(rig)
-    colours = np.array([p.color for p in reconstruction.points3D.values()], np.uint8)
-    if len(colours) and not colours.any():  # a model saved before points were coloured
-        colours = None
-    return scene_ply(rig, reconstruction_points_in_rig(reconstruction, rig), colours)
+    return scene_ply(rig, *scene)

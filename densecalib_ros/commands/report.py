@@ -62,19 +62,17 @@ def _write_plot(calibration, rig, path, against=None) -> None:
     (and where `against`'s cameras were)."""
     import cv2
 
-    from ..core.export import calibration_folder, read_saved_model, write_text_atomic
-    from ..core.floor import reconstruction_points_in_rig
+    from ..core.export import calibration_folder, write_text_atomic
+    from ..core.floor import saved_scene_points
     from ..core.layout_plot import draw_layout
 
     if not str(path).lower().endswith(".png"):
         raise InputError(f"--plot {path}: give a .png file name.")
-    reconstruction = read_saved_model(calibration_folder(calibration))
-    points = None
-    if reconstruction is None:
+    scene = saved_scene_points(calibration_folder(calibration), rig)
+    points = None if scene is None else scene[0]
+    if scene is None:
         log.warning("no saved COLMAP model beside the calibration: the plot shows the cameras "
                     "without scene points")
-    else:
-        points = reconstruction_points_in_rig(reconstruction, rig)
     ok, png = cv2.imencode(".png", draw_layout(rig, points, against=against))
     if not ok:
         raise InputError(f"Could not encode the plot for {path}.")

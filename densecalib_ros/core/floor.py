@@ -23,6 +23,7 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -189,6 +190,22 @@ def reconstruction_points_in_rig(reconstruction, rig: RigCalibration) -> np.ndar
     return points * rig_units_per_model_unit(reconstruction, rig)
 
 
+def saved_scene_points(folder: str | os.PathLike, rig: RigCalibration
+                       ) -> Optional[tuple[np.ndarray, Optional[np.ndarray]]]:
+    """The scene points of the COLMAP model saved beside a calibration (export.read_saved_model):
+    (N, 3) in the rig frame and unit, and their colours (N, 3) RGB uint8 (None for a model saved
+    before points were coloured); None when no model was saved."""
+    from .export import read_saved_model
+
+    reconstruction = read_saved_model(folder)
+    if reconstruction is None:
+        return None
+    colours = np.array([p.color for p in reconstruction.points3D.values()],
+                       np.uint8).reshape(-1, 3)
+    return (reconstruction_points_in_rig(reconstruction, rig),
+            colours if colours.any() else None)
+
+
 def record_floor(result, view: str = "upright") -> None:
     """Find the floor of a pipeline CalibrationResult and record it in rig.quality["floor"]
     (Floor.to_dict), or, when there is none, say why in rig.quality["warnings"]: the
@@ -215,14 +232,12 @@ def find_floor_of_saved_calibration(folder: str | os.PathLike, rig: RigCalibrati
     """The floor of a calibration already written (`densecalib floor`): found in the scene points
     of the COLMAP model saved beside its calibration.json (folder/colmap), so a rig calibrated
     without --floor, or whose floor was not found as "upright", needs no new calibration."""
-    from .export import read_saved_model
-
-    reconstruction = read_saved_model(folder)
-    if reconstruction is None:
+    scene = saved_scene_points(folder, rig)
+    if scene is None:
         raise InputError(f"{folder} has no COLMAP model ({Path(folder) / 'colmap'}) with the "
                          "scene points: calibrate again with --floor (a dense matcher without "
                          "keypoint matches writes none).")
-    return find_floor(reconstruction_points_in_rig(reconstruction, rig), rig, view)
+    return find_floor(scene[0], rig, view)
 
 
 def set_floor(rig: RigCalibration, floor: Floor) -> None:

@@ -914,15 +914,11 @@ class DenseCalibNode(Node):
         """Replace the latched ~/points cloud with the scene points of the calibration's saved
         COLMAP model, in rig_frame and the rig's units, in their image colours (RViz shows the
         scene beside the camera frames); an empty cloud when it saved none."""
-        from ..core.export import read_saved_model
-        from ..core.floor import reconstruction_points_in_rig
+        from ..core.floor import saved_scene_points
 
         points, colours = np.zeros((0, 3)), None
         try:
-            model = read_saved_model(directory)
-            if model is not None and model.num_points3D():
-                points = reconstruction_points_in_rig(model, rig)
-                colours = np.array([p.color for p in model.points3D.values()], np.uint8)
+            points, colours = saved_scene_points(directory, rig) or (points, colours)
         except Exception as exc:  # an unreadable model costs the view, never the calibration
             self.get_logger().warning(f"no scene points published: {exc}")
         self._points_pub.publish(point_cloud_msg(points, colours, self.settings.rig_frame,
