@@ -18,6 +18,7 @@ import numpy as np
 
 from .errors import InputError
 from .floor import world_from_rig
+from .report import camera_centres_in_rig
 from .types import CameraIntrinsics, RigCalibration
 
 PANEL_PX = 640
@@ -136,17 +137,13 @@ def centres_as_in(rig: RigCalibration, other: RigCalibration) -> np.ndarray:
                          f"({rig.reference_camera}, {other.reference_camera}): their rig frames "
                          "cannot be drawn together.")
 
-    def centre(cal, name):
-        pose = np.asarray(cal.cameras[name].cam_from_rig, dtype=np.float64)
-        return -pose[:3, :3].T @ pose[:3, 3]
-
+    now, then = camera_centres_in_rig(rig), camera_centres_in_rig(other)
     common = [n for n in rig.cameras if n in other.cameras and n != rig.reference_camera]
     factor = 1.0
     if common and not (rig.metric_scale and other.metric_scale):
-        factor = float(np.median([np.linalg.norm(centre(rig, n)) /
-                                  max(np.linalg.norm(centre(other, n)), 1e-12) for n in common]))
-    return np.array([factor * centre(other, n) if n in other.cameras else np.full(3, np.nan)
-                     for n in rig.cameras])
+        factor = float(np.median([np.linalg.norm(now[n]) / max(np.linalg.norm(then[n]), 1e-12)
+                                  for n in common]))
+    return np.array([factor * then[n] if n in then else np.full(3, np.nan) for n in rig.cameras])
 
 
 def draw_layout(rig: RigCalibration, points_rig: Optional[np.ndarray] = None,
@@ -159,18 +156,16 @@ def draw_layout(rig: RigCalibration, points_rig: Optional[np.ndarray] = None,
     plot_from_rig_, frame_name = plot_from_rig(rig)
     rotation, shift = plot_from_rig_[:3, :3], plot_from_rig_[:3, 3]
     names = list(rig.cameras)
-    centres, rays_top, rays_side = [], [], []
+    centres = np.array(list(camera_centres_in_rig(rig).values())) @ rotation.T + shift
+    rays_top, rays_side = [], []
     for name in names:
         cam = rig.cameras[name]
-        cam_from_rig = np.asarray(cam.cam_from_rig, dtype=np.float64)
-        plot_from_cam = rotation @ cam_from_rig[:3, :3].T
-        centres.append(rotation @ (-cam_from_rig[:3, :3].T @ cam_from_rig[:3, 3]) + shift)
+        plot_from_cam = rotation @ np.asarray(cam.cam_from_rig, dtype=np.float64)[:3, :3].T
         for rays, axis in ((rays_top, 0), (rays_side, 1)):
             a = half_fov_rad(cam.intrinsics, axis)
             edges = [np.eye(3)[axis] * s * math.sin(a) + np.array([0.0, 0.0, math.cos(a)])
                      for s in (-1.0, 1.0)]
             rays.append([plot_from_cam @ d for d in edges] + [plot_from_cam[:, 2]])
-    centres = np.array(centres)
     points = np.zeros((0, 3))
     if points_rig is not None and len(points_rig):
         points = np.asarray(points_rig, dtype=np.float64).reshape(-1, 3)

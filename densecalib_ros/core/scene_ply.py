@@ -14,6 +14,7 @@ import numpy as np
 
 from .floor import world_from_rig
 from .layout_plot import camera_colours
+from .report import camera_centres_in_rig
 from .types import CameraIntrinsics, RigCalibration
 
 POINT_GREY = (128, 128, 128)
@@ -54,12 +55,8 @@ def scene_ply(rig: RigCalibration, points_rig: Optional[np.ndarray] = None,
         finite = np.isfinite(points).all(1)
         points, point_rgb = points[finite] @ rotation.T + shift, point_rgb[finite]
     names = list(rig.cameras)
-    centres, rig_from_cams = [], []
-    for name in names:
-        cam_from_rig = np.asarray(rig.cameras[name].cam_from_rig, np.float64)
-        rig_from_cams.append(cam_from_rig[:3, :3].T)
-        centres.append(rotation @ (-cam_from_rig[:3, :3].T @ cam_from_rig[:3, 3]) + shift)
-    centres = np.array(centres)
+    centres = np.array(list(camera_centres_in_rig(rig).values())) @ rotation.T + shift
+    rig_from_cams = [np.asarray(rig.cameras[n].cam_from_rig, np.float64)[:3, :3].T for n in names]
     extent = float(np.ptp(centres, axis=0).max()) if len(centres) > 1 else 0.0
     if extent <= 0 and len(points):
         extent = float(np.ptp(np.percentile(points, [5, 95], axis=0), axis=0).max())
