@@ -49,17 +49,31 @@ def plot_from_rig(rig: RigCalibration) -> tuple[np.ndarray, str]:
     return plot_from_rig_, "no floor: up = the cameras' mean image-up"
 
 
-def half_fov_rad(intrinsics: CameraIntrinsics, axis: int) -> float:
-    """Half the field of view across the image's x (axis 0) or y (axis 1) through its centre,
-    distortion included (fisheye lenses: from the equidistant angle, up to 100 deg)."""
+def pixel_rays(intrinsics: CameraIntrinsics, xy_px: np.ndarray,
+               max_angle_rad: float) -> np.ndarray:
+    """(N, 3) unit rays (camera frame) through COLMAP pixels xy_px (N, 2), distortion included;
+    fisheye lenses by their equidistant angle (their normalised coordinates end at 90 deg), held
+    at most max_angle_rad off the axis."""
     camera = intrinsics.to_pycolmap()
-    size = (intrinsics.width, intrinsics.height)
-    if "FISHEYE" in intrinsics.model:  # normalised coordinates end at 90 deg
-        focal = float(camera.focal_length_x if axis == 0 else camera.focal_length_y)
-        return min(0.5 * size[axis] / focal, math.radians(100.0))
-    edge = np.array([[size[0] / 2.0, size[1] / 2.0]])
-    edge[0, axis] = 0.0
-    return float(math.atan(abs(camera.cam_from_img(edge)[0, axis])))
+    xy_px = np.atleast_2d(np.asarray(xy_px, dtype=np.float64))
+    if "FISHEYE" not in intrinsics.model:
+        rays = np.column_stack([camera.cam_from_img(xy_px), np.ones(len(xy_px))])
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    offsets = (xy_px - [camera.principal_point_x, camera.principal_point_y]) / \
+        [camera.focal_length_x, camera.focal_length_y]
+    radius = np.linalg.norm(offsets, axis=1)
+    theta = np.minimum(radius, max_angle_rad)
+    direction = offsets / np.maximum(radius, 1e-12)[:, None]
+    return np.column_stack([direction * np.sin(theta)[:, None], np.cos(theta)])
+
+
+def half_fov_rad(intrinsics: CameraIntrinsics, axis: int) -> float:
+    """Half the field of view across the image's x (axis 0) or y (axis 1) through its centre
+    (pixel_rays; fisheye lenses up to 100 deg)."""
+    edge = np.array([intrinsics.width / 2.0, intrinsics.height / 2.0])
+    edge[axis] = 0.0
+    ray = pixel_rays(intrinsics, edge, math.radians(100.0))[0]
+    return float(math.atan2(abs(ray[axis]), ray[2]))
 
 
 def _nice_length(span: float) -> float:

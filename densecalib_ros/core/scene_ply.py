@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 
 from .floor import world_from_rig
-from .layout_plot import camera_colours
+from .layout_plot import camera_colours, pixel_rays
 from .report import camera_centres_in_rig
 from .types import CameraIntrinsics, RigCalibration
 
@@ -26,19 +26,8 @@ def corner_rays(intrinsics: CameraIntrinsics) -> np.ndarray:
     """(4, 3) unit rays (camera frame) through the image's corners, clockwise from top-left,
     distortion included; rays past 80 deg off the axis (fisheye) are pulled back to 80 deg."""
     w, h = intrinsics.width, intrinsics.height
-    corners = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
-    camera = intrinsics.to_pycolmap()
-    if "FISHEYE" in intrinsics.model:  # normalised coordinates end at 90 deg: go by the angle
-        centre = np.array([float(camera.principal_point_x), float(camera.principal_point_y)])
-        focal = float(camera.mean_focal_length())
-        offsets = corners - centre
-        theta = np.minimum(np.linalg.norm(offsets, axis=1) / focal, _MAX_CORNER_ANGLE_RAD)
-        direction = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
-        rays = np.column_stack([direction * np.sin(theta)[:, None], np.cos(theta)])
-    else:
-        xy = camera.cam_from_img(corners)
-        rays = np.column_stack([xy, np.ones(4)])
-    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    return pixel_rays(intrinsics, np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]]),
+                      _MAX_CORNER_ANGLE_RAD)
 
 
 def scene_ply(rig: RigCalibration, points_rig: Optional[np.ndarray] = None,
