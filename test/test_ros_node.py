@@ -13,6 +13,7 @@ import time
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 rclpy = pytest.importorskip("rclpy", reason="node tests need rclpy (ROS 2 Jazzy)")
 import rclpy.node  # noqa: E402
@@ -40,6 +41,7 @@ from densecalib_ros.ros.node import DenseCalibNode, pipeline_config  # noqa: E40
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
                                           TriggerCaller, wait_until)
 from motion_fixtures import arena_views  # noqa: E402
+from sfm_fixtures import turned_image  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -380,6 +382,18 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert response.success and response.message.startswith("the calibration fits"), \
         response.message
     assert "2 frame sets" in response.message and "transfer error px: cam0" in response.message
+    # cam2 tilted by 1 deg before two more frame sets: the check judges those two and says when
+    truth = rig.ground_truth()
+    tilt = Rotation.from_euler("x", 1.0, degrees=True).as_matrix()
+    publish_frame_sets(ros, node, [[*fs[:2], turned_image(fs[2], truth.cameras["cam2"].intrinsics,
+                                                          tilt), fs[3]] for fs in rig.images],
+                       first_stamp_s=3.0)
+    response = checker.call(60.0)
+    assert not response.success and "no longer fits: cam2 moved or changed" in response.message, \
+        response.message
+    assert ("frame sets 1-2 fit it, the rig changed after frame set 2 (figures from the 2 since) "
+            "(the change came before the frame set stamped 3.000 s); 4 frame sets"
+            in response.message)
     ros.remove(checker)
     # floor turned on after calibrating without it: found in the saved scene points, recorded in
     # calibration.json and published; turned off again: gone from /tf_static

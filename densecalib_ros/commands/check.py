@@ -1,13 +1,15 @@
 """`densecalib check`: does a calibration still fit the rig? Matches new images and holds every
 match against the calibration's epipolar geometry (core.consistency); names the cameras that no
-longer fit (bumped, refocused). Exit status: 0 every pair fits, 1 some do not, 2 unusable input."""
+longer fit (bumped, refocused). Frame sets in time order are judged since the last change among
+them (core.consistency.check_latest). Exit status: 0 every pair fits, 1 some do not, 2 unusable
+input."""
 from __future__ import annotations
 
 import argparse
 import logging
 
 from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
-                                best_transfer_per_camera, check_calibration)
+                                best_transfer_per_camera, check_latest)
 from ..core.errors import InputError
 from .inputs import add_input_arguments, parse_masks, read_input, require_calibrated_cameras
 
@@ -31,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         rig = read_calibration(args.calibration)
-        frame_sets, names, _, _ = read_input(args)
+        frame_sets, names, record, _ = read_input(args)
         require_calibrated_cameras(rig, names, frame_sets[0], at_least=2)
         config = make_config(matcher=args.matcher, camera_masks=parse_masks(args.mask, names),
                              detect_info_strips=not args.keep_info_strips)
@@ -39,7 +41,11 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         log.error("%s", exc)
         return 2
-    report = check_calibration(rig, names, match_sets, args.tolerance_px)
+    report = check_latest(rig, names, match_sets, args.tolerance_px)
+    if k := report.frame_sets_before_change:
+        print(f"frame sets 1-{k} of {len(match_sets)} fit the calibration one by one and the "
+              "later ones do not: the figures below are from the frame sets since the change, "
+              f"the first of them frame set {k + 1}{_frame_set_label(record, k)}")
     if not report.pairs:
         log.error("No camera pair had %d matches: the images share too little to check the "
                   "calibration (more frame sets, or a textured scene).", MIN_PAIR_MATCHES)
@@ -57,3 +63,14 @@ def run(args: argparse.Namespace) -> int:
     print(report.verdict() + ("" if report.fits else "; recalibrate, e.g. densecalib calibrate "
                               f"... --previous {args.calibration}"))
     return 0 if report.fits else 1
+
+
+def _frame_set_label(record: dict, k: int) -> str:
+    """Where frame set k (0-based) of read_input's input came from, for the user to find it."""
+    if "frame_set_times_s" in record:
+        return f" (at {record['frame_set_times_s'][k]:.2f} s of the videos)"
+    if "frame_set_stamps_ns" in record:
+        return f" (stamped {min(record['frame_set_stamps_ns'][k]) * 1e-9:.3f} s)"
+    if "frame_sets" in record:
+        return f" ({', '.join(record['frame_sets'][k])})"
+    return ""

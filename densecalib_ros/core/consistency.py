@@ -17,12 +17,18 @@ Two figures:
   them and projected into the third, where it is compared with its match; with three cameras or
   more this sees any rotation. The triple's figure is the median over its points.
 The camera to blame is the one in every failing figure (suspect_cameras).
+
+A buffer of frame sets may straddle the change: a camera bumped a minute ago leaves most of a
+node's buffer from before, and pooled with them its few new matches pass or blur the blame over
+several cameras. So check_latest holds each frame set against the calibration on its own first;
+when sets that fit are followed by sets that do not, the rig changed in between, and the figures
+are those of the sets since (sets_since_change, the same split a recalibration makes).
 """
 from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -256,6 +262,10 @@ class ConsistencyReport:
     pairs: list[PairCheck]
     transfers: list[TransferCheck]
     tolerance_px: float
+    # check_latest: the figures are from frame sets [frame_sets_before_change, num_frame_sets);
+    # the ones before fit the calibration one by one (0: all sets were judged together)
+    num_frame_sets: int = 0
+    frame_sets_before_change: int = 0
 
     @property
     def figures(self) -> list:
@@ -287,7 +297,10 @@ class ConsistencyReport:
         else:
             what = "several cameras moved or changed"
         return (f"the calibration no longer fits: {what} ({len(self.failing)} of "
-                f"{len(self.figures)} figures above {self.tolerance_px:g} px)")
+                f"{len(self.figures)} figures above {self.tolerance_px:g} px)"
+                + (f"; frame sets 1-{k} fit it, the rig changed after frame set {k} (figures from "
+                   f"the {self.num_frame_sets - k} since)"
+                   if (k := self.frame_sets_before_change) else ""))
 
 
 def check_calibration(rig: RigCalibration, camera_names: Sequence[str],
@@ -297,3 +310,35 @@ def check_calibration(rig: RigCalibration, camera_names: Sequence[str],
     return ConsistencyReport(check_pairs(epipolar_errors_px(rig, camera_names, match_sets)),
                              check_transfers(transfer_errors_px(rig, camera_names, match_sets)),
                              tolerance_px)
+
+
+def fits_per_frame_set(rig: RigCalibration, camera_names: Sequence[str],
+                       match_sets: Sequence[SiteMatchSet],
+                       tolerance_px: float = DEFAULT_TOLERANCE_PX) -> list[Optional[bool]]:
+    """Per frame set, whether it alone fits `rig` (None: too few matches for any figure)."""
+    fits: list[Optional[bool]] = []
+    for match_set in match_sets:
+        report = check_calibration(rig, camera_names, [match_set], tolerance_px)
+        fits.append(report.fits if report.figures else None)
+    return fits
+
+
+def sets_since_change(fits: Sequence[Optional[bool]]) -> int:
+    """From fits_per_frame_set: the index of the first frame set after the last one that fits,
+    when a later one does not fit; else 0 (all fit at the end, or none ever did: no change seen
+    inside the buffer)."""
+    last_fit = max((t for t, f in enumerate(fits) if f), default=None)
+    if last_fit is None or not any(f is False for f in fits[last_fit + 1:]):
+        return 0
+    return last_fit + 1
+
+
+def check_latest(rig: RigCalibration, camera_names: Sequence[str],
+                 match_sets: Sequence[SiteMatchSet],
+                 tolerance_px: float = DEFAULT_TOLERANCE_PX) -> ConsistencyReport:
+    """check_calibration on the frame sets since the rig last changed inside the sequence (all of
+    them when it did not; module docstring). The match sets must be in time order."""
+    before = sets_since_change(fits_per_frame_set(rig, camera_names, match_sets, tolerance_px))
+    report = check_calibration(rig, camera_names, match_sets[before:], tolerance_px)
+    report.num_frame_sets, report.frame_sets_before_change = len(match_sets), before
+    return report

@@ -25,7 +25,7 @@ import numpy as np
 
 from .change import calibration_change, change_summary
 from .config import PipelineConfig
-from .consistency import DEFAULT_TOLERANCE_PX, check_calibration
+from .consistency import fits_per_frame_set, sets_since_change
 from .errors import CalibrationError
 from .pipeline import (CalibrationResult, Progress, calibrate_from_matches, check_frame_sets,
                        info_strips, match_frame_sets, record_info_strips, say_progress,
@@ -57,21 +57,6 @@ def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:
     return None
 
 
-def sets_since_change(previous: RigCalibration, camera_names: Sequence[str],
-                      match_sets: Sequence, tolerance_px: float = DEFAULT_TOLERANCE_PX
-                      ) -> tuple[int, list[Optional[bool]]]:
-    """(index of the first frame set after the last one that fits `previous`, when a later one
-    does not fit it; else 0 = all, per set whether it fits it (None: too few matches to tell))."""
-    fits: list[Optional[bool]] = []
-    for match_set in match_sets:
-        report = check_calibration(previous, camera_names, [match_set], tolerance_px)
-        fits.append(report.fits if report.figures else None)
-    last_fit = max((t for t, f in enumerate(fits) if f), default=None)
-    if last_fit is None or not any(f is False for f in fits[last_fit + 1:]):
-        return 0, fits  # never fitted (all changed, or all unknown), or still fits at the end
-    return last_fit + 1, fits
-
-
 def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
                 config: PipelineConfig, previous: RigCalibration, *, matcher=None,
                 progress: Progress = None) -> CalibrationResult:
@@ -84,7 +69,7 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     strips = info_strips(frame_sets, camera_names, config)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
                                   camera_names=camera_names, strips=strips)
-    before_change, _ = sets_since_change(previous, camera_names, match_sets)
+    before_change = sets_since_change(fits_per_frame_set(previous, camera_names, match_sets))
     if before_change:
         say_progress(progress, f"the first {before_change} of {len(match_sets)} frame sets fit "
                                "the previous calibration and the later ones do not: the rig "

@@ -6,8 +6,9 @@ Interface (names relative to the node, default name `densecalib_node`):
 - service `~/calibrate` (std_srvs/Trigger): calibrates on the buffered frame sets; answers with a
   one-line summary, or the reason of the failure; a call while one runs is refused ("busy");
 - service `~/check` (std_srvs/Trigger): holds the buffered frame sets against the current
-  calibration without recalibrating (core.consistency); success = it still fits, the message
-  names a camera that moved;
+  calibration without recalibrating (core.consistency.check_latest: when the older sets fit and
+  the newer do not, the newer are judged); success = it still fits, the message names a camera
+  that moved and, after a change inside the buffer, when;
 - service `~/sync` (std_srvs/Trigger): measures the cameras' stamp offsets from what moves in
   their latest `sync_window_s` seconds of images (core.motion_sync) and sets `stamp_offsets_s`;
 - service `~/reload` (std_srvs/Trigger): publishes the calibration under `output_dir/latest`
@@ -721,7 +722,7 @@ class DenseCalibNode(Node):
         return response
 
     def _check(self) -> tuple[bool, str]:
-        from ..core.consistency import best_transfer_per_camera, check_calibration
+        from ..core.consistency import best_transfer_per_camera, check_latest
         from ..core.pipeline import match_frame_sets
 
         s, rig = self.settings, self.calibration
@@ -732,12 +733,15 @@ class DenseCalibNode(Node):
             return False, "no synchronised frame sets buffered to check the calibration with"
         match_sets = match_frame_sets(decode_frame_sets(sets), pipeline_config(s),
                                       matcher=self._matcher_for(s), camera_names=s.camera_names)
-        report = check_calibration(rig, s.camera_names, match_sets, s.check_tolerance_px)
+        report = check_latest(rig, s.camera_names, match_sets, s.check_tolerance_px)
         if not report.pairs:
             return False, "the buffered images share too few matches to check the calibration"
         per_camera = ", ".join(f"{t.target} {t.median_error_px:.2f}"
                                for t in best_transfer_per_camera(report.transfers))
-        return report.fits, (f"{report.verdict()}; {len(sets)} frame sets"
+        k = report.frame_sets_before_change
+        since = (f" (the change came before the frame set stamped {sets[k].stamp_ns * 1e-9:.3f} "
+                 "s)" if k else "")
+        return report.fits, (f"{report.verdict()}{since}; {len(sets)} frame sets"
                              + (f"; transfer error px: {per_camera}" if per_camera else ""))
 
     def _calibrate(self, start: float) -> Outcome:
