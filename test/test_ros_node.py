@@ -137,6 +137,15 @@ def publish_frame_sets(ros, node, frame_sets, first_stamp_s=1.0):
             ros.remove(d)
 
 
+def diagnostic_state(listener):
+    """(level, message, {key: value}) of the node's latest /diagnostics status, or None."""
+    diags = listener.snapshot()["diagnostics"]
+    if not diags:
+        return None
+    status = diags[-1].status[0]
+    return status.level, status.message, {kv.key: kv.value for kv in status.values}
+
+
 class SetCameraInfoDriver(rclpy.node.Node):
     """The set_camera_info end of a camera driver: accepts, refuses, or answers too late."""
 
@@ -362,11 +371,7 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
                for s in listener.snapshot()["status"])
 
     def diag_state():
-        diags = listener.snapshot()["diagnostics"]
-        if not diags:
-            return None
-        status = diags[-1].status[0]
-        return status.level, status.message, {kv.key: kv.value for kv in status.values}
+        return diagnostic_state(listener)
 
     assert wait_until(lambda: diag_state() and diag_state()[0] == DiagnosticStatus.OK, 5.0)
     level, _, values = diag_state()
@@ -485,6 +490,71 @@ def test_recalibration_after_a_bump_leaves_out_the_frame_sets_from_before(ros, r
         assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
     finally:
         for n in (caller, node):
+            ros.remove(n)
+
+
+def test_watch_checks_new_frame_sets_and_recalibrates_when_a_camera_moved(ros, rig, tmp_path):
+    """check_interval_s > 0: the true calibration is checked against new frame sets on its own
+    (fits: /diagnostics OK, last_check said); cam2 turned by 2 deg before two more frame sets:
+    the next check finds it (WARN naming cam2); with recalibrate_on_change turned on, the check
+    after one more frame set starts a recalibration from the three sets since the change, which
+    puts cam2 where it is now."""
+    from densecalib_ros.core.export import write_calibration_files
+
+    truth = rig.ground_truth()
+    truth.quality["reprojection_rms_px"] = 0.5
+    write_calibration_files(truth, tmp_path / "20260101T000000Z")
+    os.symlink("20260101T000000Z", tmp_path / "latest")
+    node = ros.densecalib(tmp_path)
+    listener = ros.listener(node)
+
+    def watching(on: bool):  # off while frame sets are published: each check sees them whole
+        assert node.set_parameters([Parameter("check_interval_s", value=1.0 if on else 0.0)])[0] \
+            .successful
+
+    def last_check():
+        return (diagnostic_state(listener) or (0, "", {}))[2].get("last_check", "")
+
+    try:
+        publish_frame_sets(ros, node, rig.images)
+        watching(True)
+        assert wait_until(lambda: last_check().startswith("the calibration fits"), 60.0), \
+            listener.snapshot()["status"][-3:]
+        assert diagnostic_state(listener)[0] == DiagnosticStatus.OK
+        watching(False)
+        turn = Rotation.from_euler("z", 2.0, degrees=True).as_matrix()
+        lens = truth.cameras["cam2"].intrinsics
+        turned = [[turned_image(im, lens, turn) if c == 2 else im for c, im in enumerate(fs)]
+                  for fs in rig.images]
+        publish_frame_sets(ros, node, turned, first_stamp_s=10.0)
+        watching(True)
+        assert wait_until(lambda: "no longer fits" in last_check(), 60.0), last_check()
+        level, message, values = diagnostic_state(listener)
+        assert level == DiagnosticStatus.WARN and message.startswith(
+            "the calibration no longer fits the latest images: a camera moved"), message
+        assert "cam2 moved or changed" in values["last_check"]
+        assert "frame sets 1-2 fit it" in values["last_check"]
+
+        before = node.calibration_dir
+        assert node.set_parameters([Parameter("recalibrate_on_change", value=True)])[0].successful
+        watching(False)
+        publish_frame_sets(ros, node, turned[:1], first_stamp_s=12.0)
+        watching(True)
+        assert wait_until(lambda: node.calibration_dir != before, CALIBRATION_TIMEOUT_S), \
+            listener.snapshot()["status"][-3:]
+        watched = [m for m in listener.snapshot()["status"] if m.startswith("watch: ")]
+        assert watched[-1] == "watch: recalibrating, the calibration no longer fits", watched
+        change = node.calibration.quality["change_vs_previous"]
+        assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
+        assert [row[0] for row in node.calibration.quality["input"]["frame_set_stamps_ns"]] == \
+            [10_000_000_000, 11_000_000_000, 12_000_000_000]
+        # the new calibration has not been checked (no frame sets since): no last_check
+        assert wait_until(lambda: diagnostic_state(listener)[2].get("files") ==
+                          str(node.calibration_dir), 5.0)
+        _, message, values = diagnostic_state(listener)
+        assert "last_check" not in values and "no longer fits" not in message, message
+    finally:
+        for n in (listener, node):
             ros.remove(n)
 
 

@@ -9,6 +9,9 @@ Interface (names relative to the node, default name `densecalib_node`):
   calibration without recalibrating (core.consistency.check_latest: when the older sets fit and
   the newer do not, the newer are judged); success = it still fits, the message names a camera
   that moved and, after a change inside the buffer, when;
+- the watch (timer): with check_interval_s > 0, the same check whenever frame sets arrived since
+  the last one, its verdict on ~/status and /diagnostics; with recalibrate_on_change, a
+  recalibration when the calibration no longer fits;
 - service `~/sync` (std_srvs/Trigger): measures the cameras' stamp offsets from what moves in
   their latest `sync_window_s` seconds of images (core.motion_sync) and sets `stamp_offsets_s`;
 - service `~/reload` (std_srvs/Trigger): publishes the calibration under `output_dir/latest`
@@ -22,7 +25,7 @@ Interface (names relative to the node, default name `densecalib_node`):
   (tf2_msgs/TFMessage, all cameras in one message, transient local, depth 1; with `floor` on,
   also floor_frame -> rig_frame), `~/points` (sensor_msgs/PointCloud2, transient local, depth
   1: the calibration's scene points in rig_frame, x y z rgb), `/diagnostics`
-  (diagnostic_msgs/DiagnosticArray, 1 Hz);
+  (diagnostic_msgs/DiagnosticArray, 1 Hz; WARN when the last check found a camera moved);
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
 - files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/) written
   atomically, then the `output_dir/latest` symlink is swapped atomically. At start-up the
@@ -32,7 +35,8 @@ Threads: subscription callbacks (one callback group for all) only append message
 synchroniser (and, with sync_window_s > 0, add a small grey copy to the camera's motion signal);
 a calibration runs in its own worker thread; the service callback (reentrant group,
 multi-threaded executor) waits for its result while the executor keeps serving subscriptions,
-timers and other service calls.
+timers and other service calls. A check (~/check, or the watch's timer in a group of its own)
+runs in its caller's thread; it and a calibration hold the one job slot in turn.
 """
 from __future__ import annotations
 
@@ -129,6 +133,13 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "check_tolerance_px": (DEFAULT_TOLERANCE_PX, "~/check: a camera pair or triple fits when its "
                            "median epipolar / transfer error is at most this [px]", False,
                            _range(0.01, 1000.0, False)),
+    "check_interval_s": (0.0, "watch: check the calibration against the buffered frame sets "
+                         "this often [s] (as ~/check; only when frame sets arrived since the last "
+                         "check), and show the outcome on /diagnostics (WARN when a camera "
+                         "moved); 0 = off", False, _range(0.0, 86400.0, False)),
+    "recalibrate_on_change": (False, "watch: when a check finds that the calibration no longer "
+                              "fits, start a recalibration (as ~/calibrate: from the frame sets "
+                              "since the change; a worse result is refused)", False, {}),
     "max_frame_sets": (DEFAULT_MAX_FRAME_SETS, "a calibration uses at most this many buffered "
                        "frame sets, evenly spaced over the buffer", False, _range(1, 10000, True)),
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
@@ -223,6 +234,8 @@ class Settings:
     min_frame_sets: int
     max_frame_sets: int
     check_tolerance_px: float
+    check_interval_s: float
+    recalibrate_on_change: bool
     preset: str
     camera_lens: dict[str, str]
     camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.masks)
@@ -392,6 +405,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         buffer_size=int(v["buffer_size"]), min_interval_s=float(v["min_interval_s"]),
         min_frame_sets=int(v["min_frame_sets"]), max_frame_sets=int(v["max_frame_sets"]),
         check_tolerance_px=float(v["check_tolerance_px"]),
+        check_interval_s=float(v["check_interval_s"]),
+        recalibrate_on_change=bool(v["recalibrate_on_change"]),
         preset=v["preset"],
         camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks,
         detect_info_strips=bool(v["detect_info_strips"]),
@@ -419,6 +434,15 @@ class Outcome:
 
 CHECK_JOB = "check"  # the reasons of the job slot a ~/check and a ~/reload hold
 RELOAD_JOB = "reload"
+
+
+@dataclass
+class _CheckOutcome:
+    """A check's result: fits None = it could not tell (too few matches, no frame sets)."""
+    fits: Optional[bool]
+    message: str
+    calibration_dir: Optional[Path] = None  # the calibration it judged
+    at: float = field(default_factory=time.time)
 
 
 @dataclass
@@ -459,6 +483,9 @@ class DenseCalibNode(Node):
         self._last_failure: Optional[str] = None
         self.stereo_problem: Optional[str] = None  # why stereo_pairs' CameraInfo lack R, P
         self._status = "idle"
+        self._last_check: Optional[_CheckOutcome] = None
+        self._watched_up_to_ns = 0  # the newest frame set stamp a watch check has seen
+        self._last_watch = -math.inf  # time.monotonic() of the last watch check
         self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
 
         self.sync = MessageSynchronizer(len(s.image_topics), s.slop_s, s.buffer_size,
@@ -498,6 +525,8 @@ class DenseCalibNode(Node):
             self._discovery_timer = self.create_timer(0.5, self._subscribe_discovered_topics,
                                                       callback_group=self._timer_group)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=self._timer_group)
+        # the watch's checks take seconds: a group of their own keeps diagnostics flowing
+        self.create_timer(1.0, self._watch, callback_group=MutuallyExclusiveCallbackGroup())
 
         loaded, message = self._load_last_calibration()
         (self.get_logger().info if loaded or "no calibration" in message else
@@ -667,26 +696,53 @@ class DenseCalibNode(Node):
 
     def _on_check(self, request, response):
         """~/check: the buffer against the current calibration, in this service thread (matching
-        only: seconds); it holds the job slot so that no calibration swaps the matcher meanwhile."""
+        only: seconds)."""
+        outcome = self._run_check()
+        response.success = bool(outcome and outcome.fits)
+        response.message = (outcome.message if outcome else
+                            "busy: a calibration or check is running")
+        self._set_status(f"check: {response.message}")
+        return response
+
+    def _run_check(self) -> Optional[_CheckOutcome]:
+        """A check of the buffer (~/check and the watch); None when a job is running. It holds
+        the job slot, so that no calibration swaps the matcher meanwhile."""
         with self._state_lock:
-            busy = self._job is not None
-            if not busy:
-                self._job = _Job(CHECK_JOB)
-        if busy:
-            response.success, response.message = False, "busy: a calibration or check is running"
-            return response
+            if self._job is not None:
+                return None
+            self._job = _Job(CHECK_JOB)
         try:
-            response.success, response.message = self._check()
+            outcome = self._check()
         except CalibrationError as exc:  # InputError included
-            response.success, response.message = False, f"check failed: {exc}"
+            outcome = _CheckOutcome(None, f"check failed: {exc}")
         except Exception as exc:  # a bug must still answer the call
             self.get_logger().error(f"check crashed: {exc!r}")
-            response.success, response.message = False, f"check crashed: {exc!r}"
+            outcome = _CheckOutcome(None, f"check crashed: {exc!r}")
         finally:
             with self._state_lock:
                 self._job = None
-        self._set_status(f"check: {response.message}")
-        return response
+        outcome.calibration_dir = self.calibration_dir
+        self._last_check = outcome
+        return outcome
+
+    def _watch(self) -> None:
+        """Timer: with check_interval_s > 0, check the calibration when frame sets arrived since
+        the last check; with recalibrate_on_change, recalibrate when it no longer fits."""
+        s = self.settings
+        if (s.check_interval_s <= 0 or self.calibration is None
+                or time.monotonic() - self._last_watch < s.check_interval_s):
+            return
+        sets = self.sync.snapshot()
+        if not sets or sets[-1].stamp_ns <= self._watched_up_to_ns:
+            return  # nothing new: the verdict would be the last one
+        outcome = self._run_check()
+        if outcome is None:
+            return  # busy: try again at the next tick
+        self._last_watch, self._watched_up_to_ns = time.monotonic(), sets[-1].stamp_ns
+        self._set_status(f"watch: {outcome.message}")
+        if outcome.fits is False and s.recalibrate_on_change:
+            if self.start_calibration("watch: the calibration no longer fits") is not None:
+                self._set_status("watch: recalibrating, the calibration no longer fits")
 
     def _on_sync(self, request, response):
         """~/sync: measure the cameras' stamp offsets from the motion in their latest
@@ -721,27 +777,29 @@ class DenseCalibNode(Node):
         self._set_status(f"clear: {response.message}")
         return response
 
-    def _check(self) -> tuple[bool, str]:
+    def _check(self) -> _CheckOutcome:
         from ..core.consistency import best_transfer_per_camera, check_latest
         from ..core.pipeline import match_frame_sets
 
         s, rig = self.settings, self.calibration
         if rig is None:
-            return False, "no calibration to check yet: call ~/calibrate first"
+            return _CheckOutcome(None, "no calibration to check yet: call ~/calibrate first")
         sets = evenly_spaced(self.sync.snapshot(), s.max_frame_sets)
         if not sets:
-            return False, "no synchronised frame sets buffered to check the calibration with"
+            return _CheckOutcome(None, "no synchronised frame sets buffered to check the "
+                                       "calibration with")
         match_sets = match_frame_sets(decode_frame_sets(sets), pipeline_config(s),
                                       matcher=self._matcher_for(s), camera_names=s.camera_names)
         report = check_latest(rig, s.camera_names, match_sets, s.check_tolerance_px)
         if not report.pairs:
-            return False, "the buffered images share too few matches to check the calibration"
+            return _CheckOutcome(None, "the buffered images share too few matches to check the "
+                                       "calibration")
         per_camera = ", ".join(f"{t.target} {t.median_error_px:.2f}"
                                for t in best_transfer_per_camera(report.transfers))
         k = report.frame_sets_before_change
         since = (f" (the change came before the frame set stamped {sets[k].stamp_ns * 1e-9:.3f} "
                  "s)" if k else "")
-        return report.fits, (f"{report.verdict()}{since}; {len(sets)} frame sets"
+        return _CheckOutcome(report.fits, f"{report.verdict()}{since}; {len(sets)} frame sets"
                              + (f"; transfer error px: {per_camera}" if per_camera else ""))
 
     def _calibrate(self, start: float) -> Outcome:
@@ -1060,6 +1118,16 @@ class DenseCalibNode(Node):
                 if status.level == DiagnosticStatus.OK:
                     status.level = DiagnosticStatus.WARN
                     status.message = "calibrated, with warnings"
+        check = self._last_check  # shown while the calibration it judged is the current one
+        if (check is not None and self.calibration_dir is not None
+                and check.calibration_dir == self.calibration_dir):
+            values.update(last_check=check.message,
+                          last_check_age_s=f"{time.time() - check.at:.1f}")
+            if check.fits is False:  # before any other warning: the rig is not as published
+                status.level = DiagnosticStatus.WARN
+                status.message = ("the calibration no longer fits the latest images: a camera "
+                                  "moved or changed (last check)" +
+                                  ("; the last calibration failed" if self._last_failure else ""))
         if self._last_failure:
             values["last_failure"] = self._last_failure
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
