@@ -97,6 +97,12 @@ def change_table(change: dict[str, CameraChange]) -> str:
     return "\n".join(rows)
 
 
+def info_strips_line(quality: dict) -> str:
+    """The info strips a calibration ignored (quality["info_strips"]), as one line."""
+    return "info strips ignored: " + ", ".join(
+        f"{n} {what}" for n, what in quality.get("info_strips", {}).items())
+
+
 def overall_lines(rig: RigCalibration) -> list[str]:
     """What the calibration was made from and how well it fits, from rig.quality (keys written by
     the pipeline; older or hand-written files may lack some)."""
@@ -144,8 +150,7 @@ def overall_lines(rig: RigCalibration) -> list[str]:
     if rig.failed_cameras:
         lines.append("not registered: " + ", ".join(rig.failed_cameras))
     if q.get("info_strips"):
-        lines.append("info strips ignored: " + ", ".join(
-            f"{n} {what}" for n, what in q["info_strips"].items()))
+        lines.append(info_strips_line(q))
     for warning in q.get("warnings", []) or []:
         lines.append(f"warning: {warning}")
     if "change_summary" in q:

@@ -78,6 +78,7 @@ from ..core.floor import VIEWS as FLOOR_VIEWS, record_floor
 from ..core.known_intrinsics import read_known_intrinsics, with_previous_intrinsics
 from ..core.masks import read_mask
 from ..core.matching import available_matchers
+from ..core.report import info_strips_line
 from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
@@ -862,6 +863,8 @@ class DenseCalibNode(Node):
             message += (f"; the {rig.quality['frame_sets_before_change']} older frame sets "
                         "still fitted the previous calibration and were left out: the rig "
                         "changed after them")
+        if rig.quality.get("info_strips"):  # found in the images (detect_info_strips)
+            message += f"; {info_strips_line(rig.quality)}"
         for warning in rig.quality.get("warnings", []):
             message += f"; warning: {warning}"
         if self.stereo_problem:
