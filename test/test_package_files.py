@@ -14,8 +14,8 @@ def _installed_files() -> dict[str, str]:
     text = (ROOT / "setup.py").read_text()
     package = re.search(r'package_name = "([^"]+)"', text).group(1)
     installed = {}
-    for folder, pattern in re.findall(r'\("share/" \+ package_name \+ "(/[^"]*)", glob\("([^"]+)"\)',
-                                      text):
+    globs = re.findall(r'\("share/" \+ package_name \+ "(/[^"]*)", glob\("([^"]+)"\)', text)
+    for folder, pattern in globs:
         for path in ROOT.glob(pattern):
             installed[str(path.relative_to(ROOT))] = f"share/{package}{folder}/{path.name}"
     return installed
