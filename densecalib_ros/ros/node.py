@@ -9,8 +9,8 @@ Interface (names relative to the node, default name `densecalib_node`):
   calibration without recalibrating (core.consistency.check_latest: when the older sets fit and
   the newer do not, the newer are judged); success = it still fits, the message names a camera
   that moved and, after a change inside the buffer, when;
-- the watch (timer): with check_interval_s > 0, the same check whenever frame sets arrived since
-  the last one, its verdict on ~/status and /diagnostics; with recalibrate_on_change, a
+- the watch (timer): with check_interval_s > 0, the same check on the frame sets that arrived
+  since the last one (and the one before them), its verdict on ~/status and /diagnostics; with recalibrate_on_change, a
   recalibration when the calibration no longer fits;
 - service `~/sync` (std_srvs/Trigger): measures the cameras' stamp offsets from what moves in
   their latest `sync_window_s` seconds of images (core.motion_sync) and sets `stamp_offsets_s`;
@@ -134,10 +134,10 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "check_tolerance_px": (DEFAULT_TOLERANCE_PX, "~/check: a camera pair or triple fits when its "
                            "median epipolar / transfer error is at most this [px]", False,
                            _range(0.01, 1000.0, False)),
-    "check_interval_s": (0.0, "watch: check the calibration against the buffered frame sets "
-                         "this often [s] (as ~/check; only when frame sets arrived since the last "
-                         "check), and show the outcome on /diagnostics (WARN when a camera "
-                         "moved); 0 = off", False, _range(0.0, 86400.0, False)),
+    "check_interval_s": (0.0, "watch: check the calibration this often [s] (as ~/check) on the "
+                         "frame sets that arrived since the last check, if any, and show the "
+                         "outcome on /diagnostics (WARN when a camera moved); 0 = off", False,
+                         _range(0.0, 86400.0, False)),
     "recalibrate_on_change": (False, "watch: when a check finds that the calibration no longer "
                               "fits, start a recalibration (as ~/calibrate: from the frame sets "
                               "since the change; a worse result is refused)", False, {}),
@@ -705,15 +705,15 @@ class DenseCalibNode(Node):
         self._set_status(f"check: {response.message}")
         return response
 
-    def _run_check(self) -> Optional[_CheckOutcome]:
-        """A check of the buffer (~/check and the watch); None when a job is running. It holds
-        the job slot, so that no calibration swaps the matcher meanwhile."""
+    def _run_check(self, sets: Optional[list] = None) -> Optional[_CheckOutcome]:
+        """A check of `sets` (default: the buffer, as ~/check does); None when a job is running.
+        It holds the job slot, so that no calibration swaps the matcher meanwhile."""
         with self._state_lock:
             if self._job is not None:
                 return None
             self._job = _Job(CHECK_JOB)
         try:
-            outcome = self._check()
+            outcome = self._check(sets)
         except CalibrationError as exc:  # InputError included
             outcome = _CheckOutcome(None, f"check failed: {exc}")
         except Exception as exc:  # a bug must still answer the call
@@ -733,13 +733,16 @@ class DenseCalibNode(Node):
         if (s.check_interval_s <= 0 or self.calibration is None
                 or time.monotonic() - self._last_watch < s.check_interval_s):
             return
-        sets = self.sync.snapshot()
-        if not sets or sets[-1].stamp_ns <= self._watched_up_to_ns:
+        buffered = self.sync.snapshot()
+        new = [i for i, fs in enumerate(buffered) if fs.stamp_ns > self._watched_up_to_ns]
+        if not new:
             return  # nothing new: the verdict would be the last one
-        outcome = self._run_check()
+        # the new frame sets only (matching is the cost), and the one before them: when it fits
+        # and they do not, the check says the change came in between
+        outcome = self._run_check(buffered[max(new[0] - 1, 0):])
         if outcome is None:
             return  # busy: try again at the next tick
-        self._last_watch, self._watched_up_to_ns = time.monotonic(), sets[-1].stamp_ns
+        self._last_watch, self._watched_up_to_ns = time.monotonic(), buffered[-1].stamp_ns
         self._set_status(f"watch: {outcome.message}")
         if outcome.fits is False and s.recalibrate_on_change:
             if self.start_calibration("watch: the calibration no longer fits") is not None:
@@ -778,14 +781,14 @@ class DenseCalibNode(Node):
         self._set_status(f"clear: {response.message}")
         return response
 
-    def _check(self) -> _CheckOutcome:
+    def _check(self, sets: Optional[list] = None) -> _CheckOutcome:
         from ..core.consistency import best_transfer_per_camera, check_latest
         from ..core.pipeline import match_frame_sets
 
         s, rig = self.settings, self.calibration
         if rig is None:
             return _CheckOutcome(None, "no calibration to check yet: call ~/calibrate first")
-        sets = evenly_spaced(self.sync.snapshot(), s.max_frame_sets)
+        sets = evenly_spaced(self.sync.snapshot() if sets is None else sets, s.max_frame_sets)
         if not sets:
             return _CheckOutcome(None, "no synchronised frame sets buffered to check the "
                                        "calibration with")
