@@ -81,7 +81,7 @@ from ..core.matching import available_matchers
 from ..core.report import info_strips_line
 from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
-from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
+from ..core.sync import DEFAULT_MAX_FRAME_SETS, FrameSet, evenly_spaced
 from ..core.types import RigCalibration
 from .conversions import camera_info_msg, point_cloud_msg, rig_tf_message
 from .replay import BagReplayer
@@ -485,7 +485,9 @@ class DenseCalibNode(Node):
         self.stereo_problem: Optional[str] = None  # why stereo_pairs' CameraInfo lack R, P
         self._status = "idle"
         self._last_check: Optional[_CheckOutcome] = None
-        self._watched_up_to_ns = 0  # the newest frame set stamp a watch check has seen
+        # the newest frame set a watch check has seen (by identity: stamps may jump back when
+        # a bag is replayed again or sim time restarts; the buffer only appends and drops)
+        self._watched_last: Optional[FrameSet] = None
         self._last_watch = -math.inf  # time.monotonic() of the last watch check
         self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
 
@@ -734,15 +736,15 @@ class DenseCalibNode(Node):
                 or time.monotonic() - self._last_watch < s.check_interval_s):
             return
         buffered = self.sync.snapshot()
-        new = [i for i, fs in enumerate(buffered) if fs.stamp_ns > self._watched_up_to_ns]
-        if not new:
+        first_new = next((i + 1 for i, fs in enumerate(buffered) if fs is self._watched_last), 0)
+        if first_new >= len(buffered):
             return  # nothing new: the verdict would be the last one
         # the new frame sets only (matching is the cost), and the one before them: when it fits
         # and they do not, the check says the change came in between
-        outcome = self._run_check(buffered[max(new[0] - 1, 0):])
+        outcome = self._run_check(buffered[max(first_new - 1, 0):])
         if outcome is None:
             return  # busy: try again at the next tick
-        self._last_watch, self._watched_up_to_ns = time.monotonic(), buffered[-1].stamp_ns
+        self._last_watch, self._watched_last = time.monotonic(), buffered[-1]
         self._set_status(f"watch: {outcome.message}")
         if outcome.fits is False and s.recalibrate_on_change:
             if self.start_calibration("watch: the calibration no longer fits") is not None:
