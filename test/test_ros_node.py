@@ -495,17 +495,17 @@ def test_recalibration_after_a_bump_leaves_out_the_frame_sets_from_before(ros, r
 
 def test_watch_checks_new_frame_sets_and_recalibrates_when_a_camera_moved(ros, rig, tmp_path):
     """check_interval_s > 0: the true calibration is checked against new frame sets on its own
-    (fits: /diagnostics OK, last_check said); cam2 turned by 2 deg before two more frame sets:
-    the next check finds it (WARN naming cam2); with recalibrate_on_change turned on, the check
-    after one more frame set starts a recalibration from the three sets since the change, which
-    puts cam2 where it is now."""
+    (fits: /diagnostics OK, last_check said). cam2 turned by 2 deg before one more frame set:
+    the next check finds it (WARN naming cam2), and waits for a second frame set to confirm it
+    before recalibrating (recalibrate_on_change); with it, a recalibration from the two sets
+    since the change puts cam2 where it is now."""
     from densecalib_ros.core.export import write_calibration_files
 
     truth = rig.ground_truth()
     truth.quality["reprojection_rms_px"] = 0.5
     write_calibration_files(truth, tmp_path / "20260101T000000Z")
     os.symlink("20260101T000000Z", tmp_path / "latest")
-    node = ros.densecalib(tmp_path)
+    node = ros.densecalib(tmp_path, recalibrate_on_change=True)
     listener = ros.listener(node)
 
     def watching(on: bool):  # off while frame sets are published: each check sees them whole
@@ -514,6 +514,9 @@ def test_watch_checks_new_frame_sets_and_recalibrates_when_a_camera_moved(ros, r
 
     def last_check():
         return (diagnostic_state(listener) or (0, "", {}))[2].get("last_check", "")
+
+    def watched():
+        return [m for m in listener.snapshot()["status"] if m.startswith("watch: ")]
 
     try:
         publish_frame_sets(ros, node, rig.images)
@@ -526,30 +529,31 @@ def test_watch_checks_new_frame_sets_and_recalibrates_when_a_camera_moved(ros, r
         lens = truth.cameras["cam2"].intrinsics
         turned = [[turned_image(im, lens, turn) if c == 2 else im for c, im in enumerate(fs)]
                   for fs in rig.images]
-        publish_frame_sets(ros, node, turned, first_stamp_s=10.0)
+        before = node.calibration_dir
+        publish_frame_sets(ros, node, turned[:1], first_stamp_s=10.0)
         watching(True)
         assert wait_until(lambda: "no longer fits" in last_check(), 60.0), last_check()
         level, message, values = diagnostic_state(listener)
         assert level == DiagnosticStatus.WARN and message.startswith(
             "the calibration no longer fits the latest images: a camera moved"), message
         assert "cam2 moved or changed" in values["last_check"]
-        # it matched the two new frame sets and the one before them
-        assert "frame sets 1-1 fit it" in values["last_check"] and "; 3 frame sets" in \
+        # it matched the new frame set and the one before it
+        assert "frame sets 1-1 fit it" in values["last_check"] and "; 2 frame sets" in \
             values["last_check"]
+        assert wait_until(lambda: watched()[-1].startswith("watch: 1 frame set does not fit; "
+                                                           "recalibrating when the next"), 5.0)
+        assert node.calibration_dir == before  # one frame set is not enough
 
-        before = node.calibration_dir
-        assert node.set_parameters([Parameter("recalibrate_on_change", value=True)])[0].successful
         watching(False)
-        publish_frame_sets(ros, node, turned[:1], first_stamp_s=12.0)
+        publish_frame_sets(ros, node, turned[1:], first_stamp_s=11.0)
         watching(True)
         assert wait_until(lambda: node.calibration_dir != before, CALIBRATION_TIMEOUT_S), \
             listener.snapshot()["status"][-3:]
-        watched = [m for m in listener.snapshot()["status"] if m.startswith("watch: ")]
-        assert watched[-1] == "watch: recalibrating, the calibration no longer fits", watched
+        assert watched()[-1] == "watch: recalibrating, the calibration no longer fits", watched()
         change = node.calibration.quality["change_vs_previous"]
         assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
         assert [row[0] for row in node.calibration.quality["input"]["frame_set_stamps_ns"]] == \
-            [10_000_000_000, 11_000_000_000, 12_000_000_000]
+            [10_000_000_000, 11_000_000_000]
         # the new calibration has not been checked (no frame sets since): no last_check
         assert wait_until(lambda: diagnostic_state(listener)[2].get("files") ==
                           str(node.calibration_dir), 5.0)

@@ -139,8 +139,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                          "outcome on /diagnostics (WARN when a camera moved); 0 = off", False,
                          _range(0.0, 86400.0, False)),
     "recalibrate_on_change": (False, "watch: when a check finds that the calibration no longer "
-                              "fits, start a recalibration (as ~/calibrate: from the frame sets "
-                              "since the change; a worse result is refused)", False, {}),
+                              "fits on two frame sets or more, start a recalibration (as "
+                              "~/calibrate: from the frame sets since the change; a worse result "
+                              "is refused)", False, {}),
     "max_frame_sets": (DEFAULT_MAX_FRAME_SETS, "a calibration uses at most this many buffered "
                        "frame sets, evenly spaced over the buffer", False, _range(1, 10000, True)),
     "preset": ("regular", "method preset: regular (pinhole + radial) or fisheye", False, {}),
@@ -435,6 +436,9 @@ class Outcome:
 
 CHECK_JOB = "check"  # the reasons of the job slot a ~/check and a ~/reload hold
 RELOAD_JOB = "reload"
+# The watch recalibrates on a change seen in at least this many frame sets: one odd frame set (a
+# passing animal covering a camera's view, a flash) is not worth replacing a good calibration.
+WATCH_CONFIRM_SETS = 2
 
 
 @dataclass
@@ -442,6 +446,7 @@ class _CheckOutcome:
     """A check's result: fits None = it could not tell (too few matches, no frame sets)."""
     fits: Optional[bool]
     message: str
+    misfit_sets: int = 0  # the frame sets the failing figures come from
     calibration_dir: Optional[Path] = None  # the calibration it judged
     at: float = field(default_factory=time.time)
 
@@ -747,7 +752,10 @@ class DenseCalibNode(Node):
         self._last_watch, self._watched_last = time.monotonic(), buffered[-1]
         self._set_status(f"watch: {outcome.message}")
         if outcome.fits is False and s.recalibrate_on_change:
-            if self.start_calibration("watch: the calibration no longer fits") is not None:
+            if outcome.misfit_sets < WATCH_CONFIRM_SETS:
+                self._set_status(f"watch: {outcome.misfit_sets} frame set does not fit; "
+                                 "recalibrating when the next one confirms it")
+            elif self.start_calibration("watch: the calibration no longer fits") is not None:
                 self._set_status("watch: recalibrating, the calibration no longer fits")
 
     def _on_sync(self, request, response):
@@ -806,7 +814,8 @@ class DenseCalibNode(Node):
         since = (f" (the change came before the frame set stamped {sets[k].stamp_ns * 1e-9:.3f} "
                  "s)" if k else "")
         return _CheckOutcome(report.fits, f"{report.verdict()}{since}; {len(sets)} frame sets"
-                             + (f"; transfer error px: {per_camera}" if per_camera else ""))
+                             + (f"; transfer error px: {per_camera}" if per_camera else ""),
+                             misfit_sets=0 if report.fits else len(sets) - k)
 
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
