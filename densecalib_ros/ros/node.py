@@ -436,8 +436,9 @@ class Outcome:
 
 CHECK_JOB = "check"  # the reasons of the job slot a ~/check and a ~/reload hold
 RELOAD_JOB = "reload"
-# The watch recalibrates on a change seen in at least this many frame sets: one odd frame set (a
-# passing animal covering a camera's view, a flash) is not worth replacing a good calibration.
+# The watch recalibrates on a change seen in at least this many frame sets: a frame set alone can
+# be odd (few matches, something that moved between the shots of unsynchronised cameras), and is
+# not worth replacing a good calibration.
 WATCH_CONFIRM_SETS = 2
 
 
