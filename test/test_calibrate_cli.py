@@ -50,6 +50,9 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
         assert "camera_matrix:" in (out / f"{name}.yaml").read_text()
     assert {p.name for p in (out / "colmap").iterdir()} >= {"cameras.bin", "images.bin",
                                                             "points3D.bin"}
+    # each camera's view of the last frame set, for `check` (core.reference_views)
+    assert sorted(p.name for p in (out / "reference_views").iterdir()) == [
+        f"{n}.jpg" for n in names]
     gt, _ = read_ground_truth(rig_dir / "ground_truth.json")
     metrics = evaluate_calibration(read_calibration(out), gt)
     assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02

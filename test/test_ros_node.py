@@ -353,7 +353,10 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     latest = out / "latest"
     assert latest.is_symlink() and (latest / "calibration.json").is_file()
     assert sorted(p.name for p in latest.iterdir()) == [
-        "calibration.json", "cam0.yaml", "cam1.yaml", "cam2.yaml", "cam3.yaml", "colmap"]
+        "calibration.json", "cam0.yaml", "cam1.yaml", "cam2.yaml", "cam3.yaml", "colmap",
+        "reference_views"]
+    assert sorted(p.name for p in (latest / "reference_views").iterdir()) == [
+        f"cam{i}.jpg" for i in range(4)]
     assert calibration_values(read_calibration(latest)) == calibration_values(node.calibration)
     # ~/points: the saved model's scene points in the rig frame, in their image colours
     assert wait_until(lambda: listener.snapshot()["points"], 5.0)
@@ -387,6 +390,8 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert response.success and response.message.startswith("the calibration fits"), \
         response.message
     assert "2 frame sets" in response.message and "transfer error px: cam0" in response.message
+    assert "reference views: every judged camera still sees its reference view" in \
+        response.message
     # cam2 tilted by 1 deg before two more frame sets: the check judges those two and says when
     truth = rig.ground_truth()
     tilt = Rotation.from_euler("x", 1.0, degrees=True).as_matrix()
@@ -397,8 +402,9 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert not response.success and "no longer fits: cam2 moved or changed" in response.message, \
         response.message
     assert ("frame sets 1-2 fit it, the rig changed after frame set 2 (figures from the 2 since) "
-            "(the change came before the frame set stamped 3.000 s); 4 frame sets"
-            in response.message)
+            "(the change came before the frame set stamped 3.000 s); reference views: turned "
+            "since the calibration: cam2 " in response.message)  # its own view, 1 deg turned
+    assert re.search(r"cam2 (0\.9\d|1\.0\d) deg \(\d\.\d px\); 4 frame sets", response.message)
     ros.remove(checker)
     # floor turned on after calibrating without it: found in the saved scene points, recorded in
     # calibration.json and published; turned off again: gone from /tf_static

@@ -162,6 +162,7 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 
 def run(args: argparse.Namespace) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
+    from ..core.reference_views import latest_views
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
                                          with_previous_intrinsics)
     from ..core.pipeline import check_frame_sets, run_calibration
@@ -223,8 +224,9 @@ def run(args: argparse.Namespace) -> int:
             from ..core.floor import record_floor
             record_floor(result, args.floor)
         record_provenance(result.rig, source)
-        replace_directory_atomic(
-            lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction), args.out)
+        views = latest_views(frame_sets, names, result.rig)
+        replace_directory_atomic(lambda tmp: write_calibration_files(
+            result.rig, tmp, result.reconstruction, reference_views=views), args.out)
     except InputError as exc:
         log.error("%s", exc)
         return 2

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
                                 best_transfer_per_camera, check_latest)
@@ -28,8 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.config import make_config
-    from ..core.export import read_calibration
+    from ..core.export import calibration_folder, read_calibration
     from ..core.pipeline import match_frame_sets
+    from ..core.reference_views import (check_verdict, compare_with_reference_views,
+                                        read_reference_views)
 
     try:
         rig = read_calibration(args.calibration)
@@ -60,9 +63,24 @@ def run(args: argparse.Namespace) -> int:
         for c in best_transfer_per_camera(report.transfers):
             print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
                   f"{c.sources[0]} + {c.sources[1]}{'' if c.fits(tol) else '  does not fit'}")
-    print(report.verdict() + ("" if report.fits else "; recalibrate, e.g. densecalib calibrate "
-                              f"... --previous {args.calibration}"))
-    return 0 if report.fits else 1
+    views = None
+    given = Path(args.calibration)  # a calibration.json elsewhere has no views beside it
+    references = (read_reference_views(calibration_folder(given), names)
+                  if given.is_dir() or given.name == "calibration.json" else {})
+    if references:
+        views = compare_with_reference_views(rig, names, frame_sets, references,
+                                             args.tolerance_px)
+        print(f"\n{'camera':<12} {'matches':>8} {'turned since calibration deg':>29} {'px':>6}"
+              "  (the last frame set against the calibration's view)")
+        for t in views.turns:
+            print(f"{t.camera:<12} {t.num_inliers:>8} {t.rotation_deg:>29.3f} "
+                  f"{t.shift_px:>6.2f}{'  turned' if t.turned(args.tolerance_px) else ''}")
+        for name in views.not_judged:
+            print(f"{name:<12} too few matches with its reference view: not judged")
+    fits, verdict = check_verdict(report, views)
+    print(verdict + ("" if fits else "; recalibrate, e.g. densecalib calibrate "
+                     f"... --previous {args.calibration}"))
+    return 0 if fits else 1
 
 
 def _frame_set_label(record: dict, k: int) -> str:

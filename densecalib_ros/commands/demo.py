@@ -71,13 +71,14 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_offline(rig, config, out: Path) -> int:
     from ..core.export import replace_directory_atomic, write_calibration_files
+    from ..core.reference_views import latest_views
     from ..core.pipeline import run_calibration
 
     try:
         result = run_calibration(rig.images, rig.names, config)
-        replace_directory_atomic(
-            lambda tmp: write_calibration_files(result.rig, tmp, result.reconstruction),
-            out / "offline")
+        views = latest_views(rig.images, rig.names, result.rig)
+        replace_directory_atomic(lambda tmp: write_calibration_files(
+            result.rig, tmp, result.reconstruction, reference_views=views), out / "offline")
     except CalibrationError as exc:
         log.error("calibration failed: %s", exc)
         return 1

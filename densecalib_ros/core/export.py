@@ -208,9 +208,11 @@ def read_saved_model(folder: str | os.PathLike):
     return pycolmap.Reconstruction(str(model))
 
 
-def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction=None) -> None:
+def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction=None,
+                            reference_views: Optional[dict] = None) -> None:
     """Write calibration.json, <camera>.yaml per camera and (optionally) the COLMAP model under
-    `directory`/colmap into `directory`, which must not exist yet or is replaced as a whole."""
+    `directory`/colmap and the cameras' reference views (core.reference_views: {camera: image})
+    into `directory`, which must not exist yet or is replaced as a whole."""
     directory.mkdir(parents=True, exist_ok=True)
     write_calibration_json(rig, directory)
     for name, cam in rig.cameras.items():
@@ -218,6 +220,9 @@ def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction
     if reconstruction is not None:
         (directory / "colmap").mkdir(exist_ok=True)
         reconstruction.write(str(directory / "colmap"))
+    if reference_views:
+        from .reference_views import write_reference_views
+        write_reference_views(directory, reference_views)
 
 
 def replace_directory_atomic(build, out_dir: str | os.PathLike) -> None:

@@ -795,6 +795,8 @@ class DenseCalibNode(Node):
     def _check(self, sets: Optional[list] = None) -> _CheckOutcome:
         from ..core.consistency import best_transfer_per_camera, check_latest
         from ..core.pipeline import match_frame_sets
+        from ..core.reference_views import (check_verdict, compare_with_reference_views,
+                                            read_reference_views)
 
         s, rig = self.settings, self.calibration
         if rig is None:
@@ -803,25 +805,35 @@ class DenseCalibNode(Node):
         if not sets:
             return _CheckOutcome(None, "no synchronised frame sets buffered to check the "
                                        "calibration with")
-        match_sets = match_frame_sets(decode_frame_sets(sets), pipeline_config(s),
-                                      matcher=self._matcher_for(s), camera_names=s.camera_names)
+        images = decode_frame_sets(sets)
+        match_sets = match_frame_sets(images, pipeline_config(s), matcher=self._matcher_for(s),
+                                      camera_names=s.camera_names)
         report = check_latest(rig, s.camera_names, match_sets, s.check_tolerance_px)
         if not report.pairs:
             return _CheckOutcome(None, "the buffered images share too few matches to check the "
                                        "calibration")
-        per_camera = ", ".join(f"{t.target} {t.median_error_px:.2f}"
-                               for t in best_transfer_per_camera(report.transfers))
         k = report.frame_sets_before_change
         since = (f" (the change came before the frame set stamped {sets[k].stamp_ns * 1e-9:.3f} "
                  "s)" if k else "")
-        return _CheckOutcome(report.fits, f"{report.verdict()}{since}; {len(sets)} frame sets"
+        views = None
+        references = (read_reference_views(self.calibration_dir, s.camera_names)
+                      if self.calibration_dir is not None else {})
+        if references:
+            views = compare_with_reference_views(rig, s.camera_names, images, references,
+                                                 s.check_tolerance_px)
+        fits, verdict = check_verdict(report, views, report.verdict() + since)
+        per_camera = ", ".join(f"{t.target} {t.median_error_px:.2f}"
+                               for t in best_transfer_per_camera(report.transfers))
+        return _CheckOutcome(fits, f"{verdict}; {len(sets)} frame sets"
                              + (f"; transfer error px: {per_camera}" if per_camera else ""),
-                             misfit_sets=0 if report.fits else len(sets) - k)
+                             misfit_sets=max(0 if report.fits else len(sets) - k,
+                                             views.turned_sets if views else 0))
 
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
         from ..core.pipeline import run_calibration
         from ..core.recalibration import recalibrate
+        from ..core.reference_views import latest_views
 
         s = self.settings
         sets = self.sync.snapshot()
@@ -863,7 +875,8 @@ class DenseCalibNode(Node):
                                      for t, o in zip(fs.stamps_ns, s.stamp_offsets_s)]
                                     for fs in sets]})
         elapsed = time.perf_counter() - start
-        out = self._write_files(rig, reconstruction)
+        out = self._write_files(rig, reconstruction,
+                                latest_views(images, s.camera_names, rig))
         self._publish(rig, out)
         rms = rig.quality.get("reprojection_rms_px", float("nan"))
         failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
@@ -901,7 +914,8 @@ class DenseCalibNode(Node):
         return self._matcher[1]
 
     # ----------------------------------------------------------------- outputs
-    def _write_files(self, rig: RigCalibration, reconstruction=None) -> Path:
+    def _write_files(self, rig: RigCalibration, reconstruction=None,
+                     reference_views: Optional[dict] = None) -> Path:
         """Write output_dir/<UTC time>/ atomically, then swap the `latest` symlink onto it."""
         root = self.settings.output_dir
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
@@ -909,8 +923,8 @@ class DenseCalibNode(Node):
         k = 1
         while out.exists():
             out, k = root / f"{stamp}Z_{k}", k + 1
-        replace_directory_atomic(
-            lambda tmp: write_calibration_files(rig, Path(tmp), reconstruction), out)
+        replace_directory_atomic(lambda tmp: write_calibration_files(
+            rig, Path(tmp), reconstruction, reference_views=reference_views), out)
         out.chmod(0o755)  # created private as a temporary directory
         tmp_link = root / f".latest.{os.getpid()}.{threading.get_ident()}"
         tmp_link.unlink(missing_ok=True)
