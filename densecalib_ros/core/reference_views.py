@@ -227,6 +227,10 @@ def _compare(rig: RigCalibration, camera_names: Sequence[str], frame_set: Sequen
     for name, image in zip(camera_names, frame_set):
         if name not in references or name not in rig.cameras:
             continue
+        lens = rig.cameras[name].intrinsics
+        if image.shape[:2] != (lens.height, lens.width):  # not the calibrated camera's size
+            not_judged.append(name)
+            continue
         turn = view_turn(name, references[name], image, rig.cameras[name].intrinsics)
         (turns.append(turn) if turn is not None else not_judged.append(name))
     # a camera is blamed only beside one that stood still; when every judged camera turned,
