@@ -104,6 +104,18 @@ def gt_calibration(names, cams, poses):
                                      for n, cam, T in zip(names, cams, poses)})
 
 
+def refocused_image(image, intrinsics, focal_scale):
+    """What a camera sees after its focal length was scaled (a refocus or zoom): the image scaled
+    about the principal point, whatever the lens model (the focal scales the pixel offsets)."""
+    camera = intrinsics.to_pycolmap()
+    cx, cy = camera.principal_point_x, camera.principal_point_y
+    h, w = image.shape[:2]
+    xs, ys = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)  # COLMAP pixel centres
+    map_x = (cx + (xs - cx) / focal_scale - 0.5).astype(np.float32)
+    map_y = (cy + (ys - cy) / focal_scale - 0.5).astype(np.float32)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
 def turned_image(image, intrinsics, cam_new_from_cam):
     """What a camera sees after turning about its optical centre (cam_new_from_cam: 3x3), lens
     distortion included: each new pixel's ray, back in the old camera, sampled there."""

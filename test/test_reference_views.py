@@ -1,6 +1,7 @@
 """core.reference_views: each camera against its own view at calibration time. On a generated
 rig whose scene objects move between frame sets: the cameras as calibrated still see their
-views; one camera panned by 0.5 deg is named with its angle; the whole rig turned is recognised
+views; one camera panned by 0.5 deg is named with its angle, one refocused with its focal change;
+the whole rig turned is recognised
 as such, and one camera judged alone is not blamed; an unrelated image is not judged; a pan that
 the epipolar figures pass fails the combined verdict. The same on the real static fisheye stereo
 rig of ../shared/data."""
@@ -18,7 +19,7 @@ from densecalib_ros.core.reference_views import (REFERENCE_MAX_SIDE_PX, check_ve
                                                  compare_with_reference_views, latest_views,
                                                  read_reference_views, write_reference_views)
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
-from sfm_fixtures import turned_image  # pytest puts test/ on sys.path
+from sfm_fixtures import refocused_image, turned_image  # pytest puts test/ on sys.path
 
 TOL = 2.0
 
@@ -62,7 +63,7 @@ def test_cameras_as_calibrated_still_see_their_views(rig, references):
     report = compare_with_reference_views(rig.ground_truth(), rig.names, rig.images[1:],
                                           references, TOL)
     assert [t.camera for t in report.turns] == rig.names and report.not_judged == []
-    assert report.turned == [] and not report.rig_moved
+    assert report.changed == [] and not report.rig_moved
     assert max(t.shift_px for t in report.turns) < 0.5
     assert "every judged camera still sees its reference view" in report.summary()
 
@@ -72,15 +73,27 @@ def test_a_panned_camera_is_named_with_its_angle(rig, references):
     truth = rig.ground_truth()
     both = compare_with_reference_views(truth, rig.names, _turned(rig.images[1:], rig, "cam1",
                                                                   pan), references, TOL)
-    assert both.turned == ["cam1"] and both.turned_sets == 2
+    assert both.changed == ["cam1"] and both.changed_sets == 2
     (turn,) = [t for t in both.turns if t.camera == "cam1"]
     assert turn.rotation_deg == pytest.approx(0.5, abs=0.03)
-    assert "turned since the calibration: cam1 0.5" in both.summary()
+    assert "changed since the calibration: cam1 turned 0.5" in both.summary()
     # only the latest frame set turned: named, but seen once
     latest = compare_with_reference_views(
         truth, rig.names, [rig.images[1], _turned(rig.images[2:], rig, "cam1", pan)[0]],
         references, TOL)
-    assert latest.turned == ["cam1"] and latest.turned_sets == 1
+    assert latest.changed == ["cam1"] and latest.changed_sets == 1
+
+
+def test_a_refocused_camera_is_named_with_its_focal_change(rig, references):
+    images = [list(fs) for fs in rig.images[1:]]
+    lens = rig.ground_truth().cameras["cam2"].intrinsics
+    for fs in images:
+        fs[2] = refocused_image(fs[2], lens, 1.02)
+    report = compare_with_reference_views(rig.ground_truth(), rig.names, images, references, TOL)
+    assert report.changed == ["cam2"] and report.changed_sets == 2
+    (view,) = [t for t in report.turns if t.camera == "cam2"]
+    assert view.focal_scale == pytest.approx(1.02, abs=0.001) and view.shift_px < 0.5
+    assert "cam2 focal +2.0 %" in report.summary()
 
 
 def test_the_whole_rig_turned_is_not_blamed_on_a_camera(rig, references):
@@ -92,15 +105,15 @@ def test_the_whole_rig_turned_is_not_blamed_on_a_camera(rig, references):
         images[0][c] = turned_image(images[0][c], truth.cameras[name].intrinsics,
                                     r @ rig_turn @ r.T)
     report = compare_with_reference_views(truth, rig.names, images, references, TOL)
-    assert report.rig_moved and report.turned == []
+    assert report.rig_moved and report.changed == []
     assert report.summary().startswith("the rig moved as a whole")
     # the other cameras too different from their views: the one judged is not blamed
     rng = np.random.default_rng(1)
     for c in (1, 2):
         images[0][c] = rng.integers(0, 256, images[0][c].shape, dtype=np.uint8)
     alone = compare_with_reference_views(truth, rig.names, images, references, TOL)
-    assert alone.alone and alone.turned == [] and alone.not_judged == ["cam1", "cam2"]
-    assert "cam0 turned by 3.7" in alone.summary() and "it or the whole rig moved" in \
+    assert alone.alone and alone.changed == [] and alone.not_judged == ["cam1", "cam2"]
+    assert "cam0 turned 3.7" in alone.summary() and "it or the whole rig moved" in \
         alone.summary()
 
 
@@ -124,8 +137,8 @@ def test_a_pan_the_epipolar_figures_pass_fails_the_check(rig, references):
     assert report.fits  # the epipolar check alone passes it
     views = compare_with_reference_views(truth, names, images, references, TOL)
     fits, verdict = check_verdict(report, views)
-    assert not fits and verdict.startswith("the calibration no longer fits: turned since the "
-                                           "calibration: cam1 0.5")
+    assert not fits and verdict.startswith("the calibration no longer fits: changed since the "
+                                           "calibration: cam1 turned 0.5")
     assert check_verdict(report, None) == (True, report.verdict())
 
 
@@ -138,7 +151,8 @@ def test_real_static_fisheye_pair(tmp_path):
     the room), then was set up about 20 deg turned. With pair 0 as the reference views and the
     set's target-based calibration: pair 4 sees them (0.03 px when written), the right camera of
     pair 4 turned by 0.5 deg about the axis its epipolar lines run along is named, and pair 10
-    is the rig moved as a whole (both cameras 19.7 deg)."""
+    is the rig moved as a whole (both cameras 19.7 deg); the left camera's focal 1 % longer is named
+too."""
     from densecalib_ros.core.stereo_checkerboard import LEFT, RIGHT, target_calibration
 
     folder = SHARED_DATA / "ros_fisheye_stereo_checkerboard" / "stereo"
@@ -154,15 +168,20 @@ def test_real_static_fisheye_pair(tmp_path):
     write_reference_views(tmp_path, dict(zip(names, pair(0))))
     references = read_reference_views(tmp_path, names)
     still = compare_with_reference_views(rig, names, [pair(4)], references, TOL)
-    assert still.turned == [] and len(still.turns) == 2
+    assert still.changed == [] and len(still.turns) == 2
     assert max(t.shift_px for t in still.turns) < 0.3
     pan = _pan_along_epipolar_lines(rig, RIGHT, LEFT, 0.5)
     panned = pair(4)
     panned[1] = turned_image(panned[1], rig.cameras[RIGHT].intrinsics, pan)
     named = compare_with_reference_views(rig, names, [panned], references, TOL)
-    assert named.turned == [RIGHT]
+    assert named.changed == [RIGHT]
     assert [t.rotation_deg for t in named.turns if t.camera == RIGHT][0] == pytest.approx(
         0.5, abs=0.05)
+    refocused = pair(4)
+    refocused[0] = refocused_image(refocused[0], rig.cameras[LEFT].intrinsics, 1.01)
+    named = compare_with_reference_views(rig, names, [refocused], references, TOL)
+    assert named.changed == [LEFT]
+    assert named.turns[0].focal_scale == pytest.approx(1.01, abs=0.001)
     moved = compare_with_reference_views(rig, names, [pair(10)], references, TOL)
-    assert moved.rig_moved and moved.turned == []
+    assert moved.rig_moved and moved.changed == []
     assert all(19.0 < t.rotation_deg < 21.0 for t in moved.turns)

@@ -70,11 +70,13 @@ def run(args: argparse.Namespace) -> int:
     if references:
         views = compare_with_reference_views(rig, names, frame_sets, references,
                                              args.tolerance_px)
-        print(f"\n{'camera':<12} {'matches':>8} {'turned since calibration deg':>29} {'px':>6}"
-              "  (the last frame set against the calibration's view)")
+        print(f"\n{'camera':<12} {'matches':>8} {'turned deg':>11} {'px':>6} {'focal %':>8} "
+              f"{'px':>6}  (since the calibration: the last frame set against its view)")
+        tol = args.tolerance_px
         for t in views.turns:
-            print(f"{t.camera:<12} {t.num_inliers:>8} {t.rotation_deg:>29.3f} "
-                  f"{t.shift_px:>6.2f}{'  turned' if t.turned(args.tolerance_px) else ''}")
+            print(f"{t.camera:<12} {t.num_inliers:>8} {t.rotation_deg:>11.3f} {t.shift_px:>6.2f} "
+                  f"{100.0 * (t.focal_scale - 1.0):>+8.2f} {t.zoom_px:>6.2f}"
+                  + ("  turned" if t.turned(tol) else "") + ("  zoomed" if t.zoomed(tol) else ""))
         for name in views.not_judged:
             print(f"{name:<12} too few matches with its reference view: not judged")
     fits, verdict = check_verdict(report, views)

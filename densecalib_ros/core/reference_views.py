@@ -2,20 +2,23 @@
 
 A calibration keeps one image per camera (`reference_views/<camera>.jpg`, the last frame set it
 was made from, at most REFERENCE_MAX_SIDE_PX). A camera of a rig that stands still sees the same
-scene later: matched with its reference view, the static background lands on the same pixels,
-and a camera that was bumped sees it turned. The rotation that carries the reference's rays onto
-the new image's rays (RANSAC over pairs of matches, 2 px at the camera's focal; things that moved
-in the scene are its outliers) is how far the camera turned, and its size in pixels (the angle
-times the focal) is held against the check's tolerance.
+scene later: matched with its reference view, the static background lands on the same pixels. A
+camera that was bumped sees it turned, one refocused or zoomed sees it scaled about the principal
+point. The model: the new image is the reference turned by a rotation and scaled by a focal
+factor (fit_turn_and_zoom: RANSAC over pairs of matches, 2 px; what moved in the scene is its
+outliers). The turn in pixels (its angle times the focal) and the zoom in pixels (at the farthest
+corner) are held against the check's tolerance.
 
 It needs no other camera, so it sees what the epipolar check (core.consistency) cannot: a pan
-along the epipolar lines, and a camera of a two-camera rig. It assumes the rig stands still, and
-blames a camera only beside one that stood still: when every judged camera turned alike (the same
-rotation in the rig frame), the rig moved as a whole (a rig on a vehicle, a tripod knocked over
-and set up again) and the reference views say nothing about the cameras; one camera judged alone
-that turned is "it or the whole rig moved". A new image too different from the reference (night against day, a
-rearranged scene) gives too few matches: that camera is not judged. A camera that only slid, or
-was refocused, shows as a larger residual rather than a turn; these are left to the epipolar check.
+along the epipolar lines, a refocus of a camera of a two-camera rig. It assumes the rig stands
+still, and blames a camera only beside one that stood still: when every judged camera changed and
+turned alike (the same rotation in the rig frame), the rig moved as a whole (a rig on a vehicle, a
+tripod knocked over and set up again; moving it nearer the scene also looks like a zoom: on the
+real stereo rig set up again 20 deg turned, both cameras read +0.5 %) and the reference views say
+nothing about the cameras; one camera judged alone that changed is "it or the whole rig moved". A
+new image too different from the reference (night against day, a rearranged scene) gives too few
+matches: that camera is not judged. A camera that only slid shows as a larger residual rather than
+a turn; that is left to the epipolar check.
 """
 from __future__ import annotations
 
@@ -85,17 +88,33 @@ def read_reference_views(calibration_dir: str | Path,
 
 @dataclass
 class ViewTurn:
-    """A camera's turn since its reference view."""
+    """How a camera's view changed since its reference view: turned, and zoomed (its focal
+    length changed: a refocus or zoom scales the image about the principal point)."""
     camera: str
     rotation_deg: float  # the angle of new_from_reference
     shift_px: float  # rotation_deg in pixels at the camera's focal
+    focal_scale: float  # new focal / calibrated focal
+    zoom_px: float  # how far that scale moves the image corner farthest from the principal point
     num_matches: int
     num_inliers: int
-    residual_px: float  # median distance of the inliers from the rotation, at the focal
+    residual_px: float  # median distance of the inliers from the model
     new_from_reference: np.ndarray  # 3x3 rotation, camera frame
+    focal_px: float  # the calibrated mean focal, for angles in pixels
 
     def turned(self, tolerance_px: float) -> bool:
         return self.shift_px > tolerance_px
+
+    def zoomed(self, tolerance_px: float) -> bool:
+        return self.zoom_px > tolerance_px
+
+    def describe(self, tolerance_px: float) -> str:
+        what = []
+        if self.turned(tolerance_px):
+            what.append(f"turned {self.rotation_deg:.2f} deg ({self.shift_px:.1f} px)")
+        if self.zoomed(tolerance_px):
+            what.append(f"focal {100.0 * (self.focal_scale - 1.0):+.1f} % ({self.zoom_px:.1f} px "
+                        "at the corners: refocused or zoomed)")
+        return f"{self.camera} " + " and ".join(what)
 
 
 def _unit_rays(intrinsics: CameraIntrinsics, xy_px: np.ndarray) -> np.ndarray:
@@ -111,32 +130,59 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
-def fit_rotation(rays_ref: np.ndarray, rays_new: np.ndarray, threshold_rad: float,
-                 seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(new_from_reference 3x3, inlier mask): RANSAC over pairs of rays, then a least-squares
-    refit on the inliers (twice: the refit can take in a few more)."""
-    n = len(rays_ref)
+def fit_turn_and_zoom(intrinsics: CameraIntrinsics, ref_px: np.ndarray, new_px: np.ndarray,
+                      threshold_px: float = INLIER_PX, seed: int = 0
+                      ) -> Optional[tuple[np.ndarray, float, np.ndarray]]:
+    """(new_from_reference 3x3, focal scale, inlier mask) of matches ref_px -> new_px (COLMAP
+    pixels of one camera): the new image is the reference turned by the rotation and scaled
+    about the principal point by the focal scale (any lens model: the focal scales the pixel
+    offsets). RANSAC over pairs of matches (the scale from their distance ratio, the rotation
+    from their rays with the scale taken off), then the two refined in turn on the inliers.
+    None when no sample gives a model."""
+    camera = intrinsics.to_pycolmap()
+    pp = np.array([camera.principal_point_x, camera.principal_point_y])
+    rays_ref = _unit_rays(intrinsics, ref_px)
+
+    def predict(rotation, scale):
+        return pp + scale * (camera.img_from_cam(rays_ref @ rotation.T) - pp)
+
+    def unzoomed_rays(px, scale):
+        return _unit_rays(intrinsics, pp + (px - pp) / scale)
+
     rng = np.random.default_rng(seed)
-    best = np.zeros(n, bool)
+    best, model = np.zeros(len(ref_px), bool), None
     for _ in range(RANSAC_ITERATIONS):
-        pick = rng.choice(n, 2, replace=False)
-        rotation = _kabsch(rays_ref[pick], rays_new[pick])
-        inliers = np.linalg.norm(rays_ref @ rotation.T - rays_new, axis=1) < threshold_rad
+        pick = rng.choice(len(ref_px), 2, replace=False)
+        spread = np.linalg.norm(ref_px[pick[0]] - ref_px[pick[1]])
+        if spread < 20.0 * threshold_px:  # too close: the distance ratio is noise
+            continue
+        scale = np.linalg.norm(new_px[pick[0]] - new_px[pick[1]]) / spread
+        rays_new = unzoomed_rays(new_px[pick], scale)
+        if not np.isfinite(rays_new).all():
+            continue
+        rotation = _kabsch(rays_ref[pick], rays_new)
+        inliers = np.linalg.norm(predict(rotation, scale) - new_px, axis=1) < threshold_px
         if inliers.sum() > best.sum():
-            best = inliers
-    rotation = np.eye(3)
-    for _ in range(2):
+            best, model = inliers, (rotation, scale)
+    if model is None:
+        return None
+    rotation, scale = model
+    for _ in range(3):
         if best.sum() < 3:
             break
-        rotation = _kabsch(rays_ref[best], rays_new[best])
-        best = np.linalg.norm(rays_ref @ rotation.T - rays_new, axis=1) < threshold_rad
-    return rotation, best
+        rays_new = unzoomed_rays(new_px[best], scale)
+        finite = np.isfinite(rays_new).all(axis=1)
+        rotation = _kabsch(rays_ref[best][finite], rays_new[finite])
+        turned = camera.img_from_cam(rays_ref[best] @ rotation.T) - pp
+        scale = float((turned * (new_px[best] - pp)).sum() / (turned * turned).sum())
+        best = np.linalg.norm(predict(rotation, scale) - new_px, axis=1) < threshold_px
+    return rotation, scale, best
 
 
 def view_turn(name: str, reference: np.ndarray, image: np.ndarray,
               intrinsics: CameraIntrinsics, matcher=None) -> Optional[ViewTurn]:
-    """How far camera `name` turned between its reference view and `image` (full size, as the
-    intrinsics); None when they share fewer than MIN_INLIERS matches."""
+    """How camera `name` turned and zoomed between its reference view and `image` (full size,
+    as the intrinsics); None when they share fewer than MIN_INLIERS matches."""
     from .matching.sift import SiftMatcher
 
     matcher = matcher or SiftMatcher(max_image_side_px=REFERENCE_MAX_SIDE_PX)
@@ -145,25 +191,31 @@ def view_turn(name: str, reference: np.ndarray, image: np.ndarray,
     if pair is None:
         return None
     src = np.flatnonzero(pair.target >= 0)
-    if len(src) < MIN_INLIERS:
-        return None
     # the stored view is downscaled: its COLMAP pixel coordinates scale with the image
-    scale = np.array([intrinsics.width / reference.shape[1],
-                      intrinsics.height / reference.shape[0]])
-    rays_ref = _unit_rays(intrinsics, match_set.sites[0][src] * scale)
-    rays_new = _unit_rays(intrinsics, match_set.sites[1][pair.target[src]])
-    finite = np.isfinite(rays_ref).all(axis=1) & np.isfinite(rays_new).all(axis=1)
-    rays_ref, rays_new = rays_ref[finite], rays_new[finite]  # outside the lens model: none
-    if len(rays_ref) < MIN_INLIERS:
+    ref_px = match_set.sites[0][src] * np.array([intrinsics.width / reference.shape[1],
+                                                 intrinsics.height / reference.shape[0]])
+    new_px = match_set.sites[1][pair.target[src]]
+    finite = np.isfinite(_unit_rays(intrinsics, ref_px)).all(axis=1)
+    ref_px, new_px = ref_px[finite], new_px[finite]  # outside the lens model: none
+    if len(ref_px) < MIN_INLIERS:
         return None
-    focal_px = float(intrinsics.to_pycolmap().mean_focal_length())
-    rotation, inliers = fit_rotation(rays_ref, rays_new, INLIER_PX / focal_px)
-    if inliers.sum() < MIN_INLIERS:
+    fit = fit_turn_and_zoom(intrinsics, ref_px, new_px)
+    if fit is None or fit[2].sum() < MIN_INLIERS:
         return None
+    rotation, scale, inliers = fit
+    camera = intrinsics.to_pycolmap()
+    pp = np.array([camera.principal_point_x, camera.principal_point_y])
+    corners = np.array([[0, 0], [intrinsics.width, 0], [0, intrinsics.height],
+                        [intrinsics.width, intrinsics.height]], np.float64)
     angle = float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
-    residual = np.linalg.norm(rays_ref[inliers] @ rotation.T - rays_new[inliers], axis=1)
-    return ViewTurn(name, float(np.degrees(angle)), angle * focal_px, len(src),
-                    int(inliers.sum()), float(np.median(residual)) * focal_px, rotation)
+    predicted = pp + scale * (camera.img_from_cam(
+        _unit_rays(intrinsics, ref_px[inliers]) @ rotation.T) - pp)
+    return ViewTurn(name, float(np.degrees(angle)), angle * float(camera.mean_focal_length()),
+                    scale,
+                    abs(scale - 1.0) * float(np.linalg.norm(corners - pp, axis=1).max()),
+                    len(src), int(inliers.sum()),
+                    float(np.median(np.linalg.norm(predicted - new_px[inliers], axis=1))),
+                    rotation, float(camera.mean_focal_length()))
 
 
 @dataclass
@@ -171,39 +223,39 @@ class ReferenceReport:
     turns: list[ViewTurn]  # the judged cameras, in the latest frame set
     not_judged: list[str]  # too few matches with their reference view
     tolerance_px: float
-    rig_moved: bool = False  # every judged camera (two or more) turned, alike in the rig frame
-    alone: bool = False  # one camera judged and it turned: it or the whole rig moved
+    rig_moved: bool = False  # every judged camera (two or more) changed, turned alike in the rig
+    alone: bool = False  # one camera judged and it changed: it or the whole rig moved
     # of the frame sets compared (the latest two at most), how many in a row from the latest show
-    # the turned cameras turned: a turn seen twice is no odd frame set
-    turned_sets: int = 0
+    # the changed cameras changed: a change seen twice is no odd frame set
+    changed_sets: int = 0
 
     @property
-    def turned(self) -> list[str]:
-        """The cameras that turned on their own (none when the whole rig moved, or when the one
-        judged camera turned: nothing that stood still to hold it against)."""
+    def changed(self) -> list[str]:
+        """The cameras that turned or zoomed on their own (none when the whole rig moved, nor
+        the one camera judged: nothing that stood still to hold it against)."""
         if self.rig_moved or self.alone:
             return []
-        return [t.camera for t in self.turns if t.turned(self.tolerance_px)]
+        tol = self.tolerance_px
+        return [t.camera for t in self.turns if t.turned(tol) or t.zoomed(tol)]
 
     def summary(self) -> str:
         if not self.turns:
             return "no camera shares enough matches with its reference view to be judged"
+        tol = self.tolerance_px
         if self.alone:
-            t = self.turns[0]
-            return (f"{t.camera} turned by {t.rotation_deg:.2f} deg, and no other camera could be "
-                    "judged: it or the whole rig moved")
+            return (f"{self.turns[0].describe(tol)}, and no other camera could be judged: it or "
+                    "the whole rig moved")
         if self.rig_moved:
-            return (f"the rig moved as a whole (every camera turned alike, "
+            return (f"the rig moved as a whole (every camera changed, turned alike by "
                     f"{min(t.rotation_deg for t in self.turns):.2f}-"
                     f"{max(t.rotation_deg for t in self.turns):.2f} deg): the reference views "
                     "cannot judge the cameras")
-        turned = [t for t in self.turns if t.turned(self.tolerance_px)]
-        if not turned:
-            return (f"every judged camera still sees its reference view within "
-                    f"{self.tolerance_px:g} px (largest turn "
-                    f"{max(t.shift_px for t in self.turns):.2f} px)")
-        return "turned since the calibration: " + ", ".join(
-            f"{t.camera} {t.rotation_deg:.2f} deg ({t.shift_px:.1f} px)" for t in turned)
+        changed = [t for t in self.turns if t.camera in self.changed]
+        if not changed:
+            return (f"every judged camera still sees its reference view within {tol:g} px "
+                    f"(largest turn {max(t.shift_px for t in self.turns):.2f} px, zoom "
+                    f"{max(t.zoom_px for t in self.turns):.2f} px)")
+        return "changed since the calibration: " + ", ".join(t.describe(tol) for t in changed)
 
 
 def compare_with_reference_views(rig: RigCalibration, camera_names: Sequence[str],
@@ -214,10 +266,10 @@ def compare_with_reference_views(rig: RigCalibration, camera_names: Sequence[str
     reports = [_compare(rig, camera_names, fs, references, tolerance_px)
                for fs in frame_sets[-2:]]
     latest = reports[-1]
-    if latest.turned:
-        latest.turned_sets = 1
-        if len(reports) == 2 and set(latest.turned) <= set(reports[0].turned):
-            latest.turned_sets = 2
+    if latest.changed:
+        latest.changed_sets = 1
+        if len(reports) == 2 and set(latest.changed) <= set(reports[0].changed):
+            latest.changed_sets = 2
     return latest
 
 
@@ -233,12 +285,13 @@ def _compare(rig: RigCalibration, camera_names: Sequence[str], frame_set: Sequen
             continue
         turn = view_turn(name, references[name], image, rig.cameras[name].intrinsics)
         (turns.append(turn) if turn is not None else not_judged.append(name))
-    # a camera is blamed only beside one that stood still; when every judged camera turned,
-    # alike is the rig moving
-    all_turned = bool(turns) and all(t.turned(tolerance_px) for t in turns)
-    rig_moved = all_turned and len(turns) >= 2 and _turned_alike(rig, turns, tolerance_px)
+    # a camera is blamed only beside one that stood still: when every judged camera changed and
+    # turned alike, the rig moved (moving it also looks like a zoom: the scene comes nearer)
+    all_changed = bool(turns) and all(t.turned(tolerance_px) or t.zoomed(tolerance_px)
+                                      for t in turns)
+    rig_moved = all_changed and len(turns) >= 2 and _turned_alike(rig, turns, tolerance_px)
     return ReferenceReport(turns, not_judged, tolerance_px, rig_moved,
-                           alone=all_turned and len(turns) == 1)
+                           alone=all_changed and len(turns) == 1)
 
 
 def _turned_alike(rig: RigCalibration, turns: Sequence[ViewTurn], tolerance_px: float) -> bool:
@@ -253,8 +306,7 @@ def _turned_alike(rig: RigCalibration, turns: Sequence[ViewTurn], tolerance_px: 
     for t, rotation in zip(turns[1:], in_rig[1:]):
         relative = in_rig[0].T @ rotation
         angle = float(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0)))
-        focal_px = t.shift_px / max(np.radians(t.rotation_deg), 1e-12)
-        if angle * focal_px > 2.0 * tolerance_px:
+        if angle * t.focal_px > 2.0 * tolerance_px:
             return False
     return True
 
@@ -267,8 +319,8 @@ def check_verdict(report, views: Optional[ReferenceReport],
     verdict = epipolar_verdict or report.verdict()
     if views is None:
         return report.fits, verdict
-    if report.fits and views.turned:
+    if report.fits and views.changed:
         return False, (f"the calibration no longer fits: {views.summary()} (each camera's view "
                        "against the calibration's), though the epipolar figures still fit (a turn "
                        "along the epipolar lines, or a camera without a triple)")
-    return report.fits and not views.turned, f"{verdict}; reference views: {views.summary()}"
+    return report.fits and not views.changed, f"{verdict}; reference views: {views.summary()}"

@@ -827,7 +827,7 @@ class DenseCalibNode(Node):
         return _CheckOutcome(fits, f"{verdict}; {len(sets)} frame sets"
                              + (f"; transfer error px: {per_camera}" if per_camera else ""),
                              misfit_sets=max(0 if report.fits else len(sets) - k,
-                                             views.turned_sets if views else 0))
+                                             views.changed_sets if views else 0))
 
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
