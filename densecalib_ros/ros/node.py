@@ -7,11 +7,12 @@ Interface (names relative to the node, default name `densecalib_node`):
   one-line summary, or the reason of the failure; a call while one runs is refused ("busy");
 - service `~/check` (std_srvs/Trigger): holds the buffered frame sets against the current
   calibration without recalibrating (core.consistency.check_latest: when the older sets fit and
-  the newer do not, the newer are judged); success = it still fits, the message names a camera
+  the newer do not, the newer are judged; and core.reference_views: each camera's latest images
+  against its view at calibration time); success = it still fits, the message names a camera
   that moved and, after a change inside the buffer, when;
 - the watch (timer): with check_interval_s > 0, the same check on the frame sets that arrived
-  since the last one (and the one before them), its verdict on ~/status and /diagnostics; with recalibrate_on_change, a
-  recalibration when the calibration no longer fits;
+  since the last one (and the one before them), its verdict on ~/status and /diagnostics; with
+  recalibrate_on_change, a recalibration when the calibration no longer fits;
 - service `~/sync` (std_srvs/Trigger): measures the cameras' stamp offsets from what moves in
   their latest `sync_window_s` seconds of images (core.motion_sync) and sets `stamp_offsets_s`;
 - service `~/reload` (std_srvs/Trigger): publishes the calibration under `output_dir/latest`
@@ -27,9 +28,10 @@ Interface (names relative to the node, default name `densecalib_node`):
   1: the calibration's scene points in rig_frame, x y z rgb), `/diagnostics`
   (diagnostic_msgs/DiagnosticArray, 1 Hz; WARN when the last check found a camera moved);
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
-- files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/) written
-  atomically, then the `output_dir/latest` symlink is swapped atomically. At start-up the
-  calibration under `latest` is republished. A failed calibration publishes and writes nothing.
+- files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/,
+  reference_views/) written atomically, then the `output_dir/latest` symlink is swapped
+  atomically. At start-up the calibration under `latest` is republished. A failed calibration
+  publishes and writes nothing.
 
 Threads: subscription callbacks (one callback group for all) only append messages to the
 synchroniser (and, with sync_window_s > 0, add a small grey copy to the camera's motion signal);
