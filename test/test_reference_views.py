@@ -13,10 +13,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.consistency import check_calibration
+from densecalib_ros.core.consistency import (check_calibration, fits_per_frame_set,
+                                             sets_since_change)
 from densecalib_ros.core.pipeline import match_frame_sets
 from densecalib_ros.core.reference_views import (REFERENCE_MAX_SIDE_PX, check_verdict,
-                                                 compare_with_reference_views, latest_views,
+                                                 compare_with_reference_views,
+                                                 fits_per_frame_set_and_view, latest_views,
                                                  read_reference_views, write_reference_views)
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from sfm_fixtures import refocused_image, turned_image  # pytest puts test/ on sys.path
@@ -140,6 +142,13 @@ def test_a_pan_the_epipolar_figures_pass_fails_the_check(rig, references):
     assert not fits and verdict.startswith("the calibration no longer fits: changed since the "
                                            "calibration: cam1 turned 0.5")
     assert check_verdict(report, None) == (True, report.verdict())
+    # a recalibration's split of its frame sets: the set from before the pan fits, the panned
+    # ones do not (the epipolar figures alone call all three fitting)
+    sets = [rig.images[1][:2], *images]
+    match_sets = match_frame_sets(sets, make_config())
+    assert fits_per_frame_set(truth, names, match_sets) == [True, True, True]
+    fits = fits_per_frame_set_and_view(truth, names, match_sets, sets, references, TOL)
+    assert fits == [True, False, False] and sets_since_change(fits) == 1
 
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"

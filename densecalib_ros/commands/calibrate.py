@@ -211,7 +211,9 @@ def run(args: argparse.Namespace) -> int:
         if previous is not None:
             from ..core.recalibration import recalibrate
             baseline = baseline or _previous_baseline(previous)
-            result = recalibrate(frame_sets, names, config, previous)
+            from ..core.reference_views import reference_views_of
+            result = recalibrate(frame_sets, names, config, previous,
+                                 previous_views=reference_views_of(args.previous, names))
         else:
             result = run_calibration(frame_sets, names, config, progress=None)
         if baseline:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-from pathlib import Path
 
 from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
                                 best_transfer_per_camera, check_latest)
@@ -29,10 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.config import make_config
-    from ..core.export import calibration_folder, read_calibration
+    from ..core.export import read_calibration
     from ..core.pipeline import match_frame_sets
     from ..core.reference_views import (check_verdict, compare_with_reference_views,
-                                        read_reference_views)
+                                        reference_views_of)
 
     try:
         rig = read_calibration(args.calibration)
@@ -64,9 +63,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
                   f"{c.sources[0]} + {c.sources[1]}{'' if c.fits(tol) else '  does not fit'}")
     views = None
-    given = Path(args.calibration)  # a calibration.json elsewhere has no views beside it
-    references = (read_reference_views(calibration_folder(given), names)
-                  if given.is_dir() or given.name == "calibration.json" else {})
+    references = reference_views_of(args.calibration, names)
     if references:
         views = compare_with_reference_views(rig, names, frame_sets, references,
                                              args.tolerance_px)

@@ -25,11 +25,12 @@ import numpy as np
 
 from .change import calibration_change, change_summary
 from .config import PipelineConfig
-from .consistency import fits_per_frame_set, sets_since_change
+from .consistency import DEFAULT_TOLERANCE_PX, sets_since_change
 from .errors import CalibrationError
 from .pipeline import (CalibrationResult, Progress, calibrate_from_matches, check_frame_sets,
                        info_strips, match_frame_sets, record_info_strips, say_progress,
                        with_point_colours)
+from .reference_views import fits_per_frame_set_and_view
 from .types import RigCalibration
 
 log = logging.getLogger(__name__)
@@ -59,8 +60,11 @@ def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:
 
 def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
                 config: PipelineConfig, previous: RigCalibration, *, matcher=None,
-                progress: Progress = None) -> CalibrationResult:
-    """Calibrate a rig that has a previous calibration (see the module doc). The result's
+                progress: Progress = None,
+                previous_views: Optional[dict] = None) -> CalibrationResult:
+    """Calibrate a rig that has a previous calibration (see the module doc); `previous_views`:
+    its reference views (core.reference_views), which also tell a frame set taken since a
+    change (a turn along the epipolar lines, a refocus of a camera of two). The result's
     rig.quality gains "init" (what the accepted run started from), "change_vs_previous" (per
     camera) and "change_summary". Raises CalibrationRejectedError when the best new result is worse
     than `previous`, and the pipeline's CalibrationError subclasses when calibration fails."""
@@ -69,7 +73,9 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     strips = info_strips(frame_sets, camera_names, config)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
                                   camera_names=camera_names, strips=strips)
-    before_change = sets_since_change(fits_per_frame_set(previous, camera_names, match_sets))
+    before_change = sets_since_change(fits_per_frame_set_and_view(
+        previous, camera_names, match_sets, frame_sets, previous_views or {},
+        DEFAULT_TOLERANCE_PX))
     if before_change:
         say_progress(progress, f"the first {before_change} of {len(match_sets)} frame sets fit "
                                "the previous calibration and the later ones do not: the rig "

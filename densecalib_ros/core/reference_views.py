@@ -86,6 +86,17 @@ def read_reference_views(calibration_dir: str | Path,
     return views
 
 
+def reference_views_of(calibration: str | Path, camera_names: Sequence[str]) -> dict:
+    """The reference views beside a calibration given as a folder, a node's output_dir or its
+    calibration.json ({} for a .json of another name: what lies beside it may be another's)."""
+    from .export import calibration_folder
+
+    given = Path(calibration)
+    if given.is_file() and given.name != "calibration.json":
+        return {}
+    return read_reference_views(calibration_folder(given), camera_names)
+
+
 @dataclass
 class ViewTurn:
     """How a camera's view changed since its reference view: turned, and zoomed (its focal
@@ -292,6 +303,20 @@ def _compare(rig: RigCalibration, camera_names: Sequence[str], frame_set: Sequen
     rig_moved = all_changed and len(turns) >= 2 and _turned_alike(rig, turns, tolerance_px)
     return ReferenceReport(turns, not_judged, tolerance_px, rig_moved,
                            alone=all_changed and len(turns) == 1)
+
+
+def fits_per_frame_set_and_view(rig: RigCalibration, camera_names: Sequence[str],
+                                match_sets: Sequence, frame_sets: Sequence[Sequence[np.ndarray]],
+                                references: dict, tolerance_px: float) -> list[Optional[bool]]:
+    """consistency.fits_per_frame_set, with a frame set in which a camera's view changed since
+    the calibration (this module) counted as not fitting."""
+    from .consistency import fits_per_frame_set
+
+    fits = fits_per_frame_set(rig, camera_names, match_sets, tolerance_px)
+    if not references:
+        return fits
+    return [False if _compare(rig, camera_names, frame_set, references, tolerance_px).changed
+            else fit for fit, frame_set in zip(fits, frame_sets)]
 
 
 def _turned_alike(rig: RigCalibration, turns: Sequence[ViewTurn], tolerance_px: float) -> bool:

@@ -835,7 +835,7 @@ class DenseCalibNode(Node):
         # heavy (pycolmap, matchers): import on use
         from ..core.pipeline import run_calibration
         from ..core.recalibration import recalibrate
-        from ..core.reference_views import latest_views
+        from ..core.reference_views import latest_views, read_reference_views
 
         s = self.settings
         sets = self.sync.snapshot()
@@ -857,8 +857,11 @@ class DenseCalibNode(Node):
                 config.known_intrinsics, self.calibration, s.camera_names)
         progress = lambda msg: self._set_status(f"calibrating: {msg}")  # noqa: E731
         if self.calibration is not None:  # start from it; a worse result is refused
+            views = (read_reference_views(self.calibration_dir, s.camera_names)
+                     if self.calibration_dir is not None else {})
             result = recalibrate(images, s.camera_names, config, self.calibration,
-                                 matcher=self._matcher_for(s), progress=progress)
+                                 matcher=self._matcher_for(s), progress=progress,
+                                 previous_views=views)
         else:
             result = run_calibration(images, s.camera_names, config,
                                      matcher=self._matcher_for(s), progress=progress)
