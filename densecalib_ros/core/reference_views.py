@@ -141,15 +141,19 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
+def _angle_rad(rotation: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+
+
 def fit_turn_and_zoom(intrinsics: CameraIntrinsics, ref_px: np.ndarray, new_px: np.ndarray,
                       threshold_px: float = INLIER_PX, seed: int = 0
                       ) -> Optional[tuple[np.ndarray, float, np.ndarray]]:
-    """(new_from_reference 3x3, focal scale, inlier mask) of matches ref_px -> new_px (COLMAP
-    pixels of one camera): the new image is the reference turned by the rotation and scaled
-    about the principal point by the focal scale (any lens model: the focal scales the pixel
-    offsets). RANSAC over pairs of matches (the scale from their distance ratio, the rotation
-    from their rays with the scale taken off), then the two refined in turn on the inliers.
-    None when no sample gives a model."""
+    """(new_from_reference 3x3, focal scale, residual px per match) of matches ref_px -> new_px
+    (COLMAP pixels of one camera, rays finite): the new image is the reference turned by the
+    rotation and scaled about the principal point by the focal scale (any lens model: the focal
+    scales the pixel offsets). RANSAC over pairs of matches (the scale from their distance
+    ratio, the rotation from their rays with the scale taken off), then the two refined in turn
+    on the inliers (residual below threshold_px). None when no sample gives a model."""
     camera = intrinsics.to_pycolmap()
     pp = np.array([camera.principal_point_x, camera.principal_point_y])
     rays_ref = _unit_rays(intrinsics, ref_px)
@@ -187,7 +191,7 @@ def fit_turn_and_zoom(intrinsics: CameraIntrinsics, ref_px: np.ndarray, new_px: 
         turned = camera.img_from_cam(rays_ref[best] @ rotation.T) - pp
         scale = float((turned * (new_px[best] - pp)).sum() / (turned * turned).sum())
         best = np.linalg.norm(predict(rotation, scale) - new_px, axis=1) < threshold_px
-    return rotation, scale, best
+    return rotation, scale, np.linalg.norm(predict(rotation, scale) - new_px, axis=1)
 
 
 def view_turn(name: str, reference: np.ndarray, image: np.ndarray,
@@ -211,22 +215,22 @@ def view_turn(name: str, reference: np.ndarray, image: np.ndarray,
     if len(ref_px) < MIN_INLIERS:
         return None
     fit = fit_turn_and_zoom(intrinsics, ref_px, new_px)
-    if fit is None or fit[2].sum() < MIN_INLIERS:
+    if fit is None:
         return None
-    rotation, scale, inliers = fit
+    rotation, scale, residual_px = fit
+    inliers = residual_px < INLIER_PX
+    if inliers.sum() < MIN_INLIERS:
+        return None
     camera = intrinsics.to_pycolmap()
     pp = np.array([camera.principal_point_x, camera.principal_point_y])
     corners = np.array([[0, 0], [intrinsics.width, 0], [0, intrinsics.height],
                         [intrinsics.width, intrinsics.height]], np.float64)
-    angle = float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
-    predicted = pp + scale * (camera.img_from_cam(
-        _unit_rays(intrinsics, ref_px[inliers]) @ rotation.T) - pp)
-    return ViewTurn(name, float(np.degrees(angle)), angle * float(camera.mean_focal_length()),
-                    scale,
+    focal_px = float(camera.mean_focal_length())
+    angle = _angle_rad(rotation)
+    return ViewTurn(name, float(np.degrees(angle)), angle * focal_px, scale,
                     abs(scale - 1.0) * float(np.linalg.norm(corners - pp, axis=1).max()),
-                    len(src), int(inliers.sum()),
-                    float(np.median(np.linalg.norm(predicted - new_px[inliers], axis=1))),
-                    rotation, float(camera.mean_focal_length()))
+                    len(src), int(inliers.sum()), float(np.median(residual_px[inliers])),
+                    rotation, focal_px)
 
 
 @dataclass
@@ -273,7 +277,7 @@ def compare_with_reference_views(rig: RigCalibration, camera_names: Sequence[str
                                  frame_sets: Sequence[Sequence[np.ndarray]], references: dict,
                                  tolerance_px: float) -> ReferenceReport:
     """Every camera that has a reference view, in the latest frame set (in time order) against
-    it, and the turned ones in the frame set before too (module docstring)."""
+    it, and the changed ones in the frame set before too (module docstring)."""
     reports = [_compare(rig, camera_names, fs, references, tolerance_px)
                for fs in frame_sets[-2:]]
     latest = reports[-1]
@@ -329,9 +333,7 @@ def _turned_alike(rig: RigCalibration, turns: Sequence[ViewTurn], tolerance_px: 
         r = rig.cameras[t.camera].cam_from_rig[:3, :3]
         in_rig.append(r.T @ t.new_from_reference @ r)
     for t, rotation in zip(turns[1:], in_rig[1:]):
-        relative = in_rig[0].T @ rotation
-        angle = float(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0)))
-        if angle * t.focal_px > 2.0 * tolerance_px:
+        if _angle_rad(in_rig[0].T @ rotation) * t.focal_px > 2.0 * tolerance_px:
             return False
     return True
 
