@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if references:
         views = compare_with_reference_views(rig, names, frame_sets, references,
                                              args.tolerance_px)
-        print(f"\n{'camera':<12} {'matches':>8} {'turned deg':>11} {'px':>6} {'focal %':>8} "
+        print(f"\n{'camera':<12} {'inliers':>8} {'turned deg':>11} {'px':>6} {'focal %':>8} "
               f"{'px':>6}  (since the calibration: the last frame set against its view)")
         tol = args.tolerance_px
         for t in views.turns:
