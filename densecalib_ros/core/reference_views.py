@@ -22,7 +22,6 @@ a turn; that is left to the epipolar check.
 """
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
@@ -32,8 +31,6 @@ import numpy as np
 
 from .errors import InputError
 from .types import CameraIntrinsics, RigCalibration
-
-log = logging.getLogger(__name__)
 
 REFERENCE_DIR = "reference_views"
 REFERENCE_MAX_SIDE_PX = 1024  # the stored view: enough for SIFT, ~0.2-0.5 MB as JPEG
