@@ -3,7 +3,8 @@ rig whose scene objects move between frame sets: the cameras as calibrated still
 views; one camera panned by 0.5 deg is named with its angle, one refocused with its focal change;
 the whole rig turned is recognised
 as such, and one camera judged alone is not blamed; an unrelated image is not judged; a pan that
-the epipolar figures pass fails the combined verdict. The same on the real static fisheye stereo
+the epipolar figures pass fails the combined verdict; with no epipolar figure at all the views
+judge alone (`densecalib check`). The same on the real static fisheye stereo
 rig of ../shared/data."""
 from pathlib import Path
 
@@ -149,6 +150,50 @@ def test_a_pan_the_epipolar_figures_pass_fails_the_check(rig, references):
     assert fits_per_frame_set(truth, names, match_sets) == [True, True, True]
     fits = fits_per_frame_set_and_view(truth, names, match_sets, sets, references, TOL)
     assert fits == [True, False, False] and sets_since_change(fits) == 1
+
+
+def test_the_views_judge_alone_when_no_pair_has_figures(rig, references, tmp_path, capsys,
+                                                       caplog):
+    """`densecalib check` on two cameras whose images share too few matches for an epipolar
+    figure (cam1 only used in a corner, by its --mask): the reference views still tell a
+    calibration that fits from a camera that turned; without views nothing can tell (exit 2)."""
+    import json
+
+    from densecalib_ros.cli import main
+    from densecalib_ros.core.export import calibration_to_dict
+
+    truth = rig.ground_truth()
+    del truth.cameras["cam2"]
+    names = rig.names[:2]
+    calibration = tmp_path / "calibration"
+    write_reference_views(calibration, {n: references[n] for n in names})
+    (calibration / "calibration.json").write_text(json.dumps(calibration_to_dict(truth)))
+    bare = tmp_path / "bare.json"  # the same calibration without views beside it
+    bare.write_text(json.dumps(calibration_to_dict(truth)))
+    mask = np.zeros((960, 1280), np.uint8)
+    mask[:40, :40] = 255  # cam1: only its top-left corner is used
+    cv2.imwrite(str(tmp_path / "corner.png"), mask)
+    pan = Rotation.from_euler("y", 0.5, degrees=True).as_matrix()
+
+    def check(calibration_path, images):
+        for name, column in zip(names, zip(*images)):
+            (tmp_path / "images" / name).mkdir(parents=True, exist_ok=True)
+            for t, image in enumerate(column):
+                cv2.imwrite(str(tmp_path / "images" / name / f"{t:04d}.png"),
+                            cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        code = main(["check", str(calibration_path), "--images", str(tmp_path / "images"),
+                     "--mask", f"cam1={tmp_path / 'corner.png'}"])
+        out = capsys.readouterr().out
+        assert "no camera pair had 20 matches" in out
+        return code, out
+
+    still = [fs[:2] for fs in rig.images[1:]]
+    code, out = check(calibration, still)
+    assert code == 0 and "the calibration fits by the reference views" in out
+    code, out = check(calibration, [fs[:2] for fs in _turned(rig.images[1:], rig, "cam1", pan)])
+    assert code == 1 and "no longer fits: changed since the calibration: cam1 turned 0.5" in out
+    assert check(bare, still)[0] == 2
+    assert "too few matches for the epipolar figures" in caplog.text
 
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"

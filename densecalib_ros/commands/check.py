@@ -1,8 +1,10 @@
 """`densecalib check`: does a calibration still fit the rig? Matches new images and holds every
 match against the calibration's epipolar geometry (core.consistency); names the cameras that no
 longer fit (bumped, refocused). Frame sets in time order are judged since the last change among
-them (core.consistency.check_latest). Exit status: 0 every pair fits, 1 some do not, 2 unusable
-input."""
+them (core.consistency.check_latest). With the calibration's reference views, each camera is also
+held against its own view (core.reference_views); they alone judge when no pair shares enough
+matches. Exit status: 0 the calibration fits, 1 it does not, 2 unusable input or nothing could
+tell."""
 from __future__ import annotations
 
 import argparse
@@ -48,12 +50,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"frame sets 1-{k} of {len(match_sets)} fit the calibration one by one and the "
               "later ones do not: the figures below are from the frame sets since the change, "
               f"the first of them frame set {k + 1}{_frame_set_label(record, k)}")
-    if not report.pairs:
-        log.error("No camera pair had %d matches: the images share too little to check the "
-                  "calibration (more frame sets, or a textured scene).", MIN_PAIR_MATCHES)
-        return 2
     tol = args.tolerance_px
-    print(f"{'pair':<24} {'matches':>8} {'median epipolar error px':>25}")
+    if report.pairs:
+        print(f"{'pair':<24} {'matches':>8} {'median epipolar error px':>25}")
+    else:
+        print(f"no camera pair had {MIN_PAIR_MATCHES} matches: no epipolar figures")
     for c in report.pairs:
         print(f"{c.cameras[0] + ' - ' + c.cameras[1]:<24} {c.num_matches:>8} "
               f"{c.median_error_px:>25.2f}{'' if c.fits(tol) else '  does not fit'}")
@@ -69,7 +70,6 @@ def run(args: argparse.Namespace) -> int:
                                              args.tolerance_px)
         print(f"\n{'camera':<12} {'inliers':>8} {'turned deg':>11} {'px':>6} {'focal %':>8} "
               f"{'px':>6}  (since the calibration: the last frame set against its view)")
-        tol = args.tolerance_px
         for t in views.turns:
             print(f"{t.camera:<12} {t.num_inliers:>8} {t.rotation_deg:>11.3f} {t.shift_px:>6.2f} "
                   f"{100.0 * (t.focal_scale - 1.0):>+8.2f} {t.zoom_px:>6.2f}"
@@ -77,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
         for name in views.not_judged:
             print(f"{name:<12} too few matches with its reference view: not judged")
     fits, verdict = check_verdict(report, views)
+    if fits is None:  # neither the epipolar figures nor the reference views could tell
+        log.error("%s: cannot check the calibration with these images.", verdict)
+        return 2
     print(verdict + ("" if fits else "; recalibrate, e.g. densecalib calibrate "
                      f"... --previous {args.calibration}"))
     return 0 if fits else 1

@@ -336,10 +336,12 @@ def _turned_alike(rig: RigCalibration, turns: Sequence[ViewTurn], tolerance_px: 
 
 
 def check_verdict(report, views: Optional[ReferenceReport],
-                  epipolar_verdict: Optional[str] = None) -> tuple[bool, str]:
+                  epipolar_verdict: Optional[str] = None) -> tuple[Optional[bool], str]:
     """(fits, one line) of an epipolar check (core.consistency.ConsistencyReport; its verdict,
     or `epipolar_verdict` in its place) together with the reference views' report (None: the
-    calibration kept none)."""
+    calibration kept none). fits None: neither could tell."""
+    if not report.figures:  # no camera pair shares enough matches: only the views can tell
+        return _views_alone_verdict(views)
     verdict = epipolar_verdict or report.verdict()
     if views is None:
         return report.fits, verdict
@@ -348,3 +350,21 @@ def check_verdict(report, views: Optional[ReferenceReport],
                        "against the calibration's), though the epipolar figures still fit (a turn "
                        "along the epipolar lines, or a camera without a triple)")
     return report.fits and not views.changed, f"{verdict}; reference views: {views.summary()}"
+
+
+def _views_alone_verdict(views: Optional[ReferenceReport]) -> tuple[Optional[bool], str]:
+    """check_verdict when the cameras share too few matches for any epipolar figure (a camera
+    bumped so far that it lost its overlap, a scene that changed): a camera that changed against
+    its view fails the calibration; every camera still seeing its view within the tolerance keeps
+    it (a camera that only slid would go unseen); anything else cannot be told."""
+    short = ("the cameras share too few matches for the epipolar figures (more frame sets, or a "
+             "textured scene)")
+    if views is None:
+        return None, short
+    if views.changed:
+        return False, (f"the calibration no longer fits: {views.summary()} (each camera's view "
+                       f"against the calibration's); {short}")
+    if views.turns and not views.not_judged and not views.rig_moved and not views.alone:
+        return True, (f"the calibration fits by the reference views: {views.summary()}; {short}")
+    return None, f"{short}; reference views: {views.summary()}" + (
+        f" ({', '.join(views.not_judged)} not judged)" if views.not_judged else "")

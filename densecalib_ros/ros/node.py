@@ -811,9 +811,6 @@ class DenseCalibNode(Node):
         match_sets = match_frame_sets(images, pipeline_config(s), matcher=self._matcher_for(s),
                                       camera_names=s.camera_names)
         report = check_latest(rig, s.camera_names, match_sets, s.check_tolerance_px)
-        if not report.pairs:
-            return _CheckOutcome(None, "the buffered images share too few matches to check the "
-                                       "calibration")
         k = report.frame_sets_before_change
         since = (f" (the change came before the frame set stamped {sets[k].stamp_ns * 1e-9:.3f} "
                  "s)" if k else "")
