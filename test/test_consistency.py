@@ -150,6 +150,10 @@ def test_a_change_inside_the_buffer_is_judged_on_the_frame_sets_since(buffer_rig
     assert (latest.frame_sets_before_change, latest.num_frame_sets) == (3, 5)
     assert latest.suspects == ["cam2"]
     assert "frame sets 1-3 fit it, the rig changed after frame set 3" in latest.verdict()
+    assert "check again after the next" not in latest.verdict()
+    seen_once = check_latest(truth, rig.names, match_sets[:4])  # only the last set since
+    assert (seen_once.frame_sets_before_change, seen_once.num_frame_sets) == (3, 4)
+    assert "only the last frame set shows it: check again" in seen_once.verdict()
     unchanged = check_latest(truth, rig.names, match_frame_sets(rig.images, make_config()))
     assert unchanged.fits and unchanged.frame_sets_before_change == 0
 

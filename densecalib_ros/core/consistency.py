@@ -300,7 +300,9 @@ class ConsistencyReport:
                 f"{len(self.figures)} figures above {self.tolerance_px:g} px)"
                 + (f"; frame sets 1-{k} fit it, the rig changed after frame set {k} (figures from "
                    f"the {self.num_frame_sets - k} since)"
-                   if (k := self.frame_sets_before_change) else ""))
+                   if (k := self.frame_sets_before_change) else "")
+                + ("; only the last frame set shows it: check again after the next to rule out "
+                   "an odd one" if k and self.num_frame_sets - k == 1 else ""))
 
 
 def check_calibration(rig: RigCalibration, camera_names: Sequence[str],
