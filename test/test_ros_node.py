@@ -37,9 +37,10 @@ from densecalib_ros.core.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
 from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402
 from densecalib_ros.ros.conversions import point_cloud_to_numpy  # noqa: E402
-from densecalib_ros.ros.node import DenseCalibNode, pipeline_config  # noqa: E402
+from densecalib_ros.ros.node import DenseCalibNode  # noqa: E402
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
                                           TriggerCaller, wait_until)
+from densecalib_ros.ros.settings import pipeline_config  # noqa: E402
 from motion_fixtures import arena_views  # noqa: E402
 from sfm_fixtures import turned_image  # noqa: E402
 
@@ -288,7 +289,7 @@ def test_the_config_file_lists_every_parameter_and_starts_the_node(ros, tmp_path
     commented out), with its default, and the node starts from it."""
     import yaml
 
-    from densecalib_ros.ros.node import PARAMETERS
+    from densecalib_ros.ros.settings import PARAMETERS
 
     text = (Path(__file__).resolve().parents[1] / "config" / "densecalib.yaml").read_text()
     values = yaml.safe_load(text)["/**"]["ros__parameters"]
@@ -830,8 +831,8 @@ def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_pat
     assert job is not None
     ros.remove(node)  # the calibration publishes its progress from here on
     assert job.done.wait(CALIBRATION_TIMEOUT_S)
-    assert job.outcome is not None and not job.outcome.success
-    assert "shut down" in job.outcome.message
+    assert job.outcome is not None and not job.outcome.success, job.outcome
+    assert "shut down" in job.outcome.message, job.outcome.message
 
 
 def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
