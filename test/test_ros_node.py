@@ -473,16 +473,19 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
 
 def test_recalibration_after_a_bump_leaves_out_the_frame_sets_from_before(ros, rig, tmp_path):
     """Calibrated, then cam2 turned by 2 deg and two more frame sets buffered: ~/calibrate leaves
-    out the two older sets (they still fit the previous calibration) and says so."""
+    out the two older sets (they still fit the previous calibration) and says so. With
+    keep_calibrations 1 the first calibration's folder is then removed."""
     from scipy.spatial.transform import Rotation
 
+    from densecalib_ros.core.calibration_store import stored_calibrations
     from sfm_fixtures import turned_image
 
-    node = ros.densecalib(tmp_path / "calib")
+    node = ros.densecalib(tmp_path / "calib", keep_calibrations=1)
     caller = ros.caller()
     try:
         publish_frame_sets(ros, node, rig.images)
         assert caller.call(CALIBRATION_TIMEOUT_S).success
+        (first,) = stored_calibrations(tmp_path / "calib")
         turn = Rotation.from_euler("z", 2.0, degrees=True).as_matrix()
         lens = rig.ground_truth().cameras["cam2"].intrinsics
         turned = [[turned_image(im, lens, turn) if c == 2 else im for c, im in enumerate(fs)]
@@ -492,6 +495,8 @@ def test_recalibration_after_a_bump_leaves_out_the_frame_sets_from_before(ros, r
         assert response.success, response.message
         assert "from 2 frame sets" in response.message
         assert "the 2 older frame sets still fitted the previous calibration" in response.message
+        assert "removed the 1 oldest calibration(s) (keep_calibrations 1)" in response.message
+        assert stored_calibrations(tmp_path / "calib") == [node.calibration_dir] != [first]
         stamps = node.calibration.quality["input"]["frame_set_stamps_ns"]
         assert [row[0] for row in stamps] == [10_000_000_000, 11_000_000_000]
         change = node.calibration.quality["change_vs_previous"]

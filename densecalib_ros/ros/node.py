@@ -30,8 +30,9 @@ Interface (names relative to the node, default name `densecalib_node`):
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
 - files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/,
   reference_views/) written atomically, then the `output_dir/latest` symlink is swapped
-  atomically. At start-up the calibration under `latest` is republished. A failed calibration
-  publishes and writes nothing.
+  atomically (core.calibration_store); with keep_calibrations > 0 the oldest beyond that many
+  are then removed. At start-up the calibration under `latest` is republished. A failed
+  calibration publishes, writes and removes nothing.
 
 Parameters: ros/settings.py (the table, their validation into Settings, the pipeline
 configuration they select).
@@ -46,7 +47,6 @@ runs in its caller's thread; it and a calibration hold the one job slot in turn.
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -71,8 +71,9 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from ..core.errors import CalibrationError, InputError
-from ..core.export import (read_calibration, record_provenance, replace_directory_atomic,
-                           write_calibration_files, write_calibration_json)
+from ..core.calibration_store import LATEST, prune_calibrations, write_new_calibration
+from ..core.export import (read_calibration, record_provenance, write_calibration_files,
+                           write_calibration_json)
 from ..core.floor import record_floor
 from ..core.known_intrinsics import with_previous_intrinsics
 from ..core.report import info_strips_line
@@ -540,6 +541,7 @@ class DenseCalibNode(Node):
         out = self._write_files(rig, reconstruction,
                                 latest_views(images, s.camera_names, rig))
         self._publish(rig, out)
+        removed = prune_calibrations(s.output_dir, s.keep_calibrations, [out])
         rms = rig.quality.get("reprojection_rms_px", float("nan"))
         failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
         scale = (f", metric scale from {'-'.join(s.baseline_cameras)} = {s.known_baseline_m} m"
@@ -561,6 +563,9 @@ class DenseCalibNode(Node):
             message += f"; warning: {self.stereo_problem}"
         if s.call_set_camera_info:
             message += "; set_camera_info: " + self._call_set_camera_info(rig)
+        if removed:
+            message += (f"; removed the {len(removed)} oldest calibration(s) "
+                        f"(keep_calibrations {s.keep_calibrations})")
         return Outcome(True, message)
 
     def _matcher_for(self, s: Settings):
@@ -579,25 +584,14 @@ class DenseCalibNode(Node):
     def _write_files(self, rig: RigCalibration, reconstruction=None,
                      reference_views: Optional[dict] = None) -> Path:
         """Write output_dir/<UTC time>/ atomically, then swap the `latest` symlink onto it."""
-        root = self.settings.output_dir
-        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
-        out = root / f"{stamp}Z"
-        k = 1
-        while out.exists():
-            out, k = root / f"{stamp}Z_{k}", k + 1
-        replace_directory_atomic(lambda tmp: write_calibration_files(
-            rig, Path(tmp), reconstruction, reference_views=reference_views), out)
-        out.chmod(0o755)  # created private as a temporary directory
-        tmp_link = root / f".latest.{os.getpid()}.{threading.get_ident()}"
-        tmp_link.unlink(missing_ok=True)
-        os.symlink(out.name, tmp_link)
-        os.replace(tmp_link, root / "latest")
-        return out
+        return write_new_calibration(self.settings.output_dir, lambda folder: (
+            write_calibration_files(rig, folder, reconstruction,
+                                    reference_views=reference_views)))
 
     def _load_last_calibration(self) -> tuple[bool, str]:
         """Publish the calibration under output_dir/latest; (published?, what happened). Anything
         wrong with it leaves the current calibration published."""
-        latest = self.settings.output_dir / "latest"
+        latest = self.settings.output_dir / LATEST
         if not latest.exists():
             return False, f"no calibration under {latest}"
         try:

@@ -114,6 +114,10 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                           _range(64, 16384, True)),
     "output_dir": ("~/.ros/densecalib", "calibration files: <output_dir>/<UTC time>/ and a "
                    "'latest' symlink", True, {}),
+    "keep_calibrations": (0, "keep only this many calibrations in output_dir, the newest (by "
+                          "their names' UTC time; the one `latest` points to always stays): the "
+                          "oldest are removed after each calibration; 0 = keep all", False,
+                          _range(0, 100000, True)),
     "rig_frame": ("rig", "parent frame of the cameras' transforms on /tf_static (the reference "
                   "camera's optical frame coincides with it)", True, {}),
     "floor": ("", "after each calibration find the floor in the scene points and publish "
@@ -185,6 +189,7 @@ class Settings:
     consensus_runs: int
     max_image_side_px: int
     output_dir: Path
+    keep_calibrations: int
     rig_frame: str
     floor: str
     floor_frame: str
@@ -352,7 +357,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),
         max_image_side_px=int(v["max_image_side_px"]),
-        output_dir=Path(os.path.expanduser(str(v["output_dir"]))), rig_frame=rig_frame,
+        output_dir=Path(os.path.expanduser(str(v["output_dir"]))),
+        keep_calibrations=int(v["keep_calibrations"]), rig_frame=rig_frame,
         floor=v["floor"], floor_frame=floor_frame,
         frame_names=frames, camera_info_topics=info_topics, stereo_pairs=pairs,
         call_set_camera_info=bool(v["call_set_camera_info"]), set_camera_info_services=services,
