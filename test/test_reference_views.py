@@ -1,11 +1,10 @@
 """core.reference_views: each camera against its own view at calibration time. On a generated
-rig whose scene objects move between frame sets: the cameras as calibrated still see their
-views; one camera panned by 0.5 deg is named with its angle, one refocused with its focal change;
-the whole rig turned is recognised
-as such, and one camera judged alone is not blamed; an unrelated image is not judged; a pan that
-the epipolar figures pass fails the combined verdict; with no epipolar figure at all the views
-judge alone (`densecalib check`). The same on the real static fisheye stereo
-rig of ../shared/data."""
+rig whose scene objects move between frame sets: the cameras as calibrated still see their views;
+one camera panned by 0.5 deg is named with its angle, one refocused with its focal change; the
+whole rig turned is recognised as such, and one camera judged alone is not blamed; an unrelated
+image is not judged; a pan that the epipolar figures pass fails the combined verdict; with no
+epipolar figure at all the views judge alone (`densecalib check`). The same on the real static
+fisheye stereo rig of ../shared/data."""
 from pathlib import Path
 
 import cv2
