@@ -52,3 +52,43 @@ def test_pruning_keeps_the_newest_and_latest_and_nothing_else_is_touched(tmp_pat
     assert [p.name for p in prune_calibrations(root, 1)] == [names[3]]
     assert [p.name for p in stored_calibrations(root)] == [names[1], names[4]]
     assert prune_calibrations(tmp_path / "absent", 3) == []
+
+
+def test_report_history_says_what_changed_between_stored_calibrations(tmp_path, capsys):
+    """`densecalib report OUTPUT_DIR --history`: three calibrations of a generated rig, cam2
+    turned by 1 deg in the second, cam1's focal 2 % longer in the third; an unreadable folder is
+    listed as such."""
+    import copy
+    import json
+
+    from scipy.spatial.transform import Rotation
+
+    from densecalib_ros.cli import main
+    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.synthetic import RigSpec, generate_rig
+
+    truth = generate_rig(RigSpec(num_cameras=4, width=320, height=240, seed=5)).ground_truth()
+    turned = copy.deepcopy(truth)
+    cam2 = turned.cameras["cam2"]
+    cam2.cam_from_rig = cam2.cam_from_rig.copy()
+    cam2.cam_from_rig[:3, :3] = Rotation.from_euler("x", 1.0, degrees=True).as_matrix() @ \
+        cam2.cam_from_rig[:3, :3]
+    refocused = copy.deepcopy(turned)
+    refocused.cameras["cam1"].intrinsics.params[0] *= 1.02
+    root = tmp_path / "out"
+    for rig in (truth, turned):
+        write_new_calibration(root, lambda folder, rig=rig: write_calibration_files(rig, folder))
+    broken = write_new_calibration(root, _write("{not json"))
+    write_new_calibration(root, lambda folder: write_calibration_files(refocused, folder))
+
+    assert main(["report", str(root), "--history"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 6 and lines[-1] == "* = latest"
+    assert lines[1].endswith("(the first kept)") and " 4/4 " in lines[1]
+    assert "rotation up to 1.00 deg (cam2)" in lines[2] and "focal up to +0.00 %" in lines[2]
+    assert f"{broken.name:<20} unreadable" in lines[3]
+    assert lines[4].startswith("* ") and "focal up to +2.00 % (cam1)" in lines[4]
+    assert main(["report", str(root), "--history", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r.get("latest") for r in rows] == [False, False, None, True]
+    assert main(["report", str(tmp_path), "--history"]) == 2  # no stored calibrations

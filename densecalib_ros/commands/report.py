@@ -1,6 +1,7 @@
 """`densecalib report`: what a calibration on disk says — intrinsics and fit per camera, the
 camera layout, warnings — and, with --against, how it differs from another calibration of the
-same cameras (a previous one, or a ground truth such as `densecalib generate`'s)."""
+same cameras (a previous one, or a ground truth such as `densecalib generate`'s); with --history,
+the calibrations a node's output_dir keeps, one line each."""
 from __future__ import annotations
 
 import argparse
@@ -11,7 +12,7 @@ from dataclasses import asdict
 from ..core.change import calibration_change, pose_agreement
 from ..core.errors import InputError
 from ..core.export import calibration_to_dict, read_calibration
-from ..core.report import camera_centres_in_rig, rig_report
+from ..core.report import camera_centres_in_rig, history_report, history_rows, rig_report
 
 log = logging.getLogger("densecalib.report")
 
@@ -23,6 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--against", metavar="OTHER",
                         help="another calibration of the same cameras (folder or JSON, e.g. the "
                              "previous one, or a ground_truth.json): report the change from it")
+    parser.add_argument("--history", action="store_true",
+                        help="CALIBRATION is a node's output_dir: one line per calibration it "
+                             "keeps, oldest first, with what changed since the one before (which "
+                             "camera turned, whose focal changed)")
     parser.add_argument("--json", action="store_true",
                         help="print the report as JSON on stdout instead of text")
     parser.add_argument("--plot", metavar="PNG",
@@ -33,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.history:
+        return _history(args)
     try:
         rig = read_calibration(args.calibration)
         against = read_calibration(args.against) if args.against else None
@@ -54,6 +61,20 @@ def run(args: argparse.Namespace) -> int:
         out["change"] = {n: asdict(c) for n, c in calibration_change(against, rig).items()}
         out["pose_agreement"] = pose_agreement(against, rig)
     print(json.dumps(out, indent=1))
+    return 0
+
+
+def _history(args: argparse.Namespace) -> int:
+    if args.against or args.plot:
+        log.error("--history lists the calibrations of an output_dir: give --against or --plot "
+                  "one calibration instead (a folder of the list).")
+        return 2
+    rows = history_rows(args.calibration)
+    if not rows:
+        log.error("%s holds no calibrations as the node stores them (<UTC time>Z/ folders): "
+                  "give a densecalib_node's output_dir.", args.calibration)
+        return 2
+    print(json.dumps(rows, indent=1) if args.json else history_report(rows))
     return 0
 
 

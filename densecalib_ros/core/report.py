@@ -1,14 +1,19 @@
 """The text report of a rig calibration: intrinsics and fit per camera, where the cameras sit in the
 rig, and (optionally) how it differs from another calibration of the same cameras: a previous one,
 or a ground truth. `densecalib calibrate` prints the camera table after a calibration;
-`densecalib report` prints the whole report of a calibration on disk (e.g. the node's output)."""
+`densecalib report` prints the whole report of a calibration on disk (e.g. the node's output), and
+with --history one line per calibration a node's output_dir keeps."""
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
-from .change import CameraChange, calibration_change, pose_agreement
+from .calibration_store import LATEST, stored_calibrations
+from .change import CameraChange, calibration_change, change_summary, pose_agreement
+from .errors import InputError
+from .export import read_calibration
 from .metrics import mean_focal_px
 from .types import CameraIntrinsics, RigCalibration
 
@@ -198,3 +203,40 @@ def format_floor(rig: RigCalibration) -> str:
     return (f"floor: {floor['num_points']} points within {floor['rms']:.3g} {unit} (rms); camera "
             "heights " + ", ".join(f"{n} {h:.3g}" for n, h in floor["camera_heights"].items())
             + f" {unit}")
+
+
+def history_rows(root: str | Path) -> list[dict]:
+    """The calibrations stored in a node's output_dir (core.calibration_store), oldest first:
+    {"name", "latest", "cameras", "failed", "reprojection_rms_px", "change"} with "change" the
+    one-line change from the readable one before it (core.change), or {"name", "error"} for one
+    that cannot be read."""
+    root = Path(root)
+    latest = (root / LATEST).resolve() if (root / LATEST).exists() else None
+    rows, previous = [], None
+    for folder in stored_calibrations(root):
+        try:
+            rig = read_calibration(folder)
+        except InputError as exc:
+            rows.append({"name": folder.name, "error": str(exc)})
+            continue
+        rows.append({"name": folder.name, "latest": folder.resolve() == latest,
+                     "cameras": list(rig.cameras), "failed": list(rig.failed_cameras),
+                     "reprojection_rms_px": rig.quality.get("reprojection_rms_px"),
+                     "change": (change_summary(calibration_change(previous, rig)).removeprefix(
+                         "change vs previous: ") if previous is not None else None)})
+        previous = rig
+    return rows
+
+
+def history_report(rows: list[dict]) -> str:
+    """history_rows as text: one line per calibration, the one `latest` points to marked *."""
+    lines = [f"  {'calibration':<20} {'cameras':>7} {'rms_px':>6}  change since the one before"]
+    for row in rows:
+        if "error" in row:
+            lines.append(f"  {row['name']:<20} unreadable: {row['error']}")
+            continue
+        cameras = f"{len(row['cameras'])}/{len(row['cameras']) + len(row['failed'])}"
+        lines.append(f"{'*' if row['latest'] else ' '} {row['name']:<20} {cameras:>7} "
+                     f"{_optional(row['reprojection_rms_px'], '.2f'):>6}  "
+                     f"{row['change'] or '(the first kept)'}")
+    return "\n".join(lines) + "\n* = latest"
