@@ -840,6 +840,25 @@ def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_pat
     assert "shut down" in job.outcome.message, job.outcome.message
 
 
+def test_timers_of_a_destroyed_node_end_quietly(ros, tmp_path):
+    """A timer callback due when destroy_node runs publishes on destroyed publishers: it must not
+    raise, since an exception from a callback ends the shared executor's spin() (every other node
+    in the process would go silent). Called here after destroy_node, as the executor would."""
+    from rclpy.exceptions import InvalidHandle
+
+    node = ros.densecalib(tmp_path / "calib", image_topics=["/absent/a/image_raw",
+                                                           "/absent/b/image_raw"],
+                          camera_names=["a", "b"], transports=["auto"], check_interval_s=1.0)
+    callbacks = [t.callback for t in node.timers]
+    assert len(callbacks) == 3  # topic discovery, diagnostics, watch
+    ros.remove(node)
+    with pytest.raises(InvalidHandle):
+        node._publish_diagnostics()  # what the diagnostics timer does, unguarded
+    for callback in callbacks:
+        callback()
+    assert ros.thread.is_alive()
+
+
 def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
     """Bags of the rig's images (sqlite3 raw, mcap compressed png) replayed into the node calibrate
     to the same result; the live test above saw the same (lossless) images."""

@@ -46,12 +46,13 @@ runs in its caller's thread; it and a calibration hold the one job slot in turn.
 """
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 import rclpy
@@ -120,6 +121,19 @@ class _Job:
     reason: str
     done: threading.Event = field(default_factory=threading.Event)
     outcome: Optional[Outcome] = None
+
+
+def _ends_with_the_node(callback: Callable[[], None]) -> Callable[[], None]:
+    """A timer callback that ends quietly when destroy_node ran while it was due or running (its
+    publishers gone): an exception from a callback ends the executor's spin() for every node it
+    serves, so one node shut down beside others would silence them all."""
+    @functools.wraps(callback)
+    def run() -> None:
+        try:
+            callback()
+        except InvalidHandle:
+            pass
+    return run
 
 
 def _floor_parent(s: Settings) -> Optional[str]:
@@ -194,11 +208,14 @@ class DenseCalibNode(Node):
 
         self._subscribe_known_topics()
         if None in self._image_subs:
-            self._discovery_timer = self.create_timer(0.5, self._subscribe_discovered_topics,
-                                                      callback_group=self._timer_group)
-        self.create_timer(1.0, self._publish_diagnostics, callback_group=self._timer_group)
+            self._discovery_timer = self.create_timer(
+                0.5, _ends_with_the_node(self._subscribe_discovered_topics),
+                callback_group=self._timer_group)
+        self.create_timer(1.0, _ends_with_the_node(self._publish_diagnostics),
+                          callback_group=self._timer_group)
         # the watch's checks take seconds: a group of their own keeps diagnostics flowing
-        self.create_timer(1.0, self._watch, callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(1.0, _ends_with_the_node(self._watch),
+                          callback_group=MutuallyExclusiveCallbackGroup())
 
         loaded, message = self._load_last_calibration()
         (self.get_logger().info if loaded or "no calibration" in message else
