@@ -5,10 +5,11 @@ second), written whole before it appears (export.replace_directory_atomic), and 
 symlink is then swapped onto it atomically: a reader never sees a half-written calibration, and a
 failed calibration leaves `latest` where it was. A field rig that recalibrates on its own (the
 node's watch) would fill its disk one calibration at a time (1.2 MB for the demo's 5 cameras,
-mostly the reference views and the COLMAP model): prune_calibrations keeps the newest few. Folders are ordered by their names, the
-UTC time they were made; on a computer without a real-time clock that restarts at 1970 after a
-power cut the order is wrong, but the one `latest` points to is never removed. Nothing else in the
-root (a folder a user put there, files) is touched.
+mostly the reference views and the COLMAP model): prune_calibrations keeps the newest few.
+Folders are ordered by their names, the UTC time they were made; on a computer without a
+real-time clock that restarts at 1970 after a power cut the order is wrong, but the one `latest`
+points to is never removed. Nothing else in the root (a folder a user put there, files) is
+touched.
 """
 from __future__ import annotations
 

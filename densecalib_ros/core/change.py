@@ -49,13 +49,13 @@ def calibration_change(previous: RigCalibration, new: RigCalibration) -> dict[st
     return out
 
 
-def change_summary(change: dict[str, CameraChange]) -> str:
+def change_summary(change: dict[str, CameraChange], prefix: str = "change vs previous: ") -> str:
     """One line: the largest changes and the camera they belong to."""
     if not change:
         return "no camera in common with the previous calibration"
     f = max(change.items(), key=lambda kv: abs(kv[1].focal_change_pct))
     r = max(change.items(), key=lambda kv: kv[1].rotation_change_deg)
-    return (f"change vs previous: focal up to {f[1].focal_change_pct:+.2f} % ({f[0]}), "
+    return (f"{prefix}focal up to {f[1].focal_change_pct:+.2f} % ({f[0]}), "
             f"rotation up to {r[1].rotation_change_deg:.2f} deg ({r[0]})")
 
 

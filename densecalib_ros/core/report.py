@@ -222,8 +222,8 @@ def history_rows(root: str | Path) -> list[dict]:
         rows.append({"name": folder.name, "latest": folder.resolve() == latest,
                      "cameras": list(rig.cameras), "failed": list(rig.failed_cameras),
                      "reprojection_rms_px": rig.quality.get("reprojection_rms_px"),
-                     "change": (change_summary(calibration_change(previous, rig)).removeprefix(
-                         "change vs previous: ") if previous is not None else None)})
+                     "change": (change_summary(calibration_change(previous, rig), prefix="")
+                                if previous is not None else None)})
         previous = rig
     return rows
 
