@@ -448,6 +448,9 @@ class DenseCalibNode(Node):
             estimates = self.sync.measure_offsets(s.camera_names)
         except InputError as exc:
             response.success, response.message = False, f"sync failed: {exc}"
+        except Exception as exc:  # a bug must still answer the call (and not end the spin)
+            self.get_logger().error(f"sync crashed: {exc!r}")
+            response.success, response.message = False, f"sync crashed: {exc!r}"
         else:
             offsets = [estimates[n].offset_s for n in s.camera_names]
             dropped = len(self.sync)
