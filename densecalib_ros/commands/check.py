@@ -16,6 +16,7 @@ from ..core.errors import InputError
 from .inputs import add_input_arguments, parse_masks, read_input, require_calibrated_cameras
 
 log = logging.getLogger("densecalib.check")
+MAX_FAILING_SHOWN = 10  # failing transfer figures listed beside each camera's best
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,9 +61,19 @@ def run(args: argparse.Namespace) -> int:
               f"{c.median_error_px:>25.2f}{'' if c.fits(tol) else '  does not fit'}")
     if report.transfers:
         print(f"\n{'camera':<12} {'points':>7} {'median transfer error px':>25}  from (best)")
-        for c in best_transfer_per_camera(report.transfers):
+        best = best_transfer_per_camera(report.transfers)
+        for c in best:
             print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
                   f"{c.sources[0]} + {c.sources[1]}{'' if c.fits(tol) else '  does not fit'}")
+        failing = sorted((c for c in report.transfers if not c.fits(tol) and c not in best),
+                         key=lambda c: -c.median_error_px)
+        if failing:  # the verdict counts them: show them
+            print(f"and {len(failing)} more transfer figure(s) that do not fit:")
+            for c in failing[:MAX_FAILING_SHOWN]:
+                print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
+                      f"{c.sources[0]} + {c.sources[1]}")
+            if len(failing) > MAX_FAILING_SHOWN:
+                print(f"... and {len(failing) - MAX_FAILING_SHOWN} more")
     views = None
     references = reference_views_of(args.calibration, names)
     if references:
@@ -76,9 +87,9 @@ def run(args: argparse.Namespace) -> int:
                   + ("  turned" if t.turned(tol) else "") + ("  zoomed" if t.zoomed(tol) else ""))
         for name in views.not_judged:
             print(f"{name:<12} too few matches with its reference view: not judged")
-    fits, verdict = check_verdict(report, views)
+    fits, verdict = check_verdict(report, views, cameras=[n for n in names if n in rig.cameras])
     if fits is None:  # neither the epipolar figures nor the reference views could tell
-        log.error("%s: cannot check the calibration with these images.", verdict)
+        log.error("the calibration could not be checked with these images: %s", verdict)
         return 2
     print(verdict + ("" if fits else "; recalibrate, e.g. densecalib calibrate "
                      f"... --previous {args.calibration}"))

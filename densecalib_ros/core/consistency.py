@@ -15,7 +15,9 @@ Two figures:
   mostly along them (0.5 deg of pan gave 0.6-1.6 px on a 1024-px rig where a tilt shows fully);
 - per camera triple, the transfer error (px): a point matched in two cameras is triangulated from
   them and projected into the third, where it is compared with its match; with three cameras or
-  more this sees any rotation. The triple's figure is the median over its points.
+  more this sees any rotation. The triple's figure is the median over its points, each divided by
+  the noise its geometry adds (transfer_gain), on matches a third camera confirms
+  (transfer_errors_px: both are what let a calibration fit its own real images).
 The camera to blame is the one in every failing figure (suspect_cameras).
 
 A buffer of frame sets may straddle the change: a camera bumped a minute ago leaves most of a
@@ -40,6 +42,10 @@ from .types import RigCalibration, SiteMatchSet
 MIN_PAIR_MATCHES = 20
 # Transfer points need rays that meet at an angle: below this the triangulated depth is noise.
 MIN_TRIANGULATION_ANGLE_DEG = 2.0
+# Transfer errors are divided by the noise their geometry adds (transfer_gain); points whose
+# geometry magnifies the sources' matching noise more than this are left out: divided by 3.6 or
+# more, a moved target's error would count for too little in the median.
+MAX_TRANSFER_GAIN = 5.0
 DEFAULT_TOLERANCE_PX = 2.0  # a pair fits when its median epipolar error is at most this
 # Matches are judged only when they agree with their own two-view geometry within this (px at
 # the cameras' focal): what is left out are the matcher's outliers, not a moved camera's matches.
@@ -150,6 +156,27 @@ def self_consistent(ray_a: np.ndarray, ray_b: np.ndarray, threshold_rad: float) 
     return keep
 
 
+def _midpoints(o_a: np.ndarray, d_a: np.ndarray, o_b: np.ndarray, d_b: np.ndarray):
+    """Midpoint triangulation of rays o + s d (unit d): (points (N, 3), s_a, s_b, sin of the
+    angle between the rays)."""
+    w = o_a - o_b
+    dot = np.einsum("ij,ij->i", d_a, d_b)
+    denom = 1.0 - dot ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s_a = (dot * (d_b @ w) - (d_a @ w)) / np.where(denom > 0, denom, np.nan)
+        s_b = ((d_b @ w) - dot * (d_a @ w)) / np.where(denom > 0, denom, np.nan)
+    point = 0.5 * (o_a + s_a[:, None] * d_a + o_b + s_b[:, None] * d_b)
+    return point, s_a, s_b, np.sqrt(np.clip(denom, 0.0, None))
+
+
+def _ray_miss_px(point: np.ndarray, centre: np.ndarray, rays: np.ndarray,
+                 focal_px: float) -> np.ndarray:
+    """(N,) how far (px at the camera's focal) each triangulated point lies off its ray."""
+    to_point = point - centre
+    return focal_px * (np.linalg.norm(np.cross(rays, to_point), axis=1)
+                       / np.linalg.norm(to_point, axis=1))
+
+
 def _match_ends(ms: SiteMatchSet, i: int, j: int, sites_i: np.ndarray) -> np.ndarray:
     """Pixel positions in camera j of the matches of camera i's sites `sites_i` (NaN: none)."""
     out = np.full((len(sites_i), 2), np.nan)
@@ -162,53 +189,118 @@ def _match_ends(ms: SiteMatchSet, i: int, j: int, sites_i: np.ndarray) -> np.nda
     return out
 
 
+def confirmed_matches(ms: SiteMatchSet, cameras: Sequence[int]) -> dict[tuple[int, int],
+                                                                          np.ndarray]:
+    """{(i, j): bool per site of i}: i's site has a match in j that a third camera confirms
+    (i's match in c, matched on into j, lands within CONSENSUS_PX of it: a closed 3-cycle up to
+    the pixel). Raw matches of a wide pair can be mostly wrong (half of a real wide triple's
+    were, 70-220 px off); three cameras agreeing on a wrong match is rare, and it does not
+    depend on the calibration, so a moved camera's matches stay confirmed."""
+    out = {}
+    for i, j in itertools.permutations(cameras, 2):
+        sites = np.arange(len(ms.sites[i]))
+        xy_j = _match_ends(ms, i, j, sites)
+        ok = np.zeros(len(sites), dtype=bool)
+        for c in cameras:
+            pm = ms.pairs.get((i, c))
+            if c in (i, j) or pm is None:
+                continue
+            in_c = np.flatnonzero((pm.target >= 0) & np.isfinite(xy_j).all(1))
+            via_c = _match_ends(ms, c, j, pm.target[in_c].astype(np.int64))
+            with np.errstate(invalid="ignore"):
+                ok[in_c[np.linalg.norm(via_c - xy_j[in_c], axis=1) <= CONSENSUS_PX]] = True
+        out[(i, j)] = ok
+    return out
+
+
 def transfer_errors_px(rig: RigCalibration, camera_names: Sequence[str],
                        match_sets: Sequence[SiteMatchSet]
                        ) -> dict[str, dict[tuple[str, str], np.ndarray]]:
     """errors[target][(a, b)]: transfer errors (px, module docstring) in camera `target` of the
-    points matched in a, b and target, triangulated from a and b, over all frame sets."""
+    points matched in a, b and target, triangulated from a and b, over all frame sets.
+
+    The points are a's sites matched in b, and in the target where a third camera confirms that
+    match (confirmed_matches; raw matches into a wide target can be mostly wrong: a real triple's
+    median was 866 px). A point whose two source rays miss each other by more than CONSENSUS_PX
+    is left out too: a repeated texture can make wrong matches agree (19 of a real triple's 66,
+    transferred 1000 px off), and a source camera moved across its epipolar lines is for the
+    pair figures to name (the triples it is the target of still see it). Each error is divided by the noise its geometry adds
+    (transfer_gain): sources a few degrees apart fix the depth loosely, and a target 30 deg aside
+    turns their matching noise into several px (what failed real calibrations against their own
+    images), while a camera moved by d px still shows about d px through a well-posed triple."""
     cams = [n for n in camera_names if n in rig.cameras]
     index = {n: camera_names.index(n) for n in cams}
     colmap = {n: rig.cameras[n].intrinsics.to_pycolmap() for n in cams}
     rig_from_cam = {n: np.linalg.inv(rig.cameras[n].cam_from_rig) for n in cams}
+    focal = {n: float(np.mean([colmap[n].focal_length_x, colmap[n].focal_length_y]))
+             for n in cams}
     min_sin = np.sin(np.deg2rad(MIN_TRIANGULATION_ANGLE_DEG))
-    out: dict[str, dict[tuple[str, str], list]] = {n: {} for n in cams}
+    out: dict[str, dict[tuple[str, str], np.ndarray]] = {n: {} for n in cams}
+    confirmed = [confirmed_matches(ms, [index[n] for n in cams]) for ms in match_sets]
     for a, b in itertools.combinations(cams, 2):
+        ia, ib = index[a], index[b]
         o_a, o_b = rig_from_cam[a][:3, 3], rig_from_cam[b][:3, 3]
         errors: dict[str, list] = {t: [] for t in cams if t not in (a, b)}
-        for ms in match_sets:
-            # Each point of a matched in b is triangulated once, then projected into every target.
-            ia, ib = index[a], index[b]
-            sites = np.arange(len(ms.sites[ia]))
-            xy_b = _match_ends(ms, ia, ib, sites)
-            in_b = np.isfinite(xy_b).all(1)
-            if not in_b.any():
+        for ms_k, ms in enumerate(match_sets):
+            pm = ms.pairs.get((ia, ib))
+            if pm is None:
                 continue
+            # Each point of a matched in b is triangulated once, then projected into every target.
+            sites_a = np.flatnonzero(pm.target >= 0)
+            if not len(sites_a):
+                continue
+            sites_b = pm.target[sites_a].astype(np.int64)
+            xy_a = ms.sites[ia][sites_a]
+            xy_b = refined_targets_px(ms, ia, ib, sites_a, sites_b)
             rays = []
-            for name, xy in ((a, ms.sites[ia][in_b]), (b, xy_b[in_b])):
+            for name, xy in ((a, xy_a), (b, xy_b)):
                 r = colmap[name].cam_ray_from_img(xy) @ rig_from_cam[name][:3, :3].T
                 rays.append(r / np.linalg.norm(r, axis=1, keepdims=True))
-            # closest points of the two rays o + s d (midpoint triangulation)
-            d_a, d_b, w = rays[0], rays[1], o_a - o_b
-            dot = np.einsum("ij,ij->i", d_a, d_b)
-            denom = 1.0 - dot ** 2
-            s_a = (dot * (d_b @ w) - (d_a @ w)) / np.where(denom > 0, denom, np.nan)
-            s_b = ((d_b @ w) - dot * (d_a @ w)) / np.where(denom > 0, denom, np.nan)
-            point = 0.5 * (o_a + s_a[:, None] * d_a + o_b + s_b[:, None] * d_b)
-            triangulated = (np.sqrt(denom) > min_sin) & (s_a > 0) & (s_b > 0)
+            point, s_a, s_b, sin_ab = _midpoints(o_a, rays[0], o_b, rays[1])
+            with np.errstate(invalid="ignore"):
+                meet = ((sin_ab > min_sin) & (s_a > 0) & (s_b > 0)
+                        & (_ray_miss_px(point, o_a, rays[0], focal[a]) <= CONSENSUS_PX)
+                        & (_ray_miss_px(point, o_b, rays[1], focal[b]) <= CONSENSUS_PX))
             for target in errors:
-                xy_t = _match_ends(ms, ia, index[target], sites[in_b])
+                it = index[target]
+                xy_t = _match_ends(ms, ia, it, sites_a)
                 cam_t = rig.cameras[target].cam_from_rig
                 x_t = point @ cam_t[:3, :3].T + cam_t[:3, 3]
-                good = triangulated & np.isfinite(xy_t).all(1) & (x_t[:, 2] > 0)
-                if not good.any():
-                    continue
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    good = meet & confirmed[ms_k][(ia, it)][sites_a] & (x_t[:, 2] > 0)
+                    if not good.any():
+                        continue
+                    gain = transfer_gain(point[good], (rays[0][good], s_a[good], focal[a]),
+                                         (rays[1][good], s_b[good], focal[b]),
+                                         rig_from_cam[target][:3, 3], focal[target])
                 projected = np.asarray(colmap[target].img_from_cam(x_t[good]), float)
-                err = np.linalg.norm(projected - xy_t[good], axis=1)
-                errors[target].append(err[np.isfinite(err)])
+                err = (np.linalg.norm(projected - xy_t[good], axis=1)
+                       / np.sqrt(0.5 * (1.0 + gain ** 2)))  # as through a gain-1 triple
+                keep = (gain <= MAX_TRANSFER_GAIN) & np.isfinite(err)
+                errors[target].append(err[keep])
         for target, errs in errors.items():
             out[target][(a, b)] = np.concatenate(errs) if errs else np.zeros(0)
     return out
+
+
+def transfer_gain(point: np.ndarray, source_a: tuple, source_b: tuple, centre_t: np.ndarray,
+                  focal_t: float) -> np.ndarray:
+    """(N,) px of transfer error in the target per px of matching noise in the sources, for
+    points (N, 3) triangulated from two rays per point. A source is (unit rays (N, 3), distance
+    of each point along its ray, focal px), all in one frame. Noise of 1 px in
+    b turns its ray by 1/f_b and slides the point along a's ray by s_b / (f_b sin alpha), alpha
+    the angle between the rays; the target sees that slide across its own ray r_t at distance
+    d_t as f_t |d_a x r_t| / d_t px of it. The two sources' shares add in quadrature."""
+    (d_a, s_a, f_a), (d_b, s_b, f_b) = source_a, source_b
+    to_t = point - centre_t
+    dist_t = np.linalg.norm(to_t, axis=1)
+    r_t = to_t / dist_t[:, None]
+    sin_alpha = np.linalg.norm(np.cross(d_a, d_b), axis=1)
+    across_a = np.linalg.norm(np.cross(d_a, r_t), axis=1)  # the slide along d_a, seen from t
+    across_b = np.linalg.norm(np.cross(d_b, r_t), axis=1)
+    gain_from_b = focal_t / f_b * s_b / dist_t * across_a / sin_alpha
+    gain_from_a = focal_t / f_a * s_a / dist_t * across_b / sin_alpha
+    return np.hypot(gain_from_a, gain_from_b)
 
 
 @dataclass
@@ -287,8 +379,10 @@ class ConsistencyReport:
         """One line: whether the calibration fits, else which camera moved."""
         if self.fits:
             worst = max((f.median_error_px for f in self.figures), default=float("nan"))
-            return (f"the calibration fits: {len(self.figures)} pair and transfer figures within "
-                    f"{self.tolerance_px:g} px (worst {worst:.2f} px)")
+            counts = " and ".join(f"{n} {what} figure{'s' if n != 1 else ''}" for n, what in (
+                (len(self.pairs), "pair"), (len(self.transfers), "transfer")) if n)
+            return (f"the calibration fits: {counts} within {self.tolerance_px:g} px (worst "
+                    f"{worst:.2f} px)")
         moved = self.suspects
         if len(moved) == 1:
             what = f"{moved[0]} moved or changed"

@@ -266,7 +266,8 @@ class ReferenceReport:
         if not changed:
             return (f"every judged camera still sees its reference view within {tol:g} px "
                     f"(largest turn {max(t.shift_px for t in self.turns):.2f} px, zoom "
-                    f"{max(t.zoom_px for t in self.turns):.2f} px)")
+                    f"{max(t.zoom_px for t in self.turns):.2f} px"
+                    + (f"; {', '.join(self.not_judged)} not judged)" if self.not_judged else ")"))
         return "changed since the calibration: " + ", ".join(t.describe(tol) for t in changed)
 
 
@@ -336,10 +337,29 @@ def _turned_alike(rig: RigCalibration, turns: Sequence[ViewTurn], tolerance_px: 
 
 
 def check_verdict(report, views: Optional[ReferenceReport],
-                  epipolar_verdict: Optional[str] = None) -> tuple[Optional[bool], str]:
+                  epipolar_verdict: Optional[str] = None,
+                  cameras: Sequence[str] = ()) -> tuple[Optional[bool], str]:
     """(fits, one line) of an epipolar check (core.consistency.ConsistencyReport; its verdict,
     or `epipolar_verdict` in its place) together with the reference views' report (None: the
-    calibration kept none). fits None: neither could tell."""
+    calibration kept none). fits None: neither could tell. `cameras`: the calibrated cameras
+    the images are of; one that neither judged (a covered or dark lens) keeps a fit from being
+    declared: the calibration is vouched for only where it was seen."""
+    fits, verdict = _combined_verdict(report, views, epipolar_verdict)
+    seen = {c for f in report.figures for c in f.cameras} | (
+        {t.camera for t in views.turns} if views is not None else set())
+    unseen = [c for c in cameras if c not in seen]
+    if not unseen:
+        return fits, verdict
+    note = (f"{', '.join(unseen)} could not be judged: too few matches with the other cameras "
+            "and with its reference view (a covered, dark or defocused lens, or a changed "
+            "scene)")
+    if fits:
+        return None, f"{note}; for the others: {verdict}"
+    return fits, f"{verdict}; {note}"
+
+
+def _combined_verdict(report, views: Optional[ReferenceReport],
+                      epipolar_verdict: Optional[str]) -> tuple[Optional[bool], str]:
     if not report.figures:  # no camera pair shares enough matches: only the views can tell
         return _views_alone_verdict(views)
     verdict = epipolar_verdict or report.verdict()

@@ -501,7 +501,8 @@ class DenseCalibNode(Node):
         if references:
             views = compare_with_reference_views(rig, s.camera_names, images, references,
                                                  s.check_tolerance_px)
-        fits, verdict = check_verdict(report, views, report.verdict() + since)
+        fits, verdict = check_verdict(report, views, report.verdict() + since,
+                                      [n for n in s.camera_names if n in rig.cameras])
         per_camera = ", ".join(f"{t.target} {t.median_error_px:.2f}"
                                for t in best_transfer_per_camera(report.transfers))
         return _CheckOutcome(fits, f"{verdict}; {len(sets)} frame sets"
