@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
+
+from .core.errors import CalibrationError
 
 # name -> (module, one-line help)
 SUBCOMMANDS = {
@@ -67,7 +70,17 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="[%(asctime)s %(levelname)s %(name)s] %(message)s",
                         datefmt="%H:%M:%S", stream=sys.stderr)
-    return int(importlib.import_module(SUBCOMMANDS[args.command][0]).run(args) or 0)
+    try:
+        return int(importlib.import_module(SUBCOMMANDS[args.command][0]).run(args) or 0)
+    except CalibrationError as exc:  # one a command did not expect: its message, not a traceback
+        logging.getLogger("densecalib").error("%s", exc)
+        return 2
+    except KeyboardInterrupt:  # Ctrl-C: a message, not a traceback
+        logging.getLogger("densecalib").error("interrupted")
+        return 130
+    except BrokenPipeError:  # `densecalib report ... | head`: the reader had enough
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
+        return 141
 
 
 if __name__ == "__main__":

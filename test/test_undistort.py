@@ -157,6 +157,12 @@ def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys)
         inside = (map_x > 1) & (map_x < 318) & (map_y > 1) & (map_y < 238)
         assert inside.mean() > 0.6
         assert np.abs(ours[inside].astype(int) - theirs[inside]).max() <= 1
+        # its camera_info is the rectified pair's: the right one's P carries the baseline
+        # (Tx = -f B), which stereo_image_proc reads
+        written = yaml.safe_load((out / f"{name}.yaml").read_text())
+        np.testing.assert_allclose(written["projection_matrix"]["data"], p.ravel(), atol=1e-9)
+        np.testing.assert_allclose(written["rectification_matrix"]["data"], np.eye(3).ravel())
+        assert written["distortion_coefficients"]["data"] == [0.0] * 5
 
 
 def test_command_undistorts_videos_frame_by_frame(tmp_path, capsys, caplog):

@@ -16,6 +16,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, ma
 from ..core.errors import CalibrationError, InputError
 from ..core.export import record_provenance
 from ..core.report import camera_table
+from .argtypes import number_in, positive, seed
 from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
 
 log = logging.getLogger("densecalib.calibrate")
@@ -23,7 +24,8 @@ log = logging.getLogger("densecalib.calibrate")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_input_arguments(parser)
-    parser.add_argument("--out", required=True, metavar="OUT", help="output folder (replaced)")
+    parser.add_argument("--out", required=True, metavar="OUT",
+                        help="output folder: new, empty or an earlier calibration (replaced)")
     parser.add_argument("--preset", choices=PRESETS, default="regular",
                         help="camera type: regular (RADIAL) or fisheye (OPENCV_FISHEYE)")
     parser.add_argument("--lens", nargs="+", default=None, metavar="NAME=LENS",
@@ -34,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see README)")
     parser.add_argument("--matcher", default=None,
                         help="matcher backend (default: the preset's, sift)")
-    parser.add_argument("--max-side", type=int, default=None, metavar="PX",
+    parser.add_argument("--max-side", type=number_in(64, integer=True), default=None, metavar="PX",
                         help="match images at most at this size (default 1024)")
     parser.add_argument("--share-intrinsics", action="store_true",
                         help="one set of intrinsics for cameras of the same image size: use it "
@@ -62,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ignore-exif", action="store_true",
                         help="do not start from the focal lengths in the images' EXIF (use it "
                              "when the images were cropped, or taken with digital zoom)")
-    parser.add_argument("--consensus-runs", type=int, default=5, metavar="N",
+    parser.add_argument("--consensus-runs", type=positive(integer=True), default=5, metavar="N",
                         help="sample + SfM up to N times with different seeds and keep the run "
                              "that fits all keypoint matches best (default 5; it stops after 3 runs "
                              "that agree; 1 = a single run)")
@@ -84,8 +86,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(z up, heights above the floor; anipose export uses it as world). "
                              "The cameras are upright (image up = world up; the default), or "
                              "`top`: they all look straight down onto the floor")
-    parser.add_argument("--seed", type=int, default=0, help="random seed of the sampling")
-    parser.add_argument("--threads", type=int, default=-1,
+    parser.add_argument("--seed", type=seed, default=0, help="random seed of the sampling")
+    parser.add_argument("--threads", type=number_in(-1, integer=True), default=-1,
                         help="bundle-adjustment threads (-1 = all cores)")
 
 
@@ -161,13 +163,16 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.export import replace_directory_atomic, write_calibration_files
+    from ..core.export import (CALIBRATION_MARKERS, check_output_folder,
+                               replace_directory_atomic, write_calibration_files)
     from ..core.reference_views import latest_views
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
                                          with_previous_intrinsics)
     from ..core.pipeline import check_frame_sets, run_calibration
 
     try:
+        inputs = [p for p in (args.images, args.videos, args.bag) if p]
+        check_output_folder(args.out, CALIBRATION_MARKERS, inputs)  # before minutes of work
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.threads,
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
@@ -228,7 +233,8 @@ def run(args: argparse.Namespace) -> int:
         record_provenance(result.rig, source)
         views = latest_views(frame_sets, names, result.rig)
         replace_directory_atomic(lambda tmp: write_calibration_files(
-            result.rig, tmp, result.reconstruction, reference_views=views), args.out)
+            result.rig, tmp, result.reconstruction, reference_views=views), args.out,
+            CALIBRATION_MARKERS, inputs)
     except InputError as exc:
         log.error("%s", exc)
         return 2

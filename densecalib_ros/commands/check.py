@@ -13,6 +13,7 @@ import logging
 from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
                                 best_transfer_per_camera, check_latest)
 from ..core.errors import InputError
+from .argtypes import positive
 from .inputs import add_input_arguments, parse_masks, read_input, require_calibrated_cameras
 
 log = logging.getLogger("densecalib.check")
@@ -23,7 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("calibration", metavar="CALIBRATION",
                         help="a calibration folder, a node's output_dir or a calibration.json")
     add_input_arguments(parser)
-    parser.add_argument("--tolerance-px", type=float, default=DEFAULT_TOLERANCE_PX, metavar="PX",
+    parser.add_argument("--tolerance-px", type=positive(), default=DEFAULT_TOLERANCE_PX,
+                        metavar="PX",
                         help="a camera pair fits when its median epipolar error is at most this "
                              f"(default {DEFAULT_TOLERANCE_PX:g} px)")
     parser.add_argument("--matcher", default="sift", help="matcher backend (default sift)")

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..core.config import DEFAULT_PIPELINE, PIPELINES, make_config
 from ..core.errors import CalibrationError, InputError
+from .argtypes import seed
 
 log = logging.getLogger("densecalib.demo")
 
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--time-steps", type=int, default=2,
                         help="frame sets (objects move between them)")
-    parser.add_argument("--seed", type=int, default=0, help="rig generator seed")
+    parser.add_argument("--seed", type=seed, default=0, help="rig generator seed")
     parser.add_argument("--matcher", default="sift", help="matcher backend")
     parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see README)")

@@ -9,7 +9,8 @@ import logging
 from pathlib import Path
 
 from ..core.errors import InputError
-from ..core.export import read_calibration, write_text_atomic
+from ..core.export import (calibration_folder, check_output_files, read_calibration,
+                           write_text_atomic)
 from ..core.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS, STEREO_FORMATS,
                                 dannce_files, export_text, jarvis_files, opencv_files,
                                 opencv_stereo_yaml, ros_stereo_files)
@@ -86,6 +87,11 @@ def run(args: argparse.Namespace) -> int:
         if args.format in FOLDER_FORMATS and Path(args.out).is_file():
             raise InputError(f"{args.out} is a file; --format {args.format} writes one file "
                              "per camera into a folder: give a folder.")
+        if not str(args.out).strip():
+            raise InputError("--out is empty (''): give the file or folder to write.")
+        check_output_files([args.out if name is None else Path(args.out) / name
+                            for name in files], calibration_dir=calibration_folder(
+                                args.calibration))
     except InputError as exc:
         log.error("%s", exc)
         return 2

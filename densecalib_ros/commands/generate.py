@@ -9,6 +9,7 @@ import logging
 import time
 
 from ..core.errors import CalibrationError
+from .argtypes import seed
 
 log = logging.getLogger("densecalib.generate")
 
@@ -25,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--height", type=int, default=768)
     parser.add_argument("--time-steps", type=int, default=1,
                         help="frame sets; objects move between them, the rig does not")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument("--fov-deg", type=float, default=None,
                         help="horizontal field of view of every camera (default: random per "
                              "camera, 55-75 pinhole, 150-190 fisheye)")
@@ -38,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..core.export import replace_directory_atomic
     from ..core.synthetic import RigSpec, generate_rig, write_rig
 
     fisheye = set(args.fisheye_cameras)
@@ -55,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         t0 = time.perf_counter()
         rig = generate_rig(spec)
-        write_rig(rig, args.out)
+        replace_directory_atomic(lambda tmp: write_rig(rig, tmp), args.out,
+                                 ("ground_truth.json",))
     except CalibrationError as exc:
         log.error("%s", exc)
         return 2

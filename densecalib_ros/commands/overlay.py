@@ -11,7 +11,9 @@ import cv2
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.export import calibration_folder, read_calibration
+from ..core.export import (calibration_folder, check_output_files, read_calibration,
+                           read_saved_model)
+from .argtypes import positive
 from .inputs import add_input_arguments, read_input, require_calibrated_cameras
 
 log = logging.getLogger("densecalib.overlay")
@@ -23,26 +25,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "node's output_dir (its latest calibration)")
     add_input_arguments(parser)  # as for calibrate; the first frame set is drawn on
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for <camera>.png")
-    parser.add_argument("--scale", type=float, default=10.0,
+    parser.add_argument("--scale", type=positive(), default=10.0,
                         help="residual lines are drawn this many times their length (default 10)")
 
 
 def run(args: argparse.Namespace) -> int:
-    import pycolmap
-
     from ..core.overlay import camera_residuals, draw_residuals
 
     try:
         rig = read_calibration(args.calibration)
-        model = calibration_folder(args.calibration) / "colmap"
-        if not (model / "images.bin").exists():
-            raise InputError(f"No COLMAP model in {model}: overlay needs the folder that "
-                             "`densecalib calibrate` (or the node) wrote, colmap/ included.")
-        rec = pycolmap.Reconstruction(str(model))
+        rec = read_saved_model(calibration_folder(args.calibration))
+        if rec is None:
+            raise InputError(f"No COLMAP model in {calibration_folder(args.calibration)}/colmap: "
+                             "overlay needs the folder that `densecalib calibrate` (or the node) "
+                             "wrote, colmap/ included.")
         args.max_frame_sets = args.max_frame_sets or 1
         frame_sets, names, _, _ = read_input(args)
         require_calibrated_cameras(rig, names, frame_sets[0], at_least=1)
         out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise InputError(f"{args.out} is a file: give a folder for the <camera>.png images.")
+        check_output_files([out / f"{name}.png" for name in rig.cameras],
+                           calibration_dir=calibration_folder(args.calibration),
+                           input_dir=args.images or args.videos)
         out.mkdir(parents=True, exist_ok=True)
         for name in rig.cameras:
             if name not in names:

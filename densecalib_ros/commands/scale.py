@@ -71,8 +71,11 @@ def run(args: argparse.Namespace) -> int:
     factor = record["factor"]
     sure = (f" (1 sigma {100 * record['relative_std']:.2g} %)" if "relative_std" in record
             else "")
-    print(f"scale: x {factor:.6g}{sure}: the rig's lengths are now metres"
-          + ("" if not rig.metric_scale else " (it was metric before: that scale is replaced)"))
+    now = "would be" if args.dry_run else "are now"
+    print(f"scale: x {factor:.6g}{sure}: the rig's lengths {now} metres"
+          + ("" if not rig.metric_scale else
+             f" (it was metric before: that scale {'would be' if args.dry_run else 'is'} "
+             "replaced)") + ("; --dry-run: nothing written" if args.dry_run else ""))
     if args.dry_run:
         return 0
     reconstruction = read_saved_model(folder)

@@ -13,6 +13,7 @@ from ..core.errors import InputError
 from ..core.video_io import VIDEO_CODECS
 
 log = logging.getLogger("densecalib.sync")
+TRIM_MARKERS = ("sync.json",)  # what makes a folder an earlier --trim output, to replace
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
                              "--restamp.")
         if args.bag and not args.topics:
             raise InputError("--bag needs --topics: the image topic of every camera.")
+        if args.trim:
+            from ..core.export import check_output_folder
+            check_output_folder(args.trim, TRIM_MARKERS, [args.videos])
         if args.time_offset:
             estimates = _given_offsets(args)
             evidence = {n: "given" for n in estimates}
@@ -148,7 +152,7 @@ def _write_trimmed(video_dir, estimates: dict, out, codec: str) -> dict:
                      trim.first_frame + written - 1, info.path.name, written)
         (tmp / "sync.json").write_text(json.dumps(record, indent=2) + "\n")
 
-    replace_directory_atomic(build, out)
+    replace_directory_atomic(build, out, TRIM_MARKERS, [video_dir])
     return record["cameras"]
 
 

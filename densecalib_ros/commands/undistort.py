@@ -51,7 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.export import read_calibration, replace_directory_atomic, write_calibration_files
+    from ..core.export import (CALIBRATION_MARKERS, calibration_folder, camera_info_yaml,
+                               check_output_folder, read_calibration, replace_directory_atomic,
+                               write_calibration_files, write_text_atomic)
     from ..core.image_io import camera_image_files, read_image
     from ..core.stereo import stereo_pair
     from ..core.undistort import pinhole_for, rectified_pinhole, undistortion_maps
@@ -59,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         if not 0.0 < args.max_fov < 180.0:
             raise InputError(f"--max-fov {args.max_fov:g}: give an angle between 0 and 180 deg.")
+        inputs = [p for p in (args.images, args.videos) if p] + [
+            calibration_folder(args.calibration)]
+        check_output_folder(args.out, CALIBRATION_MARKERS, inputs)
         rig = read_calibration(args.calibration)
         # camera -> (target camera, rotation of the target from the source camera or None)
         targets = {name: (pinhole_for(cam.intrinsics, args.max_fov), None)
@@ -123,8 +128,13 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(f"No {what} of camera {', '.join(missing)} of the stereo pair "
                                  f"in {source_dir}.")
             write_calibration_files(out_rig, tmp)
+            if args.stereo_pair:  # stereo_image_proc takes the baseline from the right P's Tx
+                for name, projection in ((rect.left, rect.projection_left),
+                                         (rect.right, rect.projection_right)):
+                    write_text_atomic(tmp / f"{name}.yaml", camera_info_yaml(
+                        name, out_rig.cameras[name].intrinsics, np.eye(3), projection))
 
-        replace_directory_atomic(build, args.out)
+        replace_directory_atomic(build, args.out, CALIBRATION_MARKERS, inputs)
     except InputError as exc:
         log.error("%s", exc)
         return 2

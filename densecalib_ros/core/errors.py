@@ -1,5 +1,8 @@
 """Typed errors with messages a field user can act on. The CLI and the ROS service turn them into
 an exit code / `success=False` response; nothing below the boundary prints or exits."""
+from __future__ import annotations
+
+from typing import Sequence
 
 
 class CalibrationError(RuntimeError):
@@ -23,7 +26,19 @@ class DisconnectedViewGraphError(CalibrationError):
 
 
 class FocalInitError(CalibrationError):
-    """The initial focal lengths could not be estimated from the fundamental matrices."""
+    """The initial focal lengths could not be estimated from the fundamental matrices. Raised
+    where only camera indices are known: `message` may hold "{cameras}", filled with the
+    indices until named() gives the names."""
+
+    def __init__(self, message: str, cameras: Sequence[int] = ()):
+        self.template, self.cameras = message, list(cameras)
+        super().__init__(message.format(cameras=self.cameras) if self.cameras else message)
+
+    def named(self, camera_names: Sequence[str]) -> "FocalInitError":
+        if not self.cameras:
+            return self
+        return FocalInitError(self.template.replace(
+            "{cameras}", ", ".join(camera_names[c] for c in self.cameras)))
 
 
 class ModelWeightsError(CalibrationError):

@@ -14,7 +14,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -68,6 +68,14 @@ def ros_camera_info(name: str, intrinsics: CameraIntrinsics,
     }
 
 
+def _yaml_scalar(key: str, value: str) -> str:
+    """`key: value` quoted where YAML would read the plain text as something else (a camera
+    named 0003 would load as the integer 3, and no longer name its camera)."""
+    import yaml
+
+    return yaml.safe_dump({key: value}, default_flow_style=False, allow_unicode=True)
+
+
 def camera_info_yaml(name: str, intrinsics: CameraIntrinsics,
                      rectification: Optional[np.ndarray] = None,
                      projection: Optional[np.ndarray] = None) -> str:
@@ -81,7 +89,7 @@ def camera_info_yaml(name: str, intrinsics: CameraIntrinsics,
         return f"{key}:\n  rows: {m['rows']}\n  cols: {m['cols']}\n  data: [{data}]\n"
 
     return (f"image_width: {info['image_width']}\nimage_height: {info['image_height']}\n"
-            f"camera_name: {name}\n" + mat("camera_matrix")
+            + _yaml_scalar("camera_name", name) + mat("camera_matrix")
             + f"distortion_model: {info['distortion_model']}\n" + mat("distortion_coefficients")
             + mat("rectification_matrix") + mat("projection_matrix"))
 
@@ -120,14 +128,54 @@ def calibration_from_dict(data: dict) -> RigCalibration:
                                             np.array(c["params"], dtype=np.float64)),
                 cam_from_rig=np.array(c["cam_from_rig"], dtype=np.float64).reshape(4, 4),
                 quality=CameraQuality(**q) if q else None)
-        return RigCalibration(reference_camera=data["reference_camera"], cameras=cams,
-                              failed_cameras=list(data.get("failed_cameras", [])),
-                              quality=dict(data.get("quality", {})),
-                              metric_scale=bool(data.get("metric_scale", False)))
-    except (KeyError, TypeError, ValueError) as exc:
+        rig = RigCalibration(reference_camera=data["reference_camera"], cameras=cams,
+                             failed_cameras=list(data.get("failed_cameras", [])),
+                             quality=dict(data.get("quality", {})),
+                             metric_scale=bool(data.get("metric_scale", False)))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise InputError(f"Not a densecalib calibration file ({exc!r}): expected keys "
                          "reference_camera and cameras{name: model, params, width, height, "
                          "cam_from_rig}.") from exc
+    problem = calibration_problem(rig)
+    if problem:
+        raise InputError(f"A damaged calibration file: {problem}. Restore it or calibrate "
+                         "again.")
+    return rig
+
+
+def calibration_problem(rig: RigCalibration) -> Optional[str]:
+    """What makes a read calibration unusable (None: nothing): what hand edits or damage leave
+    and every later step would trip over (NaN, a mirrored or skewed pose, a focal <= 0, a model
+    pycolmap does not know or the wrong number of its parameters)."""
+    import pycolmap
+
+    if not rig.cameras:
+        return "it has no cameras"
+    if rig.reference_camera not in rig.cameras:
+        return f"its reference camera {rig.reference_camera!r} is not among its cameras"
+    for name, cam in rig.cameras.items():
+        k = cam.intrinsics
+        if k.width <= 0 or k.height <= 0:
+            return f"camera {name} has image size {k.width}x{k.height}"
+        try:
+            model = getattr(pycolmap.CameraModelId, k.model)
+            expected = len(pycolmap.Camera.create_from_model_id(1, model, 1.0, k.width,
+                                                                k.height).params)
+        except (AttributeError, TypeError):  # not a model name pycolmap has
+            return f"camera {name} has model {k.model!r}, which COLMAP does not know"
+        if k.params.shape != (expected,) or not np.isfinite(k.params).all():
+            return (f"camera {name} ({k.model}) has params {k.params.tolist()}; the model takes "
+                    f"{expected} finite numbers")
+        focal = [k.params[i] for i, n in enumerate(k.parameter_names) if n in ("f", "fx", "fy")]
+        if min(focal) <= 0:
+            return f"camera {name} has focal length {min(focal):g} px"
+        pose = cam.cam_from_rig
+        rotation = pose[:3, :3]
+        if (not np.isfinite(pose).all() or not np.allclose(pose[3], [0, 0, 0, 1])
+                or not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
+                or np.linalg.det(rotation) < 0):
+            return f"camera {name}'s cam_from_rig is not a rotation and translation"
+    return None
 
 
 def calibration_folder(path: str | os.PathLike) -> Path:
@@ -173,20 +221,47 @@ def record_provenance(rig: RigCalibration, source: dict) -> None:
         timespec="seconds")
 
 
+def _umask() -> int:
+    """The process umask, read without setting it (os.umask would, racing other threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return 0o022
+
+
+def _usual_mode(path: Path, directory: bool = False) -> int:
+    """The mode an ordinary open()/mkdir would give `path` (its own when it exists): mkstemp and
+    mkdtemp make owner-only files and folders, which drivers, camera_info_manager or colleagues
+    running as another user could not read."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        return (0o777 if directory else 0o666) & ~_umask()
+
+
 def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
     """Write `text` (or bytes) to a temporary sibling of path, then rename it into place: a
     reader never sees a half-written file."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
         with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, _usual_mode(path))
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise InputError(f"Cannot write {path}: {exc.strerror or exc}. Check that the "
+                             "folder is writable and the disk has room.") from exc
         raise
 
 
@@ -205,7 +280,37 @@ def read_saved_model(folder: str | os.PathLike):
     model = Path(folder) / "colmap"
     if not any((model / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
         return None
-    return pycolmap.Reconstruction(str(model))
+    problem = _binary_model_problem(model)
+    if problem is None:
+        try:
+            return pycolmap.Reconstruction(str(model))
+        except (RuntimeError, ValueError, IndexError) as exc:  # pycolmap's read errors
+            problem = str(exc).strip().splitlines()[-1] if str(exc).strip() else repr(exc)
+    raise InputError(f"The COLMAP model in {model} is damaged ({problem}): calibrate again, or "
+                     "restore the folder.")
+
+
+# The least bytes one record of each COLMAP binary file takes: a file that claims more records
+# than its size holds is damaged, and pycolmap would allocate for the claim (a zero-byte
+# points3D.bin took 17 GB and 106 s before failing).
+_MIN_RECORD_BYTES = {"cameras.bin": 24, "images.bin": 73, "points3D.bin": 51, "rigs.bin": 1,
+                     "frames.bin": 1}
+
+
+def _binary_model_problem(model: Path) -> Optional[str]:
+    for name, record_bytes in _MIN_RECORD_BYTES.items():
+        path = model / name
+        if not path.is_file():
+            continue
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(8)
+        if len(head) < 8:
+            return f"{name} holds {size} bytes"
+        count = int.from_bytes(head, "little")
+        if count * record_bytes > size - 8:
+            return f"{name} claims {count} records in {size} bytes"
+    return None
 
 
 def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction=None,
@@ -225,22 +330,98 @@ def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction
         write_reference_views(directory, reference_views)
 
 
-def replace_directory_atomic(build, out_dir: str | os.PathLike) -> None:
+CALIBRATION_MARKERS = ("calibration.json",)  # what makes a folder a calibration's, to replace
+
+
+def check_output_folder(out_dir: str | os.PathLike, markers: Sequence[str],
+                        inputs: Sequence[str | os.PathLike] = ()) -> Path:
+    """The resolved out_dir, after making sure that replacing it as a whole loses nothing: raises
+    InputError when it is empty (the current folder), a file, holds one of `inputs` (or is one),
+    or is a folder with contents but none of `markers` (the files by which a command knows its
+    own earlier output: calibration.json, sync.json). A user's own folder is never emptied."""
+    if not str(out_dir).strip():
+        raise InputError("The output folder is empty (''): give a folder to write, e.g. "
+                         "--out calib.")
+    out = Path(out_dir).resolve()
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out_dir} is a file, not a folder: give a new folder to write.")
+    for given in inputs:
+        source = Path(given).resolve()
+        if source == out or out in source.parents:
+            what = "is" if source == out else "holds"
+            raise InputError(f"The output folder {out_dir} {what} the input {given}: writing "
+                             f"it would replace the input. Give another folder, e.g. "
+                             f"{out}_out.")
+    if out.is_dir() and any(out.iterdir()) and not any((out / m).exists() for m in markers):
+        raise InputError(f"{out_dir} exists and is not an earlier output of this command (no "
+                         f"{' or '.join(markers)} in it): writing there would replace all it "
+                         "holds. Give a new or empty folder, or remove this one first.")
+    parent = next(p for p in out.parents if p.exists())  # the folder written into (swap)
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"Cannot write {out_dir}: {parent} is not a writable folder. Give a "
+                         "folder you can write to.")
+    return out
+
+
+def _calibration_file(path: Path, calibration: Path) -> bool:
+    """Whether `path` is one of the files write_calibration_files wrote into `calibration`."""
+    if path.parent == calibration:
+        return path.name == "calibration.json" or (path.suffix == ".yaml" and path.exists())
+    return any(calibration / sub in path.parents for sub in ("colmap", "reference_views"))
+
+
+def check_output_files(paths: Sequence[str | os.PathLike],
+                       calibration_dir: Optional[str | os.PathLike] = None,
+                       input_dir: Optional[str | os.PathLike] = None) -> None:
+    """Raise InputError when writing `paths` would lose data: an empty path, a path that is a
+    folder, a file of the calibration being read (its calibration.json, camera_info YAMLs,
+    COLMAP model, reference views: an export must not replace what it reads; other files beside
+    them are fine, an earlier export's included), or any file in the input images' folder."""
+    calibration = Path(calibration_dir).resolve() if calibration_dir is not None else None
+    inputs = Path(input_dir).resolve() if input_dir is not None else None
+    for given in paths:
+        if not str(given).strip():
+            raise InputError("The output path is empty (''): give a file or folder to write.")
+        path = Path(given).resolve()
+        if path.is_dir():
+            raise InputError(f"{given} is a folder: give the file to write (this writes one "
+                             "file).")
+        if calibration is not None and _calibration_file(path, calibration):
+            raise InputError(f"{given} is a file of the calibration {calibration}: writing it "
+                             "would replace what this command reads. Write somewhere else.")
+        if inputs is not None and inputs in path.parents:
+            raise InputError(f"{given} is in the input folder {inputs}: write somewhere else, "
+                             "so that the inputs stay as they are.")
+
+
+def replace_directory_atomic(build, out_dir: str | os.PathLike,
+                             markers: Optional[Sequence[str]] = None,
+                             inputs: Sequence[str | os.PathLike] = ()) -> None:
     """Call build(tmp_dir) to fill a fresh temporary sibling of out_dir, then swap it into place.
-    If build raises, out_dir is untouched."""
+    If build raises, out_dir is untouched. With `markers`, out_dir is first checked to be safe
+    to replace (check_output_folder; commands check before their work too, to fail early)."""
+    if markers is not None:
+        check_output_folder(out_dir, markers, inputs)
     out_dir = Path(out_dir).resolve()
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp.", dir=out_dir.parent))
+    tmp = None
     try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp.", dir=out_dir.parent))
+        os.chmod(tmp, _usual_mode(out_dir, directory=True))
         build(tmp)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        old = None
+        if out_dir.exists():
+            old = out_dir.with_name(f".{out_dir.name}.old.{os.getpid()}")
+            os.replace(out_dir, old)
+        os.replace(tmp, out_dir)
+    except BaseException as exc:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise InputError(f"Cannot write {out_dir}: {exc.strerror or exc}. Check that the "
+                             "folder is writable and the disk has room; nothing was "
+                             "replaced.") from exc
         raise
-    old = None
-    if out_dir.exists():
-        old = out_dir.with_name(f".{out_dir.name}.old.{os.getpid()}")
-        os.replace(out_dir, old)
-    os.replace(tmp, out_dir)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
 

@@ -103,10 +103,9 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     missing = [c for c in range(num_cams) if c not in covered and not fixed[c]]
     if missing:
         raise FocalInitError(
-            f"No usable fundamental matrix for camera(s) {missing}: they share too few "
+            "No usable fundamental matrix for camera(s) {cameras}: they share too few "
             "cycle-consistent matches with the other cameras. Check that every camera overlaps at "
-            "least one other camera, or "
-            + KNOWN_FOCALS_HINT)
+            "least one other camera, or " + KNOWN_FOCALS_HINT, missing)
     weights_arr = np.array(w_list)
     log_prior = np.log(PRIOR_FOCAL_FACTOR * sizes)
     lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)
@@ -216,10 +215,10 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     if np.any(at_bound):
         bad = np.flatnonzero(at_bound).tolist()
         raise FocalInitError(
-            f"Initial focal of camera(s) {bad} ran to the limit of [{FOCAL_BOUNDS_FACTOR[0]}, "
-            f"{FOCAL_BOUNDS_FACTOR[1]}] x image size: the fundamental matrices are inconsistent "
-            "(wrong matches or a degenerate camera configuration). Check the overlap between "
-            "cameras, or " + KNOWN_FOCALS_HINT)
+            "Initial focal of camera(s) {cameras} ran to the limit of "
+            f"[{FOCAL_BOUNDS_FACTOR[0]}, {FOCAL_BOUNDS_FACTOR[1]}] x image size: the fundamental "
+            "matrices are inconsistent (wrong matches or a degenerate camera configuration). "
+            "Check the overlap between cameras, or " + KNOWN_FOCALS_HINT, bad)
     median_residual = weighted_median(np.abs(pair_residuals(log_f)), weights_arr)
     if median_residual > MAX_MEDIAN_RESIDUAL:
         raise FocalInitError(

@@ -37,6 +37,26 @@ DEFAULT_MAX_TIME_GAP_S = 2.0  # a burst of trail-camera shots spans about this
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
 
 
+def jpeg_truncated(data: bytes) -> bool:
+    """Whether a JPEG file's data lacks the end-of-image marker after its main image's scan data
+    (OpenCV decodes the rest as grey with only a libjpeg warning). The segments before the first
+    scan are skipped by their lengths: an EXIF thumbnail inside them has its own end marker.
+    Data after the end marker (a phone's motion-photo video) is allowed."""
+    pos = 2  # after SOI
+    while pos + 4 <= len(data) and data[pos] == 0xFF:
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker == 0xDA:  # start of scan: the image data follows
+            return data.find(b"\xff\xd9", pos) < 0
+        if 0xD0 <= marker <= 0xD8 or marker == 0x01:  # markers without a length
+            pos += 2
+            continue
+        pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+    return False  # not a layout this reads: leave it to the decoder
+
+
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """(H, W, 3) uint8 RGB of an image file (EXIF orientation applied); InputError naming the file
     if it cannot be read. 16-bit files (machine-vision cameras save 10-14-bit data in them) are
@@ -46,6 +66,10 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if bgr is None or bgr.size == 0:
         raise InputError(f"Cannot read image {path}: it is missing, empty or not an image "
                          f"format OpenCV can decode. Replace or remove the file.")
+    if Path(path).suffix.lower() in (".jpg", ".jpeg") and jpeg_truncated(Path(path).read_bytes()):
+        raise InputError(f"{path} is a truncated JPEG (a copy or transfer cut it short): its "
+                         "lower part is missing and would be read as grey. Copy it again, or "
+                         "remove it.")
     if bgr.dtype not in (np.uint8, np.uint16):  # float TIFF / EXR: its own range, to 0..255
         top = float(np.nanmax(bgr)) if np.isfinite(bgr).any() else 0.0
         bgr = np.clip(np.nan_to_num(bgr) * (255.0 / top if top > 0 else 0.0), 0, 255)
@@ -66,6 +90,31 @@ def camera_image_files(directory: str | os.PathLike, name: str) -> list[Path]:
     return [p for p in _images_in(directory) if p.stem == name] if directory.is_dir() else []
 
 
+# Files a camera may well have written that are not read as images: skipped with a warning, so
+# that a camera does not vanish from the rig unnoticed.
+_UNREADABLE_KINDS = {**dict.fromkeys((".heic", ".heif", ".avif"), "convert it to JPEG or PNG"),
+                     **dict.fromkeys((".dng", ".cr2", ".cr3", ".nef", ".arw", ".raw", ".orf",
+                                      ".rw2"), "a raw photo: develop it to PNG or JPEG"),
+                     **dict.fromkeys((".mp4", ".avi", ".mov", ".mkv", ".webm"),
+                                     "a video: give video folders with --videos")}
+
+
+def _warn_about_skipped(directory: Path, subdirs: list[Path]) -> None:
+    """Warn of what in DIR looks meant as a camera but is not read: an image format OpenCV does
+    not decode, a video, a broken link, a camera subfolder without images."""
+    skipped = []
+    for p in sorted(directory.iterdir()):
+        if p.name.startswith("."):
+            continue
+        if p.is_symlink() and not p.exists():
+            skipped.append(f"{p.name} (a broken link)")
+        elif p.is_file() and p.suffix.lower() in _UNREADABLE_KINDS:
+            skipped.append(f"{p.name} ({_UNREADABLE_KINDS[p.suffix.lower()]})")
+    skipped += [f"{d.name}/ (no images in it)" for d in subdirs if not _images_in(d)]
+    if skipped:
+        log.warning("skipped in %s: %s", directory, "; ".join(skipped))
+
+
 def list_image_folder(directory: str | os.PathLike, align: str = "auto",
                       time_offsets_s: Optional[dict[str, float]] = None,
                       max_time_gap_s: float = DEFAULT_MAX_TIME_GAP_S
@@ -82,6 +131,7 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
         raise InputError(f"Image folder {directory} does not exist or is not a folder.")
     files = _images_in(directory)
     subdirs = sorted(p for p in directory.iterdir() if p.is_dir() and not p.name.startswith("."))
+    _warn_about_skipped(directory, subdirs)
     subdirs = [d for d in subdirs if _images_in(d)]
     if files and subdirs:
         raise InputError(

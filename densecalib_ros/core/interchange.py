@@ -122,11 +122,32 @@ def _yaml_list(values) -> str:
     return "[" + ", ".join(repr(float(v)) for v in values) + "]"
 
 
+def recorded_image_topics(rig: RigCalibration) -> dict[str, str]:
+    """{camera: the image topic it was calibrated from}, for calibrations made from a bag or by
+    the node (their provenance, core.export.record_provenance); {} for images and videos."""
+    record = rig.quality.get("input") or {}
+    topics = record.get("topics") or []
+    if record.get("source") == "bag":
+        from .bag import camera_names_from_topics
+        return dict(zip(camera_names_from_topics(list(topics)), topics))
+    if record.get("source") == "topics" and record.get("camera_names"):
+        return dict(zip(record["camera_names"], topics))
+    return {}
+
+
 def kalibr_camchain_yaml(rig: RigCalibration,
                          topic_pattern: str = DEFAULT_TOPIC_PATTERN) -> str:
     """Kalibr camchain.yaml text (format in the module docstring); camN follow the rig's camera
-    order, the reference camera first; rostopic = topic_pattern.format(name=camera name)."""
+    order, the reference camera first; rostopic = topic_pattern.format(name=camera name), or with
+    the default pattern the topic the camera was calibrated from (recorded_image_topics)."""
     names = [rig.reference_camera] + [n for n in rig.cameras if n != rig.reference_camera]
+    recorded = recorded_image_topics(rig) if topic_pattern == DEFAULT_TOPIC_PATTERN else {}
+    try:
+        topics = {n: recorded.get(n) or topic_pattern.format(name=n) for n in names}
+    except (KeyError, IndexError, ValueError) as exc:
+        raise InputError(f"--topic-pattern {topic_pattern!r} cannot be filled in ({exc!r}): "
+                         "write {name} where the camera name goes, e.g. "
+                         "/{name}/image_raw.") from None
     lines = [f"# densecalib rig calibration; translations in {_units(rig)}"]
     previous = None
     for n, name in enumerate(names):
@@ -138,7 +159,7 @@ def kalibr_camchain_yaml(rig: RigCalibration,
                   f"  distortion_model: {'equidistant' if fisheye else 'radtan'}",
                   f"  distortion_coeffs: {_yaml_list(dist)}",
                   f"  resolution: [{info['image_width']}, {info['image_height']}]",
-                  f"  rostopic: {topic_pattern.format(name=name)}"]
+                  f"  rostopic: {topics[name]}"]
         if previous is not None:
             cn_from_cnm1 = cam_from_rig @ np.linalg.inv(previous)
             lines.append("  T_cn_cnm1:")

@@ -107,14 +107,17 @@ def _yaml_file(path: Path, name: Optional[str]) -> dict[str, CameraIntrinsics]:
     """The camera of a camera_info YAML, or the cameras of a Kalibr camchain."""
     try:
         info = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise InputError(f"Cannot read camera_info YAML {path}: {exc}") from exc
     if not isinstance(info, dict):
         raise InputError(f"{path} is not a camera_info YAML (no mapping at the top).")
     if "camera_matrix" not in info and any(isinstance(v, dict) and "intrinsics" in v
                                            for v in info.values()):
         return _kalibr_camchain(info, path)
-    stated = str(info.get("camera_name") or "").strip().strip("/").split("/")[-1]
+    stated = info.get("camera_name")
+    # a name YAML read as a number (`camera_name: 0003`, written so by earlier versions) lost
+    # its text: the file's stem is the better guess
+    stated = (stated.strip().strip("/").split("/")[-1] if isinstance(stated, str) else "")
     return {name or stated or path.stem: intrinsics_from_camera_info(info, str(path))}
 
 

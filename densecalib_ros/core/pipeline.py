@@ -563,6 +563,23 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                     camera_names: Sequence[str], config: PipelineConfig,
                     previous: Optional[RigCalibration], match_tracks: Optional[Tracks],
                     progress: Progress) -> CalibrationResult:
+    try:
+        sampled, given = _sampled_tracks(match_sets, image_sizes, camera_names, config, previous)
+    except FocalInitError as exc:  # it knows the cameras by index only
+        raise exc.named(camera_names) from exc
+    say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
+    # Focals the user or EXIF gave (a previous calibration's are calibrated, not guessed).
+    known = previous is None and given is not None
+    return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
+                                 two_view=sampled.two_view, focal_px=sampled.focal_px,
+                                 previous=previous, match_tracks=match_tracks,
+                                 known_focals=known, progress=progress)
+
+
+def _sampled_tracks(match_sets: list, image_sizes: Sequence[tuple[int, int]],
+                    camera_names: Sequence[str], config: PipelineConfig,
+                    previous: Optional[RigCalibration]):
+    """(sample_tracks' result, the start focals given to it or None)."""
     from .sampling import sample_tracks
 
     given = None
@@ -582,13 +599,7 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     else:
         given = start_focals(config, previous, camera_names, image_sizes)
         sampled = sample_tracks(match_sets, config, focal_px=given)
-    say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
-    # Focals the user or EXIF gave (a previous calibration's are calibrated, not guessed).
-    known = previous is None and given is not None
-    return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
-                                 two_view=sampled.two_view, focal_px=sampled.focal_px,
-                                 previous=previous, match_tracks=match_tracks,
-                                 known_focals=known, progress=progress)
+    return sampled, given
 
 
 def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],

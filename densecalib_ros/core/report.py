@@ -26,23 +26,37 @@ def distortion_text(intrinsics: CameraIntrinsics) -> str:
 
 
 def principal_point_px(intrinsics: CameraIntrinsics) -> tuple[float, float]:
-    """(cx, cy) in COLMAP pixel coordinates (the centre of the top-left pixel is 0.5, 0.5)."""
+    """(cx, cy) in OpenCV/ROS pixel coordinates (the centre of the top-left pixel is 0, 0), as
+    every written file has them; COLMAP's params are 0.5 px more."""
     names = intrinsics.parameter_names
-    return (float(intrinsics.params[names.index("cx")]),
-            float(intrinsics.params[names.index("cy")]))
+    return (float(intrinsics.params[names.index("cx")]) - 0.5,
+            float(intrinsics.params[names.index("cy")]) - 0.5)
+
+
+def focal_text(intrinsics: CameraIntrinsics) -> str:
+    """The focal length (px): one number, or fx/fy where they differ (OPENCV, OPENCV_FISHEYE,
+    PINHOLE models fit them apart)."""
+    names = intrinsics.parameter_names
+    if "fx" in names and "fy" in names:
+        fx, fy = (float(intrinsics.params[names.index(k)]) for k in ("fx", "fy"))
+        if abs(fx - fy) >= 0.05:
+            return f"{fx:.1f}/{fy:.1f}"
+    return f"{mean_focal_px(intrinsics):.1f}"
 
 
 def camera_table(rig: RigCalibration) -> str:
-    """Per camera: model, image size, mean focal and its standard deviation, principal point (px,
-    COLMAP convention; its standard deviation where it was refined), the standard deviation of
+    """Per camera: model, image size, focal (fx/fy where they differ) and its standard deviation,
+    principal point (px, OpenCV convention as in the written files; its standard deviation where
+    it was refined), the standard deviation of
     where a ray projects (proj_std: the intrinsics as a whole), distortion and the fit:
     reprojection RMS, observations (all / seen by >= 3 cameras) and the fraction of the image
     covered by observations. Standard deviations: core.uncertainty ('-' where not estimated,
     'given' for intrinsics the user gave and the calibration kept)."""
     given = set(rig.quality.get("given_intrinsics") or ())
-    rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>9} {'f_std':>6} {'cx':>7} "
-            f"{'cy':>7} {'pp_std':>6} {'proj_std':>8} {'rms_px':>6} {'obs':>6} {'obs3+':>6} "
-            f"{'coverage':>8}  distortion"]
+    focal_width = max([9] + [len(focal_text(c.intrinsics)) for c in rig.cameras.values()])
+    rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>{focal_width}} {'f_std':>6} "
+            f"{'cx':>7} {'cy':>7} {'pp_std':>6} {'proj_std':>8} {'rms_px':>6} {'obs':>6} "
+            f"{'obs3+':>6} {'coverage':>8}  distortion"]
     for name, cam in rig.cameras.items():
         k = cam.intrinsics
         cx, cy = principal_point_px(k)
@@ -59,7 +73,7 @@ def camera_table(rig: RigCalibration) -> str:
         if name in given:
             f_std, pp_std, proj_std = "given", "given", "given"
         rows.append(f"{name:<16} {k.model:<15} {f'{k.width}x{k.height}':>9} "
-                    f"{mean_focal_px(k):9.1f} {f_std:>6} {cx:7.1f} {cy:7.1f} {pp_std:>6} "
+                    f"{focal_text(k):>{focal_width}} {f_std:>6} {cx:7.1f} {cy:7.1f} {pp_std:>6} "
                     f"{proj_std:>8} {fit}  {distortion_text(k)}")
     return "\n".join(rows)
 

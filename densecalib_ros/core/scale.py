@@ -30,14 +30,30 @@ SCALE_RECORDS = ("scale_from_baseline", "scale_from_points")
 MAX_SCALE_RELATIVE_STD = 0.02  # a scale from scene points less sure than this gets a warning
 
 
+MIN_LENGTH_M, MAX_LENGTH_M = 1e-6, 1e6  # a known length outside is a typo, not a rig
+
+
+def _check_length_m(what: str, length_m: float) -> None:
+    if not MIN_LENGTH_M <= length_m <= MAX_LENGTH_M:
+        raise InputError(f"The known {what} must be a length in metres between {MIN_LENGTH_M:g} "
+                         f"and {MAX_LENGTH_M:g}, got {length_m}.")
+
+
 def scaled_rig(rig: RigCalibration, factor: float, record: dict) -> RigCalibration:
     """A copy of `rig` with every length multiplied by `factor` (the cameras' translations and
     the floor frame's origin, fit and camera heights; angles and pixels are unchanged), marked
     metric, its scale's origin `record` ({SCALE_RECORDS key: details}) replacing any earlier."""
+    unusable = InputError(f"The scale factor {factor:g} is not usable: give the length in "
+                          "metres.")
+    if not (np.isfinite(factor) and factor > 0):
+        raise unusable
     scaled = copy.deepcopy(rig)
     for cam in scaled.cameras.values():
         cam.cam_from_rig = np.array(cam.cam_from_rig, dtype=np.float64)
-        cam.cam_from_rig[:3, 3] *= factor
+        with np.errstate(over="ignore", under="ignore"):
+            cam.cam_from_rig[:3, 3] *= factor
+        if not np.isfinite(cam.cam_from_rig).all():
+            raise unusable
     floor = scaled.quality.get("floor")
     if floor:
         floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
@@ -57,8 +73,7 @@ def apply_known_baseline(rig: RigCalibration, camera_a: str, camera_b: str,
                          baseline_m: float) -> RigCalibration:
     """A copy of `rig` scaled (scaled_rig) so that the optical centres of `camera_a` and
     `camera_b` are `baseline_m` metres apart."""
-    if not baseline_m > 0:
-        raise InputError(f"The known baseline must be > 0 metres, got {baseline_m}.")
+    _check_length_m("baseline", baseline_m)
     if camera_a == camera_b:
         raise InputError(f"The known baseline needs two different cameras, got {camera_a!r} twice.")
     distance = camera_distance(rig, camera_a, camera_b)
@@ -80,8 +95,7 @@ def apply_known_distance(rig: RigCalibration, point_a: dict, point_b: dict, dist
     recorded; above MAX_SCALE_RELATIVE_STD it is also a warning."""
     from .triangulation import triangulate
 
-    if not distance_m > 0:
-        raise InputError(f"The known distance must be > 0 metres, got {distance_m}.")
+    _check_length_m("distance", distance_m)
     a, b = triangulate(rig, point_a, pixel_sigma), triangulate(rig, point_b, pixel_sigma)
     between = a.xyz_rig - b.xyz_rig
     distance = float(np.linalg.norm(between))

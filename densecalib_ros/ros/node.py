@@ -553,7 +553,8 @@ class DenseCalibNode(Node):
         sets = sets[rig.quality.get("frame_sets_before_change", 0):]  # those calibrated
         offsets = ({"stamp_offsets_s": dict(zip(s.camera_names, s.stamp_offsets_s))}
                    if any(s.stamp_offsets_s) else {})
-        record_provenance(rig, {"source": "topics", "topics": list(s.image_topics), **offsets,
+        record_provenance(rig, {"source": "topics", "topics": list(s.image_topics),
+                                "camera_names": list(s.camera_names), **offsets,
                                 "frame_set_stamps_ns": [  # as the headers had them
                                     [int(t) + int(round(o * 1e9))
                                      for t, o in zip(fs.stamps_ns, s.stamp_offsets_s)]
