@@ -8,7 +8,6 @@ import os
 import stat
 
 import cv2
-import numpy as np
 import pytest
 
 from densecalib_ros.cli import main
@@ -18,7 +17,7 @@ from densecalib_ros.core.export import (calibration_from_dict, calibration_to_di
                                         read_saved_model,
                                         replace_directory_atomic, write_calibration_files)
 from densecalib_ros.core.image_io import jpeg_truncated, list_image_folder
-from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
+from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
 @pytest.fixture(scope="module")
@@ -78,11 +77,9 @@ def test_exports_and_overlays_do_not_replace_what_they_read(folders):
     images, cal = folders
     calibration = (cal / "calibration.json").read_bytes()
     yaml_file = (cal / "cam0.yaml").read_bytes()
-    for args in (["export", str(cal), "--format", "anipose", "--out", str(cal / "calibration.json")],
-                 ["export", str(cal), "--format", "jarvis", "--out", str(cal)],
-                 ["export", str(cal), "--format", "anipose", "--out", str(cal)],
-                 ["export", str(cal), "--format", "opencv", "--out", ""]):
-        assert main(args) == 2
+    for fmt, out in (("anipose", cal / "calibration.json"), ("jarvis", cal), ("anipose", cal),
+                     ("opencv", "")):
+        assert main(["export", str(cal), "--format", fmt, "--out", str(out)]) == 2
     assert (cal / "calibration.json").read_bytes() == calibration
     assert (cal / "cam0.yaml").read_bytes() == yaml_file
     assert main(["export", str(cal), "--format", "anipose", "--out",

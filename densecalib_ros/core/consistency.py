@@ -224,10 +224,11 @@ def transfer_errors_px(rig: RigCalibration, camera_names: Sequence[str],
     median was 866 px). A point whose two source rays miss each other by more than CONSENSUS_PX
     is left out too: a repeated texture can make wrong matches agree (19 of a real triple's 66,
     transferred 1000 px off), and a source camera moved across its epipolar lines is for the
-    pair figures to name (the triples it is the target of still see it). Each error is divided by the noise its geometry adds
-    (transfer_gain): sources a few degrees apart fix the depth loosely, and a target 30 deg aside
-    turns their matching noise into several px (what failed real calibrations against their own
-    images), while a camera moved by d px still shows about d px through a well-posed triple."""
+    pair figures to name (the triples it is the target of still see it). Each error is divided
+    by the noise its geometry adds (transfer_gain): sources a few degrees apart fix the depth
+    loosely, and a target 30 deg aside turns their matching noise into several px (what failed
+    real calibrations against their own images), while a camera moved by d px still shows about
+    d px through a well-posed triple."""
     cams = [n for n in camera_names if n in rig.cameras]
     index = {n: camera_names.index(n) for n in cams}
     colmap = {n: rig.cameras[n].intrinsics.to_pycolmap() for n in cams}
