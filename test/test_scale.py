@@ -25,7 +25,7 @@ def test_known_baseline_scales_every_distance_and_leaves_the_input_alone():
     for name in NAMES:  # rotations and intrinsics are untouched
         np.testing.assert_array_equal(metric.cameras[name].cam_from_rig[:3, :3],
                                       rig.cameras[name].cam_from_rig[:3, :3])
-    with pytest.raises(InputError, match="must be > 0"):
+    with pytest.raises(InputError, match="must be a length in metres between"):
         apply_known_baseline(rig, "cam0", "cam2", 0.0)
 
 
