@@ -63,17 +63,19 @@ def run(args: argparse.Namespace) -> int:
               f"{c.median_error_px:>25.2f}{'' if c.fits(tol) else '  does not fit'}")
     if report.transfers:
         print(f"\n{'camera':<12} {'points':>7} {'median transfer error px':>25}  from (best)")
+        def row(c) -> str:
+            return (f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
+                    f"{c.sources[0]} + {c.sources[1]}")
+
         best = best_transfer_per_camera(report.transfers)
         for c in best:
-            print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
-                  f"{c.sources[0]} + {c.sources[1]}{'' if c.fits(tol) else '  does not fit'}")
+            print(row(c) + ("" if c.fits(tol) else "  does not fit"))
         failing = sorted((c for c in report.transfers if not c.fits(tol) and c not in best),
                          key=lambda c: -c.median_error_px)
         if failing:  # the verdict counts them: show them
             print(f"and {len(failing)} more transfer figure(s) that do not fit:")
             for c in failing[:MAX_FAILING_SHOWN]:
-                print(f"{c.target:<12} {c.num_points:>7} {c.median_error_px:>25.2f}  "
-                      f"{c.sources[0]} + {c.sources[1]}")
+                print(row(c))
             if len(failing) > MAX_FAILING_SHOWN:
                 print(f"... and {len(failing) - MAX_FAILING_SHOWN} more")
     views = None

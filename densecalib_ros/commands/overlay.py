@@ -34,11 +34,11 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         rig = read_calibration(args.calibration)
-        rec = read_saved_model(calibration_folder(args.calibration))
+        folder = calibration_folder(args.calibration)
+        rec = read_saved_model(folder)
         if rec is None:
-            raise InputError(f"No COLMAP model in {calibration_folder(args.calibration)}/colmap: "
-                             "overlay needs the folder that `densecalib calibrate` (or the node) "
-                             "wrote, colmap/ included.")
+            raise InputError(f"No COLMAP model in {folder}/colmap: overlay needs the folder that "
+                             "`densecalib calibrate` (or the node) wrote, colmap/ included.")
         args.max_frame_sets = args.max_frame_sets or 1
         frame_sets, names, _, _ = read_input(args)
         require_calibrated_cameras(rig, names, frame_sets[0], at_least=1)
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         if out.exists() and not out.is_dir():
             raise InputError(f"{args.out} is a file: give a folder for the <camera>.png images.")
         check_output_files([out / f"{name}.png" for name in rig.cameras],
-                           calibration_dir=calibration_folder(args.calibration),
+                           calibration_dir=folder,
                            input_dir=args.images or args.videos)
         out.mkdir(parents=True, exist_ok=True)
         for name in rig.cameras:

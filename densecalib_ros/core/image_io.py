@@ -29,6 +29,7 @@ import numpy as np
 from .errors import InputError, NotEnoughCamerasError
 from .image_encoding import to_pipeline_image
 from .sync import evenly_spaced
+from .video_io import VIDEO_EXTENSIONS
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +96,7 @@ def camera_image_files(directory: str | os.PathLike, name: str) -> list[Path]:
 _UNREADABLE_KINDS = {**dict.fromkeys((".heic", ".heif", ".avif"), "convert it to JPEG or PNG"),
                      **dict.fromkeys((".dng", ".cr2", ".cr3", ".nef", ".arw", ".raw", ".orf",
                                       ".rw2"), "a raw photo: develop it to PNG or JPEG"),
-                     **dict.fromkeys((".mp4", ".avi", ".mov", ".mkv", ".webm"),
-                                     "a video: give video folders with --videos")}
+                     **dict.fromkeys(VIDEO_EXTENSIONS, "a video: give video folders with --videos")}
 
 
 def _warn_about_skipped(directory: Path, subdirs: list[Path]) -> None:
