@@ -149,6 +149,27 @@ def test_opencv_files_load_in_opencv_and_read_back_as_given_intrinsics(rig, tmp_
                  str(tmp_path / "f.yml")]) == 2
 
 
+def test_export_into_a_folder_names_files_of_an_earlier_export(rig, tmp_path, caplog):
+    """A camera dropped since the last export leaves its file behind: the export says so (a tool
+    loading every .yml would take it for a camera) and deletes nothing."""
+    calib = tmp_path / "calibration.json"
+    calib.write_text(json.dumps(calibration_to_dict(rig)))
+    out = tmp_path / "opencv"
+    out.mkdir()
+    (out / "old_cam.yml").write_text("%YAML:1.0\n")
+    (out / "notes.txt").write_text("mine")
+    with caplog.at_level(logging.WARNING):
+        assert main(["export", str(calib), "--format", "opencv", "--out", str(out)]) == 0
+    assert "also holds old_cam.yml" in caplog.text and "notes.txt" not in caplog.text
+    assert sorted(p.name for p in out.iterdir()) == ["left.yml", "notes.txt", "old_cam.yml",
+                                                     "right.yml", "top.yml"]
+    caplog.clear()
+    (out / "old_cam.yml").unlink()
+    with caplog.at_level(logging.WARNING):
+        assert main(["export", str(calib), "--format", "opencv", "--out", str(out)]) == 0
+    assert "also holds" not in caplog.text
+
+
 def _matlab_pixels(pts_world, params):
     """MATLAB's worldToImage with its cameraParameters (what DANNCE reimplements): row vectors
     x_cam = X r + t, then MATLAB's radial-tangential distortion, then [x y 1] K; 1-based."""

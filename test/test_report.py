@@ -288,3 +288,35 @@ def test_layout_plot_against_another_calibration_rings_where_a_camera_was():
     before.reference_camera = "cam1"  # rig frames of different cameras: refused
     with pytest.raises(InputError, match="different reference cameras"):
         draw_layout(rig, wall, against=before)
+
+
+def test_report_json_is_strict_json_and_against_needs_common_cameras(rig, tmp_path, caplog,
+                                                                      capsys):
+    """A figure that could not be measured (NaN) is null in every JSON densecalib prints or
+    writes: jq and browsers reject NaN tokens. --against a calibration of other cameras is an
+    error, not "AUC 0"."""
+    import json
+
+    from densecalib_ros.cli import main
+    from densecalib_ros.core.export import write_calibration_files
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))
+
+    rig.cameras["cam1"].quality = CameraQuality(float("nan"), 0, float("nan"), 0)
+    rig.quality["reprojection_rms_px"] = float("inf")
+    write_calibration_files(rig, tmp_path / "calib")
+    saved = strict((tmp_path / "calib" / "calibration.json").read_text())
+    assert saved["quality"]["reprojection_rms_px"] is None
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "calib"), "--json",
+                 "--against", str(tmp_path / "calib")]) == 0
+    printed = strict(capsys.readouterr().out)
+    assert printed["pose_agreement"]["auc3"] == pytest.approx(100.0)
+
+    other = copy.deepcopy(rig)
+    other.cameras = {f"other{i}": cam for i, cam in enumerate(rig.cameras.values())}
+    other.reference_camera = "other0"
+    write_calibration_files(other, tmp_path / "other")
+    assert main(["report", str(tmp_path / "calib"), "--against", str(tmp_path / "other")]) == 2
+    assert "share no camera name" in caplog.text

@@ -6,12 +6,12 @@ table; writes OUT/bench_stereo.json."""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 from pathlib import Path
 
 from ..core.errors import CalibrationError, InputError
+from ..core.json_text import json_text
 
 log = logging.getLogger("densecalib.bench_stereo")
 
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     figures["calibration_s"] = seconds
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "bench_stereo.json").write_text(json.dumps(figures, indent=2) + "\n")
+    (out / "bench_stereo.json").write_text(json_text(figures) + "\n")
     print(f"real fisheye stereo set, {figures['pairs']} held-out pairs (not in the bag); "
           f"calibration {seconds:.0f} s; square size in 1e-3 of the baseline's unit "
           f"{'(cam_stereo.yml |T|)' if not args.calibration else ''}")

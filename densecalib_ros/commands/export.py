@@ -97,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     for name, text in files.items():  # name None: the one file of a single-file format
         write_text_atomic(args.out if name is None else Path(args.out) / name, text)
+    if args.format in FOLDER_FORMATS:
+        _warn_about_stale_files(Path(args.out), files)
     listed = ", ".join(name for name in files if name)
     if args.format in STEREO_FORMATS:
         print(f"wrote {args.out} ({args.format}: {rect.left} left, {rect.right} right, baseline "
@@ -108,8 +110,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _warn_about_stale_files(out: Path, written: dict) -> None:
+    """Name the files of the same kind in `out` that this export did not write (a camera
+    renamed or dropped since an earlier export): tools that load every file of a folder would
+    take them for cameras of the rig. They are the user's to remove; nothing is deleted."""
+    kinds = {Path(name).suffix for name in written}
+    stale = sorted(p.name for p in out.iterdir()
+                   if p.is_file() and p.suffix in kinds and p.name not in written)
+    if stale:
+        log.warning("%s also holds %s, not written by this export (an earlier export's "
+                    "camera?): remove %s if your tool reads every file of the folder",
+                    out, ", ".join(stale), "it" if len(stale) == 1 else "them")
+
+
 def _scene_ply(calibration, rig) -> str:
-    from ..core.export import calibration_folder
     from ..core.floor import saved_scene_points
     from ..core.scene_ply import scene_ply
 

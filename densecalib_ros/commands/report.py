@@ -5,13 +5,13 @@ the calibrations a node's output_dir keeps, one line each."""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from dataclasses import asdict
 
 from ..core.change import calibration_change, pose_agreement
 from ..core.errors import InputError
 from ..core.export import calibration_to_dict, read_calibration
+from ..core.json_text import json_text
 from ..core.report import camera_centres_in_rig, history_report, history_rows, rig_report
 
 log = logging.getLogger("densecalib.report")
@@ -46,6 +46,11 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         log.error("%s", exc)
         return 2
+    if against is not None and not set(rig.cameras) & set(against.cameras):
+        log.error("%s and %s share no camera name (%s vs %s): --against compares calibrations "
+                  "of the same cameras.", args.calibration, args.against,
+                  ", ".join(rig.cameras), ", ".join(against.cameras))
+        return 2
     if args.plot:
         try:
             _write_plot(args.calibration, rig, args.plot, against)
@@ -60,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     if against is not None:
         out["change"] = {n: asdict(c) for n, c in calibration_change(against, rig).items()}
         out["pose_agreement"] = pose_agreement(against, rig)
-    print(json.dumps(out, indent=1))
+    print(json_text(out, indent=1))
     return 0
 
 
@@ -74,7 +79,7 @@ def _history(args: argparse.Namespace) -> int:
         log.error("%s holds no calibrations as the node stores them (<UTC time>Z/ folders): "
                   "give a densecalib_node's output_dir.", args.calibration)
         return 2
-    print(json.dumps(rows, indent=1) if args.json else history_report(rows))
+    print(json_text(rows, indent=1) if args.json else history_report(rows))
     return 0
 
 

@@ -6,10 +6,10 @@ clock), and what `--time-offset` or the node's stamp_offsets_s should be."""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 
 from ..core.errors import InputError
+from ..core.json_text import json_text
 from ..core.video_io import VIDEO_CODECS
 
 log = logging.getLogger("densecalib.sync")
@@ -108,10 +108,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"wrote {args.restamp}: header stamps moved onto {names[0]}'s clock: {moved}; "
                   "other topics and the log times as recorded")
     if args.json:
-        print(json.dumps({"reference": names[0], "offsets_s": {
+        print(json_text({"reference": names[0], "offsets_s": {
             n: float(e.offset_s) for n, e in estimates.items()},
             **({"trimmed": trims} if args.trim else {}),
-            **({"restamped": restamped} if args.restamp else {})}, indent=2))
+            **({"restamped": restamped} if args.restamp else {})}))
         return 0
     print(f"time offsets from {names[0]} (s; positive: the camera's time runs ahead, e.g. it "
           "started recording earlier)")
@@ -150,7 +150,7 @@ def _write_trimmed(video_dir, estimates: dict, out, codec: str) -> dict:
                                        "start_offset_s": trim.start_s - trims[0].start_s}
             log.info("%s: frames %d..%d of %s (%d)", name, trim.first_frame,
                      trim.first_frame + written - 1, info.path.name, written)
-        (tmp / "sync.json").write_text(json.dumps(record, indent=2) + "\n")
+        (tmp / "sync.json").write_text(json_text(record) + "\n")
 
     replace_directory_atomic(build, out, TRIM_MARKERS, [video_dir])
     return record["cameras"]
@@ -194,8 +194,8 @@ def _write_restamped(bag, topics: list[str], estimates: dict, out) -> dict:
                                  "(/cam0/image_raw, /cam0/camera_info).")
             owner[t] = topic
             offsets_ns[t] = int(round(estimates[name].offset_s * 1e9))
-    note = json.dumps({"restamped_by": "densecalib sync --restamp", "source": str(bag),
+    note = json_text({"restamped_by": "densecalib sync --restamp", "source": str(bag),
                        "offsets_s": {n: e.offset_s for n, e in estimates.items()},
-                       "topics": by_camera})
+                       "topics": by_camera}, indent=None)
     counts = restamp_bag(bag, out, {t: o for t, o in offsets_ns.items() if o}, note)
     return {n: {t: counts.get(t, 0) for t in ts} for n, ts in by_camera.items()}

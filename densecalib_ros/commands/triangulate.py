@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 
 import numpy as np
 
 from ..core.errors import InputError
 from ..core.export import read_calibration
+from ..core.json_text import json_text
 from ..core.triangulation import DEFAULT_PIXEL_SIGMA, triangulate
 
 log = logging.getLogger("densecalib.triangulate")
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     unit = "m" if rig.metric_scale else "rig units"
     if args.json:
-        print(json.dumps({"units": unit, "points": [
+        print(json_text({"units": unit, "points": [
             {"xyz_rig": p.xyz_rig.tolist(), "std_rig": p.std.tolist(),
              **({"xyz_floor": p.xyz_floor.tolist()} if p.xyz_floor is not None else {}),
              "residuals_px": p.residuals_px, "parallax_deg": p.parallax_deg,

@@ -12,13 +12,12 @@ possible the peak is reported as None.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import platform
 import time
 import traceback
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
@@ -27,6 +26,7 @@ import numpy as np
 from .datasets import (Scene, default_data_dir, load_nerf_transforms, load_strecha,
                        scene_from_synthetic)
 from .errors import CalibrationError, InputError
+from .json_text import json_text
 from .metrics import evaluate_calibration
 from .peers import PEER_METHODS, quiet_colmap, run_peer
 
@@ -329,19 +329,7 @@ def _write_json(report: dict, out_dir: Optional[Path]) -> None:
 
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     write_text_atomic(Path(out_dir) / "bench.json",
-                      json.dumps(_jsonable(report), indent=1, allow_nan=True) + "\n")
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None  # strict JSON has no NaN/inf
-    return obj
+                      json_text(report, indent=1) + "\n")
 
 
 def _fmt(value, spec: str, missing: str = "-") -> str:

@@ -19,6 +19,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .errors import InputError
+from .json_text import json_text, jsonable
 from .types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
 
 # COLMAP model -> (ROS distortion model, function params -> (fx, fy, cx, cy, D list))
@@ -114,7 +115,7 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
         cams[name] = entry
     return {"reference_camera": rig.reference_camera, "cameras": cams,
             "failed_cameras": list(rig.failed_cameras), "metric_scale": bool(rig.metric_scale),
-            "quality": _jsonable(rig.quality)}
+            "quality": jsonable(rig.quality)}
 
 
 def calibration_from_dict(data: dict) -> RigCalibration:
@@ -127,7 +128,8 @@ def calibration_from_dict(data: dict) -> RigCalibration:
                 intrinsics=CameraIntrinsics(c["model"], int(c["width"]), int(c["height"]),
                                             np.array(c["params"], dtype=np.float64)),
                 cam_from_rig=np.array(c["cam_from_rig"], dtype=np.float64).reshape(4, 4),
-                quality=CameraQuality(**q) if q else None)
+                quality=CameraQuality(**{k: float("nan") if v is None else v  # null: unmeasured
+                                         for k, v in q.items()}) if q else None)
         rig = RigCalibration(reference_camera=data["reference_camera"], cameras=cams,
                              failed_cameras=list(data.get("failed_cameras", [])),
                              quality=dict(data.get("quality", {})),
@@ -268,7 +270,7 @@ def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
 def write_calibration_json(rig: RigCalibration, directory: str | os.PathLike) -> Path:
     """(Re)write `directory`/calibration.json atomically; returns its path."""
     path = Path(directory) / "calibration.json"
-    write_text_atomic(path, json.dumps(calibration_to_dict(rig), indent=2) + "\n")
+    write_text_atomic(path, json_text(calibration_to_dict(rig)) + "\n")
     return path
 
 
@@ -424,15 +426,3 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
-
-
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value

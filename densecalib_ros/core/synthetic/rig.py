@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..export import calibration_from_dict, calibration_to_dict, write_text_atomic
+from ..json_text import json_text
 from ..types import CameraIntrinsics, RigCalibration, RigCamera
 from .lens import SUPPORTED_MODELS, cam_rays, img_from_cam_any, monotonic_limit, radial_g
 from .render import Photometry, render_camera
@@ -307,7 +308,7 @@ def write_rig(rig: SyntheticRig, out_dir: str | os.PathLike) -> None:
     data = calibration_to_dict(rig.ground_truth())
     data["cam_from_world"] = {name: [float(v) for v in m.reshape(-1)]
                               for name, m in zip(rig.names, rig.cam_from_world)}
-    write_text_atomic(out_dir / "ground_truth.json", json.dumps(data, indent=2) + "\n")
+    write_text_atomic(out_dir / "ground_truth.json", json_text(data) + "\n")
 
 
 def read_ground_truth(path: str | os.PathLike) -> tuple[RigCalibration, dict[str, np.ndarray]]:
