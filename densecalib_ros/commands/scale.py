@@ -79,11 +79,18 @@ def run(args: argparse.Namespace) -> int:
     if args.dry_run:
         return 0
     reconstruction = read_saved_model(folder)
-    if reconstruction is not None:
-        # the model keeps its own unit: bring it to the new rig's (metres)
-        scale_reconstruction(reconstruction, factor * rig_units_per_model_unit(reconstruction, rig))
-        replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), folder / "colmap")
+    # calibration.json first: it is the calibration. The model's unit is read against the rig's
+    # (rig_units_per_model_unit) wherever densecalib uses it, so a model left in its old unit if
+    # the second write fails is still read right; scaling it is for other tools.
     path = write_calibration_json(scaled, folder)
+    if reconstruction is not None:
+        scale_reconstruction(reconstruction, factor * rig_units_per_model_unit(reconstruction, rig))
+        try:
+            replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), folder / "colmap")
+        except InputError as exc:
+            log.warning("%s calibration.json is scaled; %s keeps its earlier unit (densecalib's "
+                        "commands correct for it; for other tools run the scale again once the "
+                        "folder is writable).", exc, folder / "colmap")
     log.info("wrote %s; files exported from it before (anipose, stereo, ...) keep the old scale: "
              "export them again%s", path.resolve(), node_reload_hint(folder))
     return 0
