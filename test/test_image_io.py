@@ -1,3 +1,5 @@
+import logging
+
 import cv2
 import numpy as np
 import pytest
@@ -70,7 +72,7 @@ def test_unaligned_subfolders_need_a_choice_and_order_pairs_evenly(tmp_path):
         _write(tmp_path / "b" / f"DSC{i:05d}.png", 100 + 10 * i)
     with pytest.raises(InputError, match="--align time.*--align order"):
         list_image_folder(tmp_path)
-    with pytest.raises(InputError, match="--align name: the file names in b differ"):
+    with pytest.raises(InputError, match="--align name: no file name is in every camera"):
         list_image_folder(tmp_path, align="name")
     paths, names = list_image_folder(tmp_path, align="order")
     assert names == ["a", "b"]
@@ -184,3 +186,21 @@ def test_time_offset_auto_pairs_the_traps_files(tmp_path, capsys):
     from densecalib_ros.cli import main
     assert main(["sync", "--images", str(tmp_path)]) == 0  # the offsets alone
     assert "4 shots paired" in capsys.readouterr().out
+
+
+def test_a_dropped_frame_leaves_out_that_moment_only(tmp_path, caplog):
+    """Camera b lost frame 0002 and has an extra 0009: by default the sets are the names every
+    camera has (pairing by position would put b's 0003 beside a's 0002), and the warning names
+    what was left out."""
+    for i in range(6):
+        _write(tmp_path / "a" / f"{i:04d}.png", 10 * i)
+    for i in (0, 1, 3, 4, 5, 9):
+        _write(tmp_path / "b" / f"{i:04d}.png", 10 * i)
+    with caplog.at_level(logging.WARNING):
+        paths, names = list_image_folder(tmp_path)
+    assert [[p.name for p in row] for row in paths] == [
+        [f"{i:04d}.png"] * 2 for i in (0, 1, 3, 4, 5)]
+    assert "5 with every camera" in caplog.text
+    assert "a: 0002" in caplog.text and "b: 0009" in caplog.text
+    paths, _ = list_image_folder(tmp_path, align="order")  # asked for: position, 6 sets
+    assert [p.name for p in paths[2]] == ["0002.png", "0003.png"]

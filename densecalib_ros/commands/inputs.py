@@ -38,7 +38,8 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                              f"{DEFAULT_MAX_FRAME_SETS}; {DEFAULT_VIDEO_FRAME_SETS} from videos)")
     parser.add_argument("--align", choices=ALIGNMENTS, default="auto",
                         help="with --images and camera subfolders: pair images by file name, "
-                             "sorted position, or EXIF capture time (default auto: name, else "
+                             "sorted position, or EXIF capture time (default auto: the names "
+                             "every camera has when that is at least half of them, else "
                              "position when the counts agree)")
     parser.add_argument("--max-time-gap", type=float, default=DEFAULT_MAX_TIME_GAP_S,
                         metavar="S", help="with --align time: the most a frame set's capture "

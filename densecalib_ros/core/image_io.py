@@ -4,7 +4,7 @@ Two layouts:
 - flat: DIR holds one image per camera; the file stem is the camera name (one frame set);
 - per camera: DIR holds one subfolder per camera (folder name = camera name) with time-aligned
   images. How the images form frame sets (`align`):
-  - "name": by file stem (every camera has the same stems);
+  - "name": by file stem (the stems every camera has; others are named in a warning);
   - "order": by sorted position; cameras with more images than the others contribute evenly
     spaced ones (the k-th set is not the same moment in every camera: right for a static scene,
     where only the rig and the background matter);
@@ -12,8 +12,8 @@ Two layouts:
     camera with the fewest images opens a set, with each other camera's image nearest in time,
     kept when all lie within max_time_gap_s; time_offsets_s[name] is how far that camera's clock
     runs ahead of the others' (s);
-  - "auto" (default): "name" when the stems agree, else "order" when the counts agree, else an
-    error that names the two other choices.
+  - "auto" (default): "name" when at least half the stems are in every camera (dropped frames),
+    else "order" when the counts agree, else an error that names the two other choices.
 Hidden entries and files that are not images (by extension) are ignored.
 """
 from __future__ import annotations
@@ -168,8 +168,11 @@ def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: 
                          f"of {directory} are {', '.join(names)}.")
     stems = [[p.stem for p in ps] for ps in per_cam]
     counts = {n: len(ps) for n, ps in zip(names, per_cam)}
+    shared = set(stems[0]).intersection(*stems[1:])
     if align == "auto":
-        if all(s == stems[0] for s in stems):
+        # Mostly the same names: frames dropped by some camera (a recorder's hiccup, a deleted
+        # blurry shot); pairing by position would shift every later set.
+        if all(s == stems[0] for s in stems) or len(shared) >= 0.5 * max(counts.values()):
             align = "name"
         elif len(set(counts.values())) == 1:
             align = "order"
@@ -181,11 +184,14 @@ def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: 
                 "--align time (pair images by their EXIF capture time, e.g. camera traps) or "
                 "--align order (evenly spaced images of each camera; fine for a static scene).")
     if align == "name":
-        if not all(s == stems[0] for s in stems):
-            differ = [n for n, s in zip(names, stems) if s != stems[0]]
-            raise InputError(f"--align name: the file names in {', '.join(differ)} differ from "
-                             f"those in {names[0]}; use --align order or --align time.")
-        return [list(row) for row in zip(*per_cam)]
+        if not shared:
+            raise InputError(f"--align name: no file name is in every camera folder of "
+                             f"{directory} (e.g. {names[0]}/{per_cam[0][0].name} and "
+                             f"{names[1]}/{per_cam[1][0].name}); name each time step alike in "
+                             "every folder, or use --align order or --align time.")
+        _warn_about_unshared_frames(names, stems, shared)
+        by_stem = [dict(zip(s, ps)) for s, ps in zip(stems, per_cam)]
+        return [[files[stem] for files in by_stem] for stem in stems[0] if stem in shared]
     if align == "order":
         n = min(counts.values())
         if len(set(counts.values())) > 1:
@@ -195,6 +201,17 @@ def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: 
         picks = [np.round(np.linspace(0, len(ps) - 1, n)).astype(int) for ps in per_cam]
         return [[per_cam[c][picks[c][t]] for c in range(len(names))] for t in range(n)]
     return _align_by_capture_time(names, per_cam, time_offsets_s, max_time_gap_s)
+
+
+def _warn_about_unshared_frames(names: list[str], stems: list[list[str]], shared: set) -> None:
+    def listed(xs: list[str]) -> str:
+        return ", ".join(xs[:5]) + (f" and {len(xs) - 5} more" if len(xs) > 5 else "")
+
+    left_out = {n: [x for x in s if x not in shared] for n, s in zip(names, stems)}
+    if any(left_out.values()):
+        log.warning("Frame sets by file name: %d with every camera; left out, as not every "
+                    "camera has them: %s", len(shared),
+                    "; ".join(f"{n}: {listed(xs)}" for n, xs in left_out.items() if xs))
 
 
 def _capture_times_s(files: list[Path]) -> np.ndarray:
