@@ -134,7 +134,11 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     ("--time-offset", "cam1=3", "--time-offset belongs to --videos, --bag or"),
     ("--align", "name --time-offset cam1=3", "--time-offset belongs to"),
     ("--align", "time", "no EXIF capture time"),
-    ("--max-frame-sets", "0", "--max-frame-sets 0: give at least 1")])
+    ("--max-frame-sets", "0", "--max-frame-sets 0: give at least 1"),
+    ("--slop", "0.05", "--slop belongs to --bag"),
+    ("--max-time-gap", "5", "--max-time-gap belongs to --images with --align time"),
+    ("--align", "time --max-time-gap -1", "--max-time-gap -1: give a time"),
+    ("--mask", "cam9=strip.png", "there is no camera 'cam9' (the cameras are cam0")])
 def test_options_are_checked_before_matching(rig_dir, tmp_path, caplog, option, value, message):
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "o"),

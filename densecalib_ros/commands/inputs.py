@@ -18,6 +18,8 @@ from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
 
 log = logging.getLogger("densecalib.inputs")
 
+DEFAULT_SLOP_S = 0.02
+
 
 def add_input_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group(required=True)
@@ -31,8 +33,9 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--bag", metavar="PATH", help="rosbag2 bag (sqlite3 or mcap)")
     parser.add_argument("--topics", nargs="+", metavar="TOPIC",
                         help="image topics of the bag, one per camera (with --bag)")
-    parser.add_argument("--slop", type=float, default=0.02, metavar="S",
-                        help="max stamp difference within a synchronised frame set (s, --bag)")
+    parser.add_argument("--slop", type=float, default=None, metavar="S",
+                        help="with --bag: the most the stamps of a synchronised frame set may "
+                             f"differ (s, default {DEFAULT_SLOP_S:g})")
     parser.add_argument("--max-frame-sets", type=int, default=None, metavar="N",
                         help="use at most N evenly spaced frame sets (default "
                              f"{DEFAULT_MAX_FRAME_SETS}; {DEFAULT_VIDEO_FRAME_SETS} from videos)")
@@ -41,7 +44,7 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                              "sorted position, or EXIF capture time (default auto: the names "
                              "every camera has when that is at least half of them, else "
                              "position when the counts agree)")
-    parser.add_argument("--max-time-gap", type=float, default=DEFAULT_MAX_TIME_GAP_S,
+    parser.add_argument("--max-time-gap", type=float, default=None,
                         metavar="S", help="with --align time: the most a frame set's capture "
                                           f"times may differ (default {DEFAULT_MAX_TIME_GAP_S:g})")
     parser.add_argument("--time-offset", nargs="+", default=None, metavar="NAME=S|auto",
@@ -75,7 +78,11 @@ def _alignment(args) -> tuple[dict, dict]:
     else:
         offsets = parse_time_offsets(args.time_offset)
     return ({"align": args.align, "time_offsets_s": offsets,
-             "max_time_gap_s": args.max_time_gap}, record)
+             "max_time_gap_s": _max_time_gap_s(args)}, record)
+
+
+def _max_time_gap_s(args) -> float:
+    return DEFAULT_MAX_TIME_GAP_S if args.max_time_gap is None else args.max_time_gap
 
 
 def _estimated_clock_offsets(args) -> tuple[dict, dict]:
@@ -84,7 +91,7 @@ def _estimated_clock_offsets(args) -> tuple[dict, dict]:
     from ..core.clock_offsets import estimate_clock_offsets
     from ..core.image_io import capture_times_by_camera
 
-    estimates = estimate_clock_offsets(capture_times_by_camera(args.images), args.max_time_gap)
+    estimates = estimate_clock_offsets(capture_times_by_camera(args.images), _max_time_gap_s(args))
     offsets = {name: round(est.offset_s, 3) for name, est in estimates.items()}
     log.info("clock offsets from the capture times (s, from %s): %s", next(iter(offsets)),
              ", ".join(f"{n}={o:+.2f} ({estimates[n].paired_shots} shots paired)"
@@ -118,6 +125,15 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
                          "NAME=S values, not both.")
     if args.align != "auto" and not args.images:
         raise InputError("--align belongs to --images (camera subfolders).")
+    if args.slop is not None and not args.bag:
+        raise InputError("--slop belongs to --bag (how far apart the stamps of a frame set may "
+                         "be); with --images use --align time --max-time-gap.")
+    if args.max_time_gap is not None and not (args.images and args.align == "time"):
+        raise InputError("--max-time-gap belongs to --images with --align time (EXIF capture "
+                         "times); with --bag use --slop.")
+    for option, value in (("--slop", args.slop), ("--max-time-gap", args.max_time_gap)):
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            raise InputError(f"{option} {value:g}: give a time in seconds, 0 or more.")
     if args.videos:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --videos the camera names come "
@@ -168,7 +184,7 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
             raise InputError(f"--time-offset names unknown camera(s) {', '.join(unknown)}: the "
                              f"bag's cameras are {', '.join(names)} (from --topics).")
     frame_sets, names, stamps = read_frame_sets(
-        args.bag, args.topics, slop_s=args.slop,
+        args.bag, args.topics, slop_s=DEFAULT_SLOP_S if args.slop is None else args.slop,
         max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS), return_stamps=True,
         stamp_offsets_s=[float(offsets.get(n, 0.0)) for n in names])
     if offsets:
@@ -220,6 +236,9 @@ def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
         name, sep, path = value.partition("=")
         if sep and name in names:
             out[name] = read_mask(path)
+        elif sep and not Path(value).exists():
+            raise InputError(f"--mask {value}: there is no camera {name!r} (the cameras are "
+                             f"{', '.join(names)}), nor a file {value}.")
         else:
             mask = read_mask(value)
             out.update({n: mask for n in names if n not in out})
