@@ -1,6 +1,7 @@
 """Exports for other tools (core.interchange, `densecalib export`): each file, read back as those
 tools read it and projected with OpenCV as they project, gives the pixels COLMAP gives for our
 calibration; lens models a format cannot hold are refused."""
+import copy
 import json
 import logging
 import tomllib
@@ -91,6 +92,19 @@ def test_kalibr_camchain_chains_back_to_the_rig(rig):
         got = opencv_pixels(pts, k, np.array(entry["distortion_coeffs"]), fisheye,
                             cv2.Rodrigues(cam_from_rig[:3, :3])[0], cam_from_rig[:3, 3])
         assert np.abs(got - _colmap_pixels(cam, pts)).max() < 1e-6
+
+
+def test_kalibr_topics_must_be_ros_names(rig):
+    """Cameras named by numbers (Strecha's 0003) or with spaces would give Kalibr topics no ROS
+    bag can have: refused with the way out."""
+    numbered = copy.deepcopy(rig)
+    numbered.cameras = {f"{i:04d}": c for i, c in enumerate(rig.cameras.values())}
+    numbered.reference_camera = "0000"
+    with pytest.raises(InputError, match="'/0000/image_raw'.*--topic-pattern"):
+        kalibr_camchain_yaml(numbered)
+    assert "/cam_0001/image_raw" in kalibr_camchain_yaml(numbered, "/cam_{name}/image_raw")
+    with pytest.raises(InputError, match="left: '/my cams/left'"):
+        kalibr_camchain_yaml(rig, "/my cams/{name}")
 
 
 def test_models_a_format_cannot_hold_are_refused(rig):

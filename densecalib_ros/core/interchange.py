@@ -40,6 +40,7 @@ units: metres when a known baseline set the scale, else the reconstruction's arb
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -57,6 +58,8 @@ FOLDER_FORMATS = ("opencv", "dannce", "jarvis", "ros-stereo")
 # Formats of one camera pair (core.stereo)
 STEREO_FORMATS = ("ros-stereo", "opencv-stereo")
 DEFAULT_TOPIC_PATTERN = "/{name}/image_raw"
+# A ROS 2 topic name: /-separated tokens, none starting with a digit (no substitutions here)
+_ROS_TOPIC = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 
 
 def _units(rig: RigCalibration) -> str:
@@ -148,6 +151,13 @@ def kalibr_camchain_yaml(rig: RigCalibration,
         raise InputError(f"--topic-pattern {topic_pattern!r} cannot be filled in ({exc!r}): "
                          "write {name} where the camera name goes, e.g. "
                          "/{name}/image_raw.") from None
+    invalid = {n: t for n, t in topics.items() if not _ROS_TOPIC.match(t)}
+    if invalid:
+        raise InputError(
+            "Kalibr reads the images from these topics, which are not valid ROS topic names "
+            "(each part a letter or _ then letters, digits, _): " + ", ".join(
+                f"{n}: {t!r}" for n, t in invalid.items()) + ". Give --topic-pattern with the "
+            "topics the bag has, e.g. '/cam_{name}/image_raw' for cameras named by numbers.")
     lines = [f"# densecalib rig calibration; translations in {_units(rig)}"]
     previous = None
     for n, name in enumerate(names):
