@@ -295,6 +295,9 @@ def test_bag_camera_info_topics_give_the_intrinsics(tmp_path, caplog):
                                    gt.cameras[n].intrinsics.to_pycolmap().img_from_cam(rays),
                                    atol=1e-9)
     assert sorted(calib.quality["given_intrinsics"]) == ["rig_cam0", "rig_cam1", "rig_cam2"]
+    with caplog.at_level(logging.INFO):  # check reads the topics the calibration recorded
+        assert main(["check", str(out), "--bag", str(tmp_path / "bag")]) == 0
+    assert "image topics as the calibration recorded them: /rig/cam0/image_raw" in caplog.text
     write_image_bag(tmp_path / "plain", rig.images, topics, [1_000_000_000])
     with caplog.at_level(logging.ERROR):
         rc = main(["calibrate", "--bag", str(tmp_path / "plain"), "--topics", *topics, "--out",

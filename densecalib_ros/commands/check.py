@@ -14,7 +14,8 @@ from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
                                 best_transfer_per_camera, check_latest)
 from ..core.errors import InputError
 from .argtypes import positive
-from .inputs import add_input_arguments, parse_masks, read_input, require_calibrated_cameras
+from .inputs import (add_input_arguments, parse_masks, read_input, require_calibrated_cameras,
+                     topics_from_calibration)
 
 log = logging.getLogger("densecalib.check")
 MAX_FAILING_SHOWN = 10  # failing transfer figures listed beside each camera's best
@@ -40,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         rig = read_calibration(args.calibration)
+        topics_from_calibration(args, rig)
         frame_sets, names, record, _ = read_input(args)
         require_calibrated_cameras(rig, names, frame_sets[0], at_least=2)
         config = make_config(matcher=args.matcher, camera_masks=parse_masks(args.mask, names),

@@ -245,6 +245,19 @@ def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
     return out
 
 
+def topics_from_calibration(args, rig) -> None:
+    """--bag without --topics for a command that holds a bag against a calibration: the image
+    topics the calibration was made from, when it recorded them (a bag or the node)."""
+    if not args.bag or args.topics:
+        return
+    from ..core.interchange import recorded_image_topics
+
+    recorded = recorded_image_topics(rig)
+    if recorded:
+        args.topics = list(recorded.values())
+        log.info("image topics as the calibration recorded them: %s", " ".join(args.topics))
+
+
 def require_calibrated_cameras(rig, names: list[str], frame_set: list, at_least: int) -> None:
     """InputError unless at least `at_least` of the input's cameras are in the calibration `rig`,
     each with images of its calibrated size (a command that holds images against a calibration)."""
