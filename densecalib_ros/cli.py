@@ -8,6 +8,7 @@ import logging
 import os
 import sys
 
+from .core.colmap_logging import show_colmap_log
 from .core.errors import CalibrationError
 
 # name -> (module, one-line help)
@@ -71,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="[%(asctime)s %(levelname)s %(name)s] %(message)s",
                         datefmt="%H:%M:%S", stream=sys.stderr)
     try:
+        show_colmap_log(args.verbose)
         return int(importlib.import_module(SUBCOMMANDS[args.command][0]).run(args) or 0)
     except CalibrationError as exc:  # one a command did not expect: its message, not a traceback
         logging.getLogger("densecalib").error("%s", exc)

@@ -23,12 +23,13 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from .colmap_logging import quiet_colmap
 from .datasets import (Scene, default_data_dir, load_nerf_transforms, load_strecha,
                        scene_from_synthetic)
 from .errors import CalibrationError, InputError
 from .json_text import json_text
 from .metrics import evaluate_calibration
-from .peers import PEER_METHODS, quiet_colmap, run_peer
+from .peers import PEER_METHODS, run_peer
 
 log = logging.getLogger(__name__)
 

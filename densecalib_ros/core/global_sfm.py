@@ -181,7 +181,7 @@ def rotation_averaging_poses(tracks: Tracks, intrinsics: Sequence[CameraIntrinsi
     positioning (the GLOMAP core) on our tracks (module docstring). Raises
     DisconnectedViewGraphError when the pairs with a relative pose (or the poses that rotation
     averaging accepts) do not connect all cameras."""
-    from .peers import quiet_colmap
+    from .colmap_logging import quiet_colmap
 
     C = tracks.num_cameras
     pairs = relative_poses(tracks, intrinsics, seed)

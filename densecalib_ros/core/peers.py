@@ -20,11 +20,12 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, Optional, Sequence
+from typing import Optional, Sequence
 
 import cv2
 import numpy as np
 
+from .colmap_logging import quiet_colmap
 from .errors import InputError
 from .types import CameraIntrinsics, RigCalibration, RigCamera
 
@@ -64,21 +65,6 @@ class PeerResult:
                               failed_cameras=[n for n in camera_names if n not in self.cam_from_world],
                               quality=dict(method=self.method, runtime_s=self.runtime_s,
                                            num_points3d=self.num_points3d, message=self.message))
-
-
-@contextlib.contextmanager
-def quiet_colmap(min_level: int = 3) -> Iterator[None]:
-    """Only COLMAP (glog) messages at `min_level` or above (2 = ERROR, 3 = FATAL) while inside;
-    restored after. The default keeps only fatal ones: a peer's failure reaches the caller as
-    PeerResult.message instead."""
-    import pycolmap
-
-    previous = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = min_level
-    try:
-        yield
-    finally:
-        pycolmap.logging.minloglevel = previous
 
 
 def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[str],

@@ -71,6 +71,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
+from ..core.colmap_logging import show_colmap_log
 from ..core.errors import CalibrationError, InputError
 from ..core.calibration_store import LATEST, prune_calibrations, write_new_calibration
 from ..core.export import (read_calibration, record_provenance, write_calibration_files,
@@ -853,6 +854,7 @@ class DenseCalibNode(Node):
 
 def main(args=None) -> int:
     rclpy.init(args=args)
+    show_colmap_log(verbose=False)  # Ceres's recovered solver failures are no operator's concern
     node = None
     try:
         node = DenseCalibNode()
