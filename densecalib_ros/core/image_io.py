@@ -221,8 +221,10 @@ def _capture_times_s(files: list[Path]) -> np.ndarray:
     for path in files:
         t = exif_capture_time_s(path)
         if t is None:
-            raise InputError(f"--align time: {path} has no EXIF capture time "
-                             "(DateTimeOriginal); use --align order or name the files alike.")
+            raise InputError(f"{path} has no EXIF capture time (DateTimeOriginal), which "
+                             "pairing by capture time needs in every image: name each moment's "
+                             "images alike in every camera folder (or calibrate with --align "
+                             "order, for a static scene).")
         times.append(t)
     return np.asarray(times, dtype=np.float64)
 

@@ -111,8 +111,11 @@ def common_span_s(infos: list[VideoInfo], offsets_s: list[float],
     if last <= first:
         spans = ", ".join(f"{i.path.name} {-o:.2f}..{i.duration_s - o:.2f} s"
                           for i, o in zip(infos, offsets_s))
-        raise InputError(f"The videos share no time span (common time per video: {spans}; window "
-                         f"{start_s}..{end_s}): check the offsets and --start/--end.")
+        asked = ", ".join(f"{what} {t:g} s" for what, t in (("--start", start_s),
+                                                            ("--end", end_s)) if t is not None)
+        raise InputError(f"The videos share no time span (each video on the common timeline: "
+                         f"{spans}{'; ' + asked if asked else ''}): check the time offsets"
+                         f"{' and ' + asked if asked else ''}.")
     return first, last
 
 

@@ -154,7 +154,7 @@ def _a_limit(cam: CameraIntrinsics, theta_limit: float) -> float:
 
 def _check_spec(spec: RigSpec) -> None:
     if not 3 <= int(spec.num_cameras) <= 10:
-        raise InputError(f"num_cameras={spec.num_cameras}: a synthetic rig has 3 to 10 cameras.")
+        raise InputError(f"{spec.num_cameras} cameras: a synthetic rig has 3 to 10 (--cameras).")
     if spec.camera_models and len(spec.camera_models) != int(spec.num_cameras):
         raise InputError(f"camera_models has {len(spec.camera_models)} entries for "
                          f"{spec.num_cameras} cameras: give one model per camera (or none).")
