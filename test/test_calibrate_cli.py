@@ -50,6 +50,10 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
         assert "camera_matrix:" in (out / f"{name}.yaml").read_text()
     assert {p.name for p in (out / "colmap").iterdir()} >= {"cameras.bin", "images.bin",
                                                             "points3D.bin"}
+    rig = read_calibration(out)  # the saved model is in the rig's frame and units
+    for image in pycolmap.Reconstruction(str(out / "colmap")).images.values():
+        np.testing.assert_allclose(image.cam_from_world().matrix(),
+                                   rig.cameras[image.name].cam_from_rig[:3], atol=1e-9)
     # each camera's view of the last frame set, for `check` (core.reference_views)
     assert sorted(p.name for p in (out / "reference_views").iterdir()) == [
         f"{n}.jpg" for n in names]

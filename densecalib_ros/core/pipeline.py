@@ -28,6 +28,7 @@ from .known_intrinsics import (check_known_intrinsics, describe as describe_know
 from .placement import repair_placements
 from .reconstruction import (SfMState, build_reconstruction, camera_quality, colour_points,
                              reprojection_errors)
+from .scale import move_model_to_rig_frame
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
 from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
@@ -231,7 +232,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         rig.quality.update(sfm.quality)  # init, gauge camera, residuals per BA stage
     if fit:
         rig.quality["given_intrinsics_fit"] = fit  # judged in calibrate_from_matches
-    reconstruction, _ = build_reconstruction(state, camera_names)
+    reconstruction = _saved_model(state, camera_names, rig)
     say_progress(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
                    f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
                    f"points ({runtime:.1f} s)")
@@ -555,8 +556,16 @@ def _with_state(result: CalibrationResult, state: SfMState, camera_names: Sequen
     if "given_intrinsics_fit" in quality:
         rig.quality["given_intrinsics_fit"] = given_intrinsics_fit(state, camera_names,
                                                                    config.sfm.num_threads)
+    return replace(result, rig=rig, reconstruction=_saved_model(state, camera_names, rig),
+                   state=state)
+
+
+def _saved_model(state: SfMState, camera_names: Sequence[str], rig: RigCalibration):
+    """The pycolmap.Reconstruction of `state` (what OUT/colmap holds) in `rig`'s frame and units,
+    so its points and cameras combine with calibration.json as they are."""
     reconstruction, _ = build_reconstruction(state, camera_names)
-    return replace(result, rig=rig, reconstruction=reconstruction, state=state)
+    move_model_to_rig_frame(reconstruction, rig)
+    return reconstruction
 
 
 def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],

@@ -136,6 +136,23 @@ def rig_units_per_model_unit(reconstruction, rig: RigCalibration) -> float:
     return camera_distance(rig, ref, far) / model if model > 0 else 1.0
 
 
+def move_model_to_rig_frame(reconstruction, rig: RigCalibration) -> None:
+    """Put a pycolmap.Reconstruction of `rig` (in place) in the rig's frame and units: world =
+    the reference camera's frame, lengths as in the rig file. SfM leaves it in a frame and unit
+    of its own; someone reading OUT/colmap beside calibration.json would otherwise combine
+    points in one unit with camera positions in another."""
+    import pycolmap
+
+    ref = next((im for im in reconstruction.images.values()
+                if im.name == rig.reference_camera), None)
+    if ref is None:
+        return
+    factor = rig_units_per_model_unit(reconstruction, rig)
+    rig_from_world = ref.cam_from_world()  # before scaling: the reference camera = the rig
+    reconstruction.transform(pycolmap.Sim3d(factor, rig_from_world.rotation,
+                                            factor * np.asarray(rig_from_world.translation)))
+
+
 def scale_reconstruction(reconstruction, factor: float) -> None:
     """Scale a pycolmap.Reconstruction in place about its world origin (camera centres and
     points) by `factor`."""
@@ -148,8 +165,8 @@ def scale_reconstruction_to_baseline(reconstruction, camera_a: str, camera_b: st
                                      baseline_m: float) -> None:
     """Scale a pycolmap.Reconstruction in place (about its world origin: camera centres and
     points) so that the images named camera_a and camera_b are baseline_m metres apart, so the
-    COLMAP model written beside a metric calibration is metric too. Its world frame is the SfM
-    frame, whose unit differs from the rig file's, hence a factor of its own."""
+    COLMAP model written beside a metric calibration is metric too. A factor of its own: models
+    saved before they were put in the rig's frame and units (move_model_to_rig_frame) kept SfM's."""
     centres = {im.name: np.asarray(im.projection_center()) for im in reconstruction.images.values()}
     distance = float(np.linalg.norm(centres[camera_a] - centres[camera_b]))
     scale_reconstruction(reconstruction, baseline_m / distance)
