@@ -218,6 +218,22 @@ def test_parameters_are_validated(ros, tmp_path):
         assert not result.successful and "one offset [s] per camera (4)" in result.reason
         result = node.set_parameters([Parameter("min_frame_sets", value=100)])[0]
         assert not result.successful and "cannot exceed buffer_size" in result.reason
+        # list values as `ros2 param set` sends them: "[]" an empty BOOL_ARRAY, "[800, 810, 820,
+        # 830]" INTEGER_ARRAY, "[0, 0.35, ...]" (ints and floats) a STRING; all readable back
+        names = node.settings.camera_names
+        for value, expected in (([800, 810, 820, 830], dict(zip(names, [800.0, 810, 820, 830]))),
+                                (Parameter.Type.BOOL_ARRAY, {})):
+            param = (Parameter("initial_focal_px", value, []) if value == Parameter.Type.BOOL_ARRAY
+                     else Parameter("initial_focal_px", value=value))
+            assert node.set_parameters([param])[0].successful
+            assert node.settings.initial_focal_px == expected
+        assert node.set_parameters([Parameter("stamp_offsets_s",
+                                              value="[0, 0.35, -0.8, 0.5]")])[0].successful
+        assert node.settings.stamp_offsets_s == [0.0, 0.35, -0.8, 0.5]
+        result = node.set_parameters([Parameter("stereo_pairs", value="cam0")])[0]
+        assert not result.successful and "stereo_pairs is a list" in result.reason
+        assert node.set_parameters([Parameter("stamp_offsets_s", value=[0.0] * 4)])[0].successful
+        assert node.get_parameter("camera_lens").value == []  # unset lists are gettable
         result = node.set_parameters([Parameter("image_topics", value=["/a", "/b"])])[0]
         assert not result.successful and "read-only" in result.reason
         result = node.set_parameters([Parameter("known_baseline_m", value=0.12)])[0]
@@ -950,3 +966,39 @@ def test_demo_command(tmp_path, capsys):
     assert (out / "latest" / "calibration.json").is_file()
     assert (out / "rig" / "ground_truth.json").is_file()
     assert (out / "rig" / "cam3" / "0001.png").is_file()
+
+
+def test_the_node_process_ends_cleanly_on_sigterm_and_says_what_a_bad_value_is(tmp_path):
+    """The node as systemd, docker stop or ros2 launch run it: SIGTERM ends it like Ctrl-C (exit
+    0; glog's handler, which pycolmap installs, dumped a stack and exited 143), and a start-up
+    value of the wrong type is one FATAL line, not a traceback."""
+    import signal
+    import subprocess
+    import sys
+
+    def start(*params):
+        args = ["--ros-args", "-p", "image_topics:=['/t/cam0/image_raw','/t/cam1/image_raw']",
+                "-p", f"output_dir:={tmp_path / 'out'}"]
+        for p in params:
+            args += ["-p", p]
+        return subprocess.Popen(
+            [sys.executable, "-c", "import sys; from densecalib_ros.ros.node import main; "
+             "sys.exit(main())", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, env={**os.environ, "ROS_DOMAIN_ID": str(int(os.environ.get(
+                "ROS_DOMAIN_ID", "0")) + 1)})
+
+    bad = start("slop_s:=1")
+    out, _ = bad.communicate(timeout=60)
+    assert bad.returncode == 1 and "[FATAL]" in out and "slop_s" in out, out
+    assert "Traceback" not in out
+    node = start()
+    lines = []
+    for line in node.stdout:  # wait for it to be up
+        lines.append(line)
+        if "ready:" in line:
+            break
+    assert any("ready:" in line for line in lines), "".join(lines)
+    node.send_signal(signal.SIGTERM)
+    rest, _ = node.communicate(timeout=30)
+    assert node.returncode == 0, "".join(lines) + rest
+    assert "Aborted" not in rest

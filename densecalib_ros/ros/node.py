@@ -48,6 +48,8 @@ from __future__ import annotations
 
 import functools
 import math
+import os
+import signal
 import threading
 import time
 from dataclasses import dataclass, field
@@ -59,7 +61,8 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.exceptions import InvalidHandle
+from rclpy.exceptions import (InvalidHandle, InvalidParameterTypeException,
+                              InvalidParameterValueException)
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -85,7 +88,8 @@ from ..core.sync import FrameSet, evenly_spaced
 from ..core.types import RigCalibration
 from .conversions import camera_info_msg, point_cloud_msg, rig_tf_message
 from .replay import BagReplayer
-from .settings import PARAMETERS, Settings, parse_settings, pipeline_config
+from .settings import (PARAMETERS, Settings, is_list_parameter, parse_settings,
+                       pipeline_config)
 from .sync import MessageSynchronizer, decode_frame_sets
 
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -148,11 +152,17 @@ class DenseCalibNode(Node):
     def __init__(self, node_name: str = "densecalib_node", **node_kwargs):
         super().__init__(node_name, **node_kwargs)
         self._replayer: Optional[BagReplayer] = None
+        self._stopping = threading.Event()  # destroy_node: answer waiting callers, write nothing
         for name, (default, description, read_only, ranges) in PARAMETERS.items():
+            if is_list_parameter(name):  # any array type, checked by parse_settings; [] if unset
+                self.declare_parameter(name, [], ParameterDescriptor(
+                    description=description, read_only=read_only, dynamic_typing=True))
+                continue
             self.declare_parameter(name, default, ParameterDescriptor(
                 description=description, read_only=read_only, **ranges))
         try:
             self.settings = parse_settings(self._parameter_values())
+            _check_output_dir(self.settings.output_dir)
         except InputError:
             self.destroy_node()
             raise
@@ -350,7 +360,12 @@ class DenseCalibNode(Node):
             response.success = False
             response.message = "busy: a calibration is already running; call again when it ends"
             return response
-        job.done.wait()
+        while not job.done.wait(0.5):
+            if self._stopping.is_set():  # the executor's threads are joined at exit: no waiting
+                response.success = False
+                response.message = ("the node is shutting down: the calibration was abandoned; "
+                                    "the last calibration stays as it was")
+                return response
         response.success = job.outcome.success
         response.message = job.outcome.message
         return response
@@ -367,11 +382,12 @@ class DenseCalibNode(Node):
                                          "published (its files, if written, load at start-up)")
         except Exception as exc:  # a bug or an OS error must still answer the service call
             self.get_logger().error(f"calibration crashed: {exc!r}")
+            detail = str(exc) if isinstance(exc, OSError) else repr(exc)  # str names the file
             job.outcome = Outcome(False, f"calibration crashed after "
-                                         f"{time.perf_counter() - start:.1f} s: {exc!r}")
+                                         f"{time.perf_counter() - start:.1f} s: {detail}")
         if not job.outcome.success:
             kept = (f"; still publishing the calibration of {self.calibration_dir.name}"
-                    if self.calibration_dir is not None else "")
+                    if self.calibration_dir is not None and not self._stopping.is_set() else "")
             job.outcome.message += kept
             self._last_failure = job.outcome.message
             self.get_logger().error(job.outcome.message)
@@ -561,6 +577,8 @@ class DenseCalibNode(Node):
                                      for t, o in zip(fs.stamps_ns, s.stamp_offsets_s)]
                                     for fs in sets]})
         elapsed = time.perf_counter() - start
+        if self._stopping.is_set():  # the caller was told it was abandoned: keep to that
+            raise CalibrationError("the node shut down during the calibration; nothing written")
         out = self._write_files(rig, reconstruction,
                                 latest_views(images, s.camera_names, rig))
         self._publish(rig, out)
@@ -847,14 +865,33 @@ class DenseCalibNode(Node):
         self._diag_pub.publish(msg)
 
     def destroy_node(self):
+        self._stopping.set()
         if self._replayer is not None:
             self._replayer.stop()
         return super().destroy_node()
 
 
+def _check_output_dir(output_dir: Path) -> None:
+    """InputError at start-up when the calibrations could not be written (found only after the
+    first calibration's minutes otherwise)."""
+    try:
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"output_dir {output_dir} cannot be created: {exc.strerror or exc}; "
+                         "give a folder the node may write.") from None
+    if not os.access(output_dir, os.W_OK | os.X_OK):
+        raise InputError(f"output_dir {output_dir} is not writable by this user; give a folder "
+                         "the node may write.")
+
+
 def main(args=None) -> int:
+    # Importing pycolmap installs glog's failure signal handlers, SIGTERM's among them: a stack
+    # dump and exit 143 instead of a clean shutdown (systemd, docker stop, ros2 launch send
+    # SIGTERM). So import it first and give SIGTERM back to rclpy, which chains to what it finds.
+    # Ceres's recovered solver failures are no operator's concern: errors only.
+    show_colmap_log(verbose=False)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     rclpy.init(args=args)
-    show_colmap_log(verbose=False)  # Ceres's recovered solver failures are no operator's concern
     node = None
     try:
         node = DenseCalibNode()
@@ -866,6 +903,17 @@ def main(args=None) -> int:
     except InputError as exc:
         rclpy.logging.get_logger("densecalib_node").fatal(f"invalid parameters: {exc}")
         return 1
+    except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+        # rclpy's own checks of the declared types and ranges, before parse_settings
+        rclpy.logging.get_logger("densecalib_node").fatal(
+            f"invalid parameters: {exc} (a double takes a decimal point, slop_s:=1.0; a list "
+            "takes brackets, image_topics:=\"['/cam0/image_raw', '/cam1/image_raw']\"; the "
+            "ranges are in the README's parameter table)")
+        return 1
+    except Exception:
+        if rclpy.ok():
+            raise
+        # a signal shut the context down while the node was starting: as after spin
     finally:
         if node is not None:
             node.destroy_node()

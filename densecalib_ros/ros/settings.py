@@ -225,11 +225,42 @@ def _per_camera(values: list[str], n: int, what: str, default) -> list[str]:
     return list(values)
 
 
+def is_list_parameter(name: str) -> bool:
+    return isinstance(PARAMETERS[name][0], Parameter.Type)
+
+
+def list_parameter_value(name: str, value: Any) -> list:
+    """A list parameter's value as a list of its element type. The list parameters take any
+    array type (dynamic typing): `ros2 param set N "[]"` sends an empty BOOL_ARRAY and "[800]" an
+    INTEGER_ARRAY, which rclpy's declared-type check would refuse with a message of types."""
+    if value is None:
+        return []
+    example = "['a', 'b']" if PARAMETERS[name][0] == Parameter.Type.STRING_ARRAY else "[0.5, 1.0]"
+    if isinstance(value, str) and value.strip().startswith("["):
+        # ros2param sends a list mixing ints and floats ("[0, 0.35]") as this string
+        import yaml
+        try:
+            value = yaml.safe_load(value)
+        except yaml.YAMLError:
+            pass
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise InputError(f"{name} is a list: write it in brackets, e.g. {name}:=\"{example}\" "
+                         f"(got {value!r}).")
+    items = list(value)
+    if PARAMETERS[name][0] == Parameter.Type.DOUBLE_ARRAY:
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in items):
+            raise InputError(f"{name} is a list of numbers, e.g. {example} (got {items}).")
+        return [float(x) for x in items]
+    if not all(isinstance(x, str) for x in items):
+        raise InputError(f"{name} is a list of strings, e.g. {example} (got {items}).")
+    return items
+
+
 def parse_settings(values: dict[str, Any]) -> Settings:
     """Validate raw parameter values (None = not set) into Settings; raises InputError with a
     message naming the parameter and the accepted values."""
-    v = {k: (values.get(k) if values.get(k) is not None else
-             ([] if isinstance(PARAMETERS[k][0], Parameter.Type) else PARAMETERS[k][0]))
+    v = {k: (list_parameter_value(k, values.get(k)) if is_list_parameter(k) else
+             values.get(k) if values.get(k) is not None else PARAMETERS[k][0])
          for k in PARAMETERS}
     topics = list(v["image_topics"])
     if len(topics) < 2:
