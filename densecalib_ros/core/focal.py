@@ -104,8 +104,9 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     if missing:
         raise FocalInitError(
             "No usable fundamental matrix for camera(s) {cameras}: they share too few "
-            "cycle-consistent matches with the other cameras. Check that every camera overlaps at "
-            "least one other camera, or " + KNOWN_FOCALS_HINT, missing)
+            "cycle-consistent matches with the other cameras. Check that each of them sees the "
+            "scene (not a covered, dark, blank or defocused lens) and overlaps at least one other "
+            "camera; if so, " + KNOWN_FOCALS_HINT, missing)
     weights_arr = np.array(w_list)
     log_prior = np.log(PRIOR_FOCAL_FACTOR * sizes)
     lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)

@@ -196,7 +196,8 @@ def stereo_pair(rig: RigCalibration, pair: Optional[Sequence[str]], alpha: float
                          "opencv-stereo (OpenCV rectifies vertical pairs along columns).")
     if left_to_right and not rect.right_is_right:
         raise InputError(f"Camera {rect.right} lies to the left of {rect.left}: give the pair "
-                         f"left camera first, --pair {rect.right} {rect.left}.")
+                         f"left camera first: --pair {rect.right} {rect.left} (node: "
+                         f"stereo_pairs [{rect.right}, {rect.left}]).")
     turned = rect.rectifying_rotation_deg()
     if max(turned) > LARGE_RECTIFYING_ROTATION_DEG:
         log.warning("Rectification turns %s by %.1f deg and %s by %.1f deg: the two cameras are "
