@@ -148,7 +148,7 @@ def move_model_to_rig_frame(reconstruction, rig: RigCalibration) -> None:
     if ref is None:
         return
     factor = rig_units_per_model_unit(reconstruction, rig)
-    rig_from_world = ref.cam_from_world()  # before scaling: the reference camera = the rig
+    rig_from_world = ref.cam_from_world()  # the rig frame is the reference camera's
     reconstruction.transform(pycolmap.Sim3d(factor, rig_from_world.rotation,
                                             factor * np.asarray(rig_from_world.translation)))
 
