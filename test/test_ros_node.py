@@ -20,6 +20,7 @@ import rclpy.node  # noqa: E402
 pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs missing: run scripts/setup_env.sh")
 
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
@@ -163,6 +164,21 @@ class SetCameraInfoDriver(rclpy.node.Node):
         response.status_message = "stored" if response.success else "no thanks"
         self.answered += 1
         return response
+
+
+class RosoutListener(rclpy.node.Node):
+    def __init__(self, context):
+        super().__init__(f"rosout_{time.monotonic_ns()}", context=context)
+        self._lock, self._logs = threading.Lock(), []
+        self.create_subscription(Log, "/rosout", self._store, 100)
+
+    def _store(self, msg):
+        with self._lock:
+            self._logs.append(msg)
+
+    def copy(self):
+        with self._lock:
+            return list(self._logs)
 
 
 def check_against_truth(listener, rig, node):
@@ -333,6 +349,8 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     response = caller.call(30.0)
     assert not response.success and "0 synchronised frame set(s) buffered, 2 needed" in \
         response.message
+    assert "no image received from cam0 (/rig/cam0/image_raw), cam1" in response.message
+    rosout = ros.add(RosoutListener(ros.context))
     assert not out.exists() or not any(out.iterdir())
 
     # Drivers offering set_camera_info: cam0 accepts, cam1 refuses, cam2 is too slow, cam3 has none.
@@ -356,6 +374,10 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert source["source"] == "topics" and source["topics"] == [c[0] for c in CAMERAS.values()]
     assert [s[0] for s in source["frame_set_stamps_ns"]] == [1_000_000_000, 2_000_000_000]
     check_against_truth(listener, rig, node)
+    # the core's own log lines reach /rosout under the node's name
+    assert wait_until(lambda: any(m.name == "densecalib_node.core" and "sampled" in m.msg
+                                  for m in rosout.copy()), 5.0)
+    ros.remove(rosout)
     assert response.message.endswith(
         "set_camera_info: cam0 ok, cam1 refused (no thanks), cam2 timeout, "
         "cam3 no service /rig/cam3/set_camera_info")

@@ -136,3 +136,46 @@ def test_message_synchronizer_takes_clock_offsets_off_the_stamps():
     assert all(b - a == -9 for a, b in run(None))
     together = run([0.0, 0.35])
     assert len(together) >= 90 and all(a == b for a, b in together)
+
+
+def test_message_synchronizer_tells_why_no_frame_sets_form():
+    """A camera never heard from, one that stopped, and clocks further apart than the slop are
+    each named as such (an operator's first question when a calibration is refused)."""
+    pytest.importorskip("rclpy")
+    from sensor_msgs.msg import Image
+
+    from densecalib_ros.ros.sync import MessageSynchronizer
+
+    now = [0.0]
+    names, topics = ["left", "right", "rear"], ["/l/image", "/r/image", "/b/image"]
+    sync = MessageSynchronizer(3, slop_s=0.02, buffer_size=10, clock=lambda: now[0])
+
+    def publish(stream, stamp_s):
+        msg = Image()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_s * 1e9), 10**9)
+        sync.add(stream, msg)
+
+    for k in range(3):
+        now[0] = float(k)
+        publish(0, k), publish(1, k)
+    assert len(sync) == 0
+    why = sync.why_few_sets(names, topics)
+    assert why.startswith("no image received from rear (/b/image)") and "left 3" in why
+
+    for k in range(3, 10):  # rear publishes once, at t=3 s, then stops; the others go on
+        now[0] = float(k)
+        publish(0, k), publish(1, k)
+        if k == 3:
+            publish(2, k)
+    assert len(sync) == 1
+    why = sync.why_few_sets(names, topics)
+    assert "stopped publishing" in why and "rear (/b/image) 6 s ago" in why and "left" not in \
+        why.split("(messages")[0]
+
+    for k in range(10, 13):  # all live again, rear's clock 0.5 s behind
+        now[0] = float(k)
+        publish(0, k), publish(1, k), publish(2, k - 0.5)
+    assert len(sync) == 1
+    why = sync.why_few_sets(names, topics)
+    assert "0.500 s apart, more than slop_s 0.02" in why and "rear -0.500" not in why
+    assert "left +0.500" in why and "rear +0.000" in why and "~/sync" in why

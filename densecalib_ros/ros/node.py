@@ -86,6 +86,7 @@ from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
 from ..core.sync import FrameSet, evenly_spaced
 from ..core.types import RigCalibration
+from .core_logs import forward_core_logs, stop_forwarding
 from .conversions import camera_info_msg, point_cloud_msg, rig_tf_message
 from .replay import BagReplayer
 from .settings import (PARAMETERS, Settings, is_list_parameter, parse_settings,
@@ -151,6 +152,7 @@ class DenseCalibNode(Node):
 
     def __init__(self, node_name: str = "densecalib_node", **node_kwargs):
         super().__init__(node_name, **node_kwargs)
+        self._core_logs = forward_core_logs(self.get_logger().get_child("core"))
         self._replayer: Optional[BagReplayer] = None
         self._stopping = threading.Event()  # destroy_node: answer waiting callers, write nothing
         for name, (default, description, read_only, ranges) in PARAMETERS.items():
@@ -504,7 +506,8 @@ class DenseCalibNode(Node):
         sets = evenly_spaced(self.sync.snapshot() if sets is None else sets, s.max_frame_sets)
         if not sets:
             return _CheckOutcome(None, "no synchronised frame sets buffered to check the "
-                                       "calibration with")
+                                       "calibration with: "
+                                 + self.sync.why_few_sets(s.camera_names, s.image_topics))
         images = decode_frame_sets(sets)
         match_sets = match_frame_sets(images, pipeline_config(s), matcher=self._matcher_for(s),
                                       camera_names=s.camera_names)
@@ -536,13 +539,8 @@ class DenseCalibNode(Node):
         s = self.settings
         sets = self.sync.snapshot()
         if len(sets) < s.min_frame_sets:
-            stats = self.sync.stats()
-            raise InputError(
-                f"{len(sets)} synchronised frame set(s) buffered, {s.min_frame_sets} needed "
-                f"(messages received per camera: {dict(zip(s.camera_names, stats['received']))}, "
-                f"slop {s.slop_s} s); check that every camera publishes with close header stamps "
-                "(cameras on unsynchronised clocks: set stamp_offsets_s, or measure them with "
-                "~/sync and sync_window_s > 0)")
+            raise InputError(f"{len(sets)} synchronised frame set(s) buffered, {s.min_frame_sets} "
+                             f"needed: {self.sync.why_few_sets(s.camera_names, s.image_topics)}")
         sets = evenly_spaced(sets, s.max_frame_sets)
         self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
                          f"{s.matcher})")
@@ -866,6 +864,7 @@ class DenseCalibNode(Node):
 
     def destroy_node(self):
         self._stopping.set()
+        stop_forwarding(self._core_logs)
         if self._replayer is not None:
             self._replayer.stop()
         return super().destroy_node()

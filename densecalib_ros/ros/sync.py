@@ -7,7 +7,8 @@ stamp offsets); the calibration worker takes a `snapshot` and decodes it with
 from __future__ import annotations
 
 import threading
-from typing import Optional
+import time
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from ..core.sync import ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer
 from .conversions import image_msg_to_numpy, message_stamp_ns, motion_image
 
 BY_HAND = "set stamp_offsets_s by hand"
+# A camera whose last image is this much older than another's has stopped publishing (a live
+# camera at 1 Hz or faster is well within it).
+_STOPPED_S = 5.0
 
 
 class MessageSynchronizer:
@@ -26,15 +30,22 @@ class MessageSynchronizer:
 
     def __init__(self, num_streams: int, slop_s: float, buffer_size: int,
                  min_interval_s: float = 0.0, queue_size: int = 10,
-                 stamp_offsets_s: list[float] | None = None, motion_window_s: float = 0.0):
+                 stamp_offsets_s: list[float] | None = None, motion_window_s: float = 0.0,
+                 clock: Callable[[], float] = time.monotonic):
         """stamp_offsets_s[c]: how far stream c's stamping clock runs ahead of the others' (s),
-        taken off its stamps before matching (the buffered sets carry the corrected stamps)."""
+        taken off its stamps before matching (the buffered sets carry the corrected stamps);
+        clock: the arrival time of a message [s]."""
+        self._clock = clock
         self._slop_s, self._queue_size = slop_s, queue_size
         self._offsets_ns = [int(round(o * 1e9)) for o in (stamp_offsets_s or [0.0] * num_streams)]
         self._lock = threading.Lock()
         self._sync = ApproximateTimeSynchronizer(num_streams, slop_s, queue_size)
         self._buffer = FrameSetBuffer(buffer_size, min_interval_s)
         self.received = [0] * num_streams
+        # per stream, for telling why frame sets are missing: when its last message arrived
+        # (monotonic s) and that message's stamp (offset taken off, ns)
+        self._last_arrival_s: list[Optional[float]] = [None] * num_streams
+        self._last_stamp_ns: list[Optional[int]] = [None] * num_streams
         self.motion_window_s = motion_window_s
         self._motion_lock = threading.Lock()
         self._motion = ([MotionEnergy(motion_window_s) for _ in range(num_streams)]
@@ -50,6 +61,7 @@ class MessageSynchronizer:
         t = stamp - self._offsets_ns[stream]
         with self._lock:
             self.received[stream] += 1
+            self._last_arrival_s[stream], self._last_stamp_ns[stream] = self._clock(), t
             return sum(self._buffer.push(s) for s in self._sync.add(stream, t, msg))
 
     def _add_motion(self, stream: int, stamp_ns: int, msg) -> None:
@@ -102,6 +114,34 @@ class MessageSynchronizer:
     def __len__(self) -> int:
         with self._lock:
             return len(self._buffer)
+
+    def why_few_sets(self, names: list[str], topics: list[str]) -> str:
+        """What keeps frame sets from forming, in the operator's terms: a camera that published
+        nothing or stopped publishing, or latest stamps further apart than the slop."""
+        with self._lock:
+            arrivals, stamps = list(self._last_arrival_s), list(self._last_stamp_ns)
+            received = list(self.received)
+        counts = ", ".join(f"{n} {k}" for n, k in zip(names, received))
+        silent = [f"{n} ({t})" for n, t, a in zip(names, topics, arrivals) if a is None]
+        if silent:
+            return (f"no image received from {', '.join(silent)}: check that the driver publishes "
+                    f"on that topic and the topic in image_topics (messages per camera: {counts})")
+        newest = max(arrivals)
+        stopped = [f"{n} ({t}) {newest - a:.0f} s ago" for n, t, a in zip(names, topics, arrivals)
+                   if newest - a > _STOPPED_S]
+        if stopped:
+            return (f"camera(s) stopped publishing while others go on: last image from "
+                    f"{', '.join(stopped)}; check the driver (messages per camera: {counts})")
+        spread_s = (max(stamps) - min(stamps)) * 1e-9
+        if spread_s > self._slop_s:
+            ahead = ", ".join(f"{n} {(t - min(stamps)) * 1e-9:+.3f}" for n, t in zip(names, stamps))
+            return (f"the cameras' latest header stamps are {spread_s:.3f} s apart, more than "
+                    f"slop_s {self._slop_s} (s after the earliest: {ahead}): if their clocks "
+                    "disagree, set stamp_offsets_s or measure them with ~/sync and "
+                    f"sync_window_s > 0 (messages per camera: {counts})")
+        return (f"every camera publishes (messages per camera: {counts}, slop {self._slop_s} "
+                "s): wait for more frame sets (min_interval_s spaces them), or if they do not "
+                "come, check that the cameras stamp their images with close header stamps")
 
     def stats(self) -> dict:
         with self._lock:
