@@ -50,6 +50,7 @@ import functools
 import math
 import os
 import signal
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -64,6 +65,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.exceptions import (InvalidHandle, InvalidParameterTypeException,
                               InvalidParameterValueException)
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
@@ -79,7 +81,7 @@ from ..core.errors import CalibrationError, InputError
 from ..core.calibration_store import LATEST, prune_calibrations, write_new_calibration
 from ..core.export import (read_calibration, record_provenance, write_calibration_files,
                            write_calibration_json)
-from ..core.floor import record_floor
+from ..core.floor import record_floor, warn_if_floor_lost
 from ..core.known_intrinsics import with_previous_intrinsics
 from ..core.report import info_strips_line
 from ..core.scale import warn_if_scale_lost, with_known_baseline
@@ -154,7 +156,8 @@ class DenseCalibNode(Node):
         super().__init__(node_name, **node_kwargs)
         self._core_logs = forward_core_logs(self.get_logger().get_child("core"))
         self._replayer: Optional[BagReplayer] = None
-        self._stopping = threading.Event()  # destroy_node: answer waiting callers, write nothing
+        self._stopping = threading.Event()  # stop(): answer waiting callers, write nothing
+        self._callers_waiting, self._num_callers_waiting = threading.Condition(), 0
         for name, (default, description, read_only, ranges) in PARAMETERS.items():
             if is_list_parameter(name):  # any array type, checked by parse_settings; [] if unset
                 self.declare_parameter(name, [], ParameterDescriptor(
@@ -288,7 +291,7 @@ class DenseCalibNode(Node):
         try:
             floor = find_floor_of_saved_calibration(self.calibration_dir, self.calibration, view)
         except InputError as exc:
-            self._set_status(f"floor: not found in {self.calibration_dir.name}: {exc}")
+            self._set_status(f"floor: not found in {self.calibration_dir.name}: {exc}", "warning")
             return
         set_floor(self.calibration, floor)
         write_calibration_json(self.calibration, self.calibration_dir)
@@ -335,7 +338,7 @@ class DenseCalibNode(Node):
 
     def _on_replay_done(self, num_messages: int, error: Optional[str]) -> None:
         if error:
-            self._set_status(f"replay failed: {error}")
+            self._set_status(f"replay failed: {error}", "error")
             return
         self._set_status(f"replay done: {num_messages} messages, {len(self.sync)} frame sets "
                          "buffered")
@@ -362,15 +365,28 @@ class DenseCalibNode(Node):
             response.success = False
             response.message = "busy: a calibration is already running; call again when it ends"
             return response
-        while not job.done.wait(0.5):
-            if self._stopping.is_set():  # the executor's threads are joined at exit: no waiting
-                response.success = False
-                response.message = ("the node is shutting down: the calibration was abandoned; "
-                                    "the last calibration stays as it was")
-                return response
-        response.success = job.outcome.success
-        response.message = job.outcome.message
-        return response
+        with self._callers_waiting:
+            self._num_callers_waiting += 1
+        try:
+            while not job.done.wait(0.2):
+                if self._stopping.is_set():  # main() waits for this answer, not for the job
+                    response.success = False
+                    response.message = ("the node is shutting down: the calibration was "
+                                        "abandoned; the last calibration stays as it was")
+                    return response
+            response.success = job.outcome.success
+            response.message = job.outcome.message
+            return response
+        finally:
+            with self._callers_waiting:
+                self._num_callers_waiting -= 1
+                self._callers_waiting.notify_all()
+
+    def answer_waiting_callers(self, timeout_s: float) -> None:
+        """At shutdown, after stop(): wait (up to timeout_s) until every ~/calibrate caller
+        waiting for the abandoned calibration has had its answer returned."""
+        with self._callers_waiting:
+            self._callers_waiting.wait_for(lambda: self._num_callers_waiting == 0, timeout_s)
 
     def _run_job(self, job: _Job) -> None:
         start = time.perf_counter()
@@ -379,14 +395,15 @@ class DenseCalibNode(Node):
         except CalibrationError as exc:
             job.outcome = Outcome(False, f"calibration failed after "
                                          f"{time.perf_counter() - start:.1f} s: {exc}")
-        except InvalidHandle:  # destroy_node ran (shutdown) while the calibration was publishing
-            job.outcome = Outcome(False, "the node shut down before the calibration was "
-                                         "published (its files, if written, load at start-up)")
         except Exception as exc:  # a bug or an OS error must still answer the service call
-            self.get_logger().error(f"calibration crashed: {exc!r}")
-            detail = str(exc) if isinstance(exc, OSError) else repr(exc)  # str names the file
-            job.outcome = Outcome(False, f"calibration crashed after "
-                                         f"{time.perf_counter() - start:.1f} s: {detail}")
+            if isinstance(exc, (InvalidHandle, _rclpy.RCLError)) and self._stopping.is_set():
+                job.outcome = Outcome(False, "the node shut down before the calibration was "
+                                             "published (its files, if written, load at start-up)")
+            else:
+                self.get_logger().error(f"calibration crashed: {exc!r}")
+                detail = str(exc) if isinstance(exc, OSError) else repr(exc)  # str names the file
+                job.outcome = Outcome(False, f"calibration crashed after "
+                                             f"{time.perf_counter() - start:.1f} s: {detail}")
         if not job.outcome.success:
             kept = (f"; still publishing the calibration of {self.calibration_dir.name}"
                     if self.calibration_dir is not None and not self._stopping.is_set() else "")
@@ -397,7 +414,7 @@ class DenseCalibNode(Node):
             self._last_failure = None
             self.get_logger().info(job.outcome.message)
         self._set_status(("done: " if job.outcome.success else "failed: ") + job.outcome.message,
-                         log=False)
+                         level=None)
         with self._state_lock:
             self._job = None
         job.done.set()
@@ -409,7 +426,8 @@ class DenseCalibNode(Node):
         response.success = bool(outcome and outcome.fits)
         response.message = (outcome.message if outcome else
                             "busy: a calibration or check is running")
-        self._set_status(f"check: {response.message}")
+        self._set_status(f"check: {response.message}",
+                         "info" if response.success or outcome is None else "warning")
         return response
 
     def _run_check(self, sets: Optional[list] = None) -> Optional[_CheckOutcome]:
@@ -450,7 +468,8 @@ class DenseCalibNode(Node):
         if outcome is None:
             return  # busy: try again at the next tick
         self._last_watch, self._watched_last = time.monotonic(), buffered[-1]
-        self._set_status(f"watch: {outcome.message}")
+        self._set_status(f"watch: {outcome.message}",
+                         "warning" if outcome.fits is False else "info")
         if outcome.fits is False and s.recalibrate_on_change:
             if outcome.misfit_sets < WATCH_CONFIRM_SETS:
                 self._set_status(f"watch: {outcome.misfit_sets} frame set does not fit; "
@@ -480,7 +499,7 @@ class DenseCalibNode(Node):
                 for i, (n, e) in enumerate((n, estimates[n]) for n in s.camera_names))
                 + (f"; stamp_offsets_s set, {dropped} buffered frame sets dropped (paired by the "
                    "old offsets)" if result.successful else f"; not set: {result.reason}"))
-        self._set_status(f"sync: {response.message}")
+        self._set_status(f"sync: {response.message}", "info" if response.success else "error")
         return response
 
     def _on_clear(self, request, response):
@@ -564,6 +583,8 @@ class DenseCalibNode(Node):
         warn_if_scale_lost(result.rig, self.calibration)
         if s.floor:
             record_floor(result, s.floor)
+        warn_if_floor_lost(result.rig, self.calibration,
+                           "set the floor parameter (upright or top) to find it")
         rig, reconstruction = result.rig, result.reconstruction
         sets = sets[rig.quality.get("frame_sets_before_change", 0):]  # those calibrated
         offsets = ({"stamp_offsets_s": dict(zip(s.camera_names, s.stamp_offsets_s))}
@@ -675,7 +696,7 @@ class DenseCalibNode(Node):
                 self._job = None
         if not response.success and self.calibration_dir is not None:
             response.message += f"; still publishing the calibration of {self.calibration_dir}"
-        self._set_status(f"reload: {response.message}")
+        self._set_status(f"reload: {response.message}", "info" if response.success else "error")
         return response
 
     def _publish(self, rig: RigCalibration, directory: Path,
@@ -784,14 +805,21 @@ class DenseCalibNode(Node):
         return ", ".join(outcomes) or "no calibrated camera"
 
     # ----------------------------------------------------------------- status
-    def _set_status(self, text: str, log: bool = True) -> None:
+    def _set_status(self, text: str, level: Optional[str] = "info") -> None:
+        """Publish the status and log it at `level` ("info", "warning", "error"; None: not at
+        all, the caller logged it): a failure must be found among /rosout's errors."""
         self._status = text
         try:
             self._status_pub.publish(String(data=text))
-        except InvalidHandle:  # destroyed (shutdown) while a calibration runs or ends
+        except (InvalidHandle, _rclpy.RCLError):  # shutdown while a calibration runs or ends
             pass
-        if log:
+        # one call site per severity: rclpy refuses a site whose severity changes
+        if level == "info":
             self.get_logger().info(text)
+        elif level == "warning":
+            self.get_logger().warning(text)
+        elif level == "error":
+            self.get_logger().error(text)
 
     @property
     def busy(self) -> bool:
@@ -862,8 +890,17 @@ class DenseCalibNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(msg)
 
-    def destroy_node(self):
+    def stop(self) -> None:
+        """Shutdown begins: a caller waiting for a calibration is answered that it was abandoned,
+        and the calibration writes and publishes nothing."""
         self._stopping.set()
+
+    @property
+    def worker_running(self) -> bool:
+        return self._worker is not None and self._worker.is_alive()
+
+    def destroy_node(self):
+        self.stop()
         stop_forwarding(self._core_logs)
         if self._replayer is not None:
             self._replayer.stop()
@@ -891,7 +928,7 @@ def main(args=None) -> int:
     show_colmap_log(verbose=False)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     rclpy.init(args=args)
-    node = None
+    node, executor, rc = None, None, 0
     try:
         node = DenseCalibNode()
         executor = MultiThreadedExecutor(num_threads=4)
@@ -901,20 +938,32 @@ def main(args=None) -> int:
         pass
     except InputError as exc:
         rclpy.logging.get_logger("densecalib_node").fatal(f"invalid parameters: {exc}")
-        return 1
+        rc = 1
     except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
         # rclpy's own checks of the declared types and ranges, before parse_settings
         rclpy.logging.get_logger("densecalib_node").fatal(
             f"invalid parameters: {exc} (a double takes a decimal point, slop_s:=1.0; a list "
             "takes brackets, image_topics:=\"['/cam0/image_raw', '/cam1/image_raw']\"; the "
             "ranges are in the README's parameter table)")
-        return 1
+        rc = 1
     except Exception:
         if rclpy.ok():
             raise
         # a signal shut the context down while the node was starting: as after spin
     finally:
         if node is not None:
+            node.stop()  # a waiting ~/calibrate caller is answered, the worker writes nothing
+            node.answer_waiting_callers(timeout_s=2.0)
+            time.sleep(0.1)  # the executor thread sends the returned answer
+            if executor is not None:
+                executor.shutdown(timeout_sec=0)
             node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    if node is not None and node.worker_running:
+        # The abandoned calibration is inside OpenCV or COLMAP: at interpreter exit Python ends
+        # such a daemon thread by unwinding it through their C++ frames, which aborts (SIGABRT,
+        # exit 134, a stack dump). Nothing of it is kept, so end the process here instead.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
+    return rc
