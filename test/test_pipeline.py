@@ -180,6 +180,42 @@ def test_one_camera_and_inconsistent_input_fail_clearly(rig):
         calibrate_rig([rig.images[0][:3]], ["a", "b"], config)
 
 
+def test_bad_names_and_images_are_refused_before_any_work(rig, tmp_path):
+    """Each with a message that names the camera and frame set; a camera name that would write
+    outside the output folder never reaches a file."""
+    config = make_config("regular", matcher="sift")
+    images = [list(s) for s in rig.images]
+    names = list(rig.names)
+    for bad, message in ((["/cam0/image_raw"] + names[1:], "cannot name a file"),
+                         (["../up"] + names[1:], "cannot name a file"),
+                         ([names[0]] * len(names), f"repeat \\({names[0]}\\)"),
+                         (list(range(len(names))), "must be strings, got 0 \\(int\\)")):
+        with pytest.raises(InputError, match=message):
+            calibrate_rig(images, bad, config)
+    last = len(images) - 1
+    for bad, message in ((images[last][1].astype(np.float32), "dtype float32"),
+                         (images[last][1][..., :1], r"\(one channel: image\[..., 0\]\)"),
+                         (None, "is a NoneType, not a numpy array")):
+        broken = [list(s) for s in images]
+        broken[last][1] = bad
+        with pytest.raises(InputError, match=f"camera {names[1]} in frame set {last} .*{message}"):
+            calibrate_rig(broken, names, config)
+    with pytest.raises(InputError, match="Frame set 0 is not a list of images"):
+        calibrate_rig([images[0][0]], names, config)  # one image, not a frame set
+    stacked = np.stack([np.stack(s) for s in images])  # (T, C, H, W, 3) is fine as frame sets
+    from densecalib_ros.core.pipeline import check_frame_sets
+    assert check_frame_sets(stacked, names) == check_frame_sets(images, names)
+    # a read calibration is checked too: its camera names become file names on export
+    from densecalib_ros.core.export import read_calibration, write_calibration_files
+    truth = rig.ground_truth()
+    write_calibration_files(truth, str(tmp_path / "calib"))  # a str folder is fine
+    text = (tmp_path / "calib" / "calibration.json").read_text()
+    (tmp_path / "calib" / "calibration.json").write_text(text.replace(f'"{names[1]}"',
+                                                                      '"../../x"'))
+    with pytest.raises(InputError, match="damaged calibration file: Camera name '../../x'"):
+        read_calibration(tmp_path / "calib")
+
+
 def test_pipeline_stops_after_three_agreeing_runs_and_single_run_has_no_consensus(rig):
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     assert config.consensus_runs == 5

@@ -20,7 +20,8 @@ import numpy as np
 
 from .errors import InputError
 from .json_text import json_text, jsonable
-from .types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
+from .types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera,
+                    check_camera_names)
 
 # COLMAP model -> (ROS distortion model, function params -> (fx, fy, cx, cy, D list))
 _PINHOLE_LIKE = {
@@ -153,6 +154,10 @@ def calibration_problem(rig: RigCalibration) -> Optional[str]:
 
     if not rig.cameras:
         return "it has no cameras"
+    try:
+        check_camera_names(rig.cameras)
+    except InputError as exc:
+        return str(exc)
     if rig.reference_camera not in rig.cameras:
         return f"its reference camera {rig.reference_camera!r} is not among its cameras"
     for name, cam in rig.cameras.items():
@@ -315,11 +320,14 @@ def _binary_model_problem(model: Path) -> Optional[str]:
     return None
 
 
-def write_calibration_files(rig: RigCalibration, directory: Path, reconstruction=None,
-                            reference_views: Optional[dict] = None) -> None:
+def write_calibration_files(rig: RigCalibration, directory: str | os.PathLike,
+                            reconstruction=None, reference_views: Optional[dict] = None) -> None:
     """Write calibration.json, <camera>.yaml per camera and (optionally) the COLMAP model under
     `directory`/colmap and the cameras' reference views (core.reference_views: {camera: image})
-    into `directory`, which must not exist yet or is replaced as a whole."""
+    into `directory` (made if missing). Files of another calibration already there stay: give
+    a new folder, or let core.calibration_store.write_new_calibration make one."""
+    check_camera_names(rig.cameras)
+    directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     write_calibration_json(rig, directory)
     for name, cam in rig.cameras.items():

@@ -31,7 +31,7 @@ from .reconstruction import (SfMState, build_reconstruction, camera_quality, col
 from .scale import move_model_to_rig_frame
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
-from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
+from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks, check_camera_names
 from .uncertainty import calibration_uncertainty
 
 log = logging.getLogger(__name__)
@@ -337,23 +337,49 @@ def _previous_focals(previous: Optional[RigCalibration], camera_names: Sequence[
 
 
 def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
-    """(width, height) per camera; InputError / NotEnoughCamerasError on unusable input."""
+    """(width, height) per camera; InputError / NotEnoughCamerasError on unusable input, found
+    before any work (a bad image in the last frame set would otherwise surface minutes later)."""
+    camera_names = check_camera_names(camera_names)
     C = len(camera_names)
     if C < 2:
         raise NotEnoughCamerasError(f"A rig needs at least two cameras, got {C} "
                                     f"({', '.join(camera_names) or 'none'}).")
-    if not frame_sets:
+    if frame_sets is None or len(frame_sets) == 0:
         raise InputError("No frame sets to calibrate from: give at least one image per camera.")
     sizes = None
     for t, frames in enumerate(frame_sets):
+        if isinstance(frames, np.ndarray) and frames.ndim <= 3 or not hasattr(frames, "__len__"):
+            raise InputError(f"Frame set {t} is not a list of images, one per camera: "
+                             "frame_sets[t][c] is camera c's image of moment t (one moment: "
+                             "[[image_cam0, image_cam1, ...]]).")
         if len(frames) != C:
             raise InputError(f"Frame set {t} has {len(frames)} images for {C} cameras.")
+        for name, image in zip(camera_names, frames):
+            _check_image(image, t, name)
         shape = [(int(im.shape[1]), int(im.shape[0])) for im in frames]
         if sizes is not None and shape != sizes:
             raise InputError(f"Image sizes change between frame sets (set 0: {sizes}, set {t}: "
                              f"{shape}): every camera must keep one resolution.")
         sizes = shape
     return sizes
+
+
+def _check_image(image, t: int, camera: str) -> None:
+    where = f"The image of camera {camera} in frame set {t}"
+    if not isinstance(image, np.ndarray):
+        raise InputError(f"{where} is a {type(image).__name__}, not a numpy array: give (H, W, 3) "
+                         "uint8 RGB or (H, W) uint8 gray (cv2.imread gives BGR: convert it).")
+    if image.dtype != np.uint8:
+        raise InputError(f"{where} has dtype {image.dtype}: give uint8 (16-bit images: "
+                         "core.image_encoding.to_pipeline_image(image, 'rgb') converts them).")
+    if not (image.ndim == 2 or image.ndim == 3 and image.shape[2] == 3):
+        hint = (" (one channel: image[..., 0])" if image.ndim == 3 and image.shape[2] == 1 else
+                " (RGBA: image[..., :3])" if image.ndim == 3 and image.shape[2] == 4 else "")
+        raise InputError(f"{where} has shape {image.shape}: give (H, W, 3) RGB or (H, W) "
+                         f"gray{hint}.")
+    if min(image.shape[:2]) < 16:
+        raise InputError(f"{where} is {image.shape[1]}x{image.shape[0]} px: at least 16 px on "
+                         "each side.")
 
 
 def info_strips(frame_sets: Sequence[Sequence[np.ndarray]],

@@ -10,9 +10,33 @@ Conventions (used everywhere in the core):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
+
+from .errors import InputError
+
+
+def check_camera_names(names: Sequence) -> list[str]:
+    """The names as a list; InputError unless each is a distinct, non-empty string usable as a
+    file name: `<name>.yaml` and exports are written beside calibration.json, so a path
+    separator or '..' would write outside the output folder."""
+    names = list(names)
+    for name in names:
+        if not isinstance(name, str):
+            raise InputError(f"Camera names must be strings, got {name!r} "
+                             f"({type(name).__name__}): e.g. [f'cam{{i}}' for i in ...].")
+        if (not name.strip() or name != name.strip() or name in (".", "..")
+                or name.startswith(".") or any(c in name for c in "/\\")
+                or any(ord(c) < 32 for c in name)):
+            raise InputError(f"Camera name {name!r} cannot name a file (<camera>.yaml is written "
+                             "for each): use letters, digits, '_' or '-', without '/' or a "
+                             "leading '.' or space.")
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise InputError(f"Camera names repeat ({', '.join(repeated)}): give each camera its own "
+                         "name.")
+    return names
 
 
 def colmap_parameter_names(camera) -> list[str]:
@@ -32,6 +56,9 @@ class CameraIntrinsics:
     def to_pycolmap(self, camera_id: int = 1):
         import pycolmap
 
+        if str(self.model) not in pycolmap.CameraModelId.__members__ or self.model == "INVALID":
+            raise InputError(f"Unknown camera model {self.model!r}: use one of COLMAP's, e.g. "
+                             "RADIAL, OPENCV, OPENCV_FISHEYE, RADIAL_FISHEYE, PINHOLE.")
         return pycolmap.Camera(
             model=self.model, width=int(self.width), height=int(self.height),
             params=np.asarray(self.params, dtype=np.float64), camera_id=camera_id)
