@@ -4,6 +4,7 @@ is named by its transfer error, and on a 3-camera rig a tilted camera by the pai
 a change inside a buffer of frame sets is judged on the sets since."""
 import copy
 import json
+import shutil
 
 import cv2
 import numpy as np
@@ -97,6 +98,12 @@ def test_check_command(rig, tmp_path, capsys, caplog):
     assert "no longer fits: cam3 moved or changed" in capsys.readouterr().out
     assert main(["check", str(tmp_path / "none.json"), "--images",
                  str(tmp_path / "images")]) == 2
+    # a camera whose images are missing (stolen, dead): not vouched for (exit 2), and named
+    shutil.move(tmp_path / "images" / "cam3", tmp_path / "cam3_away")
+    assert main(["check", str(good), "--images", str(tmp_path / "images")]) == 2
+    assert "no images of cam3 were given (calibrated, so not judged); for the others: the " \
+        "calibration fits" in caplog.text
+    shutil.move(tmp_path / "cam3_away", tmp_path / "images" / "cam3")
     # a covered lens: cam1 sees nothing, so nothing judges it: no fit is declared (exit 2)
     for frame in (tmp_path / "images" / "cam1").iterdir():
         cv2.imwrite(str(frame), np.zeros((480, 640, 3), np.uint8))

@@ -152,3 +152,24 @@ def test_calibrate_floor_on_a_generated_room(tmp_path, capsys):
     (bare / "calibration.json").write_text(json.dumps(data))
     assert main(["floor", str(bare)]) == 2
     assert json.loads((bare / "calibration.json").read_text()) == data
+
+
+def test_a_recalibration_that_lost_the_floor_says_so():
+    """Exports would change their world from the floor frame to the rig frame without a word."""
+    from densecalib_ros.core.floor import warn_if_floor_lost
+
+    lens = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320.0, 240.0, 0.0, 0.0]))
+    cameras = {n: RigCamera(n, lens, np.eye(4)) for n in ("a", "b")}
+    floor = {"floor_from_rig": np.eye(4).ravel().tolist(), "num_points": 10, "rms": 0.01,
+             "camera_heights": {"a": 1.0, "b": 1.0}}
+    previous = RigCalibration("a", cameras, quality={"floor": floor})
+    new = RigCalibration("a", cameras)
+    warn_if_floor_lost(new, None, "add --floor")
+    warn_if_floor_lost(new, RigCalibration("a", cameras), "add --floor")
+    assert "warnings" not in new.quality
+    warn_if_floor_lost(new, previous, "add --floor")
+    assert new.quality["warnings"] == [
+        "no floor frame: the previous calibration had one, this one has none; add --floor"]
+    kept = RigCalibration("a", cameras, quality={"floor": floor})
+    warn_if_floor_lost(kept, previous, "add --floor")
+    assert "warnings" not in kept.quality

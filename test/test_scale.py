@@ -114,4 +114,8 @@ def test_a_recalibration_that_lost_the_metric_scale_says_so():
     assert "previous calibration was metric from two scene points" in rig.quality["warnings"][0]
     metric = apply_known_baseline(rig, "cam0", "cam2", 0.5)
     warn_if_scale_lost(metric, previous)
-    assert metric.quality["warnings"] == rig.quality["warnings"]  # no second warning
+    assert metric.quality["warnings"] == []  # metric again: the up-to-scale warning is gone
+    # a scale replaced drops the warnings about the old one, keeps the others
+    rig.quality["warnings"] += ["scale from points: point A: its pixels miss", "camera cam3 ..."]
+    assert apply_known_baseline(rig, "cam0", "cam2", 0.5).quality["warnings"] == [
+        "camera cam3 ..."]

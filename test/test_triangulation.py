@@ -66,6 +66,17 @@ def test_points_come_back_and_their_sigma_matches_the_scatter(rig):
                                floor_from_rig[:3, :3] @ xyz + floor_from_rig[:3, 3], atol=1e-7)
 
 
+def test_pixels_of_different_points_are_flagged(rig):
+    """A mis-click (or a stale calibration): the pixels still give a point, with a warning and
+    each camera's miss (least squares spreads one bad click over all); 1 px off stays quiet."""
+    pixels = _pixels(rig, np.array([0.1, 0.0, 3.5]))
+    assert len(pixels) == 3
+    point = triangulate(rig, dict(pixels, c=np.add(pixels["c"], (-40.0, 0.0))))
+    assert len(point.warnings) == 1 and "do not meet at one point (misses of a " in \
+        point.warnings[0] and max(point.residuals_px.values()) > 5.0
+    assert not triangulate(rig, dict(pixels, c=np.add(pixels["c"], (1.0, 0.0)))).warnings
+
+
 def test_nearly_parallel_rays_are_flagged(rig):
     near = RigCalibration("a", {"a": rig.cameras["a"], "c": RigCamera(
         "c", rig.cameras["c"].intrinsics, _pose([0, 0, 0], [-0.02, 0, 0]))})

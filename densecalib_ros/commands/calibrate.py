@@ -230,6 +230,10 @@ def run(args: argparse.Namespace) -> int:
         if args.floor:
             from ..core.floor import record_floor
             record_floor(result, args.floor)
+        if previous is not None:
+            from ..core.floor import warn_if_floor_lost
+            warn_if_floor_lost(result.rig, previous, "add --floor, or run `densecalib floor` on "
+                               "the result (exports use the floor frame as world)")
         record_provenance(result.rig, source)
         views = latest_views(frame_sets, names, result.rig)
         replace_directory_atomic(lambda tmp: write_calibration_files(

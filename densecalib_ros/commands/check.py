@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
                   + ("  turned" if t.turned(tol) else "") + ("  zoomed" if t.zoomed(tol) else ""))
         for name in views.not_judged:
             print(f"{name:<12} too few matches with its reference view: not judged")
-    fits, verdict = check_verdict(report, views, cameras=[n for n in names if n in rig.cameras])
+    fits, verdict = check_verdict(report, views, cameras=[n for n in names if n in rig.cameras],
+                                  absent=[n for n in rig.cameras if n not in names])
     if fits is None:  # neither the epipolar figures nor the reference views could tell
         log.error("the calibration could not be checked with these images: %s", verdict)
         return 2

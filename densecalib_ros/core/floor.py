@@ -248,3 +248,14 @@ def set_floor(rig: RigCalibration, floor: Floor) -> None:
         rig.quality["warnings"] = warnings
     else:
         rig.quality.pop("warnings", None)
+
+
+def warn_if_floor_lost(rig: RigCalibration, previous: Optional[RigCalibration], how: str) -> None:
+    """A recalibration of a calibration with a floor frame that came out without one: say so in
+    rig.quality["warnings"] (exports would silently change their world to the rig frame).
+    how: what finds it again, in the caller's terms."""
+    if previous is None or not previous.quality.get("floor") or rig.quality.get("floor"):
+        return
+    warning = f"no floor frame: the previous calibration had one, this one has none; {how}"
+    log.warning("%s", warning)
+    rig.quality.setdefault("warnings", []).append(warning)

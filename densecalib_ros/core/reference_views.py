@@ -338,21 +338,26 @@ def _turned_alike(rig: RigCalibration, turns: Sequence[ViewTurn], tolerance_px: 
 
 def check_verdict(report, views: Optional[ReferenceReport],
                   epipolar_verdict: Optional[str] = None,
-                  cameras: Sequence[str] = ()) -> tuple[Optional[bool], str]:
+                  cameras: Sequence[str] = (),
+                  absent: Sequence[str] = ()) -> tuple[Optional[bool], str]:
     """(fits, one line) of an epipolar check (core.consistency.ConsistencyReport; its verdict,
     or `epipolar_verdict` in its place) together with the reference views' report (None: the
     calibration kept none). fits None: neither could tell. `cameras`: the calibrated cameras
-    the images are of; one that neither judged (a covered or dark lens) keeps a fit from being
+    the images are of; one that neither judged (a covered or dark lens), like one of `absent`
+    (calibrated, but no images of it given: a stolen or dead camera), keeps a fit from being
     declared: the calibration is vouched for only where it was seen."""
     fits, verdict = _combined_verdict(report, views, epipolar_verdict)
     seen = {c for f in report.figures for c in f.cameras} | (
         {t.camera for t in views.turns} if views is not None else set())
     unseen = [c for c in cameras if c not in seen]
-    if not unseen:
+    if not unseen and not absent:
         return fits, verdict
-    note = (f"{', '.join(unseen)} could not be judged: too few matches with the other cameras "
-            "and with its reference view (a covered, dark or defocused lens, or a changed "
-            "scene)")
+    notes = ([f"{', '.join(unseen)} could not be judged: too few matches with the other "
+              "cameras and with its reference view (a covered, dark or defocused lens, or a "
+              "changed scene)"] if unseen else []) + (
+        [f"no images of {', '.join(absent)} were given (calibrated, so not judged)"]
+        if absent else [])
+    note = "; ".join(notes)
     if fits:
         return None, f"{note}; for the others: {verdict}"
     return fits, f"{verdict}; {note}"

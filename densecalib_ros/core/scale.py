@@ -27,6 +27,7 @@ def camera_distance(rig: RigCalibration, camera_a: str, camera_b: str) -> float:
 
 # quality keys saying where a metric scale came from; a new scale replaces them all
 SCALE_RECORDS = ("scale_from_baseline", "scale_from_points")
+SCALE_WARNINGS = ("scale from points:", "no metric scale:")  # how those warnings begin
 MAX_SCALE_RELATIVE_STD = 0.02  # a scale from scene points less sure than this gets a warning
 
 
@@ -64,6 +65,9 @@ def scaled_rig(rig: RigCalibration, factor: float, record: dict) -> RigCalibrati
                                    for n, h in floor["camera_heights"].items()}
     for key in SCALE_RECORDS:
         scaled.quality.pop(key, None)
+    if "warnings" in scaled.quality:  # those about the scale replaced
+        scaled.quality["warnings"] = [w for w in scaled.quality["warnings"]
+                                      if not w.startswith(SCALE_WARNINGS)]
     scaled.quality.update(record)
     scaled.metric_scale = True
     return scaled

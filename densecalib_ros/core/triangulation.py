@@ -22,6 +22,9 @@ from .types import RigCalibration
 
 DEFAULT_PIXEL_SIGMA = 1.0
 MIN_PARALLAX_DEG = 1.0  # below, the depth is barely determined (a warning, not an error)
+# A pixel further than this from the point's projection (in sigmas, and at least px) was not
+# clicked on the same point as the others (a warning: a mis-click or a stale calibration).
+MISFIT_SIGMAS, MIN_MISFIT_PX = 5.0, 3.0
 _GAUSS_NEWTON_STEPS = 20
 
 
@@ -68,15 +71,19 @@ def _rays(rig: RigCalibration, observations: dict) -> tuple[list, np.ndarray, np
     return names, np.array(centres), np.array(directions)
 
 
-def _project(rig: RigCalibration, name: str, xyz_rig: np.ndarray) -> np.ndarray:
-    """OpenCV-convention pixel of a rig-frame point in camera name (nan behind it)."""
+def project(rig: RigCalibration, name: str, xyz_rig: np.ndarray) -> np.ndarray:
+    """OpenCV-convention pixels (N, 2) of rig-frame points (N, 3) (or (3,) -> (2,)) in camera
+    `name`, with its lens distortion; nan for points behind it."""
     cam = rig.cameras[name]
+    points = np.asarray(xyz_rig, dtype=np.float64)
     pose = np.asarray(cam.cam_from_rig, dtype=np.float64)
-    x_cam = pose[:3, :3] @ xyz_rig + pose[:3, 3]
-    if x_cam[2] <= 0:
-        return np.full(2, np.nan)
-    return np.asarray(cam.intrinsics.to_pycolmap().img_from_cam(x_cam[None]),
-                      dtype=np.float64).reshape(2) - 0.5
+    x_cam = points.reshape(-1, 3) @ pose[:3, :3].T + pose[:3, 3]
+    pixels = np.full((len(x_cam), 2), np.nan)
+    front = x_cam[:, 2] > 0
+    if front.any():
+        pixels[front] = np.asarray(cam.intrinsics.to_pycolmap().img_from_cam(x_cam[front]),
+                                   dtype=np.float64).reshape(-1, 2) - 0.5
+    return pixels.reshape(2) if points.ndim == 1 else pixels
 
 
 def triangulate(rig: RigCalibration, observations: dict,
@@ -89,7 +96,7 @@ def triangulate(rig: RigCalibration, observations: dict,
     observed = np.array([observations[n] for n in names], dtype=np.float64).reshape(-1)
 
     def residuals(p):
-        return np.concatenate([_project(rig, n, p) for n in names]) - observed
+        return np.concatenate([project(rig, n, p) for n in names]) - observed
 
     scale = max(float(np.linalg.norm(xyz - centres.mean(0))), 1e-9)
     jac = np.zeros((len(observed), 3))
@@ -116,6 +123,13 @@ def triangulate(rig: RigCalibration, observations: dict,
     point = TriangulatedPoint(xyz, covariance,
                               {n: float(np.hypot(*rr)) for n, rr in zip(names, r.reshape(-1, 2))},
                               parallax)
+    worst = max(point.residuals_px.values())
+    if worst > MISFIT_SIGMAS * sigma_px and worst > MIN_MISFIT_PX:
+        point.warnings.append(
+            "its pixels do not meet at one point (misses of "
+            + ", ".join(f"{n} {e:.1f}" for n, e in point.residuals_px.items())
+            + f" px; clicks are good to about {sigma_px:g} px): one may show another scene "
+            "point, or the calibration no longer fits; the standard deviations assume neither")
     if parallax < MIN_PARALLAX_DEG:
         point.warnings.append(f"its rays meet at only {parallax:.2f} deg: the depth is barely "
                               "determined (see the standard deviations)")
