@@ -47,3 +47,16 @@ def test_package_import_order_keeps_png_encoding_alive():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "png ok" in out.stdout
+
+
+def test_pycolmap_imported_first_is_refused_with_the_fix():
+    """pycolmap before cv2 binds pycolmap's zlib: the first PNG written aborts the process (a
+    lost notebook kernel). The package says so at import, where it can still be fixed."""
+    wrong = subprocess.run([sys.executable, "-c", "import pycolmap, densecalib_ros"],
+                           capture_output=True, text=True, timeout=120)
+    assert wrong.returncode == 1 and "ImportError" in wrong.stderr
+    assert "import densecalib_ros, or cv2, before pycolmap" in wrong.stderr
+    right = subprocess.run([sys.executable, "-c", "import densecalib_ros, pycolmap, cv2, numpy; "
+                            "print(len(cv2.imencode('.png', numpy.zeros((8, 8), 'uint8'))[1]))"],
+                           capture_output=True, text=True, timeout=120)
+    assert right.returncode == 0 and int(right.stdout) > 0, right.stderr

@@ -101,3 +101,27 @@ def test_failed_build_leaves_existing_directory_untouched(tmp_path):
     d["reference_camera"] = "b"
     replace_directory_atomic(lambda p: (p / "calibration.json").write_text(json.dumps(d)), out)
     assert read_calibration(out).reference_camera == "b"
+
+
+@pytest.mark.parametrize("model, params", [
+    ("RADIAL", [800.0, 515.0, 380.0, -0.1, 0.02]),
+    ("OPENCV", [800.0, 805.0, 515.0, 380.0, -0.1, 0.02, 0.001, -0.002]),
+    ("OPENCV_FISHEYE", [400.0, 401.0, 641.0, 478.0, 0.05, -0.02, 0.004, -0.0007])])
+def test_opencv_intrinsics_project_as_the_calibration_does(model, params):
+    """The library's way to OpenCV: K, D (and which projectPoints) give the pixels that
+    core.triangulation.project gives from the COLMAP model."""
+    import cv2
+
+    from densecalib_ros.core.export import opencv_intrinsics
+    from densecalib_ros.core.triangulation import project
+
+    lens = CameraIntrinsics(model, 1280, 960, np.array(params))
+    rig = RigCalibration("a", {"a": RigCamera("a", lens, np.eye(4))})
+    xyz = np.random.default_rng(0).uniform([-1, -0.8, 2], [1, 0.8, 4], (20, 3))
+    K, D, fisheye = opencv_intrinsics(lens)
+    assert fisheye == (model == "OPENCV_FISHEYE")
+    if fisheye:
+        px = cv2.fisheye.projectPoints(xyz[:, None], np.zeros(3), np.zeros(3), K, D)[0]
+    else:
+        px = cv2.projectPoints(xyz, np.zeros(3), np.zeros(3), K, D)[0]
+    np.testing.assert_allclose(px.reshape(-1, 2), project(rig, "a", xyz), atol=1e-6)

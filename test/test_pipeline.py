@@ -172,6 +172,18 @@ def test_images_without_overlap_fail_with_overlap_error():
         calibrate_rig(frames, ["a", "b", "c"], make_config("regular", matcher="sift"))
 
 
+def test_two_camera_groups_without_common_view_are_named():
+    """Two pairs filming different scenes: one rig cannot come of it; the error names the groups
+    (SfM used to calibrate one group by chance, or fail "from any pair of cameras a0, a1")."""
+    from densecalib_ros.core.errors import DisconnectedViewGraphError
+
+    a, b = (generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=320, height=240,
+                                 seed=s)) for s in (1, 7))
+    sets = [[x[0], x[1], y[2], y[3]] for x, y in zip(a.images, b.images)]
+    with pytest.raises(DisconnectedViewGraphError, match=r"2 groups .*\{a0, a1\}; \{b2, b3\}"):
+        calibrate_rig(sets, ["a0", "a1", "b2", "b3"], make_config("regular", matcher="sift"))
+
+
 def test_one_camera_and_inconsistent_input_fail_clearly(rig):
     config = make_config("regular", matcher="sift")
     with pytest.raises(NotEnoughCamerasError, match="at least two"):

@@ -70,6 +70,16 @@ def ros_camera_info(name: str, intrinsics: CameraIntrinsics,
     }
 
 
+def opencv_intrinsics(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(K 3x3, distortion coefficients, fisheye) in OpenCV's terms and pixel convention (top-left
+    pixel centre at 0, 0): cv2.projectPoints, cv2.undistortPoints (or their cv2.fisheye versions
+    when fisheye) take them as they are. InputError for a model OpenCV has no counterpart of."""
+    info = ros_camera_info("", intrinsics)
+    return (np.reshape(info["camera_matrix"]["data"], (3, 3)),
+            np.asarray(info["distortion_coefficients"]["data"], dtype=np.float64),
+            info["distortion_model"] == "equidistant")
+
+
 def _yaml_scalar(key: str, value: str) -> str:
     """`key: value` quoted where YAML would read the plain text as something else (a camera
     named 0003 would load as the integer 3, and no longer name its camera)."""

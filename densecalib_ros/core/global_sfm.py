@@ -114,11 +114,16 @@ def check_connected(num_cameras: int, edges: Sequence[tuple[int, int]],
     """Raise DisconnectedViewGraphError naming the camera groups when `edges` split the cameras."""
     groups = connected_components(num_cameras, edges)
     if len(groups) > 1:
-        text = "; ".join("{" + ", ".join(camera_names[c] for c in g) + "}" for g in groups)
-        raise DisconnectedViewGraphError(
-            f"The cameras split into {len(groups)} groups that share no {what}: {text}. A rig can "
-            "only be calibrated as one: make the groups' fields of view overlap (or add frame sets "
-            "where they see common, textured content), or calibrate each group on its own.")
+        raise disconnected_error(groups, camera_names, what)
+
+
+def disconnected_error(groups: Sequence[Sequence[int]], camera_names: Sequence[str],
+                       what: str) -> DisconnectedViewGraphError:
+    text = "; ".join("{" + ", ".join(camera_names[c] for c in g) + "}" for g in groups)
+    return DisconnectedViewGraphError(
+        f"The cameras split into {len(groups)} groups that share no {what}: {text}. A rig can "
+        "only be calibrated as one: make the groups' fields of view overlap (or add frame sets "
+        "where they see common, textured content), or calibrate each group on its own.")
 
 
 def gauge_scores(tracks: Tracks) -> np.ndarray:

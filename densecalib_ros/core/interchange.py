@@ -64,7 +64,7 @@ _ROS_TOPIC = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 
 def _units(rig: RigCalibration) -> str:
     return "metres" if rig.metric_scale else \
-        "arbitrary SfM units (no known baseline; calibrate with --known-baseline for metres)"
+        "arbitrary SfM units (for metres: calibrate with --known-baseline, or `densecalib scale`)"
 
 
 def _lens(name: str, rig: RigCalibration, fmt: str) -> tuple[dict, list[float], bool]:

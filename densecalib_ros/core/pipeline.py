@@ -46,7 +46,8 @@ class CalibrationResult:
     """A calibrated rig plus what produced it.
 
     reconstruction: the final pycolmap Reconstruction (one image per registered camera, named by
-    camera; its world frame is the SfM frame, not the rig frame) for export as a COLMAP model."""
+    camera), in the rig frame and the rig's units (its image poses are the cameras' cam_from_rig),
+    for export as a COLMAP model."""
 
     rig: RigCalibration
     reconstruction: pycolmap.Reconstruction
@@ -182,6 +183,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     if two_view is None or (config.sfm.f_err_px is not None and
                             not any(g.F_ji is not None for g in two_view.values())):
         two_view = fundamental_matrices(tracks, seed)
+    _check_one_group(two_view, camera_names)
     filtered = epipolar_filter(tracks, two_view, config.sfm.pair_f_err_px)
     if config.sfm.f_err_px is not None:
         f_err = f"{config.sfm.f_err_px} px"
@@ -238,6 +240,18 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                    f"points ({runtime:.1f} s)")
     return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
                              focal_init_px=focal_px, state=state)
+
+
+def _check_one_group(two_view: dict, camera_names: Sequence[str]) -> None:
+    """DisconnectedViewGraphError when the cameras form two or more groups of at least two that
+    share no two-view geometry: SfM would calibrate one group (which one, by chance) and call the
+    others failed. A lone camera without geometry is left to fail on its own (named failed)."""
+    from .global_sfm import connected_components, disconnected_error
+
+    edges = [k for k, g in two_view.items() if g.F_ji is not None]
+    groups = connected_components(len(camera_names), edges)
+    if sum(len(g) >= 2 for g in groups) > 1:
+        raise disconnected_error(groups, camera_names, "two-view geometry")
 
 
 def _eq2_start(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, int]],

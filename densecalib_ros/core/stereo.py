@@ -205,6 +205,6 @@ def stereo_pair(rig: RigCalibration, pair: Optional[Sequence[str]], alpha: float
                     rect.left, turned[0], rect.right, turned[1])
     if not rect.metric:
         log.warning("The rig has no metric scale: the baseline (%.4g) and depths from this pair "
-                    "are in arbitrary units. Calibrate with --known-baseline for metres.",
-                    rect.baseline)
+                    "are in arbitrary units. For metres: calibrate with --known-baseline, or "
+                    "measure a known length with `densecalib scale`.", rect.baseline)
     return rect
