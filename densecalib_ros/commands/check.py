@@ -105,8 +105,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _frame_set_label(record: dict, k: int) -> str:
     """Where frame set k (0-based) of read_input's input came from, for the user to find it."""
-    if "frame_set_times_s" in record:
-        return f" (at {record['frame_set_times_s'][k]:.2f} s of the videos)"
+    if "frame_set_times_s" in record:  # a common time: each video's own is t + its offset
+        t = record["frame_set_times_s"][k]
+        shifted = [f"{n} at {t + o:.2f} s" for n, o in (record.get("time_offsets_s") or {}).items()
+                   if o]
+        return (f" (at {t:.2f} s of the videos" + (f"; {', '.join(shifted)} of its own"
+                                                     if shifted else "") + ")")
     if "frame_set_stamps_ns" in record:
         return f" (stamped {min(record['frame_set_stamps_ns'][k]) * 1e-9:.3f} s)"
     if "frame_sets" in record:
