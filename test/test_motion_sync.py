@@ -266,6 +266,10 @@ def test_trim_writes_videos_whose_frame_k_shows_one_instant(tmp_path, capsys, ca
     for _ in range(cut["frames"]):
         assert np.array_equal(source.read()[1], trimmed.read()[1])
     assert not trimmed.read()[0]
+    assert main(["sync", "--videos", str(folder), "--trim", str(tmp_path / "one"), "--codec",
+                 "FFV1", "--time-offset", "cam1=0.7"]) == 0
+    text = capsys.readouterr().out
+    assert "given" in text and "not given: 0" in text  # cam2 was not named: 0, and said so
     with caplog.at_level("ERROR"):
         assert main(["sync", "--videos", str(folder), "--time-offset", "cam1=0.7"]) == 2
     assert "it goes with --trim" in caplog.text

@@ -63,7 +63,9 @@ def run(args: argparse.Namespace) -> int:
             check_output_folder(args.trim, TRIM_MARKERS, [args.videos])
         if args.time_offset:
             estimates = _given_offsets(args)
-            evidence = {n: "given" for n in estimates}
+            from .inputs import parse_time_offsets
+            named = parse_time_offsets(args.time_offset)
+            evidence = {n: "given" if n in named else "not given: 0" for n in estimates}
         elif args.videos:
             from ..core.motion_sync import estimate_video_offsets
             from ..core.video_io import list_video_folder
