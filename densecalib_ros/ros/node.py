@@ -88,8 +88,8 @@ from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
 from ..core.sync import FrameSet, evenly_spaced
 from ..core.types import RigCalibration
-from .core_logs import forward_core_logs, stop_forwarding
 from .conversions import camera_info_msg, point_cloud_msg, rig_tf_message
+from .core_logs import forward_core_logs, stop_forwarding
 from .replay import BagReplayer
 from .settings import (PARAMETERS, Settings, is_list_parameter, parse_settings,
                        pipeline_config)
