@@ -796,8 +796,9 @@ def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
         response = reloader.call(30.0)
         assert not response.success
         assert "['left', 'right'], which are not among camera_names" in response.message
-        assert wait_until(lambda: any(m.level == Log.ERROR and m.msg.startswith("reload: not loaded")
-                                      for m in rosout.copy()), 5.0)  # an operator sees it
+        assert wait_until(lambda: any(  # an operator finds it among the errors
+            m.level == Log.ERROR and m.msg.startswith("reload: not loaded")
+            for m in rosout.copy()), 5.0)
         assert response.message.endswith("still publishing the calibration of "
                                          f"{(tmp_path / '20260101T000000Z').resolve()}")
         time.sleep(0.5)

@@ -382,7 +382,7 @@ def _check_image(image, t: int, camera: str) -> None:
     where = f"The image of camera {camera} in frame set {t}"
     if not isinstance(image, np.ndarray):
         raise InputError(f"{where} is a {type(image).__name__}, not a numpy array: give (H, W, 3) "
-                         "uint8 RGB or (H, W) uint8 gray (cv2.imread gives BGR: convert it).")
+                         "uint8 RGB or (H, W) uint8 gray (an unreadable file gives None).")
     if image.dtype != np.uint8:
         raise InputError(f"{where} has dtype {image.dtype}: give uint8 (16-bit images: "
                          "core.image_encoding.to_pipeline_image(image, 'rgb') converts them).")

@@ -143,6 +143,6 @@ def evenly_spaced(items: list, max_count: Optional[int], what: str = "frame sets
     if max_count < 1:
         raise InputError(f"The number of {what} to use must be at least 1, got {max_count}.")
     keep = np.unique(np.round(np.linspace(0, len(items) - 1, max_count)).astype(int))
-    log.info("Using %d of %d %s, evenly spaced (--max-frame-sets or the node's max_frame_sets to change).", len(keep),
-             len(items), what)
+    log.info("Using %d of %d %s, evenly spaced (--max-frame-sets, or the node's max_frame_sets, "
+             "to change).", len(keep), len(items), what)
     return [items[i] for i in keep]
