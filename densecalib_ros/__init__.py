@@ -8,13 +8,17 @@
 # process (pycolmap 4.2.1 + opencv-python-headless 5.0.0). Every entry point imports this package
 # first, so loading cv2 here fixes the order for the CLI, the node and the library.
 import sys
+import warnings
 
-if "pycolmap" in sys.modules and "cv2" not in sys.modules:
-    # too late to fix the order: say so now, not with a process abort at the first PNG written
-    raise ImportError(
-        "pycolmap was imported before densecalib_ros (or cv2): the first PNG written would abort "
-        "the process (both bundle zlib). Restart Python (the notebook kernel) and import "
-        "densecalib_ros, or cv2, before pycolmap.")
+# Too late to fix the order when pycolmap came first: say so now, and the PNG writers refuse
+# (InputError) instead of aborting the process; what writes no PNG (e.g. core.peers) still works.
+PNG_ABORTS = "pycolmap" in sys.modules and "cv2" not in sys.modules
+WRONG_IMPORT_ORDER = (
+    "pycolmap was imported before densecalib_ros (or cv2): writing a PNG would abort the process "
+    "(both bundle zlib). Restart Python (the notebook kernel) and import densecalib_ros, or cv2, "
+    "before pycolmap.")
+if PNG_ABORTS:
+    warnings.warn(WRONG_IMPORT_ORDER, RuntimeWarning, stacklevel=2)
 
 import cv2  # noqa: E402,F401  (import order matters, see above)
 

@@ -49,13 +49,21 @@ def test_package_import_order_keeps_png_encoding_alive():
     assert "png ok" in out.stdout
 
 
-def test_pycolmap_imported_first_is_refused_with_the_fix():
+def test_pycolmap_imported_first_is_refused_with_the_fix(tmp_path):
     """pycolmap before cv2 binds pycolmap's zlib: the first PNG written aborts the process (a
-    lost notebook kernel). The package says so at import, where it can still be fixed."""
-    wrong = subprocess.run([sys.executable, "-c", "import pycolmap, densecalib_ros"],
-                           capture_output=True, text=True, timeout=120)
-    assert wrong.returncode == 1 and "ImportError" in wrong.stderr
-    assert "import densecalib_ros, or cv2, before pycolmap" in wrong.stderr
+    lost notebook kernel). The package warns at import with the fix, and its PNG writers raise
+    InputError instead of aborting; in the right order PNGs are written."""
+    wrong = subprocess.run([sys.executable, "-c", (
+        "import pycolmap, densecalib_ros\n"
+        "from densecalib_ros.core.errors import InputError\n"
+        "from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig\n"
+        "rig = generate_rig(RigSpec(num_cameras=3, width=64, height=48, seed=1))\n"
+        "try:\n    write_rig(rig, 'never')\nexcept InputError as e:\n    print('refused', e)\n")],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert wrong.returncode == 0, wrong.stderr[-2000:]
+    assert "RuntimeWarning" in wrong.stderr and "before pycolmap" in wrong.stderr
+    assert wrong.stdout.startswith("refused pycolmap was imported before densecalib_ros")
+    assert not (tmp_path / "never").exists()
     right = subprocess.run([sys.executable, "-c", "import densecalib_ros, pycolmap, cv2, numpy; "
                             "print(len(cv2.imencode('.png', numpy.zeros((8, 8), 'uint8'))[1]))"],
                            capture_output=True, text=True, timeout=120)

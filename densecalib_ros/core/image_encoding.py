@@ -141,6 +141,8 @@ def encode_compressed(image: np.ndarray, fmt: str = "jpeg", jpeg_quality: int = 
         raise InputError(f"Unsupported compressed format {fmt!r}: use jpeg or png.")
     image = np.asarray(image)
     bgr = image if image.ndim == 2 else np.ascontiguousarray(image[..., ::-1])
+    if fmt == "png":
+        refuse_png_if_it_would_abort()
     params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if fmt == "jpeg" else []
     ok, buf = cv2.imencode(".jpg" if fmt == "jpeg" else ".png", bgr, params)
     if not ok:
@@ -159,3 +161,12 @@ def _as_gray(image: np.ndarray) -> np.ndarray:
         raise InputError(f"Expected a uint8 image, got {image.dtype}.")
     return image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image[..., :3]),
                                                       cv2.COLOR_RGB2GRAY)
+
+
+def refuse_png_if_it_would_abort() -> None:
+    """InputError (with the fix) where writing a PNG would abort the process: pycolmap was
+    imported before densecalib_ros and cv2 (densecalib_ros/__init__.py)."""
+    import densecalib_ros
+
+    if densecalib_ros.PNG_ABORTS:
+        raise InputError(densecalib_ros.WRONG_IMPORT_ORDER)

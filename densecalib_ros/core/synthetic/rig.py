@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..export import calibration_from_dict, calibration_to_dict, write_text_atomic
+from ..image_encoding import refuse_png_if_it_would_abort
 from ..json_text import json_text
 from ..types import CameraIntrinsics, RigCalibration, RigCamera
 from .lens import SUPPORTED_MODELS, cam_rays, img_from_cam_any, monotonic_limit, radial_g
@@ -298,6 +299,7 @@ def generate_rig(spec: RigSpec) -> SyntheticRig:
 def write_rig(rig: SyntheticRig, out_dir: str | os.PathLike) -> None:
     """out_dir/<camera>/<t:04d>.png (RGB) for every camera and time step, and
     out_dir/ground_truth.json (calibration.json format + "cam_from_world": {name: 16 floats})."""
+    refuse_png_if_it_would_abort()
     out_dir = Path(out_dir)
     for c, name in enumerate(rig.names):
         (out_dir / name).mkdir(parents=True, exist_ok=True)
