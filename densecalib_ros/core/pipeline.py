@@ -362,7 +362,7 @@ def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
         raise InputError("No frame sets to calibrate from: give at least one image per camera.")
     sizes = None
     for t, frames in enumerate(frame_sets):
-        if isinstance(frames, np.ndarray) and frames.ndim <= 3 or not hasattr(frames, "__len__"):
+        if (isinstance(frames, np.ndarray) and frames.ndim <= 3) or not hasattr(frames, "__len__"):
             raise InputError(f"Frame set {t} is not a list of images, one per camera: "
                              "frame_sets[t][c] is camera c's image of moment t (one moment: "
                              "[[image_cam0, image_cam1, ...]]).")

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError
-from .export import ros_camera_info
+from .export import opencv_intrinsics
 from .types import RigCalibration
 from .undistort import DEFAULT_MAX_FOV_DEG as FALLBACK_MAX_FOV_DEG  # widest rectified view
 
@@ -91,24 +91,20 @@ def rectify_pair(rig: RigCalibration, left: str, right: str, alpha: float = 0.0
         raise InputError(f"alpha must lie in [0, 1] (0: only valid pixels, 1: all pixels), "
                          f"not {alpha}.")
     pose_left, pose_right = _pose(rig, left), _pose(rig, right)
-    info_left = ros_camera_info(left, rig.cameras[left].intrinsics)
-    info_right = ros_camera_info(right, rig.cameras[right].intrinsics)
-    fisheye = info_left["distortion_model"] == "equidistant"
-    if fisheye != (info_right["distortion_model"] == "equidistant"):
-        raise InputError(f"Cameras {left} ({info_left['distortion_model']}) and {right} "
-                         f"({info_right['distortion_model']}) mix a fisheye and a pinhole lens "
-                         "model; OpenCV rectifies a pair of one kind. Run `densecalib undistort` "
-                         "first (it writes pinhole cameras) and export the pair from its output.")
-    size = (info_left["image_width"], info_left["image_height"])
-    if size != (info_right["image_width"], info_right["image_height"]):
+    lens_left, lens_right = rig.cameras[left].intrinsics, rig.cameras[right].intrinsics
+    (k1, d1, fisheye), (k2, d2, fisheye_right) = map(opencv_intrinsics, (lens_left, lens_right))
+    if fisheye != fisheye_right:
+        raise InputError(f"Cameras {left} ({lens_left.model}) and {right} ({lens_right.model}) "
+                         "mix a fisheye and a pinhole lens model; OpenCV rectifies a pair of one "
+                         "kind. Run `densecalib undistort` first (it writes pinhole cameras) and "
+                         "export the pair from its output.")
+    size = (int(lens_left.width), int(lens_left.height))
+    if size != (int(lens_right.width), int(lens_right.height)):
         raise InputError(f"Cameras {left} ({size[0]}x{size[1]}) and {right} "
-                         f"({info_right['image_width']}x{info_right['image_height']}) have "
+                         f"({lens_right.width}x{lens_right.height}) have "
                          "different image sizes; stereo rectification needs one size. Resize one "
                          "camera's images and calibrate again, or pick another pair.")
-    k1, k2 = (np.asarray(i["camera_matrix"]["data"], np.float64).reshape(3, 3)
-              for i in (info_left, info_right))
-    d1, d2 = (np.asarray(i["distortion_coefficients"]["data"], np.float64).reshape(-1, 1)
-              for i in (info_left, info_right))
+    d1, d2 = d1.reshape(-1, 1), d2.reshape(-1, 1)
     right_from_left = pose_right @ np.linalg.inv(pose_left)
     rot, t = right_from_left[:3, :3].copy(), right_from_left[:3, 3].reshape(3, 1).copy()
     baseline = float(np.linalg.norm(t))
