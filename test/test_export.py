@@ -67,6 +67,12 @@ def test_calibration_round_trip(tmp_path):
     assert calibration_from_dict(data).cameras["a"].quality.num_multiview_observations is None
     assert (tmp_path / "a.yaml").exists() and (tmp_path / "b.yaml").exists()
     assert json.loads((tmp_path / "calibration.json").read_text())["quality"]["rms_px"] == 0.5
+    # The file says how to read it, and the YAML beside it is what that says: cx 0.5 smaller.
+    assert "(0.5, 0.5)" in data["conventions"]["params"]
+    assert yaml.safe_load((tmp_path / "a.yaml").read_text())["camera_matrix"]["data"][2] == \
+        pytest.approx(data["cameras"]["a"]["params"][1] - 0.5)
+    del data["conventions"]  # files written before it still load
+    assert calibration_from_dict(data).reference_camera == "a"
 
 
 def test_a_node_output_dir_reads_as_its_latest_calibration(tmp_path):

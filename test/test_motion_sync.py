@@ -204,6 +204,8 @@ def test_sync_command_prints_the_offsets(videos, capsys, caplog):
     data = json.loads(capsys.readouterr().out)
     assert data["reference"] == "cam0"
     assert data["offsets_s"]["cam2"] == pytest.approx(-1.23, abs=0.01)
+    evidence = data["evidence"]["cam2"]  # as the text's "correlation", and the runner-up
+    assert evidence["correlation"] > 0.5 > evidence["second_correlation"]
     assert main(["sync", "--videos", str(videos)]) == 0
     out = capsys.readouterr().out
     assert "calibrate with: --time-offset cam1=0.70" in out and "correlation" in out

@@ -98,6 +98,10 @@ def test_command_prints_points_and_distances(rig, tmp_path, capsys, caplog):
     assert main(["triangulate", str(calib), *args, "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["units"] == "m" and data["distances"][0][1] == pytest.approx(1.0, abs=1e-5)
+    sigma = data["distance_sigmas"][0][1]  # as the text prints it; along x, the points' x sigmas
+    assert f"(1-sigma {sigma:.2g})" in out and data["distance_sigmas"][0][0] == 0.0
+    assert sigma == pytest.approx(np.hypot(data["points"][0]["std_rig"][0],
+                                           data["points"][1]["std_rig"][0]), rel=0.05)
     with caplog.at_level(logging.ERROR):
         for bad, message in ((["--point", "a=10,10"], "at least two cameras"),
                              (["--point", "a=10,10", "z=5,5"], "not in the calibration"),

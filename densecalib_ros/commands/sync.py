@@ -6,6 +6,7 @@ clock), and what `--time-offset` or the node's stamp_offsets_s should be."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 
 from ..core.errors import InputError
@@ -26,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-time-gap", type=float, default=None, metavar="S",
                         help="--images: how far apart shots taken together may be stamped "
                              "(default as calibrate's --max-time-gap)")
-    parser.add_argument("--json", action="store_true", help="print the offsets as JSON")
+    parser.add_argument("--json", action="store_true", help="print the offsets as JSON, with what each rests on "
+                             "(correlations, or shots paired)")
     parser.add_argument("--trim", metavar="OUT",
                         help="--videos: also write the videos cut to start at one moment (and, "
                              "at equal frame rates, to one length) into OUT, so that frame k "
@@ -66,22 +68,26 @@ def run(args: argparse.Namespace) -> int:
             from .inputs import parse_time_offsets
             named = parse_time_offsets(args.time_offset)
             evidence = {n: "given" if n in named else "not given: 0" for n in estimates}
+            evidence_json = {n: {"given": n in named} for n in estimates}
         elif args.videos:
             from ..core.motion_sync import estimate_video_offsets
             from ..core.video_io import list_video_folder
             estimates = estimate_video_offsets(*list_video_folder(args.videos))
             evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
+            evidence_json = _measured_evidence(estimates)
         elif args.bag:
             from ..core.bag import camera_names_from_topics
             from ..core.motion_sync import bag_offsets
             estimates = bag_offsets(args.bag, args.topics, camera_names_from_topics(args.topics))
             evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
+            evidence_json = _measured_evidence(estimates)
         else:
             from ..core.clock_offsets import estimate_clock_offsets
             from ..core.image_io import DEFAULT_MAX_TIME_GAP_S, capture_times_by_camera
             gap = DEFAULT_MAX_TIME_GAP_S if args.max_time_gap is None else args.max_time_gap
             estimates = estimate_clock_offsets(capture_times_by_camera(args.images), gap)
             evidence = {n: f"{e.paired_shots} shots paired" for n, e in estimates.items()}
+            evidence_json = _measured_evidence(estimates)
     except InputError as exc:
         log.error("%s", exc)
         return 2
@@ -111,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
                   "other topics and the log times as recorded")
     if args.json:
         print(json_text({"reference": names[0], "offsets_s": {
-            n: float(e.offset_s) for n, e in estimates.items()},
+            n: float(e.offset_s) for n, e in estimates.items()}, "evidence": evidence_json,
             **({"trimmed": trims} if args.trim else {}),
             **({"restamped": restamped} if args.restamp else {})}))
         return 0
@@ -125,6 +131,14 @@ def run(args: argparse.Namespace) -> int:
         print("densecalib_node (image_topics in this order): stamp_offsets_s:=["
               + ", ".join(f"{e.offset_s:.4f}" for e in estimates.values()) + "]")
     return 0
+
+
+def _measured_evidence(estimates: dict) -> dict:
+    """What each measured offset rests on, for --json: the peak's correlation and the best one
+    elsewhere (motion), or the shots paired at the offset and at any other (camera-trap clocks);
+    a low first or a close second means an unsure offset."""
+    return {n: {k: v for k, v in dataclasses.asdict(e).items() if k != "offset_s"}
+            for n, e in estimates.items()}
 
 
 def _write_trimmed(video_dir, estimates: dict, out, codec: str) -> dict:

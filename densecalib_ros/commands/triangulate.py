@@ -10,7 +10,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.export import read_calibration
 from ..core.json_text import json_text
-from ..core.triangulation import DEFAULT_PIXEL_SIGMA, triangulate
+from ..core.triangulation import DEFAULT_PIXEL_SIGMA, distance, triangulate
 
 log = logging.getLogger("densecalib.triangulate")
 
@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pixel-sigma", type=float, default=DEFAULT_PIXEL_SIGMA, metavar="PX",
                         help="assumed pixel error (1 sigma, each coordinate) for the points' "
                              f"standard deviations (default {DEFAULT_PIXEL_SIGMA:g})")
-    parser.add_argument("--json", action="store_true", help="print the points as JSON")
+    parser.add_argument("--json", action="store_true", help="print the points, and their distances with "
+                        "1-sigma, as JSON")
 
 
 def parse_observations(values: list[str], option: str = "--point") -> dict:
@@ -64,8 +65,8 @@ def run(args: argparse.Namespace) -> int:
              **({"xyz_floor": p.xyz_floor.tolist()} if p.xyz_floor is not None else {}),
              "residuals_px": p.residuals_px, "parallax_deg": p.parallax_deg,
              "warnings": p.warnings} for p in points],
-            "distances": [[float(np.linalg.norm(a.xyz_rig - b.xyz_rig)) for b in points]
-                          for a in points]}, indent=2))
+            "distances": [[distance(a, b)[0] for b in points] for a in points],
+            "distance_sigmas": [[distance(a, b)[1] for b in points] for a in points]}, indent=2))
         return 0
     floor = points[0].xyz_floor is not None
     print(f"point  x y z in the rig frame ({unit}; reference camera {rig.reference_camera})"
@@ -82,10 +83,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"       warning: {warning}")
     for i in range(len(points)):
         for j in range(i + 1, len(points)):
-            a, b = points[i], points[j]
-            d = b.xyz_rig - a.xyz_rig
-            dist = float(np.linalg.norm(d))
-            u = d / max(dist, 1e-300)  # first-order sigma of the distance
-            sigma = float(np.sqrt(u @ (a.covariance_rig + b.covariance_rig) @ u))
+            dist, sigma = distance(points[i], points[j])
             print(f"distance {i}-{j}: {dist:.4g} {unit} (1-sigma {sigma:.2g})")
     return 0

@@ -179,5 +179,6 @@ def disagreement_warning(disagreement_deg: float, num_runs: int) -> Optional[str
     return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
             "(median over camera pairs) from the others, so the images allow quite different rigs "
             "and this one may be wrong. Add frame sets (time-aligned images of a changing scene) or "
-            "more overlap between cameras, or use --share-intrinsics (node: share_intrinsics) if "
+            "more overlap between cameras, or use --share-intrinsics (node: share_intrinsics; "
+            "SfMConfig.share_intrinsics) if "
             "the cameras are identical units.")

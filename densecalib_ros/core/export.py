@@ -106,6 +106,20 @@ def camera_info_yaml(name: str, intrinsics: CameraIntrinsics,
             + mat("rectification_matrix") + mat("projection_matrix"))
 
 
+# Written into every calibration.json so that a reader without our README reads it right
+# (informational: calibration_from_dict ignores it).
+FILE_CONVENTIONS = {
+    "params": "COLMAP camera model parameters (model names COLMAP's) in COLMAP's pixel "
+              "convention: the top-left pixel's centre is (0.5, 0.5), so cx and cy are 0.5 "
+              "larger than OpenCV's and ROS's (the camera_info YAMLs beside this file are in "
+              "OpenCV's)",
+    "cam_from_rig": "4x4 row-major: x_cam = R x_rig + t; camera frame x right, y down, "
+                    "z forward; the rig frame is reference_camera's",
+    "units": "translations in metres when metric_scale is true, else in rig units (the "
+             "scene's own, unknown scale)",
+}
+
+
 def calibration_to_dict(rig: RigCalibration) -> dict:
     cams = {}
     for name, cam in rig.cameras.items():
@@ -126,7 +140,7 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
         cams[name] = entry
     return {"reference_camera": rig.reference_camera, "cameras": cams,
             "failed_cameras": list(rig.failed_cameras), "metric_scale": bool(rig.metric_scale),
-            "quality": jsonable(rig.quality)}
+            "quality": jsonable(rig.quality), "conventions": FILE_CONVENTIONS}
 
 
 def calibration_from_dict(data: dict) -> RigCalibration:

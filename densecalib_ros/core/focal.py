@@ -44,7 +44,8 @@ ROBUST_SCALE = 0.05  # Cauchy scale on r_ij: a good pair's residual is ~0.01, a 
 MAX_MEDIAN_RESIDUAL = 0.2
 RESTART_FACTORS = (1.0, 0.5, 2.0, 4.0)
 # How the user can skip this estimate (pipeline.start_focals); ends every FocalInitError message.
-KNOWN_FOCALS_HINT = "give the focal lengths if you know them (--focal-px; node: initial_focal_px)."
+KNOWN_FOCALS_HINT = ("give the focal lengths if you know them (--focal-px; node and "
+                     "PipelineConfig: initial_focal_px).")
 
 
 def calibration_matrix(focal_px: float, principal_point_px) -> np.ndarray:

@@ -48,6 +48,7 @@ import numpy as np
 from .errors import InputError
 from .export import camera_info_yaml, ros_camera_info
 from .floor import world_from_rig
+from .scale import HOW_TO_SCALE
 from .stereo import StereoRectification
 from .types import RigCalibration
 
@@ -64,7 +65,7 @@ _ROS_TOPIC = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 
 def _units(rig: RigCalibration) -> str:
     return "metres" if rig.metric_scale else \
-        "arbitrary SfM units (for metres: calibrate with --known-baseline, or `densecalib scale`)"
+        f"arbitrary SfM units (for metres: {HOW_TO_SCALE})"
 
 
 def _lens(name: str, rig: RigCalibration, fmt: str) -> tuple[dict, list[float], bool]:

@@ -330,7 +330,8 @@ def _start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
     missing = [n for n in missing if n not in _known_focals(config, camera_names)]
     if missing and hint:
         raise InputError(f"No initial focal length for camera(s) {', '.join(missing)}: give one "
-                         "per camera, or one for all ('*', e.g. --focal-px 800).")
+                         "per camera, or one for all ('*': --focal-px 800, or initial_focal_px "
+                         "{'*': 800.0} in PipelineConfig).")
     return out
 
 

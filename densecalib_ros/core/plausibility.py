@@ -148,4 +148,5 @@ def drop_implausible_cameras(state: SfMState, failed: list[int], camera_names: S
                 f"{camera_names[c]}: {p}" for c, p in problems.items()) + "): the scene is "
             "probably too close to planar or the views too similar to fix the focal lengths and "
             "distortion. Add frame sets with depth variation (objects in front of the "
-            "background), or try --pipeline global.")
+            "background), or try the global pipeline (--pipeline global; node and "
+            "PipelineConfig: pipeline).")

@@ -15,6 +15,13 @@ from .types import RigCalibration
 log = logging.getLogger(__name__)
 
 
+# How to make a calibration metric, for every message about its missing scale: by command, node
+# parameter and library function (the core's messages reach all three kinds of user).
+HOW_TO_SCALE = ("calibrate with --known-baseline (node: known_baseline_m; library: "
+                "core.scale.apply_known_baseline), or measure a known length with `densecalib "
+                "scale` (library: core.scale.apply_known_distance)")
+
+
 def camera_distance(rig: RigCalibration, camera_a: str, camera_b: str) -> float:
     """Distance between the optical centres of two cameras, in the rig's translation units."""
     for name in (camera_a, camera_b):
@@ -97,19 +104,16 @@ def apply_known_distance(rig: RigCalibration, point_a: dict, point_b: dict, dist
     pixels in two or more cameras, {camera: (x, y)} OpenCV pixels (core.triangulation). The
     scale's relative standard deviation, from the points' covariances at `pixel_sigma`, is
     recorded; above MAX_SCALE_RELATIVE_STD it is also a warning."""
-    from .triangulation import triangulate
+    from .triangulation import distance, triangulate
 
     _check_length_m("distance", distance_m)
     a, b = triangulate(rig, point_a, pixel_sigma), triangulate(rig, point_b, pixel_sigma)
-    between = a.xyz_rig - b.xyz_rig
-    distance = float(np.linalg.norm(between))
-    if not distance > 1e-12:
+    distance_rig, std_rig = distance(a, b)
+    if not distance_rig > 1e-12:
         raise InputError("The two points triangulate to one place: give the pixels of two "
                          "different scene points, as far apart as the scene allows.")
-    direction = between / distance
-    relative_std = float(np.sqrt(direction @ (a.covariance_rig + b.covariance_rig) @ direction)
-                         ) / distance
-    factor = distance_m / distance
+    relative_std = std_rig / distance_rig
+    factor = distance_m / distance_rig
     scaled = scaled_rig(rig, factor, {"scale_from_points": {
         "points": [{n: list(map(float, xy)) for n, xy in p.items()} for p in (point_a, point_b)],
         "distance_m": float(distance_m), "factor": factor, "relative_std": relative_std,
@@ -202,7 +206,6 @@ def warn_if_scale_lost(rig: RigCalibration, previous: RigCalibration | None) -> 
         return
     warning = ("no metric scale: the previous calibration was metric"
                + (" from two scene points" if "scale_from_points" in previous.quality else "")
-               + ", this one is up to scale; give a known baseline, or measure again with "
-               "`densecalib scale`")
+               + ", this one is up to scale; for metres again " + HOW_TO_SCALE)
     log.warning("%s", warning)
     rig.quality.setdefault("warnings", []).append(warning)

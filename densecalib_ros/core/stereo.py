@@ -25,6 +25,7 @@ import numpy as np
 
 from .errors import InputError
 from .export import opencv_intrinsics
+from .scale import HOW_TO_SCALE
 from .types import RigCalibration
 from .undistort import DEFAULT_MAX_FOV_DEG as FALLBACK_MAX_FOV_DEG  # widest rectified view
 
@@ -201,6 +202,5 @@ def stereo_pair(rig: RigCalibration, pair: Optional[Sequence[str]], alpha: float
                     rect.left, turned[0], rect.right, turned[1])
     if not rect.metric:
         log.warning("The rig has no metric scale: the baseline (%.4g) and depths from this pair "
-                    "are in arbitrary units. For metres: calibrate with --known-baseline, or "
-                    "measure a known length with `densecalib scale`.", rect.baseline)
+                    "are in arbitrary units. For metres: %s.", rect.baseline, HOW_TO_SCALE)
     return rect

@@ -138,3 +138,13 @@ def triangulate(rig: RigCalibration, observations: dict,
         floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
         point.xyz_floor = floor_from_rig[:3, :3] @ xyz + floor_from_rig[:3, 3]
     return point
+
+
+def distance(a: TriangulatedPoint, b: TriangulatedPoint) -> tuple[float, float]:
+    """The distance between two triangulated points and its 1-sigma (rig units: metres once the
+    rig has a scale), to first order along the line between them, the points' errors taken as
+    independent (each was clicked on its own)."""
+    d = b.xyz_rig - a.xyz_rig
+    dist = float(np.linalg.norm(d))
+    u = d / max(dist, 1e-300)
+    return dist, float(np.sqrt(max(u @ (a.covariance_rig + b.covariance_rig) @ u, 0.0)))
