@@ -882,6 +882,50 @@ def test_sync_service_measures_the_stamp_offsets(ros, tmp_path):
             ros.remove(other)
 
 
+def test_frames_lost_on_the_way_are_counted_and_reported(ros, tmp_path):
+    """cam1's driver loses every fourth frame of a steady 10 fps stream before the node sees it
+    (what an overflowing shared-memory segment does): /diagnostics counts them per camera and
+    warns, and /rosout says what to do; the cameras that lose nothing count 0."""
+    node = ros.densecalib(tmp_path / "out")
+    drivers = [ros.add(CameraPublisherNode(name, topic, encoding, context=ros.context))
+               for name, (topic, encoding, _) in CAMERAS.items()]
+    listener, rosout = ros.listener(node), ros.add(RosoutListener(ros.context))
+    image = np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    ticks, lost = 80, [k for k in range(80) if k % 4 == 3]
+    try:
+        assert wait_until(lambda: None not in node._image_subs, 30.0), "topics not discovered"
+        assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 30.0)
+        for k in range(ticks):
+            before = list(node.sync.received)
+            for c, driver in enumerate(drivers):
+                if not (c == 1 and k in lost):
+                    driver.publish_image(image, int((5.0 + k / 10) * 1e9))
+            # paced by what the node received, so that only the frames meant to be lost are
+            wait_until(lambda: all(node.sync.received[c] > before[c] for c in (0, 2, 3)), 1.0,
+                       0.002)
+        assert node.sync.received[1] == ticks - len(lost), node.sync.received
+
+        def reported():
+            state = diagnostic_state(listener)
+            return state if state and "cam1=" in state[2].get("lost_frames_per_camera", "") \
+                and not state[2]["lost_frames_per_camera"].startswith("cam1=0") else None
+        assert wait_until(reported, 5.0)
+        level, message, values = reported()
+        counts = dict(re.findall(r"(cam\d)=(\d+)", values["lost_frames_per_camera"]))
+        # the first intervals only find the period (ros.frame_loss.MIN_INTERVALS)
+        assert {n: int(k) for n, k in counts.items() if n != "cam1"} == \
+            {"cam0": 0, "cam2": 0, "cam3": 0}
+        assert len(lost) - 4 <= int(counts["cam1"]) <= len(lost), values
+        assert "10.0 fps" in values["lost_frames_per_camera"]
+        assert level == DiagnosticStatus.WARN and "frames lost on the way from cam1" in message
+        assert wait_until(lambda: any(
+            m.level == Log.WARN and "fastdds_large_images.xml" in m.msg and "cam1" in m.msg
+            for m in rosout.copy()), 5.0)
+    finally:
+        for other in [*drivers, listener, rosout, node]:
+            ros.remove(other)
+
+
 def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_path):
     """Shutdown (destroy_node) while a calibration runs: the worker's publishing no longer kills
     its thread, so the job is still answered and nobody is left waiting on it."""

@@ -68,8 +68,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from sensor_msgs.srv import SetCameraInfo
 from std_msgs.msg import String
@@ -90,6 +89,8 @@ from ..core.sync import FrameSet, evenly_spaced
 from ..core.types import RigCalibration
 from .conversions import camera_info_msg, point_cloud_msg, rig_tf_message
 from .core_logs import forward_core_logs, stop_forwarding
+from .frame_loss import LOSS_HINT, WARN_LOSS_FRACTION
+from .intake import ImageIntake
 from .replay import BagReplayer
 from .settings import (PARAMETERS, Settings, is_list_parameter, parse_settings,
                        pipeline_config)
@@ -156,6 +157,7 @@ class DenseCalibNode(Node):
         super().__init__(node_name, **node_kwargs)
         self._core_logs = forward_core_logs(self.get_logger().get_child("core"))
         self._replayer: Optional[BagReplayer] = None
+        self._intake: Optional[ImageIntake] = None
         self._stopping = threading.Event()  # stop(): answer waiting callers, write nothing
         self._callers_waiting, self._num_callers_waiting = threading.Condition(), 0
         for name, (default, description, read_only, ranges) in PARAMETERS.items():
@@ -193,10 +195,8 @@ class DenseCalibNode(Node):
         self.sync = MessageSynchronizer(len(s.image_topics), s.slop_s, s.buffer_size,
                                         s.min_interval_s, s.sync_queue_size, s.stamp_offsets_s,
                                         s.sync_window_s)
-        # One group for all cameras' subscriptions. A group per camera was measured: with motion
-        # tracking on (4 x 640x480 rgb8 at 25 fps from another process) the executor then used
-        # 0.9 cores instead of 0.27 and received fewer frames.
-        self._sub_group = MutuallyExclusiveCallbackGroup()
+        # the image subscriptions: on a single-threaded executor of their own (ros.intake)
+        self._intake = ImageIntake(self)
         self._timer_group = MutuallyExclusiveCallbackGroup()
         self._service_group = ReentrantCallbackGroup()
         self._client_group = ReentrantCallbackGroup()
@@ -302,9 +302,9 @@ class DenseCalibNode(Node):
     def _subscribe(self, i: int, compressed: bool) -> None:
         s = self.settings
         msg_type = CompressedImage if compressed else Image
-        self._image_subs[i] = self.create_subscription(
-            msg_type, s.image_topics[i], lambda msg, i=i: self.sync.add(i, msg),
-            qos_profile_sensor_data, callback_group=self._sub_group)
+        self._image_subs[i] = self._intake.subscribe(
+            msg_type, self.resolve_topic_name(s.image_topics[i]),
+            lambda msg, i=i: self.sync.add(i, msg))
         self.get_logger().info(f"camera {s.camera_names[i]}: subscribed to {s.image_topics[i]} "
                                f"({msg_type.__name__})")
 
@@ -885,6 +885,20 @@ class DenseCalibNode(Node):
                                   ("; the last calibration failed" if self._last_failure else ""))
         if self._last_failure:
             values["last_failure"] = self._last_failure
+        values["lost_frames_per_camera"] = ", ".join(
+            f"{n}={k} ({100 * r:.0f} % lately, "
+            + (f"{1 / p:.1f} fps)" if p else "rate not steady)")
+            for n, k, r, p in zip(self.settings.camera_names, stats["lost"],
+                                  stats["recent_loss"], stats["period_s"]))
+        losing = [f"{n} ({100 * r:.0f} %)" for n, r in zip(self.settings.camera_names,
+                                                          stats["recent_loss"])
+                  if r > WARN_LOSS_FRACTION]
+        if losing:  # after the others: it adds to their message
+            status.level = max(status.level, DiagnosticStatus.WARN)
+            status.message += f"; frames lost on the way from {', '.join(losing)}"
+            self.get_logger().warning(
+                f"{', '.join(losing)} of the recent frames missing (gaps in the header stamps): "
+                + LOSS_HINT, throttle_duration_sec=60.0)
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -904,6 +918,8 @@ class DenseCalibNode(Node):
         stop_forwarding(self._core_logs)
         if self._replayer is not None:
             self._replayer.stop()
+        if self._intake is not None:
+            self._intake.destroy()
         return super().destroy_node()
 
 

@@ -16,6 +16,7 @@ from ..core.errors import InputError
 from ..core.motion_sync import MotionEnergy, OffsetEstimate, stream_offsets
 from ..core.sync import ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer
 from .conversions import image_msg_to_numpy, message_stamp_ns, motion_image
+from .frame_loss import StampGaps
 
 BY_HAND = "set stamp_offsets_s by hand"
 # A camera whose last image is this much older than another's has stopped publishing (a live
@@ -46,6 +47,7 @@ class MessageSynchronizer:
         # (monotonic s) and that message's stamp (offset taken off, ns)
         self._last_arrival_s: list[Optional[float]] = [None] * num_streams
         self._last_stamp_ns: list[Optional[int]] = [None] * num_streams
+        self._gaps = [StampGaps() for _ in range(num_streams)]  # frames lost on the way
         self.motion_window_s = motion_window_s
         self._motion_lock = threading.Lock()
         self._motion = ([MotionEnergy(motion_window_s) for _ in range(num_streams)]
@@ -62,6 +64,7 @@ class MessageSynchronizer:
         with self._lock:
             self.received[stream] += 1
             self._last_arrival_s[stream], self._last_stamp_ns[stream] = self._clock(), t
+            self._gaps[stream].add(stamp)
             return sum(self._buffer.push(s) for s in self._sync.add(stream, t, msg))
 
     def _add_motion(self, stream: int, stamp_ns: int, msg) -> None:
@@ -151,7 +154,10 @@ class MessageSynchronizer:
                     "dropped_overflow": self._sync.stats.dropped_overflow,
                     "pending": self._sync.pending(),
                     "dropped_oldest": self._buffer.dropped_oldest,
-                    "skipped_interval": self._buffer.skipped_interval}
+                    "skipped_interval": self._buffer.skipped_interval,
+                    "lost": [g.lost for g in self._gaps],
+                    "recent_loss": [g.recent_loss() for g in self._gaps],
+                    "period_s": [g.period_s() for g in self._gaps]}
 
 
 def decode_frame_sets(frame_sets: list[FrameSet]) -> list[list[np.ndarray]]:

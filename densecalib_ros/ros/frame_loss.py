@@ -1,0 +1,89 @@
+"""Frames lost on their way to the node, told from gaps in a camera's header stamps.
+
+A driver publishing at a steady rate stamps its frames one period apart, so a frame the node never
+received leaves a gap of a whole number of periods. Image topics are best-effort (sensor-data
+QoS): the middleware drops frames silently, and nothing else tells the operator that ~/sync's
+motion signals have holes or that frame sets form from fewer frames than the cameras take.
+Measured (session 28, 4 x 768x512 mono8 at 15 Hz from another process, Fast DDS, the node on its
+own intake executor, ros.intake): 141-147 of 150 frames on two of the cameras, 150 of 150 once the
+publisher had a 16 MB shared-memory segment (config/fastdds_large_images.xml) instead of Fast
+DDS's 512 kB one shared by all of its topics. The slower the reader, the more such a segment
+loses: with the node's former executor 41-131 of 150.
+
+A stream is judged only while it is steady (most intervals a whole number of periods): triggered
+cameras (camera traps) and replays that jump back are not, and count nothing."""
+from __future__ import annotations
+
+from collections import deque
+from typing import Optional
+
+import numpy as np
+
+RECENT_INTERVALS = 100  # the intervals that the period, steadiness and recent loss come from
+MIN_INTERVALS = 10  # fewer: no period yet
+# The frame period is taken from the shortest intervals (this percentile, then the mean of those
+# within tolerance of one period): right as long as a tenth of consecutive frames both arrive,
+# where a median would take the gaps for the period once half the frames are lost.
+PERIOD_PERCENTILE = 10
+MULTIPLE_TOLERANCE = 0.25  # an interval within this many periods of a whole multiple fits the rate
+STEADY_FRACTION = 0.9  # fewer of the recent intervals fitting: not steady, not judged
+MAX_GAP_S = 1.0  # longer: the driver paused or stopped (sync.why_few_sets says so), not a loss
+# Recent loss above this is worth the operator's attention (diagnostics WARN and a log line).
+WARN_LOSS_FRACTION = 0.05
+LOSS_HINT = (
+    "frames are lost between the camera driver and this node (image topics are best-effort: "
+    "lost frames are dropped silently). With Fast DDS, the default middleware, and images of a "
+    "few hundred kB or more, the usual cause is the driver's 512 kB shared-memory segment: start "
+    "the camera drivers with FASTRTPS_DEFAULT_PROFILES_FILE pointing at this package's "
+    "config/fastdds_large_images.xml, or have them publish compressed images (image_topics "
+    "ending in /compressed). Frame sets still form; ~/sync's motion signals get holes")
+
+
+class StampGaps:
+    """One stream's header stamps -> its frame period and the frames missing between them."""
+
+    def __init__(self):
+        self._last_ns: Optional[int] = None
+        self._intervals_s: deque[float] = deque(maxlen=RECENT_INTERVALS)
+        self._recent: deque[tuple[int, int]] = deque(maxlen=RECENT_INTERVALS)  # (lost, periods)
+        self.lost = 0  # frames missing since the node started (while the stream was steady)
+
+    def add(self, stamp_ns: int) -> None:
+        last, self._last_ns = self._last_ns, int(stamp_ns)
+        if last is None:
+            return
+        dt_s = (self._last_ns - last) * 1e-9
+        if dt_s <= 0.0:  # a replay starting again, sim time reset, a frame out of order
+            self._intervals_s.clear()
+            self._recent.clear()
+            return
+        self._intervals_s.append(dt_s)
+        period_s = self.period_s()
+        periods = 1
+        if period_s is not None and dt_s <= MAX_GAP_S:
+            k = round(dt_s / period_s)
+            if k >= 2 and abs(dt_s - k * period_s) < MULTIPLE_TOLERANCE * period_s:
+                periods = k
+        self.lost += periods - 1
+        self._recent.append((periods - 1, periods))
+
+    def period_s(self) -> Optional[float]:
+        """The stream's frame period [s] (header stamps), or None while it is unknown or the
+        stream is not steady."""
+        if len(self._intervals_s) < MIN_INTERVALS:
+            return None
+        intervals = np.asarray(self._intervals_s)
+        guess = float(np.percentile(intervals, PERIOD_PERCENTILE))
+        one = np.abs(intervals - guess) < MULTIPLE_TOLERANCE * guess
+        if not one.any():
+            return None
+        period = float(intervals[one].mean())
+        k = np.maximum(np.round(intervals / period), 1.0)
+        fits = (np.abs(intervals - k * period) < MULTIPLE_TOLERANCE * period) | \
+            (intervals > MAX_GAP_S)
+        return period if fits.mean() >= STEADY_FRACTION else None
+
+    def recent_loss(self) -> float:
+        """The fraction of frames lost over the recent intervals (0 when not judged)."""
+        lost = sum(k for k, _ in self._recent)
+        return lost / max(sum(p for _, p in self._recent), 1)

@@ -1,0 +1,67 @@
+"""The image subscriptions, on a node and a single-threaded executor of their own.
+
+The node's services and timers need rclpy's MultiThreadedExecutor (a ~/calibrate caller waits
+for minutes, a watch check takes seconds), but that executor cannot carry image streams: each
+ready subscription becomes a task in a list that its spinning thread walks after every wait, and
+once the callbacks fall behind the list grows faster than it drains, so that thread takes a whole
+core and the GIL from the callbacks (measured, session 28: 4 x 768x512 mono8 at 15 Hz from
+another process, motion tracking on: in 4 of 16 runs with one mutually exclusive group for the
+images the node used 100 % of both cores and received 5-38 of 150 frames a camera, 150 in the
+others at 28-31 % of a core; a group per camera 25-84 of 150 in 6 of 6 runs, a reentrant group
+22-42 of 150 in 6 of 6; on this executor 150 of 150 in 6 of 6 runs at 10-15 % of a core). A
+SingleThreadedExecutor runs each callback where it takes the message: no task list, no other
+thread to wait for.
+
+The intake node ignores the process's --ros-args (use_global_arguments=False: a `__node:=` rename
+would otherwise give it the main node's name); it subscribes to the topic names that the main
+node resolved, with its namespace and remappings."""
+from __future__ import annotations
+
+import threading
+from typing import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+
+INTAKE_SUFFIX = "_images"  # the intake node's name: the main node's with this after it
+_WAKE_S = 0.1  # how often the spinning thread looks whether it should stop
+_JOIN_TIMEOUT_S = 2.0  # a callback still running then (a decode) ends with the process
+
+
+class ImageIntake:
+    """Subscriptions whose callbacks run on one thread of their own, beside `parent`."""
+
+    def __init__(self, parent: Node):
+        self.node = rclpy.create_node(
+            parent.get_name() + INTAKE_SUFFIX, namespace=parent.get_namespace(),
+            context=parent.context, use_global_arguments=False, enable_rosout=False,
+            start_parameter_services=False)
+        self._executor = SingleThreadedExecutor(context=parent.context)
+        self._executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name="image intake", daemon=True)
+        self._thread.start()
+
+    def subscribe(self, msg_type, resolved_topic: str, callback: Callable):
+        """A best-effort (sensor data QoS) subscription to a fully resolved topic name."""
+        return self.node.create_subscription(msg_type, resolved_topic, callback,
+                                             qos_profile_sensor_data)
+
+    def _spin(self) -> None:
+        try:
+            while not self._stop.is_set() and self.node.context.ok():
+                self._executor.spin_once(timeout_sec=_WAKE_S)
+        except (ExternalShutdownException, ShutdownException):
+            pass  # the context was shut down (Ctrl-C): the main node ends too
+
+    def destroy(self) -> None:
+        """Stop the thread, then the executor and the node (not while the thread waits on them:
+        rclpy 7's Executor.shutdown destroys its guard condition without waiting for spin)."""
+        if self._stop.is_set():
+            return  # destroyed already
+        self._stop.set()
+        self._thread.join(_JOIN_TIMEOUT_S)
+        self._executor.shutdown(timeout_sec=0)
+        self.node.destroy_node()
