@@ -27,8 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-time-gap", type=float, default=None, metavar="S",
                         help="--images: how far apart shots taken together may be stamped "
                              "(default as calibrate's --max-time-gap)")
-    parser.add_argument("--json", action="store_true", help="print the offsets as JSON, with what each rests on "
-                             "(correlations, or shots paired)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the offsets as JSON, with what each rests on (correlations, "
+                             "or shots paired)")
     parser.add_argument("--trim", metavar="OUT",
                         help="--videos: also write the videos cut to start at one moment (and, "
                              "at equal frame rates, to one length) into OUT, so that frame k "

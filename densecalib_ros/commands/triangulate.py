@@ -27,8 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pixel-sigma", type=float, default=DEFAULT_PIXEL_SIGMA, metavar="PX",
                         help="assumed pixel error (1 sigma, each coordinate) for the points' "
                              f"standard deviations (default {DEFAULT_PIXEL_SIGMA:g})")
-    parser.add_argument("--json", action="store_true", help="print the points, and their distances with "
-                        "1-sigma, as JSON")
+    parser.add_argument("--json", action="store_true",
+                        help="print the points, and their distances with 1-sigma, as JSON")
 
 
 def parse_observations(values: list[str], option: str = "--point") -> dict:

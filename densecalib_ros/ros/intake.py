@@ -1,10 +1,10 @@
 """The image subscriptions, on a node and a single-threaded executor of their own.
 
 The node's services and timers need rclpy's MultiThreadedExecutor (a ~/calibrate caller waits
-for minutes, a watch check takes seconds), but that executor cannot carry image streams: each
-ready subscription becomes a task in a list that its spinning thread walks after every wait, and
-once the callbacks fall behind the list grows faster than it drains, so that thread takes a whole
-core and the GIL from the callbacks (measured, session 28: 4 x 768x512 mono8 at 15 Hz from
+for minutes, a watch check takes seconds), but that executor does not carry image streams: once
+its callbacks fall behind, its spinning thread (found walking its list of pending tasks, which it
+does after every wait) takes a whole core and the GIL from the callbacks, which fall further
+behind (measured, session 28: 4 x 768x512 mono8 at 15 Hz from
 another process, motion tracking on: in 4 of 16 runs with one mutually exclusive group for the
 images the node used 100 % of both cores and received 5-38 of 150 frames a camera, 150 in the
 others at 28-31 % of a core; a group per camera 25-84 of 150 in 6 of 6 runs, a reentrant group
