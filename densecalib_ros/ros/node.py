@@ -302,11 +302,12 @@ class DenseCalibNode(Node):
     def _subscribe(self, i: int, compressed: bool) -> None:
         s = self.settings
         msg_type = CompressedImage if compressed else Image
-        self._image_subs[i] = self._intake.subscribe(
-            msg_type, self.resolve_topic_name(s.image_topics[i]),
-            lambda msg, i=i: self.sync.add(i, msg))
-        self.get_logger().info(f"camera {s.camera_names[i]}: subscribed to {s.image_topics[i]} "
-                               f"({msg_type.__name__})")
+        topic = self.resolve_topic_name(s.image_topics[i])  # namespace and remappings applied
+        self._image_subs[i] = self._intake.subscribe(msg_type, topic,
+                                                     lambda msg, i=i: self.sync.add(i, msg))
+        given = "" if topic == s.image_topics[i] else f", image_topics: {s.image_topics[i]}"
+        self.get_logger().info(f"camera {s.camera_names[i]}: subscribed to {topic} "
+                               f"({msg_type.__name__}{given})")
 
     def _subscribe_known_topics(self) -> None:
         for i, (topic, transport) in enumerate(zip(self.settings.image_topics,
