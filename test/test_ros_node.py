@@ -918,6 +918,11 @@ def test_frames_lost_on_the_way_are_counted_and_reported(ros, tmp_path):
         assert len(lost) - 4 <= int(counts["cam1"]) <= len(lost), values
         assert "10.0 fps" in values["lost_frames_per_camera"]
         assert level == DiagnosticStatus.WARN and "frames lost on the way from cam1" in message
+        # what arrived, per camera by name, and the sets complete on every camera
+        received = ", ".join(f"{n}={ticks - (len(lost) if n == 'cam1' else 0)}" for n in CAMERAS)
+        assert wait_until(lambda: diagnostic_state(listener)[2]["received_per_camera"]
+                          == received, 5.0), diagnostic_state(listener)[2]
+        assert 1 <= int(diagnostic_state(listener)[2]["matched_frame_sets"]) <= ticks - len(lost)
         assert wait_until(lambda: any(
             m.level == Log.WARN and "fastdds_large_images.xml" in m.msg and "cam1" in m.msg
             for m in rosout.copy()), 5.0)

@@ -179,3 +179,27 @@ def test_message_synchronizer_tells_why_no_frame_sets_form():
     why = sync.why_few_sets(names, topics)
     assert "0.500 s apart, more than slop_s 0.02" in why and "rear -0.500" not in why
     assert "left +0.500" in why and "rear +0.000" in why and "~/sync" in why
+
+
+def test_why_few_sets_adds_the_frames_lost_on_the_way():
+    """Scattered losses leave few sets complete on every camera: the reason given for too few
+    sets says how many frames each losing camera missed, and what to do."""
+    pytest.importorskip("rclpy")
+    from sensor_msgs.msg import Image
+
+    from densecalib_ros.ros.sync import MessageSynchronizer
+
+    names, topics = ["left", "right", "rear"], ["/l/image", "/r/image", "/b/image"]
+    sync = MessageSynchronizer(3, slop_s=0.02, buffer_size=10, clock=lambda: 0.0)
+    for k in range(60):  # 10 fps; rear loses every fourth frame
+        for stream in range(3):
+            if stream == 2 and k % 4 == 3:
+                continue
+            msg = Image()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(k * 1e8), 10**9)
+            sync.add(stream, msg)
+    why = sync.why_few_sets(names, topics)
+    lost = why.split("frames were lost on the way (at least ")[1]
+    assert lost.startswith("rear ") and "left" not in lost.split(")")[0]
+    assert 10 <= int(lost.split()[1].rstrip(",")) <= 15, why
+    assert "fastdds_large_images.xml" in why

@@ -4,11 +4,13 @@ A driver publishing at a steady rate stamps its frames one period apart, so a fr
 received leaves a gap of a whole number of periods. Image topics are best-effort (sensor-data
 QoS): the middleware drops frames silently, and nothing else tells the operator that ~/sync's
 motion signals have holes or that frame sets form from fewer frames than the cameras take.
-Measured (session 28, 4 x 768x512 mono8 at 15 Hz from another process, Fast DDS, the node on its
-own intake executor, ros.intake): 141-147 of 150 frames on two of the cameras, 150 of 150 once the
-publisher had a 16 MB shared-memory segment (config/fastdds_large_images.xml) instead of Fast
-DDS's 512 kB one shared by all of its topics. The slower the reader, the more such a segment
-loses: with the node's former executor 41-131 of 150.
+Measured (`densecalib bench-node`, README Benchmarks): 4 x 768x512 mono8 at 15 Hz from one
+driver process, 72-85 of 150 frames on the worst camera with Fast DDS's 512 kB shared-memory
+segment per process, 150 of 150 with a 16 MB one (config/fastdds_large_images.xml); 1280x720
+bgr8 from a process per camera, 10-16 of 150 with the default segment. The counts here are a
+lower bound: a camera losing every other frame looks like one at half the rate, and one
+receiving a frame now and then is not steady and counts nothing (10-16 of 150 received: 8-39
+counted of 528-543 lost, four cameras together).
 
 A stream is judged only while it is steady (most intervals a whole number of periods): triggered
 cameras (camera traps) and replays that jump back are not, and count nothing."""
@@ -39,7 +41,8 @@ LOSS_HINT = (
     "few hundred kB or more, the usual cause is the driver's 512 kB shared-memory segment: start "
     "the camera drivers with FASTRTPS_DEFAULT_PROFILES_FILE pointing at this package's "
     "config/fastdds_large_images.xml, or have them publish compressed images (image_topics "
-    "ending in /compressed). Frame sets still form; ~/sync's motion signals get holes")
+    "ending in /compressed); `densecalib bench-node` measures what arrives on this computer. "
+    "Frame sets form only where every camera's frame arrived; ~/sync's motion signals get holes")
 
 
 class StampGaps:

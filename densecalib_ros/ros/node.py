@@ -847,7 +847,9 @@ class DenseCalibNode(Node):
         values = {"state": state,
                   "status": self._status,
                   "buffered_frame_sets": str(stats["buffered"]),
-                  "received_per_camera": str(stats["received"]),
+                  "received_per_camera": ", ".join(
+                      f"{n}={k}" for n, k in zip(self.settings.camera_names, stats["received"])),
+                  "matched_frame_sets": str(stats["matched"]),
                   "dropped_oldest_frame_sets": str(stats["dropped_oldest"])}
         if any(self.settings.stamp_offsets_s):
             values["stamp_offsets_s"] = ", ".join(

@@ -16,7 +16,7 @@ from ..core.errors import InputError
 from ..core.motion_sync import MotionEnergy, OffsetEstimate, stream_offsets
 from ..core.sync import ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer
 from .conversions import image_msg_to_numpy, message_stamp_ns, motion_image
-from .frame_loss import StampGaps
+from .frame_loss import LOSS_HINT, StampGaps
 
 BY_HAND = "set stamp_offsets_s by hand"
 # A camera whose last image is this much older than another's has stopped publishing (a live
@@ -124,6 +124,15 @@ class MessageSynchronizer:
         with self._lock:
             arrivals, stamps = list(self._last_arrival_s), list(self._last_stamp_ns)
             received = list(self.received)
+            lost = [g.lost for g in self._gaps]
+        reason = self._why_few_sets(names, topics, arrivals, stamps, received)
+        if any(lost):  # sets need a frame from every camera: scattered losses leave few whole
+            reason += ("; and frames were lost on the way (at least " + ", ".join(
+                f"{n} {k}" for n, k in zip(names, lost) if k) + ", from gaps in the header "
+                f"stamps): {LOSS_HINT}")
+        return reason
+
+    def _why_few_sets(self, names, topics, arrivals, stamps, received) -> str:
         counts = ", ".join(f"{n} {k}" for n, k in zip(names, received))
         silent = [f"{n} ({t})" for n, t, a in zip(names, topics, arrivals) if a is None]
         if silent:
