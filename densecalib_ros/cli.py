@@ -21,6 +21,9 @@ SUBCOMMANDS = {
               "accuracy benchmark against COLMAP/GLOMAP on generated rigs and real images"),
     "bench-sampling": ("densecalib_ros.commands.bench_sampling",
                        "matcher + cycle-sampling quality per backend on generated rigs"),
+    "bench-node": ("densecalib_ros.commands.bench_node",
+                   "does densecalib_node keep up with a rig's image streams here? frames "
+                   "received and lost, node CPU"),
     "bench-stereo": ("densecalib_ros.commands.bench_stereo",
                      "the real fisheye stereo pair against its own checkerboard: rectified rows "
                      "and measured squares vs its target-based calibrations"),
