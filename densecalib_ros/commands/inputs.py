@@ -12,6 +12,7 @@ from typing import Optional
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.named_values import split_named
 from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
@@ -233,7 +234,7 @@ def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
 
     out = {}
     for value in values or []:
-        name, sep, path = value.partition("=")
+        name, sep, path = split_named(value, names)
         if sep and name in names:
             out[name] = read_mask(path)
         elif sep and not Path(value).exists():

@@ -35,7 +35,7 @@ def parse_observations(values: list[str], option: str = "--point") -> dict:
     """["cam0=512.5,300", "cam2=640,310.2"] -> {camera: (x, y)}; InputError naming `option`."""
     out = {}
     for value in values:
-        name, sep, xy = value.partition("=")
+        name, sep, xy = value.rpartition("=")  # X,Y holds no '=': a camera name may
         try:
             x, y = (float(v) for v in xy.split(","))
         except ValueError:

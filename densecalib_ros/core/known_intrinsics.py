@@ -44,6 +44,7 @@ import yaml
 from .config import lens_of_model
 from .errors import InputError
 from .export import calibration_folder, read_calibration
+from .named_values import split_named
 from .plausibility import intrinsics_problem
 from .types import CameraIntrinsics
 
@@ -276,7 +277,7 @@ def read_known_intrinsics(specs: Sequence[str], camera_names: Optional[Sequence[
     out: dict[str, CameraIntrinsics] = {}
     origin: dict[str, str] = {}
     for spec in specs:
-        name, sep, path_text = str(spec).partition("=")
+        name, sep, path_text = split_named(str(spec), camera_names)
         names = [n.strip() for n in name.split(",")]
         if not sep or "/" in name or not all(names):
             names, path_text = [], str(spec)
