@@ -20,8 +20,9 @@ from sfm_fixtures import gt_rig, gt_tracks
 NAMES = ["a", "b", "c", "d", "e"]
 
 
-def _solved(seed):
-    cams, poses = gt_rig(5, seed=seed, pp_jitter_px=0.0)  # the held principal point is right
+def _solved(seed, pp_jitter_px=0.0):
+    """pp_jitter_px 0: the principal point the calibration holds at the centre is right."""
+    cams, poses = gt_rig(5, seed=seed, pp_jitter_px=pp_jitter_px)
     tracks = gt_tracks(cams, poses, num_points=1500, noise_px=0.5, outlier_frac=0.0, seed=seed)
     cfg = make_config("regular", sfm__num_threads=1).sfm
     init = initial_intrinsics([(c.width, c.height) for c in cams],
@@ -36,7 +37,7 @@ def test_sigmas_match_the_actual_errors_under_independent_noise():
     focal, projection = [], []
     for seed in (1, 2):
         cams, rec = _solved(seed)
-        sigmas = calibration_uncertainty(rec, "a", noise_px=0.5)
+        sigmas = calibration_uncertainty(rec, "a", noise_px=0.5, held_pp_std_fraction=0.0)
         assert set(sigmas) == set(NAMES)
         for name, cam in zip(NAMES, cams):
             s = sigmas[name]
@@ -53,16 +54,50 @@ def test_sigmas_match_the_actual_errors_under_independent_noise():
         assert 0.2 < np.median(ratios) < 2.0 and max(ratios) < 4.0, ratios
 
 
+def _ratios(cams, rec, sigmas):
+    focal, projection = [], []
+    for name, cam in zip(NAMES, cams):
+        s = sigmas[name]
+        image = next(i for i in rec.images.values() if i.name == name)
+        estimate = CameraIntrinsics.from_pycolmap(rec.cameras[image.camera_id])
+        focal.append(abs(estimate.params[0] - cam.params[0]) / s.focal_std_px)
+        projection.append(projection_map_error(cam, estimate)["mean_px"] / s.projection_std_px)
+    return focal, projection
+
+
+def test_a_held_principal_point_off_the_centre_is_in_the_sigmas():
+    """Real principal points lie off the image centre where the regular preset holds them (by
+    about 1 % of the long side): the sigmas that take the held point as right are then several
+    times too small, those with its offset's spread in them (HELD_PP_STD_FRACTION) are not."""
+    as_right, with_offset = ([], []), ([], [])
+    for seed in (1, 2):
+        # uniform +-J has a standard deviation of J / sqrt(3): 1 % of the 640 px long side
+        cams, rec = _solved(seed, pp_jitter_px=0.01 * 640 * np.sqrt(3.0))
+        for out, fraction in ((as_right, 0.0), (with_offset, 0.01)):
+            ratios = _ratios(cams, rec, calibration_uncertainty(
+                rec, "a", noise_px=0.5, held_pp_std_fraction=fraction))
+            out[0].extend(ratios[0]), out[1].extend(ratios[1])
+    print("taken as right: focal", np.round(as_right[0], 2), "projection",
+          np.round(as_right[1], 2))
+    print("with its offset: focal", np.round(with_offset[0], 2), "projection",
+          np.round(with_offset[1], 2))
+    for ratios in as_right:
+        assert np.median(ratios) > 2.0, ratios
+    for ratios in with_offset:
+        assert 0.2 < np.median(ratios) < 2.0 and max(ratios) < 4.0, ratios
+
+
 def test_a_free_principal_point_makes_the_focal_less_certain():
     _, rec = _solved(1)
-    held = calibration_uncertainty(rec, "a", noise_px=0.5)
+    held = calibration_uncertainty(rec, "a", noise_px=0.5, held_pp_std_fraction=0.0)
     free = calibration_uncertainty(rec, "a", noise_px=0.5, pp_refined=NAMES)
     for name in NAMES:
         assert free[name].principal_point_std_px > 0
         assert free[name].focal_std_px > held[name].focal_std_px
     # A rig mixing lenses: the principal points of some cameras are refined with the others'
     # intrinsics held (incremental.final_adjustment); the others keep the held-point sigmas.
-    mixed = calibration_uncertainty(rec, "a", noise_px=0.5, pp_refined=NAMES[:2])
+    mixed = calibration_uncertainty(rec, "a", noise_px=0.5, pp_refined=NAMES[:2],
+                                    held_pp_std_fraction=0.0)
     for name in NAMES[:2]:
         assert mixed[name].principal_point_std_px > 0
     for name in NAMES[2:]:

@@ -7,12 +7,20 @@ The problem is the final adjustment's: Cauchy loss, the reference camera's pose 
 scale fixed by COLMAP's two-camera gauge, the principal point free only where the calibration
 refined it. The covariance is that of unit pixel noise, scaled by the noise the fit shows
 (reprojection RMS / sqrt(2) per pixel coordinate). It treats observations as independent and the
-model as right, so it is a lower bound. On tracks with independent Gaussian noise the errors are
-about 1 sigma (test_uncertainty). On the bench scenes (README) the focal errors were 0.5-0.6
-sigma at the median and up to 3 sigma (15 on rigs mixing lenses), the projection errors about 3
-sigma at the median: mostly a pinhole camera's principal point, held at the image centre, which a
-covariance conditional on it cannot see (started from the true principal points, the
-recalibration's ratios were near 1).
+model as right. On tracks with independent Gaussian noise the errors are about 1 sigma
+(test_uncertainty).
+
+A principal point the calibration held (the regular preset holds it at the image centre) is
+where a real camera's is not: by 0.1-2.8 % of the long side on the real cameras we have. The
+covariance conditional on the held point cannot see that, and the other parameters lean on it (on
+4-camera generated rigs a few px of focal per px of principal point): taken as right, the focal
+errors there were 2.8 sigma at the median and up to 14 (8 development rigs, 20 deg apart). So
+the held point's unknown offset, HELD_PP_STD_FRACTION of the long side per axis, is added: the
+others move with it by their regression on the principal point in the same problem with the
+points free (cross-camera effects left out; pycolmap gives the covariance per camera block), and
+the projection moves with it too. Then 0.23 sigma at the median and 3.0 at most on those rigs,
+whose principal points are 0.0-0.4 % off (smaller than real cameras'); on tracks with a 1 %
+offset about 1 sigma (test_uncertainty).
 
 No rotation sigma is given: measured the same way it was 6-10x smaller than the rotation errors
 at the median on generated rigs (a principal point held at the image centre that is not there
@@ -48,6 +56,11 @@ class CameraUncertainty:
 
 # Rays sampled on a grid of this many points per image side for projection_std_px.
 PROJECTION_GRID = 12
+# How far from the image centre a principal point the calibration holds there may be, per axis,
+# as a fraction of the image's long side. Off-centre points of real cameras (their target-based
+# calibrations, per axis): Strecha's Canon 0.5-0.6 %, instant-ngp's fox phone 0.3-0.8 %, the
+# fisheye stereo pair 0.1-2.8 %.
+HELD_PP_STD_FRACTION = 0.01
 
 
 def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
@@ -75,16 +88,51 @@ def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
     return (cov, rec) if cov is not None else (None, None)
 
 
+def _unit_params_cov(cov, camera: pycolmap.Camera, free: Sequence[str]) -> Optional[np.ndarray]:
+    """The covariance (unit pixel noise) of the camera's parameters `free`, in params order."""
+    unit_cov = cov.get_other_params_cov(camera.params)
+    return unit_cov if unit_cov is not None and unit_cov.shape[0] == len(free) else None
+
+
+def _held_point_sensitivity(cov_free, camera_free: pycolmap.Camera) -> Optional[np.ndarray]:
+    """(others, 2): how far the camera's other parameters move per pixel of its principal point,
+    from the covariance of the problem with the principal points free (the regression of the
+    others on cx, cy)."""
+    names = colmap_parameter_names(camera_free)
+    unit_cov = _unit_params_cov(cov_free, camera_free, names)
+    if unit_cov is None:
+        return None
+    pp = [names.index("cx"), names.index("cy")]
+    others = [i for i in range(len(names)) if i not in pp]
+    try:
+        return unit_cov[np.ix_(others, pp)] @ np.linalg.inv(unit_cov[np.ix_(pp, pp)])
+    except np.linalg.LinAlgError:
+        return None
+
+
 def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image,
-                        noise_px: float, refine_principal_point: bool) -> CameraUncertainty:
+                        noise_px: float, refine_principal_point: bool,
+                        held_point: Optional[tuple[np.ndarray, float]] = None
+                        ) -> CameraUncertainty:
+    """held_point: (sensitivity, std px) of a held principal point (_held_point_sensitivity and
+    the held point's standard deviation per axis): its unknown offset is added to the others'
+    covariance, and enters the projection's."""
     camera = rec.cameras[image.camera_id]
     names = colmap_parameter_names(camera)
     # The rows of the free parameters, in order (held ones are left out of the covariance).
     free = [n for n in names if refine_principal_point or n not in ("cx", "cy")]
-    unit_cov = cov.get_other_params_cov(camera.params)
-    if unit_cov is None or unit_cov.shape[0] != len(free):
+    unit_cov = _unit_params_cov(cov, camera, free)
+    if unit_cov is None:
         return CameraUncertainty(None, None, None)
     params_cov = unit_cov * noise_px ** 2
+    if held_point is not None:
+        # The held estimate is off by sensitivity @ offset, offset ~ N(0, std^2 I) per axis;
+        # the projection also moves with the offset itself.
+        sensitivity, std_px = held_point
+        params_cov = params_cov + std_px ** 2 * sensitivity @ sensitivity.T
+        free = free + ["cx", "cy"]
+        params_cov = np.block([[params_cov, std_px ** 2 * sensitivity],
+                               [std_px ** 2 * sensitivity.T, std_px ** 2 * np.eye(2)]])
     focal_rows = [i for i, n in enumerate(free) if n in ("f", "fx", "fy")]
     # The mean focal's variance: the sum of the focal block over its size squared.
     focal = float(np.sqrt(params_cov[np.ix_(focal_rows, focal_rows)].sum()
@@ -125,13 +173,17 @@ def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],
 
 def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: str,
                             noise_px: float, pp_refined: Sequence[str] = (),
-                            given: Sequence[str] = ()) -> dict[str, CameraUncertainty]:
+                            given: Sequence[str] = (),
+                            held_pp_std_fraction: float = HELD_PP_STD_FRACTION
+                            ) -> dict[str, CameraUncertainty]:
     """Per camera (image name) of `reconstruction` its CameraUncertainty. reference: the camera
     whose pose is held; noise_px: the standard deviation of one pixel coordinate of an
     observation (reprojection RMS / sqrt(2)); pp_refined:
     the cameras whose principal point the calibration refined; given: the cameras whose
-    intrinsics were given and held (constant here too; their values are None). Cameras whose
-    covariance cannot be estimated get None values."""
+    intrinsics were given and held (constant here too; their values are None);
+    held_pp_std_fraction: how far a principal point held at the image centre may be off, per
+    axis, as a fraction of the image's long side (0: the held point is taken as right). Cameras
+    whose covariance cannot be estimated get None values."""
     out = {name: CameraUncertainty(None, None, None) for name in given}
     for refine_pp in (False, True):
         wanted = [im for im in reconstruction.images.values()
@@ -141,9 +193,19 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
         held = [im.name for im in reconstruction.images.values()
                 if (refine_pp and im.name not in pp_refined) or im.name in given]
         cov, rec = _covariance(reconstruction, reference, refine_pp, held)
+        cov_free = rec_free = None
+        if not refine_pp and held_pp_std_fraction > 0.0 and cov is not None:
+            cov_free, rec_free = _covariance(reconstruction, reference, True, held)
         for image in wanted:
+            held_point = None
+            if cov_free is not None:
+                camera = rec_free.cameras[rec_free.images[image.image_id].camera_id]
+                sensitivity = _held_point_sensitivity(cov_free, camera)
+                if sensitivity is not None:
+                    held_point = (sensitivity,
+                                  held_pp_std_fraction * max(camera.width, camera.height))
             out[image.name] = (_camera_uncertainty(cov, rec, rec.images[image.image_id], noise_px,
-                                                   refine_pp) if cov is not None
+                                                   refine_pp, held_point) if cov is not None
                                else CameraUncertainty(None, None, None))
     if any(u.focal_std_px is None for u in out.values()):
         log.debug("no covariance for some cameras' intrinsics (degenerate bundle adjustment)")
