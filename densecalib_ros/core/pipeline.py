@@ -32,7 +32,7 @@ from .scale import move_model_to_rig_frame
 from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
 from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks, check_camera_names
-from .uncertainty import calibration_uncertainty
+from .uncertainty import HELD_PP_STD_FRACTION, calibration_uncertainty
 
 log = logging.getLogger(__name__)
 
@@ -510,6 +510,7 @@ def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],
     except (RuntimeError, ValueError) as exc:  # a diagnostic: never a reason to lose the result
         log.warning("no standard deviations for this calibration: %s", exc)
         return
+    rig.quality["held_pp_std_fraction"] = HELD_PP_STD_FRACTION  # in the held points' sigmas
     for name, cam in rig.cameras.items():
         if name in sigmas and cam.quality is not None:
             cam.quality.focal_std_px = sigmas[name].focal_std_px

@@ -78,6 +78,20 @@ def camera_table(rig: RigCalibration) -> str:
     return "\n".join(rows)
 
 
+def held_point_note(rig: RigCalibration) -> str:
+    """A line under the camera table where some camera's principal point was held (its sigmas
+    include the offset a real camera's may have: core.uncertainty), '' where none was."""
+    fraction = rig.quality.get("held_pp_std_fraction")  # absent in files written before it
+    given = set(rig.quality.get("given_intrinsics") or ())
+    held = [n for n, c in rig.cameras.items() if n not in given and c.quality is not None
+            and c.quality.focal_std_px is not None and c.quality.principal_point_std_px is None]
+    if not held or not fraction:
+        return ""
+    return (f"f_std and proj_std of {', '.join(held)} include where a real principal point may "
+            f"lie: {100 * fraction:g} % of the long side (1 sigma per axis) from where the "
+            "calibration held it")
+
+
 def _optional(value, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
@@ -191,7 +205,9 @@ def rig_report(rig: RigCalibration, against: Optional[RigCalibration] = None,
                against_label: str = "the other calibration") -> str:
     """The whole report: overall lines, camera table, layout and, with `against`, the change
     from it and the pose agreement with it."""
-    parts = ["\n".join(overall_lines(rig)), "", camera_table(rig), "",
+    note = held_point_note(rig)
+    parts = ["\n".join(overall_lines(rig)), "", camera_table(rig) + (f"\n{note}" if note else ""),
+             "",
              "camera layout in the rig frame (reference camera's optical frame: x right, y down, "
              "z forward)", layout_table(rig)]
     if against is not None:

@@ -15,6 +15,7 @@ The images are a blurred noise texture per camera that moves a few pixels from f
 so the drivers' cost is the middleware's, not the rendering's."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -23,7 +24,6 @@ import sys
 import tempfile
 import threading
 import time
-import dataclasses
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Optional
@@ -31,7 +31,7 @@ from typing import Optional
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.image_encoding import COMPRESSED_FORMATS
+from ..core.image_encoding import COMPRESSED_FORMATS, encode_compressed
 
 NODE_NAME = "densecalib_bench_node"
 TOPIC_PREFIX = "/densecalib_bench"
@@ -164,8 +164,6 @@ def driver_main() -> int:
     """A driver process: `python -c '...driver_main()' JSON` with JSON = {"spec", "cameras",
     "domain_id"}. Prints "ready" once every publisher has a subscriber, reads "START_MONOTONIC_S
     STAMP0_NS" from stdin, publishes on that schedule and prints its figures as one JSON line."""
-    import json
-
     import rclpy
     from rclpy.context import Context
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -326,8 +324,6 @@ def run_once(spec: IntakeBenchSpec, drivers: str, domain_id: int, node_env: dict
              driver_env: dict[str, str], listener: "_DiagnosticsListener") -> dict:
     """Start a node (in `node_env`) and the driver processes (in `driver_env`: one for all
     cameras, or one per camera), play the rig once, read what the node received."""
-    import json
-
     from .rig_nodes import wait_until
 
     procs: list[_Process] = []
@@ -421,7 +417,7 @@ def run_bench(spec: IntakeBenchSpec, runs: int = 1, drivers: str = "one",
         driver_env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(Path(driver_profile).resolve())
     import rclpy
 
-    frame_bytes = (len(_messages(dataclasses.replace(spec, cameras=8), [0])[0][0].data)
+    frame_bytes = (len(encode_compressed(_textures(spec, [0])[0], spec.encoding))
                    if spec.compressed else
                    spec.width * spec.height * (1 if spec.encoding == "mono8" else 3))
     listener = _DiagnosticsListener(domain_id)
