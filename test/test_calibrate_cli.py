@@ -46,6 +46,10 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
         quality = data["cameras"][name]["quality"]
         assert quality["focal_std_px"] > 0 and "principal_point_std_px" not in quality
         assert quality["projection_std_px"] > 0
+    assert data["quality"]["held_pp_std_fraction"] == 0.01
+    printed = capsys.readouterr().out
+    assert "cam3" in printed  # the per-camera summary
+    assert "f_std and proj_std of cam0, cam1, cam2, cam3 include" in printed
     for name in names:
         assert "camera_matrix:" in (out / f"{name}.yaml").read_text()
     assert {p.name for p in (out / "colmap").iterdir()} >= {"cameras.bin", "images.bin",
@@ -60,7 +64,6 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     gt, _ = read_ground_truth(rig_dir / "ground_truth.json")
     metrics = evaluate_calibration(read_calibration(out), gt)
     assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
-    assert "cam3" in capsys.readouterr().out  # the per-camera summary
     # `densecalib report` of the result against the ground truth: the paper's metric, as above.
     assert main(["report", str(out), "--against", str(rig_dir / "ground_truth.json")]) == 0
     text = capsys.readouterr().out
