@@ -37,7 +37,7 @@ NODE_NAME = "densecalib_bench_node"
 TOPIC_PREFIX = "/densecalib_bench"
 _READY_TIMEOUT_S = 60.0  # the node's start (pycolmap, OpenCV imports) and discovery
 _TAIL_S = 0.2  # after the last frame: it reaches the node (the CPU time is read then)
-_SETTLE_S = 1.0  # after the drivers ended: the node's queues drain before its counts are read
+_SETTLE_S = 1.0  # after the last frame: the node's queues drain before its counts are read
 _DIAG_TIMEOUT_S = 5.0  # the node publishes /diagnostics at 1 Hz
 _MOVE_PX = 3  # the texture's shift from one frame to the next
 _MAX_PREBUILT_BYTES = 256 * 2 ** 20  # messages built before publishing, all cameras together
@@ -252,7 +252,12 @@ class _Process:
     def tail(self, n: int = 15) -> str:
         return "\n".join(self.lines[-n:])
 
-    def stop(self, timeout_s: float = 20.0) -> Optional[int]:
+    def stop(self, timeout_s: float = 20.0, grace_s: float = 0.0) -> Optional[int]:
+        """Let it end by itself for grace_s, then SIGINT, then after timeout_s SIGKILL."""
+        try:
+            self.proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            pass
         if self.running():
             self.proc.send_signal(signal.SIGINT)
             try:
@@ -359,18 +364,16 @@ def run_once(spec: IntakeBenchSpec, drivers: str, domain_id: int, node_env: dict
             cpu1, window_s = process_cpu_s(node.proc.pid), time.monotonic() - t0
             if not published:
                 raise RuntimeError("a driver process did not finish publishing in time")
-            for p in procs:
-                p.proc.wait(timeout=30.0)
+            # Not waiting for the drivers to end: a participant's teardown hung once in ~30
+            # runs; they are stopped below, once the counts are read.
             time.sleep(_SETTLE_S)
             # Two fresh /diagnostics messages after the settling: the later holds the final counts.
             seen = listener.count
             wait_until(lambda: listener.count >= seen + 2, 2 * _DIAG_TIMEOUT_S, 0.05)
             values = listener.values()
-        except subprocess.TimeoutExpired:
-            raise RuntimeError("a driver process did not end after publishing") from None
         finally:
             for p in procs:
-                p.stop(5.0)
+                p.stop(5.0, grace_s=5.0)
             rc = node.stop()
     if not values:
         raise RuntimeError("no /diagnostics from densecalib_node; its last lines:\n"
