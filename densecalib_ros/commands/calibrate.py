@@ -247,8 +247,9 @@ def run(args: argparse.Namespace) -> int:
         return 1
     rig = result.rig
     print(camera_table(rig))
-    if held_point_note(rig):
-        print(held_point_note(rig))
+    note = held_point_note(rig)
+    if note:
+        print(note)
     if rig.failed_cameras:
         print("not registered: " + ", ".join(rig.failed_cameras))
     if "change_summary" in rig.quality:

@@ -66,6 +66,11 @@ class IntakeBenchSpec:
         return max(1, int(round(self.rate_hz * self.seconds)))
 
     @property
+    def raw_frame_bytes(self) -> int:
+        """One frame's pixels (a compressed one's source image)."""
+        return self.width * self.height * (1 if self.encoding == "mono8" else 3)
+
+    @property
     def compressed(self) -> bool:
         return self.encoding in COMPRESSED_FORMATS
 
@@ -139,8 +144,7 @@ def _textures(spec: IntakeBenchSpec, cameras: list[int]) -> list[np.ndarray]:
 
 def _phases(spec: IntakeBenchSpec) -> int:
     """How many shifted frames per camera are built beforehand (cycled through while publishing)."""
-    bytes_per_frame = spec.width * spec.height * (1 if spec.encoding == "mono8" else 3)
-    return int(np.clip(_MAX_PREBUILT_BYTES // max(1, bytes_per_frame * spec.cameras), 2, 16))
+    return int(np.clip(_MAX_PREBUILT_BYTES // max(1, spec.raw_frame_bytes * spec.cameras), 2, 16))
 
 
 def _messages(spec: IntakeBenchSpec, cameras: list[int]) -> list[list]:
@@ -421,8 +425,7 @@ def run_bench(spec: IntakeBenchSpec, runs: int = 1, drivers: str = "one",
     import rclpy
 
     frame_bytes = (len(encode_compressed(_textures(spec, [0])[0], spec.encoding))
-                   if spec.compressed else
-                   spec.width * spec.height * (1 if spec.encoding == "mono8" else 3))
+                   if spec.compressed else spec.raw_frame_bytes)
     listener = _DiagnosticsListener(domain_id)
     try:
         report = dict(spec=asdict(spec), drivers=drivers, frames=spec.frames,
