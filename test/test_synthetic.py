@@ -197,6 +197,24 @@ def test_rig_mixing_lenses_draws_each_camera_of_its_model():
                                                        **spec)).cameras[0].params)
 
 
+def test_bar_layout_puts_cameras_side_by_side_looking_the_same_way():
+    from densecalib_ros.core.synthetic.rig import BAR_YAW_DEG
+
+    rig = generate_rig(RigSpec(num_cameras=5, width=64, height=48, seed=2, layout="bar",
+                               bar_spacing_m=0.25))
+    centres = np.array([-T[:3, :3].T @ T[:3, 3] for T in rig.cam_from_world])
+    np.testing.assert_allclose(np.diff(centres[:, 0]), 0.25, atol=1e-9)  # along the wall
+    assert np.ptp(centres[:, 1]) < 1e-9 and np.ptp(centres[:, 2]) <= 0.04 + 1e-9
+    axes = np.array([T[2, :3] for T in rig.cam_from_world])  # optical axes in the world
+    angles = np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
+    assert angles.max() <= 2 * BAR_YAW_DEG + 1e-6 and angles.max() > 0.1
+    assert np.all(axes[:, 2] < 0)  # a little down: the floor is in view
+    with pytest.raises(InputError, match="layout"):
+        generate_rig(RigSpec(layout="ring"))
+    with pytest.raises(InputError, match="spacing"):
+        generate_rig(RigSpec(layout="bar", bar_spacing_m=2.0))
+
+
 def test_generate_command(tmp_path):
     rc = cli_main(["generate", "--out", str(tmp_path / "out"), "--cameras", "3", "--width", "64",
                    "--height", "48", "--time-steps", "2", "--model", "OPENCV_FISHEYE"])
@@ -213,3 +231,8 @@ def test_generate_command(tmp_path):
         "RADIAL", "RADIAL", "OPENCV_FISHEYE"]
     assert cli_main(["generate", "--out", str(tmp_path / "bad"), "--cameras", "3",
                      "--fisheye-cameras", "3"]) == 2
+    assert cli_main(["generate", "--out", str(tmp_path / "bar"), "--cameras", "3", "--width",
+                     "64", "--height", "48", "--layout", "bar", "--bar-spacing-m", "0.1"]) == 0
+    calib, _ = read_ground_truth(tmp_path / "bar" / "ground_truth.json")
+    centres = [-c.cam_from_rig[:3, :3].T @ c.cam_from_rig[:3, 3] for c in calib.cameras.values()]
+    assert np.linalg.norm(centres[2] - centres[0]) == pytest.approx(0.2, abs=0.05)

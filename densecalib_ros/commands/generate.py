@@ -36,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "alike views)")
     parser.add_argument("--max-arc-deg", type=float, default=140.0,
                         help="largest arc spanned by all cameras (360 = a ring around the scene)")
+    parser.add_argument("--layout", default="arc", choices=["arc", "bar"],  # synthetic.LAYOUTS
+                        help="arc: cameras around the scene looking at its centre (--gap-deg, "
+                             "--max-arc-deg); bar: side by side on a bar looking the same way "
+                             "(axes parallel to within 3 deg; --bar-spacing-m)")
+    parser.add_argument("--bar-spacing-m", type=float, default=0.3,
+                        help="distance between neighbouring cameras of --layout bar")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
                    width=args.width,
                    height=args.height, num_time_steps=args.time_steps, seed=args.seed,
                    fov_deg=args.fov_deg, noise_std=args.noise_std, gap_deg=args.gap_deg,
-                   max_arc_deg=args.max_arc_deg)
+                   max_arc_deg=args.max_arc_deg, layout=args.layout,
+                   bar_spacing_m=args.bar_spacing_m)
     try:
         t0 = time.perf_counter()
         rig = generate_rig(spec)

@@ -23,6 +23,8 @@ from .textures import STYLE_NAMES, build_atlas
 _FOV_RANGE_DEG = {"RADIAL": (55.0, 75.0), "OPENCV_FISHEYE": (150.0, 190.0)}
 _FOV_LIMITS_DEG = {"RADIAL": (20.0, 120.0), "OPENCV_FISHEYE": (90.0, 230.0)}
 _FISHEYE_CIRCLE_RAD = np.deg2rad(120.0)  # lens circle: pixels beyond this angle stay black
+LAYOUTS = ("arc", "bar")
+BAR_YAW_DEG = 3.0  # a bar's cameras: each axis turned by up to this from the common direction
 
 
 @dataclass
@@ -43,6 +45,12 @@ class RigSpec:
     gap_deg: float = 20.0  # azimuth between neighbouring cameras on their arc (the baseline width)
     max_arc_deg: float = 140.0  # the arc of all cameras is gap_deg x (n - 1) clipped to [45, this]
     camera_models: tuple = ()
+    # "arc": cameras around the scene, looking at its centre (gap_deg, max_arc_deg); "bar":
+    # side by side bar_spacing_m apart at one wall, looking across the room with their axes
+    # parallel to within BAR_YAW_DEG (a forward-facing array: what fixes the focal lengths is
+    # weak there, core.focal_determination).
+    layout: str = "arc"
+    bar_spacing_m: float = 0.3
 
     def model_of(self, c: int) -> str:
         return self.camera_models[c] if self.camera_models else self.camera_model
@@ -169,6 +177,9 @@ def _check_spec(spec: RigSpec) -> None:
     if not 0 < spec.gap_deg <= 120 or not 45 <= spec.max_arc_deg <= 360:
         raise InputError(f"gap_deg={spec.gap_deg}, max_arc_deg={spec.max_arc_deg}: use a gap in "
                          "(0, 120] deg and an arc in [45, 360] deg.")
+    if spec.layout not in LAYOUTS or not 0.02 <= spec.bar_spacing_m <= 0.6:
+        raise InputError(f"layout={spec.layout!r}, bar_spacing_m={spec.bar_spacing_m}: use a "
+                         f"layout of {', '.join(LAYOUTS)} and a spacing of 0.02-0.6 m.")
     if spec.num_time_steps < 1 or spec.supersample < 1 or spec.noise_std < 0:
         raise InputError("num_time_steps and supersample must be >= 1 and noise_std >= 0.")
     for model in sorted(models) if spec.fov_deg is not None else ():
@@ -244,6 +255,23 @@ def _sample_poses(rng: np.random.Generator, n: int, scene: Scene, gap_deg: float
     return poses
 
 
+def _bar_poses(rng: np.random.Generator, n: int, scene: Scene, spacing_m: float
+               ) -> list[np.ndarray]:
+    """Cameras side by side spacing_m apart along one long wall, 0.3 m from it, 1.0-1.8 m high,
+    looking across the room and a little down, each axis turned by up to BAR_YAW_DEG."""
+    side = rng.choice([-1.0, 1.0])  # which long wall
+    x = (np.arange(n) - (n - 1) / 2) * spacing_m + rng.uniform(-0.5, 0.5)
+    y = side * (scene.room_max[1] - 0.3)
+    z = rng.uniform(1.0, 1.8)
+    poses = []
+    for xi in x:
+        position = np.array([xi, y, z + rng.uniform(-0.02, 0.02)])
+        yaw = np.deg2rad(rng.uniform(-BAR_YAW_DEG, BAR_YAW_DEG))
+        ahead = np.array([np.sin(yaw), -side * np.cos(yaw), 0.0]) * 3.0 + [0.0, 0.0, -0.3]
+        poses.append(_look_at(position, position + ahead, np.deg2rad(rng.uniform(-2, 2))))
+    return poses
+
+
 def _texture_styles(rng: np.random.Generator, scene: Scene) -> dict[int, str]:
     styles = {scene.room_tex[4]: "ground", scene.room_tex[5]: "plaster"}
     for tid in scene.room_tex[:4]:
@@ -272,7 +300,10 @@ def generate_rig(spec: RigSpec) -> SyntheticRig:
         scenes.append(scenes[-1].moved(rng_move, moving, 0.25))
 
     cams, limits = zip(*[_sample_intrinsics(rng_cam, spec, spec.model_of(c)) for c in range(n)])
-    poses = _sample_poses(rng_cam, n, scene, float(spec.gap_deg), float(spec.max_arc_deg))
+    if spec.layout == "bar":
+        poses = _bar_poses(rng_cam, n, scene, float(spec.bar_spacing_m))
+    else:
+        poses = _sample_poses(rng_cam, n, scene, float(spec.gap_deg), float(spec.max_arc_deg))
 
     # Texel ~ the pixel footprint at ~3 m of a 65 deg camera of this width (detail scales with
     # the resolution; at 1024 px wide this is ~4 mm).
