@@ -22,6 +22,7 @@ from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughCamerasError,
                      NotEnoughOverlapError)
 from .focal import estimate_initial_focals
+from .focal_determination import weak_focal_warning
 from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .known_intrinsics import (check_known_intrinsics, describe as describe_known,
                                given_intrinsics_fit, given_intrinsics_warnings)
@@ -489,11 +490,20 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
         result.rig.quality["given_intrinsics"] = describe_known(config.known_intrinsics)
         for warning in given_intrinsics_warnings(result.rig.quality.get("given_intrinsics_fit",
                                                                         {})):
-            log.warning("%s", warning)
-            if progress is not None:
-                progress(warning)
-            result.rig.quality.setdefault("warnings", []).append(warning)
+            warn_user(result.rig, warning, progress)
+    warning = weak_focal_warning(result.rig)
+    if warning:
+        warn_user(result.rig, warning, progress)
     return result
+
+
+def warn_user(rig: RigCalibration, warning: str, progress: Progress) -> None:
+    """Log a warning, pass it to progress and keep it in rig.quality["warnings"]: the node's
+    service reply and `densecalib report` show it to whoever looks at the calibration later."""
+    log.warning("%s", warning)
+    if progress is not None:
+        progress(warning)
+    rig.quality.setdefault("warnings", []).append(warning)
 
 
 def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],
@@ -580,11 +590,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg")
     warning = disagreement_warning(result.rig.quality["consensus_disagreement_deg"], len(results))
     if warning:
-        log.warning("%s", warning)
-        say_progress(progress, warning)
-        # Kept in the calibration file too: the node's service reply and `densecalib report`
-        # show it to whoever looks at the calibration later.
-        result.rig.quality.setdefault("warnings", []).append(warning)
+        warn_user(result.rig, warning, progress)
     return result
 
 

@@ -1,0 +1,98 @@
+"""The warning for rigs whose images leave the focal lengths open (core.focal_determination):
+its rule on hand-made rigs, and a generated forward-facing rig calibrated end to end, against the
+same cameras around the scene."""
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.focal_determination import (WEAK_FOCAL_PREFIX, optical_axes_spread_deg,
+                                                     weak_focal_fractions, weak_focal_warning)
+from densecalib_ros.core.metrics import mean_focal_px
+from densecalib_ros.core.pipeline import run_calibration
+from densecalib_ros.core.synthetic import RigSpec, generate_rig
+from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
+
+
+def _camera(name: str, yaw_deg: float, f_std_px, model: str = "RADIAL") -> RigCamera:
+    params = [800.0, 320.0, 240.0, 0.0, 0.0] if model == "RADIAL" else \
+        [300.0, 300.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0]
+    cam_from_rig = np.eye(4)
+    cam_from_rig[:3, :3] = Rotation.from_euler("y", yaw_deg, degrees=True).as_matrix()
+    quality = CameraQuality(0.5, 500, 0.8, focal_std_px=f_std_px)
+    return RigCamera(name, CameraIntrinsics(model, 640, 480, np.array(params)), cam_from_rig,
+                     quality)
+
+
+def _rig(*cameras: RigCamera, given=()) -> RigCalibration:
+    quality = {"given_intrinsics": list(given)} if given else {}
+    return RigCalibration(cameras[0].name, {c.name: c for c in cameras}, quality=quality)
+
+
+def test_the_rig_warns_when_the_median_camera_sigma_is_above_5_percent_of_the_focal():
+    rig = _rig(_camera("a", 0, 80.0), _camera("b", 4, 48.0), _camera("c", -3, 8.0))
+    warning = weak_focal_warning(rig)
+    assert warning.startswith(WEAK_FOCAL_PREFIX)
+    assert "a 10.0 %, b 6.0 %, c 1.0 %" in warning  # all cameras, weakest first
+    assert "at most 7 deg apart" in warning and "--intrinsics" in warning
+    # one weak camera of three is not the rig: its median is 1 %
+    assert weak_focal_warning(_rig(_camera("a", 0, 80.0), _camera("b", 20, 8.0),
+                                   _camera("c", 40, 8.0))) is None
+    # exactly at the bound: no warning
+    assert weak_focal_warning(_rig(_camera("a", 0, 40.0), _camera("b", 5, 40.0))) is None
+
+
+def test_a_weak_rig_around_the_scene_is_told_the_matches_not_the_layout_are_the_cause():
+    forward = weak_focal_warning(_rig(_camera("a", 0, 80.0), _camera("b", 19, 80.0)))
+    assert "look nearly the same way" in forward and "around the scene" in forward
+    around = weak_focal_warning(_rig(_camera("a", 0, 80.0), _camera("b", 30, 60.0),
+                                     _camera("c", 60, 48.0)))
+    assert around.startswith(WEAK_FOCAL_PREFIX) and "a 10.0 %, b 7.5 %, c 6.0 %" in around
+    assert "up to 60 deg apart, so the matches leave them open" in around
+    assert "look nearly the same way" not in around and "add frame sets" in around
+    assert "--intrinsics" in around
+
+
+def test_fisheye_given_and_unestimated_cameras_are_left_out():
+    rig = _rig(_camera("a", 0, 80.0), _camera("fish", 10, 200.0, "OPENCV_FISHEYE"),
+               _camera("lab", 5, None), _camera("b", 3, 4.0))
+    rig.quality["given_intrinsics"] = ["lab"]
+    assert weak_focal_fractions(rig) == pytest.approx({"a": 0.1, "b": 0.005})
+    assert weak_focal_warning(rig) is not None  # median of a and b: 5.25 %
+    rig.cameras["b"].quality.focal_std_px = None
+    rig.cameras["a"].quality.focal_std_px = None
+    assert weak_focal_fractions(rig) == {} and weak_focal_warning(rig) is None
+
+
+def test_spread_is_the_largest_angle_between_two_optical_axes():
+    rig = _rig(_camera("a", 0, 1.0), _camera("b", 25, 1.0), _camera("c", -10, 1.0))
+    assert optical_axes_spread_deg(rig) == pytest.approx(35.0)
+    assert optical_axes_spread_deg(_rig(_camera("a", 0, 1.0))) == 0.0
+
+
+@pytest.mark.parametrize("layout", ["bar", "arc"])
+def test_a_forward_facing_rig_is_warned_about_and_one_around_the_scene_is_not(layout):
+    # The same cameras and scene: side by side on a bar (axes parallel within 3 deg) or around
+    # the scene's centre 20 deg apart.
+    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+                               seed=3, layout=layout))
+    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    result = run_calibration([rig.images[0]], rig.names, config)
+    warnings = [w for w in result.rig.quality.get("warnings", [])
+                if w.startswith(WEAK_FOCAL_PREFIX)]
+    fractions = weak_focal_fractions(result.rig)
+    assert len(fractions) == 4
+    if layout == "bar":
+        assert optical_axes_spread_deg(result.rig) < 10.0
+        assert len(warnings) == 1 and np.median(list(fractions.values())) > 0.05
+    else:
+        assert optical_axes_spread_deg(result.rig) > 30.0
+        assert warnings == [] and max(fractions.values()) < 0.05
+        truth = rig.ground_truth()
+        errors = [abs(mean_focal_px(c.intrinsics) / mean_focal_px(truth.cameras[n].intrinsics)
+                      - 1) for n, c in result.rig.cameras.items()]
+        assert np.median(errors) < 0.02
