@@ -1,5 +1,10 @@
-"""The bench's scene sets: the held-out set must stay disjoint from the bench it checks."""
-from densecalib_ros.core.bench import full_scenes, heldout_scenes, quick_scenes
+"""The bench's scene sets: the held-out set must stay disjoint from the bench it checks; what the
+tables say of the warnings a result carried."""
+import numpy as np
+
+from densecalib_ros.core.bench import (format_scene_table, format_summary, forward_scenes,
+                                       full_scenes, heldout_scenes, mixed_scenes, quick_scenes,
+                                       summarize)
 
 
 def test_heldout_scenes_share_no_scene_or_generator_seed_with_the_bench():
@@ -12,3 +17,37 @@ def test_heldout_scenes_share_no_scene_or_generator_seed_with_the_bench():
     # Real frames: other subsets of the capture than the bench's.
     bench_views = {s.num_cameras for s in bench if s.kind == "nerf"}
     assert all(s.num_cameras not in bench_views for s in heldout if s.kind == "nerf")
+
+
+def test_forward_rigs_are_bar_rigs_of_seeds_no_other_set_uses():
+    forward = forward_scenes()
+    assert forward and all(s.layout == "bar" and s.kind == "synthetic" for s in forward)
+    others = full_scenes() + quick_scenes() + heldout_scenes() + mixed_scenes()
+    assert not {s.seed for s in forward} & {s.seed for s in others if s.kind == "synthetic"}
+    assert len({s.name for s in forward}) == len(forward)
+
+
+def _record(method: str, auc3: float, warnings: list) -> dict:
+    metrics = dict(num_registered=4, num_cameras=4, auc3=auc3, auc30=100.0,
+                   median_focal_err=0.08, median_proj_err_px=3.0)
+    return dict(method=method, status="ok", message="", runtime_s=1.0, peak_rss_mib=100.0,
+                metrics=metrics, warnings=warnings)
+
+
+def test_tables_name_the_warnings_a_result_carried_and_count_the_scenes_warned():
+    long_warning = "focal lengths weakly determined by these images: " + "x" * 200
+    scenes = [dict(scene=f"s{k}", lens="pinhole", num_cameras=4, image_size=[1024, 768],
+                   results=[_record("colmap", 50.0, []),
+                            _record("densecalib-incremental", 100.0, warnings)])
+              for k, warnings in enumerate([[long_warning], [], ["other"]])]
+    table = format_scene_table(scenes[0])
+    line = [row for row in table.splitlines() if "warned" in row]
+    assert line == ["  densecalib-incremental warned: " + long_warning[:97] + "..."]
+    assert "warned" not in format_scene_table(scenes[1])
+    summary = {s["method"]: s for s in summarize(scenes)}
+    assert summary["densecalib-incremental"]["warned"] == 2
+    assert summary["colmap"]["warned"] == 0
+    rows = format_summary(list(summary.values())).splitlines()
+    assert rows[1].split()[-1] == "warned"
+    assert [r.split()[-1] for r in rows[2:]] == ["0", "2"]
+    assert np.isclose(summary["densecalib-incremental"]["median_focal_err"], 0.08)

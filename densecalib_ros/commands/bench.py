@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="6 generated rigs of 3-8 cameras mixing fisheye and pinhole lenses "
                             "(each camera calibrated with its lens's model; peers get each "
                             "camera's model too)")
+    which.add_argument("--forward", action="store_true",
+                       help="6 generated rigs of 3-8 pinhole cameras side by side on a bar, "
+                            "looking the same way (a stereo head, a camera array): focal "
+                            "lengths weakly determined; does the calibration say so")
     parser.add_argument("--out", default="bench_out", help="folder for bench.json")
     parser.add_argument("--scenes", nargs="+", default=None, metavar="PATTERN",
                         help="only scenes whose name contains one of these (e.g. fisheye, "
@@ -45,10 +49,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.bench import full_scenes, heldout_scenes, mixed_scenes, quick_scenes, run_bench
+    from ..core.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
+                              quick_scenes, run_bench)
 
     specs = (quick_scenes() if args.quick else heldout_scenes() if args.heldout
-             else mixed_scenes() if args.mixed else full_scenes())
+             else mixed_scenes() if args.mixed else forward_scenes() if args.forward
+             else full_scenes())
     if args.scenes:
         specs = [s for s in specs if any(p in s.name for p in args.scenes)]
         if not specs:

@@ -69,6 +69,8 @@ class SceneSpec:
     gap_deg: float = 20.0
     max_arc_deg: float = 140.0
     fisheye_cameras: tuple = ()  # a rig mixing lenses: these cameras are OPENCV_FISHEYE
+    layout: str = "arc"  # synthetic.RigSpec.layout: "bar" = cameras side by side, one direction
+    bar_spacing_m: float = 0.3
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
@@ -142,6 +144,22 @@ def heldout_scenes() -> list[SceneSpec]:
     return scenes
 
 
+# Forward-facing rigs: cameras side by side on a bar along one wall, looking across the room with
+# their optical axes parallel to within a few degrees (a stereo head, a camera array on a shelf).
+# Their images leave the focal lengths weakly determined (core.focal_determination): this set
+# measures how far off they come out and whether the calibration says so. (cameras, spacing m,
+# seed); seeds of their own.
+FORWARD_RIGS = ((3, 0.12, 601), (4, 0.3, 602), (4, 0.3, 603), (5, 0.2, 604), (6, 0.15, 605),
+                (8, 0.1, 606))
+
+
+def forward_scenes() -> list[SceneSpec]:
+    """Generated pinhole rigs of FORWARD_RIGS, 1024x768."""
+    return [SceneSpec(f"synthetic-pinhole-bar{spacing:g}m-{n}cam-1024x768-s{seed}", "synthetic",
+                      n, "RADIAL", seed=seed, layout="bar", bar_spacing_m=spacing)
+            for n, spacing, seed in FORWARD_RIGS]
+
+
 def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
     """The scene's images and reference cameras. Raises FileNotFoundError when real data is absent."""
     if spec.kind == "synthetic":
@@ -152,7 +170,8 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
         rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
                                    camera_models=models, width=spec.width, height=spec.height,
                                    seed=spec.seed, gap_deg=spec.gap_deg,
-                                   max_arc_deg=spec.max_arc_deg))
+                                   max_arc_deg=spec.max_arc_deg, layout=spec.layout,
+                                   bar_spacing_m=spec.bar_spacing_m))
         return scene_from_synthetic(rig, spec.name)
     if spec.kind == "strecha":
         folder = Path(data_dir) / spec.folder
@@ -252,6 +271,10 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
     if method not in PEER_METHODS and calib.cameras:
         from .uncertainty import error_sigma_ratios
         record["error_sigma_ratios"] = error_sigma_ratios(calib, scene.gt)
+        # What the user would have been told about this result (consensus disagreement, focal
+        # lengths left open, ...): a warning on a right result is a false alarm, none on a wrong
+        # one a miss.
+        record["warnings"] = list(calib.quality.get("warnings", []))
     return record
 
 
@@ -355,14 +378,23 @@ def format_scene_table(entry: dict) -> str:
                      f"{m['auc3']:>8.1f}{m['auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(m['median_proj_err_px'], '9.2f'):>9}{_fmt(r['runtime_s'], '8.1f'):>8}"
                      f"{_fmt(r['peak_rss_mib'], '10.0f'):>10}  {status}")
+    for r in entry["results"]:
+        for warning in r.get("warnings", []):
+            lines.append(f"  {r['method']} warned: {_shorten(warning, 100)}")
     return "\n".join(lines)
+
+
+def _shorten(text: str, width: int) -> str:
+    """The first `width` characters of a one-line text, '...' where cut."""
+    return text if len(text) <= width else text[:width - 3] + "..."
 
 
 def summarize(scenes: list[dict]) -> list[dict]:
     """Per (lens, method): scenes, registered/total cameras, mean AUC@3/@30 (failures count as 0),
     median AUC@3 over scenes,
     median of the per-scene median focal error and projection error (over scenes where the method
-    registered cameras), median runtime, and the number of scenes that did not run ok."""
+    registered cameras), median runtime, the number of scenes that did not run ok and of those
+    whose result carried a warning."""
     groups: dict[tuple[str, str], list[dict]] = {}
     for entry in scenes:
         for r in entry["results"]:
@@ -382,7 +414,8 @@ def summarize(scenes: list[dict]) -> list[dict]:
             median_focal_err=float(np.median(focal)) if focal else float("nan"),
             median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
             median_runtime_s=float(np.median(times)) if times else float("nan"),
-            not_ok=sum(r["status"] != "ok" for r in records)))
+            not_ok=sum(r["status"] != "ok" for r in records),
+            warned=sum(bool(r.get("warnings")) for r in records)))
     return out
 
 
@@ -415,12 +448,13 @@ def format_summary(summary: list[dict]) -> str:
     lines = ["== summary (mean AUC over scenes, failures = 0; med@3 = median AUC@3 over scenes; "
              "focal, proj: medians of per-scene medians)",
              f"{'lens':<9}{'method':<28}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'med@3':>7}{'AUC@30':>8}"
-             f"{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}"]
+             f"{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}{'warned':>8}"]
     for s in summary:
         focal = s["median_focal_err"] * 100 if np.isfinite(s["median_focal_err"]) else None
         lines.append(f"{s['lens']:<9}{s['method']:<28}{s['num_scenes']:>7}"
                      f"{s['registered']:>5}/{s['cameras']:<4}{s['mean_auc3']:>8.1f}"
                      f"{s['median_auc3']:>7.1f}{s['mean_auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(s['median_proj_err_px'], '9.2f'):>9}"
-                     f"{_fmt(s['median_runtime_s'], '8.1f'):>8}{s['not_ok']:>8}")
+                     f"{_fmt(s['median_runtime_s'], '8.1f'):>8}{s['not_ok']:>8}"
+                     f"{s.get('warned', 0):>8}")
     return "\n".join(lines)
