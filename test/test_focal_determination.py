@@ -59,8 +59,7 @@ def test_a_weak_rig_around_the_scene_is_told_the_matches_not_the_layout_are_the_
 
 def test_fisheye_given_and_unestimated_cameras_are_left_out():
     rig = _rig(_camera("a", 0, 80.0), _camera("fish", 10, 200.0, "OPENCV_FISHEYE"),
-               _camera("lab", 5, None), _camera("b", 3, 4.0))
-    rig.quality["given_intrinsics"] = ["lab"]
+               _camera("lab", 5, 400.0), _camera("b", 3, 4.0), given=["lab"])
     assert weak_focal_fractions(rig) == pytest.approx({"a": 0.1, "b": 0.005})
     assert weak_focal_warning(rig) is not None  # median of a and b: 5.25 %
     rig.cameras["b"].quality.focal_std_px = None
