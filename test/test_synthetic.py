@@ -14,13 +14,13 @@ from densecalib_ros.core.synthetic.lens import cam_rays, img_from_cam_any
 
 @pytest.fixture(scope="module")
 def radial_rig():
-    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=320, height=240,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=320, height=240,
                                 num_time_steps=2, seed=3, noise_std=0.0))
 
 
 @pytest.fixture(scope="module")
 def fisheye_rig():
-    return generate_rig(RigSpec(num_cameras=3, camera_model="OPENCV_FISHEYE", width=320,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="OPENCV_FISHEYE", width=320,
                                 height=240, seed=5, fov_deg=195.0))
 
 
@@ -81,9 +81,9 @@ def test_points_seen_by_two_cameras_are_consistent(radial_rig):
 
 
 def test_deterministic_from_seed():
-    spec = RigSpec(num_cameras=3, width=96, height=72, seed=7)
+    spec = RigSpec(lenses="ideal", num_cameras=3, width=96, height=72, seed=7)
     r1, r2 = generate_rig(spec), generate_rig(spec)
-    r3 = generate_rig(RigSpec(num_cameras=3, width=96, height=72, seed=8))
+    r3 = generate_rig(RigSpec(lenses="ideal", num_cameras=3, width=96, height=72, seed=8))
     for c in range(3):
         np.testing.assert_array_equal(r1.images[0][c], r2.images[0][c])
         np.testing.assert_array_equal(r1.cam_from_world[c], r2.cam_from_world[c])
@@ -172,35 +172,35 @@ def test_objects_move_between_time_steps_walls_do_not(radial_rig):
 
 def test_bad_spec_raises():
     with pytest.raises(InputError, match="3 to 10"):
-        generate_rig(RigSpec(num_cameras=2))
+        generate_rig(RigSpec(lenses="ideal", num_cameras=2))
     with pytest.raises(InputError, match="3 to 10"):
-        generate_rig(RigSpec(num_cameras=11))
+        generate_rig(RigSpec(lenses="ideal", num_cameras=11))
     with pytest.raises(InputError, match="RADIAL"):
-        generate_rig(RigSpec(camera_model="PINHOLE"))
+        generate_rig(RigSpec(lenses="ideal", camera_model="PINHOLE"))
     with pytest.raises(InputError, match="fov_deg"):
-        generate_rig(RigSpec(camera_model="RADIAL", fov_deg=170.0))
+        generate_rig(RigSpec(lenses="ideal", camera_model="RADIAL", fov_deg=170.0))
     with pytest.raises(InputError, match="one model per camera"):
-        generate_rig(RigSpec(num_cameras=3, camera_models=("RADIAL", "OPENCV_FISHEYE")))
+        generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_models=("RADIAL", "OPENCV_FISHEYE")))
     with pytest.raises(InputError, match="fov_deg=70.0 for OPENCV_FISHEYE"):
-        generate_rig(RigSpec(num_cameras=3, fov_deg=70.0,
+        generate_rig(RigSpec(lenses="ideal", num_cameras=3, fov_deg=70.0,
                              camera_models=("RADIAL", "OPENCV_FISHEYE", "RADIAL")))
 
 
 def test_rig_mixing_lenses_draws_each_camera_of_its_model():
     spec = dict(num_cameras=3, width=64, height=48, seed=5)
-    mixed = generate_rig(RigSpec(camera_models=("RADIAL", "OPENCV_FISHEYE", "RADIAL"), **spec))
+    mixed = generate_rig(RigSpec(lenses="ideal", camera_models=("RADIAL", "OPENCV_FISHEYE", "RADIAL"), **spec))
     assert [c.model for c in mixed.cameras] == ["RADIAL", "OPENCV_FISHEYE", "RADIAL"]
     assert mixed.ray_limit_rad[1] > np.pi / 2 > mixed.ray_limit_rad[0]  # fisheye: beyond 90 deg
-    plain = generate_rig(RigSpec(**spec))
+    plain = generate_rig(RigSpec(lenses="ideal", **spec))
     np.testing.assert_array_equal(plain.cameras[0].params,
-                                  generate_rig(RigSpec(camera_models=("RADIAL",) * 3,
+                                  generate_rig(RigSpec(lenses="ideal", camera_models=("RADIAL",) * 3,
                                                        **spec)).cameras[0].params)
 
 
 def test_bar_layout_puts_cameras_side_by_side_looking_the_same_way():
     from densecalib_ros.core.synthetic.rig import BAR_YAW_DEG
 
-    rig = generate_rig(RigSpec(num_cameras=5, width=64, height=48, seed=2, layout="bar",
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=5, width=64, height=48, seed=2, layout="bar",
                                bar_spacing_m=0.25))
     centres = np.array([-T[:3, :3].T @ T[:3, 3] for T in rig.cam_from_world])
     np.testing.assert_allclose(np.diff(centres[:, 0]), 0.25, atol=1e-9)  # along the wall
@@ -210,9 +210,9 @@ def test_bar_layout_puts_cameras_side_by_side_looking_the_same_way():
     assert angles.max() <= 2 * BAR_YAW_DEG + 1e-6 and angles.max() > 0.1
     assert np.all(axes[:, 2] < 0)  # a little down: the floor is in view
     with pytest.raises(InputError, match="layout"):
-        generate_rig(RigSpec(layout="ring"))
+        generate_rig(RigSpec(lenses="ideal", layout="ring"))
     with pytest.raises(InputError, match="spacing"):
-        generate_rig(RigSpec(layout="bar", bar_spacing_m=2.0))
+        generate_rig(RigSpec(lenses="ideal", layout="bar", bar_spacing_m=2.0))
 
 
 def test_generate_command(tmp_path):
@@ -227,8 +227,13 @@ def test_generate_command(tmp_path):
     assert cli_main(["generate", "--out", str(tmp_path / "mixed"), "--cameras", "3", "--width",
                      "64", "--height", "48", "--fisheye-cameras", "2"]) == 0
     calib, _ = read_ground_truth(tmp_path / "mixed" / "ground_truth.json")
+    # Real lenses by default: pinhole cameras have fy != fx (OPENCV with p1 = p2 = 0).
     assert [calib.cameras[f"cam{c}"].intrinsics.model for c in range(3)] == [
-        "RADIAL", "RADIAL", "OPENCV_FISHEYE"]
+        "OPENCV", "OPENCV", "OPENCV_FISHEYE"]
+    assert cli_main(["generate", "--out", str(tmp_path / "ideal"), "--cameras", "3", "--width",
+                     "64", "--height", "48", "--lenses", "ideal"]) == 0
+    calib, _ = read_ground_truth(tmp_path / "ideal" / "ground_truth.json")
+    assert {c.intrinsics.model for c in calib.cameras.values()} == {"RADIAL"}
     assert cli_main(["generate", "--out", str(tmp_path / "bad"), "--cameras", "3",
                      "--fisheye-cameras", "3"]) == 2
     assert cli_main(["generate", "--out", str(tmp_path / "bar"), "--cameras", "3", "--width",

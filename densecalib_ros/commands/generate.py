@@ -28,8 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="frame sets; objects move between them, the rig does not")
     parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument("--fov-deg", type=float, default=None,
-                        help="horizontal field of view of every camera (default: random per "
-                             "camera, 55-75 pinhole, 150-190 fisheye)")
+                        help="horizontal field of view of every camera (default: random: "
+                             "pinhole per --lenses, fisheye 150-190)")
     parser.add_argument("--noise-std", type=float, default=2.0, help="sensor noise, 8-bit levels")
     parser.add_argument("--gap-deg", type=float, default=20.0,
                         help="azimuth between neighbouring cameras on their arc (wider = less "
@@ -42,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(axes parallel to within 3 deg; --bar-spacing-m)")
     parser.add_argument("--bar-spacing-m", type=float, default=0.3,
                         help="distance between neighbouring cameras of --layout bar")
+    parser.add_argument("--lenses", default="real", choices=["real", "ideal"],  # LENS_PROFILES
+                        help="real: intrinsics as real lenses have them (principal points up "
+                             "to 2 %% off-centre, focal 0.5-2.2x the width, fy != fx by up to "
+                             "0.5 %%); ideal: centred principal points, fx = fy, 55-75 deg")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
                    height=args.height, num_time_steps=args.time_steps, seed=args.seed,
                    fov_deg=args.fov_deg, noise_std=args.noise_std, gap_deg=args.gap_deg,
                    max_arc_deg=args.max_arc_deg, layout=args.layout,
-                   bar_spacing_m=args.bar_spacing_m)
+                   bar_spacing_m=args.bar_spacing_m, lenses=args.lenses)
     try:
         t0 = time.perf_counter()
         rig = generate_rig(spec)

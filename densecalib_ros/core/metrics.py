@@ -120,6 +120,17 @@ def focal_errors(est: Mapping[str, CameraIntrinsics],
     return out
 
 
+def principal_point_px(camera: CameraIntrinsics) -> np.ndarray:
+    """(cx, cy) of a COLMAP camera, pixels."""
+    cam = camera.to_pycolmap()
+    return np.asarray(cam.params, float)[list(cam.principal_point_idxs())]
+
+
+def principal_point_error_px(true: CameraIntrinsics, est: CameraIntrinsics) -> float:
+    """Distance between the estimated and the true principal point, pixels."""
+    return float(np.linalg.norm(principal_point_px(est) - principal_point_px(true)))
+
+
 def invertible_pixel_rays(camera, xy_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rays (N, 3), valid (N,)): camera's (pycolmap) rays of the pixels xy_px and which of them
     it maps back to their own pixel within 0.01 px: pycolmap's fisheye models do not invert
@@ -168,7 +179,10 @@ def evaluate_calibration(est: RigCalibration, gt: RigCalibration,
     """Compare an estimated rig calibration with the ground truth; cameras are matched by name.
 
     Returns a JSON-ready dict: num_cameras, num_registered (est cameras that are in gt), auc3, auc30
-    (percent; unregistered cameras' pairs count as failures), median_focal_err (fraction) and
+    (percent; unregistered cameras' pairs count as failures), median_rot_err_deg (median over
+    pairs of the relative rotation error; an unregistered camera's pairs count as inf),
+    median_pp_err_px (median over registered cameras of the principal point's distance from the
+    reference's), median_focal_err (fraction) and
     median_proj_err_px (median over registered cameras of each camera's mean projection-map error),
     and `cameras`: per camera focal_err, projection-map stats, registered flag; `pairs`: per pair
     errors. Medians are NaN when nothing was registered.
@@ -183,17 +197,23 @@ def evaluate_calibration(est: RigCalibration, gt: RigCalibration,
         rec = dict(registered=name in est_poses)
         if name in est_poses:
             rec["focal_err"] = focal[name]
+            rec["pp_err_px"] = principal_point_error_px(cam_gt.intrinsics,
+                                                        est.cameras[name].intrinsics)
             rec["model"] = est.cameras[name].intrinsics.model
             rec["projection"] = projection_map_error(cam_gt.intrinsics,
                                                      est.cameras[name].intrinsics, grid_step_px)
         cameras[name] = rec
     proj = [c["projection"]["mean_px"] for c in cameras.values()
             if c["registered"] and np.isfinite(c["projection"]["mean_px"])]
+    pp = [c["pp_err_px"] for c in cameras.values() if c["registered"]]
     return dict(
         num_cameras=len(gt.cameras),
         num_registered=len(est_poses),
         auc3=auc(pairs, 3),
         auc30=auc(pairs, 30),
+        median_rot_err_deg=float(np.median([p.rot_err_deg for p in pairs])) if pairs
+        else float("nan"),
+        median_pp_err_px=float(np.median(pp)) if pp else float("nan"),
         median_focal_err=float(np.median(list(focal.values()))) if focal else float("nan"),
         median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
         cameras=cameras,

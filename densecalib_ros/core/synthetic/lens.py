@@ -1,11 +1,11 @@
-"""Exact unprojection of COLMAP's RADIAL and OPENCV_FISHEYE models, including fisheye rays beyond
-90 degrees.
+"""Exact unprojection of COLMAP's RADIAL, OPENCV (radial terms only: p1 = p2 = 0) and
+OPENCV_FISHEYE models, including fisheye rays beyond 90 degrees.
 
 pycolmap 4.2.1's `Camera.cam_ray_from_img` is wrong for OPENCV_FISHEYE beyond 90 degrees (it
 returns a ray of a smaller angle, e.g. ~60 deg for a pixel at theta_d = 1.7 rad), and
 `img_from_cam` returns NaN for points with z <= 0. Both models are radially symmetric in normalised
 coordinates, so the inverse is a 1D Newton solve of the radial distortion function g:
-  RADIAL:          r_d = g(r) = r (1 + k1 r^2 + k2 r^4),            r = tan(theta)
+  RADIAL, OPENCV:  r_d = g(r) = r (1 + k1 r^2 + k2 r^4),            r = tan(theta)
   OPENCV_FISHEYE:  theta_d = g(theta) = theta (1 + k1 th^2 + ... + k4 th^8)
 The forward direction equals pycolmap's `img_from_cam` for points in front (test_synthetic checks it).
 """
@@ -15,13 +15,23 @@ import numpy as np
 
 from ..types import CameraIntrinsics
 
-SUPPORTED_MODELS = ("RADIAL", "OPENCV_FISHEYE")
+SUPPORTED_MODELS = ("RADIAL", "OPENCV", "OPENCV_FISHEYE")
+PERSPECTIVE_MODELS = ("RADIAL", "OPENCV")
+
+
+def is_perspective(cam: CameraIntrinsics) -> bool:
+    """Whether cam's radial variable is r = tan(theta) (else theta: a fisheye)."""
+    return cam.model in PERSPECTIVE_MODELS
 
 
 def _split(cam: CameraIntrinsics):
     p = np.asarray(cam.params, np.float64)
     if cam.model == "RADIAL":
         return p[0], p[0], p[1], p[2], np.array([p[3], p[4]])
+    if cam.model == "OPENCV":
+        if p[6] != 0.0 or p[7] != 0.0:
+            raise ValueError("OPENCV cameras here are radial only (p1 = p2 = 0).")
+        return p[0], p[1], p[2], p[3], np.array([p[4], p[5]])
     return p[0], p[1], p[2], p[3], p[4:8].copy()
 
 
@@ -71,7 +81,7 @@ def cam_rays(cam: CameraIntrinsics, xy_px: np.ndarray, a_limit: float,
             break
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(rd > 0, 1.0 / rd, 0.0)
-    if cam.model == "RADIAL":
+    if is_perspective(cam):
         # a = r = tan(theta): ray ~ (x_u, y_u, 1)
         rays = np.stack([xd * scale * a, yd * scale * a, np.ones_like(a)], axis=1)
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
@@ -85,12 +95,12 @@ def cam_rays(cam: CameraIntrinsics, xy_px: np.ndarray, a_limit: float,
 def img_from_cam_any(cam: CameraIntrinsics, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Projection of camera-frame points (n, 3) for any viewing angle: theta = atan2(r, z), so
     fisheye points behind the image plane (theta > 90 deg) project too. Returns xy_px (n, 2) and
-    theta (n,) in radians. For RADIAL, points with z <= 0 get NaN."""
+    theta (n,) in radians. For perspective models, points with z <= 0 get NaN."""
     fx, fy, cx, cy, _ = _split(cam)
     p = np.asarray(points_cam, np.float64)
     rxy = np.hypot(p[:, 0], p[:, 1])
     theta = np.arctan2(rxy, p[:, 2])
-    if cam.model == "RADIAL":
+    if is_perspective(cam):
         with np.errstate(divide="ignore", invalid="ignore"):
             a = np.where(p[:, 2] > 0, rxy / p[:, 2], np.nan)
     else:

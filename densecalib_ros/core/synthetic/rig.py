@@ -15,7 +15,7 @@ from ..export import calibration_from_dict, calibration_to_dict, write_text_atom
 from ..image_encoding import refuse_png_if_it_would_abort
 from ..json_text import json_text
 from ..types import CameraIntrinsics, RigCalibration, RigCamera
-from .lens import SUPPORTED_MODELS, cam_rays, img_from_cam_any, monotonic_limit, radial_g
+from .lens import cam_rays, img_from_cam_any, is_perspective, monotonic_limit, radial_g
 from .render import Photometry, render_camera
 from .scene import Box, Scene, random_scene
 from .textures import STYLE_NAMES, build_atlas
@@ -25,13 +25,28 @@ _FOV_LIMITS_DEG = {"RADIAL": (20.0, 120.0), "OPENCV_FISHEYE": (90.0, 230.0)}
 _FISHEYE_CIRCLE_RAD = np.deg2rad(120.0)  # lens circle: pixels beyond this angle stay black
 LAYOUTS = ("arc", "bar")
 BAR_YAW_DEG = 3.0  # a bar's cameras: each axis turned by up to this from the common direction
+# Lens profiles. "real": intrinsics as real lenses have them (target-based calibrations of
+# Strecha's DSLR, a DTU lab camera, phones, the fisheye pair): principal points up to
+# PP_OFFSET_FRACTION of each side off-centre per axis, pinhole focal lengths from 0.5x to 2.2x the
+# image width (fields of view ~90 down to ~25 deg), fy != fx by up to PIXEL_ASPECT_FRACTION
+# (pinhole cameras are then OPENCV with p1 = p2 = 0). "ideal": the principal point within 4 px
+# of the centre, fx = fy, 55-75 deg (kinder than real cameras; kept for plumbing tests).
+LENS_PROFILES = ("real", "ideal")
+PP_OFFSET_FRACTION = 0.02
+PIXEL_ASPECT_FRACTION = 0.005
+REAL_FOCAL_WIDTH_RATIOS = (0.5, 2.2)
+REAL_FOCAL_JITTER = 0.05  # cameras of one rig: the rig's focal ratio x exp(+-this)
+REFERENCE_HALF_FOV_DEG = 32.5  # a 65 deg lens: the scale of the cameras' aim scatter (_sample_poses)
+AIM_CENTRE_M = np.array([0.0, 0.0, 0.45])  # the middle of the points cameras look at
 
 
 @dataclass
 class RigSpec:
     """What to generate. fov_deg is the horizontal field of view of every camera; None draws one
-    per camera (55-75 deg pinhole, 150-190 deg fisheye). camera_models: per camera, a model that
-    replaces camera_model (a rig mixing lenses); empty: camera_model for all."""
+    per camera (lenses "real": a rig focal ratio log-uniform in REAL_FOCAL_WIDTH_RATIOS, or
+    fov_range_deg when given, each camera within REAL_FOCAL_JITTER of it; "ideal": 55-75 deg;
+    fisheye 150-190 deg). camera_models: per camera, a model that replaces camera_model (a rig
+    mixing lenses); empty: camera_model for all. lenses: LENS_PROFILES."""
 
     num_cameras: int = 6
     camera_model: str = "RADIAL"
@@ -51,6 +66,8 @@ class RigSpec:
     # weak there, core.focal_determination).
     layout: str = "arc"
     bar_spacing_m: float = 0.3
+    lenses: str = "real"
+    fov_range_deg: tuple | None = None  # pinhole, lenses "real": the rig's (min, max) h. FOV
 
     def model_of(self, c: int) -> str:
         return self.camera_models[c] if self.camera_models else self.camera_model
@@ -158,7 +175,7 @@ class SyntheticRig:
 
 def _a_limit(cam: CameraIntrinsics, theta_limit: float) -> float:
     """Ray angle limit -> limit of the model's radial variable (r = tan(theta) for RADIAL)."""
-    return float(np.tan(theta_limit)) if cam.model == "RADIAL" else float(theta_limit)
+    return float(np.tan(theta_limit)) if is_perspective(cam) else float(theta_limit)
 
 
 def _check_spec(spec: RigSpec) -> None:
@@ -169,9 +186,17 @@ def _check_spec(spec: RigSpec) -> None:
                          f"{spec.num_cameras} cameras: give one model per camera (or none).")
     models = set(spec.camera_models or (spec.camera_model,))
     for model in models:
-        if model not in SUPPORTED_MODELS:
+        if model not in _FOV_RANGE_DEG:
             raise InputError(f"Unsupported camera model {model!r}: use one of "
-                             f"{', '.join(SUPPORTED_MODELS)}.")
+                             f"{', '.join(_FOV_RANGE_DEG)}.")
+    if spec.lenses not in LENS_PROFILES:
+        raise InputError(f"lenses={spec.lenses!r}: use one of {', '.join(LENS_PROFILES)}.")
+    if spec.fov_range_deg is not None:
+        lo, hi = _FOV_LIMITS_DEG["RADIAL"]
+        if len(spec.fov_range_deg) != 2 or not lo <= min(spec.fov_range_deg) \
+                <= max(spec.fov_range_deg) <= hi:
+            raise InputError(f"fov_range_deg={spec.fov_range_deg}: give (min, max) within "
+                             f"{lo}..{hi} deg.")
     if spec.width < 32 or spec.height < 32:
         raise InputError(f"Image size {spec.width}x{spec.height} is too small: use >= 32x32.")
     if not 0 < spec.gap_deg <= 120 or not 45 <= spec.max_arc_deg <= 360:
@@ -188,23 +213,41 @@ def _check_spec(spec: RigSpec) -> None:
             raise InputError(f"fov_deg={spec.fov_deg} for {model}: use {lo}..{hi}.")
 
 
-def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec, model: str
+def _real_pinhole_ratio(rng: np.random.Generator, spec: RigSpec) -> float:
+    """A "real" rig's focal length / image width (RigSpec docstring)."""
+    if spec.fov_range_deg is not None:
+        ratios = 0.5 / np.tan(np.deg2rad(np.asarray(spec.fov_range_deg, float)) / 2)
+    else:
+        ratios = np.asarray(REAL_FOCAL_WIDTH_RATIOS, float)
+    return float(np.exp(rng.uniform(np.log(ratios.min()), np.log(ratios.max()))))
+
+
+def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec, model: str, half_fov: float
                        ) -> tuple[CameraIntrinsics, float]:
-    """Random realistic intrinsics of `model` and the largest ray angle (rad) the camera images."""
+    """Random intrinsics of `model` with this half horizontal field of view (rad) and the
+    largest ray angle (rad) the camera images."""
     w, h = spec.width, spec.height
-    lo, hi = _FOV_RANGE_DEG[model]
-    half_fov = np.deg2rad(spec.fov_deg if spec.fov_deg is not None else rng.uniform(lo, hi)) / 2
-    cx = w / 2 + rng.uniform(-4, 4) * w / 1024
-    cy = h / 2 + rng.uniform(-4, 4) * w / 1024
+    if spec.lenses == "real":
+        cx = w / 2 + rng.uniform(-1, 1) * PP_OFFSET_FRACTION * w
+        cy = h / 2 + rng.uniform(-1, 1) * PP_OFFSET_FRACTION * h
+    else:
+        cx = w / 2 + rng.uniform(-4, 4) * w / 1024
+        cy = h / 2 + rng.uniform(-4, 4) * w / 1024
     while True:
         if model == "RADIAL":
             k = np.array([rng.uniform(-0.15, 0.1), rng.uniform(-0.03, 0.03)])
             probe = CameraIntrinsics("RADIAL", w, h, np.r_[1.0, cx, cy, k])
             f = (w / 2) / float(radial_g(probe, np.array([np.tan(half_fov)]))[0][0])
-            cam = CameraIntrinsics("RADIAL", w, h, np.r_[f, cx, cy, k])
+            if spec.lenses == "real":
+                fy = f * (1 + rng.uniform(-PIXEL_ASPECT_FRACTION, PIXEL_ASPECT_FRACTION))
+                cam = CameraIntrinsics("OPENCV", w, h, np.r_[f, fy, cx, cy, k, 0.0, 0.0])
+            else:
+                fy = f
+                cam = CameraIntrinsics("RADIAL", w, h, np.r_[f, cx, cy, k])
             a_lim = monotonic_limit(cam, 4.0)
             theta_lim = float(np.arctan(a_lim))
-            need = np.hypot(max(cx, w - cx), max(cy, h - cy)) / f  # r_d of the farthest corner
+            # r_d of the farthest corner
+            need = np.hypot(max(cx, w - cx) / f, max(cy, h - cy) / fy)
         else:
             # Equidistant-like lens: small higher-order terms as in real OpenCV fisheye fits.
             k = np.array([rng.uniform(-0.04, 0.05), rng.uniform(-0.02, 0.02),
@@ -216,9 +259,36 @@ def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec, model: str
             theta_lim = monotonic_limit(cam, float(_FISHEYE_CIRCLE_RAD))
             if theta_lim < min(half_fov + np.deg2rad(10.0), _FISHEYE_CIRCLE_RAD):
                 continue  # folds back inside the field of view: not a real lens
-            need = (w / 2 + 8) / f  # the image must be filled horizontally
+            need = (max(cx, w - cx) + 8) / f  # the image must be filled horizontally
         if float(radial_g(cam, np.array([_a_limit(cam, theta_lim)]))[0][0]) > need:
             return cam, theta_lim
+
+
+def _rig_intrinsics(rng: np.random.Generator, spec: RigSpec
+                    ) -> tuple[list[CameraIntrinsics], list[float], float]:
+    """Every camera's intrinsics and imaged ray angle limit (rad), and the narrowest pinhole half
+    field of view (rad; a 65 deg lens's where there is none)."""
+    n = int(spec.num_cameras)
+    real_pinhole = spec.lenses == "real" and spec.fov_deg is None and \
+        any(spec.model_of(c) == "RADIAL" for c in range(n))
+    rig_ratio = _real_pinhole_ratio(rng, spec) if real_pinhole else None
+    cams, limits, pinhole_half = [], [], []
+    for c in range(n):
+        model = spec.model_of(c)
+        if spec.fov_deg is not None:
+            half = np.deg2rad(spec.fov_deg) / 2
+        elif model == "RADIAL" and rig_ratio is not None:
+            ratio = rig_ratio * np.exp(rng.uniform(-REAL_FOCAL_JITTER, REAL_FOCAL_JITTER))
+            half = float(np.arctan(0.5 / ratio))
+        else:
+            half = np.deg2rad(rng.uniform(*_FOV_RANGE_DEG[model])) / 2
+        cam, limit = _sample_intrinsics(rng, spec, model, half)
+        cams.append(cam)
+        limits.append(limit)
+        if model == "RADIAL":
+            pinhole_half.append(half)
+    narrowest = min(pinhole_half) if pinhole_half else np.deg2rad(REFERENCE_HALF_FOV_DEG)
+    return cams, limits, float(narrowest)
 
 
 def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
@@ -238,7 +308,7 @@ def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarra
 
 
 def _sample_poses(rng: np.random.Generator, n: int, scene: Scene, gap_deg: float,
-                  max_arc_deg: float) -> list[np.ndarray]:
+                  max_arc_deg: float, aim_scatter: float = 1.0) -> list[np.ndarray]:
     """Cameras on an arc around the room centre (gap_deg per camera gap, 45-max_arc_deg in all),
     1-2 m high, all looking at points near the centre: every pair overlaps, baselines are wide.
     Larger gaps (an arena ringed by cameras) make neighbouring views less alike."""
@@ -251,6 +321,8 @@ def _sample_poses(rng: np.random.Generator, n: int, scene: Scene, gap_deg: float
         xy = semi * rng.uniform(0.88, 1.0) * np.array([np.cos(a), np.sin(a)])
         position = np.array([xy[0], xy[1], rng.uniform(1.0, 2.0)])
         target = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5), rng.uniform(0.2, 0.7)])
+        if aim_scatter != 1.0:
+            target = AIM_CENTRE_M + (target - AIM_CENTRE_M) * aim_scatter
         poses.append(_look_at(position, target, np.deg2rad(rng.uniform(-6, 6))))
     return poses
 
@@ -299,15 +371,24 @@ def generate_rig(spec: RigSpec) -> SyntheticRig:
     for _ in range(1, steps):
         scenes.append(scenes[-1].moved(rng_move, moving, 0.25))
 
-    cams, limits = zip(*[_sample_intrinsics(rng_cam, spec, spec.model_of(c)) for c in range(n)])
+    cams, limits, narrowest_half_fov = _rig_intrinsics(rng_cam, spec)
     if spec.layout == "bar":
         poses = _bar_poses(rng_cam, n, scene, float(spec.bar_spacing_m))
     else:
-        poses = _sample_poses(rng_cam, n, scene, float(spec.gap_deg), float(spec.max_arc_deg))
+        # Long lenses see a small part of the room: their aim scatters as little in the image.
+        aim = 1.0 if spec.lenses == "ideal" else min(
+            1.0, np.tan(narrowest_half_fov) / np.tan(np.deg2rad(REFERENCE_HALF_FOV_DEG)))
+        poses = _sample_poses(rng_cam, n, scene, float(spec.gap_deg), float(spec.max_arc_deg),
+                              aim)
 
     # Texel ~ the pixel footprint at ~3 m of a 65 deg camera of this width (detail scales with
-    # the resolution; at 1024 px wide this is ~4 mm).
-    texel_m = float(np.clip(3.0 * 2 * np.tan(np.deg2rad(32.5)) / spec.width, 0.003, 0.03))
+    # the resolution; at 1024 px wide this is ~4 mm), finer for long lenses down to 1.5 mm.
+    half_fov = np.deg2rad(REFERENCE_HALF_FOV_DEG)
+    if spec.lenses == "ideal":
+        texel_m = float(np.clip(3.0 * 2 * np.tan(half_fov) / spec.width, 0.003, 0.03))
+    else:
+        texel_m = float(np.clip(3.0 * 2 * np.tan(min(half_fov, narrowest_half_fov)) / spec.width,
+                                0.0015, 0.03))
     atlas = build_atlas(rng_tex, scene.surface_extents(), _texture_styles(rng_tex, scene), texel_m)
 
     images = [[None] * n for _ in range(steps)]
