@@ -15,7 +15,7 @@ from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 @pytest.fixture(scope="module")
 def scene():
-    rig = generate_rig(RigSpec(num_cameras=4, width=640, height=480, seed=3))
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, width=640, height=480, seed=3))
     return scene_from_synthetic(rig, "recal-test")
 
 

@@ -67,7 +67,7 @@ def test_report_history_says_what_changed_between_stored_calibrations(tmp_path, 
     from densecalib_ros.core.export import write_calibration_files
     from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
-    truth = generate_rig(RigSpec(num_cameras=4, width=320, height=240, seed=5)).ground_truth()
+    truth = generate_rig(RigSpec(lenses="ideal", num_cameras=4, width=320, height=240, seed=5)).ground_truth()
     turned = copy.deepcopy(truth)
     cam2 = turned.cameras["cam2"]
     cam2.cam_from_rig = cam2.cam_from_rig.copy()

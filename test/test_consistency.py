@@ -23,7 +23,7 @@ TOL = 2.0
 
 @pytest.fixture(scope="module")
 def rig():
-    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                 seed=3))
 
 
@@ -140,7 +140,7 @@ def test_a_pair_is_judged_on_its_self_consistent_matches():
 
 @pytest.fixture(scope="module")
 def buffer_rig():
-    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                 num_time_steps=5, seed=3))
 
 

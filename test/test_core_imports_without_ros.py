@@ -57,7 +57,7 @@ def test_pycolmap_imported_first_is_refused_with_the_fix(tmp_path):
         "import pycolmap, densecalib_ros\n"
         "from densecalib_ros.core.errors import InputError\n"
         "from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig\n"
-        "rig = generate_rig(RigSpec(num_cameras=3, width=64, height=48, seed=1))\n"
+        "rig = generate_rig(RigSpec(lenses='ideal', num_cameras=3, width=64, height=48, seed=1))\n"
         "try:\n    write_rig(rig, 'never')\nexcept InputError as e:\n    print('refused', e)\n")],
         capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert wrong.returncode == 0, wrong.stderr[-2000:]

@@ -62,7 +62,7 @@ def test_generated_folder_round_trip(tmp_path):
     from densecalib_ros.core.datasets import load_generated, scene_from_synthetic
     from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
-    rig = generate_rig(RigSpec(num_cameras=3, width=160, height=120, num_time_steps=2,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, width=160, height=120, num_time_steps=2,
                                supersample=1, seed=3))
     write_rig(rig, tmp_path / "rig")
     scene = load_generated(tmp_path / "rig")

@@ -107,7 +107,7 @@ def test_no_floor_is_an_error():
 
 
 def test_calibrate_floor_on_a_generated_room(tmp_path, capsys):
-    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                num_time_steps=2, seed=1))
     write_rig(rig, tmp_path / "images")
     baseline = float(np.linalg.norm(rig.center(0) - rig.center(1)))

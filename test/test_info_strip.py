@@ -19,7 +19,7 @@ TEXT = "2026-05-01 10:00:05  23C  1012hPa  MOON 3/4  CAM 2"
 @pytest.fixture(scope="module")
 def scene():
     """Two textured 640x480 frames of one generated camera."""
-    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=640, height=480,
                                num_time_steps=2, seed=4))
     return [frames[0] for frames in rig.images]
 

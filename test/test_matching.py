@@ -197,7 +197,7 @@ def test_xfeat_star_closes_cycles_and_refines_on_a_generated_rig(monkeypatch):
     """Three rendered pinhole views: 3-cycles close on the shared keypoint tables, and the refined
     target positions are nearer the true correspondence (rig.transfer) than the target sites."""
     _no_network(monkeypatch)
-    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480, seed=0))
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=640, height=480, seed=0))
     ms = create_matcher("xfeat-star", device="cpu", max_keypoints=4000).match(rig.images[0])
     check_invariants(ms, rig.images[0], inverse=True)
     cycles = close_cycles(ms, 3)

@@ -22,7 +22,7 @@ from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 @pytest.fixture(scope="module")
 def rig():
-    return generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=320, height=240,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=320, height=240,
                                 seed=2))
 
 

@@ -10,7 +10,7 @@ from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 @pytest.fixture(scope="module")
 def rig():
-    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                 seed=0, supersample=1))
 
 

@@ -26,7 +26,7 @@ def _rotz(deg):
 
 @pytest.fixture(scope="module")
 def rig():
-    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                 seed=3))
 
 
@@ -89,7 +89,7 @@ def test_recalibration_uses_only_the_frame_sets_since_a_bump():
     the previous one, RMS 4.1 px: the old sets contradict the new.)"""
     from densecalib_ros.core.metrics import relative_pose_errors
 
-    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                num_time_steps=4, seed=5))
     truth = rig.ground_truth()
     truth.quality["reprojection_rms_px"] = 0.5

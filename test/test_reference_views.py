@@ -28,7 +28,7 @@ TOL = 2.0
 
 @pytest.fixture(scope="module")
 def rig():
-    return generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=1280, height=960,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=1280, height=960,
                                 num_time_steps=3, seed=4))
 
 

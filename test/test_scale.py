@@ -51,7 +51,7 @@ def test_scale_command_from_a_measured_length_in_the_scene(tmp_path, caplog):
     from densecalib_ros.core.export import read_calibration
     from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
-    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                num_time_steps=2, seed=1))
     write_rig(rig, tmp_path / "images")
     out = tmp_path / "out"

@@ -122,7 +122,7 @@ def test_cli_video_options_are_checked(video_dir, tmp_path, caplog, args, messag
 def test_rig_calibrated_from_its_videos(tmp_path):
     """Two scene states, 1 s each at 10 fps, one lossless video per camera; cam2 started
     recording 1 s early (its file opens with 10 black frames), which --time-offset undoes."""
-    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                num_time_steps=2, seed=3))
     videos = tmp_path / "videos"
     videos.mkdir()
