@@ -122,7 +122,7 @@ def test_focal_starts_are_eq2_scales_and_generic_priors_for_perspective_models()
     sizes = [(1024, 768), (1024, 768), (800, 600)]
     starts = focal_starts(initial_intrinsics(sizes, np.array([1200.0, 1150.0, 1300.0]), "RADIAL"))
     assert set(starts) == {"x1.00", "x1.30", "x0.80", "x1.69", "prior 1.2", "prior 0.85",
-                           "prior 0.6"}
+                           "prior 0.6", "prior 1.7", "prior 2.4"}
     assert [c.params[0] for c in starts["prior 0.85"]] == pytest.approx([870.4, 870.4, 680.0])
     assert [c.params[0] for c in starts["x1.30"]] == pytest.approx([1560.0, 1495.0, 1690.0])
     fisheye = focal_starts(initial_intrinsics(sizes, np.full(3, 300.0), "OPENCV_FISHEYE"))

@@ -55,12 +55,14 @@ FOCAL_SCALE_STARTS = (1.0, 1.3, 0.8)  # multi-start factors on the initial focal
 # the truth).
 EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
 # Generic focal priors (x max(width, height)), starts that do not depend on the F's, for perspective
-# models: COLMAP's prior for unknown focals, 1.2 (45 deg across the long side), and two wider
-# lenses 1/sqrt(2) apart, 0.85 and 0.6 (62 and 81 deg: wide-angle trap and arena cameras). Where
-# eq. 2 degenerates it can miss by more than the scale starts span (a converging 3-camera rig: 0.2x
-# the truth), and from every other start SfM ended in a wrong rig; the starts sit closer together
-# than the ~1.4x a start may be off and still converge.
-PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6)
+# models: COLMAP's prior for unknown focals, 1.2 (45 deg across the long side), two wider lenses
+# 1/sqrt(2) apart, 0.85 and 0.6 (62 and 81 deg: wide-angle trap and arena cameras), and two longer
+# ones, 1.7 and 2.4 (33 and 24 deg: telephoto surveillance and lab cameras, where eq. 2 is most
+# often degenerate: optical axes that nearly meet). Where eq. 2 degenerates it can miss by more
+# than the scale starts span (a converging 3-camera rig: 0.2x the truth), and from every other
+# start SfM ended in a wrong rig; the starts sit closer together than the ~1.4x a start may be
+# off and still converge.
+PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6, 1.7, 2.4)
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 # With every camera's intrinsics given there is no focal to explore; the run's other lottery is
 # its first pair (eq. 3 picks among the first three views, on few points). So the multi-start runs

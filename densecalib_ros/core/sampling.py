@@ -48,7 +48,7 @@ import numpy as np
 
 from .config import PipelineConfig
 from .cycles import CycleSet, close_cycles
-from .errors import InputError, NotEnoughOverlapError
+from .errors import FocalInitError, InputError, NotEnoughOverlapError
 from .focal import calibration_matrix, estimate_initial_focals
 from .scoring import (angle_score, equidistant_rays, pair_poses_from_rig, rays_from_intrinsics,
                       top_k_sum)
@@ -260,12 +260,23 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
                 and not np.isfinite(known[c]) and not any(c in k and F[k] is not None for k in F)]
         for c in lone:  # a pinhole camera with no pinhole partner: a generic lens as its start
             known[c] = MIXED_LONE_PINHOLE_FOCAL_RATIO * max(sizes[c])
-        focal = estimate_initial_focals(F, weights, sizes, known_px=known) \
-            if not np.isfinite(known).all() else known
-        focal[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]
         stats["focal_source"] = "fundamental matrices (eq. 2)" + (
             f", generic {MIXED_LONE_PINHOLE_FOCAL_RATIO:g} x image size for camera(s) {lone}"
             if lone else "")
+        try:
+            focal = estimate_initial_focals(F, weights, sizes, known_px=known) \
+                if not np.isfinite(known).all() else known
+        except FocalInitError as exc:
+            # Eq. 2 degenerates where optical axes nearly meet (long lenses aimed at one spot)
+            # and fails on few, weak pairs; the SfM's focal multi-start does not need it (its
+            # generic priors span 25-90 deg lenses), so a generic lens starts the sampling.
+            LOG.info("no focal lengths from the fundamental matrices (%s); sampling with a "
+                     "generic %g x image size", exc, MIXED_LONE_PINHOLE_FOCAL_RATIO)
+            focal = np.where(np.isfinite(known), known, MIXED_LONE_PINHOLE_FOCAL_RATIO
+                             * np.array([max(s) for s in sizes], dtype=np.float64))
+            stats["focal_source"] = (f"generic {MIXED_LONE_PINHOLE_FOCAL_RATIO:g} x image size "
+                                     "(eq. 2 failed)")
+        focal[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]
     if given is not None and not np.isfinite(given).all():  # NaN: estimate this camera's focal
         focal = np.where(np.isfinite(given), given, focal)
         stats["focal_source"] = "given, the rest " + stats["focal_source"]
