@@ -22,7 +22,7 @@ from densecalib_ros.core.synthetic import RigSpec, generate_rig, read_ground_tru
 @pytest.fixture(scope="module")
 def rig_dir(tmp_path_factory):
     path = tmp_path_factory.mktemp("rig")
-    write_rig(generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    write_rig(generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                    seed=3)), path)
     return path
 
@@ -41,15 +41,19 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     assert source["frame_sets"] == [[f"{n}/0000.png" for n in names]]
     assert data["quality"]["densecalib_version"] and "T" in data["quality"]["calibrated_utc"]
     assert len(data["cameras"]["cam1"]["cam_from_rig"]) == 16
-    assert data["cameras"]["cam1"]["model"] == "RADIAL"
-    for name in names:  # standard deviations (core.uncertainty); the principal point was held
+    assert data["cameras"]["cam1"]["model"] == "OPENCV"  # fx, fy: the image refinement (p1 = p2 = 0)
+    assert data["cameras"]["cam1"]["params"][6:] == [0.0, 0.0]
+    for name in names:  # standard deviations and what the images pinned down (image refinement)
         quality = data["cameras"][name]["quality"]
-        assert quality["focal_std_px"] > 0 and "principal_point_std_px" not in quality
+        assert quality["focal_std_px"] > 0 and quality["principal_point_std_px"] > 0
         assert quality["projection_std_px"] > 0
-    assert data["quality"]["held_pp_std_fraction"] == 0.01
+        assert {"f", "k1", "k2"} <= set(quality["estimated_intrinsics"])
+    assert data["quality"]["principal_point_prior_std_fraction"] == 0.01
+    assert data["quality"]["image_refinement_tracks"] > 500
     printed = capsys.readouterr().out
     assert "cam3" in printed  # the per-camera summary
-    assert "f_std and proj_std of cam0, cam1, cam2, cam3 include" in printed
+    assert "principal point estimated from the images: " in printed or \
+        "principal point held at the image centre" in printed
     for name in names:
         assert "camera_matrix:" in (out / f"{name}.yaml").read_text()
     assert {p.name for p in (out / "colmap").iterdir()} >= {"cameras.bin", "images.bin",

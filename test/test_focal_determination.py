@@ -73,25 +73,33 @@ def test_spread_is_the_largest_angle_between_two_optical_axes():
     assert optical_axes_spread_deg(_rig(_camera("a", 0, 1.0))) == 0.0
 
 
-@pytest.mark.parametrize("layout", ["bar", "arc"])
-def test_a_forward_facing_rig_is_warned_about_and_one_around_the_scene_is_not(layout):
+@pytest.mark.parametrize("layout,refine_on_images", [("bar", False), ("bar", True),
+                                                     ("arc", True)])
+def test_a_forward_facing_rig_is_warned_about_and_one_around_the_scene_is_not(layout,
+                                                                              refine_on_images):
     # The same cameras and scene: side by side on a bar (axes parallel within 3 deg) or around
-    # the scene's centre 20 deg apart.
-    rig = generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
-                               seed=3, layout=layout))
-    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    # the scene's centre 20 deg apart. On the bar the keypoint matches leave the focal lengths
+    # open (2.3 % off, f_std 11-65 %); the dense correspondences of the image refinement pin
+    # them down through the few degrees between the axes (< 0.1 % off) and nothing is warned.
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                               height=480, seed=3, layout=layout))
+    config = make_config("regular", matcher="sift", sfm__num_threads=1,
+                         refine_on_images=refine_on_images)
     result = run_calibration([rig.images[0]], rig.names, config)
     warnings = [w for w in result.rig.quality.get("warnings", [])
                 if w.startswith(WEAK_FOCAL_PREFIX)]
     fractions = weak_focal_fractions(result.rig)
     assert len(fractions) == 4
-    if layout == "bar":
+    truth = rig.ground_truth()
+    errors = [abs(mean_focal_px(c.intrinsics) / mean_focal_px(truth.cameras[n].intrinsics) - 1)
+              for n, c in result.rig.cameras.items()]
+    if layout == "bar" and not refine_on_images:
         assert optical_axes_spread_deg(result.rig) < 10.0
         assert len(warnings) == 1 and np.median(list(fractions.values())) > 0.05
+    elif layout == "bar":
+        assert warnings == [] and max(errors) < 0.01
+        assert max(errors) < 3 * max(fractions.values())  # the sigma is not smaller than the error
     else:
         assert optical_axes_spread_deg(result.rig) > 30.0
         assert warnings == [] and max(fractions.values()) < 0.05
-        truth = rig.ground_truth()
-        errors = [abs(mean_focal_px(c.intrinsics) / mean_focal_px(truth.cameras[n].intrinsics)
-                      - 1) for n, c in result.rig.cameras.items()]
         assert np.median(errors) < 0.02

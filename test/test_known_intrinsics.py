@@ -153,7 +153,7 @@ def test_intrinsics_must_fit_the_cameras_and_their_images():
 
 @pytest.fixture(scope="module")
 def rig():
-    return generate_rig(RigSpec(num_cameras=4, camera_model="RADIAL", width=640, height=480,
+    return generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                 seed=0))
 
 
@@ -213,7 +213,7 @@ def test_a_given_fisheye_camera_makes_a_rig_mixing_lenses():
     """A fisheye camera's intrinsics given under the regular preset: its lens follows from the
     model (no --lens needed), it is held, the pinhole cameras are calibrated as RADIAL."""
     models = ("RADIAL", "OPENCV_FISHEYE", "RADIAL", "RADIAL")
-    rig = generate_rig(RigSpec(num_cameras=4, camera_models=models, width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_models=models, width=640, height=480,
                                seed=0))
     gt = rig.ground_truth()
     known = {"cam1": gt.cameras["cam1"].intrinsics}
@@ -232,7 +232,7 @@ def test_a_given_fisheye_camera_makes_a_rig_mixing_lenses():
 
 
 def test_calibrate_command_keeps_the_lab_intrinsics_it_is_given(tmp_path, capsys, caplog):
-    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=640, height=480,
                                seed=3))
     write_rig(rig, tmp_path / "rig")
     gt = rig.ground_truth()
@@ -251,7 +251,7 @@ def test_calibrate_command_keeps_the_lab_intrinsics_it_is_given(tmp_path, capsys
         np.testing.assert_allclose(calib.cameras[n].intrinsics.to_pycolmap().img_from_cam(rays),
                                    gt.cameras[n].intrinsics.to_pycolmap().img_from_cam(rays),
                                    atol=1e-9)
-    assert calib.cameras["cam1"].intrinsics.model == "RADIAL"
+    assert calib.cameras["cam1"].intrinsics.model == "OPENCV"  # fx, fy of the image refinement
     assert evaluate_calibration(calib, gt)["auc3"] >= 80.0
     table = capsys.readouterr().out.splitlines()
     rows = {line.split()[0]: line for line in table}
@@ -274,7 +274,7 @@ def test_bag_camera_info_topics_give_the_intrinsics(tmp_path, caplog):
     from densecalib_ros.core.bag import read_camera_infos, write_image_bag
     from densecalib_ros.core.export import ros_camera_info
 
-    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=640, height=480,
                                seed=3))
     gt = rig.ground_truth()
     topics = [f"/rig/{n}/image_raw" for n in rig.names]
@@ -329,7 +329,7 @@ def test_recalibration_of_a_bumped_rig_can_keep_the_previous_intrinsics(rig):
 
 def test_keep_intrinsics_recalibrates_the_extrinsics_from_the_previous_calibration(tmp_path,
                                                                                     caplog):
-    rig = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=640, height=480,
                                seed=3))
     write_rig(rig, tmp_path / "rig")
     base = ["calibrate", "--images", str(tmp_path / "rig"), "--threads", "1",

@@ -6,7 +6,7 @@ import pytest
 
 from densecalib_ros.core.change import calibration_change, pose_agreement
 from densecalib_ros.core.report import (camera_centres_in_rig, camera_table, distortion_text,
-                                        held_point_note, layout_table, overall_lines,
+                                        intrinsics_note, layout_table, overall_lines,
                                         rig_report)
 from densecalib_ros.core.scale import apply_known_baseline
 from densecalib_ros.core.types import CameraQuality
@@ -45,9 +45,9 @@ def test_camera_table_names_each_models_parameters(rig):
     assert "k1=" in lines["cam0"] and "k2=" in lines["cam0"] and "k3=" not in lines["cam0"]
     assert all(f"k{i}=" in lines["cam3"] for i in range(1, 5)) and "OPENCV_FISHEYE" in lines["cam3"]
     # the sigmas of a held principal point say what they include (files written before: nothing)
-    assert held_point_note(rig) == ""
+    assert intrinsics_note(rig) == ""
     rig.quality["held_pp_std_fraction"] = 0.01
-    note = held_point_note(rig)
+    note = intrinsics_note(rig)
     assert note.startswith("f_std and proj_std of cam0 include") and "1 % of the long side" in note
     assert note in rig_report(rig)
     k = rig.cameras["cam0"].intrinsics

@@ -15,7 +15,7 @@ from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, ma
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
 from ..core.export import record_provenance
-from ..core.report import camera_table, held_point_note
+from ..core.report import camera_table, intrinsics_note
 from .argtypes import number_in, positive, seed
 from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
 
@@ -247,7 +247,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     rig = result.rig
     print(camera_table(rig))
-    note = held_point_note(rig)
+    note = intrinsics_note(rig)
     if note:
         print(note)
     if rig.failed_cameras:

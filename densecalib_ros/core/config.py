@@ -127,6 +127,9 @@ class PipelineConfig:
     # Refine the found rig once more on every keypoint match (all_matches.py; keypoint matchers
     # only): the sampled tracks find the rig, all the matches it agrees with refine it.
     refine_on_all_matches: bool = True
+    # Refine the kept rig last on dense correspondences measured in the images, with priors on
+    # the principal point and pixel aspect (core.image_refinement; perspective lenses).
+    refine_on_images: bool = True
     # Focal lengths the user knows [px] (lens datasheet: f_mm / pixel pitch in mm, or
     # (width / 2) / tan(horizontal FOV / 2)): camera name -> px, "*" for every camera not named.
     # They replace the estimate from the fundamental matrices (eq. 2; fisheye: the equidistant

@@ -137,6 +137,8 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
             for key in ("focal_std_px", "principal_point_std_px", "projection_std_px"):
                 if getattr(cam.quality, key) is not None:
                     entry["quality"][key] = float(getattr(cam.quality, key))
+            if cam.quality.estimated_intrinsics is not None:
+                entry["quality"]["estimated_intrinsics"] = list(cam.quality.estimated_intrinsics)
         cams[name] = entry
     return {"reference_camera": rig.reference_camera, "cameras": cams,
             "failed_cameras": list(rig.failed_cameras), "metric_scale": bool(rig.metric_scale),

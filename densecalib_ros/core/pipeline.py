@@ -424,26 +424,38 @@ def _info_strip_masks(strips: dict, frame_sets: Sequence[Sequence[np.ndarray]],
     return masks
 
 
+def ignored_regions(frame_sets: Sequence[Sequence[np.ndarray]],
+                    camera_names: Optional[Sequence[str]], config: PipelineConfig,
+                    strips: dict) -> list:
+    """Per camera its bool (H, W) mask of what no match may use (the user's config.camera_masks,
+    else the info strips found), or None; [] when no camera has one."""
+    from .masks import check_masks
+
+    masks = {**_info_strip_masks(strips, frame_sets, camera_names), **config.camera_masks}
+    if not masks:
+        return []
+    if camera_names is None:
+        raise ValueError("camera_masks need the camera names")
+    sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
+    return check_masks(masks, camera_names, sizes)
+
+
 def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,
                      matcher=None, progress: Progress = None,
                      camera_names: Optional[Sequence[str]] = None,
-                     strips: Optional[dict] = None) -> list:
+                     strips: Optional[dict] = None, ignored: Optional[list] = None) -> list:
     """One SiteMatchSet per frame set. matcher: an already loaded core.matching.Matcher to reuse
     (else config.matcher is created and loaded here). With config.camera_masks (then
     camera_names is needed), matches on masked regions are dropped (core.masks), and on the
-    info strips found (`strips` as info_strips gives them; None: looked for here)."""
-    from .masks import apply_masks, check_masks
+    info strips found (`strips` as info_strips gives them; None: looked for here); `ignored`:
+    those regions as ignored_regions gives them, when already resolved."""
+    from .masks import apply_masks
     from .matching import create_matcher
 
-    ignored = []
-    if strips is None:
-        strips = info_strips(frame_sets, camera_names, config)
-    masks = {**_info_strip_masks(strips, frame_sets, camera_names), **config.camera_masks}
-    if masks:
-        if camera_names is None:
-            raise ValueError("camera_masks need the camera names")
-        sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
-        ignored = check_masks(masks, camera_names, sizes)
+    if ignored is None:
+        if strips is None:
+            strips = info_strips(frame_sets, camera_names, config)
+        ignored = ignored_regions(frame_sets, camera_names, config, strips)
 
     if matcher is None:
         matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
@@ -461,6 +473,8 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
 def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                            camera_names: Sequence[str], config: PipelineConfig, *,
                            previous: Optional[RigCalibration] = None,
+                           frame_sets: Optional[Sequence[Sequence[np.ndarray]]] = None,
+                           ignored: Sequence = (),
                            progress: Progress = None) -> CalibrationResult:
     """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
     the previous calibration's poses and intrinsics also give the triangulation angles that score
@@ -472,7 +486,9 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     disagreement. Runs that fail are skipped; if all fail, the first run's error is raised.
 
     With config.refine_on_all_matches and a keypoint matcher, every run's rig is refined last on
-    all the matches (core.all_matches)."""
+    all the matches (core.all_matches). With the images (frame_sets, as matched) and
+    config.refine_on_images, the kept rig is refined once more on dense correspondences measured
+    in them (core.image_refinement), away from the `ignored` regions (ignored_regions)."""
     config = resolve_camera_lenses(config, camera_names)
     config = replace(config, known_intrinsics=check_known_intrinsics(
         config.known_intrinsics or {}, camera_names, image_sizes))
@@ -485,7 +501,11 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     else:
         result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
                                  match_tracks, progress)
-    add_uncertainty(result, camera_names, config)
+    sigmas = {}
+    if frame_sets is not None and config.refine_on_images and result.state is not None:
+        result, sigmas = _refined_on_images(result, frame_sets, camera_names, config,
+                                            match_tracks, ignored, progress)
+    add_uncertainty(result, camera_names, config, sigmas)
     if config.known_intrinsics:
         result.rig.quality["given_intrinsics"] = describe_known(config.known_intrinsics)
         for warning in given_intrinsics_warnings(result.rig.quality.get("given_intrinsics_fit",
@@ -506,21 +526,60 @@ def warn_user(rig: RigCalibration, warning: str, progress: Progress) -> None:
     rig.quality.setdefault("warnings", []).append(warning)
 
 
+def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequence[str],
+                       config: PipelineConfig, match_tracks: Optional[Tracks],
+                       ignored: Sequence, progress: Progress) -> tuple[CalibrationResult, dict]:
+    """(result refined by core.image_refinement, its sigmas per camera name); the result as it
+    was and no sigmas where the stage does not apply."""
+    from .image_refinement import PP_PRIOR_STD_FRACTION, refine_on_images
+
+    seeds = match_tracks if match_tracks is not None and match_tracks.num_tracks \
+        else result.tracks
+    refinement = refine_on_images(result.state, frame_sets, seeds, camera_names, ignored or None,
+                                  config.sampling.seed, lambda m: say_progress(progress, m))
+    if refinement is None:
+        return result, {}
+    # Whether given intrinsics fit the scene was judged on the keypoint matches; the dense
+    # correspondences were gated against them already.
+    given_fit = result.rig.quality.get("given_intrinsics_fit")
+    result = _with_state(result, refinement.state, camera_names, config)
+    if given_fit is not None:
+        result.rig.quality["given_intrinsics_fit"] = given_fit
+    result.rig.quality.update(
+        image_refinement_tracks=refinement.num_tracks,
+        image_refinement_noise_px=round(refinement.adjustment.noise_px, 4),
+        principal_point_prior_std_fraction=PP_PRIOR_STD_FRACTION)
+    for name, cam in result.rig.cameras.items():
+        if name in refinement.estimated and cam.quality is not None:
+            cam.quality.estimated_intrinsics = refinement.estimated[name]
+    return result, refinement.uncertainty
+
+
 def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],
-                    config: PipelineConfig) -> None:
-    """Record each camera's standard deviations (core.uncertainty) in its quality, in place."""
+                    config: PipelineConfig, sigmas: Optional[dict] = None) -> None:
+    """Record each camera's standard deviations in its quality, in place: `sigmas` (camera name
+    -> core.uncertainty.CameraUncertainty, from the image refinement) where given, else
+    core.uncertainty's."""
     rig = result.rig
+    sigmas = dict(sigmas or {})
+    if set(sigmas) >= set(rig.cameras):
+        _record_sigmas(rig, sigmas)
+        return
     pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
     given = sorted(config.known_intrinsics or {})
     # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
     noise_px = float(rig.quality["reprojection_rms_px"]) / np.sqrt(2.0)
     try:
-        sigmas = calibration_uncertainty(result.reconstruction, rig.reference_camera, noise_px,
-                                         pp_refined, given)
+        sigmas = {**calibration_uncertainty(result.reconstruction, rig.reference_camera,
+                                            noise_px, pp_refined, given), **sigmas}
     except (RuntimeError, ValueError) as exc:  # a diagnostic: never a reason to lose the result
         log.warning("no standard deviations for this calibration: %s", exc)
         return
     rig.quality["held_pp_std_fraction"] = HELD_PP_STD_FRACTION  # in the held points' sigmas
+    _record_sigmas(rig, sigmas)
+
+
+def _record_sigmas(rig: RigCalibration, sigmas: dict) -> None:
     for name, cam in rig.cameras.items():
         if name in sigmas and cam.quality is not None:
             cam.quality.focal_std_px = sigmas[name].focal_std_px
@@ -674,10 +733,12 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     camera_names = list(camera_names)
     image_sizes = check_frame_sets(frame_sets, camera_names)
     strips = info_strips(frame_sets, camera_names, config)
+    ignored = ignored_regions(frame_sets, camera_names, config, strips)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
-                                  camera_names=camera_names, strips=strips)
+                                  camera_names=camera_names, ignored=ignored)
     result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
-                                    previous=previous, progress=progress)
+                                    previous=previous, frame_sets=frame_sets, ignored=ignored,
+                                    progress=progress)
     with_point_colours(result, frame_sets)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)

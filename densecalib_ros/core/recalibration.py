@@ -28,8 +28,8 @@ from .config import PipelineConfig
 from .consistency import DEFAULT_TOLERANCE_PX, sets_since_change
 from .errors import CalibrationError
 from .pipeline import (CalibrationResult, Progress, calibrate_from_matches, check_frame_sets,
-                       info_strips, match_frame_sets, record_info_strips, say_progress,
-                       with_point_colours)
+                       ignored_regions, info_strips, match_frame_sets, record_info_strips,
+                       say_progress, with_point_colours)
 from .reference_views import fits_per_frame_set_and_view
 from .types import RigCalibration
 
@@ -71,8 +71,9 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     camera_names = list(camera_names)
     image_sizes = check_frame_sets(frame_sets, camera_names)
     strips = info_strips(frame_sets, camera_names, config)
+    ignored = ignored_regions(frame_sets, camera_names, config, strips)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
-                                  camera_names=camera_names, strips=strips)
+                                  camera_names=camera_names, ignored=ignored)
     before_change = sets_since_change(fits_per_frame_set_and_view(
         previous, camera_names, match_sets, frame_sets, previous_views or {},
         DEFAULT_TOLERANCE_PX))
@@ -89,7 +90,8 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
         warm.pipeline, warm.sfm.global_init, warm.sfm.b_err_px = "global", "previous", None
         try:
             result = calibrate_from_matches(match_sets, image_sizes, camera_names, warm,
-                                            previous=previous, progress=progress)
+                                            previous=previous, frame_sets=frame_sets,
+                                            ignored=ignored, progress=progress)
             why_not_previous = worse_than(result.rig, previous)
         except CalibrationError as exc:
             why_not_previous = str(exc)
@@ -103,7 +105,8 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
         why_not_previous = "the previous calibration lacks some of the cameras"
     if result is None:
         result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
-                                        previous=None, progress=progress)
+                                        previous=None, frame_sets=frame_sets, ignored=ignored,
+                                        progress=progress)
         result.rig.quality["init"] = f"from scratch ({why_not_previous})"
         worse = worse_than(result.rig, previous)
         if worse is not None:

@@ -78,11 +78,30 @@ def camera_table(rig: RigCalibration) -> str:
     return "\n".join(rows)
 
 
-def held_point_note(rig: RigCalibration) -> str:
-    """A line under the camera table where some camera's principal point was held (its sigmas
-    include the offset a real camera's may have: core.uncertainty), '' where none was."""
-    fraction = rig.quality.get("held_pp_std_fraction")  # absent in files written before it
+def intrinsics_note(rig: RigCalibration) -> str:
+    """Lines under the camera table on the principal points: which the images estimated and which
+    were held at the image centre (core.image_refinement; their pp_std is how far a real lens's
+    may be from there), or, for calibrations that held every pinhole camera's point
+    (held_pp_std_fraction), that their sigmas include that offset. '' where there is nothing to
+    say."""
     given = set(rig.quality.get("given_intrinsics") or ())
+    judged = {n: c.quality.estimated_intrinsics for n, c in rig.cameras.items()
+              if n not in given and c.quality is not None
+              and isinstance(c.quality.estimated_intrinsics, list)}
+    if judged:
+        lines = []
+        estimated = [n for n, e in judged.items() if "cx" in e]
+        held = [n for n, e in judged.items() if "cx" not in e]
+        if estimated:
+            lines.append(f"principal point estimated from the images: {', '.join(estimated)}")
+        if held:
+            lines.append(f"principal point held at the image centre (the images do not pin it "
+                         f"down; pp_std is how far a real lens's may lie): {', '.join(held)}")
+        aspect = [n for n, e in judged.items() if "aspect" in e]
+        if aspect:
+            lines.append(f"pixel aspect estimated (fx/fy): {', '.join(aspect)}")
+        return "\n".join(lines)
+    fraction = rig.quality.get("held_pp_std_fraction")  # absent in files written before it
     held = [n for n, c in rig.cameras.items() if n not in given and c.quality is not None
             and c.quality.focal_std_px is not None and c.quality.principal_point_std_px is None]
     if not held or not fraction:
@@ -205,7 +224,7 @@ def rig_report(rig: RigCalibration, against: Optional[RigCalibration] = None,
                against_label: str = "the other calibration") -> str:
     """The whole report: overall lines, camera table, layout and, with `against`, the change
     from it and the pose agreement with it."""
-    note = held_point_note(rig)
+    note = intrinsics_note(rig)
     parts = ["\n".join(overall_lines(rig)), "", camera_table(rig) + (f"\n{note}" if note else ""),
              "",
              "camera layout in the rig frame (reference camera's optical frame: x right, y down, "

@@ -168,6 +168,10 @@ class CameraQuality:
     focal_std_px: Optional[float] = None
     principal_point_std_px: Optional[float] = None
     projection_std_px: Optional[float] = None  # the intrinsics as a whole, mean over the image
+    # The intrinsics the images pinned down (core.image_refinement: "f", "cx", "cy", "k1", "k2",
+    # "aspect"); those with a prior that are not listed rest on it (the principal point near
+    # the image centre). None where not judged (fisheye lenses, given intrinsics).
+    estimated_intrinsics: Optional[list] = None
 
 
 @dataclass

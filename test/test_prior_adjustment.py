@@ -1,0 +1,133 @@
+"""core.prior_adjustment: the MAP bundle adjustment with priors on the principal point and the pixel
+aspect, on exact projections of a point cloud (sfm_fixtures) with Gaussian noise."""
+import numpy as np
+import pytest
+from sfm_fixtures import gt_rig, gt_tracks
+
+from densecalib_ros.core.prior_adjustment import (INTRINSIC_NAMES, Priors, _Problem,
+                                                  adjust_with_priors)
+from densecalib_ros.core.reconstruction import SfMState, triangulate_tracks
+from densecalib_ros.core.types import CameraIntrinsics
+
+
+def _rig_with_offset_points(num_cameras=5, seed=3):
+    """Ground truth OPENCV cameras (principal points 1.5 % off-centre, fy/fx - 1 = 0.3 %)."""
+    cams, poses = gt_rig(num_cameras, seed=seed, pp_jitter_px=0.0)
+    rng = np.random.default_rng(seed)
+    true = []
+    for cam in cams:
+        f, cx, cy, k1, k2 = cam.params
+        cx += rng.choice([-1, 1]) * 0.015 * cam.width
+        cy += rng.choice([-1, 1]) * 0.015 * cam.height
+        true.append(CameraIntrinsics("OPENCV", cam.width, cam.height,
+                                     np.array([f, f * 1.003, cx, cy, k1, k2, 0.0, 0.0])))
+    return true, poses
+
+
+def _state(true, poses, noise_px, seed=0):
+    """The truth's poses with the principal points at the image centre and square pixels (what
+    the pipeline hands this stage), points triangulated."""
+    tracks = gt_tracks(true, poses, num_points=3000, noise_px=noise_px, outlier_frac=0.0,
+                       seed=seed)
+    start = [CameraIntrinsics("RADIAL", c.width, c.height,
+                              np.array([c.params[0], c.width / 2, c.height / 2, c.params[4],
+                                        c.params[5]])) for c in true]
+    state = SfMState.create(tracks, start)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state, max_error_px=50.0)
+    return state
+
+
+def _pp(cam):
+    return np.asarray(cam.params)[[2, 3]] if cam.model == "OPENCV" else cam.params[[1, 2]]
+
+
+def test_jacobians_match_finite_differences():
+    true, poses = _rig_with_offset_points(3)
+    state = _state(true, poses, 0.0)
+    state.intrinsics = [CameraIntrinsics("OPENCV", c.width, c.height,
+                                         c.params + np.r_[0, 0, 0, 0, 0, 0, 1e-3, -2e-3])
+                        for c in true]
+    priors = Priors({b: 10.0 for b in range(3)}, {b: 0.01 for b in range(3)},
+                    {b: 0.01 for b in range(3)})
+    problem = _Problem(state, [0, 1, 2], priors)
+    res, A, B = problem.residuals_and_jacobians()
+    obs = 7  # an observation of a camera whose pose is free
+    obs = int(np.flatnonzero(problem.c_idx != problem.reference)[obs])
+    c, b, p = problem.c_idx[obs], problem.block_of[problem.c_idx[obs]], problem.p_idx[obs]
+    eps = 1e-6
+    for k in range(len(INTRINSIC_NAMES)):
+        problem.K[b, k] += eps
+        moved = problem.residuals_and_jacobians(False)[obs]
+        problem.K[b, k] -= eps
+        assert np.allclose((moved - res[obs]) / eps, A[obs, :, 6 + k], rtol=1e-3, atol=1e-3), \
+            INTRINSIC_NAMES[k]
+    for k in range(3):
+        problem.X[p, k] += eps
+        moved = problem.residuals_and_jacobians(False)[obs]
+        problem.X[p, k] -= eps
+        assert np.allclose((moved - res[obs]) / eps, B[obs, :, k], rtol=1e-3, atol=1e-3)
+    delta = np.zeros(problem.num_cam_params)
+    for k in range(6):
+        delta[:] = 0.0
+        delta[problem.pose_cols[c, k]] = eps
+        saved = problem.apply(delta, np.zeros_like(problem.X))
+        moved = problem.residuals_and_jacobians(False)[obs]
+        problem.restore(saved)
+        assert np.allclose((moved - res[obs]) / eps, A[obs, :, k], rtol=1e-3, atol=1e-3)
+
+
+def test_exact_tracks_give_the_exact_cameras_without_priors():
+    true, poses = _rig_with_offset_points()
+    state = _state(true, poses, 0.0)
+    blocks = list(range(len(true)))
+    adjust_with_priors(state, blocks, Priors({b: np.inf for b in blocks},
+                                             {b: np.inf for b in blocks}), max_iterations=200)
+    for b, cam in enumerate(true):
+        assert state.intrinsics[b].model == "OPENCV"
+        assert np.allclose(state.intrinsics[b].params, cam.params, rtol=1e-5, atol=1e-3)
+
+
+def test_images_that_determine_the_principal_point_move_it_to_the_truth():
+    true, poses = _rig_with_offset_points()
+    state = _state(true, poses, 0.2)
+    blocks = list(range(len(true)))
+    result = adjust_with_priors(state, blocks, Priors({b: 6.4 for b in blocks},
+                                                      {b: 0.003 for b in blocks}))
+    for b, cam in enumerate(true):
+        error = np.linalg.norm(_pp(state.intrinsics[b]) - _pp(cam))
+        sigma = np.sqrt(max(result.covariance[b][1, 1], result.covariance[b][2, 2]))
+        assert error < 3.0, (b, error)  # started 13.5 px off
+        assert error < 4 * np.sqrt(2) * sigma, (b, error, sigma)
+        # This layout barely sees the aspect: it stays within its (prior-led) sigma.
+        aspect = state.intrinsics[b].params[1] / state.intrinsics[b].params[0] - 1
+        assert abs(aspect - 0.003) < 3 * np.sqrt(result.covariance[b][5, 5])
+    assert result.cost_after < result.cost_before
+    assert 0.1 < result.noise_px < 0.3  # the 0.2 px noise, re-measured at the solution
+
+
+def test_a_tight_prior_holds_the_principal_point_and_a_held_one_does_not_move():
+    true, poses = _rig_with_offset_points()
+    state = _state(true, poses, 0.2)
+    blocks = list(range(len(true)))
+    adjust_with_priors(state, blocks, Priors({b: 0.05 for b in blocks}, {}))
+    for b in blocks:
+        assert np.linalg.norm(_pp(state.intrinsics[b]) - [320.0, 240.0]) < 0.5
+        assert state.intrinsics[b].model == "RADIAL"  # aspect held: no OPENCV needed
+    held = _state(true, poses, 0.2)
+    adjust_with_priors(held, blocks, Priors())
+    for b in blocks:
+        assert np.array_equal(_pp(held.intrinsics[b]), [320.0, 240.0])
+
+
+def test_fixed_blocks_are_left_alone():
+    true, poses = _rig_with_offset_points(4)
+    state = _state(true, poses, 0.2)
+    before = state.intrinsics[2].params.copy()
+    adjust_with_priors(state, [0, 1, 3], Priors({b: 6.4 for b in (0, 1, 3)}, {}))
+    assert np.array_equal(state.intrinsics[2].params, before)
+    with pytest.raises(ValueError, match="OPENCV_FISHEYE"):
+        fisheye = _state(true, poses, 0.2)
+        fisheye.intrinsics[0] = CameraIntrinsics("OPENCV_FISHEYE", 640, 480,
+                                                 np.r_[300.0, 300.0, 320, 240, 0, 0, 0, 0])
+        adjust_with_priors(fisheye, [0], Priors())
