@@ -71,16 +71,22 @@ class SceneSpec:
     fisheye_cameras: tuple = ()  # a rig mixing lenses: these cameras are OPENCV_FISHEYE
     layout: str = "arc"  # synthetic.RigSpec.layout: "bar" = cameras side by side, one direction
     bar_spacing_m: float = 0.3
+    lenses: str = "real"  # synthetic.RigSpec.lenses
+    # One physical camera moved between shots: calibrated with shared intrinsics (ours:
+    # --share-intrinsics; COLMAP: its single-camera mode).
+    share_intrinsics: bool = False
+    fov_range_deg: Optional[tuple] = None  # synthetic.RigSpec.fov_range_deg
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
-               height: int = 768, gap_deg: float = 20.0,
-               max_arc_deg: float = 140.0) -> SceneSpec:
+               height: int = 768, gap_deg: float = 20.0, max_arc_deg: float = 140.0,
+               fov_range_deg: Optional[tuple] = None) -> SceneSpec:
     lens = "fisheye" if camera_model == "OPENCV_FISHEYE" else "pinhole"
     wide = "" if gap_deg == 20.0 else f"gap{gap_deg:g}-"
-    return SceneSpec(f"synthetic-{lens}-{wide}{num_cameras}cam-{width}x{height}-s{seed}",
+    long_lens = "" if fov_range_deg is None else f"fov{fov_range_deg[0]:g}-{fov_range_deg[1]:g}-"
+    return SceneSpec(f"synthetic-{lens}-{long_lens}{wide}{num_cameras}cam-{width}x{height}-s{seed}",
                      "synthetic", num_cameras, camera_model, width, height, seed,
-                     gap_deg=gap_deg, max_arc_deg=max_arc_deg)
+                     gap_deg=gap_deg, max_arc_deg=max_arc_deg, fov_range_deg=fov_range_deg)
 
 
 # Rigs mixing lenses: (cameras, indices of the fisheye cameras among RADIAL ones, seed); 20 deg
@@ -98,23 +104,40 @@ def mixed_scenes() -> list[SceneSpec]:
 
 def quick_scenes() -> list[SceneSpec]:
     """A few minutes on 2 cores: one pinhole rig, one fisheye rig, Strecha at reduced size."""
-    return [_synthetic(6, "RADIAL", 101),
+    return [_synthetic(6, "RADIAL", 101, gap_deg=30.0, max_arc_deg=360.0),
             _synthetic(4, "OPENCV_FISHEYE", 201, 800, 600),
             SceneSpec("strecha-entry-p10-768", "strecha", folder="strecha_entry_p10",
                       max_side_px=768)]
 
 
+# Generated rigs with the intrinsics real lenses have (synthetic.RigSpec lenses "real": principal
+# points up to 2 % of each side off-centre, focal lengths 0.5-2.2x the width, fy != fx by up to
+# 0.5 %): (cameras, degrees between neighbours, seed), on arcs up to a full ring.
+PINHOLE_RIGS = ((5, 25, 101), (5, 45, 102), (6, 30, 103), (6, 40, 104), (7, 35, 105),
+                (8, 20, 106), (8, 30, 107), (10, 20, 108), (10, 35, 109))
+# Long lenses (25-35 deg horizontal field of view): (cameras, degrees, seed).
+LONG_LENS_RIGS = ((5, 20, 111), (6, 25, 112), (8, 20, 113))
+LONG_LENS_FOV_DEG = (25.0, 35.0)
+# Few cameras far apart (camera traps, forensic scenes): (cameras, degrees, seed).
+FEW_CAMERA_RIGS = ((3, 50, 121), (4, 45, 122), (4, 60, 123))
+
+
 def full_scenes() -> list[SceneSpec]:
-    """Pinhole rigs of 3, 6 and 10 cameras (3 seeds each, 20 deg between neighbours), wider
-    pinhole rigs of 4 and 6 cameras 35 deg apart (an arena ringed by cameras; 3 seeds each),
-    fisheye rigs of 4, 6 and 8 cameras (150-190 deg, 2 seeds each), all 1024x768, Strecha
+    """Pinhole rigs of 5-10 cameras 20-45 deg apart (PINHOLE_RIGS), long-lens rigs
+    (LONG_LENS_RIGS), 3-4 cameras 45-60 deg apart (FEW_CAMERA_RIGS), fisheye rigs of 4, 6 and 8
+    cameras (150-190 deg, 2 seeds each), all 1024x768 with the intrinsics of real lenses, Strecha
     entry-P10 at 1024 px, and 6 frames of instant-ngp's fox (a phone walked around an object)."""
-    scenes = [_synthetic(n, "RADIAL", seed) for n in (3, 6, 10) for seed in (101, 102, 103)]
-    scenes += [_synthetic(n, "RADIAL", seed, gap_deg=WIDE_GAP_DEG, max_arc_deg=360.0)
-               for n in (4, 6) for seed in (101, 102, 103)]
+    scenes = [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0)
+              for n, gap, seed in PINHOLE_RIGS]
+    scenes += [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0,
+                          fov_range_deg=LONG_LENS_FOV_DEG) for n, gap, seed in LONG_LENS_RIGS]
+    scenes += [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0)
+               for n, gap, seed in FEW_CAMERA_RIGS]
     scenes += [_synthetic(n, "OPENCV_FISHEYE", seed) for n in (4, 6, 8) for seed in (201, 202)]
     scenes.append(SceneSpec("strecha-entry-p10-1024", "strecha", folder="strecha_entry_p10",
                             max_side_px=1024))
+    scenes.append(SceneSpec("strecha-entry-p10-1024-one-camera", "strecha",
+                            folder="strecha_entry_p10", max_side_px=1024, share_intrinsics=True))
     scenes.append(SceneSpec("ngp-fox-6view-1024", "nerf", num_cameras=6, folder="ngp_fox",
                             max_side_px=1024))
     return scenes
@@ -171,13 +194,16 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
                                    camera_models=models, width=spec.width, height=spec.height,
                                    seed=spec.seed, gap_deg=spec.gap_deg,
                                    max_arc_deg=spec.max_arc_deg, layout=spec.layout,
-                                   bar_spacing_m=spec.bar_spacing_m))
+                                   bar_spacing_m=spec.bar_spacing_m, lenses=spec.lenses,
+                                   fov_range_deg=spec.fov_range_deg))
         return scene_from_synthetic(rig, spec.name)
     if spec.kind == "strecha":
         folder = Path(data_dir) / spec.folder
         if not (folder / "gt_dense_cameras").is_dir():
             raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
-        return load_strecha(folder, max_side_px=spec.max_side_px, name=spec.name)
+        scene = load_strecha(folder, max_side_px=spec.max_side_px, name=spec.name)
+        scene.share_intrinsics = spec.share_intrinsics
+        return scene
     if spec.kind == "nerf":
         folder = Path(data_dir) / spec.folder
         if not (folder / "transforms.json").is_file():
@@ -211,13 +237,14 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
     record's status is "ok", "failed" (CalibrationError / peer registered nothing), "unavailable"
     (a module of our pipeline is missing: ImportError) or "error" (an unexpected exception, with its traceback)."""
     record = dict(method=method, status="ok", message="", runtime_s=None, peak_rss_mib=None)
+    share = scene.share_intrinsics
     can_measure_memory = _reset_peak_rss()
     start = time.perf_counter()
     try:
         if method in PEER_METHODS:
             peer = run_peer(method, scene.frame_sets[0], scene.camera_names,
                             lens=[scene.camera_lens.get(n, scene.lens) for n in scene.camera_names],
-                            num_threads=num_threads)
+                            num_threads=num_threads, single_camera=share)
             calib = peer.to_rig_calibration(scene.camera_names)
             record["message"] = peer.message
         elif method in OUR_METHODS or method == GIVEN_INTRINSICS_METHOD:
@@ -231,6 +258,7 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
                                  OUR_METHODS.get(method, "incremental"),
                                  camera_lens={} if given else dict(scene.camera_lens),
                                  known_intrinsics=given)
+            config.sfm.share_intrinsics = share
             config.sfm.num_threads = num_threads
             # Ceres/COLMAP warnings (e.g. failed LM steps) would bury the tables; errors still show.
             with quiet_colmap(min_level=2):
@@ -362,8 +390,8 @@ def _fmt(value, spec: str, missing: str = "-") -> str:
     return format(value, spec)
 
 
-_HEADER = (f"{'method':<28}{'reg':>7}{'AUC@3':>8}{'AUC@30':>8}{'focal%':>8}{'proj px':>9}"
-           f"{'time s':>8}{'peak MiB':>10}  status")
+_HEADER = (f"{'method':<28}{'reg':>7}{'AUC@3':>8}{'AUC@30':>8}{'rot deg':>8}{'focal%':>8}"
+           f"{'pp px':>7}{'proj px':>9}{'time s':>8}{'peak MiB':>10}  status")
 
 
 def format_scene_table(entry: dict) -> str:
@@ -375,7 +403,9 @@ def format_scene_table(entry: dict) -> str:
         focal = m["median_focal_err"] * 100 if np.isfinite(m["median_focal_err"]) else None
         status = r["status"] if r["status"] == "ok" else f"{r['status']}: {r['message'][:60]}"
         lines.append(f"{r['method']:<28}{m['num_registered']:>3}/{m['num_cameras']:<3}"
-                     f"{m['auc3']:>8.1f}{m['auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
+                     f"{m['auc3']:>8.1f}{m['auc30']:>8.1f}"
+                     f"{_fmt(m.get('median_rot_err_deg'), '8.3f'):>8}{_fmt(focal, '8.2f'):>8}"
+                     f"{_fmt(m.get('median_pp_err_px'), '7.1f'):>7}"
                      f"{_fmt(m['median_proj_err_px'], '9.2f'):>9}{_fmt(r['runtime_s'], '8.1f'):>8}"
                      f"{_fmt(r['peak_rss_mib'], '10.0f'):>10}  {status}")
     for r in entry["results"]:
@@ -404,6 +434,8 @@ def summarize(scenes: list[dict]) -> list[dict]:
         ms = [r["metrics"] for r in records]
         focal = [m["median_focal_err"] for m in ms if np.isfinite(m["median_focal_err"])]
         proj = [m["median_proj_err_px"] for m in ms if np.isfinite(m["median_proj_err_px"])]
+        # A scene's median pair rotation error (inf where a camera failed: its pairs count).
+        rot = [m.get("median_rot_err_deg", float("nan")) for m in ms]
         times = [r["runtime_s"] for r in records if r["status"] == "ok"]
         out.append(dict(
             lens=lens, method=method, num_scenes=len(records),
@@ -411,6 +443,7 @@ def summarize(scenes: list[dict]) -> list[dict]:
             mean_auc3=float(np.mean([m["auc3"] for m in ms])),
             mean_auc30=float(np.mean([m["auc30"] for m in ms])),
             median_auc3=float(np.median([m["auc3"] for m in ms])),
+            median_rot_err_deg=float(np.median(rot)) if rot else float("nan"),
             median_focal_err=float(np.median(focal)) if focal else float("nan"),
             median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
             median_runtime_s=float(np.median(times)) if times else float("nan"),
@@ -446,14 +479,15 @@ def format_error_sigma_ratios(check: dict) -> str:
 
 def format_summary(summary: list[dict]) -> str:
     lines = ["== summary (mean AUC over scenes, failures = 0; med@3 = median AUC@3 over scenes; "
-             "focal, proj: medians of per-scene medians)",
+             "rot deg, focal, proj: medians of per-scene medians; rot deg: pair rotation error)",
              f"{'lens':<9}{'method':<28}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'med@3':>7}{'AUC@30':>8}"
-             f"{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}{'warned':>8}"]
+             f"{'rot deg':>8}{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}{'warned':>8}"]
     for s in summary:
         focal = s["median_focal_err"] * 100 if np.isfinite(s["median_focal_err"]) else None
         lines.append(f"{s['lens']:<9}{s['method']:<28}{s['num_scenes']:>7}"
                      f"{s['registered']:>5}/{s['cameras']:<4}{s['mean_auc3']:>8.1f}"
-                     f"{s['median_auc3']:>7.1f}{s['mean_auc30']:>8.1f}{_fmt(focal, '8.2f'):>8}"
+                     f"{s['median_auc3']:>7.1f}{s['mean_auc30']:>8.1f}"
+                     f"{_fmt(s.get('median_rot_err_deg'), '8.3f'):>8}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(s['median_proj_err_px'], '9.2f'):>9}"
                      f"{_fmt(s['median_runtime_s'], '8.1f'):>8}{s['not_ok']:>8}"
                      f"{s.get('warned', 0):>8}")

@@ -34,6 +34,7 @@ class Scene:
     lens: str = "pinhole"  # "pinhole" | "fisheye" | "mixed": picks the preset / peer camera model
     camera_lens: dict = field(default_factory=dict)  # "mixed": camera name -> "pinhole" | "fisheye"
     reference_is_estimate: bool = False  # True when the "ground truth" is itself an SfM result
+    share_intrinsics: bool = False  # one physical camera: calibrate with shared intrinsics
     notes: str = ""
 
 

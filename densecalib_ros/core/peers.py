@@ -69,12 +69,14 @@ class PeerResult:
 
 def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[str],
              lens: str | Sequence[str] = "pinhole", num_threads: int = -1, seed: int = 0,
-             workdir: Optional[str] = None) -> PeerResult:
+             workdir: Optional[str] = None, single_camera: bool = False) -> PeerResult:
     """Reconstruct one image per camera with a peer method.
 
     images[c]: (H, W, 3) uint8 RGB image of camera camera_names[c]. lens: "pinhole" or "fisheye"
-    (picks the initial camera model), for all cameras or one per camera (a rig mixing lenses). num_threads: -1 = all cores. workdir: keep the COLMAP database
-    and models there (default: a temporary folder, removed afterwards).
+    (picks the initial camera model), for all cameras or one per camera (a rig mixing lenses).
+    num_threads: -1 = all cores. workdir: keep the COLMAP database and models there (default: a
+    temporary folder, removed afterwards). single_camera: one camera for all images (COLMAP's
+    single camera mode: one physical camera moved between shots).
     """
     if method not in PEER_METHODS:
         raise InputError(f"Unknown peer method {method!r}: choose one of {', '.join(PEER_METHODS)}.")
@@ -91,7 +93,7 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
         try:
             with quiet_colmap():
                 result = _reconstruct(method, images, list(camera_names), lenses, num_threads,
-                                      seed, root)
+                                      seed, root, single_camera)
         except Exception as exc:  # a peer's failure is a benchmark result, not a crash
             log.warning("%s failed: %s", method, exc)
             result = PeerResult(method, unregistered=list(camera_names),
@@ -101,7 +103,8 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
 
 
 def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[str],
-                 lenses: list[str], num_threads: int, seed: int, root: Path) -> PeerResult:
+                 lenses: list[str], num_threads: int, seed: int, root: Path,
+                 single_camera: bool = False) -> PeerResult:
     import pycolmap
 
     image_dir, model_dir, database = root / "images", root / "models", root / "database.db"
@@ -129,7 +132,8 @@ def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[s
         pycolmap.extract_features(database, image_dir,
                                   image_names=sorted(f for f in file_to_name
                                                      if lens_of_file[f] == lens),
-                                  camera_mode=pycolmap.CameraMode.PER_IMAGE,
+                                  camera_mode=pycolmap.CameraMode.SINGLE if single_camera
+                                  else pycolmap.CameraMode.PER_IMAGE,
                                   reader_options=reader, extraction_options=extraction,
                                   device=pycolmap.Device.cpu)
     matching = pycolmap.FeatureMatchingOptions()
