@@ -14,7 +14,7 @@ from densecalib_ros.cli import main
 from densecalib_ros.core.errors import FocalInitError, InputError
 from densecalib_ros.core.export import (calibration_from_dict, calibration_to_dict,
                                         check_output_files, check_output_folder,
-                                        read_saved_model,
+                                        read_calibration, read_saved_model,
                                         replace_directory_atomic, write_calibration_files)
 from densecalib_ros.core.image_io import jpeg_truncated, list_image_folder
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
@@ -220,3 +220,14 @@ def test_focal_errors_name_the_cameras():
     assert str(error) == "No fundamental matrix for camera(s) [1, 2]: overlap?"
     assert str(error.named(["left", "middle", "right"])) == (
         "No fundamental matrix for camera(s) middle, right: overlap?")
+
+
+def test_a_calibration_file_that_is_not_text_is_refused_with_what_to_do(rig, tmp_path):
+    """Bytes that are not UTF-8 (a damaged disk, another file saved under the name): an
+    InputError naming the file, not a UnicodeDecodeError traceback (issue 40)."""
+    out = tmp_path / "calib"
+    write_calibration_files(rig.ground_truth(), out)
+    (out / "calibration.json").write_bytes(b'{"reference_camera": "\xff\xfe"}')
+    with pytest.raises(InputError, match=r"calibration.json \(UnicodeDecodeError.*calibrate again"):
+        read_calibration(out)
+    assert main(["report", str(out)]) == 2

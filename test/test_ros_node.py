@@ -744,6 +744,40 @@ def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
         ros.remove(node)
 
 
+@pytest.mark.parametrize("damage", ["dangling", "not utf-8"])
+def test_a_damaged_latest_falls_back_to_the_newest_calibration_that_reads(ros, tmp_path, damage):
+    """`latest` pointing at nothing, or at a calibration.json of bytes that are not text: at
+    start-up the node publishes the newest kept calibration that reads, and says so at WARN
+    (it published nothing before: issue 40)."""
+    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.types import RigCalibration, RigCamera
+
+    lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
+    poses = {name: np.eye(4) for name in CAMERAS}
+    for i, name in enumerate(CAMERAS):
+        poses[name][:3, 3] = [-0.3 * i, 0.0, 0.0]
+    write_calibration_files(RigCalibration("cam0", {n: RigCamera(n, lens, p)
+                                                   for n, p in poses.items()}),
+                            tmp_path / "20260101T000000Z")
+    if damage == "dangling":
+        os.symlink("20260102T000000Z", tmp_path / "latest")
+    else:
+        write_calibration_files(RigCalibration("cam0", {n: RigCamera(n, lens, np.eye(4))
+                                                       for n in CAMERAS}),
+                                tmp_path / "20260102T000000Z")
+        (tmp_path / "20260102T000000Z" / "calibration.json").write_bytes(b"\xff\xfe{")
+        os.symlink("20260102T000000Z", tmp_path / "latest")
+    rosout = ros.add(RosoutListener(ros.context))
+    time.sleep(0.5)  # /rosout is volatile: the listener must be matched before the start-up
+    node = ros.densecalib(tmp_path)
+    listener = ros.listener(node)
+    assert wait_until(lambda: listener.rig_from_optical().get(
+        "cam1_optical_frame", np.eye(4))[0, 3] == pytest.approx(0.3), 10.0)
+    assert wait_until(lambda: any(
+        m.level == Log.WARN and "20260101T000000Z, is published instead" in m.msg
+        for m in rosout.copy()), 5.0)
+
+
 def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
     """`densecalib scale` on a running node's output_dir, then ~/reload: the node publishes the
     scaled calibration (cameras and floor); `latest` pointed at a calibration of other cameras:

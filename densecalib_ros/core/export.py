@@ -236,9 +236,11 @@ def read_calibration(path: str | os.PathLike) -> RigCalibration:
     if path.is_dir():
         path = calibration_folder(path) / "calibration.json"
     try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"Cannot read calibration file {path}: {exc}") from exc
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # ValueError: not UTF-8, not JSON
+        raise InputError(f"Cannot read calibration file {path} ({type(exc).__name__}: {exc}): "
+                         "it is not a calibration.json densecalib wrote, or it was damaged; "
+                         "restore it or calibrate again.") from exc
     return calibration_from_dict(data)
 
 

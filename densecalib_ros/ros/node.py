@@ -77,7 +77,8 @@ from tf2_msgs.msg import TFMessage
 
 from ..core.colmap_logging import show_colmap_log
 from ..core.errors import CalibrationError, InputError
-from ..core.calibration_store import LATEST, prune_calibrations, write_new_calibration
+from ..core.calibration_store import (LATEST, prune_calibrations, stored_calibrations,
+                                      write_new_calibration)
 from ..core.export import (read_calibration, record_provenance, write_calibration_files,
                            write_calibration_json)
 from ..core.floor import record_floor, warn_if_floor_lost
@@ -233,7 +234,7 @@ class DenseCalibNode(Node):
         self.create_timer(1.0, _ends_with_the_node(self._watch),
                           callback_group=MutuallyExclusiveCallbackGroup())
 
-        loaded, message = self._load_last_calibration()
+        loaded, message = self._load_last_calibration(fall_back=True)
         (self.get_logger().info if loaded or "no calibration" in message else
          self.get_logger().error)(f"start-up: {message}")
         if s.replay_bag:
@@ -649,16 +650,28 @@ class DenseCalibNode(Node):
             write_calibration_files(rig, folder, reconstruction,
                                     reference_views=reference_views)))
 
-    def _load_last_calibration(self) -> tuple[bool, str]:
+    def _load_last_calibration(self, fall_back: bool = False) -> tuple[bool, str]:
         """Publish the calibration under output_dir/latest; (published?, what happened). Anything
-        wrong with it leaves the current calibration published."""
+        wrong with it leaves the current calibration published. fall_back (start-up): where
+        `latest` is missing its target or does not read, the newest kept calibration that reads
+        cleanly is published instead, with a warning."""
         latest = self.settings.output_dir / LATEST
-        if not latest.exists():
+        if not latest.exists() and not latest.is_symlink():
             return False, f"no calibration under {latest}"
         try:
-            rig = read_calibration(latest)
+            rig = read_calibration(latest) if latest.exists() else None
+            problem = None if rig is not None else f"{latest} points at nothing"
         except InputError as exc:
-            return False, f"not loaded: {exc}"
+            rig, problem = None, str(exc)
+        if rig is None:
+            older = self._newest_readable_calibration() if fall_back else None
+            if older is None:
+                return False, f"not loaded: {problem}"
+            self.get_logger().warning(
+                f"start-up: {problem}; the newest kept calibration that reads cleanly, "
+                f"{older[0]}, is published instead (calibrate again, or point {latest} at "
+                "the one to use and call ~/reload)")
+            latest, rig = older
         unknown = [c for c in rig.cameras if c not in self.settings.camera_names]
         if unknown:
             return False, (f"not loaded: the calibration in {latest.resolve()} has cameras "
@@ -672,6 +685,18 @@ class DenseCalibNode(Node):
         return True, (f"published {latest.resolve()}: {len(rig.cameras)} cameras "
                       f"({', '.join(rig.cameras)}), reprojection RMS {rms:.2f} px"
                       + (f", {' and '.join(extras)}" if extras else ""))
+
+    def _newest_readable_calibration(self) -> Optional[tuple[Path, RigCalibration]]:
+        """(folder, calibration) of the newest calibration under output_dir that reads cleanly
+        and has only known cameras, or None."""
+        for folder in reversed(stored_calibrations(self.settings.output_dir)):
+            try:
+                rig = read_calibration(folder)
+            except InputError:
+                continue
+            if all(c in self.settings.camera_names for c in rig.cameras):
+                return folder, rig
+        return None
 
     def _on_reload(self, request, response):
         """~/reload: publish the calibration under output_dir/latest again, after it was changed
