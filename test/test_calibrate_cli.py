@@ -218,3 +218,22 @@ def test_exif_focal_lengths_are_read_from_the_images_and_can_be_ignored(rig_dir,
     assert main([*common, "--out", str(tmp_path / "plain"), "--ignore-exif"]) == 0
     quality = json.loads((tmp_path / "plain" / "calibration.json").read_text())["quality"]
     assert "exif_focal_px" not in quality
+
+
+def test_one_camera_is_bad_input_with_exit_code_2(tmp_path, caplog):
+    """A folder of one camera's images is input a rig cannot be made of: exit 2 (bad input), as
+    documented, not 1 (a calibration that failed; issue 40)."""
+    (tmp_path / "images" / "cam0").mkdir(parents=True)
+    cv2.imwrite(str(tmp_path / "images" / "cam0" / "0000.png"), np.full((48, 64, 3), 90, np.uint8))
+    assert main(["calibrate", "--images", str(tmp_path / "images"), "--out",
+                 str(tmp_path / "out")]) == 2
+    assert "Found only one camera (cam0)" in caplog.text
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_focal_length_no_lens_has_is_refused(rig_dir, tmp_path, caplog):
+    """--focal-px 1e9 (a unit slip: metres or nanometres for pixels) was accepted silently."""
+    assert main(["calibrate", "--images", str(rig_dir), "--out", str(tmp_path / "out"),
+                 "--focal-px", "cam1=1e9"]) == 2
+    assert "The focal length given for camera cam1, 1e+09 px, is not a lens" in caplog.text
+    assert not (tmp_path / "out").exists()

@@ -204,3 +204,18 @@ def test_a_dropped_frame_leaves_out_that_moment_only(tmp_path, caplog):
     assert "a: 0002" in caplog.text and "b: 0009" in caplog.text
     paths, _ = list_image_folder(tmp_path, align="order")  # asked for: position, 6 sets
     assert [p.name for p in paths[2]] == ["0002.png", "0003.png"]
+
+
+def test_a_hidden_image_file_is_named_when_skipped(tmp_path, caplog):
+    """`...png` (a name that is all dots and the suffix) is a hidden file: not read, as before,
+    but no longer silently: its camera would vanish from the rig unnoticed (issue 40)."""
+    for name, value in (("cam0.png", 10), ("cam1.png", 20), ("...png", 30), (".DS_Store", 0)):
+        if name.endswith(".png"):
+            _write(tmp_path / name, value)
+        else:
+            (tmp_path / name).write_bytes(b"\x00")
+    with caplog.at_level(logging.WARNING):
+        _, names = list_image_folder(tmp_path)
+    assert names == ["cam0", "cam1"]
+    assert "...png (a hidden file: rename it without the leading '.')" in caplog.text
+    assert ".DS_Store" not in caplog.text

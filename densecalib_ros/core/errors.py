@@ -17,6 +17,11 @@ class NotEnoughCamerasError(CalibrationError):
     """Fewer than two cameras could be used or registered."""
 
 
+class TooFewCamerasGivenError(InputError, NotEnoughCamerasError):
+    """Fewer than two cameras in the input: bad input (the commands' exit code 2), before any
+    work."""
+
+
 class NotEnoughOverlapError(CalibrationError):
     """Cameras do not share enough cycle-consistent matches to be calibrated together."""
 

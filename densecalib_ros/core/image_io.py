@@ -26,7 +26,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from .errors import InputError, NotEnoughCamerasError
+from .errors import InputError, TooFewCamerasGivenError
 from .image_encoding import to_pipeline_image
 from .sync import evenly_spaced
 from .video_io import VIDEO_EXTENSIONS
@@ -101,10 +101,14 @@ _UNREADABLE_KINDS = {**dict.fromkeys((".heic", ".heif", ".avif"), "convert it to
 
 def _warn_about_skipped(directory: Path, subdirs: list[Path]) -> None:
     """Warn of what in DIR looks meant as a camera but is not read: an image format OpenCV does
-    not decode, a video, a broken link, a camera subfolder without images."""
+    not decode, a video, a broken link, a hidden image file, a camera subfolder without
+    images."""
     skipped = []
     for p in sorted(directory.iterdir()):
         if p.name.startswith("."):
+            # Hidden files are not read; one that is an image was meant as a camera (`...png`).
+            if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
+                skipped.append(f"{p.name} (a hidden file: rename it without the leading '.')")
             continue
         if p.is_symlink() and not p.exists():
             skipped.append(f"{p.name} (a broken link)")
@@ -122,7 +126,7 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
     """The image files of DIR per frame set and camera (layouts and `align`: module docstring).
 
     Returns (paths, camera_names) with paths[t][c] the file of camera c at time t. Raises
-    InputError for a missing/ambiguous/misaligned folder, NotEnoughCamerasError for < 2 cameras.
+    InputError for a missing/ambiguous/misaligned folder, TooFewCamerasGivenError (an InputError) for < 2 cameras.
     """
     if align not in ALIGNMENTS:
         raise InputError(f"Unknown image alignment {align!r}: use one of {', '.join(ALIGNMENTS)}.")
@@ -153,7 +157,7 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
                          "subfolders: put one image per camera (file name = camera name) or one "
                          "subfolder per camera there.")
     if len(names) < 2:
-        raise NotEnoughCamerasError(
+        raise TooFewCamerasGivenError(
             f"Found only one camera ({names[0]}) in {directory}: a rig calibration needs images "
             "of at least two cameras (one file per camera, or one subfolder per camera).")
     return paths, names

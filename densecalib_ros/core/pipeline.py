@@ -20,7 +20,7 @@ import pycolmap
 from .all_matches import keypoint_tracks, refine_on_tracks
 from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughCamerasError,
-                     NotEnoughOverlapError)
+                     NotEnoughOverlapError, TooFewCamerasGivenError)
 from .focal import estimate_initial_focals
 from .focal_determination import weak_focal_warning
 from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
@@ -174,7 +174,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         raise InputError(f"{C} camera names but tracks for {tracks.num_cameras} cameras and "
                          f"{len(image_sizes)} image sizes.")
     if C < 2:
-        raise NotEnoughCamerasError(f"A rig needs at least two cameras, got {C}.")
+        raise TooFewCamerasGivenError(f"A rig needs at least two cameras, got {C}.")
     if tracks.num_tracks == 0:
         raise NotEnoughOverlapError(
             "No correspondences survived cycle sampling: the cameras' views do not overlap enough "
@@ -320,6 +320,17 @@ def _start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
     bad = {k: v for k, v in hint.items() if not (np.isfinite(float(v)) and float(v) > 0)}
     if bad:
         raise InputError(f"Initial focal lengths must be positive pixel values, got {bad}.")
+    from .plausibility import MAX_FOCAL_IMAGE_RATIO, MIN_FOCAL_IMAGE_RATIO
+    for name, size in zip(camera_names, image_sizes):
+        value = hint.get(name, hint.get("*"))
+        if value is not None and not (MIN_FOCAL_IMAGE_RATIO <= float(value) / max(size)
+                                      <= MAX_FOCAL_IMAGE_RATIO):
+            raise InputError(
+                f"The focal length given for camera {name}, {float(value):g} px, is not a lens "
+                f"of its {size[0]}x{size[1]} images (a plausible one is "
+                f"{MIN_FOCAL_IMAGE_RATIO:g}-{MAX_FOCAL_IMAGE_RATIO:g}x the long side, "
+                f"{MIN_FOCAL_IMAGE_RATIO * max(size):.0f}-{MAX_FOCAL_IMAGE_RATIO * max(size):.0f} "
+                "px): give it in pixels (focal mm / pixel pitch mm).")
     out = np.full(len(camera_names), np.nan) if focal is None else focal.astype(np.float64)
     for c, name in enumerate(camera_names):
         value = hint.get(name, hint.get("*"))
@@ -353,12 +364,12 @@ def _previous_focals(previous: Optional[RigCalibration], camera_names: Sequence[
 
 
 def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
-    """(width, height) per camera; InputError / NotEnoughCamerasError on unusable input, found
+    """(width, height) per camera; InputError (TooFewCamerasGivenError below two cameras) on unusable input, found
     before any work (a bad image in the last frame set would otherwise surface minutes later)."""
     camera_names = check_camera_names(camera_names)
     C = len(camera_names)
     if C < 2:
-        raise NotEnoughCamerasError(f"A rig needs at least two cameras, got {C} "
+        raise TooFewCamerasGivenError(f"A rig needs at least two cameras, got {C} "
                                     f"({', '.join(camera_names) or 'none'}).")
     if frame_sets is None or len(frame_sets) == 0:
         raise InputError("No frame sets to calibrate from: give at least one image per camera.")

@@ -22,7 +22,7 @@ from typing import Callable, Optional
 import cv2
 import numpy as np
 
-from .errors import InputError, NotEnoughCamerasError
+from .errors import InputError, TooFewCamerasGivenError
 
 VIDEO_EXTENSIONS = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".mts",
                     ".ts", ".wmv")
@@ -50,7 +50,7 @@ class VideoInfo:
 
 def list_video_folder(directory: str | os.PathLike) -> tuple[list[Path], list[str]]:
     """(video files, camera names = file stems) of DIR; InputError when there are none or two share
-    a name, NotEnoughCamerasError for fewer than two."""
+    a name, TooFewCamerasGivenError (an InputError) for fewer than two."""
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError(f"Video folder {directory} does not exist or is not a folder.")
@@ -65,7 +65,7 @@ def list_video_folder(directory: str | os.PathLike) -> tuple[list[Path], list[st
         raise InputError(f"Several videos in {directory} share the camera name(s) "
                          f"{', '.join(duplicate)} (file stem): keep one video per camera.")
     if len(files) < 2:
-        raise NotEnoughCamerasError(
+        raise TooFewCamerasGivenError(
             f"Found only one video ({files[0].name}) in {directory}: a rig calibration needs "
             "videos of at least two cameras.")
     return files, names
