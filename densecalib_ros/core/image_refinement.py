@@ -252,7 +252,9 @@ def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigma
     focal_std = max(float(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0))),
                     fold_sigmas.get("focal_px", 0.0))
     pp_std = float(np.sqrt(max(cov[1, 1], cov[2, 2], 0.0)))
-    if pp_estimated:  # a held point's sigma is its prior's (the covariance has it)
+    if pp_estimated:
         pp_std = max(pp_std, fold_sigmas.get("principal_point_px", 0.0))
+    else:  # held at the image centre: as far off as real lenses' points are (its prior)
+        pp_std = PP_PRIOR_STD_FRACTION * max(cam.width, cam.height)
     projection = projection_std_px(cam.to_pycolmap(), list(range(len(cam.params))), params_cov)
     return CameraUncertainty(focal_std, pp_std, projection)
