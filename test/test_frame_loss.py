@@ -64,7 +64,7 @@ def test_stamps_jumping_back_start_over():
 
 
 def test_the_large_images_profile_gives_a_publisher_a_16_mb_segment(tmp_path):
-    """config/fastdds_large_images.xml, as README 'Lost frames' tells drivers to load it: Fast DDS
+    """config/fastdds_large_images.xml, as docs/ros.md 'Lost frames' tells drivers to load it: Fast DDS
     accepts it and the publishing process maps a 16 MB shared-memory segment (512 kB without)."""
     pytest.importorskip("rclpy", reason="needs rclpy (ROS 2 Jazzy)")
     if not Path("/dev/shm").is_dir():

@@ -1,6 +1,6 @@
 """The ROS package's files agree with each other: the launch file starts the node that setup.py
 installs, with a parameters file that setup.py installs, and names only launch arguments it
-declares. (`ros2 launch` is not available here to run it: see README.)"""
+declares. (`ros2 launch` is not available here to run it: see docs/ros.md.)"""
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path

@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "lenses: --lens cam3=fisheye (or NAME=pinhole under --preset "
                              "fisheye); each camera is then calibrated with its lens's model")
     parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
-                        help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see README)")
+                        help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see docs/method.md)")
     parser.add_argument("--matcher", default=None,
                         help="matcher backend (default: the preset's, sift)")
     parser.add_argument("--max-side", type=number_in(64, integer=True), default=None, metavar="PX",

@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=seed, default=0, help="rig generator seed")
     parser.add_argument("--matcher", default="sift", help="matcher backend")
     parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
-                        help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see README)")
+                        help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see docs/method.md)")
     parser.add_argument("--timeout", type=float, default=600.0, metavar="S",
                         help="seconds to wait for the calibration service")
 

@@ -9,7 +9,7 @@ between the cameras the focal rests on those few degrees, which trade against wh
 principal point lies, and the regular preset holds that at the image centre. The covariance
 shows it: with the held point's offset (core.uncertainty) a camera's f_std is a large fraction
 of its focal on such rigs, mostly below 5 % where cameras stand 20 deg or more apart around the
-scene, and all of a rig's cameras err together (measured figures: README, "Cameras that look
+scene, and all of a rig's cameras err together (measured figures: docs/cli.md, "Cameras that look
 the same way"; `densecalib bench --forward`). One camera's intrinsics given (a lab calibration)
 pins the others' focals through the images; a known focal given as a start (--focal-px) does
 not, since the adjustment refines it like any other.

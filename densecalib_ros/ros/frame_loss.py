@@ -4,7 +4,7 @@ A driver publishing at a steady rate stamps its frames one period apart, so a fr
 received leaves a gap of a whole number of periods. Image topics are best-effort (sensor-data
 QoS): the middleware drops frames silently, and nothing else tells the operator that ~/sync's
 motion signals have holes or that frame sets form from fewer frames than the cameras take.
-Measured (`densecalib bench-node`, README Benchmarks): 4 x 768x512 mono8 at 15 Hz from one
+Measured (`densecalib bench-node`, docs/benchmarks.md): 4 x 768x512 mono8 at 15 Hz from one
 driver process, 72-85 of 150 frames on the worst camera with Fast DDS's 512 kB shared-memory
 segment per process, 150 of 150 with a 16 MB one (config/fastdds_large_images.xml); 1280x720
 bgr8 from a process per camera, 10-16 of 150 with the default segment. The counts here are a

@@ -988,7 +988,7 @@ def main(args=None) -> int:
         rclpy.logging.get_logger("densecalib_node").fatal(
             f"invalid parameters: {exc} (a double takes a decimal point, slop_s:=1.0; a list "
             "takes brackets, image_topics:=\"['/cam0/image_raw', '/cam1/image_raw']\"; the "
-            "ranges are in the README's parameter table)")
+            "ranges are in docs/ros.md's parameter table)")
         rc = 1
     except Exception:
         if rclpy.ok():
