@@ -214,8 +214,15 @@ def test_bad_names_and_images_are_refused_before_any_work(rig, tmp_path):
             calibrate_rig(broken, names, config)
     with pytest.raises(InputError, match="Frame set 0 is not a list of images"):
         calibrate_rig([images[0][0]], names, config)  # one image, not a frame set
+    twice = [list(s) for s in images]  # one camera's images given under two names
+    twice[last][2] = twice[last][0].copy()
+    with pytest.raises(InputError, match=f"Cameras {names[0]} and {names[2]} gave identical "
+                                         f"images in frame set {last}: one camera was given twice"):
+        calibrate_rig(twice, names, config)
+    twice[last][0] = twice[last][2] = np.zeros_like(images[last][0])  # two covered lenses: no
+    from densecalib_ros.core.pipeline import check_frame_sets  # proof of one camera twice
+    check_frame_sets(twice, names)
     stacked = np.stack([np.stack(s) for s in images])  # (T, C, H, W, 3) is fine as frame sets
-    from densecalib_ros.core.pipeline import check_frame_sets
     assert check_frame_sets(stacked, names) == check_frame_sets(images, names)
     # a read calibration is checked too: its camera names become file names on export
     from densecalib_ros.core.export import read_calibration, write_calibration_files

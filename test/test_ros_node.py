@@ -38,7 +38,8 @@ from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
 from densecalib_ros.core.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
 from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402
-from densecalib_ros.ros.conversions import point_cloud_to_numpy  # noqa: E402
+from densecalib_ros.ros.conversions import (numpy_to_compressed_msg,  # noqa: E402
+                                            point_cloud_to_numpy)
 from densecalib_ros.ros.node import DenseCalibNode  # noqa: E402
 from densecalib_ros.ros.rig_nodes import (CalibrationListener, CameraPublisherNode,  # noqa: E402
                                           TriggerCaller, wait_until)
@@ -967,6 +968,45 @@ def test_frames_lost_on_the_way_are_counted_and_reported(ros, tmp_path):
             for m in rosout.copy()), 5.0)
     finally:
         for other in [*drivers, listener, rosout, node]:
+            ros.remove(other)
+
+
+def test_a_frame_that_does_not_decode_is_dropped_counted_and_named(ros, rig, tmp_path):
+    """cam2's driver sends one PNG that is not a PNG: ~/calibrate names cam2 and what to check,
+    the set holding it leaves the buffer (it blocked every calibration until ~/clear: issue
+    40) and /diagnostics counts it against cam2 and warns; the good set stays."""
+    node = ros.densecalib(tmp_path / "out")
+    drivers = [ros.add(CameraPublisherNode(name, topic, encoding, context=ros.context))
+               for name, (topic, encoding, _) in CAMERAS.items()]
+    listener, caller = ros.listener(node), ros.caller("calibrate")
+    try:
+        assert wait_until(lambda: None not in node._image_subs, 30.0), "topics not discovered"
+        assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 30.0)
+        for t, stamp_s in enumerate((1.0, 2.0)):
+            for c, (driver, image) in enumerate(zip(drivers, rig.images[t])):
+                if t == 1 and c == 2:  # what the driver compressed, cut short on the way
+                    msg = numpy_to_compressed_msg(image, "png", int(stamp_s * 1e9),
+                                                  driver.frame_id)
+                    msg.data = msg.data[:len(msg.data) // 3]
+                    driver.publisher.publish(msg)
+                else:
+                    driver.publish_image(image, int(stamp_s * 1e9))
+            assert wait_until(lambda: len(node.sync) == t + 1, 10.0), node.sync.stats()
+        response = caller.call(30.0)
+        assert not response.success, response.message
+        assert "cam2 1" in response.message and "check that camera's driver" in response.message
+        assert len(node.sync) == 1  # the good set
+
+        def reported():
+            state = diagnostic_state(listener)
+            return state if state and "malformed_frames_per_camera" in state[2] else None
+        assert wait_until(reported, 5.0)
+        level, message, values = reported()
+        assert values["malformed_frames_per_camera"].startswith("cam0=0, cam1=0, cam2=1 (")
+        # WARN at least (ERROR here: the failed call and no calibration yet)
+        assert level >= DiagnosticStatus.WARN and "do not decode from cam2" in message
+    finally:
+        for other in [*drivers, listener, caller, node]:
             ros.remove(other)
 
 

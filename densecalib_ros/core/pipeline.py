@@ -388,7 +388,27 @@ def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
             raise InputError(f"Image sizes change between frame sets (set 0: {sizes}, set {t}: "
                              f"{shape}): every camera must keep one resolution.")
         sizes = shape
+        _check_distinct(frames, t, camera_names)
     return sizes
+
+
+def _check_distinct(frames, t: int, camera_names) -> None:
+    """InputError when two cameras' images of one frame set are the same textured pixels: two
+    sensors never record identical noise, so one camera was given twice (a folder copied, one
+    topic under two names), and its pairs would otherwise fail far later as 'no consistent
+    relative pose'. Uniform images (a covered lens, a black frame) are left to later checks."""
+    seen: dict = {}
+    for name, image in zip(camera_names, frames):
+        probe = image[::8, ::8]
+        if probe.min() == probe.max():
+            continue
+        key = (image.shape, probe.tobytes())
+        twin = seen.get(key)
+        if twin is not None and np.array_equal(twin[1], image):
+            raise InputError(f"Cameras {twin[0]} and {name} gave identical images in frame set "
+                             f"{t}: one camera was given twice (the same folder, video or topic "
+                             "under two names?); give each camera's own images.")
+        seen[key] = (name, image)
 
 
 def _check_image(image, t: int, camera: str) -> None:

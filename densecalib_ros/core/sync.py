@@ -125,6 +125,10 @@ class FrameSetBuffer:
     def snapshot(self) -> list[FrameSet]:
         return list(self._sets)
 
+    def discard(self, frame_set: FrameSet) -> None:
+        """Take `frame_set` out (by identity) if it is still buffered."""
+        self._sets = [s for s in self._sets if s is not frame_set]
+
     def __len__(self) -> int:
         return len(self._sets)
 

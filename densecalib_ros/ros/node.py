@@ -95,7 +95,7 @@ from .intake import ImageIntake
 from .replay import BagReplayer
 from .settings import (PARAMETERS, Settings, is_list_parameter, parse_settings,
                        pipeline_config)
-from .sync import MessageSynchronizer, decode_frame_sets
+from .sync import MessageSynchronizer, malformed_note
 
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -529,7 +529,7 @@ class DenseCalibNode(Node):
             return _CheckOutcome(None, "no synchronised frame sets buffered to check the "
                                        "calibration with: "
                                  + self.sync.why_few_sets(s.camera_names, s.image_topics))
-        images = decode_frame_sets(sets)
+        sets, images = self._decoded(sets, 1)
         match_sets = match_frame_sets(images, pipeline_config(s), matcher=self._matcher_for(s),
                                       camera_names=s.camera_names)
         report = check_latest(rig, s.camera_names, match_sets, s.check_tolerance_px)
@@ -551,6 +551,21 @@ class DenseCalibNode(Node):
                              misfit_sets=max(0 if report.fits else len(sets) - k,
                                              views.changed_sets if views else 0))
 
+    def _decoded(self, sets: list, needed: int) -> tuple[list, list]:
+        """The sets whose images decode and their images; a camera whose frames do not decode
+        is named at WARN (and on /diagnostics), and InputError when fewer than `needed` sets
+        are left."""
+        before = list(self.sync.malformed)
+        sets, images = self.sync.decode(sets)
+        note = malformed_note(self.settings.camera_names, before, self.sync.malformed,
+                              self.sync.last_malformed)
+        if note:
+            self.get_logger().warning(note)
+        if len(sets) < needed:
+            raise InputError(f"{len(sets)} frame set(s) whose images all decode, {needed} needed; "
+                             f"{note or 'none buffered'}.")
+        return sets, images
+
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
         from ..core.pipeline import run_calibration
@@ -565,7 +580,7 @@ class DenseCalibNode(Node):
         sets = evenly_spaced(sets, s.max_frame_sets)
         self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
                          f"{s.matcher})")
-        images = decode_frame_sets(sets)
+        sets, images = self._decoded(sets, s.min_frame_sets)
         config = pipeline_config(s)
         if s.keep_intrinsics and self.calibration is not None:
             config.known_intrinsics = with_previous_intrinsics(
@@ -918,6 +933,13 @@ class DenseCalibNode(Node):
             + (f"{1 / p:.1f} fps)" if p else "rate not steady)")
             for n, k, r, p in zip(self.settings.camera_names, stats["lost"],
                                   stats["recent_loss"], stats["period_s"]))
+        if any(stats["malformed"]):  # frames that reach the node but do not decode
+            values["malformed_frames_per_camera"] = ", ".join(
+                f"{n}={k}" + (f" ({r})" if r else "") for n, k, r in
+                zip(self.settings.camera_names, stats["malformed"], self.sync.last_malformed))
+            status.level = max(status.level, DiagnosticStatus.WARN)
+            status.message += "; frames that do not decode from " + ", ".join(
+                n for n, k in zip(self.settings.camera_names, stats["malformed"]) if k)
         losing = [f"{n} ({100 * r:.0f} %)" for n, r in zip(self.settings.camera_names,
                                                           stats["recent_loss"])
                   if r > WARN_LOSS_FRACTION]

@@ -48,6 +48,10 @@ class MessageSynchronizer:
         self._last_arrival_s: list[Optional[float]] = [None] * num_streams
         self._last_stamp_ns: list[Optional[int]] = [None] * num_streams
         self._gaps = [StampGaps() for _ in range(num_streams)]  # frames lost on the way
+        # images that did not decode when a calibration or check took their set (per stream),
+        # and the last reason
+        self.malformed = [0] * num_streams
+        self.last_malformed: list[Optional[str]] = [None] * num_streams
         self.motion_window_s = motion_window_s
         self._motion_lock = threading.Lock()
         self._motion = ([MotionEnergy(motion_window_s) for _ in range(num_streams)]
@@ -114,6 +118,35 @@ class MessageSynchronizer:
         with self._lock:
             return self._buffer.snapshot()
 
+    def decode(self, frame_sets: list[FrameSet]) -> tuple[list[FrameSet], list[list[np.ndarray]]]:
+        """The sets whose images all decode, and their images[t][c] (uint8 RGB or gray). A set
+        holding an image that does not decode is taken out of the buffer and counted against its
+        stream (`malformed`), so that one bad frame does not fail every later calibration.
+        Decoding happens here, when a set is used, rather than on arrival: the subscription
+        callbacks stay cheap at full frame rate, and only the few buffered sets are decoded."""
+        kept, images = [], []
+        for frame_set in frame_sets:
+            try:
+                images.append(self._decode_set(frame_set))
+            except _MalformedImage as bad:
+                with self._lock:
+                    self._buffer.discard(frame_set)
+                    self.malformed[bad.stream] += 1
+                    self.last_malformed[bad.stream] = bad.reason
+                continue
+            kept.append(frame_set)
+        return kept, images
+
+    @staticmethod
+    def _decode_set(frame_set: FrameSet) -> list[np.ndarray]:
+        out = []
+        for stream, msg in enumerate(frame_set.items):
+            try:
+                out.append(image_msg_to_numpy(msg))
+            except InputError as e:
+                raise _MalformedImage(stream, str(e)) from e
+        return out
+
     def __len__(self) -> int:
         with self._lock:
             return len(self._buffer)
@@ -165,10 +198,23 @@ class MessageSynchronizer:
                     "dropped_oldest": self._buffer.dropped_oldest,
                     "skipped_interval": self._buffer.skipped_interval,
                     "lost": [g.lost for g in self._gaps],
+                    "malformed": list(self.malformed),
                     "recent_loss": [g.recent_loss() for g in self._gaps],
                     "period_s": [g.period_s() for g in self._gaps]}
 
 
-def decode_frame_sets(frame_sets: list[FrameSet]) -> list[list[np.ndarray]]:
-    """Buffered message sets -> images[t][c], uint8 RGB (H, W, 3) or gray (H, W)."""
-    return [[image_msg_to_numpy(m) for m in s.items] for s in frame_sets]
+class _MalformedImage(Exception):
+    def __init__(self, stream: int, reason: str):
+        super().__init__(reason)
+        self.stream, self.reason = stream, reason
+
+
+def malformed_note(names: list[str], before: list[int], after: list[int],
+                   reasons: list[Optional[str]]) -> str:
+    """'' when no image failed to decode between the two counts, else which cameras sent frames
+    that do not decode, how many, the last reason and what to do."""
+    bad = [f"{n} {a - b} ({r})" for n, b, a, r in zip(names, before, after, reasons) if a > b]
+    if not bad:
+        return ""
+    return ("frame sets dropped: images that do not decode from " + "; ".join(bad)
+            + ": check that camera's driver (encoding, compression format)")
