@@ -105,6 +105,33 @@ def test_errors_name_what_to_do(tmp_path):
         write_image_bag(tmp_path / "c", _frames(1, 2), TOPICS[:2], [0], storage="zip")
 
 
+def test_a_damaged_bag_gives_the_frame_sets_before_the_damage(tmp_path, caplog):
+    """A page of a bag's database overwritten (a disk error, a copy cut short): the frame sets
+    read before it are calibrated from, with a warning naming the bag (apsw.CorruptError was a
+    traceback); damage before any whole frame set is an InputError saying what to do."""
+    frames = [[np.kron(im, np.ones((2, 2, 1), np.uint8)) for im in fs] for fs in _frames(12, 2)]
+    write_image_bag(tmp_path / "b", frames, TOPICS[:2], _stamps(12, 2))
+    db = next((tmp_path / "b").glob("*.db3"))
+    written = db.read_bytes()
+    page = 4096  # sqlite's default page size; the messages fill the pages in stamp order
+
+    def damage(index):
+        data = bytearray(written)
+        data[index * page:(index + 1) * page] = b"\xab" * page
+        db.write_bytes(bytes(data))
+    damage(len(written) // page * 2 // 3)
+    with caplog.at_level("WARNING", logger="densecalib_ros.core.bag"):
+        got, _ = read_frame_sets(tmp_path / "b", TOPICS[:2], slop_s=0.01)
+    assert 1 <= len(got) < 12
+    for t, frame_set in enumerate(got):
+        assert all(np.array_equal(a, b) for a, b in zip(frame_set, frames[t]))
+    assert f"Bag {tmp_path / 'b'} is damaged" in caplog.text
+    assert f"Calibrating from the {len(got)} frame sets before it" in caplog.text
+    damage(10)  # past the schema's pages, inside the first image (36 pages each)
+    with pytest.raises(InputError, match="damaged.*no whole frame set before it. Record"):
+        read_frame_sets(tmp_path / "b", TOPICS[:2], slop_s=0.01)
+
+
 @pytest.mark.data
 def test_shared_fisheye_stereo_bag():
     if not SHARED_BAG.exists():

@@ -9,16 +9,20 @@ decoded (two passes), so memory stays bounded by what is returned.
 """
 from __future__ import annotations
 
+import logging
 import os
 import re
+from itertools import islice
 from pathlib import Path
 from typing import Iterator, Optional
 
 import numpy as np
 
-from .errors import InputError
+from .errors import DamagedBagError, InputError
 from .image_encoding import decode_compressed, decode_raw
 from .sync import ApproximateTimeSynchronizer, evenly_spaced
+
+log = logging.getLogger(__name__)
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
@@ -111,9 +115,20 @@ def iter_image_messages(bag_path: str | os.PathLike, topics: list[str]
     try:
         conns = _image_connections(reader, topics)
         index = {t: i for i, t in enumerate(topics)}
-        for conn, log_time_ns, raw in reader.messages(connections=conns):
-            msg = store.deserialize_cdr(raw, conn.msgtype)
-            yield index[conn.topic], stamp_ns(msg.header), int(log_time_ns), conn.msgtype, msg
+        messages, read = reader.messages(connections=conns), 0
+        while True:
+            try:
+                conn, log_time_ns, raw = next(messages)
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                stamp = stamp_ns(msg.header)
+            except StopIteration:
+                return
+            except Exception as exc:  # storage (apsw, mcap) and CDR raise types of their own
+                raise DamagedBagError(
+                    f"Bag {bag_path} is damaged: after {read} readable image messages, "
+                    f"{type(exc).__name__}: {exc}", read) from exc
+            read += 1
+            yield index[conn.topic], stamp, int(log_time_ns), conn.msgtype, msg
     finally:
         reader.close()
 
@@ -192,9 +207,18 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
     counts = [0] * len(topics)
     sets = []
     offsets_ns = [int(round(o * 1e9)) for o in (stamp_offsets_s or [0.0] * len(topics))]
-    for topic_index, stamp, _, _, _ in iter_image_messages(bag_path, topics):
-        sets.extend(sync.add(topic_index, stamp - offsets_ns[topic_index], counts[topic_index]))
-        counts[topic_index] += 1
+    readable = None  # image messages before a damaged part of the bag (None: all read)
+    try:
+        for topic_index, stamp, _, _, _ in iter_image_messages(bag_path, topics):
+            sets.extend(sync.add(topic_index, stamp - offsets_ns[topic_index],
+                                 counts[topic_index]))
+            counts[topic_index] += 1
+    except DamagedBagError as damage:
+        if not sets:
+            raise InputError(f"{damage}; no whole frame set before it. Record the rig again, "
+                             "or copy the bag from where it was recorded.") from damage
+        readable = damage.messages_read
+        log.warning("%s. Calibrating from the %d frame sets before it.", damage, len(sets))
     if not sets:
         raise InputError(f"No synchronised frame sets in {bag_path} for topics {topics} with "
                          f"slop {slop_s} s (messages per topic: {counts}); check the topics' "
@@ -207,7 +231,8 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
     wanted = {(c, pos): t for t, s in enumerate(sets) for c, pos in enumerate(s.items)}
     frame_sets: list[list[Optional[np.ndarray]]] = [[None] * len(topics) for _ in sets]
     seen = [0] * len(topics)
-    for topic_index, _, _, msgtype, msg in iter_image_messages(bag_path, topics):
+    for topic_index, _, _, msgtype, msg in islice(iter_image_messages(bag_path, topics),
+                                                  readable):
         t = wanted.get((topic_index, seen[topic_index]))
         seen[topic_index] += 1
         if t is not None:

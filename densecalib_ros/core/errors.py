@@ -13,6 +13,15 @@ class InputError(CalibrationError):
     """The input cannot be used as given (unreadable image, wrong layout, unknown option)."""
 
 
+class DamagedBagError(InputError):
+    """A bag whose storage or messages stop reading part-way; `messages_read`: how many image
+    messages of the requested topics were read before the damage, in bag order."""
+
+    def __init__(self, message: str, messages_read: int):
+        super().__init__(message)
+        self.messages_read = messages_read
+
+
 class NotEnoughCamerasError(CalibrationError):
     """Fewer than two cameras could be used or registered."""
 
