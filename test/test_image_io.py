@@ -1,4 +1,5 @@
 import logging
+import os
 
 import cv2
 import numpy as np
@@ -43,6 +44,22 @@ def test_unreadable_image_names_the_file(tmp_path):
     (tmp_path / "b.png").write_bytes(b"not a png")
     with pytest.raises(InputError, match="b.png"):
         read_image_folder(tmp_path)
+
+
+def test_names_in_other_encodings(tmp_path):
+    """A camera folder named with a byte that is not UTF-8 is refused naming it (cv2.imread
+    crashed the process on it); an image file so named in a camera folder reads."""
+    png = cv2.imencode(".png", np.full((30, 40, 3), 10, np.uint8))[1].tobytes()
+    odd = os.fsdecode(b"\xff")
+    for camera in (f"cam{odd}", "cam1"):
+        (tmp_path / "a" / camera).mkdir(parents=True)
+        (tmp_path / "a" / camera / "0000.png").write_bytes(png)
+        (tmp_path / "b" / camera.replace(odd, "0")).mkdir(parents=True, exist_ok=True)
+        (tmp_path / "b" / camera.replace(odd, "0") / f"{odd}.png").write_bytes(png)
+    with pytest.raises(InputError, match=r"Camera name 'cam\\udcff' is not printable UTF-8"):
+        read_image_folder(tmp_path / "a")
+    frame_sets, names = read_image_folder(tmp_path / "b")
+    assert names == ["cam0", "cam1"] and frame_sets[0][1].shape == (30, 40, 3)
 
 
 def test_one_camera_is_not_enough(tmp_path):

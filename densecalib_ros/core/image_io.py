@@ -29,6 +29,7 @@ import numpy as np
 from .errors import InputError, TooFewCamerasGivenError
 from .image_encoding import to_pipeline_image
 from .sync import evenly_spaced
+from .types import check_camera_names
 from .video_io import VIDEO_EXTENSIONS
 
 log = logging.getLogger(__name__)
@@ -58,16 +59,32 @@ def jpeg_truncated(data: bytes) -> bool:
     return False  # not a layout this reads: leave it to the decoder
 
 
+def read_file_bytes(path: str | os.PathLike, what: str) -> bytes:
+    """A file's bytes, read by Python (cv2.imread crashes on a path of non-UTF-8 bytes);
+    InputError naming the file when it cannot be read."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError(f"Cannot read {what} {path}: {exc.strerror}.") from exc
+
+
+def decode_file_bytes(data: bytes, flags: int) -> Optional[np.ndarray]:
+    """cv2.imdecode of an image file's bytes (EXIF orientation applied as imread does); None
+    when they do not decode."""
+    return cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+
+
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """(H, W, 3) uint8 RGB of an image file (EXIF orientation applied); InputError naming the file
     if it cannot be read. 16-bit files (machine-vision cameras save 10-14-bit data in them) are
     shifted down by their used bit depth, as ROS mono16 images are: OpenCV's own 8-bit
     conversion divides by 256 and leaves a 12-bit image nearly black."""
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    data = read_file_bytes(path, "image")
+    bgr = decode_file_bytes(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if bgr is None or bgr.size == 0:
         raise InputError(f"Cannot read image {path}: it is missing, empty or not an image "
                          f"format OpenCV can decode. Replace or remove the file.")
-    if Path(path).suffix.lower() in (".jpg", ".jpeg") and jpeg_truncated(Path(path).read_bytes()):
+    if Path(path).suffix.lower() in (".jpg", ".jpeg") and jpeg_truncated(data):
         raise InputError(f"{path} is a truncated JPEG (a copy or transfer cut it short): its "
                          "lower part is missing and would be read as grey. Copy it again, or "
                          "remove it.")
@@ -156,6 +173,7 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
         raise InputError(f"No images ({', '.join(IMAGE_EXTENSIONS)}) in {directory} or in its "
                          "subfolders: put one image per camera (file name = camera name) or one "
                          "subfolder per camera there.")
+    check_camera_names(names)
     if len(names) < 2:
         raise TooFewCamerasGivenError(
             f"Found only one camera ({names[0]}) in {directory}: a rig calibration needs images "

@@ -16,13 +16,14 @@ import cv2
 import numpy as np
 
 from .errors import InputError
+from .image_io import decode_file_bytes, read_file_bytes
 from .sampling import refined_targets_px
 from .types import SiteMatchSet
 
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
     """bool (H, W), True where the mask image at `path` is black (< 128): ignored pixels."""
-    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    gray = decode_file_bytes(read_file_bytes(path, "mask"), cv2.IMREAD_GRAYSCALE)
     if gray is None or gray.size == 0:
         raise InputError(f"Cannot read mask {path}: give an image file (black = ignore, white = "
                          "use) of the camera's size.")

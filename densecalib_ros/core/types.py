@@ -32,6 +32,10 @@ def check_camera_names(names: Sequence) -> list[str]:
             raise InputError(f"Camera name {name!r} cannot name a file (<camera>.yaml is written "
                              "for each): use letters, digits, '_' or '-', without '/' or a "
                              "leading '.' or space.")
+        if not name.isprintable() or any("\ud800" <= c <= "\udfff" for c in name):
+            raise InputError(f"Camera name {name!r} is not printable UTF-8 text (a folder or file "
+                             "named in another encoding?): rename it with letters, digits, '_' "
+                             "or '-'.")
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise InputError(f"Camera names repeat ({', '.join(repeated)}): give each camera its own "
