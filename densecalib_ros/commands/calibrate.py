@@ -163,7 +163,7 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.export import (CALIBRATION_MARKERS, check_output_folder,
+    from ..core.export import (CALIBRATION_MARKERS, calibration_entries, check_output_folder,
                                replace_directory_atomic, write_calibration_files)
     from ..core.reference_views import latest_views
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
@@ -238,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
         views = latest_views(frame_sets, names, result.rig)
         replace_directory_atomic(lambda tmp: write_calibration_files(
             result.rig, tmp, result.reconstruction, reference_views=views), args.out,
-            CALIBRATION_MARKERS, inputs)
+            CALIBRATION_MARKERS, inputs, owned=calibration_entries)
     except InputError as exc:
         log.error("%s", exc)
         return 2

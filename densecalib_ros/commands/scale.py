@@ -8,7 +8,8 @@ import logging
 
 from ..core.errors import InputError
 from ..core.export import (calibration_folder, node_reload_hint, read_calibration, read_saved_model,
-                           replace_directory_atomic, write_calibration_json)
+                           replace_directory_atomic, write_calibration_json,
+                           write_colmap_model)
 from ..core.scale import (apply_known_baseline, apply_known_distance, rig_units_per_model_unit,
                           scale_reconstruction)
 from ..core.triangulation import DEFAULT_PIXEL_SIGMA
@@ -86,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     if reconstruction is not None:
         scale_reconstruction(reconstruction, factor * rig_units_per_model_unit(reconstruction, rig))
         try:
-            replace_directory_atomic(lambda tmp: reconstruction.write(str(tmp)), folder / "colmap")
+            replace_directory_atomic(lambda tmp: write_colmap_model(reconstruction, tmp),
+                                     folder / "colmap")
         except InputError as exc:
             log.warning("%s calibration.json is scaled; %s keeps its earlier unit (densecalib's "
                         "commands correct for it; for other tools run the scale again once the "

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Callable, Iterable
 
-from .export import replace_directory_atomic
+from .export import clean_leftovers, replace_directory_atomic
 
 LATEST = "latest"
 _CALIBRATION_NAME = re.compile(r"^\d{8}T\d{6}Z(_\d+)?$")  # what write_new_calibration names
@@ -34,9 +34,10 @@ def write_new_calibration(root: Path, write: Callable[[Path], None]) -> Path:
     out, k = root / f"{stamp}Z", 1
     while out.exists():
         out, k = root / f"{stamp}Z_{k}", k + 1
+    clean_leftovers(root, lambda name: name == LATEST or bool(_CALIBRATION_NAME.match(name)))
     replace_directory_atomic(lambda tmp: write(Path(tmp)), out)
     out.chmod(0o755)  # created private as a temporary directory
-    tmp_link = root / f".{LATEST}.{os.getpid()}.{threading.get_ident()}"
+    tmp_link = root / f".{LATEST}.tmp.{os.getpid()}.{threading.get_ident()}"
     tmp_link.unlink(missing_ok=True)
     os.symlink(out.name, tmp_link)
     os.replace(tmp_link, root / LATEST)

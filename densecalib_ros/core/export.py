@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import datetime
 import json
+import logging
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -22,6 +24,8 @@ from .errors import InputError
 from .json_text import json_text, jsonable
 from .types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera,
                     check_camera_names)
+
+log = logging.getLogger(__name__)
 
 # COLMAP model -> (ROS distortion model, function params -> (fx, fy, cx, cy, D list))
 _PINHOLE_LIKE = {
@@ -284,7 +288,8 @@ def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+        clean_leftovers(path.parent, lambda name: name == path.name)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp.{os.getpid()}.", dir=path.parent)
         with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
             f.write(text)
             f.flush()
@@ -295,8 +300,8 @@ def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
         if isinstance(exc, OSError):
-            raise InputError(f"Cannot write {path}: {exc.strerror or exc}. Check that the "
-                             "folder is writable and the disk has room.") from exc
+            raise InputError(f"Cannot write {path}: {exc.strerror or exc}. "
+                             + disk_hint(path.parent)) from exc
         raise
 
 
@@ -361,14 +366,56 @@ def write_calibration_files(rig: RigCalibration, directory: str | os.PathLike,
     for name, cam in rig.cameras.items():
         write_text_atomic(directory / f"{name}.yaml", camera_info_yaml(name, cam.intrinsics))
     if reconstruction is not None:
-        (directory / "colmap").mkdir(exist_ok=True)
-        reconstruction.write(str(directory / "colmap"))
+        write_colmap_model(reconstruction, directory / "colmap")
     if reference_views:
         from .reference_views import write_reference_views
         write_reference_views(directory, reference_views)
 
 
+def write_colmap_model(reconstruction, directory: Path) -> None:
+    """Write a COLMAP model into `directory` (made if missing) and read it back: pycolmap's
+    writer returns normally when the disk fills, leaving a truncated model."""
+    directory.mkdir(parents=True, exist_ok=True)
+    reconstruction.write(str(directory))
+    import pycolmap
+
+    written = (reconstruction.num_cameras(), reconstruction.num_images(),
+               reconstruction.num_points3D())
+    try:
+        back = pycolmap.Reconstruction(str(directory))
+        read = (back.num_cameras(), back.num_images(), back.num_points3D())
+    except Exception as exc:  # pycolmap raises its own types for a damaged model
+        read = f"nothing readable ({exc})"
+    if read != written:
+        raise InputError(f"Cannot write the COLMAP model {directory}: read back it holds "
+                         f"{read} (cameras, images, points) of {written}. "
+                         + disk_hint(directory))
+
+
+def disk_hint(path: Path) -> str:
+    """What to check after a write failed: the disk's free space, if it can be told."""
+    folder = next((p for p in [path, *path.parents] if p.exists()), None)
+    try:
+        free_mib = shutil.disk_usage(folder).free / 2**20
+    except (OSError, TypeError):
+        return "Check that the folder is writable and the disk has room."
+    return (f"Check that the folder is writable and the disk has room ({free_mib:.0f} MiB free "
+            f"on the disk holding {folder}).")
+
+
 CALIBRATION_MARKERS = ("calibration.json",)  # what makes a folder a calibration's, to replace
+
+
+def calibration_entries(folder: Path) -> set[str]:
+    """The names write_calibration_files writes in `folder` for the calibration there (its
+    cameras' YAML files read from its calibration.json; every YAML file when that does not
+    read): what a new calibration written over it replaces."""
+    names = {"calibration.json", "colmap", "reference_views"}
+    try:
+        cameras = json.loads((folder / "calibration.json").read_text(encoding="utf-8"))["cameras"]
+        return names | {f"{name}.yaml" for name in cameras}
+    except (OSError, ValueError, KeyError, TypeError):
+        return names | {p.name for p in folder.glob("*.yaml")}
 
 
 def check_output_folder(out_dir: str | os.PathLike, markers: Sequence[str],
@@ -434,31 +481,123 @@ def check_output_files(paths: Sequence[str | os.PathLike],
 
 def replace_directory_atomic(build, out_dir: str | os.PathLike,
                              markers: Optional[Sequence[str]] = None,
-                             inputs: Sequence[str | os.PathLike] = ()) -> None:
-    """Call build(tmp_dir) to fill a fresh temporary sibling of out_dir, then swap it into place.
-    If build raises, out_dir is untouched. With `markers`, out_dir is first checked to be safe
-    to replace (check_output_folder; commands check before their work too, to fail early)."""
+                             inputs: Sequence[str | os.PathLike] = (),
+                             owned: Optional[Callable[[Path], set]] = None) -> None:
+    """Call build(tmp_dir) to fill a fresh temporary sibling of out_dir, then make it out_dir in
+    one step: the two folders are exchanged atomically where the filesystem can (Linux
+    renameat2), else renamed twice, and an old copy a kill left between the two renames is put
+    back at the next run. If build raises, out_dir is untouched. With `markers`, out_dir is
+    first checked to be safe to replace (check_output_folder; commands check before their work
+    too, to fail early). With `owned(out_dir)`, the names in the old out_dir that the command
+    writes: every other entry build did not write (an export, a user's notes) is copied into
+    the new folder, and named once at WARNING."""
     if markers is not None:
         check_output_folder(out_dir, markers, inputs)
     out_dir = Path(out_dir).resolve()
+    clean_leftovers(out_dir.parent, lambda name: name == out_dir.name)
     tmp = None
     try:
         out_dir.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp.", dir=out_dir.parent))
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp.{os.getpid()}.",
+                                    dir=out_dir.parent))
         os.chmod(tmp, _usual_mode(out_dir, directory=True))
         build(tmp)
+        if owned is not None and out_dir.is_dir():
+            _carry_over(out_dir, tmp, owned(out_dir))
         old = None
-        if out_dir.exists():
-            old = out_dir.with_name(f".{out_dir.name}.old.{os.getpid()}")
-            os.replace(out_dir, old)
-        os.replace(tmp, out_dir)
+        if out_dir.exists() and _exchange(tmp, out_dir):
+            old, tmp = tmp, None  # tmp now holds the previous folder
+        else:
+            if out_dir.exists():
+                old = out_dir.with_name(f".{out_dir.name}.old.{os.getpid()}")
+                os.replace(out_dir, old)
+            os.replace(tmp, out_dir)
     except BaseException as exc:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError):
-            raise InputError(f"Cannot write {out_dir}: {exc.strerror or exc}. Check that the "
-                             "folder is writable and the disk has room; nothing was "
-                             "replaced.") from exc
+            raise InputError(f"Cannot write {out_dir}: {exc.strerror or exc}. "
+                             + disk_hint(out_dir) + " Nothing was replaced.") from exc
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _carry_over(old_dir: Path, new_dir: Path, owned: set) -> None:
+    kept = []
+    for entry in sorted(old_dir.iterdir()):
+        if entry.name in owned or (new_dir / entry.name).exists():
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.copytree(entry, new_dir / entry.name, symlinks=True)
+        else:
+            shutil.copy2(entry, new_dir / entry.name, follow_symlinks=False)
+        kept.append(entry.name)
+    if kept:
+        log.warning("kept in %s what this command does not write: %s (files exported from the "
+                    "earlier calibration follow it, not this one: export them again)",
+                    old_dir, ", ".join(kept))
+
+
+_RENAME_EXCHANGE = 2  # linux/fs.h
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (renameat2 RENAME_EXCHANGE); False where the system or the
+    filesystem cannot, so that the caller renames instead."""
+    import ctypes
+
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd = -100
+    result = renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE)
+    return result == 0
+
+
+# what a write killed part-way leaves beside its target: `.<name>.tmp.<pid>.<any>` (a folder or
+# file being written) and `.<name>.old.<pid>` (a folder being replaced)
+_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old)\.(?P<pid>\d+)(\..*)?$")
+
+
+def clean_leftovers(parent: Path, targets: Callable[[str], bool]) -> None:
+    """Remove from `parent` what writes of the targets it names left when their process was
+    killed (one no longer running); an old copy whose folder is missing (killed between two
+    renames) is put back first. Said once at WARNING."""
+    try:
+        entries = list(parent.iterdir())
+    except OSError:
+        return
+    done = []
+    for entry in sorted(entries, key=lambda e: e.name):
+        m = _LEFTOVER.match(entry.name)
+        if not m or not targets(m["name"]) or _running(int(m["pid"])):
+            continue
+        target = parent / m["name"]
+        try:
+            if m["kind"] == "old" and not target.exists() and not target.is_symlink():
+                os.replace(entry, target)
+                done.append(f"put back {target} (a run was killed while replacing it)")
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+            done.append(f"removed {entry.name}")
+        except OSError:
+            continue
+    if done:
+        log.warning("left by runs killed while writing in %s: %s", parent, "; ".join(done))
+
+
+def _running(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's
+        return True
+    return True

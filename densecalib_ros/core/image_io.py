@@ -80,14 +80,14 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     shifted down by their used bit depth, as ROS mono16 images are: OpenCV's own 8-bit
     conversion divides by 256 and leaves a 12-bit image nearly black."""
     data = read_file_bytes(path, "image")
-    bgr = decode_file_bytes(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
-    if bgr is None or bgr.size == 0:
-        raise InputError(f"Cannot read image {path}: it is missing, empty or not an image "
-                         f"format OpenCV can decode. Replace or remove the file.")
     if Path(path).suffix.lower() in (".jpg", ".jpeg") and jpeg_truncated(data):
         raise InputError(f"{path} is a truncated JPEG (a copy or transfer cut it short): its "
                          "lower part is missing and would be read as grey. Copy it again, or "
                          "remove it.")
+    bgr = decode_file_bytes(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    if bgr is None or bgr.size == 0:
+        raise InputError(f"Cannot read image {path}: it is missing, empty or not an image "
+                         f"format OpenCV can decode. Replace or remove the file.")
     if bgr.dtype not in (np.uint8, np.uint16):  # float TIFF / EXR: its own range, to 0..255
         top = float(np.nanmax(bgr)) if np.isfinite(bgr).any() else 0.0
         bgr = np.clip(np.nan_to_num(bgr) * (255.0 / top if top > 0 else 0.0), 0, 255)
