@@ -37,9 +37,10 @@ MAX_GAP_S = 1.0  # longer: the driver paused or stopped (sync.why_few_sets says 
 WARN_LOSS_FRACTION = 0.05
 LOSS_HINT = (
     "frames are lost between the camera driver and this node (image topics are best-effort: "
-    "lost frames are dropped silently). With Fast DDS, the default middleware, and images of a "
-    "few hundred kB or more, the usual cause is the driver's 512 kB shared-memory segment: start "
-    "the camera drivers with FASTRTPS_DEFAULT_PROFILES_FILE pointing at this package's "
+    "lost frames are dropped silently). Unless told otherwise this node receives over UDP (its "
+    "start-up line says with which receive buffer): for images of a few MB raise "
+    "net.core.rmem_max to 32 MB, or "
+    "start the camera drivers with FASTRTPS_DEFAULT_PROFILES_FILE pointing at this package's "
     "config/fastdds_large_images.xml, or have them publish compressed images (image_topics "
     "ending in /compressed); `densecalib bench-node` measures what arrives on this computer. "
     "Frame sets form only where every camera's frame arrived; ~/sync's motion signals get holes")
@@ -52,11 +53,28 @@ class StampGaps:
         self._last_ns: Optional[int] = None
         self._intervals_s: deque[float] = deque(maxlen=RECENT_INTERVALS)
         self._recent: deque[tuple[int, int]] = deque(maxlen=RECENT_INTERVALS)  # (lost, periods)
-        self.lost = 0  # frames missing since the node started (while the stream was steady)
+        self._gap_lost = 0  # frames missing since the node started (while the stream was steady)
+        # the middleware's own count (a subscription's message-lost events: sequence numbers it
+        # never delivered), exact where the stamps cannot tell (few frames arrive, or unsteady)
+        self._reported_lost = 0
+        self._reported_recent: deque[tuple[int, int]] = deque(maxlen=RECENT_INTERVALS)
         self._period_s: Optional[float] = None
         self._unrefreshed = 0  # intervals added since the period was found
 
+    @property
+    def lost(self) -> int:
+        """Frames lost since the node started: the larger of the two counts, both lower bounds."""
+        return max(self._gap_lost, self._reported_lost)
+
+    def add_reported(self, total_lost: int) -> None:
+        """The middleware's running count of this stream's lost messages."""
+        change = int(total_lost) - self._reported_lost
+        if change > 0:
+            self._reported_lost = int(total_lost)
+            self._reported_recent.append((change, change))
+
     def add(self, stamp_ns: int) -> None:
+        self._reported_recent.append((0, 1))
         last, self._last_ns = self._last_ns, int(stamp_ns)
         if last is None:
             return
@@ -76,7 +94,7 @@ class StampGaps:
             k = round(dt_s / period_s)
             if k >= 2 and abs(dt_s - k * period_s) < MULTIPLE_TOLERANCE * period_s:
                 periods = k
-        self.lost += periods - 1
+        self._gap_lost += periods - 1
         self._recent.append((periods - 1, periods))
 
     def period_s(self) -> Optional[float]:
@@ -99,6 +117,8 @@ class StampGaps:
         return period if fits.mean() >= STEADY_FRACTION else None
 
     def recent_loss(self) -> float:
-        """The fraction of frames lost over the recent intervals (0 when not judged)."""
-        lost = sum(k for k, _ in self._recent)
-        return lost / max(sum(p for _, p in self._recent), 1)
+        """The fraction of frames lost lately: over the recent intervals of the stamps (0 when
+        not judged) or of the middleware's count, whichever is larger."""
+        fractions = [sum(k for k, _ in recent) / max(sum(n for _, n in recent), 1)
+                     for recent in (self._recent, self._reported_recent)]
+        return max(fractions)

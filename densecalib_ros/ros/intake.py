@@ -18,10 +18,11 @@ node resolved, with its namespace and remappings."""
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from typing import Callable, Optional
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
+from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
@@ -44,10 +45,21 @@ class ImageIntake:
         self._thread = threading.Thread(target=self._spin, name="image intake", daemon=True)
         self._thread.start()
 
-    def subscribe(self, msg_type, resolved_topic: str, callback: Callable):
-        """A best-effort (sensor data QoS) subscription to a fully resolved topic name."""
-        return self.node.create_subscription(msg_type, resolved_topic, callback,
-                                             qos_profile_sensor_data)
+    def subscribe(self, msg_type, resolved_topic: str, callback: Callable,
+                  on_lost: Optional[Callable[[int], None]] = None):
+        """A best-effort (sensor data QoS) subscription to a fully resolved topic name;
+        on_lost(total) hears the middleware's running count of messages it lost, where the
+        middleware reports them."""
+        events = None
+        if on_lost is not None:
+            events = SubscriptionEventCallbacks(
+                message_lost=lambda info: on_lost(int(info.total_count)))
+        try:
+            return self.node.create_subscription(msg_type, resolved_topic, callback,
+                                                 qos_profile_sensor_data, event_callbacks=events)
+        except UnsupportedEventTypeError:  # a middleware without message-lost events
+            return self.node.create_subscription(msg_type, resolved_topic, callback,
+                                                 qos_profile_sensor_data)
 
     def _spin(self) -> None:
         try:

@@ -391,7 +391,11 @@ def run_once(spec: IntakeBenchSpec, drivers: str, domain_id: int, node_env: dict
     received = per_camera_counts(values.get("received_per_camera", ""))
     lost = per_camera_counts(values.get("lost_frames_per_camera", ""))
     names = spec.names()
+    intake = next((m.group(1) for line in node.lines
+                   for m in [re.search(r"over UDP with a ([\d.]+ MB) receive buffer", line)] if m),
+                  None)
     return dict(published=spec.frames, publish_s=max(f["publish_s"] for f in figures),
+                node_intake=f"UDP, {intake} receive buffer" if intake else "middleware defaults",
                 late_frames=sum(f["late"] for f in figures),
                 drivers_cpu_s=sum(f["cpu_s"] for f in figures),
                 received={n: received.get(n, 0) for n in names},
@@ -467,7 +471,8 @@ def format_report(report: dict) -> str:
              f"{s['qos']} QoS, motion tracking "
              + (f"on ({s['sync_window_s']:g} s)" if s["sync_window_s"] > 0 else "off")
              + f"; {DRIVER_LAYOUTS[report['drivers']]}; {report['rmw']}, driver profile: "
-             f"{report['driver_profile'] or 'none'}"]
+             f"{report['driver_profile'] or 'none'}, node: "
+             + ", ".join(sorted({r.get('node_intake', '?') for r in runs}))]
     lines.append(f"{'run':>4} {'min received':>13} {'all cameras':>12} {'lost counted':>13} "
                  f"{'sets matched':>13} {'node CPU':>9}")
     for i, run in enumerate(runs, 1):

@@ -96,6 +96,7 @@ from .replay import BagReplayer
 from .settings import (PARAMETERS, Settings, is_list_parameter, parse_settings,
                        pipeline_config)
 from .sync import MessageSynchronizer, malformed_note
+from .transport import configure_intake_transport
 
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -304,8 +305,9 @@ class DenseCalibNode(Node):
         s = self.settings
         msg_type = CompressedImage if compressed else Image
         topic = self.resolve_topic_name(s.image_topics[i])  # namespace and remappings applied
-        self._image_subs[i] = self._intake.subscribe(msg_type, topic,
-                                                     lambda msg, i=i: self.sync.add(i, msg))
+        self._image_subs[i] = self._intake.subscribe(
+            msg_type, topic, lambda msg, i=i: self.sync.add(i, msg),
+            on_lost=lambda total, i=i: self.sync.add_lost(i, total))
         given = "" if topic == s.image_topics[i] else f", image_topics: {s.image_topics[i]}"
         self.get_logger().info(f"camera {s.camera_names[i]}: subscribed to {topic} "
                                f"({msg_type.__name__}{given})")
@@ -993,10 +995,14 @@ def main(args=None) -> int:
     # Ceres's recovered solver failures are no operator's concern: errors only.
     show_colmap_log(verbose=False)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    transport = configure_intake_transport()  # before the participant exists
     rclpy.init(args=args)
     node, executor, rc = None, None, 0
     try:
         node = DenseCalibNode()
+        if transport is not None:
+            said, capped = transport
+            (node.get_logger().warning if capped else node.get_logger().info)(said)
         executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         executor.spin()

@@ -71,6 +71,12 @@ class MessageSynchronizer:
             self._gaps[stream].add(stamp)
             return sum(self._buffer.push(s) for s in self._sync.add(stream, t, msg))
 
+    def add_lost(self, stream: int, total_lost: int) -> None:
+        """The middleware's running count of stream `stream`'s lost messages (a message-lost
+        event of its subscription)."""
+        with self._lock:
+            self._gaps[stream].add_reported(total_lost)
+
     def _add_motion(self, stream: int, stamp_ns: int, msg) -> None:
         try:
             image = motion_image(msg)
