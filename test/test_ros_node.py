@@ -689,6 +689,13 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
         rig.metric_scale = False  # a pair without a known baseline is rectified, with a caveat
         infos = node._camera_infos(rig, 0)
         assert infos["cam3"].p[3] < 0 and "arbitrary units" in node.stereo_problem
+        # the files a calibration writes say what is published: the pairs' YAML their R and P
+        import yaml
+        written = node._write_files(rig)
+        for name in ("cam0", "cam3"):
+            data = yaml.safe_load((written / f"{name}.yaml").read_text())
+            np.testing.assert_allclose(data["rectification_matrix"]["data"], infos[name].r)
+            np.testing.assert_allclose(data["projection_matrix"]["data"], infos[name].p)
         # floor turned on for a calibration that saved no scene points: said, nothing changes
         assert node.set_parameters([Parameter("floor", value="upright")])[0].successful
         assert wait_until(lambda: any("floor: not found in 20260101T000000Z" in s and

@@ -79,8 +79,8 @@ from ..core.colmap_logging import show_colmap_log
 from ..core.errors import CalibrationError, InputError
 from ..core.calibration_store import (LATEST, prune_calibrations, stored_calibrations,
                                       write_new_calibration)
-from ..core.export import (read_calibration, record_provenance, write_calibration_files,
-                           write_calibration_json)
+from ..core.export import (camera_info_yaml, read_calibration, record_provenance,
+                           write_calibration_files, write_calibration_json, write_text_atomic)
 from ..core.floor import record_floor, warn_if_floor_lost
 from ..core.known_intrinsics import with_previous_intrinsics
 from ..core.report import info_strips_line
@@ -662,10 +662,17 @@ class DenseCalibNode(Node):
     # ----------------------------------------------------------------- outputs
     def _write_files(self, rig: RigCalibration, reconstruction=None,
                      reference_views: Optional[dict] = None) -> Path:
-        """Write output_dir/<UTC time>/ atomically, then swap the `latest` symlink onto it."""
-        return write_new_calibration(self.settings.output_dir, lambda folder: (
-            write_calibration_files(rig, folder, reconstruction,
-                                    reference_views=reference_views)))
+        """Write output_dir/<UTC time>/ atomically, then swap the `latest` symlink onto it. The
+        stereo_pairs' camera YAML files carry their pair's rectification, as the CameraInfo
+        the node publishes and sends to set_camera_info do."""
+        rectified, _ = self._rectifications(rig)
+
+        def write(folder: Path) -> None:
+            write_calibration_files(rig, folder, reconstruction, reference_views=reference_views)
+            for name, (rect_from_cam, projection) in rectified.items():
+                write_text_atomic(folder / f"{name}.yaml", camera_info_yaml(
+                    name, rig.cameras[name].intrinsics, rect_from_cam, projection))
+        return write_new_calibration(self.settings.output_dir, write)
 
     def _load_last_calibration(self, fall_back: bool = False) -> tuple[bool, str]:
         """Publish the calibration under output_dir/latest; (published?, what happened). Anything
@@ -787,10 +794,21 @@ class DenseCalibNode(Node):
         """CameraInfo per calibrated camera, the stereo_pairs' with their rectification. A pair
         that cannot be rectified (see core.stereo) keeps R = I, and self.stereo_problem says
         why."""
-        s = self.settings
-        frames = dict(zip(s.camera_names, s.frame_names))
+        frames = dict(zip(self.settings.camera_names, self.settings.frame_names))
+        rectified, problems = self._rectifications(rig)
+        for problem in problems:
+            if "not rectified:" in problem and "not both calibrated" not in problem:
+                self.get_logger().warning(problem)
+        self.stereo_problem = "; ".join(problems) or None
+        return {name: camera_info_msg(name, cam.intrinsics, frames[name], t_ns,
+                                      *rectified.get(name, (None, None)))
+                for name, cam in rig.cameras.items() if name in frames}
+
+    def _rectifications(self, rig: RigCalibration) -> tuple[dict, list[str]]:
+        """{camera: (rect_from_cam, projection)} of the stereo_pairs that rectify, and what is
+        wrong with the others."""
         rectified, problems = {}, []
-        for left, right in s.stereo_pairs:
+        for left, right in self.settings.stereo_pairs:
             if left not in rig.cameras or right not in rig.cameras:
                 problems.append(f"stereo pair {left}-{right} not rectified: not both calibrated")
                 continue
@@ -798,7 +816,6 @@ class DenseCalibNode(Node):
                 pair = stereo_pair(rig, (left, right))
             except InputError as exc:
                 problems.append(f"stereo pair {left}-{right} not rectified: {exc}")
-                self.get_logger().warning(problems[-1])
                 continue
             rectified[left] = (pair.rect_from_left, pair.projection_left)
             rectified[right] = (pair.rect_from_right, pair.projection_right)
@@ -806,10 +823,7 @@ class DenseCalibNode(Node):
                 problems.append(f"stereo pair {left}-{right} rectified, but without metric "
                                 "scale: its baseline and stereo depths are in arbitrary units "
                                 "(set known_baseline_m and baseline_cameras)")
-        self.stereo_problem = "; ".join(problems) or None
-        return {name: camera_info_msg(name, cam.intrinsics, frames[name], t_ns,
-                                      *rectified.get(name, (None, None)))
-                for name, cam in rig.cameras.items() if name in frames}
+        return rectified, problems
 
     def _call_set_camera_info(self, rig: RigCalibration) -> str:
         """Call every calibrated camera's set_camera_info concurrently, waiting at most
