@@ -99,7 +99,8 @@ class Ros:
         return self.add(DenseCalibNode(name, context=self.context, parameter_overrides=overrides))
 
     def listener(self, node):
-        topics = dict(zip(node.settings.camera_names, node.settings.camera_info_topics))
+        topics = {name: node.resolve_topic_name(topic) for name, topic in
+                  zip(node.settings.camera_names, node.settings.camera_info_topics)}
         return self.add(CalibrationListener(topics, "/densecalib_node/status",
                                             name=f"listener_{time.monotonic_ns()}",
                                             points_topic="/densecalib_node/points",
@@ -271,7 +272,10 @@ def test_parameters_are_validated(ros, tmp_path):
         assert result.successful, result.reason
         assert node.settings.known_baseline_m == 0.12
         assert node.settings.baseline_cameras == ["cam0", "cam2"]
-        assert node.settings.camera_info_topics[2] == "/rig/cam2/camera_info"
+        # not the driver's /rig/cam2/camera_info: the node's own
+        assert node.settings.camera_info_topics[2] == "~/cam2/camera_info"
+        assert node.resolve_topic_name("~/cam2/camera_info") == \
+            f"/{node.get_name()}/cam2/camera_info"
         assert node.settings.set_camera_info_services[0] == "/rig/cam0/set_camera_info"
         assert not pipeline_config(node.settings).sfm.share_intrinsics
         assert node.set_parameters([Parameter("share_intrinsics", value=True)])[0].successful

@@ -121,8 +121,9 @@ def _run_ros(rig, args, out: Path) -> int:
             Parameter(k, value=v) for k, v in params.items()])
         drivers = [CameraPublisherNode(name, topic, "rgb8", context=context)
                    for name, topic in zip(rig.names, topics)]
-        listener = CalibrationListener(dict(zip(rig.names, node.settings.camera_info_topics)),
-                                       "/densecalib_node/status", context=context)
+        info_topics = {n: node.resolve_topic_name(t)
+                       for n, t in zip(rig.names, node.settings.camera_info_topics)}
+        listener = CalibrationListener(info_topics, "/densecalib_node/status", context=context)
         caller = TriggerCaller("/densecalib_node/calibrate", context=context)
         nodes = [node, *drivers, listener, caller]
         for n in nodes:

@@ -20,7 +20,7 @@ Interface (names relative to the node, default name `densecalib_node`):
   one that cannot be loaded leaves the current one published;
 - service `~/clear` (std_srvs/Trigger): drops the buffered frame sets (after the rig was moved:
   the next calibration uses only images received since);
-- publishes `~/status` (std_msgs/String: progress and state), `<camera ns>/camera_info`
+- publishes `~/status` (std_msgs/String: progress and state), `~/<camera>/camera_info`
   (sensor_msgs/CameraInfo, reliable, transient local, depth 1; the `stereo_pairs`' with their
   stereo rectification R, P, republished when that parameter changes), `/tf_static`
   (tf2_msgs/TFMessage, all cameras in one message, transient local, depth 1; with `floor` on,

@@ -13,7 +13,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange
 from rclpy.parameter import Parameter
 
-from ..core.bag import camera_info_topic, camera_names_from_topics, topic_namespace
+from ..core.bag import camera_names_from_topics, topic_namespace
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, PipelineConfig,
                            make_config)
 from ..core.consistency import DEFAULT_TOLERANCE_PX
@@ -131,7 +131,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "frame_names": (Parameter.Type.STRING_ARRAY,
                     "optical frame per camera (default <camera>_optical_frame)", True, {}),
     "camera_info_topics": (Parameter.Type.STRING_ARRAY,
-                           "CameraInfo topic per camera (default <image topic ns>/camera_info)",
+                           "CameraInfo topic per camera (default ~/<camera>/camera_info: not the "
+                           "driver's own, which it publishes itself)",
                            True, {}),
     "stereo_pairs": (Parameter.Type.STRING_ARRAY,
                      "stereo pairs, each as its left then its right camera (e.g. [front_left, "
@@ -337,8 +338,10 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     if not _FRAME_RE.match(floor_frame) or floor_frame in frames + [rig_frame]:
         raise InputError(f"floor_frame {floor_frame!r} must be a valid tf frame id that differs "
                          f"from rig_frame and frame_names.")
+    # the node's own namespace by default: the driver publishes <image ns>/camera_info itself,
+    # and two publishers of different CameraInfo on one topic leave each reader one at random
     info_topics = _per_camera(list(v["camera_info_topics"]), n, "camera_info_topics",
-                              lambda i: camera_info_topic(topics[i]))
+                              lambda i: f"~/{names[i]}/camera_info")
     services = _per_camera(list(v["set_camera_info_services"]), n, "set_camera_info_services",
                            lambda i: f"{topic_namespace(topics[i])}/set_camera_info")
     for what, lst in (("camera_info_topics", info_topics),
