@@ -756,6 +756,49 @@ def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
         ros.remove(node)
 
 
+def test_a_body_rig_frame_by_rep_103(ros, tmp_path):
+    """rig_frame_axes 'body': rig_frame has REP-103 axes (x forward, y left, z up) at the
+    reference camera, whose optical frame below it looks along x; every camera, and the floor
+    above it, end where they were (floor_from_camera unchanged); bad values are refused."""
+    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.types import RigCalibration, RigCamera
+
+    lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
+    poses = {name: np.eye(4) for name in CAMERAS}
+    for i, name in enumerate(CAMERAS):
+        poses[name][:3, :3] = Rotation.from_euler("y", 10 * i, degrees=True).as_matrix()
+        poses[name][:3, 3] = [-0.2 * i, 0.01 * i, 0.0]
+    floor_from_rig = np.eye(4)
+    floor_from_rig[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]
+    floor_from_rig[:3, 3] = [0.0, 0.0, 1.5]
+    rig = RigCalibration("cam0", {n: RigCamera(n, lens, p) for n, p in poses.items()},
+                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
+                                            "num_points": 500, "rms": 0.002,
+                                            "camera_heights": {n: 1.5 for n in CAMERAS}}})
+    write_calibration_files(rig, tmp_path / "20260101T000000Z")
+    os.symlink("20260101T000000Z", tmp_path / "latest")
+    with pytest.raises(InputError, match="rig_frame_axes must be one of optical, body"):
+        ros.densecalib(tmp_path, name="bad_axes", rig_frame_axes="enu")
+    seen = {}
+    for axes in ("optical", "body"):
+        node = ros.densecalib(tmp_path, floor="upright", rig_frame_axes=axes)
+        listener = ros.listener(node)
+        try:
+            assert wait_until(lambda: "rig" in listener.rig_from_optical(), 10.0)
+            seen[axes] = listener.rig_from_optical()
+        finally:
+            ros.remove(listener)
+            ros.remove(node)
+    body = seen["body"]
+    # the reference camera looks along the body's x axis, its image's down is the body's -z
+    np.testing.assert_allclose(body["cam0_optical_frame"][:3, 2], [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(body["cam0_optical_frame"][:3, 1], [0, 0, -1], atol=1e-12)
+    for name in CAMERAS:
+        frame = f"{name}_optical_frame"
+        np.testing.assert_allclose(body["rig"] @ body[frame],
+                                   seen["optical"]["rig"] @ seen["optical"][frame], atol=1e-12)
+
+
 @pytest.mark.parametrize("damage", ["dangling", "not utf-8"])
 def test_a_damaged_latest_falls_back_to_the_newest_calibration_that_reads(ros, tmp_path, damage):
     """`latest` pointing at nothing, or at a calibration.json of bytes that are not text: at

@@ -147,17 +147,35 @@ def transform_to_matrix(msg: TransformStamped) -> np.ndarray:
     return m
 
 
+# REP-103 body axes (x forward, y left, z up) from a camera's optical axes (z forward, x right,
+# y down), for a camera mounted level and looking forward along the body's x axis (REP-103's
+# optical-frame convention, as every camera driver's <camera>_link -> <camera>_optical_frame).
+BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0],
+                              [-1.0, 0.0, 0.0, 0.0],
+                              [0.0, -1.0, 0.0, 0.0],
+                              [0.0, 0.0, 0.0, 1.0]])
+
+
+def frame_from_rig(rig_frame_axes: str) -> np.ndarray:
+    """The published rig frame from the calibration's rig frame (the reference camera's optical
+    frame): identity for 'optical', BODY_FROM_OPTICAL for 'body'."""
+    return BODY_FROM_OPTICAL if rig_frame_axes == "body" else np.eye(4)
+
+
 def rig_tf_message(rig: RigCalibration, rig_frame: str, optical_frames: dict[str, str],
-                   t_ns: int, floor_frame: Optional[str] = None) -> TFMessage:
+                   t_ns: int, floor_frame: Optional[str] = None,
+                   rig_frame_axes: str = "optical") -> TFMessage:
     """All cameras' extrinsics in one TFMessage: rig_frame -> optical_frames[name] for each
-    calibrated camera (the transform is rig_from_cam = inverse(cam_from_rig)); with floor_frame
-    and a calibration that found its floor (core.floor), also floor_frame -> rig_frame."""
-    transforms = [transform_msg(rig_frame, optical_frames[name],
-                                np.linalg.inv(np.asarray(cam.cam_from_rig, dtype=np.float64)), t_ns)
+    calibrated camera (frame_from_cam = frame_from_rig @ inverse(cam_from_rig), rig_frame's
+    axes as rig_frame_axes says); with floor_frame and a calibration that found its floor
+    (core.floor), also floor_frame -> rig_frame."""
+    published_from_rig = frame_from_rig(rig_frame_axes)
+    transforms = [transform_msg(rig_frame, optical_frames[name], published_from_rig @ np.linalg.inv(
+                      np.asarray(cam.cam_from_rig, dtype=np.float64)), t_ns)
                   for name, cam in rig.cameras.items()]
     floor = rig.quality.get("floor")
     if floor_frame and floor:
+        floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
         transforms.append(transform_msg(
-            floor_frame, rig_frame,
-            np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4), t_ns))
+            floor_frame, rig_frame, floor_from_rig @ np.linalg.inv(published_from_rig), t_ns))
     return TFMessage(transforms=transforms)

@@ -88,7 +88,7 @@ from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
 from ..core.sync import FrameSet, evenly_spaced
 from ..core.types import RigCalibration
-from .conversions import camera_info_msg, point_cloud_msg, rig_tf_message
+from .conversions import camera_info_msg, frame_from_rig, point_cloud_msg, rig_tf_message
 from .core_logs import forward_core_logs, stop_forwarding
 from .frame_loss import LOSS_HINT, WARN_LOSS_FRACTION
 from .intake import ImageIntake
@@ -768,7 +768,8 @@ class DenseCalibNode(Node):
         tf2 never forgets a static transform)."""
         s = self.settings
         frames = dict(zip(s.camera_names, s.frame_names))
-        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns, _floor_parent(s)))
+        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns, _floor_parent(s),
+                                            s.rig_frame_axes))
 
     def _publish_points(self, rig: RigCalibration, directory: Path, t_ns: int) -> None:
         """Replace the latched ~/points cloud with the scene points of the calibration's saved
@@ -781,8 +782,9 @@ class DenseCalibNode(Node):
             points, colours = saved_scene_points(directory, rig) or (points, colours)
         except Exception as exc:  # an unreadable model costs the view, never the calibration
             self.get_logger().warning(f"no scene points published: {exc}")
-        self._points_pub.publish(point_cloud_msg(points, colours, self.settings.rig_frame,
-                                                 t_ns))
+        to_frame = frame_from_rig(self.settings.rig_frame_axes)[:3, :3]
+        self._points_pub.publish(point_cloud_msg(points @ to_frame.T, colours,
+                                                 self.settings.rig_frame, t_ns))
 
     def _publish_camera_infos(self, rig: RigCalibration, t_ns: int) -> None:
         infos = self._camera_infos(rig, t_ns)

@@ -25,6 +25,7 @@ from ..core.matching import available_matchers
 from ..core.sync import DEFAULT_MAX_FRAME_SETS
 
 TRANSPORTS = ("auto", "raw", "compressed")
+RIG_FRAME_AXES = ("optical", "body")
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _FRAME_RE = re.compile(r"^[A-Za-z0-9_/.\-]+$")
 
@@ -118,8 +119,12 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                           "their names' UTC time; the one `latest` points to always stays): the "
                           "oldest are removed after each calibration; 0 = keep all", False,
                           _range(0, 100000, True)),
-    "rig_frame": ("rig", "parent frame of the cameras' transforms on /tf_static (the reference "
-                  "camera's optical frame coincides with it)", True, {}),
+    "rig_frame": ("rig", "parent frame of the cameras' transforms on /tf_static, at the "
+                  "reference camera (its axes: rig_frame_axes)", True, {}),
+    "rig_frame_axes": ("optical", "axes of rig_frame: 'optical' (the reference camera's optical "
+                       "frame: z forward, x right, y down) or 'body' (REP-103: x forward, y "
+                       "left, z up, for a reference camera mounted level and looking forward "
+                       "along x)", True, {}),
     "floor": ("", "after each calibration find the floor in the scene points and publish "
               "floor_frame -> rig_frame on /tf_static: '' (off), 'upright' (cameras mounted "
               "upright) or 'top' (all looking straight down); see `calibrate --floor`. Turned "
@@ -192,6 +197,7 @@ class Settings:
     output_dir: Path
     keep_calibrations: int
     rig_frame: str
+    rig_frame_axes: str
     floor: str
     floor_frame: str
     frame_names: list[str]
@@ -331,6 +337,9 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     if rig_frame in frames or len(set(frames)) != n:
         raise InputError(f"rig_frame {rig_frame!r} and frame_names {frames} must all differ "
                          "(a transform from a frame to itself is invalid in tf).")
+    if v["rig_frame_axes"] not in RIG_FRAME_AXES:
+        raise InputError(f"rig_frame_axes must be one of {', '.join(RIG_FRAME_AXES)}, got "
+                         f"{v['rig_frame_axes']!r}.")
     if v["floor"] not in ("", *FLOOR_VIEWS):
         raise InputError(f"floor must be '' (off) or one of {', '.join(FLOOR_VIEWS)}, got "
                          f"{v['floor']!r}.")
@@ -393,6 +402,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))),
         keep_calibrations=int(v["keep_calibrations"]), rig_frame=rig_frame,
+        rig_frame_axes=v["rig_frame_axes"],
         floor=v["floor"], floor_frame=floor_frame,
         frame_names=frames, camera_info_topics=info_topics, stereo_pairs=pairs,
         call_set_camera_info=bool(v["call_set_camera_info"]), set_camera_info_services=services,
