@@ -197,3 +197,30 @@ def test_a_model_cut_short_by_a_full_disk_is_not_made_current(images, tmp_path):
     assert back.num_points3D() == model.num_points3D()
     assert (out / "colmap" / "points3D.bin").stat().st_size == size
     assert _hidden(out) == []
+
+
+def test_a_write_that_fails_names_the_output_not_its_hidden_temporary_folder(tmp_path):
+    """A file that cannot be written while the new folder is built (here EFBIG under a file-size
+    limit, as ENOSPC on a full disk) is reported under the output folder's name, with the free
+    space, and the last output stays."""
+    out = tmp_path / "out"
+    _write(out, "good")
+    child = _child("""
+        import resource, signal, sys
+        from pathlib import Path
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (10000, 10000))
+        from densecalib_ros.core.errors import InputError
+        from densecalib_ros.core.export import replace_directory_atomic, write_text_atomic
+        try:
+            replace_directory_atomic(
+                lambda tmp: write_text_atomic(tmp / "calibration.json", "x" * 20000),
+                Path(sys.argv[1]), ("calibration.json",))
+        except InputError as exc:
+            print(exc)
+    """, out)
+    said, _ = child.communicate(timeout=60)
+    assert said.startswith(f"Cannot write {out / 'calibration.json'}: File too large."), said
+    assert "MiB free on the disk holding" in said and "Nothing was replaced." in said
+    assert ".tmp." not in said
+    assert (out / "calibration.json").read_text() == "good" and _hidden(tmp_path) == []

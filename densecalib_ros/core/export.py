@@ -495,11 +495,12 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
         check_output_folder(out_dir, markers, inputs)
     out_dir = Path(out_dir).resolve()
     clean_leftovers(out_dir.parent, lambda name: name == out_dir.name)
-    tmp = None
+    tmp, building = None, None
     try:
         out_dir.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp.{os.getpid()}.",
                                     dir=out_dir.parent))
+        building = str(tmp)
         os.chmod(tmp, _usual_mode(out_dir, directory=True))
         build(tmp)
         if owned is not None and out_dir.is_dir():
@@ -518,6 +519,10 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
         if isinstance(exc, OSError):
             raise InputError(f"Cannot write {out_dir}: {exc.strerror or exc}. "
                              + disk_hint(out_dir) + " Nothing was replaced.") from exc
+        if isinstance(exc, InputError) and building and building in str(exc):
+            # a file of the hidden temporary folder, named as the user knows it
+            raise InputError(str(exc).replace(building, str(out_dir))
+                             + " Nothing was replaced.") from exc
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
