@@ -1064,6 +1064,34 @@ def test_a_frame_that_does_not_decode_is_dropped_counted_and_named(ros, rig, tmp
             ros.remove(other)
 
 
+def test_a_stop_while_the_files_are_written_tells_the_caller_what_became_current(ros, rig,
+                                                                                 tmp_path):
+    """Shutdown (SIGTERM: stop()) while a calibration writes its files: the write ends, `latest`
+    points at it, and the waiting ~/calibrate caller is told so (it was told 'abandoned; the last
+    calibration stays' while latest switched: issue 40); a stop before the write writes nothing."""
+    node = ros.densecalib(tmp_path / "calib")
+    publish_frame_sets(ros, node, rig.images)
+    write = node._write_files
+
+    def slow_write(*args, **kwargs):  # the stop lands in the middle of the write
+        out = write(*args, **kwargs)
+        time.sleep(0.5)
+        return out
+    node._write_files = slow_write
+    caller = ros.caller("calibrate")
+    try:
+        future = caller.call_async()
+        assert wait_until(node._writing.is_set, CALIBRATION_TIMEOUT_S, 0.005)
+        node.stop()
+        assert wait_until(future.done, 10.0)
+        answer = future.result()
+        latest = (tmp_path / "calib" / "latest").resolve()
+        assert answer.success and f"files in {latest}" in answer.message, answer.message
+    finally:
+        ros.remove(caller)
+        ros.remove(node)
+
+
 def test_destroying_the_node_during_a_calibration_ends_the_job(ros, rig, tmp_path):
     """Shutdown (destroy_node) while a calibration runs: the worker's publishing no longer kills
     its thread, so the job is still answered and nobody is left waiting on it."""

@@ -111,6 +111,9 @@ class Outcome:
 
 CHECK_JOB = "check"  # the reasons of the job slot a ~/check and a ~/reload hold
 RELOAD_JOB = "reload"
+# How long a ~/calibrate caller waits, once the node stops, for a calibration that is writing its
+# files (well under a second) to end: main() gives the callers 2 s to be answered.
+_WRITE_GRACE_S = 1.5
 # The watch recalibrates on a change seen in at least this many frame sets: a frame set alone can
 # be odd (few matches, something that moved between the shots of unsynchronised cameras), and is
 # not worth replacing a good calibration.
@@ -161,6 +164,11 @@ class DenseCalibNode(Node):
         self._replayer: Optional[BagReplayer] = None
         self._intake: Optional[ImageIntake] = None
         self._stopping = threading.Event()  # stop(): answer waiting callers, write nothing
+        # set while a calibration's files are written and published: a stop then lets it end
+        # (the files become current either way) and the caller is told what happened; the lock
+        # orders that against stop(), so a calibration either writes or is abandoned
+        self._writing = threading.Event()
+        self._write_lock = threading.Lock()
         self._callers_waiting, self._num_callers_waiting = threading.Condition(), 0
         for name, (default, description, read_only, ranges) in PARAMETERS.items():
             if is_list_parameter(name):  # any array type, checked by parse_settings; [] if unset
@@ -374,9 +382,15 @@ class DenseCalibNode(Node):
         try:
             while not job.done.wait(0.2):
                 if self._stopping.is_set():  # main() waits for this answer, not for the job
+                    if self._writing.is_set() and job.done.wait(_WRITE_GRACE_S):
+                        break  # it was writing its files: its own outcome says what happened
                     response.success = False
-                    response.message = ("the node is shutting down: the calibration was "
-                                        "abandoned; the last calibration stays as it was")
+                    response.message = (
+                        "the node is shutting down while the calibration's files are written: "
+                        "if the write completes, `latest` points at them and the node publishes "
+                        "them at its next start" if self._writing.is_set() else
+                        "the node is shutting down: the calibration was abandoned; the last "
+                        "calibration stays as it was")
                     return response
             response.success = job.outcome.success
             response.message = job.outcome.message
@@ -615,11 +629,17 @@ class DenseCalibNode(Node):
                                      for t, o in zip(fs.stamps_ns, s.stamp_offsets_s)]
                                     for fs in sets]})
         elapsed = time.perf_counter() - start
-        if self._stopping.is_set():  # the caller was told it was abandoned: keep to that
-            raise CalibrationError("the node shut down during the calibration; nothing written")
-        out = self._write_files(rig, reconstruction,
-                                latest_views(images, s.camera_names, rig))
-        self._publish(rig, out)
+        with self._write_lock:
+            if self._stopping.is_set():  # the caller was told it was abandoned: keep to that
+                raise CalibrationError("the node shut down during the calibration; nothing "
+                                       "written")
+            self._writing.set()
+        try:
+            out = self._write_files(rig, reconstruction,
+                                    latest_views(images, s.camera_names, rig))
+            self._publish(rig, out)
+        finally:
+            self._writing.clear()
         removed = prune_calibrations(s.output_dir, s.keep_calibrations, [out])
         rms = rig.quality.get("reprojection_rms_px", float("nan"))
         failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
@@ -974,8 +994,10 @@ class DenseCalibNode(Node):
 
     def stop(self) -> None:
         """Shutdown begins: a caller waiting for a calibration is answered that it was abandoned,
-        and the calibration writes and publishes nothing."""
-        self._stopping.set()
+        and the calibration writes and publishes nothing (one writing its files already ends
+        that, and its caller is told so)."""
+        with self._write_lock:
+            self._stopping.set()
 
     @property
     def worker_running(self) -> bool:
