@@ -1285,7 +1285,7 @@ def test_ctrl_c_during_a_calibration_answers_the_caller_and_exits_cleanly(ros, r
                 driver.publish_image(image, int((1.0 + t) * 1e9))
             time.sleep(0.3)
         answer = caller.call_async(wait_for_service_s=30.0)
-        assert wait_until(lambda: any("calibrating: matched" in x for x in lines), 60.0), lines
+        assert wait_until(lambda: any("matched frame set" in x for x in lines), 60.0), lines
         node.send_signal(signal.SIGINT)
         assert node.wait(timeout=15) == 0, "".join(lines)
         assert wait_until(answer.done, 10.0), "no answer"

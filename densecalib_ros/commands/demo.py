@@ -116,6 +116,9 @@ def _run_ros(rig, args, out: Path) -> int:
     executor = MultiThreadedExecutor(num_threads=6, context=context)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     nodes = []
+    # the node forwards the core library's log to rclpy's console: printed once, there
+    core_log = logging.getLogger("densecalib_ros")
+    core_log.propagate = False
     try:
         node = DenseCalibNode(context=context, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
@@ -167,6 +170,7 @@ def _run_ros(rig, args, out: Path) -> int:
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown(context=context)
+        core_log.propagate = True
 
 
 def _print_comparison(rig, focal_px: dict, rig_from_cam: dict, reference: str, title: str):

@@ -32,9 +32,10 @@ implementation details), initialised without VGGT.
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 from dataclasses import dataclass, field
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import pycolmap
@@ -46,6 +47,7 @@ from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost
                           held_out_cost, run_incremental, truncated_cost)
 from .plausibility import (bundle_adjust_plausibly, drop_implausible_cameras,
                            implausible_cameras)
+from .progress import Progress, say_progress
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
                              convert_camera_models, matrix_from_rigid, reprojection_errors,
                              triangulate_tracks)
@@ -65,9 +67,6 @@ MIN_CAMERA_OBSERVATIONS = 10  # a camera with fewer point observations after BA 
 INCREMENTAL_B_ERR_PX = 20.0  # the paper's incremental B_err (regular / fisheye), used when the
 INCREMENTAL_B_ERR_FISHEYE_PX = 100.0  # global preset (no B_err) starts from the incremental result
 STAGES = ("extrinsics", "focal", "distortion", "principal_point")
-
-Progress = Optional[Callable[[str], None]]
-
 
 @dataclass
 class GlobalResult:
@@ -360,7 +359,7 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
     """The staged BA of the module docstring, in place; before every stage but the first the
     tracks are re-triangulated from the current cameras (triangulate_tracks). Returns {stage:
     residual_stats after it} for the stages that ran."""
-    say = progress or log.info
+    say = functools.partial(say_progress, progress)
     iterations = dict(config.global_stage_iterations)
     stats: dict[str, dict] = {}
     # A rig mixing lenses refines the principal point of its fisheye cameras only
@@ -410,7 +409,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     start's focal multi-start (run_incremental). Raises DisconnectedViewGraphError, InputError
     (unknown init, missing/unusable previous calibration), NotEnoughCamerasError.
     """
-    say = progress or log.info
+    say = functools.partial(say_progress, progress)
     C = tracks.num_cameras
     init = config.global_init
     if init not in GLOBAL_INITS:
@@ -491,7 +490,7 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
                        extra_starts: Optional[dict] = None):
     """Initial poses from `init`, multi-view triangulation, gauge, staged BA.
     Returns (state, residual stats per stage, gauge camera, cameras by gauge score)."""
-    say = progress or log.info
+    say = functools.partial(say_progress, progress)
     C = tracks.num_cameras
     if init == "previous":
         start, poses = poses_from_previous(previous, camera_names,

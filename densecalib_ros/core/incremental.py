@@ -19,6 +19,7 @@ cameras that still end implausible are reported as failed.
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ from .config import SfMConfig
 from .errors import NotEnoughOverlapError
 from .plausibility import (bundle_adjust_plausibly, drop_implausible_cameras,
                            implausible_cameras)
+from .progress import say_progress
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
                              convert_camera_models, midpoint_triangulation,
                              remove_outlier_observations, reprojection_errors, triangulate,
@@ -351,7 +353,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     intrinsics are given (config.fixed_intrinsics_cameras) there is one focal start, and the
     multi-start runs from first pairs instead (first_pair_starts, MAX_FIRST_PAIR_STARTS).
     """
-    say = progress or (lambda msg: None)
+    say = functools.partial(say_progress, progress)
     starts = {name: (start, None) for name, start in
               {**focal_starts(intrinsics, config.fixed_intrinsics_cameras),
                **(extra_starts or {})}.items()}

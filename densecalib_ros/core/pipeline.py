@@ -27,6 +27,7 @@ from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremen
 from .known_intrinsics import (check_known_intrinsics, describe as describe_known,
                                given_intrinsics_fit, given_intrinsics_warnings)
 from .placement import repair_placements
+from .progress import Progress, say_progress
 from .reconstruction import (SfMState, build_reconstruction, camera_quality, colour_points,
                              reprojection_errors)
 from .scale import move_model_to_rig_frame
@@ -38,9 +39,6 @@ from .uncertainty import HELD_PP_STD_FRACTION, calibration_uncertainty
 log = logging.getLogger(__name__)
 
 FUNDAMENTAL_THRESHOLD_PX = 1.0  # MAGSAC++ scale; robustification starts at 1 px (paper)
-
-Progress = Optional[Callable[[str], None]]
-
 
 @dataclass
 class CalibrationResult:
@@ -58,12 +56,6 @@ class CalibrationResult:
     # The final SfM state (on the keypoint-match tracks when the rig was refined on them): what
     # a later search (core.focal_hops) continues from.
     state: Optional[SfMState] = None
-
-
-def say_progress(progress: Progress, msg: str) -> None:
-    log.info(msg)
-    if progress is not None:
-        progress(msg)
 
 
 def fundamental_matrices(tracks: Tracks, seed: int = 0) -> dict:

@@ -601,7 +601,8 @@ class DenseCalibNode(Node):
         if s.keep_intrinsics and self.calibration is not None:
             config.known_intrinsics = with_previous_intrinsics(
                 config.known_intrinsics, self.calibration, s.camera_names)
-        progress = lambda msg: self._set_status(f"calibrating: {msg}")  # noqa: E731
+        # on ~/status only: the core logged the event, and core_logs forwards it to /rosout
+        progress = lambda msg: self._set_status(f"calibrating: {msg}", None)  # noqa: E731
         if self.calibration is not None:  # start from it; a worse result is refused
             views = (read_reference_views(self.calibration_dir, s.camera_names)
                      if self.calibration_dir is not None else {})
