@@ -29,6 +29,27 @@ def test_local_affine_predicts_an_affine_map_exactly():
     assert not far.any()  # no neighbour within reach: no prediction
 
 
+def test_a_recalibration_centres_its_priors_on_the_points_determined_before():
+    """The previous calibration's principal points that its images determined (and only those)
+    centre a recalibration's priors, with the image size they belong to."""
+    from densecalib_ros.core.pipeline import estimated_principal_points
+    from densecalib_ros.core.types import (CameraIntrinsics, CameraQuality, RigCalibration,
+                                           RigCamera)
+
+    def camera(name, params, estimated):
+        model = "OPENCV" if len(params) == 8 else "RADIAL"
+        return RigCamera(name, CameraIntrinsics(model, 640, 480, np.array(params, float)),
+                         np.eye(4), CameraQuality(0.3, 500, 0.8, estimated_intrinsics=estimated))
+    rig = RigCalibration("a", {
+        "a": camera("a", [800, 805, 326.1, 231.2, 0.01, 0, 0, 0], ["f", "cx", "cy", "aspect"]),
+        "b": camera("b", [800, 330.0, 250.0, 0.01, 0], ["f", "cx", "cy"]),
+        "c": camera("c", [800, 805, 320.0, 240.0, 0, 0, 0, 0], ["f", "aspect"]),  # held
+        "d": camera("d", [800, 805, 300.0, 200.0, 0, 0, 0, 0], None)})  # not judged
+    assert estimated_principal_points(rig) == {"a": (326.1, 231.2, 640, 480),
+                                               "b": (330.0, 250.0, 640, 480)}
+    assert estimated_principal_points(None) == {}
+
+
 def test_patch_alignment_is_subpixel_against_the_truth(real_rig):
     """Corners of cam0 aligned in cam1 from their true positions moved by up to 2 px land within a
     fraction of a pixel of the truth."""

@@ -120,6 +120,19 @@ def test_a_tight_prior_holds_the_principal_point_and_a_held_one_does_not_move():
         assert np.array_equal(_pp(held.intrinsics[b]), [320.0, 240.0])
 
 
+def test_the_prior_centres_on_a_given_point():
+    """A previous calibration's principal point as the prior's centre (a recalibration): a
+    tight prior holds the point there, not at the image centre."""
+    true, poses = _rig_with_offset_points()
+    state = _state(true, poses, 0.2)
+    blocks = list(range(len(true)))
+    centres = {b: tuple(_pp(true[b]) + [3.0, -2.0]) for b in blocks}
+    adjust_with_priors(state, blocks, Priors({b: 0.05 for b in blocks},
+                                             principal_point_centre_px=centres))
+    for b in blocks:
+        assert np.linalg.norm(_pp(state.intrinsics[b]) - centres[b]) < 0.5, b
+
+
 def test_fixed_blocks_are_left_alone():
     true, poses = _rig_with_offset_points(4)
     state = _state(true, poses, 0.2)

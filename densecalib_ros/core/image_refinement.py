@@ -15,8 +15,12 @@ assumes independent pixel noise; neighbouring patches and what the model cannot 
 several times too small on real photographs: a planar facade's folds disagreed by 5-11 px where
 the covariance said 0.2-0.7 px). A parameter whose uncertainty is below ESTIMATED_FRACTION of its
 prior's spread (the images carry at least four times the prior's information) is estimated with
-its prior; otherwise it is held at the prior's centre (the image centre) and
-reported as held. The pixel aspect is always estimated with its prior (holding a real sensor's
+its prior; otherwise it is held at the prior's centre and reported as held. The prior's
+centre is the image centre, or in a recalibration the point the previous calibration of the
+same camera estimated from its images (pp_centres): a bump or a refocus leaves it where it was,
+and holding a point the images determined before at the image centre moved a recalibration of
+the very same images from 0.07 to 0.24 deg (the fold decision is near its threshold there and
+can go either way between runs). The pixel aspect is always estimated with its prior (holding a real sensor's
 0.3 % at 1 moved principal points by 20 px on a generated rig); the cameras are written as
 OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
 folds determine it."""
@@ -82,23 +86,26 @@ def applies(state: SfMState) -> bool:
 def refine_on_images(state: SfMState, frame_sets: Sequence[Sequence[np.ndarray]],
                      seeds: Tracks, camera_names: Sequence[str],
                      masks: Optional[Sequence] = None, seed: int = 0,
-                     say: Callable[[str], None] = lambda m: None
-                     ) -> Optional[ImageRefinement]:
+                     say: Callable[[str], None] = lambda m: None,
+                     pp_centres: Optional[dict] = None) -> Optional[ImageRefinement]:
     """The refined state (module docstring), or None where the stage does not apply or the dense
     correspondences leave a registered camera with too few observations. `state` is not
     modified. seeds: correspondences (tracks with their frame set) the dense ones are predicted
-    from; masks: per camera bool (H, W) regions to ignore, or None."""
+    from; masks: per camera bool (H, W) regions to ignore, or None; pp_centres: camera name ->
+    (cx, cy, width, height) px, the principal point prior's centre where not the image centre
+    (used where the camera's images still have that size)."""
     if not applies(state):
         return None
     try:
-        return _refine(state, frame_sets, seeds, camera_names, masks, seed, say)
+        return _refine(state, frame_sets, seeds, camera_names, masks, seed, say,
+                       pp_centres or {})
     except (ValueError, np.linalg.LinAlgError) as exc:  # a degenerate problem: keep the rig
         log.warning("image refinement skipped: %s", exc)
         say("the dense refinement did not apply; the rig is kept as found")
         return None
 
 
-def _refine(state, frame_sets, seeds, camera_names, masks, seed, say
+def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
             ) -> Optional[ImageRefinement]:
     tracks = dense_tracks(frame_sets, state, seeds, masks)
     refined = state.on_tracks(tracks)
@@ -112,10 +119,17 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say
         return None
     blocks = sorted({int(refined.camera_block[c]) for c in refined.registered()
                      if not refined.intrinsics_fixed(c)})
+    centres = {}  # block -> (cx, cy): a previous estimate of the same camera, at this size
+    for c in refined.registered():
+        b, given = int(refined.camera_block[c]), pp_centres.get(camera_names[c])
+        cam = refined.intrinsics[b]
+        if given is not None and tuple(given[2:]) == (cam.width, cam.height):
+            centres[b] = (float(given[0]), float(given[1]))
     priors = Priors(
         principal_point_std_px={b: PP_PRIOR_STD_FRACTION * max(refined.intrinsics[b].width,
                                                                refined.intrinsics[b].height)
                                 for b in blocks},
+        principal_point_centre_px={b: centres[b] for b in blocks if b in centres},
         aspect_std={b: ASPECT_PRIOR_STD for b in blocks})
     start = refined.copy()
     adjustment = _adjust_and_gate(refined, blocks, priors)
@@ -125,6 +139,7 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say
     held = Priors(
         principal_point_std_px={b: (v if "principal point" in determined[b] else None)
                                 for b, v in priors.principal_point_std_px.items()},
+        principal_point_centre_px=priors.principal_point_centre_px,
         aspect_std=priors.aspect_std)
     if held != priors:
         _reset_to_prior(refined, blocks, held)
@@ -218,7 +233,7 @@ def _fold_values(cam) -> tuple[float, float, float, float]:
 
 
 def _reset_to_prior(state: SfMState, blocks: list[int], priors: Priors) -> None:
-    """The principal point of the blocks whose prior is None back at the image centre (held
+    """The principal point of the blocks whose prior is None back at the prior's centre (held
     there by the next adjustment); in place."""
     for b in blocks:
         if priors.principal_point_std_px.get(b) is not None:
@@ -226,7 +241,7 @@ def _reset_to_prior(state: SfMState, blocks: list[int], priors: Priors) -> None:
         cam = state.intrinsics[b]
         p = np.array(cam.params, float)
         pp = [2, 3] if cam.model == "OPENCV" else [1, 2]
-        p[pp] = cam.width / 2.0, cam.height / 2.0
+        p[pp] = priors.principal_point_centre_px.get(b, (cam.width / 2.0, cam.height / 2.0))
         state.intrinsics[b] = type(cam)(cam.model, cam.width, cam.height, p)
 
 

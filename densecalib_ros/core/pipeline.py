@@ -527,7 +527,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     sigmas = {}
     if frame_sets is not None and config.refine_on_images and result.state is not None:
         result, sigmas = _refined_on_images(result, frame_sets, camera_names, config,
-                                            match_tracks, ignored, progress)
+                                            match_tracks, ignored, progress, previous)
     add_uncertainty(result, camera_names, config, sigmas)
     if config.known_intrinsics:
         result.rig.quality["given_intrinsics"] = describe_known(config.known_intrinsics)
@@ -551,15 +551,19 @@ def warn_user(rig: RigCalibration, warning: str, progress: Progress) -> None:
 
 def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequence[str],
                        config: PipelineConfig, match_tracks: Optional[Tracks],
-                       ignored: Sequence, progress: Progress) -> tuple[CalibrationResult, dict]:
+                       ignored: Sequence, progress: Progress,
+                       previous: Optional[RigCalibration] = None
+                       ) -> tuple[CalibrationResult, dict]:
     """(result refined by core.image_refinement, its sigmas per camera name); the result as it
-    was and no sigmas where the stage does not apply."""
+    was and no sigmas where the stage does not apply. A previous calibration's principal points
+    that its images determined centre this one's priors."""
     from .image_refinement import PP_PRIOR_STD_FRACTION, refine_on_images
 
     seeds = match_tracks if match_tracks is not None and match_tracks.num_tracks \
         else result.tracks
     refinement = refine_on_images(result.state, frame_sets, seeds, camera_names, ignored or None,
-                                  config.sampling.seed, lambda m: say_progress(progress, m))
+                                  config.sampling.seed, lambda m: say_progress(progress, m),
+                                  estimated_principal_points(previous))
     if refinement is None:
         return result, {}
     # Whether given intrinsics fit the scene was judged on the keypoint matches; the dense
@@ -576,6 +580,20 @@ def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequ
         if name in refinement.estimated and cam.quality is not None:
             cam.quality.estimated_intrinsics = refinement.estimated[name]
     return result, refinement.uncertainty
+
+
+def estimated_principal_points(rig: Optional[RigCalibration]) -> dict:
+    """Camera name -> (cx, cy, width, height) px of the cameras of `rig` whose principal point
+    its images determined (quality.estimated_intrinsics), in COLMAP pixels of images of that
+    size; {} without a rig."""
+    out = {}
+    for name, cam in (rig.cameras.items() if rig is not None else ()):
+        estimated = cam.quality.estimated_intrinsics if cam.quality is not None else None
+        lens = cam.intrinsics
+        if estimated and "cx" in estimated and lens.model in ("OPENCV", "RADIAL"):
+            cx, cy = lens.params[2:4] if lens.model == "OPENCV" else lens.params[1:3]
+            out[name] = (float(cx), float(cy), lens.width, lens.height)
+    return out
 
 
 def add_uncertainty(result: CalibrationResult, camera_names: Sequence[str],

@@ -53,12 +53,14 @@ _RAYLEIGH_MEDIAN = 1.1774  # median of |2D residual| / per-coordinate sigma for 
 @dataclass
 class Priors:
     """Gaussian priors per intrinsics block (index into SfMState.intrinsics): the standard
-    deviation of each axis of the principal point around the image centre (px) and of the pixel
-    aspect around 1 (fraction). None: that parameter is held at its current value."""
+    deviation of each axis of the principal point around its prior centre (px; the image centre
+    unless principal_point_centre_px gives one) and of the pixel aspect around 1 (fraction).
+    None: that parameter is held at its current value."""
 
     principal_point_std_px: dict = field(default_factory=dict)  # block -> px or None
     aspect_std: dict = field(default_factory=dict)  # block -> fraction or None
     tangential_std: dict = field(default_factory=dict)  # block -> p1, p2 sigma or None
+    principal_point_centre_px: dict = field(default_factory=dict)  # block -> (cx, cy)
 
 
 @dataclass
@@ -145,7 +147,9 @@ class _Problem:
         self.K = np.zeros((len(state.intrinsics), _NI))
         for b, cam in enumerate(state.intrinsics):
             self.K[b] = intrinsics_vector(cam)
-        self.centre = np.array([[cam.width / 2.0, cam.height / 2.0] for cam in state.intrinsics])
+        self.centre = np.array([priors.principal_point_centre_px.get(
+            b, (cam.width / 2.0, cam.height / 2.0)) for b, cam in enumerate(state.intrinsics)],
+            dtype=float)
         self.priors = priors
         # Free parameters: poses of registered cameras but the reference; per adjusted block f,
         # k1, k2 and, where it has a prior, cx and cy and the aspect.
