@@ -712,17 +712,18 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
         ros.remove(node)
 
 
-def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
-    """With floor on, a calibration that found its floor (calibrate --floor) is republished with
-    floor_frame -> rig_frame beside the cameras on /tf_static, and without it once floor is
-    turned off; bad floor settings are refused."""
+def stored_rig_with_floor(folder, turn_deg=0.0, metric_scale=False):
+    """A calibration of the CAMERAS written under folder/20260101T000000Z with `latest` on it:
+    cameras 0.2 apart along -x (each turned by turn_deg more about y than the last), the floor
+    1.5 m below the reference camera. Returns the floor_from_rig it records."""
     from densecalib_ros.core.export import write_calibration_files
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
     lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
     poses = {name: np.eye(4) for name in CAMERAS}
     for i, name in enumerate(CAMERAS):
-        poses[name][:3, 3] = [-0.2 * i, 0.0, 0.0]
+        poses[name][:3, :3] = Rotation.from_euler("y", turn_deg * i, degrees=True).as_matrix()
+        poses[name][:3, 3] = [-0.2 * i, 0.05 * turn_deg * i / 100, 0.0]
     floor_from_rig = np.eye(4)
     floor_from_rig[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # optical y down = floor -z
     floor_from_rig[:3, 3] = [0.0, 0.0, 1.5]  # the reference camera 1.5 m above the floor
@@ -730,9 +731,17 @@ def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
                          quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
                                             "num_points": 500, "rms": 0.002,
                                             "camera_heights": {n: 1.5 for n in CAMERAS}}},
-                         metric_scale=True)
-    write_calibration_files(rig, tmp_path / "20260101T000000Z")
-    os.symlink("20260101T000000Z", tmp_path / "latest")
+                         metric_scale=metric_scale)
+    write_calibration_files(rig, folder / "20260101T000000Z")
+    os.symlink("20260101T000000Z", folder / "latest")
+    return floor_from_rig
+
+
+def test_floor_frame_is_published_above_the_rig(ros, tmp_path):
+    """With floor on, a calibration that found its floor (calibrate --floor) is republished with
+    floor_frame -> rig_frame beside the cameras on /tf_static, and without it once floor is
+    turned off; bad floor settings are refused."""
+    floor_from_rig = stored_rig_with_floor(tmp_path, metric_scale=True)
     with pytest.raises(InputError, match="floor must be '' \\(off\\) or one of upright, top"):
         ros.densecalib(tmp_path, name="bad_floor", floor="sideways")
     with pytest.raises(InputError, match="floor_frame 'rig' must be a valid tf frame id"):
@@ -760,23 +769,7 @@ def test_a_body_rig_frame_by_rep_103(ros, tmp_path):
     """rig_frame_axes 'body': rig_frame has REP-103 axes (x forward, y left, z up) at the
     reference camera, whose optical frame below it looks along x; every camera, and the floor
     above it, end where they were (floor_from_camera unchanged); bad values are refused."""
-    from densecalib_ros.core.export import write_calibration_files
-    from densecalib_ros.core.types import RigCalibration, RigCamera
-
-    lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
-    poses = {name: np.eye(4) for name in CAMERAS}
-    for i, name in enumerate(CAMERAS):
-        poses[name][:3, :3] = Rotation.from_euler("y", 10 * i, degrees=True).as_matrix()
-        poses[name][:3, 3] = [-0.2 * i, 0.01 * i, 0.0]
-    floor_from_rig = np.eye(4)
-    floor_from_rig[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]
-    floor_from_rig[:3, 3] = [0.0, 0.0, 1.5]
-    rig = RigCalibration("cam0", {n: RigCamera(n, lens, p) for n, p in poses.items()},
-                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
-                                            "num_points": 500, "rms": 0.002,
-                                            "camera_heights": {n: 1.5 for n in CAMERAS}}})
-    write_calibration_files(rig, tmp_path / "20260101T000000Z")
-    os.symlink("20260101T000000Z", tmp_path / "latest")
+    stored_rig_with_floor(tmp_path, turn_deg=10.0)
     with pytest.raises(InputError, match="rig_frame_axes must be one of optical, body"):
         ros.densecalib(tmp_path, name="bad_axes", rig_frame_axes="enu")
     seen = {}
@@ -846,19 +839,8 @@ def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
     from densecalib_ros.core.export import write_calibration_files
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
+    stored_rig_with_floor(tmp_path)
     lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
-    poses = {name: np.eye(4) for name in CAMERAS}
-    for i, name in enumerate(CAMERAS):
-        poses[name][:3, 3] = [-0.2 * i, 0.0, 0.0]
-    floor_from_rig = np.eye(4)
-    floor_from_rig[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]
-    floor_from_rig[:3, 3] = [0.0, 0.0, 1.5]
-    rig = RigCalibration("cam0", {n: RigCamera(n, lens, p) for n, p in poses.items()},
-                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
-                                            "num_points": 500, "rms": 0.002,
-                                            "camera_heights": {n: 1.5 for n in CAMERAS}}})
-    write_calibration_files(rig, tmp_path / "20260101T000000Z")
-    os.symlink("20260101T000000Z", tmp_path / "latest")
     node = ros.densecalib(tmp_path, floor="upright")
     listener, reloader = ros.listener(node), ros.caller("reload")
     rosout = ros.add(RosoutListener(ros.context))
@@ -883,7 +865,8 @@ def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
 
         # `latest` onto a calibration of cameras the node does not have: refused, nothing changes
         other = RigCalibration("left", {"left": RigCamera("left", lens, np.eye(4)),
-                                        "right": RigCamera("right", lens, poses["cam1"])})
+                                        "right": RigCamera("right", lens, read_calibration(
+                                            tmp_path / "latest").cameras["cam1"].cam_from_rig)})
         write_calibration_files(other, tmp_path / "20260202T000000Z")
         (tmp_path / "latest").unlink()
         os.symlink("20260202T000000Z", tmp_path / "latest")
