@@ -13,22 +13,12 @@ import threading
 from .core.colmap_logging import show_colmap_log
 from .core.errors import CalibrationError
 
-# name -> (module, one-line help)
+# name -> (module, one-line help), in the order --help lists them: users' commands first
 SUBCOMMANDS = {
     "calibrate": ("densecalib_ros.commands.calibrate",
                   "calibrate a rig from a folder of images or videos, or a rosbag2 bag"),
     "demo": ("densecalib_ros.commands.demo",
              "generate a rig, calibrate it through the ROS node (or --offline) and compare to truth"),
-    "bench": ("densecalib_ros.commands.bench",
-              "accuracy benchmark against COLMAP/GLOMAP on generated rigs and real images"),
-    "bench-sampling": ("densecalib_ros.commands.bench_sampling",
-                       "matcher + cycle-sampling quality per backend on generated rigs"),
-    "bench-node": ("densecalib_ros.commands.bench_node",
-                   "does densecalib_node keep up with a rig's image streams here? frames "
-                   "received and lost, node CPU"),
-    "bench-stereo": ("densecalib_ros.commands.bench_stereo",
-                     "the real fisheye stereo pair against its own checkerboard: rectified rows "
-                     "and measured squares vs its target-based calibrations"),
     "generate": ("densecalib_ros.commands.generate",
                  "write a generated rig's images and ground truth to a folder"),
     "report": ("densecalib_ros.commands.report",
@@ -53,6 +43,19 @@ SUBCOMMANDS = {
     "export": ("densecalib_ros.commands.export",
                "write a calibration for other tools: anipose, Kalibr, OpenCV, DANNCE, JARVIS, a "
                "rectified stereo pair (ROS, OpenCV), or a PLY of the cameras and scene"),
+    "bench-node": ("densecalib_ros.commands.bench_node",
+                   "does densecalib_node keep up with a rig's image streams here? frames "
+                   "received and lost, node CPU"),
+    # for developers of densecalib, listed last
+    "bench": ("densecalib_ros.commands.bench",
+              "(development) accuracy benchmark against COLMAP/GLOMAP on generated rigs and "
+              "real images"),
+    "bench-sampling": ("densecalib_ros.commands.bench_sampling",
+                       "(development) matcher + cycle-sampling quality per backend on generated "
+                       "rigs"),
+    "bench-stereo": ("densecalib_ros.commands.bench_stereo",
+                     "(development) the real fisheye stereo pair against its own checkerboard: "
+                     "rectified rows and measured squares vs its target-based calibrations"),
 }
 
 

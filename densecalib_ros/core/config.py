@@ -16,6 +16,10 @@ import numpy as np
 
 from .errors import InputError
 
+# The paper's incremental reprojection outlier threshold B_err per lens kind (px); the global
+# pipeline runs without one but starts from an incremental result that needs it.
+B_ERR_PX = {"regular": 20.0, "fisheye": 100.0}
+
 
 @dataclass
 class SamplingConfig:
@@ -51,7 +55,7 @@ class SfMConfig:
     # With f_err_px off (fisheye), 2-cycle tracks still get this epipolar test (ray-based E,
     # pinhole-equivalent px): for mutual matchers a 2-cycle carries no consistency evidence.
     two_cycle_f_err_px: Optional[float] = 10.0
-    b_err_px: Optional[float] = 20.0  # incremental reprojection outlier threshold; None = off
+    b_err_px: Optional[float] = B_ERR_PX["regular"]  # incremental outlier threshold; None = off
     # A rig mixing lenses runs with the fisheye B_err; its pinhole cameras' observations are
     # judged by the regular preset's (resolve_camera_lenses). None: b_err_px for every camera.
     pinhole_b_err_px: Optional[float] = None
@@ -199,7 +203,7 @@ def _fisheye_sfm_options(b: SfMConfig, pipeline: str) -> None:
     b.camera_model, b.refine_to_model = LENS_MODELS["fisheye"], "OPENCV_FISHEYE"
     b.f_err_px = None
     b.refine_principal_point = True
-    b.b_err_px = 100.0 if pipeline == "incremental" else None
+    b.b_err_px = B_ERR_PX["fisheye"] if pipeline == "incremental" else None
     b.global_stage_iterations.update(distortion=200, principal_point=100, model=100)
 
 

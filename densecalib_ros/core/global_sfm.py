@@ -40,7 +40,7 @@ from typing import Optional, Sequence
 import numpy as np
 import pycolmap
 
-from .config import SfMConfig
+from .config import B_ERR_PX, SfMConfig
 from .errors import (DisconnectedViewGraphError, FocalInitError, InputError,
                      NotEnoughCamerasError, NotEnoughOverlapError)
 from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost_truncation_px,
@@ -59,13 +59,9 @@ log = logging.getLogger(__name__)
 
 GLOBAL_INITS = ("rotation_averaging", "previous", "incremental")
 MIN_PAIR_TRACKS = MIN_PAIR_CORRESPONDENCES  # shared tracks that make a view-graph edge
-# Triangulation RANSAC threshold: loose, because the initial poses (rotation averaging, a moved
-# rig) can be a degree off, i.e. ~10-20 px at typical focal lengths; BA's Cauchy loss does the rest.
 MAX_POSITIONING_TRACKS = 4000  # tracks given to global positioning (its cost grows with them)
 CENTRE_GRID = 1e-5  # x the rig's size: global positioning's centres are rounded to it
 MIN_CAMERA_OBSERVATIONS = 10  # a camera with fewer point observations after BA has failed
-INCREMENTAL_B_ERR_PX = 20.0  # the paper's incremental B_err (regular / fisheye), used when the
-INCREMENTAL_B_ERR_FISHEYE_PX = 100.0  # global preset (no B_err) starts from the incremental result
 STAGES = ("extrinsics", "focal", "distortion", "principal_point")
 
 @dataclass
@@ -505,10 +501,10 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
         # when the global preset has none.
         inc_config = copy.copy(config)
         if inc_config.b_err_px is None:
-            inc_config.b_err_px = (INCREMENTAL_B_ERR_FISHEYE_PX if "FISHEYE" in config.camera_model
-                                   else INCREMENTAL_B_ERR_PX)
+            inc_config.b_err_px = B_ERR_PX["fisheye" if "FISHEYE" in config.camera_model
+                                           else "regular"]
             if config.mixed_rig_pinhole_cameras(C):
-                inc_config.pinhole_b_err_px = INCREMENTAL_B_ERR_PX
+                inc_config.pinhole_b_err_px = B_ERR_PX["regular"]
         state = run_incremental(tracks, intrinsics, camera_names, inc_config, seed=seed,
                                 progress=progress, validation_tracks=validation_tracks,
                                 extra_starts=extra_starts).state

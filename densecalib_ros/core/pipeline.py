@@ -31,14 +31,13 @@ from .progress import Progress, say_progress
 from .reconstruction import (SfMState, build_reconstruction, camera_quality, colour_points,
                              reprojection_errors)
 from .scale import move_model_to_rig_frame
-from .twoview import (MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
+from .twoview import (F_THRESHOLD_PX, MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
 from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks, check_camera_names
 from .uncertainty import HELD_PP_STD_FRACTION, calibration_uncertainty
 
 log = logging.getLogger(__name__)
 
-FUNDAMENTAL_THRESHOLD_PX = 1.0  # MAGSAC++ scale; robustification starts at 1 px (paper)
 
 @dataclass
 class CalibrationResult:
@@ -68,7 +67,7 @@ def fundamental_matrices(tracks: Tracks, seed: int = 0) -> dict:
             rows = np.flatnonzero(obs[:, i] & obs[:, j])
             if len(rows) >= MIN_CORRESPONDENCES:
                 geom = estimate_fundamental(tracks.xy_px[rows, i], tracks.xy_px[rows, j],
-                                            FUNDAMENTAL_THRESHOLD_PX, seed=seed)
+                                            F_THRESHOLD_PX, seed=seed)
                 if geom.F_ji is not None:
                     out[(i, j)] = geom
     return out

@@ -52,7 +52,8 @@ from .errors import FocalInitError, InputError, NotEnoughOverlapError
 from .focal import calibration_matrix, estimate_initial_focals
 from .scoring import (angle_score, equidistant_rays, pair_poses_from_rig, rays_from_intrinsics,
                       top_k_sum)
-from .twoview import (TwoViewGeometry, estimate_essential_from_rays, estimate_fundamental,
+from .twoview import (F_THRESHOLD_PX, TwoViewGeometry, estimate_essential_from_rays,
+                      estimate_fundamental,
                       pair_weights as compute_pair_weights, pixels_to_rays,
                       relative_pose_from_essential, symmetric_epipolar_distance_px,
                       triangulation_angles_deg)
@@ -60,7 +61,6 @@ from .types import CameraIntrinsics, SiteMatchSet, Tracks
 
 LOG = logging.getLogger(__name__)
 
-F_THRESHOLD_PX = 1.0  # MAGSAC++ threshold (COLMAP's default max error, the paper's robustification)
 MAX_F_POINTS = 20000  # correspondences per pair given to MAGSAC++ (a seeded random subset beyond)
 FISHEYE_ASSUMED_FOV_DEG = 180.0  # horizontal field of view of the assumed equidistant fisheye
 # Start focal (x max(width, height)) of a pinhole camera that shares a fundamental matrix with no

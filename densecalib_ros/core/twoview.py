@@ -35,13 +35,17 @@ class TwoViewGeometry:
 
 # Fewer correspondences than this give no usable MAGSAC++ estimate (7/8-point minimal solvers).
 MIN_CORRESPONDENCES = 15
+# MAGSAC++ scale of the fundamental matrices (px): COLMAP's default max error, where the paper's
+# robustification starts.
+F_THRESHOLD_PX = 1.0
 
 
 def _as_points(xy: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
 
 
-def estimate_fundamental(xy_i_px: np.ndarray, xy_j_px: np.ndarray, threshold_px: float = 1.0,
+def estimate_fundamental(xy_i_px: np.ndarray, xy_j_px: np.ndarray,
+                         threshold_px: float = F_THRESHOLD_PX,
                          confidence: float = 0.9999, max_iters: int = 10000,
                          seed: int = 0) -> TwoViewGeometry:
     """F_ji from N correspondences (xy_i_px[n] in camera i <-> xy_j_px[n] in camera j), (N, 2)
