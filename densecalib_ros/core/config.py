@@ -170,10 +170,8 @@ PRESETS = ("regular", "fisheye")
 # Lens -> the initial COLMAP model of a camera with it (the presets' models).
 LENS_MODELS = {"pinhole": "RADIAL", "fisheye": "RADIAL_FISHEYE"}
 PIPELINES = ("incremental", "global")
-# The pipeline the CLI, node and demo use unless told otherwise. Incremental since its final
-# re-triangulation: in `densecalib bench` (2026-11-21) mean pinhole AUC@3 90.0 vs 84.6 for global
-# over the synthetic rigs, no run-to-run variation (global positioning is not deterministic), and
-# the closer focal on the real fisheye bag; global keeps lower fisheye focal errors.
+# The pipeline the CLI, node and demo use unless told otherwise: the incremental one measured more
+# accurate on pinhole rigs and repeatable run to run (docs/design-notes.md, Default pipeline).
 DEFAULT_PIPELINE = "incremental"
 
 

@@ -18,9 +18,8 @@ prior's spread (the images carry at least four times the prior's information) is
 its prior; otherwise it is held at the prior's centre and reported as held. The prior's
 centre is the image centre, or in a recalibration the point the previous calibration of the
 same camera estimated from its images (pp_centres): a bump or a refocus leaves it where it was,
-and holding a point the images determined before at the image centre moved a recalibration of
-the very same images from 0.07 to 0.24 deg (the fold decision is near its threshold there and
-can go either way between runs). The pixel aspect is always estimated with its prior (holding a real sensor's
+and the fold decision, near its threshold, can go either way between runs (measured:
+docs/design-notes.md). The pixel aspect is always estimated with its prior (holding a real sensor's
 0.3 % at 1 moved principal points by 20 px on a generated rig); the cameras are written as
 OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
 folds determine it."""

@@ -52,37 +52,31 @@ ABSOLUTE_POSE_MAX_ERROR_PX = 12.0  # COLMAP's default RANSAC threshold for absol
 MIN_RAY_Z = 0.05  # rays closer to the image plane than this do not fit a perspective E model
 FOCAL_SCALE_STARTS = (1.0, 1.3, 0.8)  # multi-start factors on the initial focals (run_incremental)
 # One more step of 1.3 upwards where the initial focals come from eq. 2 (not fisheye models, whose
-# start is a lens-model assumption): eq. 2 errs low on converging rigs (measured 20-47 % low; a
-# 3-camera rig 47 % low failed from every other start and was right from x1.69, as from 0.9-1.0x
-# the truth).
+# start is a lens-model assumption): eq. 2 errs low on converging rigs (docs/design-notes.md).
 EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
 # Generic focal priors (x max(width, height)), starts that do not depend on the F's, for perspective
 # models: COLMAP's prior for unknown focals, 1.2 (45 deg across the long side), two wider lenses
 # 1/sqrt(2) apart, 0.85 and 0.6 (62 and 81 deg: wide-angle trap and arena cameras), and two longer
 # ones, 1.7 and 2.4 (33 and 24 deg: telephoto surveillance and lab cameras, where eq. 2 is most
 # often degenerate: optical axes that nearly meet). Where eq. 2 degenerates it can miss by more
-# than the scale starts span (a converging 3-camera rig: 0.2x the truth), and from every other
-# start SfM ended in a wrong rig; the starts sit closer together than the ~1.4x a start may be
-# off and still converge.
+# than the scale starts span; the starts sit closer together than the ~1.4x a start may be off
+# and still converge.
 PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6, 1.7, 2.4)
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
 # With every camera's intrinsics given there is no focal to explore; the run's other lottery is
 # its first pair (eq. 3 picks among the first three views, on few points). So the multi-start runs
 # from first pairs instead (the most shared tracks first), as many as the focal multi-start of the
 # same lenses would have run (7 perspective, 3 fisheye: no slower than self-calibrating), at most
-# this many. Measured on a generated 4-camera rig 35 deg apart with the true intrinsics: eq. 3's
-# pair ended 5.5 deg wrong (cost 1.51 px), the pair with the 5th most tracks right (0.16 deg,
-# cost 0.93 px; the lowest).
+# this many (measured: docs/design-notes.md).
 MAX_FIRST_PAIR_STARTS = 8
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the multi-start cost when B_err is off
 # Truncation (and triangulation gate) of the cost on raw keypoint matches (held_out_cost): COLMAP's
 # two-view inlier threshold, the scale of a right match's error on a right rig. Raw matches are not
 # cycle-verified (repetitive texture: many are wrong), and a loose gate lets a degenerate rig
-# absorb wrong matches: real fox frames, 8 views, at B_err's 20 px a rig with focals 0.4-8.7x the
-# truth fitted them better (5.58 px) than the right rig (5.87); at 4 px, 1.71 vs 1.41.
+# absorb wrong matches (measured on the fox: docs/design-notes.md).
 HELD_OUT_TRUNCATION_PX = 4.0
-# Focal candidates (x the current focal) for a camera registered from 2-view tracks only: eq. 2 was
-# measured 0.64-1.0 x the truth on a wide-baseline rig; the span is kept about symmetric in log.
+# Focal candidates (x the current focal) for a camera registered from 2-view tracks only: eq. 2
+# errs by up to a third there (docs/design-notes.md); the span is kept about symmetric in log.
 PAIR_REGISTRATION_FOCAL_SCALES = (0.6, 0.75, 0.9, 1.0, 1.15, 1.35, 1.6)
 PAIR_REGISTRATION_BA_ITERATIONS = 30
 

@@ -30,15 +30,9 @@ it shares the most matches with, which can hold it in a wrong place):
   ambiguity). A camera whose own focal the matches do pin down is left alone: no alternative at
   another focal fits as many of them.
 
-Measured (single incremental runs on the fox): correctly placed cameras and pairs: the
-alternative's support within -6 % .. +5 % of the current one; wrong placements: 8 frames, camera
-0094 0 -> 271 (seeds 1-3; seed 2 also 0049, 63 -> 394, with its focal 83 % short); 10 frames, the
-pair 0001 + 0007 483 -> 1163 (seeds 0, 2). AUC@3 8 frames 37-46 -> 56, 10 frames 58.5-60 -> 80.7-82.2.
-Generated rigs: nothing moved on the bench scenes checked, one camera on a held-out 45-deg rig.
-Focal tie-break: fox, 12 frames: camera 0014 (focal 68 % short, 64 deg off) moved, AUC@3 71.7 -> 86.4;
-on 48 bench, held-out and development scenes it moved two other cameras, with AUC unchanged.
-What it cannot repair: a reconstruction wrong everywhere (fox, 5 frames), or a wrong group of
-three or more cameras. The all-match refinement (all_matches.py) runs after it.
+What it cannot repair: a reconstruction wrong everywhere, or a wrong group of three or more
+cameras. The all-match refinement (all_matches.py) runs after it. Measured on the fox and
+generated rigs: docs/design-notes.md (Placement repair).
 """
 from __future__ import annotations
 

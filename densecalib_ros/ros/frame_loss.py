@@ -4,13 +4,9 @@ A driver publishing at a steady rate stamps its frames one period apart, so a fr
 received leaves a gap of a whole number of periods. Image topics are best-effort (sensor-data
 QoS): the middleware drops frames silently, and nothing else tells the operator that ~/sync's
 motion signals have holes or that frame sets form from fewer frames than the cameras take.
-Measured (`densecalib bench-node`, docs/benchmarks.md): 4 x 768x512 mono8 at 15 Hz from one
-driver process, 72-85 of 150 frames on the worst camera with Fast DDS's 512 kB shared-memory
-segment per process, 150 of 150 with a 16 MB one (config/fastdds_large_images.xml); 1280x720
-bgr8 from a process per camera, 10-16 of 150 with the default segment. The counts here are a
-lower bound: a camera losing every other frame looks like one at half the rate, and one
-receiving a frame now and then is not steady and counts nothing (10-16 of 150 received: 8-39
-counted of 528-543 lost, four cameras together).
+They are a lower bound (a camera losing every other frame looks like one at half the rate), so
+the middleware's own count of lost messages is taken beside them where it reports one
+(docs/ros.md, Lost frames).
 
 A stream is judged only while it is steady (most intervals a whole number of periods): triggered
 cameras (camera traps) and replays that jump back are not, and count nothing."""

@@ -4,13 +4,8 @@ The node's services and timers need rclpy's MultiThreadedExecutor (a ~/calibrate
 for minutes, a watch check takes seconds), but that executor does not carry image streams: once
 its callbacks fall behind, its spinning thread (found walking its list of pending tasks, which it
 does after every wait) takes a whole core and the GIL from the callbacks, which fall further
-behind (measured, session 28: 4 x 768x512 mono8 at 15 Hz from
-another process, motion tracking on: in 4 of 16 runs with one mutually exclusive group for the
-images the node used 100 % of both cores and received 5-38 of 150 frames a camera, 150 in the
-others at 28-31 % of a core; a group per camera 25-84 of 150 in 6 of 6 runs, a reentrant group
-22-42 of 150 in 6 of 6; on this executor 150 of 150 in 6 of 6 runs at 10-15 % of a core). A
-SingleThreadedExecutor runs each callback where it takes the message: no task list, no other
-thread to wait for.
+behind (measured: docs/design-notes.md, Image intake executor). A SingleThreadedExecutor runs
+each callback where it takes the message: no task list, no other thread to wait for.
 
 The intake node ignores the process's --ros-args (use_global_arguments=False: a `__node:=` rename
 would otherwise give it the main node's name); it subscribes to the topic names that the main
