@@ -11,6 +11,7 @@ import textwrap
 
 import pytest
 
+from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.export import (CALIBRATION_MARKERS, _exchange, calibration_entries,
                                         replace_directory_atomic, write_calibration_files)
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
@@ -223,4 +224,27 @@ def test_a_write_that_fails_names_the_output_not_its_hidden_temporary_folder(tmp
     assert said.startswith(f"Cannot write {out / 'calibration.json'}: File too large."), said
     assert "MiB free on the disk holding" in said and "Nothing was replaced." in said
     assert ".tmp." not in said
+    assert (out / "calibration.json").read_text() == "good" and _hidden(tmp_path) == []
+
+
+def test_a_second_rename_that_fails_puts_the_old_folder_back(tmp_path, monkeypatch):
+    """Without the exchange, the old folder is renamed aside first; when the new one then cannot
+    take its place (here EXDEV, as from a folder on another filesystem), the old one goes back at
+    once and the error says nothing was replaced."""
+    from densecalib_ros.core import export
+
+    out = tmp_path / "out"
+    _write(out, "good")
+    monkeypatch.setattr(export, "_exchange", lambda a, b: False)
+    rename = os.replace
+
+    def replace(src, dst):
+        if ".tmp." in os.path.basename(str(src)):
+            raise OSError(18, "Invalid cross-device link")
+        rename(src, dst)
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(InputError, match="Cannot write .*out: Invalid cross-device link.*"
+                                         "Nothing was replaced"):
+        _write(out, "new")
+    monkeypatch.setattr(os, "replace", rename)
     assert (out / "calibration.json").read_text() == "good" and _hidden(tmp_path) == []

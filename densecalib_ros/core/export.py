@@ -495,7 +495,7 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
         check_output_folder(out_dir, markers, inputs)
     out_dir = Path(out_dir).resolve()
     clean_leftovers(out_dir.parent, lambda name: name == out_dir.name)
-    tmp, building = None, None
+    tmp, building, old = None, None, None
     try:
         out_dir.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp.{os.getpid()}.",
@@ -505,7 +505,6 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
         build(tmp)
         if owned is not None and out_dir.is_dir():
             _carry_over(out_dir, tmp, owned(out_dir))
-        old = None
         if out_dir.exists() and _exchange(tmp, out_dir):
             old, tmp = tmp, None  # tmp now holds the previous folder
         else:
@@ -514,6 +513,8 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
                 os.replace(out_dir, old)
             os.replace(tmp, out_dir)
     except BaseException as exc:
+        if old is not None and tmp is not None and not out_dir.exists():
+            os.replace(old, out_dir)  # the second rename failed: the old folder goes back
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError):
