@@ -9,6 +9,7 @@ cx_ros = cx_colmap - 0.5; distortion model names plumb_bob (k1 k2 p1 p2 k3), rat
 from __future__ import annotations
 
 import datetime
+import functools
 import json
 import logging
 import os
@@ -548,18 +549,23 @@ def _carry_over(old_dir: Path, new_dir: Path, owned: set) -> None:
 _RENAME_EXCHANGE = 2  # linux/fs.h
 
 
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths atomically (renameat2 RENAME_EXCHANGE); False where the system or the
-    filesystem cannot, so that the caller renames instead."""
+@functools.lru_cache(maxsize=1)
+def _renameat2():
+    """libc's renameat2, or None (not Linux, an old C library)."""
     import ctypes
 
     try:
-        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+        return ctypes.CDLL(None, use_errno=True).renameat2
     except (OSError, AttributeError):
-        return False
-    at_fdcwd = -100
-    result = renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE)
-    return result == 0
+        return None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (renameat2 RENAME_EXCHANGE); False where the system or the
+    filesystem cannot, so that the caller renames instead."""
+    renameat2, at_fdcwd = _renameat2(), -100
+    return renameat2 is not None and renameat2(at_fdcwd, os.fsencode(a), at_fdcwd,
+                                               os.fsencode(b), _RENAME_EXCHANGE) == 0
 
 
 # what a write killed part-way leaves beside its target: `.<name>.tmp.<pid>.<any>` (a folder or

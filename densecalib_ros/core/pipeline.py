@@ -585,13 +585,14 @@ def estimated_principal_points(rig: Optional[RigCalibration]) -> dict:
     """Camera name -> (cx, cy, width, height) px of the cameras of `rig` whose principal point
     its images determined (quality.estimated_intrinsics), in COLMAP pixels of images of that
     size; {} without a rig."""
+    from .metrics import principal_point_px
+
     out = {}
     for name, cam in (rig.cameras.items() if rig is not None else ()):
         estimated = cam.quality.estimated_intrinsics if cam.quality is not None else None
-        lens = cam.intrinsics
-        if estimated and "cx" in estimated and lens.model in ("OPENCV", "RADIAL"):
-            cx, cy = lens.params[2:4] if lens.model == "OPENCV" else lens.params[1:3]
-            out[name] = (float(cx), float(cy), lens.width, lens.height)
+        if estimated and "cx" in estimated:
+            cx, cy = principal_point_px(cam.intrinsics)
+            out[name] = (float(cx), float(cy), cam.intrinsics.width, cam.intrinsics.height)
     return out
 
 

@@ -571,10 +571,8 @@ class DenseCalibNode(Node):
         """The sets whose images decode and their images; a camera whose frames do not decode
         is named at WARN (and on /diagnostics), and InputError when fewer than `needed` sets
         are left."""
-        before = list(self.sync.malformed)
-        sets, images = self.sync.decode(sets)
-        note = malformed_note(self.settings.camera_names, before, self.sync.malformed,
-                              self.sync.last_malformed)
+        sets, images, dropped = self.sync.decode(sets)
+        note = malformed_note(self.settings.camera_names, dropped, self.sync.last_malformed)
         if note:
             self.get_logger().warning(note)
         if len(sets) < needed:
@@ -818,18 +816,16 @@ class DenseCalibNode(Node):
         that cannot be rectified (see core.stereo) keeps R = I, and self.stereo_problem says
         why."""
         frames = dict(zip(self.settings.camera_names, self.settings.frame_names))
-        rectified, problems = self._rectifications(rig)
-        for problem in problems:
-            if "not rectified:" in problem and "not both calibrated" not in problem:
-                self.get_logger().warning(problem)
+        rectified, problems = self._rectifications(rig, warn=True)
         self.stereo_problem = "; ".join(problems) or None
         return {name: camera_info_msg(name, cam.intrinsics, frames[name], t_ns,
                                       *rectified.get(name, (None, None)))
                 for name, cam in rig.cameras.items() if name in frames}
 
-    def _rectifications(self, rig: RigCalibration) -> tuple[dict, list[str]]:
+    def _rectifications(self, rig: RigCalibration, warn: bool = False
+                        ) -> tuple[dict, list[str]]:
         """{camera: (rect_from_cam, projection)} of the stereo_pairs that rectify, and what is
-        wrong with the others."""
+        wrong with the others (a pair that cannot be rectified also at WARN with `warn`)."""
         rectified, problems = {}, []
         for left, right in self.settings.stereo_pairs:
             if left not in rig.cameras or right not in rig.cameras:
@@ -839,6 +835,8 @@ class DenseCalibNode(Node):
                 pair = stereo_pair(rig, (left, right))
             except InputError as exc:
                 problems.append(f"stereo pair {left}-{right} not rectified: {exc}")
+                if warn:
+                    self.get_logger().warning(problems[-1])
                 continue
             rectified[left] = (pair.rect_from_left, pair.projection_left)
             rectified[right] = (pair.rect_from_right, pair.projection_right)

@@ -124,24 +124,27 @@ class MessageSynchronizer:
         with self._lock:
             return self._buffer.snapshot()
 
-    def decode(self, frame_sets: list[FrameSet]) -> tuple[list[FrameSet], list[list[np.ndarray]]]:
-        """The sets whose images all decode, and their images[t][c] (uint8 RGB or gray). A set
-        holding an image that does not decode is taken out of the buffer and counted against its
-        stream (`malformed`), so that one bad frame does not fail every later calibration.
+    def decode(self, frame_sets: list[FrameSet]
+               ) -> tuple[list[FrameSet], list[list[np.ndarray]], list[int]]:
+        """The sets whose images all decode, their images[t][c] (uint8 RGB or gray), and per
+        stream how many sets its images made this call drop. A set holding an image that does
+        not decode is taken out of the buffer and counted against its stream (`malformed`), so
+        that one bad frame does not fail every later calibration.
         Decoding happens here, when a set is used, rather than on arrival: the subscription
         callbacks stay cheap at full frame rate, and only the few buffered sets are decoded."""
-        kept, images = [], []
+        kept, images, dropped = [], [], [0] * len(self.malformed)
         for frame_set in frame_sets:
             try:
                 images.append(self._decode_set(frame_set))
             except _MalformedImage as bad:
+                dropped[bad.stream] += 1
                 with self._lock:
                     self._buffer.discard(frame_set)
                     self.malformed[bad.stream] += 1
                     self.last_malformed[bad.stream] = bad.reason
                 continue
             kept.append(frame_set)
-        return kept, images
+        return kept, images, dropped
 
     @staticmethod
     def _decode_set(frame_set: FrameSet) -> list[np.ndarray]:
@@ -215,11 +218,10 @@ class _MalformedImage(Exception):
         self.stream, self.reason = stream, reason
 
 
-def malformed_note(names: list[str], before: list[int], after: list[int],
-                   reasons: list[Optional[str]]) -> str:
-    """'' when no image failed to decode between the two counts, else which cameras sent frames
+def malformed_note(names: list[str], dropped: list[int], reasons: list[Optional[str]]) -> str:
+    """'' when no set was dropped (decode's per-stream counts), else which cameras sent frames
     that do not decode, how many, the last reason and what to do."""
-    bad = [f"{n} {a - b} ({r})" for n, b, a, r in zip(names, before, after, reasons) if a > b]
+    bad = [f"{n} {k} ({r})" for n, k, r in zip(names, dropped, reasons) if k]
     if not bad:
         return ""
     return ("frame sets dropped: images that do not decode from " + "; ".join(bad)
