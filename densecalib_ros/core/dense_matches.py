@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .matching.utils import to_gray
 from .reconstruction import SfMState
 from .types import Tracks
 
@@ -58,11 +59,6 @@ MAX_NEIGHBOUR_DISTANCE_PX = 60.0
 MAX_EPIPOLAR_PX = 3.0
 MAX_FRAME_SETS = 4  # frame sets densified (evenly spaced); more repeat the static rig's geometry
 _CHUNK = 3000  # points aligned at once (memory: ~chunk x patch x 8 doubles)
-
-
-def _gray(image: np.ndarray) -> np.ndarray:
-    g = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    return g.astype(np.float32)
 
 
 def reference_points(gray: np.ndarray, max_points: int = GRID_POINTS_PER_IMAGE,
@@ -206,7 +202,8 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     observed = keypoint_tracks.observed()
     parts = []
     for time in times:
-        grays = {c: _gray(np.asarray(frame_sets[int(time)][c])) for c in registered}
+        grays = {c: to_gray(np.asarray(frame_sets[int(time)][c])).astype(np.float32)
+                 for c in registered}
         in_set = keypoint_tracks.time_index == time
         per_image = min(GRID_POINTS_PER_IMAGE,
                         MAX_ALIGNMENTS // max(len(registered) * (len(registered) - 1), 1))

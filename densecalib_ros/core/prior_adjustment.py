@@ -27,6 +27,7 @@ import logging
 from dataclasses import dataclass, field
 from typing import Optional
 
+import cv2
 import numpy as np
 
 from .reconstruction import SfMState
@@ -109,16 +110,6 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([z, -v[:, 2], v[:, 1]], 1),
                      np.stack([v[:, 2], z, -v[:, 0]], 1),
                      np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
-
-
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rodrigues: (3,) -> 3x3."""
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = w / theta
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
 
 
 class _Problem:
@@ -254,7 +245,7 @@ class _Problem:
             if cols[0] < 0:
                 continue
             w, dt = delta_cam[cols[:3]], delta_cam[cols[3:]]
-            E = _exp_so3(w)
+            E = cv2.Rodrigues(np.asarray(w, float))[0]
             self.R[c] = E @ self.R[c]
             self.t[c] = E @ self.t[c] + dt
         mask = self.intr_cols >= 0
