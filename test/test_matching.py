@@ -12,6 +12,7 @@ from densecalib_ros.core.cycles import close_cycles
 from densecalib_ros.core.errors import InputError, ModelWeightsError
 from densecalib_ros.core.matching import available_matchers, create_matcher
 from densecalib_ros.core.matching.roma import grid_sites, warp_to_site_matches
+from densecalib_ros.core.matching.sift import nearest_sites
 from densecalib_ros.core.matching.utils import mutual_pair_maps
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from densecalib_ros.core.types import SiteMatchSet
@@ -134,6 +135,42 @@ def test_sift_compares_rootsift_descriptors(image_pair):
     np.testing.assert_allclose(root[2], np.sqrt(raw[2] / raw[2].sum(axis=1, keepdims=True)),
                                atol=1e-6)
     assert np.abs(np.linalg.norm(raw[2], axis=1) - 1.0).max() > 0.1  # the default stays raw
+
+
+def _reference_nearest_sites(desc_r, site_r, n_r, desc_c, site_c, n_c):
+    """The definition, in float64: site distance = smallest keypoint distance."""
+    d2 = ((desc_r[:, None, :].astype(np.float64) - desc_c[None, :, :]) ** 2).sum(axis=2)
+    sites = np.full((n_r, n_c), np.inf)
+    np.minimum.at(sites, (site_r[:, None], site_c[None, :]), d2)
+    best = np.argmin(sites, axis=1)
+    ordered = np.sort(sites, axis=1)
+    return best, np.sqrt(ordered[:, 0] / ordered[:, 1])
+
+
+@pytest.mark.parametrize("block_sites", [7, 1024])
+def test_sift_site_distances_are_the_smallest_over_each_sites_keypoints(monkeypatch, block_sites):
+    """Sites holding several keypoints (up to four orientations at one location), in shuffled
+    order, across block boundaries: the nearest site and the distance ratio as defined."""
+    import densecalib_ros.core.matching.sift as sift
+
+    monkeypatch.setattr(sift, "BLOCK_SITES", block_sites)
+    rng = np.random.default_rng(3)
+
+    def keypoints(n_sites):
+        site = np.concatenate([np.arange(n_sites), rng.integers(0, n_sites, n_sites // 2),
+                               np.repeat(rng.integers(0, n_sites, 2), 2)])
+        site = rng.permutation(site)
+        return rng.random((len(site), 128)).astype(np.float32) * 100, site.astype(np.int64)
+
+    desc_a, site_a = keypoints(40)
+    desc_b, site_b = keypoints(55)
+    assert np.bincount(site_a).max() >= 3 and np.bincount(site_b).max() >= 3
+    for args in [(desc_a, site_a, 40, desc_b, site_b, 55),
+                 (desc_b, site_b, 55, desc_a, site_a, 40)]:
+        best, ratio = nearest_sites(*args, rows_norm_first=True)
+        ref_best, ref_ratio = _reference_nearest_sites(*args)
+        np.testing.assert_array_equal(best, ref_best)
+        np.testing.assert_allclose(ratio, ref_ratio, rtol=1e-4)
 
 
 def test_resized_matching_maps_back_to_original_pixels(image_pair):

@@ -26,6 +26,74 @@ from .base import Matcher
 from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
                     resize_for_matching, to_gray)
 
+# Row sites per block of the distance matrix: a 1024 x 8000 float32 block is 32 MB, so a pair's
+# memory no longer grows with the square of the keypoints.
+BLOCK_SITES = 1024
+
+
+def _site_layout(site: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(each site's first keypoint, in site order; the other keypoints, by site; their sites)."""
+    order = np.argsort(site, kind="stable")
+    sorted_site = site[order]
+    first = np.r_[True, sorted_site[1:] != sorted_site[:-1]]
+    return order[first], order[~first], sorted_site[~first]
+
+
+def _rank_within_site(sorted_site: np.ndarray) -> np.ndarray:
+    """0, 1, 2 ... along each run of equal values of a sorted array."""
+    return np.arange(len(sorted_site)) - np.searchsorted(sorted_site, sorted_site)
+
+
+def nearest_sites(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_c: np.ndarray,
+                  site_c: np.ndarray, n_c: int, rows_norm_first: bool
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """For each row site: the nearest column site (int64 (n_r,)) and the ratio of the distances
+    to the nearest and second-nearest column site (float32 (n_r,)); a site's distance to another
+    is the smallest over their keypoints (module docstring). desc_*: float32 (K, 128) keypoint
+    descriptors; site_*: int64 (K,) each keypoint's site. rows_norm_first: the order the squared
+    norms are added in, so that the call with rows and columns swapped adds them in the same
+    order and the two directions see bitwise equal distances.
+
+    Computed in blocks of BLOCK_SITES row sites. Within a block, the rows of a site's further
+    keypoints are folded into its first row (contiguous row operations); the columns are not
+    reduced: the nearest column keypoint gives the nearest site, and that site's columns are set
+    to infinity before the second-nearest is taken (numpy reduces fast along rows only)."""
+    firsts_r, extras_r, extra_site_r = _site_layout(site_r)
+    firsts_c, extras_c, extra_site_c = _site_layout(site_c)
+    desc_cols = desc_c[np.concatenate([firsts_c, extras_c])]
+    col_site = np.concatenate([np.arange(n_c), extra_site_c])
+    # Every site's columns, padded with its first one.
+    width = 1 + int(np.bincount(extra_site_c, minlength=n_c).max(initial=0))
+    site_cols = np.repeat(np.arange(n_c)[:, None], width, axis=1)
+    site_cols[extra_site_c, 1 + _rank_within_site(extra_site_c)] = n_c + np.arange(len(extras_c))
+    norm_c = np.einsum("ij,ij->i", desc_cols, desc_cols)
+    best = np.empty(n_r, np.int64)
+    ratio = np.empty(n_r, np.float32)
+    for s0 in range(0, n_r, BLOCK_SITES):
+        s1 = min(n_r, s0 + BLOCK_SITES)
+        lo, hi = np.searchsorted(extra_site_r, [s0, s1])
+        desc_rows = desc_r[np.concatenate([firsts_r[s0:s1], extras_r[lo:hi]])]
+        norm_r = np.einsum("ij,ij->i", desc_rows, desc_rows)
+        d2 = desc_rows @ desc_cols.T  # in place from here: the block is the memory peak
+        d2 *= -2.0
+        for norms in ((norm_r[:, None], norm_c[None, :]) if rows_norm_first
+                      else (norm_c[None, :], norm_r[:, None])):
+            d2 += norms
+        extra_rows_site = extra_site_r[lo:hi] - s0
+        rank = _rank_within_site(extra_rows_site)
+        for r in range(int(rank.max(initial=-1)) + 1):  # one keypoint per site at a time
+            k = np.flatnonzero(rank == r)
+            d2[extra_rows_site[k]] = np.minimum(d2[extra_rows_site[k]], d2[s1 - s0 + k])
+        d2 = d2[:s1 - s0]
+        rows = np.arange(s1 - s0)
+        nearest_col = np.argmin(d2, axis=1)
+        nearest_d2 = d2[rows, nearest_col].copy()
+        best[s0:s1] = col_site[nearest_col]
+        d2[rows[:, None], site_cols[best[s0:s1]]] = np.inf
+        ratio[s0:s1] = np.sqrt(np.maximum(nearest_d2, 0.0)
+                               / np.maximum(d2.min(axis=1), 1e-12))
+    return best, ratio
+
 
 class SiftMatcher(Matcher):
     name = "sift"
@@ -65,35 +133,6 @@ class SiftMatcher(Matcher):
         return (opencv_to_original(unique_xy, scale_xy), site_of_kp.reshape(-1).astype(np.int64),
                 descriptors)
 
-    @staticmethod
-    def _site_sq_distances(desc_a, site_a, n_a, desc_b, site_b, n_b) -> np.ndarray:
-        """float32 (S_a, S_b): smallest squared descriptor distance between the keypoints of two
-        sites (a plain keypoint distance matrix where no location holds several keypoints)."""
-        order_a, order_b = np.argsort(site_a, kind="stable"), np.argsort(site_b, kind="stable")
-        da, db = desc_a[order_a], desc_b[order_b]
-        d2 = da @ db.T  # in place from here: the matrix is the memory peak
-        d2 *= -2.0
-        d2 += np.einsum("ij,ij->i", da, da)[:, None]
-        d2 += np.einsum("ij,ij->i", db, db)[None, :]
-        if n_b < len(site_b):
-            d2 = np.minimum.reduceat(d2, np.searchsorted(site_b[order_b], np.arange(n_b)), axis=1)
-        if n_a < len(site_a):
-            d2 = np.minimum.reduceat(d2, np.searchsorted(site_a[order_a], np.arange(n_a)), axis=0)
-        return d2
-
-    @staticmethod
-    def _two_nearest(d2: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
-        """Index of the nearest entry along `axis` and the ratio nearest / second-nearest distance."""
-        best = np.argmin(d2, axis=axis)
-        other = np.arange(d2.shape[1 - axis])
-        index = (other, best) if axis == 1 else (best, other)
-        first = d2[index].copy()
-        d2[index] = np.inf
-        second = np.min(d2, axis=axis)
-        d2[index] = first
-        ratio = np.sqrt(np.maximum(first, 0.0) / np.maximum(second, 1e-12))
-        return best, ratio
-
     def _match_pair(self, fa, fb):
         sites_a, site_a, desc_a = fa
         sites_b, site_b, desc_b = fb
@@ -101,9 +140,8 @@ class SiftMatcher(Matcher):
         if n_a < 2 or n_b < 2:
             empty = np.zeros(0, np.int64)
             return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
-        d2 = self._site_sq_distances(desc_a, site_a, n_a, desc_b, site_b, n_b)
-        best_ab, ratio_ab = self._two_nearest(d2, axis=1)
-        best_ba, ratio_ba = self._two_nearest(d2, axis=0)
+        best_ab, ratio_ab = nearest_sites(desc_a, site_a, n_a, desc_b, site_b, n_b, True)
+        best_ba, ratio_ba = nearest_sites(desc_b, site_b, n_b, desc_a, site_a, n_a, False)
         src = np.arange(n_a)
         keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
                 & (ratio_ba[best_ab] < self.ratio_threshold))
