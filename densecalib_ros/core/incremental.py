@@ -22,7 +22,7 @@ from __future__ import annotations
 import functools
 import itertools
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Optional, Sequence
 
 import cv2
@@ -31,6 +31,7 @@ import pycolmap
 
 from .config import SfMConfig
 from .errors import NotEnoughOverlapError
+from .parallel import map_jobs
 from .plausibility import (bundle_adjust_plausibly, drop_implausible_cameras,
                            implausible_cameras)
 from .progress import say_progress
@@ -357,23 +358,21 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
         starts.update({f"given, first pair {camera_names[i]}/{camera_names[j]}":
                        (list(intrinsics), (i, j)) for i, j in first_pair_starts(sub, budget)})
+    # Trials are independent: they run side by side (core.parallel), each BA on one core, so
+    # the outcome does not depend on how many ran at once.
+    trial_config = replace(config, num_threads=1)
+    outcomes = map_jobs(_trial, [(sub, start, camera_names, trial_config, seed, pair,
+                                  validation_tracks) for start, pair in starts.values()],
+                        config.num_threads)
     costs, trials = {}, {}
-    for name, (start, pair) in starts.items():
-        messages: list[str] = []
-        try:
-            trial = _incremental(sub, start, camera_names, config, seed, messages.append, pair)
-        except NotEnoughOverlapError:
+    for name, (trial, messages, cost) in zip(starts, outcomes):
+        if trial is None:
             continue
         trials[name] = (trial, messages)
-        problems = implausible_cameras(trial.state)
-        if problems:
-            log.debug("focal start %s: implausible intrinsics %s", name, problems)
+        if cost is None:
+            log.debug("focal start %s: implausible intrinsics %s", name,
+                      implausible_cameras(trial.state))
             continue
-        if validation_tracks is not None and validation_tracks.num_tracks:
-            cost = held_out_cost(trial.state, validation_tracks,
-                                 cost_truncation_px(config, tracks.num_cameras), seed)
-        else:
-            cost = truncated_cost(trial.state, cost_truncation_px(config, tracks.num_cameras))
         costs[name] = (-len(trial.state.registered()), cost)
         log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
                   -costs[name][0], costs[name][1])
@@ -397,6 +396,26 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         result = _incremental(tracks, start, camera_names, config, seed, say, pair)
     drop_implausible_cameras(result.state, result.failed, camera_names, say)
     return result
+
+
+def _trial(tracks: Tracks, start: list[CameraIntrinsics], camera_names: Sequence[str],
+           config: SfMConfig, seed: int, first_pair: Optional[tuple[int, int]],
+           validation_tracks: Optional[Tracks]
+           ) -> tuple[Optional[IncrementalResult], list[str], Optional[float]]:
+    """One multi-start trial (run_incremental): (its result, None where no pair could start it;
+    its progress messages; its truncated cost, None where its intrinsics are implausible)."""
+    messages: list[str] = []
+    try:
+        trial = _incremental(tracks, start, camera_names, config, seed, messages.append,
+                             first_pair)
+    except NotEnoughOverlapError:
+        return None, messages, None
+    if implausible_cameras(trial.state):
+        return trial, messages, None
+    truncation = cost_truncation_px(config, tracks.num_cameras)
+    if validation_tracks is not None and validation_tracks.num_tracks:
+        return trial, messages, held_out_cost(trial.state, validation_tracks, truncation, seed)
+    return trial, messages, truncated_cost(trial.state, truncation)
 
 
 def first_pair_starts(tracks: Tracks, max_pairs: int = MAX_FIRST_PAIR_STARTS

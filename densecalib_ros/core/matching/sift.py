@@ -15,12 +15,14 @@ so orientation duplicates do not reject each other. (j, i) is the exact inverse 
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Optional
 
 import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..parallel import available_cores
 from ..types import SiteMatchSet
 from .base import Matcher
 from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
@@ -150,6 +152,9 @@ class SiftMatcher(Matcher):
         return mutual_pair_maps(src, dst, certainty, n_a, n_b)
 
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
-        feats = [self._features(im) for im in images]
+        # OpenCV's SIFT leaves most of its work on one core and releases the GIL: one image per
+        # core (the same features as one after another).
+        with ThreadPoolExecutor(min(len(images), available_cores())) as pool:
+            feats = list(pool.map(self._features, images))
         return match_unordered_pairs(images, [f[0] for f in feats],
                                      lambda i, j: self._match_pair(feats[i], feats[j]))

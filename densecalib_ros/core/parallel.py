@@ -1,0 +1,189 @@
+"""Independent pieces of a calibration spread over the machine's cores.
+
+Bundle adjustments of a few cameras keep Ceres on one core (the problems are too small for its
+threads), so the parallel work is coarser: whole SfM trials (the focal multi-start) run in worker
+processes, each single-threaded. A trial's result does not depend on where it ran, so a
+calibration gives the same rig with one job or many.
+
+The workers come from one pool per calibrating process, started once (forkserver: forked from a
+clean server process, never from a process running ROS or Ceres threads) and reused by every
+later calibration. Unlike multiprocessing's own workers they do not run the caller's main script
+again (a user's script calibrating without an `if __name__ == "__main__":` guard would otherwise
+calibrate once more in every worker): the tasks are functions of this package. They ignore
+Ctrl-C; an interrupted calibration stops them at once. A pool that broke (a worker killed, e.g.
+out of memory) is replaced, and the pieces it lost run here.
+"""
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import signal
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import popen_forkserver, spawn
+from typing import Any, Callable, Optional, Sequence
+
+log = logging.getLogger(__name__)
+
+# What the workers import before the first task, so that a task starts without import time.
+PRELOAD_MODULES = ["densecalib_ros.core.incremental"]
+
+_lock = threading.Lock()
+_pool: Optional[ProcessPoolExecutor] = None
+_pool_workers = 0
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity, e.g. a container's share)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def job_count(jobs: int) -> int:
+    """jobs as configured (-1 or 0 = every available core) as a number of processes."""
+    return available_cores() if jobs <= 0 else int(jobs)
+
+
+# How often a worker looks whether the process that started it is still there (seconds).
+PARENT_CHECK_S = 1.0
+
+
+def _worker_start(calibrating_pid: int) -> None:
+    """Ctrl-C reaches the whole process group: the calibrating process decides what stops. A
+    worker whose calibrating process was killed outright (SIGKILL, the OOM killer) would wait
+    for tasks for ever, and keep the fork server alive (each worker holds the server's
+    keep-alive pipe so that it could start processes itself); it ends instead."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while _running(calibrating_pid):
+            time.sleep(PARENT_CHECK_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="densecalib-parent-watch", daemon=True).start()
+
+
+def _running(pid: int) -> bool:
+    """Whether process pid exists and is not a zombie (dead, not yet reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except OSError:
+        try:
+            os.kill(pid, 0)  # no /proc: existence only
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            pass
+        return True
+
+
+def _run_task(colmap_log_level: int, fn: Callable, args: tuple) -> Any:
+    import pycolmap
+
+    pycolmap.logging.minloglevel = colmap_log_level  # the caller's setting (quiet_colmap)
+    return fn(*args)
+
+
+class _PopenWithoutMain(popen_forkserver.Popen):
+    """Starts a forkserver worker without the caller's __main__ in its preparation data."""
+
+    def _launch(self, process_obj):
+        with _lock_start:
+            get_preparation_data = spawn.get_preparation_data
+
+            def without_main(name):
+                data = get_preparation_data(name)
+                data.pop("init_main_from_path", None)
+                data.pop("init_main_from_name", None)
+                return data
+
+            spawn.get_preparation_data = without_main
+            try:
+                super()._launch(process_obj)
+            finally:
+                spawn.get_preparation_data = get_preparation_data
+
+
+class _WorkerProcess(multiprocessing.context.ForkServerProcess):
+    @staticmethod
+    def _Popen(process_obj):
+        return _PopenWithoutMain(process_obj)
+
+
+class _WorkerContext(multiprocessing.context.ForkServerContext):
+    Process = _WorkerProcess
+
+
+_lock_start = threading.Lock()
+
+
+def _get_pool(workers: int) -> ProcessPoolExecutor:
+    global _pool, _pool_workers
+    with _lock:
+        if _pool is None or _pool_workers != workers:
+            if _pool is not None:
+                _pool.shutdown(wait=False, cancel_futures=True)
+            context = _WorkerContext()
+            context.set_forkserver_preload(PRELOAD_MODULES)
+            _pool = ProcessPoolExecutor(workers, mp_context=context,
+                                        initializer=_worker_start,
+                                        initargs=(os.getpid(),))
+            _pool_workers = workers
+        return _pool
+
+
+def stop_workers() -> None:
+    """Stop the worker processes now (their running tasks are abandoned)."""
+    global _pool
+    with _lock:
+        pool, _pool = _pool, None
+    if pool is None:
+        return
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join(timeout=5)
+
+
+def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int) -> list:
+    """[fn(*args) for args in arg_tuples], spread over job_count(jobs) worker processes when
+    that is more than one and there is more than one task. fn and its arguments and results must
+    pickle (fn a module-level function)."""
+    import pycolmap
+
+    workers = min(job_count(jobs), len(arg_tuples))
+    if workers <= 1:
+        return [fn(*args) for args in arg_tuples]
+    level = pycolmap.logging.minloglevel
+    results: list = [None] * len(arg_tuples)
+    pending = list(range(len(arg_tuples)))
+    futures: dict = {}
+    try:
+        pool = _get_pool(workers)
+        futures = {k: pool.submit(_run_task, level, fn, arg_tuples[k]) for k in pending}
+        for k in list(pending):
+            results[k] = futures[k].result()
+            pending.remove(k)
+    except BrokenProcessPool as exc:
+        log.warning("a worker process ended unexpectedly (%s); running the %d remaining "
+                    "piece(s) of work in this process", exc, len(pending))
+        stop_workers()
+        for k in pending:
+            results[k] = fn(*arg_tuples[k])
+    except Exception:  # a task's own error: the others' results are not needed
+        for future in futures.values():
+            future.cancel()
+        raise
+    except BaseException:  # Ctrl-C, SIGTERM: no worker outlives the call
+        stop_workers()
+        raise
+    return results

@@ -1,0 +1,122 @@
+"""Work spread over worker processes (core.parallel, issue 42): the same rig on one core and on
+several, a user's script without a main guard run once, no worker left behind by an interrupted
+or killed calibration. Real processes and signals."""
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from functools import partial
+
+import numpy as np
+import pytest
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.incremental import initial_intrinsics, run_incremental
+
+import sfm_fixtures
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+gt_rig = partial(sfm_fixtures.gt_rig, pp_jitter_px=5.0, k1_range=(-0.1, 0.05), k2_max=0.02)
+
+
+def test_the_multistart_gives_the_same_rig_on_one_core_and_on_several():
+    names = ["cam_a", "cam_b", "cam_c", "cam_d"]
+    cams, poses = gt_rig(4, seed=11)
+    tracks = sfm_fixtures.gt_tracks(cams, poses, num_points=1500, outlier_frac=0.05, seed=11)
+    focals = np.array([c.params[0] * 0.8 for c in cams])  # a start the multi-start must leave
+    results = []
+    for jobs in (1, 2):
+        cfg = make_config("regular").sfm
+        cfg.num_threads = jobs
+        init = initial_intrinsics([(c.width, c.height) for c in cams], focals, cfg.camera_model)
+        messages = []
+        results.append((run_incremental(tracks, init, names, cfg, progress=messages.append),
+                        messages))
+    (one, said_one), (two, said_two) = results
+    assert said_one == said_two and any("focal multi-start" in m for m in said_one)
+    assert one.failed == two.failed == []
+    for c in range(len(names)):
+        np.testing.assert_array_equal(one.state.camera(c).params, two.state.camera(c).params)
+        np.testing.assert_array_equal(one.state.cam_from_world[c], two.state.cam_from_world[c])
+
+
+def _script(tmp_path, body: str) -> list[str]:
+    """Command line of a Python script file (a real __main__ with a path, as a user's script)."""
+    path = tmp_path / "user_script.py"
+    path.write_text(textwrap.dedent(body))
+    return [sys.executable, str(path)]
+
+
+def _env():
+    return {**os.environ, "PYTHONPATH": REPO + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def test_a_script_without_a_main_guard_runs_once(tmp_path):
+    """multiprocessing's own workers would import the script again, and its body run again in
+    every worker."""
+    command = _script(tmp_path, """
+        import math
+        from densecalib_ros.core.parallel import map_jobs
+        print("script body ran", flush=True)
+        print(map_jobs(math.factorial, [(5,), (6,), (7,)], 2), flush=True)
+        """)
+    done = subprocess.run(command, capture_output=True, text=True, env=_env(), timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["script body ran", "[120, 720, 5040]"]
+
+
+def _descendants(pid: int) -> set[int]:
+    children = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, set()).add(int(entry))
+    found, todo = set(), [pid]
+    while todo:
+        for child in children.get(todo.pop(), ()):
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL])
+def test_no_worker_outlives_an_interrupted_or_killed_run(tmp_path, sig):
+    command = _script(tmp_path, """
+        import time
+        from densecalib_ros.core.parallel import map_jobs
+        print("working", flush=True)
+        map_jobs(time.sleep, [(4,)] * 6, 2)
+        """)
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env())
+    assert proc.stdout.readline().strip() == "working"
+    deadline = time.monotonic() + 60
+    while len(_descendants(proc.pid)) < 3 and time.monotonic() < deadline:  # server + 2 workers
+        time.sleep(0.2)
+    workers = _descendants(proc.pid)
+    assert len(workers) >= 3, "the workers never started"
+    os.kill(proc.pid, sig)
+    proc.wait(timeout=30)
+    # SIGINT: stopped by the run. SIGKILL: nothing runs in the parent; the fork server sees it
+    # gone, and the workers their server (core.parallel.PARENT_CHECK_S), mid-task.
+    deadline = time.monotonic() + 3
+    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = [p for p in workers if _alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left, proc.stderr.read()
