@@ -51,3 +51,38 @@ def test_tables_name_the_warnings_a_result_carried_and_count_the_scenes_warned()
     assert rows[1].split()[-1] == "warned"
     assert [r.split()[-1] for r in rows[2:]] == ["0", "2"]
     assert np.isclose(summary["densecalib-incremental"]["median_focal_err"], 0.08)
+
+
+def test_tables_give_each_methods_time_over_colmaps_on_the_same_scene():
+    def scene(k, ours_s, colmap_s):
+        records = [_record("colmap", 50.0, []), _record("densecalib-incremental", 90.0, [])]
+        records[0]["runtime_s"], records[1]["runtime_s"] = colmap_s, ours_s
+        return dict(scene=f"s{k}", lens="pinhole", num_cameras=4, image_size=[1024, 768],
+                    results=records)
+
+    scenes = [scene(0, 30.0, 10.0), scene(1, 5.0, 10.0), scene(2, 12.0, 8.0)]
+    lines = format_scene_table(scenes[0]).splitlines()
+    end = lines[1].index("xCOLMAP") + len("xCOLMAP")  # right-aligned under its header
+    assert [r[end - 8:end].strip() for r in lines[2:]] == ["1.00", "3.00"]
+    summary = {s["method"]: s for s in summarize(scenes)}
+    assert summary["densecalib-incremental"]["median_colmap_time_ratio"] == 1.5
+    assert summary["colmap"]["median_colmap_time_ratio"] == 1.0
+
+
+def test_peak_memory_counts_the_worker_processes():
+    """A child process that holds 200 MiB shows in the bench's peak memory of this process."""
+    import subprocess
+    import sys
+
+    from densecalib_ros.core.bench import _peak_rss_mib, _reset_peak_rss
+
+    assert _reset_peak_rss()
+    alone = _peak_rss_mib()
+    child = subprocess.Popen([sys.executable, "-c", "import sys; b = bytearray(200 << 20); "
+                              "b[::4096] = b'x' * len(b[::4096]); print(1, flush=True); "
+                              "sys.stdin.read()"], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert child.stdout.readline().strip() == b"1"
+        assert _peak_rss_mib() - alone > 190
+    finally:
+        child.communicate(b"")

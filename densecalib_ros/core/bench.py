@@ -5,10 +5,12 @@ Scenes are generated rigs (deterministic from their seeds; the seeds are the ben
 those used in development tests) and real photographs with reference cameras (Strecha entry-P10).
 Every method gets the scene's images as RGB uint8 arrays; peers use the first time step only.
 
-Resources per method: wall-clock runtime, and peak resident memory of the process while the
-method ran (Linux: the VmHWM high-water mark is reset through /proc/self/clear_refs before each
-method and read after; this counts C++ allocations that tracemalloc misses). Where the reset is not
-possible the peak is reported as None.
+Resources per method: wall-clock runtime and its ratio to COLMAP's on the same images, and peak
+resident memory of the process and its worker processes while the method ran (Linux: each one's
+VmHWM high-water mark is reset through /proc/PID/clear_refs before each method and read after;
+this counts C++ allocations that tracemalloc misses; the peaks are summed, an upper bound, since
+pages the workers share count once per process). Where the reset is not possible the peak is
+reported as None.
 """
 from __future__ import annotations
 
@@ -212,24 +214,43 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
     raise InputError(f"Unknown scene kind {spec.kind!r}: choose synthetic, strecha or nerf.")
 
 
+def _own_processes() -> list[int]:
+    """This process and its descendants (core.parallel's fork server and workers)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(entry))
+    found = [os.getpid()]
+    for pid in found:  # grows while it is walked
+        found.extend(children.get(pid, ()))
+    return found
+
+
 def _reset_peak_rss() -> bool:
     try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
+        for pid in _own_processes():
+            with open(f"/proc/{pid}/clear_refs", "w") as f:
+                f.write("5")
         return True
     except OSError:
         return False
 
 
 def _peak_rss_mib() -> Optional[float]:
+    total_kib = 0
     try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
+        for pid in _own_processes():
+            with open(f"/proc/{pid}/status") as f:
+                total_kib += next((int(line.split()[1]) for line in f
+                                   if line.startswith("VmHWM:")), 0)
     except OSError:
-        pass
-    return None
+        return None
+    return total_kib / 1024.0
 
 
 def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
@@ -391,7 +412,15 @@ def _fmt(value, spec: str, missing: str = "-") -> str:
 
 
 _HEADER = (f"{'method':<28}{'reg':>7}{'AUC@3':>8}{'AUC@30':>8}{'rot deg':>8}{'focal%':>8}"
-           f"{'pp px':>7}{'proj px':>9}{'time s':>8}{'peak MiB':>10}  status")
+           f"{'pp px':>7}{'proj px':>9}{'time s':>8}{'xCOLMAP':>8}{'peak MiB':>10}  status")
+
+
+def colmap_time_ratio(entry: dict, record: dict) -> Optional[float]:
+    """A method's wall time over COLMAP's on the same scene; None where COLMAP did not run."""
+    colmap = next((r for r in entry["results"] if r["method"] == "colmap"), None)
+    if colmap is None or not colmap.get("runtime_s") or record.get("runtime_s") is None:
+        return None
+    return record["runtime_s"] / colmap["runtime_s"]
 
 
 def format_scene_table(entry: dict) -> str:
@@ -407,6 +436,7 @@ def format_scene_table(entry: dict) -> str:
                      f"{_fmt(m.get('median_rot_err_deg'), '8.3f'):>8}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(m.get('median_pp_err_px'), '7.1f'):>7}"
                      f"{_fmt(m['median_proj_err_px'], '9.2f'):>9}{_fmt(r['runtime_s'], '8.1f'):>8}"
+                     f"{_fmt(colmap_time_ratio(entry, r), '8.2f'):>8}"
                      f"{_fmt(r['peak_rss_mib'], '10.0f'):>10}  {status}")
     for r in entry["results"]:
         for warning in r.get("warnings", []):
@@ -423,12 +453,16 @@ def summarize(scenes: list[dict]) -> list[dict]:
     """Per (lens, method): scenes, registered/total cameras, mean AUC@3/@30 (failures count as 0),
     median AUC@3 over scenes,
     median of the per-scene median focal error and projection error (over scenes where the method
-    registered cameras), median runtime, the number of scenes that did not run ok and of those
-    whose result carried a warning."""
+    registered cameras), median runtime and median ratio to COLMAP's runtime on the same scene,
+    the number of scenes that did not run ok and of those whose result carried a warning."""
     groups: dict[tuple[str, str], list[dict]] = {}
+    ratios: dict[tuple[str, str], list[float]] = {}
     for entry in scenes:
         for r in entry["results"]:
             groups.setdefault((entry["lens"], r["method"]), []).append(r)
+            ratio = colmap_time_ratio(entry, r)
+            if ratio is not None:
+                ratios.setdefault((entry["lens"], r["method"]), []).append(ratio)
     out = []
     for (lens, method), records in groups.items():
         ms = [r["metrics"] for r in records]
@@ -447,6 +481,8 @@ def summarize(scenes: list[dict]) -> list[dict]:
             median_focal_err=float(np.median(focal)) if focal else float("nan"),
             median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
             median_runtime_s=float(np.median(times)) if times else float("nan"),
+            median_colmap_time_ratio=(float(np.median(ratios[lens, method]))
+                                      if ratios.get((lens, method)) else float("nan")),
             not_ok=sum(r["status"] != "ok" for r in records),
             warned=sum(bool(r.get("warnings")) for r in records)))
     return out
@@ -479,9 +515,11 @@ def format_error_sigma_ratios(check: dict) -> str:
 
 def format_summary(summary: list[dict]) -> str:
     lines = ["== summary (mean AUC over scenes, failures = 0; med@3 = median AUC@3 over scenes; "
-             "rot deg, focal, proj: medians of per-scene medians; rot deg: pair rotation error)",
+             "rot deg, focal, proj: medians of per-scene medians; rot deg: pair rotation error; "
+             "xCOLMAP: median over scenes of wall time / COLMAP's on the same images)",
              f"{'lens':<9}{'method':<28}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'med@3':>7}{'AUC@30':>8}"
-             f"{'rot deg':>8}{'focal%':>8}{'proj px':>9}{'time s':>8}{'not ok':>8}{'warned':>8}"]
+             f"{'rot deg':>8}{'focal%':>8}{'proj px':>9}{'time s':>8}{'xCOLMAP':>8}{'not ok':>8}"
+             f"{'warned':>8}"]
     for s in summary:
         focal = s["median_focal_err"] * 100 if np.isfinite(s["median_focal_err"]) else None
         lines.append(f"{s['lens']:<9}{s['method']:<28}{s['num_scenes']:>7}"
@@ -489,6 +527,7 @@ def format_summary(summary: list[dict]) -> str:
                      f"{s['median_auc3']:>7.1f}{s['mean_auc30']:>8.1f}"
                      f"{_fmt(s.get('median_rot_err_deg'), '8.3f'):>8}{_fmt(focal, '8.2f'):>8}"
                      f"{_fmt(s['median_proj_err_px'], '9.2f'):>9}"
-                     f"{_fmt(s['median_runtime_s'], '8.1f'):>8}{s['not_ok']:>8}"
+                     f"{_fmt(s['median_runtime_s'], '8.1f'):>8}"
+                     f"{_fmt(s.get('median_colmap_time_ratio'), '8.2f'):>8}{s['not_ok']:>8}"
                      f"{s.get('warned', 0):>8}")
     return "\n".join(lines)

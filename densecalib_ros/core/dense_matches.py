@@ -20,6 +20,7 @@ where it was found."""
 from __future__ import annotations
 
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from typing import Optional, Sequence
 
 import cv2
@@ -27,6 +28,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .matching.utils import to_gray
+from .parallel import available_cores
 from .reconstruction import SfMState
 from .types import Tracks
 
@@ -215,8 +217,11 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
                  for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
         found = {k: (np.zeros(0, np.int64), np.zeros((0, 2))) for k in seeds}
         for _ in range(2):
-            new = {(a, b): _pair_correspondences(state, grays, a, b, points[a], *seeds[a, b],
-                                                 skip=found[a, b][0]) for (a, b) in seeds}
+            # Pairs are independent; OpenCV's remap and numpy's batched solves release the GIL.
+            with ThreadPoolExecutor(available_cores()) as pool:
+                new = dict(zip(seeds, pool.map(
+                    lambda ab: _pair_correspondences(state, grays, *ab, points[ab[0]],
+                                                     *seeds[ab], skip=found[ab][0]), seeds)))
             seeds = {(a, b): (np.concatenate([seeds[a, b][0], points[a][new[a, b][0]],
                                               new[b, a][1]]),
                               np.concatenate([seeds[a, b][1], new[a, b][1],
