@@ -1,6 +1,7 @@
 """Work spread over worker processes (core.parallel, issue 42): the same rig on one core and on
 several, a user's script without a main guard run once, no worker left behind by an interrupted
 or killed calibration. Real processes and signals."""
+import logging
 import os
 import signal
 import subprocess
@@ -21,7 +22,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 gt_rig = partial(sfm_fixtures.gt_rig, pp_jitter_px=5.0, k1_range=(-0.1, 0.05), k2_max=0.02)
 
 
-def test_the_multistart_gives_the_same_rig_on_one_core_and_on_several():
+def test_the_multistart_gives_the_same_rig_and_log_on_one_core_and_on_several(caplog):
     names = ["cam_a", "cam_b", "cam_c", "cam_d"]
     cams, poses = gt_rig(4, seed=11)
     tracks = sfm_fixtures.gt_tracks(cams, poses, num_points=1500, outlier_frac=0.05, seed=11)
@@ -32,10 +33,16 @@ def test_the_multistart_gives_the_same_rig_on_one_core_and_on_several():
         cfg.num_threads = jobs
         init = initial_intrinsics([(c.width, c.height) for c in cams], focals, cfg.camera_model)
         messages = []
-        results.append((run_incremental(tracks, init, names, cfg, progress=messages.append),
-                        messages))
-    (one, said_one), (two, said_two) = results
+        caplog.clear()
+        with caplog.at_level(logging.DEBUG, logger="densecalib_ros"):
+            result = run_incremental(tracks, init, names, cfg, progress=messages.append)
+        results.append((result, messages, [(r.name, r.levelno, r.getMessage())
+                                           for r in caplog.records]))
+    (one, said_one, log_one), (two, said_two, log_two) = results
     assert said_one == said_two and any("focal multi-start" in m for m in said_one)
+    # The trials' own debug lines (eq. 3 first-pair costs) reach this process's log from the
+    # workers, in the same order.
+    assert log_one == log_two and any("first pair" in m for _, _, m in log_one)
     assert one.failed == two.failed == []
     for c in range(len(names)):
         np.testing.assert_array_equal(one.state.camera(c).params, two.state.camera(c).params)

@@ -87,8 +87,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "The cameras are upright (image up = world up; the default), or "
                              "`top`: they all look straight down onto the floor")
     parser.add_argument("--seed", type=seed, default=0, help="random seed of the sampling")
-    parser.add_argument("--threads", type=number_in(-1, integer=True), default=-1,
-                        help="bundle-adjustment threads (-1 = all cores)")
+    parser.add_argument("--jobs", "--threads", dest="jobs", type=number_in(-1, integer=True),
+                        default=-1, help="cores to use (-1 = all this process may run on): the "
+                        "SfM's trials run side by side in worker processes; the rig is the same "
+                        "with any number")
 
 
 def _exif_focals(paths, frame_sets, names) -> dict:
@@ -173,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         inputs = [p for p in (args.images, args.videos, args.bag) if p]
         check_output_folder(args.out, CALIBRATION_MARKERS, inputs)  # before minutes of work
-        overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.threads,
+        overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.jobs,
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
                      "initial_focal_px": parse_focal_px(args.focal_px),

@@ -9,8 +9,9 @@ Resources per method: wall-clock runtime and its ratio to COLMAP's on the same i
 resident memory of the process and its worker processes while the method ran (Linux: each one's
 VmHWM high-water mark is reset through /proc/PID/clear_refs before each method and read after;
 this counts C++ allocations that tracemalloc misses; the peaks are summed, an upper bound, since
-pages the workers share count once per process). Where the reset is not possible the peak is
-reported as None.
+pages the workers share count once per process; a peer's is its own process's: it runs there
+alone). The bench process holds every scene's images, so a peak is the bench's, not what the
+method would need by itself. Where the reset is not possible the peak is reported as None.
 """
 from __future__ import annotations
 
@@ -241,10 +242,12 @@ def _reset_peak_rss() -> bool:
         return False
 
 
-def _peak_rss_mib() -> Optional[float]:
+def _peak_rss_mib(with_workers: bool = True) -> Optional[float]:
+    """Peak resident memory since _reset_peak_rss, MiB: this process's, plus its workers' where
+    with_workers (a peer runs in this process alone; our idle workers are not its memory)."""
     total_kib = 0
     try:
-        for pid in _own_processes():
+        for pid in (_own_processes() if with_workers else [os.getpid()]):
             with open(f"/proc/{pid}/status") as f:
                 total_kib += next((int(line.split()[1]) for line in f
                                    if line.startswith("VmHWM:")), 0)
@@ -309,7 +312,8 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
                       traceback=traceback.format_exc())
         calib = None
     record["runtime_s"] = time.perf_counter() - start
-    record["peak_rss_mib"] = _peak_rss_mib() if can_measure_memory else None
+    record["peak_rss_mib"] = (_peak_rss_mib(with_workers=method not in PEER_METHODS)
+                              if can_measure_memory else None)
     if calib is None:
         from .types import RigCalibration
 

@@ -28,6 +28,7 @@ from typing import Any, Callable, Optional, Sequence
 
 log = logging.getLogger(__name__)
 
+PACKAGE_LOGGER = "densecalib_ros"
 # What the workers import before the first task, so that a task starts without import time.
 PRELOAD_MODULES = ["densecalib_ros.core.incremental"]
 
@@ -83,11 +84,33 @@ def _running(pid: int) -> bool:
         return True
 
 
-def _run_task(colmap_log_level: int, fn: Callable, args: tuple) -> Any:
+class _Records(logging.Handler):
+    """A worker's log records, kept to be handled in the calibrating process."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        record.msg, record.args = record.getMessage(), None  # arguments may not pickle
+        record.exc_info = record.exc_text = None
+        self.records.append(record)
+
+
+def _run_task(colmap_log_level: int, log_level: int, fn: Callable, args: tuple
+              ) -> tuple[Any, list]:
+    """(fn(*args), the package's log records at log_level or above that it made)."""
     import pycolmap
 
     pycolmap.logging.minloglevel = colmap_log_level  # the caller's setting (quiet_colmap)
-    return fn(*args)
+    package = logging.getLogger(PACKAGE_LOGGER)
+    records = _Records()
+    package.addHandler(records)
+    package.setLevel(log_level)
+    try:
+        return fn(*args), records.records
+    finally:
+        package.removeHandler(records)
 
 
 class _PopenWithoutMain(popen_forkserver.Popen):
@@ -157,21 +180,25 @@ def stop_workers() -> None:
 def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int) -> list:
     """[fn(*args) for args in arg_tuples], spread over job_count(jobs) worker processes when
     that is more than one and there is more than one task. fn and its arguments and results must
-    pickle (fn a module-level function)."""
+    pickle (fn a module-level function). What the tasks log under this package reaches this
+    process's handlers, task by task in order."""
     import pycolmap
 
     workers = min(job_count(jobs), len(arg_tuples))
     if workers <= 1:
         return [fn(*args) for args in arg_tuples]
-    level = pycolmap.logging.minloglevel
+    levels = (pycolmap.logging.minloglevel,
+              logging.getLogger(PACKAGE_LOGGER).getEffectiveLevel())
     results: list = [None] * len(arg_tuples)
     pending = list(range(len(arg_tuples)))
     futures: dict = {}
     try:
         pool = _get_pool(workers)
-        futures = {k: pool.submit(_run_task, level, fn, arg_tuples[k]) for k in pending}
+        futures = {k: pool.submit(_run_task, *levels, fn, arg_tuples[k]) for k in pending}
         for k in list(pending):
-            results[k] = futures[k].result()
+            results[k], records = futures[k].result()
+            for record in records:  # reported here, once, as if the task had run here
+                logging.getLogger(record.name).handle(record)
             pending.remove(k)
     except BrokenProcessPool as exc:
         log.warning("a worker process ended unexpectedly (%s); running the %d remaining "

@@ -637,7 +637,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .focal_hops import hop_focals
     from .incremental import cost_truncation_px
 
-    results, seeds, failed, first_error = [], [], 0, None
+    results, seeds, failed, first_error, run_s = [], [], 0, None, None
     for k in range(config.consensus_runs):
         if k == EARLY_STOP_RUNS and len(results) == k and \
                 medoid([r.rig for r in results], camera_names)[1].max() < AGREEMENT_DEG:
@@ -645,12 +645,15 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
         seed = config.sampling.seed + k
         run_config = copy.deepcopy(config)
         run_config.sampling.seed = seed
+        took = f"; about {run_s:.0f} s each" if run_s else ""  # what this run will take
         say_progress(progress, f"consensus run {k + 1} of up to {config.consensus_runs} "
-                               f"(sampling seed {seed})")
+                               f"(sampling seed {seed}{took})")
+        started = time.perf_counter()
         try:
             results.append(_calibrate_once(match_sets, image_sizes, camera_names, run_config,
                                            None, match_tracks, progress if k == 0 else None))
             seeds.append(seed)
+            run_s = time.perf_counter() - started
         except CalibrationError as exc:
             log.info("consensus run %d (seed %d) failed: %s", k + 1, seed, exc)
             failed += 1
