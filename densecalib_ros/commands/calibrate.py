@@ -14,7 +14,6 @@ from typing import Optional
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
-from ..core.export import record_provenance
 from ..core.report import camera_table, intrinsics_note
 from .argtypes import number_in, positive, seed
 from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
@@ -140,16 +139,6 @@ def parse_known_baseline(values: Optional[list[str]], names: list[str]) -> Optio
     return cam_a, cam_b, baseline_m
 
 
-def _previous_baseline(previous) -> Optional[tuple]:
-    """The known baseline a metric previous calibration was scaled with, or None."""
-    scale = previous.quality.get("scale_from_baseline") if previous.metric_scale else None
-    if not scale:
-        return None
-    log.info("metric scale as in the previous calibration: %s-%s = %s m", *scale["cameras"],
-             scale["baseline_m"])
-    return (*scale["cameras"], float(scale["baseline_m"]))
-
-
 def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> dict:
     """`given` plus the intrinsics of the bag's CameraInfo topics (--bag-camera-info)."""
     from ..core.bag import camera_info_topic, read_camera_infos
@@ -167,10 +156,11 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 def run(args: argparse.Namespace) -> int:
     from ..core.export import (CALIBRATION_MARKERS, calibration_entries, check_output_folder,
                                replace_directory_atomic, write_calibration_files)
-    from ..core.reference_views import latest_views
+    from ..core.job import CalibrationRequest, run_job
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
                                          with_previous_intrinsics)
-    from ..core.pipeline import check_frame_sets, run_calibration
+    from ..core.pipeline import check_frame_sets
+    from ..core.reference_views import reference_views_of
 
     try:
         inputs = [p for p in (args.images, args.videos, args.bag) if p]
@@ -214,40 +204,23 @@ def run(args: argparse.Namespace) -> int:
                  len(names), ", ".join(names), len(frame_sets), config.preset,
                  "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),
                  config.pipeline, config.matcher)
-        baseline = parse_known_baseline(args.known_baseline, names)
-        if previous is not None:
-            from ..core.recalibration import recalibrate
-            baseline = baseline or _previous_baseline(previous)
-            from ..core.reference_views import reference_views_of
-            result = recalibrate(frame_sets, names, config, previous,
-                                 previous_views=reference_views_of(args.previous, names))
-        else:
-            result = run_calibration(frame_sets, names, config, progress=None)
-        if baseline:
-            from ..core.scale import with_known_baseline
-            result = with_known_baseline(result, *baseline)
-        if previous is not None:
-            from ..core.scale import warn_if_scale_lost
-            warn_if_scale_lost(result.rig, previous)
-        if args.floor:
-            from ..core.floor import record_floor
-            record_floor(result, args.floor)
-        if previous is not None:
-            from ..core.floor import warn_if_floor_lost
-            warn_if_floor_lost(result.rig, previous, "add --floor, or run `densecalib floor` on "
-                               "the result (exports use the floor frame as world)")
-        record_provenance(result.rig, source)
-        views = latest_views(frame_sets, names, result.rig)
+        request = CalibrationRequest(
+            frame_sets, names, config, source, previous=previous,
+            previous_views=reference_views_of(args.previous, names) if previous else {},
+            known_baseline=parse_known_baseline(args.known_baseline, names), floor=args.floor,
+            floor_hint="add --floor, or run `densecalib floor` on the result (exports use the "
+                       "floor frame as world)")
+        job = run_job(request)
         replace_directory_atomic(lambda tmp: write_calibration_files(
-            result.rig, tmp, result.reconstruction, reference_views=views), args.out,
-            CALIBRATION_MARKERS, inputs, owned=calibration_entries)
+            job.rig, tmp, job.calibration.reconstruction, reference_views=job.reference_views),
+            args.out, CALIBRATION_MARKERS, inputs, owned=calibration_entries)
     except InputError as exc:
         log.error("%s", exc)
         return 2
     except CalibrationError as exc:
         log.error("Calibration failed: %s", exc)
         return 1
-    rig = result.rig
+    rig = job.rig
     print(camera_table(rig))
     note = intrinsics_note(rig)
     if note:

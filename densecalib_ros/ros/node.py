@@ -79,12 +79,10 @@ from ..core.colmap_logging import show_colmap_log
 from ..core.errors import CalibrationError, InputError
 from ..core.calibration_store import (LATEST, prune_calibrations, stored_calibrations,
                                       write_new_calibration)
-from ..core.export import (camera_info_yaml, read_calibration, record_provenance,
-                           write_calibration_files, write_calibration_json, write_text_atomic)
-from ..core.floor import record_floor, warn_if_floor_lost
+from ..core.export import (camera_info_yaml, read_calibration, write_calibration_files,
+                           write_calibration_json, write_text_atomic)
 from ..core.known_intrinsics import with_previous_intrinsics
 from ..core.report import info_strips_line
-from ..core.scale import warn_if_scale_lost, with_known_baseline
 from ..core.stereo import stereo_pair
 from ..core.sync import FrameSet, evenly_spaced
 from ..core.types import RigCalibration
@@ -582,9 +580,8 @@ class DenseCalibNode(Node):
 
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
-        from ..core.pipeline import run_calibration
-        from ..core.recalibration import recalibrate
-        from ..core.reference_views import latest_views, read_reference_views
+        from ..core.job import CalibrationRequest, run_job
+        from ..core.reference_views import read_reference_views
 
         s = self.settings
         sets = self.sync.snapshot()
@@ -599,34 +596,33 @@ class DenseCalibNode(Node):
         if s.keep_intrinsics and self.calibration is not None:
             config.known_intrinsics = with_previous_intrinsics(
                 config.known_intrinsics, self.calibration, s.camera_names)
-        # on ~/status only: the core logged the event, and core_logs forwards it to /rosout
-        progress = lambda msg: self._set_status(f"calibrating: {msg}", None)  # noqa: E731
-        if self.calibration is not None:  # start from it; a worse result is refused
-            views = (read_reference_views(self.calibration_dir, s.camera_names)
-                     if self.calibration_dir is not None else {})
-            result = recalibrate(images, s.camera_names, config, self.calibration,
-                                 matcher=self._matcher_for(s), progress=progress,
-                                 previous_views=views)
-        else:
-            result = run_calibration(images, s.camera_names, config,
-                                     matcher=self._matcher_for(s), progress=progress)
-        if s.known_baseline_m > 0:
-            result = with_known_baseline(result, *s.baseline_cameras, s.known_baseline_m)
-        warn_if_scale_lost(result.rig, self.calibration)
-        if s.floor:
-            record_floor(result, s.floor)
-        warn_if_floor_lost(result.rig, self.calibration,
-                           "set the floor parameter (upright or top) to find it")
-        rig, reconstruction = result.rig, result.reconstruction
-        sets = sets[rig.quality.get("frame_sets_before_change", 0):]  # those calibrated
+        previous_views = (read_reference_views(self.calibration_dir, s.camera_names)
+                          if self.calibration is not None and self.calibration_dir is not None
+                          else {})
         offsets = ({"stamp_offsets_s": dict(zip(s.camera_names, s.stamp_offsets_s))}
                    if any(s.stamp_offsets_s) else {})
-        record_provenance(rig, {"source": "topics", "topics": list(s.image_topics),
-                                "camera_names": list(s.camera_names), **offsets,
-                                "frame_set_stamps_ns": [  # as the headers had them
-                                    [int(t) + int(round(o * 1e9))
-                                     for t, o in zip(fs.stamps_ns, s.stamp_offsets_s)]
-                                    for fs in sets]})
+        source = {"source": "topics", "topics": list(s.image_topics),
+                  "camera_names": list(s.camera_names), **offsets,
+                  "frame_set_stamps_ns": [  # as the headers had them
+                      [int(t) + int(round(o * 1e9)) for t, o in zip(fs.stamps_ns,
+                                                                    s.stamp_offsets_s)]
+                      for fs in sets]}
+        request = CalibrationRequest(
+            images, list(s.camera_names), config, source,
+            previous=self.calibration,  # start from it; a worse result is refused
+            previous_views=previous_views,
+            known_baseline=((*s.baseline_cameras, s.known_baseline_m)
+                            if s.known_baseline_m > 0 else None),
+            floor=s.floor or None, floor_hint="set the floor parameter (upright or top) to find it",
+            matcher=self._matcher_for(s))
+        # on ~/status only: the core logged the event, and core_logs forwards it to /rosout
+        job = run_job(request, progress=lambda msg: self._set_status(f"calibrating: {msg}", None))
+        rig, reconstruction = job.rig, job.calibration.reconstruction
+        before_change = rig.quality.get("frame_sets_before_change", 0)
+        if before_change:  # the provenance (core.export) names the frame sets calibrated
+            rig.quality["input"]["frame_set_stamps_ns"] = \
+                source["frame_set_stamps_ns"][before_change:]
+        sets = sets[before_change:]
         elapsed = time.perf_counter() - start
         with self._write_lock:
             if self._stopping.is_set():  # the caller was told it was abandoned: keep to that
@@ -634,8 +630,7 @@ class DenseCalibNode(Node):
                                        "written")
             self._writing.set()
         try:
-            out = self._write_files(rig, reconstruction,
-                                    latest_views(images, s.camera_names, rig))
+            out = self._write_files(rig, reconstruction, job.reference_views)
             self._publish(rig, out)
         finally:
             self._writing.clear()

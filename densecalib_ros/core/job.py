@@ -1,0 +1,101 @@
+"""One calibration job, as the command and the node run it.
+
+A front end (`densecalib calibrate`, `densecalib_node`) gathers the images and options in its own
+terms and maps them once into a CalibrationRequest; `run_job` does the rest of what a user calls
+a calibration: a fresh calibration or a recalibration from the previous one, the metric scale
+(the baseline given, else the previous calibration's), the floor, the warnings that a
+recalibration lost the scale or the floor, and the provenance. Where the result is written stays
+with the front end (a folder the user named; the node's timestamped folders and `latest`).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Optional, Sequence
+
+import numpy as np
+
+from .config import PipelineConfig
+from .progress import Progress
+from .types import RigCalibration
+
+if TYPE_CHECKING:  # the pipeline imports pycolmap: on use only
+    from .pipeline import CalibrationResult
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class CalibrationRequest:
+    """What to calibrate and what to add to the result.
+
+    frame_sets[t][c]: camera c's image of moment t (uint8 RGB (H, W, 3) or gray (H, W)).
+    previous: the current calibration of these cameras: the job recalibrates from it (a worse
+        result is refused: core.recalibration); previous_views: its reference views.
+    known_baseline: (camera_a, camera_b, metres) between the two cameras' centres; None: the
+        previous calibration's baseline where it was scaled by one, else up to scale.
+    floor: "upright" or "top" to find the floor frame (core.floor); floor_hint: what finds it
+        again in the front end's terms, said when a recalibration lost the previous floor.
+    source: what the images came from, recorded as the provenance (core.export).
+    matcher: a loaded matcher to reuse (the node keeps one across calibrations)."""
+
+    frame_sets: Sequence[Sequence[np.ndarray]]
+    camera_names: list[str]
+    config: PipelineConfig
+    source: dict
+    previous: Optional[RigCalibration] = None
+    previous_views: dict = field(default_factory=dict)
+    known_baseline: Optional[tuple[str, str, float]] = None
+    floor: Optional[str] = None
+    floor_hint: str = "find it with the floor option"
+    matcher: object = None
+
+
+@dataclass
+class JobResult:
+    calibration: "CalibrationResult"
+    reference_views: dict  # camera -> its image of the last frame set (core.reference_views)
+
+    @property
+    def rig(self) -> RigCalibration:
+        return self.calibration.rig
+
+
+def run_job(request: CalibrationRequest, progress: Progress = None) -> JobResult:
+    """Calibrate as `request` says (module docstring). Raises CalibrationError subclasses
+    (CalibrationRejectedError: a recalibration worse than the previous calibration)."""
+    from .export import record_provenance
+    from .floor import record_floor, warn_if_floor_lost
+    from .pipeline import run_calibration
+    from .recalibration import recalibrate
+    from .reference_views import latest_views
+    from .scale import warn_if_scale_lost, with_known_baseline
+
+    r = request
+    if r.previous is not None:
+        result = recalibrate(r.frame_sets, r.camera_names, r.config, r.previous,
+                             matcher=r.matcher, progress=progress,
+                             previous_views=r.previous_views)
+    else:
+        result = run_calibration(r.frame_sets, r.camera_names, r.config, matcher=r.matcher,
+                                 progress=progress)
+    baseline = r.known_baseline or previous_baseline(r.previous)
+    if baseline:
+        result = with_known_baseline(result, *baseline)
+    warn_if_scale_lost(result.rig, r.previous)
+    if r.floor:
+        record_floor(result, r.floor)
+    warn_if_floor_lost(result.rig, r.previous, r.floor_hint)
+    record_provenance(result.rig, r.source)
+    return JobResult(result, latest_views(r.frame_sets, r.camera_names, result.rig))
+
+
+def previous_baseline(previous: Optional[RigCalibration]) -> Optional[tuple[str, str, float]]:
+    """The known baseline a metric previous calibration was scaled with, or None."""
+    scale = (previous.quality.get("scale_from_baseline")
+             if previous is not None and previous.metric_scale else None)
+    if not scale:
+        return None
+    log.info("metric scale as in the previous calibration: %s-%s = %s m", *scale["cameras"],
+             scale["baseline_m"])
+    return (*scale["cameras"], float(scale["baseline_m"]))
