@@ -11,7 +11,7 @@ import sys
 import warnings
 
 # Too late to fix the order when pycolmap came first: say so now, and the PNG writers refuse
-# (InputError) instead of aborting the process; what writes no PNG (e.g. core.peers) still works.
+# (InputError) instead of aborting the process; what writes no PNG (e.g. eval.peers) still works.
 PNG_ABORTS = "pycolmap" in sys.modules and "cv2" not in sys.modules
 WRONG_IMPORT_ORDER = (
     "pycolmap was imported before densecalib_ros (or cv2): writing a PNG would abort the process "

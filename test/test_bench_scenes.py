@@ -2,7 +2,7 @@
 tables say of the warnings a result carried."""
 import numpy as np
 
-from densecalib_ros.core.bench import (format_scene_table, format_summary, forward_scenes,
+from densecalib_ros.eval.bench import (format_scene_table, format_summary, forward_scenes,
                                        full_scenes, heldout_scenes, mixed_scenes, quick_scenes,
                                        summarize)
 
@@ -74,7 +74,7 @@ def test_peak_memory_counts_the_worker_processes():
     import subprocess
     import sys
 
-    from densecalib_ros.core.bench import _peak_rss_mib, _reset_peak_rss
+    from densecalib_ros.eval.bench import _peak_rss_mib, _reset_peak_rss
 
     assert _reset_peak_rss()
     alone = _peak_rss_mib()

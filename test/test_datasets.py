@@ -3,7 +3,7 @@ import cv2
 import numpy as np
 import pytest
 
-from densecalib_ros.core.datasets import default_data_dir, load_strecha
+from densecalib_ros.eval.datasets import default_data_dir, load_strecha
 
 STRECHA = default_data_dir() / "strecha_entry_p10"
 needs_strecha = pytest.mark.skipif(
@@ -59,7 +59,7 @@ def test_strecha_loader_scales_and_is_consistent():
 
 
 def test_generated_folder_round_trip(tmp_path):
-    from densecalib_ros.core.datasets import load_generated, scene_from_synthetic
+    from densecalib_ros.eval.datasets import load_generated, scene_from_synthetic
     from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, width=160, height=120, num_time_steps=2,
@@ -84,7 +84,7 @@ FOX = default_data_dir() / "ngp_fox"
                     reason=f"instant-ngp fox not found at {FOX} (set DENSECALIB_DATA to the shared "
                            "data dir)")
 def test_nerf_loader_axes_and_intrinsics_agree_with_the_images():
-    from densecalib_ros.core.datasets import load_nerf_transforms
+    from densecalib_ros.eval.datasets import load_nerf_transforms
 
     scene = load_nerf_transforms(FOX, num_views=25, max_side_px=1024)
     assert len(scene.camera_names) == 25 and scene.reference_is_estimate

@@ -312,7 +312,7 @@ def test_bag_camera_info_topics_give_the_intrinsics(tmp_path, caplog):
 def test_recalibration_of_a_bumped_rig_can_keep_the_previous_intrinsics(rig):
     """Mounts bumped, lenses untouched: --previous OLD --intrinsics OLD recalibrates the poses
     from the previous calibration and keeps its intrinsics exactly."""
-    from densecalib_ros.core.bench import perturbed_calibration
+    from densecalib_ros.eval.bench import perturbed_calibration
     from densecalib_ros.core.recalibration import recalibrate
 
     gt = rig.ground_truth()

@@ -4,7 +4,7 @@ import pytest
 
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.peers import run_peer
+from densecalib_ros.eval.peers import run_peer
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
@@ -50,7 +50,7 @@ def test_unknown_method_is_a_typed_error(rig):
 def test_bench_runs_a_scene_and_writes_json(tmp_path, capsys):
     import json
 
-    from densecalib_ros.core.bench import SceneSpec, run_bench
+    from densecalib_ros.eval.bench import SceneSpec, run_bench
 
     spec = SceneSpec("synthetic-pinhole-4cam-480x360-s5", "synthetic", num_cameras=4,
                      width=480, height=360, seed=5)
@@ -76,7 +76,7 @@ def test_peer_survives_pycolmap_imported_before_cv2():
     import sys
 
     code = ("import pycolmap, numpy as np\n"
-            "from densecalib_ros.core.peers import run_peer\n"
+            "from densecalib_ros.eval.peers import run_peer\n"
             "r = run_peer('colmap', [np.zeros((64, 64, 3), np.uint8)] * 3, ['a', 'b', 'c'],"
             " num_threads=1)\n"
             "print('unregistered', len(r.unregistered))\n")

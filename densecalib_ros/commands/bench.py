@@ -15,7 +15,7 @@ log = logging.getLogger("densecalib.bench")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..core.bench import ALL_METHODS, METHODS
+    from ..eval.bench import ALL_METHODS, METHODS
 
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--quick", action="store_true",
@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
+    from ..eval.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
                               quick_scenes, run_bench)
 
     specs = (quick_scenes() if args.quick else heldout_scenes() if args.heldout

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..core.bag import read_frame_sets
     from ..core.config import make_config
-    from ..core.datasets import default_data_dir
+    from ..eval.datasets import default_data_dir
     from ..core.export import read_calibration
     from ..core.pipeline import run_calibration
     from ..core.scale import with_known_baseline

@@ -15,8 +15,8 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from .errors import InputError
-from .types import CameraIntrinsics, RigCalibration, RigCamera
+from ..core.errors import InputError
+from ..core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 _FISHEYE_MODELS = {"OPENCV_FISHEYE", "RADIAL_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "FOV",
                    "THIN_PRISM_FISHEYE", "RAD_TAN_THIN_PRISM_FISHEYE"}
@@ -208,7 +208,7 @@ def scene_from_synthetic(rig, name: str) -> Scene:
 def load_generated(directory: str | os.PathLike, name: Optional[str] = None) -> Scene:
     """A folder written by `densecalib generate` (core.synthetic.write_rig):
     <camera>/<t:04d>.png per camera and time step, and ground_truth.json."""
-    from .synthetic import read_ground_truth
+    from ..core.synthetic import read_ground_truth
 
     root = Path(directory)
     gt, cam_from_world = read_ground_truth(root)

@@ -26,12 +26,12 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from .colmap_logging import quiet_colmap
+from ..core.colmap_logging import quiet_colmap
+from ..core.errors import CalibrationError, InputError
+from ..core.json_text import json_text
+from ..core.metrics import evaluate_calibration
 from .datasets import (Scene, default_data_dir, load_nerf_transforms, load_strecha,
                        scene_from_synthetic)
-from .errors import CalibrationError, InputError
-from .json_text import json_text
-from .metrics import evaluate_calibration
 from .peers import PEER_METHODS, run_peer
 
 log = logging.getLogger(__name__)
@@ -189,7 +189,7 @@ def forward_scenes() -> list[SceneSpec]:
 def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
     """The scene's images and reference cameras. Raises FileNotFoundError when real data is absent."""
     if spec.kind == "synthetic":
-        from .synthetic import RigSpec, generate_rig
+        from ..core.synthetic import RigSpec, generate_rig
 
         models = tuple("OPENCV_FISHEYE" if c in spec.fisheye_cameras else spec.camera_model
                        for c in range(spec.num_cameras)) if spec.fisheye_cameras else ()
@@ -272,8 +272,8 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             calib = peer.to_rig_calibration(scene.camera_names)
             record["message"] = peer.message
         elif method in OUR_METHODS or method == GIVEN_INTRINSICS_METHOD:
-            from .config import make_config
-            from .pipeline import calibrate_rig
+            from ..core.config import make_config
+            from ..core.pipeline import calibrate_rig
 
             given = {}
             if method == GIVEN_INTRINSICS_METHOD:
@@ -288,8 +288,8 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             with quiet_colmap(min_level=2):
                 calib = calibrate_rig(scene.frame_sets, scene.camera_names, config)
         elif method == RECAL_METHOD:
-            from .config import make_config
-            from .recalibration import recalibrate
+            from ..core.config import make_config
+            from ..core.recalibration import recalibrate
 
             config = make_config("fisheye" if scene.lens == "fisheye" else "regular", "global",
                                  camera_lens=dict(scene.camera_lens))
@@ -315,14 +315,14 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
     record["peak_rss_mib"] = (_peak_rss_mib(with_workers=method not in PEER_METHODS)
                               if can_measure_memory else None)
     if calib is None:
-        from .types import RigCalibration
+        from ..core.types import RigCalibration
 
         calib = RigCalibration(scene.camera_names[0], {}, failed_cameras=list(scene.camera_names))
     elif not calib.cameras and record["status"] == "ok":
         record["status"] = "failed"
     record["metrics"] = evaluate_calibration(calib, scene.gt)
     if method not in PEER_METHODS and calib.cameras:
-        from .uncertainty import error_sigma_ratios
+        from ..core.uncertainty import error_sigma_ratios
         record["error_sigma_ratios"] = error_sigma_ratios(calib, scene.gt)
         # What the user would have been told about this result (consensus disagreement, focal
         # lengths left open, ...): a warning on a right result is a false alarm, none on a wrong
@@ -402,7 +402,7 @@ def run_bench(specs: Sequence[SceneSpec], methods: Sequence[str], num_threads: i
 def _write_json(report: dict, out_dir: Optional[Path]) -> None:
     if out_dir is None:
         return
-    from .export import write_text_atomic
+    from ..core.export import write_text_atomic
 
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     write_text_atomic(Path(out_dir) / "bench.json",

@@ -25,9 +25,9 @@ from typing import Optional, Sequence
 import cv2
 import numpy as np
 
-from .colmap_logging import quiet_colmap
-from .errors import InputError
-from .types import CameraIntrinsics, RigCalibration, RigCamera
+from ..core.colmap_logging import quiet_colmap
+from ..core.errors import InputError
+from ..core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 log = logging.getLogger(__name__)
 
