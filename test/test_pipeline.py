@@ -220,7 +220,7 @@ def test_bad_names_and_images_are_refused_before_any_work(rig, tmp_path):
                                          f"images in frame set {last}: one camera was given twice"):
         calibrate_rig(twice, names, config)
     twice[last][0] = twice[last][2] = np.zeros_like(images[last][0])  # two covered lenses: no
-    from densecalib_ros.core.pipeline import check_frame_sets  # proof of one camera twice
+    from densecalib_ros.core.frame_checks import check_frame_sets  # proof of one camera twice
     check_frame_sets(twice, names)
     stacked = np.stack([np.stack(s) for s in images])  # (T, C, H, W, 3) is fine as frame sets
     assert check_frame_sets(stacked, names) == check_frame_sets(images, names)

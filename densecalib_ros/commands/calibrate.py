@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.job import CalibrationRequest, run_job
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
                                          with_previous_intrinsics)
-    from ..core.pipeline import check_frame_sets
+    from ..core.frame_checks import check_frame_sets
     from ..core.reference_views import reference_views_of
 
     try:

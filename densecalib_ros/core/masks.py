@@ -9,16 +9,20 @@ after matching, so the sampling, SfM and all-match refinement never see it.
 """
 from __future__ import annotations
 
+import logging
 import os
 from typing import Optional, Sequence
 
 import cv2
 import numpy as np
 
+from .config import PipelineConfig
 from .errors import InputError
 from .image_io import decode_file_bytes, read_file_bytes
 from .sampling import refined_targets_px
 from .types import SiteMatchSet
+
+log = logging.getLogger(__name__)
 
 
 def read_mask(path: str | os.PathLike) -> np.ndarray:
@@ -86,3 +90,43 @@ def apply_masks(match_set: SiteMatchSet, ignored: Sequence[Optional[np.ndarray]]
             pm.target_xy_px[drop] = np.nan
         dropped += int(drop.sum())
     return dropped
+
+
+def info_strips(frame_sets: Sequence[Sequence[np.ndarray]],
+                camera_names: Optional[Sequence[str]], config: PipelineConfig) -> dict:
+    """Camera name -> the info strips (core.info_strip) found in its images, for the cameras
+    without a mask of the user's; {} when config.detect_info_strips is off."""
+    from .info_strip import find_info_strips
+
+    if not config.detect_info_strips or camera_names is None or not frame_sets:
+        return {}
+    found = find_info_strips(frame_sets, camera_names)
+    return {n: strips for n, strips in found.items() if n not in config.camera_masks}
+
+
+def _info_strip_masks(strips: dict, frame_sets: Sequence[Sequence[np.ndarray]],
+                      camera_names: Sequence[str]) -> dict:
+    """Camera name -> bool mask of its info strips (info_strips), for core.masks."""
+    from .info_strip import strips_mask
+
+    masks = {}
+    for name, found in strips.items():
+        height, width = frame_sets[0][list(camera_names).index(name)].shape[:2]
+        masks[name] = strips_mask(found, height, width)
+        log.info("camera %s: its info strip (%s) is ignored", name,
+                 ", ".join(s.describe() for s in found))
+    return masks
+
+
+def ignored_regions(frame_sets: Sequence[Sequence[np.ndarray]],
+                    camera_names: Optional[Sequence[str]], config: PipelineConfig,
+                    strips: dict) -> list:
+    """Per camera its bool (H, W) mask of what no match may use (the user's config.camera_masks,
+    else the info strips found), or None; [] when no camera has one."""
+    masks = {**_info_strip_masks(strips, frame_sets, camera_names), **config.camera_masks}
+    if not masks:
+        return []
+    if camera_names is None:
+        raise ValueError("camera_masks need the camera names")
+    sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
+    return check_masks(masks, camera_names, sizes)

@@ -26,6 +26,8 @@ from .focal_determination import weak_focal_warning
 from .incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
 from .known_intrinsics import (check_known_intrinsics, describe as describe_known,
                                given_intrinsics_fit, given_intrinsics_warnings)
+from .frame_checks import check_frame_sets
+from .masks import ignored_regions, info_strips
 from .placement import repair_placements
 from .progress import Progress, say_progress
 from .reconstruction import (SfMState, build_reconstruction, camera_quality, colour_points,
@@ -33,7 +35,7 @@ from .reconstruction import (SfMState, build_reconstruction, camera_quality, col
 from .scale import move_model_to_rig_frame
 from .twoview import (F_THRESHOLD_PX, MIN_CORRESPONDENCES, estimate_fundamental, pair_weights,
                       symmetric_epipolar_distance_px)
-from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks, check_camera_names
+from .types import CameraIntrinsics, RigCalibration, RigCamera, Tracks
 from .uncertainty import HELD_PP_STD_FRACTION, calibration_uncertainty
 
 log = logging.getLogger(__name__)
@@ -352,114 +354,6 @@ def _previous_focals(previous: Optional[RigCalibration], camera_names: Sequence[
         two_focals = cam.intrinsics.model in ("PINHOLE", "OPENCV", "OPENCV_FISHEYE", "FULL_OPENCV")
         focals.append(0.5 * (p[0] + p[1]) if two_focals else p[0])
     return np.array(focals)
-
-
-def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
-    """(width, height) per camera; InputError (TooFewCamerasGivenError below two cameras) on unusable input, found
-    before any work (a bad image in the last frame set would otherwise surface minutes later)."""
-    camera_names = check_camera_names(camera_names)
-    C = len(camera_names)
-    if C < 2:
-        raise TooFewCamerasGivenError(f"A rig needs at least two cameras, got {C} "
-                                    f"({', '.join(camera_names) or 'none'}).")
-    if frame_sets is None or len(frame_sets) == 0:
-        raise InputError("No frame sets to calibrate from: give at least one image per camera.")
-    sizes = None
-    for t, frames in enumerate(frame_sets):
-        if (isinstance(frames, np.ndarray) and frames.ndim <= 3) or not hasattr(frames, "__len__"):
-            raise InputError(f"Frame set {t} is not a list of images, one per camera: "
-                             "frame_sets[t][c] is camera c's image of moment t (one moment: "
-                             "[[image_cam0, image_cam1, ...]]).")
-        if len(frames) != C:
-            raise InputError(f"Frame set {t} has {len(frames)} images for {C} cameras.")
-        for name, image in zip(camera_names, frames):
-            _check_image(image, t, name)
-        shape = [(int(im.shape[1]), int(im.shape[0])) for im in frames]
-        if sizes is not None and shape != sizes:
-            raise InputError(f"Image sizes change between frame sets (set 0: {sizes}, set {t}: "
-                             f"{shape}): every camera must keep one resolution.")
-        sizes = shape
-        _check_distinct(frames, t, camera_names)
-    return sizes
-
-
-def _check_distinct(frames, t: int, camera_names) -> None:
-    """InputError when two cameras' images of one frame set are the same textured pixels: two
-    sensors never record identical noise, so one camera was given twice (a folder copied, one
-    topic under two names), and its pairs would otherwise fail far later as 'no consistent
-    relative pose'. Uniform images (a covered lens, a black frame) are left to later checks."""
-    seen: dict = {}
-    for name, image in zip(camera_names, frames):
-        probe = image[::8, ::8]
-        if probe.min() == probe.max():
-            continue
-        key = (image.shape, probe.tobytes())
-        twin = seen.get(key)
-        if twin is not None and np.array_equal(twin[1], image):
-            raise InputError(f"Cameras {twin[0]} and {name} gave identical images in frame set "
-                             f"{t}: one camera was given twice (the same folder, video or topic "
-                             "under two names?); give each camera's own images.")
-        seen[key] = (name, image)
-
-
-def _check_image(image, t: int, camera: str) -> None:
-    where = f"The image of camera {camera} in frame set {t}"
-    if not isinstance(image, np.ndarray):
-        raise InputError(f"{where} is a {type(image).__name__}, not a numpy array: give (H, W, 3) "
-                         "uint8 RGB or (H, W) uint8 gray (an unreadable file gives None).")
-    if image.dtype != np.uint8:
-        raise InputError(f"{where} has dtype {image.dtype}: give uint8 (16-bit images: "
-                         "core.image_encoding.to_pipeline_image(image, 'rgb') converts them).")
-    if not (image.ndim == 2 or image.ndim == 3 and image.shape[2] == 3):
-        hint = (" (one channel: image[..., 0])" if image.ndim == 3 and image.shape[2] == 1 else
-                " (RGBA: image[..., :3])" if image.ndim == 3 and image.shape[2] == 4 else "")
-        raise InputError(f"{where} has shape {image.shape}: give (H, W, 3) RGB or (H, W) "
-                         f"gray{hint}.")
-    if min(image.shape[:2]) < 16:
-        raise InputError(f"{where} is {image.shape[1]}x{image.shape[0]} px: at least 16 px on "
-                         "each side.")
-
-
-def info_strips(frame_sets: Sequence[Sequence[np.ndarray]],
-                camera_names: Optional[Sequence[str]], config: PipelineConfig) -> dict:
-    """Camera name -> the info strips (core.info_strip) found in its images, for the cameras
-    without a mask of the user's; {} when config.detect_info_strips is off."""
-    from .info_strip import find_info_strips
-
-    if not config.detect_info_strips or camera_names is None or not frame_sets:
-        return {}
-    found = find_info_strips(frame_sets, camera_names)
-    return {n: strips for n, strips in found.items() if n not in config.camera_masks}
-
-
-def _info_strip_masks(strips: dict, frame_sets: Sequence[Sequence[np.ndarray]],
-                      camera_names: Sequence[str]) -> dict:
-    """Camera name -> bool mask of its info strips (info_strips), for core.masks."""
-    from .info_strip import strips_mask
-
-    masks = {}
-    for name, found in strips.items():
-        height, width = frame_sets[0][list(camera_names).index(name)].shape[:2]
-        masks[name] = strips_mask(found, height, width)
-        log.info("camera %s: its info strip (%s) is ignored", name,
-                 ", ".join(s.describe() for s in found))
-    return masks
-
-
-def ignored_regions(frame_sets: Sequence[Sequence[np.ndarray]],
-                    camera_names: Optional[Sequence[str]], config: PipelineConfig,
-                    strips: dict) -> list:
-    """Per camera its bool (H, W) mask of what no match may use (the user's config.camera_masks,
-    else the info strips found), or None; [] when no camera has one."""
-    from .masks import check_masks
-
-    masks = {**_info_strip_masks(strips, frame_sets, camera_names), **config.camera_masks}
-    if not masks:
-        return []
-    if camera_names is None:
-        raise ValueError("camera_masks need the camera names")
-    sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
-    return check_masks(masks, camera_names, sizes)
 
 
 def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,

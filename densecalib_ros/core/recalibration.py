@@ -27,9 +27,10 @@ from .change import calibration_change, change_summary
 from .config import PipelineConfig
 from .consistency import DEFAULT_TOLERANCE_PX, sets_since_change
 from .errors import CalibrationError
-from .pipeline import (CalibrationResult, calibrate_from_matches, check_frame_sets,
-                       ignored_regions, info_strips, match_frame_sets, record_info_strips,
-                       with_point_colours)
+from .frame_checks import check_frame_sets
+from .masks import ignored_regions, info_strips
+from .pipeline import (CalibrationResult, calibrate_from_matches, match_frame_sets,
+                       record_info_strips, with_point_colours)
 from .progress import Progress, say_progress
 from .reference_views import fits_per_frame_set_and_view
 from .types import RigCalibration
