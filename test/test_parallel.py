@@ -15,6 +15,7 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.incremental import initial_intrinsics, run_incremental
+from densecalib_ros.core.parallel import is_running, descendant_pids
 
 import sfm_fixtures
 
@@ -74,32 +75,6 @@ def test_a_script_without_a_main_guard_runs_once(tmp_path):
     assert done.stdout.splitlines() == ["script body ran", "[120, 720, 5040]"]
 
 
-def _descendants(pid: int) -> set[int]:
-    children = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as f:
-                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            children.setdefault(ppid, set()).add(int(entry))
-    found, todo = set(), [pid]
-    while todo:
-        for child in children.get(todo.pop(), ()):
-            found.add(child)
-            todo.append(child)
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL])
 def test_no_worker_outlives_an_interrupted_or_killed_run(tmp_path, sig):
     command = _script(tmp_path, """
@@ -112,18 +87,18 @@ def test_no_worker_outlives_an_interrupted_or_killed_run(tmp_path, sig):
                             env=_env())
     assert proc.stdout.readline().strip() == "working"
     deadline = time.monotonic() + 60
-    while len(_descendants(proc.pid)) < 3 and time.monotonic() < deadline:  # server + 2 workers
+    while len(descendant_pids(proc.pid)) < 3 and time.monotonic() < deadline:  # server, 2 workers
         time.sleep(0.2)
-    workers = _descendants(proc.pid)
+    workers = set(descendant_pids(proc.pid))
     assert len(workers) >= 3, "the workers never started"
     os.kill(proc.pid, sig)
     proc.wait(timeout=30)
     # SIGINT: stopped by the run. SIGKILL: nothing runs in the parent; the fork server sees it
     # gone, and the workers their server (core.parallel.PARENT_CHECK_S), mid-task.
     deadline = time.monotonic() + 3
-    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+    while any(is_running(p) for p in workers) and time.monotonic() < deadline:
         time.sleep(0.2)
-    left = [p for p in workers if _alive(p)]
+    left = [p for p in workers if is_running(p)]
     for p in left:
         os.kill(p, signal.SIGKILL)
     assert not left, proc.stderr.read()

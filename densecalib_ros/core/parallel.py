@@ -45,6 +45,28 @@ def available_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def descendant_pids(pid: int) -> list[int]:
+    """The processes below `pid` (children, their children, ...), read from /proc ([] where there
+    is none)."""
+    children: dict[int, list[int]] = {}
+    try:
+        entries = os.listdir("/proc")
+    except OSError:
+        return []
+    for entry in entries:
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(entry))
+    found = list(children.get(pid, ()))
+    for child in found:  # grows while it is walked
+        found.extend(children.get(child, ()))
+    return found
+
+
 def job_count(jobs: int) -> int:
     """jobs as configured (-1 or 0 = every available core) as a number of processes."""
     return available_cores() if jobs <= 0 else int(jobs)
@@ -62,14 +84,14 @@ def _worker_start(calibrating_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def watch() -> None:
-        while _running(calibrating_pid):
+        while is_running(calibrating_pid):
             time.sleep(PARENT_CHECK_S)
         os._exit(1)
 
     threading.Thread(target=watch, name="densecalib-parent-watch", daemon=True).start()
 
 
-def _running(pid: int) -> bool:
+def is_running(pid: int) -> bool:
     """Whether process pid exists and is not a zombie (dead, not yet reaped)."""
     try:
         with open(f"/proc/{pid}/stat") as f:

@@ -217,19 +217,9 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
 
 def _own_processes() -> list[int]:
     """This process and its descendants (core.parallel's fork server and workers)."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as f:
-                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            children.setdefault(ppid, []).append(int(entry))
-    found = [os.getpid()]
-    for pid in found:  # grows while it is walked
-        found.extend(children.get(pid, ()))
-    return found
+    from ..core.parallel import descendant_pids
+
+    return [os.getpid(), *descendant_pids(os.getpid())]
 
 
 def _reset_peak_rss() -> bool:
