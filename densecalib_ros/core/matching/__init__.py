@@ -18,6 +18,7 @@ from .base import Matcher
 # name -> (module, class). Explicit on purpose: no discovery by introspection.
 _REGISTRY: dict[str, tuple[str, str]] = {
     "sift": ("densecalib_ros.core.matching.sift", "SiftMatcher"),
+    "asift": ("densecalib_ros.core.matching.sift", "AsiftMatcher"),
     "xfeat-lighterglue": ("densecalib_ros.core.matching.xfeat_lighterglue", "XFeatLighterGlueMatcher"),
     "xfeat-star": ("densecalib_ros.core.matching.xfeat_star", "XFeatStarMatcher"),
     "roma": ("densecalib_ros.core.matching.roma", "RomaMatcher"),
