@@ -55,6 +55,8 @@ def test_users_are_warned_when_runs_disagree_beyond_auc3_threshold():
     message = disagreement_warning(12.5, 5)
     assert "5 calibration runs disagree" in message and "12.5 deg" in message
     assert "frame sets" in message and "share-intrinsics" in message
+    assert "asift" not in message  # only where the rig is few perspective cameras
+    assert "--matcher asift" in disagreement_warning(12.5, 5, few_wide_cameras=True)
 
 
 def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majority():

@@ -172,13 +172,18 @@ def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
     return Choice(best, D, costs, [k for k in range(len(rigs)) if k not in fitting], by_fit)
 
 
-def disagreement_warning(disagreement_deg: float, num_runs: int) -> Optional[str]:
-    """The message for a user whose runs disagree by more than WARN_DISAGREEMENT_DEG, else None."""
+def disagreement_warning(disagreement_deg: float, num_runs: int,
+                         few_wide_cameras: bool = False) -> Optional[str]:
+    """The message for a user whose runs disagree by more than WARN_DISAGREEMENT_DEG, else None.
+    few_wide_cameras: three or four perspective cameras matched with sift, whose matches a wide
+    viewpoint change thins out (docs/benchmarks.md): the message suggests asift."""
     if disagreement_deg <= WARN_DISAGREEMENT_DEG:
         return None
+    asift = (" With three or four cameras far apart, --matcher asift (node: matcher asift) finds "
+             "the matches a wide viewpoint change leaves sift." if few_wide_cameras else "")
     return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
             "(median over camera pairs) from the others, so the images allow quite different rigs "
             "and this one may be wrong. Add frame sets (time-aligned images of a changing scene) or "
             "more overlap between cameras, or use --share-intrinsics (node: share_intrinsics; "
             "SfMConfig.share_intrinsics) if "
-            "the cameras are identical units.")
+            "the cameras are identical units." + asift)

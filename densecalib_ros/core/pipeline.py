@@ -585,7 +585,10 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     say_progress(progress, f"consensus: median disagreement of the result with the other "
                            f"{len(results) - 1} runs "
                            f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg")
-    warning = disagreement_warning(result.rig.quality["consensus_disagreement_deg"], len(results))
+    few_wide = (config.matcher == "sift" and len(camera_names) <= 4
+                and not any("FISHEYE" in m for m in config.sfm.models(len(camera_names))))
+    warning = disagreement_warning(result.rig.quality["consensus_disagreement_deg"], len(results),
+                                   few_wide)
     if warning:
         warn_user(result.rig, warning, progress)
     return result
