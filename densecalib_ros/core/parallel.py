@@ -33,6 +33,7 @@ PACKAGE_LOGGER = "densecalib_ros"
 PRELOAD_MODULES = ["densecalib_ros.core.incremental"]
 
 _lock = threading.Lock()
+_lock_start = threading.Lock()  # spawn.get_preparation_data is swapped while a worker starts
 _pool: Optional[ProcessPoolExecutor] = None
 _pool_workers = 0
 
@@ -164,8 +165,6 @@ class _WorkerProcess(multiprocessing.context.ForkServerProcess):
 class _WorkerContext(multiprocessing.context.ForkServerContext):
     Process = _WorkerProcess
 
-
-_lock_start = threading.Lock()
 
 
 def _get_pool(workers: int) -> ProcessPoolExecutor:
