@@ -102,3 +102,21 @@ def test_no_worker_outlives_an_interrupted_or_killed_run(tmp_path, sig):
     for p in left:
         os.kill(p, signal.SIGKILL)
     assert not left, proc.stderr.read()
+
+
+def test_where_no_worker_can_start_the_work_runs_here_and_says_so_once(monkeypatch, caplog):
+    """A container without process or semaphore rights: the calibration still runs."""
+    import math
+
+    import densecalib_ros.core.parallel as parallel
+
+    def refuse(workers):
+        raise PermissionError(1, "Operation not permitted", "/dev/shm")
+
+    monkeypatch.setattr(parallel, "_get_pool", refuse)
+    monkeypatch.setattr(parallel, "_no_workers", False)
+    with caplog.at_level(logging.WARNING, logger="densecalib_ros"):
+        assert parallel.map_jobs(math.factorial, [(4,), (5,)], 2) == [24, 120]
+        assert parallel.map_jobs(math.factorial, [(3,), (6,)], 2) == [6, 720]
+    (said,) = [r.getMessage() for r in caplog.records]
+    assert "no worker processes here" in said and "/dev/shm" in said

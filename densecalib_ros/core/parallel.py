@@ -36,6 +36,7 @@ _lock = threading.Lock()
 _lock_start = threading.Lock()  # spawn.get_preparation_data is swapped while a worker starts
 _pool: Optional[ProcessPoolExecutor] = None
 _pool_workers = 0
+_no_workers = False  # set where worker processes cannot be started
 
 
 def available_cores() -> int:
@@ -205,17 +206,24 @@ def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int) -> list:
     process's handlers, task by task in order."""
     import pycolmap
 
+    global _no_workers
     workers = min(job_count(jobs), len(arg_tuples))
-    if workers <= 1:
+    if workers <= 1 or _no_workers:
         return [fn(*args) for args in arg_tuples]
     levels = (pycolmap.logging.minloglevel,
               logging.getLogger(PACKAGE_LOGGER).getEffectiveLevel())
     results: list = [None] * len(arg_tuples)
     pending = list(range(len(arg_tuples)))
-    futures: dict = {}
     try:
         pool = _get_pool(workers)
         futures = {k: pool.submit(_run_task, *levels, fn, arg_tuples[k]) for k in pending}
+    except OSError as exc:  # no processes or semaphores here (a locked-down container)
+        log.warning("no worker processes here (%s): this process does all the work, on one "
+                    "core", exc)
+        _no_workers = True  # said once; not tried again
+        stop_workers()
+        return [fn(*args) for args in arg_tuples]
+    try:
         for k in list(pending):
             results[k], records = futures[k].result()
             for record in records:  # reported here, once, as if the task had run here
