@@ -16,10 +16,11 @@ from densecalib_ros.core.config import make_config
 from densecalib_ros.core.consistency import (check_calibration, fits_per_frame_set,
                                              sets_since_change)
 from densecalib_ros.core.pipeline import match_frame_sets
-from densecalib_ros.core.reference_views import (REFERENCE_MAX_SIDE_PX, check_verdict,
-                                                 compare_with_reference_views,
-                                                 fits_per_frame_set_and_view, latest_views,
-                                                 read_reference_views, write_reference_views)
+from densecalib_ros.core.reference_view_files import (REFERENCE_MAX_SIDE_PX, latest_views,
+                                                      read_reference_views,
+                                                      write_reference_views)
+from densecalib_ros.core.reference_views import (check_verdict, compare_with_reference_views,
+                                                 fits_per_frame_set_and_view)
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from sfm_fixtures import refocused_image, turned_image  # pytest puts test/ on sys.path
 

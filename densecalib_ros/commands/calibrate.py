@@ -160,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
                                          with_previous_intrinsics)
     from ..core.frame_checks import check_frame_sets
-    from ..core.reference_views import reference_views_of
+    from ..core.reference_view_files import reference_views_of
 
     try:
         inputs = [p for p in (args.images, args.videos, args.bag) if p]

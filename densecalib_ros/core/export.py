@@ -369,7 +369,7 @@ def write_calibration_files(rig: RigCalibration, directory: str | os.PathLike,
     if reconstruction is not None:
         write_colmap_model(reconstruction, directory / "colmap")
     if reference_views:
-        from .reference_views import write_reference_views
+        from .reference_view_files import write_reference_views
         write_reference_views(directory, reference_views)
 
 

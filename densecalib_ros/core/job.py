@@ -68,7 +68,7 @@ def run_job(request: CalibrationRequest, progress: Progress = None) -> JobResult
     from .floor import record_floor, warn_if_floor_lost
     from .pipeline import run_calibration
     from .recalibration import recalibrate
-    from .reference_views import latest_views
+    from .reference_view_files import latest_views
     from .scale import warn_if_scale_lost, with_known_baseline
 
     r = request

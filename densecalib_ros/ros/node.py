@@ -581,7 +581,7 @@ class DenseCalibNode(Node):
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
         from ..core.job import CalibrationRequest, run_job
-        from ..core.reference_views import read_reference_views
+        from ..core.reference_view_files import read_reference_views
 
         s = self.settings
         sets = self.sync.snapshot()
