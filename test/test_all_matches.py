@@ -1,14 +1,15 @@
-"""The last refinement on every keypoint match (core.all_matches): how matches become tracks, and
-that refining a found rig on them recovers what sparse sampled tracks leave loose, with outlier
+"""The last refinement on every keypoint match (core.method.all_matches): how matches become tracks,
+and that refining a found rig on them recovers what sparse sampled tracks leave loose, with outlier
 matches among them."""
 import numpy as np
 import pytest
 
-from densecalib_ros.core.all_matches import RAW_MATCH_MAX_GATE_PX, keypoint_tracks, refine_on_tracks
+from densecalib_ros.core.method.all_matches import (RAW_MATCH_MAX_GATE_PX, keypoint_tracks,
+                                                    refine_on_tracks)
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.pipeline import calibrate_from_tracks
-from densecalib_ros.core.reconstruction import SfMState, reprojection_errors
+from densecalib_ros.core.method.reconstruction import SfMState, reprojection_errors
 from densecalib_ros.core.types import SiteMatches, SiteMatchSet
 
 from sfm_fixtures import gt_calibration, gt_rig, gt_tracks

@@ -1,14 +1,14 @@
-"""Offline bag reading (core.bag): bags written here with `rosbags` (sqlite3 and mcap, raw and
+"""Offline bag reading (core.io.bag): bags written here with `rosbags` (sqlite3 and mcap, raw and
 compressed) read back to the same synchronised frames; camera names; errors; the shared real bag."""
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from densecalib_ros.core.bag import (camera_names_from_topics, iter_image_messages,
-                                     read_frame_sets, write_image_bag)
+from densecalib_ros.core.io.bag import (camera_names_from_topics, iter_image_messages,
+                                        read_frame_sets, write_image_bag)
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.image_encoding import decode_compressed, encode_compressed
+from densecalib_ros.core.io.image_encoding import decode_compressed, encode_compressed
 
 TOPICS = ["/rig/cam_a/image_raw", "/rig/cam_b/image_raw", "/cam_c/image_raw/compressed"]
 SHARED_BAG = (Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -120,7 +120,7 @@ def test_a_damaged_bag_gives_the_frame_sets_before_the_damage(tmp_path, caplog):
         data[index * page:(index + 1) * page] = b"\xab" * page
         db.write_bytes(bytes(data))
     damage(len(written) // page * 2 // 3)
-    with caplog.at_level("WARNING", logger="densecalib_ros.core.bag"):
+    with caplog.at_level("WARNING", logger="densecalib_ros.core.io.bag"):
         got, _ = read_frame_sets(tmp_path / "b", TOPICS[:2], slop_s=0.01)
     assert 1 <= len(got) < 12
     for t, frame_set in enumerate(got):
@@ -156,7 +156,7 @@ def test_shared_bag_calibrated_with_its_camera_info_matches_the_target_based_ref
     from scipy.spatial.transform import Rotation
 
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import read_calibration
+    from densecalib_ros.core.io.export import read_calibration
 
     topics = ["/stereo/left/image_raw", "/stereo/right/image_raw"]
     out = tmp_path / "out"

@@ -13,9 +13,9 @@ import pytest
 from PIL import Image
 
 from densecalib_ros.cli import main
-from densecalib_ros.core.export import read_calibration
+from densecalib_ros.core.io.export import read_calibration
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.scale import camera_distance
+from densecalib_ros.core.products.scale import camera_distance
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, read_ground_truth, write_rig
 
 
@@ -62,7 +62,7 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     for image in pycolmap.Reconstruction(str(out / "colmap")).images.values():
         np.testing.assert_allclose(image.cam_from_world().matrix(),
                                    rig.cameras[image.name].cam_from_rig[:3], atol=1e-9)
-    # each camera's view of the last frame set, for `check` (core.reference_views)
+    # each camera's view of the last frame set, for `check` (core.monitor.reference_views)
     assert sorted(p.name for p in (out / "reference_views").iterdir()) == [
         f"{n}.jpg" for n in names]
     gt, _ = read_ground_truth(rig_dir / "ground_truth.json")

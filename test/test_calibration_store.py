@@ -1,12 +1,12 @@
-"""core.calibration_store: the node's output_dir of calibrations over time. New calibrations get
+"""core.io.calibration_store: the node's output_dir of calibrations over time. New calibrations get
 their own folder and `latest` follows them; a failed write leaves `latest` where it was; pruning
 keeps the newest N, never the one `latest` points to, never anything it did not make."""
 import os
 
 import pytest
 
-from densecalib_ros.core.calibration_store import (LATEST, prune_calibrations,
-                                                   stored_calibrations, write_new_calibration)
+from densecalib_ros.core.io.calibration_store import (LATEST, prune_calibrations,
+                                                      stored_calibrations, write_new_calibration)
 
 
 def _write(text):
@@ -64,7 +64,7 @@ def test_report_history_says_what_changed_between_stored_calibrations(tmp_path, 
     from scipy.spatial.transform import Rotation
 
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.io.export import write_calibration_files
     from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
     truth = generate_rig(RigSpec(lenses="ideal", num_cameras=4, width=320, height=240, seed=5)).ground_truth()

@@ -3,9 +3,9 @@ pipeline's use of it is tested in test_pipeline.py)."""
 import numpy as np
 import pytest
 
-from densecalib_ros.core.consensus import (UNREGISTERED_PAIR_DEG, WARN_DISAGREEMENT_DEG,
-                                           disagreement_warning, medoid, pair_disagreement_deg,
-                                           rig_disagreement_deg)
+from densecalib_ros.core.robust.consensus import (UNREGISTERED_PAIR_DEG, WARN_DISAGREEMENT_DEG,
+                                                  disagreement_warning, medoid,
+                                                  pair_disagreement_deg, rig_disagreement_deg)
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 NAMES = ["a", "b", "c"]
@@ -64,8 +64,9 @@ def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majo
     other, so the medoid alone would keep one of them); on the common tracks, triangulated from
     each run's cameras, they cost far more than the right runs, which are kept."""
     import sfm_fixtures
-    from densecalib_ros.core.consensus import (COMMON_TRACKS_MAX, WORSE_FIT_RATIO, choose_run,
-                                               common_track_costs, well_fitting_runs)
+    from densecalib_ros.core.robust.consensus import (COMMON_TRACKS_MAX, WORSE_FIT_RATIO,
+                                                      choose_run, common_track_costs,
+                                                      well_fitting_runs)
 
     names = ["a", "b", "c", "d"]
     cams, poses = sfm_fixtures.gt_rig(4, seed=5)
@@ -103,7 +104,7 @@ def test_a_run_that_left_out_a_camera_is_kept_when_the_full_runs_fit_clearly_wor
     kept although it registered fewer cameras (real fox, 8 frames, global pipeline: the two
     runs that dropped one frame were right, AUC@3 44, and the three that posed all 8 wrong)."""
     import sfm_fixtures
-    from densecalib_ros.core.consensus import choose_run, common_track_costs
+    from densecalib_ros.core.robust.consensus import choose_run, common_track_costs
 
     names = ["a", "b", "c", "d"]
     cams, poses = sfm_fixtures.gt_rig(4, seed=5)
@@ -136,7 +137,7 @@ def test_runs_refined_on_the_same_tracks_are_judged_by_their_fit_to_them_not_by_
     a run that fits best only by leaving a camera out is not kept. Without such tracks the vote
     among the runs that fit the common tracks about equally decides."""
     import sfm_fixtures
-    from densecalib_ros.core.consensus import WORSE_FIT_RATIO, choose_run
+    from densecalib_ros.core.robust.consensus import WORSE_FIT_RATIO, choose_run
 
     names = ["a", "b", "c", "d"]
     cams, poses = sfm_fixtures.gt_rig(4, seed=5)

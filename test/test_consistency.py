@@ -1,7 +1,7 @@
-"""`densecalib check` (core.consistency): new images of a rig against its calibration. The true
-calibration fits; a camera panned by 0.5 deg (nearly along its epipolar lines) or refocused by 3 %
-is named by its transfer error, and on a 3-camera rig a tilted camera by the pair that still fits;
-a change inside a buffer of frame sets is judged on the sets since."""
+"""`densecalib check` (core.monitor.consistency): new images of a rig against its calibration. The
+true calibration fits; a camera panned by 0.5 deg (nearly along its epipolar lines) or refocused by
+3 % is named by its transfer error, and on a 3-camera rig a tilted camera by the pair that still
+fits; a change inside a buffer of frame sets is judged on the sets since."""
 import copy
 import json
 import shutil
@@ -13,8 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.consistency import best_transfer_per_camera, check_calibration
-from densecalib_ros.core.export import calibration_to_dict
+from densecalib_ros.core.monitor.consistency import best_transfer_per_camera, check_calibration
+from densecalib_ros.core.io.export import calibration_to_dict
 from densecalib_ros.core.pipeline import match_frame_sets
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
@@ -115,7 +115,7 @@ def test_a_pair_is_judged_on_its_self_consistent_matches():
     """Raw matches of cameras far apart can be mostly wrong: 30 true matches among 70 random
     ones; the consensus keeps the true ones, so the median error of the calibrated geometry is
     the true matches' (before, the median was an outlier's and the true calibration "moved")."""
-    from densecalib_ros.core.consistency import self_consistent
+    from densecalib_ros.core.monitor.consistency import self_consistent
 
     rng = np.random.default_rng(0)
     points = rng.uniform([-2, -1, 4], [2, 1, 8], (30, 3))
@@ -150,7 +150,7 @@ def test_a_change_inside_the_buffer_is_judged_on_the_frame_sets_since(buffer_rig
     before, its matches still "fit" (worst figure 1.2 px when this was written); each set held
     against the calibration on its own shows where the change came, and the sets since name
     cam2. A buffer with nothing changed is judged whole."""
-    from densecalib_ros.core.consistency import check_latest, fits_per_frame_set
+    from densecalib_ros.core.monitor.consistency import check_latest, fits_per_frame_set
     from sfm_fixtures import turned_image  # pytest puts test/ on sys.path
 
     rig, truth = buffer_rig, buffer_rig.ground_truth()
@@ -189,7 +189,7 @@ def test_transfer_gain_is_how_far_a_source_pixel_moves_the_transferred_point():
     """transfer_gain against finite differences: a source ray turned by 1 px within the epipolar
     plane moves the triangulated point; the target sees it move by the gain (px). Sources a few
     degrees apart with a target far aside magnify noise several times: the figure divides it out."""
-    from densecalib_ros.core.consistency import _midpoints, transfer_gain
+    from densecalib_ros.core.monitor.consistency import _midpoints, transfer_gain
 
     def unit(v):
         return v / np.linalg.norm(v)

@@ -1,12 +1,12 @@
-"""Image payloads <-> numpy (core.image_encoding) and ROS messages <-> core types
+"""Image payloads <-> numpy (core.io.image_encoding) and ROS messages <-> core types
 (ros.conversions): encodings, padding, byte order, compression, CameraInfo and TF conventions."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.image_encoding import (decode_compressed, decode_raw, encode_compressed,
-                                                encode_raw, raw_to_array)
+from densecalib_ros.core.io.image_encoding import (decode_compressed, decode_raw, encode_compressed,
+                                                   encode_raw, raw_to_array)
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 RNG = np.random.default_rng(3)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from densecalib_ros.core.cycles import close_cycles
+from densecalib_ros.core.method.cycles import close_cycles
 from densecalib_ros.core.types import SiteMatches, SiteMatchSet
 
 

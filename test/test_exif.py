@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from densecalib_ros.core.exif import camera_exif_focals, exif_focal_px, focal_px_from_tags
+from densecalib_ros.core.io.exif import camera_exif_focals, exif_focal_px, focal_px_from_tags
 
 FOCAL_35MM, FOCAL_MM, PLANE_X_RES, PLANE_UNIT = 0xA405, 0x920A, 0xA20E, 0xA210
 PIXEL_X, PIXEL_Y = 0xA002, 0xA003

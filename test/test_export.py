@@ -1,4 +1,5 @@
-"""Calibration files: ROS conventions of camera_info, calibration.json round trip, atomic replace."""
+"""Calibration files: ROS conventions of camera_info, calibration.json round trip, atomic
+replace."""
 import json
 
 import numpy as np
@@ -6,9 +7,10 @@ import pytest
 import yaml
 
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import (calibration_from_dict, calibration_to_dict, camera_info_yaml,
-                                        read_calibration, replace_directory_atomic,
-                                        ros_camera_info, write_calibration_files)
+from densecalib_ros.core.io.camera_info import camera_info_yaml, ros_camera_info
+from densecalib_ros.core.io.export import (calibration_from_dict, calibration_to_dict,
+                                           read_calibration, write_calibration_files)
+from densecalib_ros.core.io.safe_write import replace_directory_atomic
 from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
 
 
@@ -115,11 +117,11 @@ def test_failed_build_leaves_existing_directory_untouched(tmp_path):
     ("OPENCV_FISHEYE", [400.0, 401.0, 641.0, 478.0, 0.05, -0.02, 0.004, -0.0007])])
 def test_opencv_intrinsics_project_as_the_calibration_does(model, params):
     """The library's way to OpenCV: K, D (and which projectPoints) give the pixels that
-    core.triangulation.project gives from the COLMAP model."""
+    core.products.triangulation.project gives from the COLMAP model."""
     import cv2
 
-    from densecalib_ros.core.export import opencv_intrinsics
-    from densecalib_ros.core.triangulation import project
+    from densecalib_ros.core.io.camera_info import opencv_intrinsics
+    from densecalib_ros.core.products.triangulation import project
 
     lens = CameraIntrinsics(model, 1280, 960, np.array(params))
     rig = RigCalibration("a", {"a": RigCamera("a", lens, np.eye(4))})

@@ -1,6 +1,6 @@
-"""The floor under a rig (core.floor, `calibrate --floor`): among the planes of its scene points,
-the one with every camera above it that faces their image-up (or, seen from straight above, the
-largest they all look down on); walls, a ceiling and a smaller table top are passed over; a
+"""The floor under a rig (core.products.floor, `calibrate --floor`): among the planes of its scene
+points, the one with every camera above it that faces their image-up (or, seen from straight above,
+the largest they all look down on); walls, a ceiling and a smaller table top are passed over; a
 generated room calibrated from its images gets its true floor, camera heights in metres with a
 known baseline, and anipose's world becomes the floor frame; `densecalib floor` finds it again
 in a written calibration."""
@@ -13,8 +13,8 @@ import pytest
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import read_calibration
-from densecalib_ros.core.floor import find_floor
+from densecalib_ros.core.io.export import read_calibration
+from densecalib_ros.core.products.floor import find_floor
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
@@ -156,7 +156,7 @@ def test_calibrate_floor_on_a_generated_room(tmp_path, capsys):
 
 def test_a_recalibration_that_lost_the_floor_says_so():
     """Exports would change their world from the floor frame to the rig frame without a word."""
-    from densecalib_ros.core.floor import warn_if_floor_lost
+    from densecalib_ros.core.products.floor import warn_if_floor_lost
 
     lens = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320.0, 240.0, 0.0, 0.0]))
     cameras = {n: RigCamera(n, lens, np.eye(4)) for n in ("a", "b")}

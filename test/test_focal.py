@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.errors import FocalInitError
-from densecalib_ros.core.focal import calibration_matrix, essential_residual, estimate_initial_focals
-from densecalib_ros.core.twoview import estimate_fundamental, pair_weights
+from densecalib_ros.core.method.focal import (calibration_matrix, essential_residual,
+                                              estimate_initial_focals)
+from densecalib_ros.core.method.twoview import estimate_fundamental, pair_weights
 
 
 def rotation(axis, angle_deg):

@@ -1,4 +1,4 @@
-"""The warning for rigs whose images leave the focal lengths open (core.focal_determination):
+"""The warning for rigs whose images leave the focal lengths open (core.method.focal_determination):
 its rule on hand-made rigs, and a generated forward-facing rig calibrated end to end, against the
 same cameras around the scene."""
 import os
@@ -10,8 +10,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.focal_determination import (WEAK_FOCAL_PREFIX, optical_axes_spread_deg,
-                                                     weak_focal_fractions, weak_focal_warning)
+from densecalib_ros.core.method.focal_determination import (WEAK_FOCAL_PREFIX,
+                                                            optical_axes_spread_deg,
+                                                            weak_focal_fractions,
+                                                            weak_focal_warning)
 from densecalib_ros.core.metrics import mean_focal_px
 from densecalib_ros.core.pipeline import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig

@@ -1,10 +1,10 @@
-"""Focal hops (core.focal_hops): a one-camera-at-a-time focal search from a finished rig."""
+"""Focal hops (core.robust.focal_hops): a one-camera-at-a-time focal search from a finished rig."""
 import numpy as np
 
 import sfm_fixtures
 from densecalib_ros.core.config import SfMConfig
-from densecalib_ros.core.focal_hops import _hop_cameras, _kicked, _points_without, hop_focals
-from densecalib_ros.core.reconstruction import SfMState, triangulate_tracks
+from densecalib_ros.core.robust.focal_hops import _hop_cameras, _kicked, _points_without, hop_focals
+from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 
 NAMES = ["a", "b", "c", "d"]
 

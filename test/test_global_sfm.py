@@ -1,5 +1,5 @@
-"""Global SfM (core/global_sfm.py) on tracks made from ground truth (exact projections + noise +
-outliers): real pycolmap rotation averaging, global positioning, triangulation and BA."""
+"""Global SfM (core/method/global_sfm.py) on tracks made from ground truth (exact projections +
+noise + outliers): real pycolmap rotation averaging, global positioning, triangulation and BA."""
 import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -9,14 +9,15 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import DisconnectedViewGraphError, InputError
-from densecalib_ros.core.global_sfm import (CENTRE_GRID, gauge_scores,
-                                            rotation_averaging_poses, run_global,
-                                            snapped_centres, staged_bundle_adjustment,
-                                            to_gauge_frame, triangulate_tracks)
-from densecalib_ros.core.incremental import initial_intrinsics
+from densecalib_ros.core.method.global_sfm import (CENTRE_GRID, gauge_scores,
+                                                   rotation_averaging_poses, run_global,
+                                                   snapped_centres, staged_bundle_adjustment,
+                                                   to_gauge_frame, triangulate_tracks)
+from densecalib_ros.core.method.incremental import initial_intrinsics
 from densecalib_ros.core.metrics import evaluate_calibration, relative_pose_errors
-from densecalib_ros.core.pipeline import calibrate_from_tracks, rig_from_state
-from densecalib_ros.core.reconstruction import SfMState, reprojection_errors
+from densecalib_ros.core.calibration_result import rig_from_state
+from densecalib_ros.core.pipeline import calibrate_from_tracks
+from densecalib_ros.core.method.reconstruction import SfMState, reprojection_errors
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 from sfm_fixtures import gt_calibration, gt_rig, gt_tracks
@@ -33,7 +34,8 @@ def rotation(axis, deg):
 
 def perturbed(cams, poses, rot_deg=2.0, move_frac=0.05, focal_frac=0.05, seed=1):
     """Cameras turned by rot_deg, centres moved by move_frac of the mean distance between camera
-    centres, focal lengths scaled by 1 +- focal_frac, distortion zeroed (a bumped, refocused rig)."""
+    centres, focal lengths scaled by 1 +- focal_frac, distortion zeroed (a bumped, refocused
+    rig)."""
     rng = np.random.default_rng(seed)
     centres = np.array([-T[:3, :3].T @ T[:3, 3] for T in poses])
     spread = np.mean(np.linalg.norm(centres[:, None] - centres[None], axis=2)[np.triu_indices(len(poses), 1)])
@@ -230,7 +232,7 @@ def test_pipeline_global_dispatch_reports_stages():
 def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
     """Default global run: rotation averaging and the incremental result are both refined; the
     kept one has the lowest truncated reprojection cost of the two (checked by rerunning each)."""
-    from densecalib_ros.core.incremental import cost_truncation_px, truncated_cost
+    from densecalib_ros.core.method.incremental import cost_truncation_px, truncated_cost
 
     cams, poses = gt_rig(seed=7)
     tracks = gt_tracks(cams, poses, seed=7)
@@ -255,7 +257,7 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
 def test_previous_cameras_of_another_model_are_re_expressed_in_the_preset_model():
     """A previous calibration from another tool (PINHOLE fx != fy) starts RADIAL with the mean
     focal and the same principal point; fisheye terms are not carried into a pinhole model."""
-    from densecalib_ros.core.global_sfm import convert_intrinsics, poses_from_previous
+    from densecalib_ros.core.method.global_sfm import convert_intrinsics, poses_from_previous
     from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
     pinhole = CameraIntrinsics("PINHOLE", 640, 480, np.array([500.0, 510.0, 321.0, 242.0]))

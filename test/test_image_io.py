@@ -7,8 +7,8 @@ import pytest
 from PIL import Image
 
 from densecalib_ros.core.errors import InputError, NotEnoughCamerasError
-from densecalib_ros.core.exif import exif_capture_time_s
-from densecalib_ros.core.image_io import list_image_folder, read_image, read_image_folder
+from densecalib_ros.core.io.exif import exif_capture_time_s
+from densecalib_ros.core.io.image_io import list_image_folder, read_image, read_image_folder
 
 
 def _write(path, value, size=(40, 30)):
@@ -156,7 +156,7 @@ def _trap_times(rng, events, rate_s=600.0):
 def test_camera_trap_clock_offsets_found_from_capture_times():
     """Three traps: b's clock runs an hour and 7.5 s fast (daylight saving and drift), c's was
     reset to its factory date; each also fires alone on what only it sees."""
-    from densecalib_ros.core.clock_offsets import estimate_clock_offsets
+    from densecalib_ros.core.io.clock_offsets import estimate_clock_offsets
 
     rng = np.random.default_rng(4)
     shared = _trap_times(rng, 12)

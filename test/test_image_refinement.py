@@ -1,10 +1,11 @@
-"""The last stage of a pinhole calibration (core.dense_matches, core.image_refinement) on generated
-rigs with intrinsics as real lenses have them: principal points off-centre, fy != fx."""
+"""The last stage of a pinhole calibration (core.method.dense_matches, core.method.image_refinement)
+on generated rigs with intrinsics as real lenses have them: principal points off-centre, fy !=
+fx."""
 import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.dense_matches import align_patches, local_affine, reference_points
+from densecalib_ros.core.method.dense_matches import align_patches, local_affine, reference_points
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.pipeline import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
@@ -32,7 +33,7 @@ def test_local_affine_predicts_an_affine_map_exactly():
 def test_a_recalibration_centres_its_priors_on_the_points_determined_before():
     """The previous calibration's principal points that its images determined (and only those)
     centre a recalibration's priors, with the image size they belong to."""
-    from densecalib_ros.core.pipeline import estimated_principal_points
+    from densecalib_ros.core.method.uncertainty import estimated_principal_points
     from densecalib_ros.core.types import (CameraIntrinsics, CameraQuality, RigCalibration,
                                            RigCamera)
 

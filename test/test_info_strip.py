@@ -1,6 +1,6 @@
-"""Burnt-in info strips found automatically (core.info_strip): a trail camera's bar of text along
-the top or bottom edge is found (dark or light, JPEG-compressed, both edges), and what is not a
-bar is left alone: textured scenes, a flat sky, a fisheye's black border around its image circle,
+"""Burnt-in info strips found automatically (core.method.info_strip): a trail camera's bar of text
+along the top or bottom edge is found (dark or light, JPEG-compressed, both edges), and what is not
+a bar is left alone: textured scenes, a flat sky, a fisheye's black border around its image circle,
 a vignetted flat ceiling, and the real images in ../shared/data."""
 import glob
 import os
@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from densecalib_ros.core.info_strip import InfoStrip, find_info_strip, strips_mask
+from densecalib_ros.core.method.info_strip import InfoStrip, find_info_strip, strips_mask
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 TEXT = "2026-05-01 10:00:05  23C  1012hPa  MOON 3/4  CAM 2"
@@ -81,7 +81,7 @@ def test_real_images_have_no_info_strip():
                    + glob.glob(str(data / "**" / "*.png"), recursive=True))
     if not files:
         pytest.skip(f"no real images under {data} (the shared test data)")
-    from densecalib_ros.core.image_io import read_image
+    from densecalib_ros.core.io.image_io import read_image
 
     found = [f for f in files if find_info_strip([read_image(f)])]
     assert found == [], found

@@ -1,5 +1,5 @@
-"""Exports for other tools (core.interchange, `densecalib export`): each file, read back as those
-tools read it and projected with OpenCV as they project, gives the pixels COLMAP gives for our
+"""Exports for other tools (core.products.interchange, `densecalib export`): each file, read back as
+those tools read it and projected with OpenCV as they project, gives the pixels COLMAP gives for our
 calibration; lens models a format cannot hold are refused."""
 import copy
 import json
@@ -15,8 +15,8 @@ from sfm_fixtures import pose as _pose
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import calibration_to_dict
-from densecalib_ros.core.interchange import anipose_toml, kalibr_camchain_yaml
+from densecalib_ros.core.io.export import calibration_to_dict
+from densecalib_ros.core.products.interchange import anipose_toml, kalibr_camchain_yaml
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 
@@ -133,7 +133,7 @@ def test_opencv_files_load_in_opencv_and_read_back_as_given_intrinsics(rig, tmp_
     """`densecalib export --format opencv`: each <camera>.yml, loaded with cv2.FileStorage as
     OpenCV programs load it and projected with its R, T by OpenCV, gives our pixels; the folder
     reads back as given intrinsics (--intrinsics DIR) with the same projections."""
-    from densecalib_ros.core.known_intrinsics import read_known_intrinsics
+    from densecalib_ros.core.method.known_intrinsics import read_known_intrinsics
 
     calib = tmp_path / "calibration.json"
     calib.write_text(json.dumps(calibration_to_dict(rig)))
@@ -223,7 +223,7 @@ def test_dannce_files_project_like_our_cameras_in_matlab_convention(rig, tmp_pat
     camera is refused with what to do."""
     from scipy.io import loadmat
 
-    from densecalib_ros.core.interchange import dannce_files
+    from densecalib_ros.core.products.interchange import dannce_files
 
     with pytest.raises(InputError, match="top has a fisheye lens.*undistort"):
         dannce_files(rig)
@@ -263,7 +263,7 @@ def test_jarvis_files_project_like_our_cameras(rig, tmp_path, capsys, caplog):
     """Each camera's <camera>.yaml, projected as JARVIS does (k1, k2 only), lands where our
     camera puts the point (RADIAL cameras: exactly); T is in mm in the floor frame; a fisheye is
     refused; distortion JARVIS leaves out is named."""
-    from densecalib_ros.core.interchange import jarvis_files
+    from densecalib_ros.core.products.interchange import jarvis_files
 
     with pytest.raises(InputError, match="top has a fisheye lens, which JARVIS's"):
         jarvis_files(rig)

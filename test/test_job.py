@@ -5,7 +5,7 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.job import CalibrationRequest, run_job
-from densecalib_ros.core.scale import camera_distance
+from densecalib_ros.core.products.scale import camera_distance
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 

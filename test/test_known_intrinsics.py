@@ -14,10 +14,11 @@ from opencv_reference import opencv_pixels
 from densecalib_ros.cli import main
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import camera_info_yaml, read_calibration
-from densecalib_ros.core.known_intrinsics import (check_known_intrinsics,
-                                                  intrinsics_from_camera_info,
-                                                  read_known_intrinsics)
+from densecalib_ros.core.io.camera_info import camera_info_yaml
+from densecalib_ros.core.io.export import read_calibration
+from densecalib_ros.core.method.known_intrinsics import (check_known_intrinsics,
+                                                         intrinsics_from_camera_info,
+                                                         read_known_intrinsics)
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.pipeline import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
@@ -271,8 +272,8 @@ def test_calibrate_command_keeps_the_lab_intrinsics_it_is_given(tmp_path, capsys
 
 def test_bag_camera_info_topics_give_the_intrinsics(tmp_path, caplog):
     """--bag-camera-info: the first CameraInfo of <image ns>/camera_info per camera is kept."""
-    from densecalib_ros.core.bag import read_camera_infos, write_image_bag
-    from densecalib_ros.core.export import ros_camera_info
+    from densecalib_ros.core.io.bag import read_camera_infos, write_image_bag
+    from densecalib_ros.core.io.camera_info import ros_camera_info
 
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=640, height=480,
                                seed=3))
@@ -352,7 +353,7 @@ def test_anipose_and_kalibr_files_give_every_camera_they_hold(tmp_path):
     """An arena's anipose calibration.toml or a Kalibr camchain (as `densecalib export` writes
     them) read back to each camera's projection; camera names as the files and topics give
     them."""
-    from densecalib_ros.core.interchange import anipose_toml, kalibr_camchain_yaml
+    from densecalib_ros.core.products.interchange import anipose_toml, kalibr_camchain_yaml
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
     cams = {"left_cam": CameraIntrinsics("OPENCV", 640, 480, np.array(

@@ -1,6 +1,6 @@
-"""Masks (core.masks, `calibrate --mask`): matches with an end on a masked pixel are dropped in
-both directions; a burnt-in info strip, identical in every camera, is matched across cameras unless
-masked, and the masked calibration neither uses it nor loses accuracy."""
+"""Masks (core.method.masks, `calibrate --mask`): matches with an end on a masked pixel are dropped
+in both directions; a burnt-in info strip, identical in every camera, is matched across cameras
+unless masked, and the masked calibration neither uses it nor loses accuracy."""
 import cv2
 import numpy as np
 import pycolmap
@@ -8,8 +8,8 @@ import pytest
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import read_calibration
-from densecalib_ros.core.masks import apply_masks, check_masks, read_mask
+from densecalib_ros.core.io.export import read_calibration
+from densecalib_ros.core.method.masks import apply_masks, check_masks, read_mask
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 from densecalib_ros.core.types import SiteMatches, SiteMatchSet
@@ -76,7 +76,7 @@ def test_info_strip_is_used_unless_masked(tmp_path, capsys):
     assert main(["calibrate", "--images", str(images), "--out", str(found), *common]) == 0
     assert _strip_observations(plain) > 0  # the strip's text matched across cameras
     assert _strip_observations(masked) == 0
-    assert _strip_observations(found) == 0  # found by itself (core.info_strip) and ignored
+    assert _strip_observations(found) == 0  # found by itself (core.method.info_strip) and ignored
     assert read_calibration(found).quality["info_strips"] == {
         n: f"{STRIP_PX + 4} px at the bottom" for n in rig.names}  # the bar + a 4 px margin
     assert "info_strips" not in read_calibration(masked).quality  # the user's mask rules

@@ -1,6 +1,7 @@
 """Matcher backends: SiteMatchSet invariants, accuracy on a known homography, exact coordinate maps
-under resizing, registry errors, RoMa's weight handling and warp-to-site plumbing, no torch for sift,
-XFeat*'s shared keypoint tables (cycles close) and sub-pixel target positions on a rendered rig."""
+under resizing, registry errors, RoMa's weight handling and warp-to-site plumbing, no torch for
+sift, XFeat*'s shared keypoint tables (cycles close) and sub-pixel target positions on a rendered
+rig."""
 import subprocess
 import sys
 
@@ -8,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from densecalib_ros.core.cycles import close_cycles
+from densecalib_ros.core.method.cycles import close_cycles
 from densecalib_ros.core.errors import InputError, ModelWeightsError
-from densecalib_ros.core.matching import available_matchers, create_matcher
-from densecalib_ros.core.matching.roma import grid_sites, warp_to_site_matches
-from densecalib_ros.core.matching.sift import nearest_sites
-from densecalib_ros.core.matching.utils import mutual_pair_maps
+from densecalib_ros.core.method.matching import available_matchers, create_matcher
+from densecalib_ros.core.method.matching.roma import grid_sites, warp_to_site_matches
+from densecalib_ros.core.method.matching.sift import nearest_sites
+from densecalib_ros.core.method.matching.utils import mutual_pair_maps
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from densecalib_ros.core.types import SiteMatchSet
 
@@ -103,7 +104,7 @@ def test_registry_lists_backends_and_rejects_unknown_names():
 
 def test_sift_does_not_import_torch():
     code = ("import sys, numpy as np\n"
-            "from densecalib_ros.core.matching import create_matcher\n"
+            "from densecalib_ros.core.method.matching import create_matcher\n"
             "rng = np.random.default_rng(0)\n"
             "img = (rng.random((120, 160)) * 255).astype(np.uint8)\n"
             "ms = create_matcher('sift').match([img, img[10:, 5:]])\n"
@@ -170,7 +171,7 @@ def _reference_nearest_sites(desc_r, site_r, n_r, desc_c, site_c, n_c):
 def test_sift_site_distances_are_the_smallest_over_each_sites_keypoints(monkeypatch, block_sites):
     """Sites holding several keypoints (up to four orientations at one location), in shuffled
     order, across block boundaries: the nearest site and the distance ratio as defined."""
-    import densecalib_ros.core.matching.sift as sift
+    import densecalib_ros.core.method.matching.sift as sift
 
     monkeypatch.setattr(sift, "BLOCK_SITES", block_sites)
     rng = np.random.default_rng(3)

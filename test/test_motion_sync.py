@@ -1,4 +1,4 @@
-"""Time offsets of a rig's videos from their motion (core.motion_sync, `--time-offset auto`):
+"""Time offsets of a rig's videos from their motion (core.io.motion_sync, `--time-offset auto`):
 videos of one moving object seen by three cameras with different views, gains, frame rates and
 start times give back each camera's start within half a frame; a static scene is refused with
 what to do."""
@@ -14,8 +14,8 @@ import pytest
 
 from densecalib_ros.commands.inputs import add_input_arguments, read_input
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.video_io import list_video_folder
-from densecalib_ros.core.motion_sync import estimate_video_offsets
+from densecalib_ros.core.io.video_io import list_video_folder
+from densecalib_ros.core.io.motion_sync import estimate_video_offsets
 from motion_fixtures import arena_views
 
 # camera -> (fps, recording start in world time [s], view (y0, y1, x0, x1) of the world, gain)
@@ -105,7 +105,7 @@ def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path, capsy
     """A bag whose cam1 stamps run 0.35 s ahead and cam2's 0.8 s behind cam0's: synchronised by
     stamps alone, its frame sets join images taken up to 0.8 s apart (at 25 fps every offset
     leaves a partner within the slop); --time-offset auto finds the clocks from the motion."""
-    from densecalib_ros.core.bag import write_image_bag
+    from densecalib_ros.core.io.bag import write_image_bag
 
     clocks = {"cam0": 0.0, "cam1": 0.35, "cam2": -0.8}
     phases = {"cam0": 0.0, "cam1": 0.006, "cam2": 0.013}  # capture moments within the slop
@@ -157,7 +157,7 @@ def test_bag_topics_stamped_by_different_clocks_are_synchronised(tmp_path, capsy
 
     # --restamp: a copy whose stamps synchronise without offsets; camera_info moved with its
     # camera, a topic that is not a camera's (/overview) and the log times as recorded
-    from densecalib_ros.core.bag import iter_image_messages
+    from densecalib_ros.core.io.bag import iter_image_messages
 
     restamped = tmp_path / "restamped"
     assert main(["sync", "--bag", str(bag), "--topics", *topics, "--restamp",
@@ -217,8 +217,8 @@ def test_sync_command_prints_the_offsets(videos, capsys, caplog):
 def test_cameras_seeing_different_halves_are_tied_through_a_third(tmp_path):
     """cam0 sees the arena's left 60 %, cam2 its right 60 %, cam1 all of it: cam0 and cam2 share
     little motion, but each shares enough with cam1, and every pair is compared."""
-    from densecalib_ros.core.motion_sync import estimate_offset, motion_signal
-    from densecalib_ros.core.video_io import probe_video
+    from densecalib_ros.core.io.motion_sync import estimate_offset, motion_signal
+    from densecalib_ros.core.io.video_io import probe_video
 
     halves = {"cam0": (25.0, 0.0, (0, 360, 0, 380), 1.0),
               "cam1": (25.0, -0.7, (0, 360, 0, 640), 0.8),

@@ -6,7 +6,7 @@ import pytest
 from densecalib_ros.commands.inputs import named_numbers, parse_masks
 from densecalib_ros.commands.triangulate import parse_observations
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.known_intrinsics import read_known_intrinsics
+from densecalib_ros.core.method.known_intrinsics import read_known_intrinsics
 from densecalib_ros.core.named_values import split_named
 
 from test_known_intrinsics import LAB_YAML

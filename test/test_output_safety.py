@@ -12,11 +12,11 @@ import pytest
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import FocalInitError, InputError
-from densecalib_ros.core.export import (calibration_from_dict, calibration_to_dict,
-                                        check_output_files, check_output_folder,
-                                        read_calibration, read_saved_model,
-                                        replace_directory_atomic, write_calibration_files)
-from densecalib_ros.core.image_io import jpeg_truncated, list_image_folder
+from densecalib_ros.core.io.export import (calibration_from_dict, calibration_to_dict,
+                                           check_output_files, read_calibration, read_saved_model,
+                                           write_calibration_files)
+from densecalib_ros.core.io.safe_write import check_output_folder, replace_directory_atomic
+from densecalib_ros.core.io.image_io import jpeg_truncated, list_image_folder
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
@@ -180,8 +180,8 @@ def test_files_a_camera_wrote_but_that_are_not_read_are_named(folders, caplog):
 def test_a_numeric_camera_name_survives_its_camera_info(rig, tmp_path):
     """camera_name: 0003 loads as the integer 3: the name is quoted, and files written so
     before name their camera by the file's stem."""
-    from densecalib_ros.core.export import camera_info_yaml
-    from densecalib_ros.core.known_intrinsics import read_known_intrinsics
+    from densecalib_ros.core.io.camera_info import camera_info_yaml
+    from densecalib_ros.core.method.known_intrinsics import read_known_intrinsics
 
     intrinsics = rig.cameras[0]
     text = camera_info_yaml("0003", intrinsics)

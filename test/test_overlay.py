@@ -1,11 +1,11 @@
-"""Residual overlays (core.overlay): colour bands and legend on a drawn image; the residuals of a
-real COLMAP model equal pycolmap's own projection of its points."""
+"""Residual overlays (core.products.overlay): colour bands and legend on a drawn image; the
+residuals of a real COLMAP model equal pycolmap's own projection of its points."""
 import numpy as np
 import pycolmap
 import pytest
 
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.overlay import BANDS_PX, camera_residuals, draw_residuals
+from densecalib_ros.core.products.overlay import BANDS_PX, camera_residuals, draw_residuals
 
 
 def test_dots_take_the_colour_of_their_residual_band():

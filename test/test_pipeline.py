@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.errors import (InputError, NotEnoughCamerasError,
-                                        NotEnoughOverlapError)
-from densecalib_ros.core.matching import create_matcher
+from densecalib_ros.core.errors import InputError, NotEnoughCamerasError, NotEnoughOverlapError
+from densecalib_ros.core.method.matching import create_matcher
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.pipeline import calibrate_rig, run_calibration, start_focals
+from densecalib_ros.core.method.focal_start import start_focals
+from densecalib_ros.core.pipeline import calibrate_rig, run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
@@ -52,7 +52,7 @@ def test_generated_rig_recovers_ground_truth(rig):
 
 
 def test_point_colours_average_the_pixels_of_each_tracks_frame_set():
-    from densecalib_ros.core.reconstruction import point_colours
+    from densecalib_ros.core.method.reconstruction import point_colours
     from densecalib_ros.core.types import Tracks
 
     sets = [[np.zeros((4, 6, 3), np.uint8), np.full((4, 6), 50, np.uint8)],
@@ -102,7 +102,8 @@ def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
                                     names)
     assert inverse.sfm.models(3) == ["RADIAL", "RADIAL_FISHEYE", "RADIAL_FISHEYE"]
     assert inverse.sfm.b_err_px is None  # the global preset's
-    # Whose principal point the final adjustment refines (and whose sigma core.uncertainty gives).
+    # Whose principal point the final adjustment refines (and whose sigma core.method.uncertainty
+    # gives).
     assert plain.sfm.principal_point_cameras(3) == ()
     assert fisheye.sfm.principal_point_cameras(3) == (0, 1, 2)
     assert mixed.sfm.principal_point_cameras(3) == (2,)
@@ -220,12 +221,12 @@ def test_bad_names_and_images_are_refused_before_any_work(rig, tmp_path):
                                          f"images in frame set {last}: one camera was given twice"):
         calibrate_rig(twice, names, config)
     twice[last][0] = twice[last][2] = np.zeros_like(images[last][0])  # two covered lenses: no
-    from densecalib_ros.core.frame_checks import check_frame_sets  # proof of one camera twice
+    from densecalib_ros.core.method.frame_checks import (check_frame_sets)
     check_frame_sets(twice, names)
     stacked = np.stack([np.stack(s) for s in images])  # (T, C, H, W, 3) is fine as frame sets
     assert check_frame_sets(stacked, names) == check_frame_sets(images, names)
     # a read calibration is checked too: its camera names become file names on export
-    from densecalib_ros.core.export import read_calibration, write_calibration_files
+    from densecalib_ros.core.io.export import read_calibration, write_calibration_files
     truth = rig.ground_truth()
     write_calibration_files(truth, str(tmp_path / "calib"))  # a str folder is fine
     text = (tmp_path / "calib" / "calibration.json").read_text()
@@ -306,7 +307,7 @@ def test_known_focals_add_a_start_and_keep_the_eq2_start():
     truth = {n: float(gt.cameras[n].intrinsics.params[0]) for n in rig.names}
     # The multi-start is what is tested: the image refinement, which moves a rig within its
     # basin afterwards, is left out (on this rig of ideal lenses it turned AUC@3 100 to 44: see
-    # core.image_refinement on rigs of three cameras).
+    # core.method.image_refinement on rigs of three cameras).
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
                          initial_focal_px=truth, refine_on_images=False)
     messages = []
@@ -320,7 +321,7 @@ def test_focal_hops_leave_a_minimum_that_every_consensus_run_ended_in():
     """Four cameras 45 deg apart: all five consensus runs end wrong (the best one with an end
     camera 12 % short, AUC@3 44; the others worse), and all fit the keypoint matches worse than
     the rig started from the truth (0.73 against 0.66 px). Kicking one camera's focal at a time
-    (core.focal_hops) reaches that better minimum: two hops, AUC@3 100."""
+    (core.robust.focal_hops) reaches that better minimum: two hops, AUC@3 100."""
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=1024, height=768,
                                seed=704, gap_deg=45.0, max_arc_deg=360.0))
     # The hops are what is tested; the image refinement after them moved this rig of ideal

@@ -1,11 +1,11 @@
-"""Cameras whose placement the raw matches contradict are moved (core.placement): a camera
+"""Cameras whose placement the raw matches contradict are moved (core.robust.placement): a camera
 registered in a wrong place, two cameras wrong together, a camera facing a flat scene at a wrong
 focal and distance, and correct rigs left alone."""
 import numpy as np
 
 from densecalib_ros.core.metrics import rotation_angle_deg
-from densecalib_ros.core.placement import group_support, repair_placements
-from densecalib_ros.core.reconstruction import SfMState
+from densecalib_ros.core.robust.placement import group_support, repair_placements
+from densecalib_ros.core.method.reconstruction import SfMState
 from densecalib_ros.core.types import CameraIntrinsics, Tracks
 
 from sfm_fixtures import gt_rig, gt_tracks

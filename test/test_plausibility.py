@@ -1,13 +1,13 @@
-"""Plausibility of self-calibrated intrinsics (core/plausibility.py) and the guarded BA."""
+"""Plausibility of self-calibrated intrinsics (core/method/plausibility.py) and the guarded BA."""
 import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from densecalib_ros.core.plausibility import (bundle_adjust_plausibly, implausible_cameras,
-                                              intrinsics_problem)
-from densecalib_ros.core.reconstruction import BAStage, SfMState, bundle_adjust, triangulate
+from densecalib_ros.core.method.plausibility import (bundle_adjust_plausibly, implausible_cameras,
+                                                     intrinsics_problem)
+from densecalib_ros.core.method.reconstruction import BAStage, SfMState, bundle_adjust, triangulate
 from densecalib_ros.core.types import CameraIntrinsics
 
 from sfm_fixtures import gt_rig, gt_tracks

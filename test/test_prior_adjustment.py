@@ -1,12 +1,12 @@
-"""core.prior_adjustment: the MAP bundle adjustment with priors on the principal point and the pixel
-aspect, on exact projections of a point cloud (sfm_fixtures) with Gaussian noise."""
+"""core.method.prior_adjustment: the MAP bundle adjustment with priors on the principal point and
+the pixel aspect, on exact projections of a point cloud (sfm_fixtures) with Gaussian noise."""
 import numpy as np
 import pytest
 from sfm_fixtures import gt_rig, gt_tracks
 
-from densecalib_ros.core.prior_adjustment import (INTRINSIC_NAMES, Priors, _Problem,
-                                                  adjust_with_priors)
-from densecalib_ros.core.reconstruction import SfMState, triangulate_tracks
+from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, _Problem,
+                                                         adjust_with_priors)
+from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
 
 

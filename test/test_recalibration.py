@@ -7,7 +7,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from densecalib_ros.core.change import calibration_change
+from densecalib_ros.core.monitor.change import calibration_change
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.pipeline import run_calibration

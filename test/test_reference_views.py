@@ -1,7 +1,7 @@
-"""core.reference_views: each camera against its own view at calibration time. On a generated
-rig whose scene objects move between frame sets: the cameras as calibrated still see their views;
-one camera panned by 0.5 deg is named with its angle, one refocused with its focal change; the
-whole rig turned is recognised as such, and one camera judged alone is not blamed; an unrelated
+"""core.monitor.reference_views: each camera against its own view at calibration time. On a
+generated rig whose scene objects move between frame sets: the cameras as calibrated still see their
+views; one camera panned by 0.5 deg is named with its angle, one refocused with its focal change;
+the whole rig turned is recognised as such, and one camera judged alone is not blamed; an unrelated
 image is not judged; a pan that the epipolar figures pass fails the combined verdict; with no
 epipolar figure at all the views judge alone (`densecalib check`). The same on the real static
 fisheye stereo rig of ../shared/data."""
@@ -13,14 +13,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.consistency import (check_calibration, fits_per_frame_set,
-                                             sets_since_change)
+from densecalib_ros.core.monitor.consistency import (check_calibration, fits_per_frame_set,
+                                                     sets_since_change)
 from densecalib_ros.core.pipeline import match_frame_sets
-from densecalib_ros.core.reference_view_files import (REFERENCE_MAX_SIDE_PX, latest_views,
-                                                      read_reference_views,
-                                                      write_reference_views)
-from densecalib_ros.core.reference_views import (check_verdict, compare_with_reference_views,
-                                                 fits_per_frame_set_and_view)
+from densecalib_ros.core.io.reference_view_files import (REFERENCE_MAX_SIDE_PX, latest_views,
+                                                         read_reference_views,
+                                                         write_reference_views)
+from densecalib_ros.core.monitor.reference_views import (check_verdict,
+                                                         compare_with_reference_views,
+                                                         fits_per_frame_set_and_view)
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from sfm_fixtures import refocused_image, turned_image  # pytest puts test/ on sys.path
 
@@ -160,7 +161,7 @@ def test_the_views_judge_alone_when_no_pair_has_figures(rig, references, tmp_pat
     import json
 
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import calibration_to_dict
+    from densecalib_ros.core.io.export import calibration_to_dict
 
     truth = rig.ground_truth()
     del truth.cameras["cam2"]
@@ -207,7 +208,7 @@ def test_real_static_fisheye_pair(tmp_path):
     pair 4 turned by 0.5 deg about the axis its epipolar lines run along is named, and pair 10
     is the rig moved as a whole (both cameras 19.7 deg); the left camera's focal 1 % longer is named
 too."""
-    from densecalib_ros.core.stereo_checkerboard import LEFT, RIGHT, target_calibration
+    from densecalib_ros.core.products.stereo_checkerboard import LEFT, RIGHT, target_calibration
 
     folder = SHARED_DATA / "ros_fisheye_stereo_checkerboard" / "stereo"
     if not folder.exists():

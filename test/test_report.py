@@ -1,14 +1,15 @@
-"""The calibration report (core.report, core.change): what it says about a known rig."""
+"""The calibration report (core.products.report, core.monitor.change): what it says about a known
+rig."""
 import copy
 
 import numpy as np
 import pytest
 
-from densecalib_ros.core.change import calibration_change, pose_agreement
-from densecalib_ros.core.report import (camera_centres_in_rig, camera_table, distortion_text,
-                                        intrinsics_note, layout_table, overall_lines,
-                                        rig_report)
-from densecalib_ros.core.scale import apply_known_baseline
+from densecalib_ros.core.monitor.change import calibration_change, pose_agreement
+from densecalib_ros.core.products.report import (camera_centres_in_rig, camera_table,
+                                                 distortion_text, intrinsics_note, layout_table,
+                                                 overall_lines, rig_report)
+from densecalib_ros.core.products.scale import apply_known_baseline
 from densecalib_ros.core.types import CameraQuality
 
 from sfm_fixtures import gt_calibration, gt_rig
@@ -148,7 +149,7 @@ def _dots(panel):
     """Pixel centre (x, y) of each camera's dot in a layout panel."""
     import cv2
 
-    from densecalib_ros.core.layout_plot import camera_colours
+    from densecalib_ros.core.products.layout_plot import camera_colours
 
     out = []
     for colour in camera_colours(3):
@@ -161,7 +162,7 @@ def _dots(panel):
 
 
 def test_layout_plot_shows_the_cameras_from_above_and_the_side():
-    from densecalib_ros.core.layout_plot import PANEL_PX, draw_layout, half_fov_rad
+    from densecalib_ros.core.products.layout_plot import PANEL_PX, draw_layout, half_fov_rad
 
     rig, wall = _upright_rig(with_floor=True)
     assert half_fov_rad(rig.cameras["cam0"].intrinsics, 0) == pytest.approx(np.arctan(320 / 500))
@@ -187,7 +188,7 @@ def test_report_plot_command(tmp_path, caplog):
     import cv2
 
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.io.export import write_calibration_files
 
     rig, _ = _upright_rig(with_floor=True)
     write_calibration_files(rig, tmp_path / "calib")
@@ -217,8 +218,8 @@ def test_scene_ply_has_the_cameras_as_pyramids_and_the_points(tmp_path, caplog):
     """export --format ply: each camera a pyramid with its apex at the camera's floor-frame
     position and its base through the rays of the image corners, the wall points at y = 3."""
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import write_calibration_files
-    from densecalib_ros.core.scene_ply import PYRAMID_FRACTION, scene_ply
+    from densecalib_ros.core.io.export import write_calibration_files
+    from densecalib_ros.core.products.scene_ply import PYRAMID_FRACTION, scene_ply
 
     rig, wall = _upright_rig(with_floor=True)
     path = tmp_path / "scene.ply"
@@ -250,7 +251,7 @@ def test_scene_ply_has_the_cameras_as_pyramids_and_the_points(tmp_path, caplog):
 
 
 def test_corner_rays_of_a_fisheye_keep_their_angle():
-    from densecalib_ros.core.scene_ply import corner_rays
+    from densecalib_ros.core.products.scene_ply import corner_rays
     from densecalib_ros.core.types import CameraIntrinsics
 
     def angles(focal):
@@ -268,7 +269,8 @@ def test_layout_plot_against_another_calibration_rings_where_a_camera_was():
     import cv2
 
     from densecalib_ros.core.errors import InputError
-    from densecalib_ros.core.layout_plot import PANEL_PX, _BEFORE, centres_as_in, draw_layout
+    from densecalib_ros.core.products.layout_plot import (PANEL_PX, _BEFORE, centres_as_in,
+                                                          draw_layout)
 
     rig, wall = _upright_rig(with_floor=True)
     before = copy.deepcopy(rig)
@@ -305,7 +307,7 @@ def test_report_json_is_strict_json_and_against_needs_common_cameras(rig, tmp_pa
     import json
 
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.io.export import write_calibration_files
 
     def strict(text):
         return json.loads(text, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))

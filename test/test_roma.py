@@ -1,6 +1,6 @@
 """RoMa backend end to end with the real romatch model at random initialisation and a tiny
 resolution (its trained weights cannot be obtained here), and the torchvision stand-in it imports
-with (`densecalib_ros.core.matching._tv_compat`)."""
+with (`densecalib_ros.core.method.matching._tv_compat`)."""
 import importlib.util
 import sys
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from densecalib_ros.core.matching import create_matcher
-from densecalib_ros.core.matching import _tv_compat
+from densecalib_ros.core.method.matching import create_matcher
+from densecalib_ros.core.method.matching import _tv_compat
 from densecalib_ros.core.types import SiteMatchSet
 
 COARSE_RES, UPSAMPLE_RES = 14 * 4, 64  # RoMa's defaults are 560 / 864

@@ -27,15 +27,15 @@ from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.srv import SetCameraInfo  # noqa: E402
 
-from densecalib_ros.core.bag import read_frame_sets, write_image_bag  # noqa: E402
+from densecalib_ros.core.io.bag import read_frame_sets, write_image_bag  # noqa: E402
 from densecalib_ros.core.config import DEFAULT_PIPELINE, make_config  # noqa: E402
 from densecalib_ros.core.errors import InputError  # noqa: E402
-from densecalib_ros.core.export import (camera_info_yaml, read_calibration,  # noqa: E402
-                                        read_saved_model)
-from densecalib_ros.core.floor import reconstruction_points_in_rig  # noqa: E402
+from densecalib_ros.core.io.camera_info import camera_info_yaml
+from densecalib_ros.core.io.export import read_calibration, read_saved_model
+from densecalib_ros.core.products.floor import reconstruction_points_in_rig  # noqa: E402
 from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
 from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
-from densecalib_ros.core.scale import camera_distance  # noqa: E402
+from densecalib_ros.core.products.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
 from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402
 from densecalib_ros.ros.conversions import (numpy_to_compressed_msg,  # noqa: E402
@@ -530,7 +530,7 @@ def test_recalibration_after_a_bump_leaves_out_the_frame_sets_from_before(ros, r
     keep_calibrations 1 the first calibration's folder is then removed."""
     from scipy.spatial.transform import Rotation
 
-    from densecalib_ros.core.calibration_store import stored_calibrations
+    from densecalib_ros.core.io.calibration_store import stored_calibrations
     from sfm_fixtures import turned_image
 
     node = ros.densecalib(tmp_path / "calib", keep_calibrations=1)
@@ -565,7 +565,7 @@ def test_watch_checks_new_frame_sets_and_recalibrates_when_a_camera_moved(ros, r
     the next check finds it (WARN naming cam2), and waits for a second frame set to confirm it
     before recalibrating (recalibrate_on_change); with it, a recalibration from the two sets
     since the change puts cam2 where it is now."""
-    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.io.export import write_calibration_files
 
     truth = rig.ground_truth()
     truth.quality["reprojection_rms_px"] = 0.5
@@ -640,8 +640,8 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
     """With stereo_pairs set, the last good calibration is republished with each pair's stereo
     rectification in R and P (Tx = -fx' baseline), the other cameras with R = I; a pair in the
     wrong order falls back to R = I with the reason, and changing the parameter republishes."""
-    from densecalib_ros.core.export import write_calibration_files
-    from densecalib_ros.core.stereo import rectify_pair
+    from densecalib_ros.core.io.export import write_calibration_files
+    from densecalib_ros.core.products.stereo import rectify_pair
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
     lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, -0.05, 0.01]))
@@ -716,7 +716,7 @@ def stored_rig_with_floor(folder, turn_deg=0.0, metric_scale=False):
     """A calibration of the CAMERAS written under folder/20260101T000000Z with `latest` on it:
     cameras 0.2 apart along -x (each turned by turn_deg more about y than the last), the floor
     1.5 m below the reference camera. Returns the floor_from_rig it records."""
-    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.io.export import write_calibration_files
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
     lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
@@ -797,7 +797,7 @@ def test_a_damaged_latest_falls_back_to_the_newest_calibration_that_reads(ros, t
     """`latest` pointing at nothing, or at a calibration.json of bytes that are not text: at
     start-up the node publishes the newest kept calibration that reads, and says so at WARN
     (it published nothing before: issue 40)."""
-    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.io.export import write_calibration_files
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
     lens = CameraIntrinsics("RADIAL", 320, 240, np.array([300.0, 160.0, 120.0, 0.0, 0.0]))
@@ -836,7 +836,7 @@ def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
     scaled calibration (cameras and floor); `latest` pointed at a calibration of other cameras:
     ~/reload refuses and the scaled one stays published."""
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import write_calibration_files
+    from densecalib_ros.core.io.export import write_calibration_files
     from densecalib_ros.core.types import RigCalibration, RigCamera
 
     stored_rig_with_floor(tmp_path)
@@ -1164,7 +1164,7 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
         assert max(e.rot_err_deg for e in errors) < 1.0
     finally:
         ros.remove(node)
-    # ... and to the same result as the ROS-free path: core.bag + calibrate_rig on the same bag.
+    # ... and to the same result as the ROS-free path: core.io.bag + calibrate_rig on the same bag.
     frame_sets, names = read_frame_sets(tmp_path / "bag_mcap", topics, slop_s=0.01)
     offline = calibrate_rig(frame_sets, list(CAMERAS),
                             make_config("regular", DEFAULT_PIPELINE, "sift"))

@@ -4,8 +4,8 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import NotEnoughOverlapError
-from densecalib_ros.core.sampling import _cell_ids, sample_tracks
-from densecalib_ros.core.twoview import symmetric_epipolar_distance_px
+from densecalib_ros.core.method.sampling import _cell_ids, sample_tracks
+from densecalib_ros.core.method.twoview import symmetric_epipolar_distance_px
 from densecalib_ros.core.types import SiteMatches, SiteMatchSet
 from test_cycles import make_scene, match_set_from_scene
 

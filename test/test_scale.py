@@ -1,10 +1,11 @@
-"""Metric scale from a known baseline (core.scale)."""
+"""Metric scale from a known baseline (core.products.scale)."""
 import numpy as np
 import pytest
 
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.pipeline import CalibrationResult
-from densecalib_ros.core.scale import apply_known_baseline, camera_distance, with_known_baseline
+from densecalib_ros.core.calibration_result import CalibrationResult
+from densecalib_ros.core.products.scale import (apply_known_baseline, camera_distance,
+                                                with_known_baseline)
 
 from sfm_fixtures import gt_calibration, gt_rig
 
@@ -48,7 +49,7 @@ def test_scale_command_from_a_measured_length_in_the_scene(tmp_path, caplog):
     import pycolmap
 
     from densecalib_ros.cli import main
-    from densecalib_ros.core.export import read_calibration
+    from densecalib_ros.core.io.export import read_calibration
     from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
@@ -104,7 +105,7 @@ def test_scale_command_from_a_measured_length_in_the_scene(tmp_path, caplog):
 
 
 def test_a_recalibration_that_lost_the_metric_scale_says_so():
-    from densecalib_ros.core.scale import scaled_rig, warn_if_scale_lost
+    from densecalib_ros.core.products.scale import scaled_rig, warn_if_scale_lost
 
     rig = gt_calibration(NAMES, *gt_rig(4, seed=2))
     previous = scaled_rig(rig, 2.0, {"scale_from_points": {"factor": 2.0}})

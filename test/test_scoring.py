@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from densecalib_ros.core.scoring import (angle_score, equidistant_rays, pair_poses_from_rig,
-                                         rays_from_intrinsics, top_k_sum)
+from densecalib_ros.core.method.scoring import (angle_score, equidistant_rays, pair_poses_from_rig,
+                                                rays_from_intrinsics, top_k_sum)
 from densecalib_ros.core.types import CameraIntrinsics
 
 

@@ -1,8 +1,8 @@
-"""Rectified stereo pairs (core.stereo; `densecalib export --format ros-stereo|opencv-stereo`):
-the files, read as camera_info_manager and OpenCV read them and used as stereo_image_proc and
-image_geometry use them (undistort + rectify each pixel with R and P, depth from disparity with
-the right camera's Tx), put every point of the scene on one row in both images at its true depth;
-pairs that cannot be rectified are refused with what to do."""
+"""Rectified stereo pairs (core.products.stereo; `densecalib export --format
+ros-stereo|opencv-stereo`): the files, read as camera_info_manager and OpenCV read them and used as
+stereo_image_proc and image_geometry use them (undistort + rectify each pixel with R and P, depth
+from disparity with the right camera's Tx), put every point of the scene on one row in both images
+at its true depth; pairs that cannot be rectified are refused with what to do."""
 import json
 import logging
 from pathlib import Path
@@ -15,9 +15,9 @@ from sfm_fixtures import pose as _pose
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import calibration_to_dict
-from densecalib_ros.core.known_intrinsics import read_known_intrinsics
-from densecalib_ros.core.stereo import stereo_pair
+from densecalib_ros.core.io.export import calibration_to_dict
+from densecalib_ros.core.method.known_intrinsics import read_known_intrinsics
+from densecalib_ros.core.products.stereo import stereo_pair
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 LENSES = {
@@ -219,11 +219,11 @@ def test_real_fisheye_pair_rectifies_and_measures_as_well_as_its_target_calibrat
     exported as ROS stereo camera_info: on the 23 pairs the bag does not hold, the checkerboard's
     corners land on one rectified row at least as well as with the set's two target-based
     calibrations of those very images, and the board's squares measure within 3 % of what the
-    target-based stereo calibration measures at the same baseline (core.stereo_checkerboard,
-    `densecalib bench-stereo`)."""
-    from densecalib_ros.core.export import read_calibration
-    from densecalib_ros.core.stereo_checkerboard import (corner_pairs, evaluate, row_error_mrad,
-                                                         ros_yaml_camera)
+    target-based stereo calibration measures at the same baseline
+    (core.products.stereo_checkerboard, `densecalib bench-stereo`)."""
+    from densecalib_ros.core.io.export import read_calibration
+    from densecalib_ros.core.products.stereo_checkerboard import (corner_pairs, evaluate,
+                                                                  row_error_mrad, ros_yaml_camera)
 
     folder = SHARED_DATA / "ros_fisheye_stereo_checkerboard" / "stereo"
     bag = SHARED_DATA / "ros2bag_fisheye_stereo_derived" / "fisheye_stereo_bag"

@@ -1,4 +1,4 @@
-"""Approximate-time synchronisation and the frame-set buffer (core.sync, shared by bag reader and
+"""Approximate-time synchronisation and the frame-set buffer (core.io.sync, shared by bag reader and
 node), plus the node's thread-safe message adapter (ros.sync)."""
 import logging
 import threading
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.sync import (ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer,
-                                      evenly_spaced)
+from densecalib_ros.core.io.sync import (ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer,
+                                         evenly_spaced)
 
 MS = 1_000_000
 

@@ -1,7 +1,7 @@
-"""Measuring with a calibration (core.triangulation, `densecalib triangulate`): points seen in two
-or three cameras (pinhole and fisheye) come back where they are, their standard deviations match
-the scatter that pixel noise gives, floor-frame coordinates follow the calibration's floor, and
-bad input is refused with what to do."""
+"""Measuring with a calibration (core.products.triangulation, `densecalib triangulate`): points seen
+in two or three cameras (pinhole and fisheye) come back where they are, their standard deviations
+match the scatter that pixel noise gives, floor-frame coordinates follow the calibration's floor,
+and bad input is refused with what to do."""
 import json
 import logging
 
@@ -11,8 +11,8 @@ from sfm_fixtures import pose as _pose
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import calibration_to_dict
-from densecalib_ros.core.triangulation import triangulate
+from densecalib_ros.core.io.export import calibration_to_dict
+from densecalib_ros.core.products.triangulation import triangulate
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 

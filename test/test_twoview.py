@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
-from densecalib_ros.core.twoview import (
-    TwoViewGeometry, estimate_fundamental, pair_weights, pixels_to_rays,
-    relative_pose_from_essential, symmetric_epipolar_distance_px, triangulation_angles_deg)
+from densecalib_ros.core.method.twoview import (TwoViewGeometry, estimate_fundamental, pair_weights,
+                                                pixels_to_rays, relative_pose_from_essential,
+                                                symmetric_epipolar_distance_px,
+                                                triangulation_angles_deg)
 
 
 def rotation(axis, angle_deg):

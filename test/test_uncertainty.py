@@ -1,4 +1,4 @@
-"""Standard deviations from the bundle adjustment's information matrix (core.uncertainty), on
+"""Standard deviations from the bundle adjustment's information matrix (core.method.uncertainty), on
 tracks made from ground truth with independent Gaussian pixel noise: there the predicted sigma
 must match the actual errors."""
 import os
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.incremental import initial_intrinsics, run_incremental
+from densecalib_ros.core.method.incremental import initial_intrinsics, run_incremental
 from densecalib_ros.core.metrics import projection_map_error
-from densecalib_ros.core.reconstruction import build_reconstruction
+from densecalib_ros.core.method.reconstruction import build_reconstruction
 from densecalib_ros.core.types import CameraIntrinsics
-from densecalib_ros.core.uncertainty import calibration_uncertainty
+from densecalib_ros.core.method.uncertainty import calibration_uncertainty
 
 from sfm_fixtures import gt_rig, gt_tracks
 

@@ -1,4 +1,4 @@
-"""Undistortion (core.undistort, `densecalib undistort`): our remap tables equal OpenCV's
+"""Undistortion (core.products.undistort, `densecalib undistort`): our remap tables equal OpenCV's
 initUndistortRectifyMap for the same camera (pinhole and fisheye), a fisheye's view is capped by
 max_fov, and the command writes images and a pinhole calibration with the same extrinsics."""
 import json
@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from densecalib_ros.cli import main
-from densecalib_ros.core.export import calibration_to_dict, read_calibration, ros_camera_info
+from densecalib_ros.core.io.camera_info import ros_camera_info
+from densecalib_ros.core.io.export import calibration_to_dict, read_calibration
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
-from densecalib_ros.core.undistort import pinhole_for, undistortion_maps
+from densecalib_ros.core.products.undistort import pinhole_for, undistortion_maps
 
 RADIAL = CameraIntrinsics("RADIAL", 320, 240, np.array([260.0, 163.0, 118.5, -0.18, 0.04]))
 FISHEYE = CameraIntrinsics("OPENCV_FISHEYE", 320, 240,

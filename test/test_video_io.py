@@ -1,4 +1,4 @@
-"""Frame sets from one video per camera (core.video_io, `densecalib calibrate --videos`): videos
+"""Frame sets from one video per camera (core.io.video_io, `densecalib calibrate --videos`): videos
 written here with OpenCV in three containers, frames placed on the common timeline with offsets,
 errors that say what to do, and a generated rig calibrated from its videos."""
 import logging
@@ -12,10 +12,10 @@ import pytest
 
 from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError, NotEnoughCamerasError
-from densecalib_ros.core.export import read_calibration
+from densecalib_ros.core.io.export import read_calibration
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
-from densecalib_ros.core.video_io import read_video_frame_sets
+from densecalib_ros.core.io.video_io import read_video_frame_sets
 
 BITS = 8
 

@@ -12,8 +12,9 @@ import textwrap
 import pytest
 
 from densecalib_ros.core.errors import InputError
-from densecalib_ros.core.export import (CALIBRATION_MARKERS, _exchange, calibration_entries,
-                                        replace_directory_atomic, write_calibration_files)
+from densecalib_ros.core.io.export import (CALIBRATION_MARKERS, calibration_entries,
+                                           write_calibration_files)
+from densecalib_ros.core.io.safe_write import _exchange, replace_directory_atomic
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -80,8 +81,8 @@ def test_a_kill_between_the_two_renames_is_undone_at_the_next_run(tmp_path, capl
     child = _child("""
         import os, sys, time
         from pathlib import Path
-        from densecalib_ros.core import export
-        export._exchange = lambda a, b: False  # a filesystem without RENAME_EXCHANGE
+        from densecalib_ros.core.io import safe_write
+        safe_write._exchange = lambda a, b: False  # a filesystem without RENAME_EXCHANGE
         rename = os.replace
         def replace(src, dst):
             rename(src, dst)
@@ -89,7 +90,7 @@ def test_a_kill_between_the_two_renames_is_undone_at_the_next_run(tmp_path, capl
                 print("between", flush=True)
                 time.sleep(60)
         os.replace = replace
-        export.replace_directory_atomic(
+        safe_write.replace_directory_atomic(
             lambda tmp: (tmp / "calibration.json").write_text("new"), Path(sys.argv[1]))
     """, out)
     _wait_for(child, "between")
@@ -118,7 +119,7 @@ def test_a_run_killed_while_writing_leaves_the_last_output_and_its_leftovers_go(
     child = _child("""
         import sys, time
         from densecalib_ros import cli
-        from densecalib_ros.core import export
+        from densecalib_ros.core.io import export
         write = export.write_calibration_files
         def slow(rig, folder, *args, **kwargs):
             write(rig, folder, *args, **kwargs)
@@ -212,7 +213,7 @@ def test_a_write_that_fails_names_the_output_not_its_hidden_temporary_folder(tmp
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (10000, 10000))
         from densecalib_ros.core.errors import InputError
-        from densecalib_ros.core.export import replace_directory_atomic, write_text_atomic
+        from densecalib_ros.core.io.safe_write import replace_directory_atomic, write_text_atomic
         try:
             replace_directory_atomic(
                 lambda tmp: write_text_atomic(tmp / "calibration.json", "x" * 20000),
@@ -231,11 +232,11 @@ def test_a_second_rename_that_fails_puts_the_old_folder_back(tmp_path, monkeypat
     """Without the exchange, the old folder is renamed aside first; when the new one then cannot
     take its place (here EXDEV, as from a folder on another filesystem), the old one goes back at
     once and the error says nothing was replaced."""
-    from densecalib_ros.core import export
+    from densecalib_ros.core.io import safe_write
 
     out = tmp_path / "out"
     _write(out, "good")
-    monkeypatch.setattr(export, "_exchange", lambda a, b: False)
+    monkeypatch.setattr(safe_write, "_exchange", lambda a, b: False)
     rename = os.replace
 
     def replace(src, dst):

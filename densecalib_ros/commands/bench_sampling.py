@@ -63,7 +63,7 @@ def _true_inliers(rig, t: int, a: int, b: int, xy_a: np.ndarray, xy_b: np.ndarra
 def _raw_inliers(rig, t: int, ms) -> tuple[int, int]:
     """Inlier count and total over the raw matches of every ordered pair, each judged at the
     position the tracks use: the refined target position where the matcher gives one."""
-    from ..core.sampling import refined_targets_px
+    from ..core.method.sampling import refined_targets_px
 
     good = total = 0
     for (i, j), m in ms.pairs.items():
@@ -111,7 +111,7 @@ def _axis_angle_deg(rig, a: int, b: int) -> float:
 def _angle_rows(args, loaded: dict, seeds: list) -> list[dict]:
     """The viewpoint sweep (module docstring): one row per angle, lens, seed and matcher."""
     from ..core.config import make_config
-    from ..core.sampling import refined_targets_px, sample_tracks
+    from ..core.method.sampling import refined_targets_px, sample_tracks
     from ..core.synthetic import RigSpec, generate_rig
 
     rows = []
@@ -167,8 +167,8 @@ def _print_angle_rows(rows: list[dict]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.config import make_config
-    from ..core.matching import create_matcher
-    from ..core.sampling import sample_tracks
+    from ..core.method.matching import create_matcher
+    from ..core.method.sampling import sample_tracks
     from ..core.synthetic import RigSpec, generate_rig
 
     matchers = [m.strip() for m in args.matchers.split(",") if m.strip()]

@@ -1,6 +1,6 @@
 """`densecalib bench-stereo`: the real fisheye stereo set held against its own checkerboard
-(core.stereo_checkerboard): the pair calibrated target-free from the bag, then judged on the
-pairs the bag does not hold by how well its rectification lines the board's corners up and how
+(core.products.stereo_checkerboard): the pair calibrated target-free from the bag, then judged on
+the pairs the bag does not hold by how well its rectification lines the board's corners up and how
 long it measures the board's squares, beside the set's two target-based calibrations. Prints a
 table; writes OUT/bench_stereo.json."""
 from __future__ import annotations
@@ -32,13 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..core.bag import read_frame_sets
+    from ..core.io.bag import read_frame_sets
     from ..core.config import make_config
     from ..eval.datasets import default_data_dir
-    from ..core.export import read_calibration
+    from ..core.io.export import read_calibration
     from ..core.pipeline import run_calibration
-    from ..core.scale import with_known_baseline
-    from ..core.stereo_checkerboard import evaluate, target_calibration
+    from ..core.products.scale import with_known_baseline
+    from ..core.products.stereo_checkerboard import evaluate, target_calibration
 
     data = Path(args.data_dir) if args.data_dir else default_data_dir()
     folder = data / STEREO

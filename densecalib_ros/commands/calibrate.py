@@ -14,7 +14,7 @@ from typing import Optional
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
-from ..core.report import camera_table, intrinsics_note
+from ..core.products.report import camera_table, intrinsics_note
 from .argtypes import number_in, positive, seed
 from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
 
@@ -93,8 +93,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _exif_focals(paths, frame_sets, names) -> dict:
-    """{camera: focal px} from the EXIF of the images used (core.exif), logged."""
-    from ..core.exif import camera_exif_focals
+    """{camera: focal px} from the EXIF of the images used (core.io.exif), logged."""
+    from ..core.io.exif import camera_exif_focals
 
     sizes = [(int(im.shape[1]), int(im.shape[0])) for im in frame_sets[0]]
     focals = camera_exif_focals(paths, names, sizes)
@@ -141,8 +141,8 @@ def parse_known_baseline(values: Optional[list[str]], names: list[str]) -> Optio
 
 def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> dict:
     """`given` plus the intrinsics of the bag's CameraInfo topics (--bag-camera-info)."""
-    from ..core.bag import camera_info_topic, read_camera_infos
-    from ..core.known_intrinsics import intrinsics_from_camera_info
+    from ..core.io.bag import camera_info_topic, read_camera_infos
+    from ..core.method.known_intrinsics import intrinsics_from_camera_info
 
     twice = sorted(set(given) & set(names))
     if twice:
@@ -154,13 +154,13 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.export import (CALIBRATION_MARKERS, calibration_entries, check_output_folder,
-                               replace_directory_atomic, write_calibration_files)
+    from ..core.io.export import CALIBRATION_MARKERS, calibration_entries, write_calibration_files
+    from ..core.io.safe_write import check_output_folder, replace_directory_atomic
     from ..core.job import CalibrationRequest, run_job
-    from ..core.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
-                                         with_previous_intrinsics)
-    from ..core.frame_checks import check_frame_sets
-    from ..core.reference_view_files import reference_views_of
+    from ..core.method.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
+                                                with_previous_intrinsics)
+    from ..core.method.frame_checks import check_frame_sets
+    from ..core.io.export import reference_views_of
 
     try:
         inputs = [p for p in (args.images, args.videos, args.bag) if p]
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
         config.known_intrinsics = read_known_intrinsics(args.intrinsics or [], names)
         previous = None
         if args.previous:
-            from ..core.export import read_calibration
+            from ..core.io.export import read_calibration
             previous = read_calibration(args.previous)
         if args.keep_intrinsics:
             config.known_intrinsics = with_previous_intrinsics(config.known_intrinsics,

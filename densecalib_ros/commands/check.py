@@ -1,18 +1,18 @@
 """`densecalib check`: does a calibration still fit the rig? Matches new images and holds every
-match against the calibration's epipolar geometry (core.consistency); names the cameras that no
-longer fit (bumped, refocused). Frame sets in time order are judged since the last change among
-them (core.consistency.check_latest). With the calibration's reference views, each camera is also
-held against its own view (core.reference_views); they alone judge when no pair shares enough
-matches. Exit status: 0 the calibration fits, 1 it does not, 2 unusable input or nothing could
-tell."""
+match against the calibration's epipolar geometry (core.monitor.consistency); names the cameras that
+no longer fit (bumped, refocused). Frame sets in time order are judged since the last change among
+them (core.monitor.consistency.check_latest). With the calibration's reference views, each camera is
+also held against its own view (core.monitor.reference_views); they alone judge when no pair shares
+enough matches. Exit status: 0 the calibration fits, 1 it does not, 2 unusable input or nothing
+could tell."""
 from __future__ import annotations
 
 import argparse
 import logging
 
-from ..core.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
-                                best_transfer_per_camera, check_latest)
 from ..core.errors import InputError
+from ..core.monitor.consistency import (DEFAULT_TOLERANCE_PX, MIN_PAIR_MATCHES,
+                                        best_transfer_per_camera, check_latest)
 from .argtypes import positive
 from .inputs import (add_input_arguments, parse_masks, read_input, require_calibrated_cameras,
                      topics_from_calibration)
@@ -34,10 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.config import make_config
-    from ..core.export import read_calibration
+    from ..core.io.export import read_calibration, reference_views_of
+    from ..core.monitor.reference_views import check_verdict, compare_with_reference_views
     from ..core.pipeline import match_frame_sets
-    from ..core.reference_views import (check_verdict, compare_with_reference_views,
-                                        reference_views_of)
 
     try:
         rig = read_calibration(args.calibration)

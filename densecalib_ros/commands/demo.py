@@ -71,8 +71,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_offline(rig, config, out: Path) -> int:
-    from ..core.export import replace_directory_atomic, write_calibration_files
-    from ..core.reference_view_files import latest_views
+    from ..core.io.export import write_calibration_files
+    from ..core.io.safe_write import replace_directory_atomic
+    from ..core.io.reference_view_files import latest_views
     from ..core.pipeline import run_calibration
 
     try:

@@ -1,7 +1,7 @@
 """`densecalib export`: write a calibration on disk in another tool's format (anipose's
 calibration.toml, Kalibr's camchain.yaml, OpenCV FileStorage files, DANNCE's and JARVIS's per-camera
-files, a rectified stereo pair for ROS's stereo_image_proc or OpenCV; core.interchange,
-core.stereo)."""
+files, a rectified stereo pair for ROS's stereo_image_proc or OpenCV; core.products.interchange,
+core.products.stereo)."""
 from __future__ import annotations
 
 import argparse
@@ -9,12 +9,12 @@ import logging
 from pathlib import Path
 
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, check_output_files, read_calibration,
-                           write_text_atomic)
-from ..core.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS, STEREO_FORMATS,
-                                dannce_files, export_text, jarvis_files, opencv_files,
-                                opencv_stereo_yaml, ros_stereo_files)
-from ..core.stereo import stereo_pair
+from ..core.io.export import calibration_folder, check_output_files, read_calibration
+from ..core.io.safe_write import write_text_atomic
+from ..core.products.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS,
+                                         STEREO_FORMATS, dannce_files, export_text, jarvis_files,
+                                         opencv_files, opencv_stereo_yaml, ros_stereo_files)
+from ..core.products.stereo import stereo_pair
 
 log = logging.getLogger("densecalib.export")
 
@@ -124,8 +124,8 @@ def _warn_about_stale_files(out: Path, written: dict) -> None:
 
 
 def _scene_ply(calibration, rig) -> str:
-    from ..core.floor import saved_scene_points
-    from ..core.scene_ply import scene_ply
+    from ..core.products.floor import saved_scene_points
+    from ..core.products.scene_ply import scene_ply
 
     scene = saved_scene_points(calibration_folder(calibration), rig)
     if scene is None:

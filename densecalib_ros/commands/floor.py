@@ -1,16 +1,16 @@
-"""`densecalib floor`: find the floor of a calibration already written (core.floor) and record
-it in its calibration.json, as `calibrate --floor` would have: no new calibration is needed to
-add a floor frame, or to look for it again with `--view top`."""
+"""`densecalib floor`: find the floor of a calibration already written (core.products.floor) and
+record it in its calibration.json, as `calibrate --floor` would have: no new calibration is needed
+to add a floor frame, or to look for it again with `--view top`."""
 from __future__ import annotations
 
 import argparse
 import logging
 
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, node_reload_hint, read_calibration,
-                           write_calibration_json)
-from ..core.floor import VIEWS, find_floor_of_saved_calibration, set_floor
-from ..core.report import format_floor
+from ..core.io.export import (calibration_folder, node_reload_hint, read_calibration,
+                              write_calibration_json)
+from ..core.products.floor import VIEWS, find_floor_of_saved_calibration, set_floor
+from ..core.products.report import format_floor
 
 log = logging.getLogger("densecalib.floor")
 

@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.export import replace_directory_atomic
+    from ..core.io.safe_write import replace_directory_atomic
     from ..core.synthetic import RigSpec, generate_rig, write_rig
 
     fisheye = set(args.fisheye_cameras)

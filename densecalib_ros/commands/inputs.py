@@ -12,10 +12,10 @@ from typing import Optional
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.io.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
+from ..core.io.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
+from ..core.io.video_io import DEFAULT_VIDEO_FRAME_SETS
 from ..core.named_values import split_named
-from ..core.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
-from ..core.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
-from ..core.video_io import DEFAULT_VIDEO_FRAME_SETS
 
 log = logging.getLogger("densecalib.inputs")
 
@@ -88,9 +88,9 @@ def _max_time_gap_s(args) -> float:
 
 def _estimated_clock_offsets(args) -> tuple[dict, dict]:
     """--align time --time-offset auto: ({camera: clock offset s}, its record) from the capture
-    times (core.clock_offsets)."""
-    from ..core.clock_offsets import estimate_clock_offsets
-    from ..core.image_io import capture_times_by_camera
+    times (core.io.clock_offsets)."""
+    from ..core.io.clock_offsets import estimate_clock_offsets
+    from ..core.io.image_io import capture_times_by_camera
 
     estimates = estimate_clock_offsets(capture_times_by_camera(args.images), _max_time_gap_s(args))
     offsets = {name: round(est.offset_s, 3) for name, est in estimates.items()}
@@ -139,11 +139,11 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --videos the camera names come "
                              "from the video file names.")
-        from ..core.video_io import read_video_frame_sets
+        from ..core.io.video_io import read_video_frame_sets
         record = {}
         if args.time_offset == ["auto"]:
-            from ..core.motion_sync import estimate_video_offsets
-            from ..core.video_io import list_video_folder
+            from ..core.io.motion_sync import estimate_video_offsets
+            from ..core.io.video_io import list_video_folder
             offsets, record = _motion_offsets(
                 estimate_video_offsets(*list_video_folder(args.videos)), "videos")
         else:
@@ -159,7 +159,7 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --images the camera names come "
                              "from the file or folder names.")
-        from ..core.image_io import list_image_folder, read_image_files
+        from ..core.io.image_io import list_image_folder, read_image_files
         alignment, record = _alignment(args)
         paths, names = list_image_folder(args.images, **alignment)
         paths = evenly_spaced(paths, _frame_sets(args, DEFAULT_MAX_FRAME_SETS))
@@ -172,11 +172,11 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
     if not args.topics:
         raise InputError("--bag needs --topics: the image topic of every camera, e.g. "
                          "--topics /cam0/image_raw /cam1/image_raw.")
-    from ..core.bag import camera_names_from_topics, read_frame_sets
+    from ..core.io.bag import camera_names_from_topics, read_frame_sets
     names = camera_names_from_topics(args.topics)
     record = {}
     if args.time_offset == ["auto"]:
-        from ..core.motion_sync import bag_offsets
+        from ..core.io.motion_sync import bag_offsets
         offsets, record = _motion_offsets(bag_offsets(args.bag, args.topics, names), "topics")
     else:
         offsets = parse_time_offsets(args.time_offset)
@@ -196,7 +196,7 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
 
 
 def _motion_offsets(estimates: dict, what: str) -> tuple[dict, dict]:
-    """({camera: offset s}, the record for quality["input"]) of core.motion_sync estimates."""
+    """({camera: offset s}, the record for quality["input"]) of core.io.motion_sync estimates."""
     offsets = {name: round(est.offset_s, 4) for name, est in estimates.items()}
     log.info("time offsets from the %s' motion (s, from %s): %s", what, next(iter(offsets)),
              ", ".join(f"{n}={o:+.3f}" for n, o in offsets.items()))
@@ -230,7 +230,7 @@ def parse_time_offsets(values: Optional[list[str]]) -> dict:
 def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
     """--mask values -> {camera name: ignored pixels}: NAME=PATH for one camera (NAME one of
     `names`; a path may itself hold '='), a bare PATH for every camera."""
-    from ..core.masks import read_mask
+    from ..core.method.masks import read_mask
 
     out = {}
     for value in values or []:
@@ -251,7 +251,7 @@ def topics_from_calibration(args, rig) -> None:
     topics the calibration was made from, when it recorded them (a bag or the node)."""
     if not args.bag or args.topics:
         return
-    from ..core.interchange import recorded_image_topics
+    from ..core.products.interchange import recorded_image_topics
 
     recorded = recorded_image_topics(rig)
     if recorded:

@@ -1,6 +1,6 @@
-"""`densecalib overlay`: draw each camera's reprojection residuals on its image (core.overlay), from
-a calibration folder's COLMAP model, to see where the points are and how well each lens model fits
-them."""
+"""`densecalib overlay`: draw each camera's reprojection residuals on its image
+(core.products.overlay), from a calibration folder's COLMAP model, to see where the points are and
+how well each lens model fits them."""
 from __future__ import annotations
 
 import argparse
@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, check_output_files, read_calibration,
-                           read_saved_model)
+from ..core.io.export import (calibration_folder, check_output_files, read_calibration,
+                              read_saved_model)
 from .argtypes import positive
 from .inputs import (add_input_arguments, read_input, require_calibrated_cameras,
                      topics_from_calibration)
@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.overlay import camera_residuals, draw_residuals
+    from ..core.products.overlay import camera_residuals, draw_residuals
 
     try:
         rig = read_calibration(args.calibration)

@@ -8,11 +8,11 @@ import argparse
 import logging
 from dataclasses import asdict
 
-from ..core.change import calibration_change, pose_agreement
 from ..core.errors import InputError
-from ..core.export import calibration_to_dict, read_calibration
+from ..core.io.export import calibration_to_dict, read_calibration
 from ..core.json_text import json_text
-from ..core.report import camera_centres_in_rig, history_report, history_rows, rig_report
+from ..core.monitor.change import calibration_change, pose_agreement
+from ..core.products.report import camera_centres_in_rig, history_report, history_rows, rig_report
 
 log = logging.getLogger("densecalib.report")
 
@@ -84,13 +84,14 @@ def _history(args: argparse.Namespace) -> int:
 
 
 def _write_plot(calibration, rig, path, against=None) -> None:
-    """The layout picture (core.layout_plot) of the calibration, with its saved scene points
-    (and where `against`'s cameras were)."""
+    """The layout picture (core.products.layout_plot) of the calibration, with its saved scene
+    points (and where `against`'s cameras were)."""
     import cv2
 
-    from ..core.export import calibration_folder, write_text_atomic
-    from ..core.floor import saved_scene_points
-    from ..core.layout_plot import draw_layout
+    from ..core.io.export import calibration_folder
+    from ..core.io.safe_write import write_text_atomic
+    from ..core.products.floor import saved_scene_points
+    from ..core.products.layout_plot import draw_layout
 
     if not str(path).lower().endswith(".png"):
         raise InputError(f"--plot {path}: give a .png file name.")

@@ -1,5 +1,5 @@
-"""`densecalib scale`: give a written calibration its metric scale afterwards (core.scale), from
-a known distance between two scene points or between two cameras; every length in it (camera
+"""`densecalib scale`: give a written calibration its metric scale afterwards (core.products.scale),
+from a known distance between two scene points or between two cameras; every length in it (camera
 positions, the floor frame, the saved COLMAP model) is multiplied by one factor."""
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import argparse
 import logging
 
 from ..core.errors import InputError
-from ..core.export import (calibration_folder, node_reload_hint, read_calibration, read_saved_model,
-                           replace_directory_atomic, write_calibration_json,
-                           write_colmap_model)
-from ..core.scale import (apply_known_baseline, apply_known_distance, rig_units_per_model_unit,
-                          scale_reconstruction)
-from ..core.triangulation import DEFAULT_PIXEL_SIGMA
+from ..core.io.export import (calibration_folder, node_reload_hint, read_calibration,
+                              read_saved_model, write_calibration_json, write_colmap_model)
+from ..core.io.safe_write import replace_directory_atomic
+from ..core.products.scale import (apply_known_baseline, apply_known_distance,
+                                   rig_units_per_model_unit, scale_reconstruction)
+from ..core.products.triangulation import DEFAULT_PIXEL_SIGMA
 from .triangulate import parse_observations
 
 log = logging.getLogger("densecalib.scale")

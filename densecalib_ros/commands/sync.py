@@ -1,5 +1,5 @@
 """`densecalib sync`: the time offsets between a rig's recordings, without calibrating
-(core.motion_sync for videos and bags, core.clock_offsets for camera-trap shots): what to trim
+(core.io.motion_sync for videos and bags, core.io.clock_offsets for camera-trap shots): what to trim
 or shift so that downstream tools (anipose triangulation, a video editor) see synchronised
 cameras (`--trim` writes the videos so cut, `--restamp` a bag with the stamps moved onto one
 clock), and what `--time-offset` or the node's stamp_offsets_s should be."""
@@ -10,8 +10,8 @@ import dataclasses
 import logging
 
 from ..core.errors import InputError
+from ..core.io.video_io import VIDEO_CODECS
 from ..core.json_text import json_text
-from ..core.video_io import VIDEO_CODECS
 
 log = logging.getLogger("densecalib.sync")
 TRIM_MARKERS = ("sync.json",)  # what makes a folder an earlier --trim output, to replace
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         if args.bag and not args.topics:
             raise InputError("--bag needs --topics: the image topic of every camera.")
         if args.trim:
-            from ..core.export import check_output_folder
+            from ..core.io.safe_write import check_output_folder
             check_output_folder(args.trim, TRIM_MARKERS, [args.videos])
         if args.time_offset:
             estimates = _given_offsets(args)
@@ -71,20 +71,20 @@ def run(args: argparse.Namespace) -> int:
             evidence = {n: "given" if n in named else "not given: 0" for n in estimates}
             evidence_json = {n: {"given": n in named} for n in estimates}
         elif args.videos:
-            from ..core.motion_sync import estimate_video_offsets
-            from ..core.video_io import list_video_folder
+            from ..core.io.motion_sync import estimate_video_offsets
+            from ..core.io.video_io import list_video_folder
             estimates = estimate_video_offsets(*list_video_folder(args.videos))
             evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
             evidence_json = _measured_evidence(estimates)
         elif args.bag:
-            from ..core.bag import camera_names_from_topics
-            from ..core.motion_sync import bag_offsets
+            from ..core.io.bag import camera_names_from_topics
+            from ..core.io.motion_sync import bag_offsets
             estimates = bag_offsets(args.bag, args.topics, camera_names_from_topics(args.topics))
             evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
             evidence_json = _measured_evidence(estimates)
         else:
-            from ..core.clock_offsets import estimate_clock_offsets
-            from ..core.image_io import DEFAULT_MAX_TIME_GAP_S, capture_times_by_camera
+            from ..core.io.clock_offsets import estimate_clock_offsets
+            from ..core.io.image_io import DEFAULT_MAX_TIME_GAP_S, capture_times_by_camera
             gap = DEFAULT_MAX_TIME_GAP_S if args.max_time_gap is None else args.max_time_gap
             estimates = estimate_clock_offsets(capture_times_by_camera(args.images), gap)
             evidence = {n: f"{e.paired_shots} shots paired" for n, e in estimates.items()}
@@ -143,10 +143,11 @@ def _measured_evidence(estimates: dict) -> dict:
 
 
 def _write_trimmed(video_dir, estimates: dict, out, codec: str) -> dict:
-    """Write the videos of video_dir cut to one start (core.video_io.synchronising_trims) into
+    """Write the videos of video_dir cut to one start (core.io.video_io.synchronising_trims) into
     out (replaced as a whole, with sync.json); returns the cuts by camera."""
-    from ..core.export import replace_directory_atomic
-    from ..core.video_io import list_video_folder, probe_video, synchronising_trims, transcode_video
+    from ..core.io.safe_write import replace_directory_atomic
+    from ..core.io.video_io import (list_video_folder, probe_video, synchronising_trims,
+                                    transcode_video)
 
     paths, names = list_video_folder(video_dir)
     infos = [probe_video(p) for p in paths]
@@ -176,14 +177,14 @@ def _write_trimmed(video_dir, estimates: dict, out, codec: str) -> dict:
 def _given_offsets(args) -> dict:
     """--time-offset NAME=S ... as estimates for the cameras of --videos or --topics (0 for the
     cameras not named)."""
-    from ..core.motion_sync import OffsetEstimate
+    from ..core.io.motion_sync import OffsetEstimate
     from .inputs import parse_time_offsets
 
     if args.videos:
-        from ..core.video_io import list_video_folder
+        from ..core.io.video_io import list_video_folder
         names, what = list_video_folder(args.videos)[1], "videos"
     else:
-        from ..core.bag import camera_names_from_topics
+        from ..core.io.bag import camera_names_from_topics
         names, what = camera_names_from_topics(args.topics), "topics"
     given = parse_time_offsets(args.time_offset)
     unknown = sorted(set(given) - set(names))
@@ -195,9 +196,9 @@ def _given_offsets(args) -> dict:
 
 
 def _write_restamped(bag, topics: list[str], estimates: dict, out) -> dict:
-    """Copy the bag into out with each camera's clock topics (core.bag.clock_topics) restamped
+    """Copy the bag into out with each camera's clock topics (core.io.bag.clock_topics) restamped
     by its offset; returns camera -> {topic: messages restamped}."""
-    from ..core.bag import clock_topics, recorded_topics, restamp_bag
+    from ..core.io.bag import clock_topics, recorded_topics, restamp_bag
 
     recorded = recorded_topics(bag)
     by_camera, offsets_ns, owner = {}, {}, {}

@@ -1,5 +1,5 @@
 """`densecalib triangulate`: 3D points from their pixels in two or more cameras of a calibration
-(core.triangulation), with their uncertainty and the distances between them."""
+(core.products.triangulation), with their uncertainty and the distances between them."""
 from __future__ import annotations
 
 import argparse
@@ -8,9 +8,9 @@ import logging
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.export import read_calibration
+from ..core.io.export import read_calibration
 from ..core.json_text import json_text
-from ..core.triangulation import DEFAULT_PIXEL_SIGMA, distance, triangulate
+from ..core.products.triangulation import DEFAULT_PIXEL_SIGMA, distance, triangulate
 
 log = logging.getLogger("densecalib.triangulate")
 

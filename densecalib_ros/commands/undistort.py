@@ -1,7 +1,7 @@
 """`densecalib undistort`: resample a rig's images (or videos) to distortion-free pinhole
-cameras (core.undistort) and write them with the matching calibration (PINHOLE cameras, same
-extrinsics), all or nothing; or, with --stereo-pair, a pair's images rectified (core.stereo) with
-the calibration of the rectified pair."""
+cameras (core.products.undistort) and write them with the matching calibration (PINHOLE cameras,
+same extrinsics), all or nothing; or, with --stereo-pair, a pair's images rectified
+(core.products.stereo) with the calibration of the rectified pair."""
 from __future__ import annotations
 
 import argparse
@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.undistort import DEFAULT_MAX_FOV_DEG
-from ..core.video_io import VIDEO_CODECS
+from ..core.io.video_io import VIDEO_CODECS
+from ..core.products.undistort import DEFAULT_MAX_FOV_DEG
 
 log = logging.getLogger("densecalib.undistort")
 
@@ -51,12 +51,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.export import (CALIBRATION_MARKERS, calibration_folder, camera_info_yaml,
-                               check_output_folder, read_calibration, replace_directory_atomic,
-                               write_calibration_files, write_text_atomic)
-    from ..core.image_io import camera_image_files, read_image
-    from ..core.stereo import stereo_pair
-    from ..core.undistort import pinhole_for, rectified_pinhole, undistortion_maps
+    from ..core.io.camera_info import camera_info_yaml
+    from ..core.io.export import (CALIBRATION_MARKERS, calibration_folder, read_calibration,
+                                  write_calibration_files)
+    from ..core.io.safe_write import (check_output_folder, replace_directory_atomic,
+                                      write_text_atomic)
+    from ..core.io.image_io import camera_image_files, read_image
+    from ..core.products.stereo import stereo_pair
+    from ..core.products.undistort import pinhole_for, rectified_pinhole, undistortion_maps
 
     try:
         if not 0.0 < args.max_fov < 180.0:
@@ -148,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _camera_video(directory: str, name: str) -> list[Path]:
     """[the video of camera `name` in directory] (DIR/<name>.<video ext>), or []."""
-    from ..core.video_io import VIDEO_EXTENSIONS
+    from ..core.io.video_io import VIDEO_EXTENSIONS
 
     return sorted(p for p in Path(directory).glob(f"{name}.*")
                   if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS)[:1]
@@ -157,7 +159,7 @@ def _camera_video(directory: str, name: str) -> list[Path]:
 def _remap_video(path: Path, dest: Path, maps, source, target, codec: str) -> int:
     """Write every frame of video `path` resampled by maps (map_x, map_y) to dest at the same
     frame rate; returns the number of frames."""
-    from ..core.video_io import probe_video, transcode_video
+    from ..core.io.video_io import probe_video, transcode_video
 
     info = probe_video(path)
     if (info.width, info.height) != (source.width, source.height):

@@ -132,7 +132,7 @@ class PipelineConfig:
     # only): the sampled tracks find the rig, all the matches it agrees with refine it.
     refine_on_all_matches: bool = True
     # Refine the kept rig last on dense correspondences measured in the images, with priors on
-    # the principal point and pixel aspect (core.image_refinement; perspective lenses).
+    # the principal point and pixel aspect (core.method.image_refinement; perspective lenses).
     refine_on_images: bool = True
     # Focal lengths the user knows [px] (lens datasheet: f_mm / pixel pitch in mm, or
     # (width / 2) / tan(horizontal FOV / 2)): camera name -> px, "*" for every camera not named.
@@ -141,7 +141,7 @@ class PipelineConfig:
     # models eq. 2's focals stay one more start (pipeline.calibrate_from_tracks). The SfM still
     # refines them. Empty: estimated.
     initial_focal_px: dict = field(default_factory=dict)
-    # Focal lengths from the images' EXIF [px] (core/exif.py; the offline command fills it for
+    # Focal lengths from the images' EXIF [px] (core/io/exif.py; the offline command fills it for
     # image folders): camera name -> px. A start like initial_focal_px but below it and below a
     # previous calibration's; cameras without one start from the estimate.
     exif_focal_px: dict = field(default_factory=dict)
@@ -150,14 +150,14 @@ class PipelineConfig:
     # its lens's model (LENS_MODELS); a rig with any fisheye camera runs with the fisheye
     # preset's SfM options (resolve_camera_lenses).
     camera_lens: dict = field(default_factory=dict)
-    # Regions whose matches are not used (core/masks.py): camera name -> bool (H, W), True =
+    # Regions whose matches are not used (core/method/masks.py): camera name -> bool (H, W), True =
     # ignored (an info strip, the rig's own structure). Cameras not named use the whole image.
     camera_masks: dict = field(default_factory=dict)
     # Find burnt-in info strips (a trail camera's bar of date and temperature along the top or
     # bottom edge) and ignore their rows, for the cameras without a camera_masks entry
-    # (core/info_strip.py): their glyphs match across cameras and fit no geometry.
+    # (core/method/info_strip.py): their glyphs match across cameras and fit no geometry.
     detect_info_strips: bool = True
-    # Intrinsics the user knows and wants kept (core/known_intrinsics.py: a lab calibration's
+    # Intrinsics the user knows and wants kept (core/method/known_intrinsics.py: a lab calibration's
     # camera_info YAML, a previous calibration): camera name -> CameraIntrinsics at the images'
     # size. Those cameras start from them and keep them exactly: only the extrinsics (and the
     # other cameras' intrinsics) are calibrated. Their lens follows from the model.

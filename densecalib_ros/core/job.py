@@ -20,7 +20,7 @@ from .progress import Progress
 from .types import RigCalibration
 
 if TYPE_CHECKING:  # the pipeline imports pycolmap: on use only
-    from .pipeline import CalibrationResult
+    from .calibration_result import CalibrationResult
 
 log = logging.getLogger(__name__)
 
@@ -34,9 +34,10 @@ class CalibrationRequest:
         result is refused: core.recalibration); previous_views: its reference views.
     known_baseline: (camera_a, camera_b, metres) between the two cameras' centres; None: the
         previous calibration's baseline where it was scaled by one, else up to scale.
-    floor: "upright" or "top" to find the floor frame (core.floor); floor_hint: what finds it
+    floor: "upright" or "top" to find the floor frame (core.products.floor); floor_hint: what finds
+    it
         again in the front end's terms, said when a recalibration lost the previous floor.
-    source: what the images came from, recorded as the provenance (core.export).
+    source: what the images came from, recorded as the provenance (core.io.export).
     matcher: a loaded matcher to reuse (the node keeps one across calibrations)."""
 
     frame_sets: Sequence[Sequence[np.ndarray]]
@@ -54,7 +55,8 @@ class CalibrationRequest:
 @dataclass
 class JobResult:
     calibration: "CalibrationResult"
-    reference_views: dict  # camera -> its image of the last frame set (core.reference_views)
+    # camera -> its image of the last frame set (core.monitor.reference_views)
+    reference_views: dict
 
     @property
     def rig(self) -> RigCalibration:
@@ -64,12 +66,12 @@ class JobResult:
 def run_job(request: CalibrationRequest, progress: Progress = None) -> JobResult:
     """Calibrate as `request` says (module docstring). Raises CalibrationError subclasses
     (CalibrationRejectedError: a recalibration worse than the previous calibration)."""
-    from .export import record_provenance
-    from .floor import record_floor, warn_if_floor_lost
+    from .io.export import record_provenance
+    from .products.floor import record_floor, warn_if_floor_lost
     from .pipeline import run_calibration
     from .recalibration import recalibrate
-    from .reference_view_files import latest_views
-    from .scale import warn_if_scale_lost, with_known_baseline
+    from .io.reference_view_files import latest_views
+    from .products.scale import warn_if_scale_lost, with_known_baseline
 
     r = request
     if r.previous is not None:

@@ -30,7 +30,7 @@ log = logging.getLogger(__name__)
 
 PACKAGE_LOGGER = "densecalib_ros"
 # What the workers import before the first task, so that a task starts without import time.
-PRELOAD_MODULES = ["densecalib_ros.core.incremental"]
+PRELOAD_MODULES = ["densecalib_ros.core.method.incremental"]
 
 _lock = threading.Lock()
 _lock_start = threading.Lock()  # spawn.get_preparation_data is swapped while a worker starts

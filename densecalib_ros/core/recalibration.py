@@ -11,8 +11,8 @@ Either way the result says how much every camera changed.
 The frame sets may straddle the change: a node's buffer holds the last seconds of images, and a
 camera bumped a moment before the service call leaves most of them from before. Calibrated
 together, the old images pull the rig back to where it was. So each frame set is first held
-against the previous calibration (core.consistency, as `check` does); when sets that fit it are
-followed by sets that do not, the rig changed in between, and only the sets since the change are
+against the previous calibration (core.monitor.consistency, as `check` does); when sets that fit it
+are followed by sets that do not, the rig changed in between, and only the sets since the change are
 calibrated (quality["frame_sets_before_change"] counts the ones left out).
 """
 from __future__ import annotations
@@ -23,16 +23,17 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .change import calibration_change, change_summary
 from .config import PipelineConfig
-from .consistency import DEFAULT_TOLERANCE_PX, sets_since_change
 from .errors import CalibrationError
-from .frame_checks import check_frame_sets
-from .masks import ignored_regions, info_strips
-from .pipeline import (CalibrationResult, calibrate_from_matches, match_frame_sets,
-                       record_info_strips, with_point_colours)
+from .method.frame_checks import check_frame_sets
+from .method.masks import ignored_regions, info_strips
+from .monitor.change import calibration_change, change_summary
+from .monitor.consistency import DEFAULT_TOLERANCE_PX, sets_since_change
+from .monitor.reference_views import fits_per_frame_set_and_view
+from .calibration_result import CalibrationResult
+from .pipeline import (calibrate_from_matches, match_frame_sets, record_info_strips,
+                       with_point_colours)
 from .progress import Progress, say_progress
-from .reference_views import fits_per_frame_set_and_view
 from .types import RigCalibration
 
 log = logging.getLogger(__name__)
@@ -65,7 +66,7 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
                 progress: Progress = None,
                 previous_views: Optional[dict] = None) -> CalibrationResult:
     """Calibrate a rig that has a previous calibration (see the module doc); `previous_views`:
-    its reference views (core.reference_views), which also tell a frame set taken since a
+    its reference views (core.monitor.reference_views), which also tell a frame set taken since a
     change (a turn along the epipolar lines, a refocus of a camera of two). The result's
     rig.quality gains "init" (what the accepted run started from), "change_vs_previous" (per
     camera) and "change_summary". Raises CalibrationRejectedError when the best new result is worse

@@ -167,13 +167,13 @@ class CameraQuality:
     # A diagnostic, not a verdict: on generated rigs cameras with < 30 were often, not always,
     # the less accurate ones. None in files written before it was recorded.
     num_multiview_observations: Optional[int] = None
-    # Standard deviations from the final adjustment's information matrix (core.uncertainty; a
+    # Standard deviations from the final adjustment's information matrix (core.method.uncertainty; a
     # lower bound). None where not estimated (a held principal point).
     focal_std_px: Optional[float] = None
     principal_point_std_px: Optional[float] = None
     projection_std_px: Optional[float] = None  # the intrinsics as a whole, mean over the image
-    # The intrinsics the images pinned down (core.image_refinement: "f", "cx", "cy", "k1", "k2",
-    # "aspect"); those with a prior that are not listed rest on it (the principal point near
+    # The intrinsics the images pinned down (core.method.image_refinement: "f", "cx", "cy", "k1",
+    # "k2", "aspect"); those with a prior that are not listed rest on it (the principal point near
     # the image centre). None where not judged (fisheye lenses, given intrinsics).
     estimated_intrinsics: Optional[list] = None
 

@@ -172,7 +172,7 @@ def heldout_scenes() -> list[SceneSpec]:
 
 # Forward-facing rigs: cameras side by side on a bar along one wall, looking across the room with
 # their optical axes parallel to within a few degrees (a stereo head, a camera array on a shelf).
-# Their images leave the focal lengths weakly determined (core.focal_determination): this set
+# Their images leave the focal lengths weakly determined (core.method.focal_determination): this set
 # measures how far off they come out and whether the calibration says so. (cameras, spacing m,
 # seed); seeds of their own.
 FORWARD_RIGS = ((3, 0.12, 601), (4, 0.3, 602), (4, 0.3, 603), (5, 0.2, 604), (6, 0.15, 605),
@@ -187,7 +187,8 @@ def forward_scenes() -> list[SceneSpec]:
 
 
 def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
-    """The scene's images and reference cameras. Raises FileNotFoundError when real data is absent."""
+    """The scene's images and reference cameras. Raises FileNotFoundError when real data is
+    absent."""
     if spec.kind == "synthetic":
         from ..core.synthetic import RigSpec, generate_rig
 
@@ -249,7 +250,8 @@ def _peak_rss_mib(with_workers: bool = True) -> Optional[float]:
 def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
     """Run one method on one scene and score it. Never raises for a method's own failure: the
     record's status is "ok", "failed" (CalibrationError / peer registered nothing), "unavailable"
-    (a module of our pipeline is missing: ImportError) or "error" (an unexpected exception, with its traceback)."""
+    (a module of our pipeline is missing: ImportError) or "error" (an unexpected exception, with its
+    traceback)."""
     record = dict(method=method, status="ok", message="", runtime_s=None, peak_rss_mib=None)
     share = scene.share_intrinsics
     can_measure_memory = _reset_peak_rss()
@@ -312,7 +314,7 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
         record["status"] = "failed"
     record["metrics"] = evaluate_calibration(calib, scene.gt)
     if method not in PEER_METHODS and calib.cameras:
-        from ..core.uncertainty import error_sigma_ratios
+        from ..core.method.uncertainty import error_sigma_ratios
         record["error_sigma_ratios"] = error_sigma_ratios(calib, scene.gt)
         # What the user would have been told about this result (consensus disagreement, focal
         # lengths left open, ...): a warning on a right result is a false alarm, none on a wrong
@@ -392,7 +394,7 @@ def run_bench(specs: Sequence[SceneSpec], methods: Sequence[str], num_threads: i
 def _write_json(report: dict, out_dir: Optional[Path]) -> None:
     if out_dir is None:
         return
-    from ..core.export import write_text_atomic
+    from ..core.io.safe_write import write_text_atomic
 
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     write_text_atomic(Path(out_dir) / "bench.json",
@@ -484,8 +486,8 @@ def summarize(scenes: list[dict]) -> list[dict]:
 
 def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
     """Per our method: quantiles over all cameras of actual error / estimated sigma, focal and
-    projection (core.uncertainty.error_sigma_ratios); a sigma that is only a lower bound shows as
-    ratios well above 1."""
+    projection (core.method.uncertainty.error_sigma_ratios); a sigma that is only a lower bound
+    shows as ratios well above 1."""
     pooled: dict[str, dict[str, list]] = {}
     for entry in scenes:
         for r in entry["results"]:

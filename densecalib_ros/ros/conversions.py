@@ -1,10 +1,10 @@
 """ROS message <-> numpy / core types, without cv_bridge or tf2_ros.
 
 Images: sensor_msgs/Image (rgb8, bgr8, mono8, mono16, bayer_<pattern>8; more read: see
-core.image_encoding.RAW_ENCODINGS) and CompressedImage (jpeg, png) <-> uint8 RGB (H, W, 3) / gray
-(H, W) arrays (core.image_encoding does the pixels).
-Calibration: CameraInfo from core.export.ros_camera_info (ROS pixel convention, ROS distortion
-model names); TransformStamped parent=rig frame -> child=<camera>_optical_frame holding
+core.io.image_encoding.RAW_ENCODINGS) and CompressedImage (jpeg, png) <-> uint8 RGB (H, W, 3) / gray
+(H, W) arrays (core.io.image_encoding does the pixels).
+Calibration: CameraInfo from core.io.camera_info.ros_camera_info (ROS pixel convention, ROS
+distortion model names); TransformStamped parent=rig frame -> child=<camera>_optical_frame holding
 rig_from_cam = inverse(cam_from_rig) (tf's convention: the child frame's pose in the parent frame).
 """
 from __future__ import annotations
@@ -18,9 +18,9 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from tf2_msgs.msg import TFMessage
 
-from ..core.bag import stamp_ns
-from ..core.export import ros_camera_info
-from ..core.image_encoding import decode_compressed, decode_raw, encode_compressed, encode_raw
+from ..core.io.bag import stamp_ns
+from ..core.io.camera_info import ros_camera_info
+from ..core.io.image_encoding import decode_compressed, decode_raw, encode_compressed, encode_raw
 from ..core.types import CameraIntrinsics, RigCalibration
 
 
@@ -38,7 +38,7 @@ def image_msg_to_numpy(msg) -> np.ndarray:
 
 
 def motion_image(msg) -> np.ndarray:
-    """An image message, decoded only as finely as a motion signal needs (core.motion_sync
+    """An image message, decoded only as finely as a motion signal needs (core.io.motion_sync
     shrinks it to SIGNAL_WIDTH_PX anyway): JPEG/PNG at half size in grey, which costs a fraction
     of a full decode on every frame of a live stream."""
     if hasattr(msg, "encoding"):
@@ -109,7 +109,7 @@ def message_stamp_ns(msg) -> int:
 def camera_info_msg(name: str, intrinsics: CameraIntrinsics, frame_id: str, t_ns: int,
                     rectification=None, projection=None) -> CameraInfo:
     """CameraInfo of one calibrated camera in ROS conventions: K, D, and R = I, P = [K | 0], or a
-    stereo pair's rectification R and projection P (core.stereo)."""
+    stereo pair's rectification R and projection P (core.products.stereo)."""
     info = ros_camera_info(name, intrinsics, rectification, projection)
     msg = CameraInfo(width=info["image_width"], height=info["image_height"],
                      distortion_model=info["distortion_model"])
@@ -168,7 +168,7 @@ def rig_tf_message(rig: RigCalibration, rig_frame: str, optical_frames: dict[str
     """All cameras' extrinsics in one TFMessage: rig_frame -> optical_frames[name] for each
     calibrated camera (frame_from_cam = frame_from_rig @ inverse(cam_from_rig), rig_frame's
     axes as rig_frame_axes says); with floor_frame and a calibration that found its floor
-    (core.floor), also floor_frame -> rig_frame."""
+    (core.products.floor), also floor_frame -> rig_frame."""
     published_from_rig = frame_from_rig(rig_frame_axes)
     transforms = [transform_msg(rig_frame, optical_frames[name], published_from_rig @ np.linalg.inv(
                       np.asarray(cam.cam_from_rig, dtype=np.float64)), t_ns)

@@ -31,7 +31,7 @@ from typing import Optional
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.image_encoding import COMPRESSED_FORMATS, encode_compressed
+from ..core.io.image_encoding import COMPRESSED_FORMATS, encode_compressed
 
 NODE_NAME = "densecalib_bench_node"
 TOPIC_PREFIX = "/densecalib_bench"

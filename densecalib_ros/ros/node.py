@@ -6,15 +6,15 @@ Interface (names relative to the node, default name `densecalib_node`):
 - service `~/calibrate` (std_srvs/Trigger): calibrates on the buffered frame sets; answers with a
   one-line summary, or the reason of the failure; a call while one runs is refused ("busy");
 - service `~/check` (std_srvs/Trigger): holds the buffered frame sets against the current
-  calibration without recalibrating (core.consistency.check_latest: when the older sets fit and
-  the newer do not, the newer are judged; and core.reference_views: each camera's latest images
-  against its view at calibration time); success = it still fits, the message names a camera
+  calibration without recalibrating (core.monitor.consistency.check_latest: when the older sets fit
+  and the newer do not, the newer are judged; and core.monitor.reference_views: each camera's latest
+  images against its view at calibration time); success = it still fits, the message names a camera
   that moved and, after a change inside the buffer, when;
 - the watch (timer): with check_interval_s > 0, the same check on the frame sets that arrived
   since the last one (and the one before them), its verdict on ~/status and /diagnostics; with
   recalibrate_on_change, a recalibration when the calibration no longer fits;
 - service `~/sync` (std_srvs/Trigger): measures the cameras' stamp offsets from what moves in
-  their latest `sync_window_s` seconds of images (core.motion_sync) and sets `stamp_offsets_s`;
+  their latest `sync_window_s` seconds of images (core.io.motion_sync) and sets `stamp_offsets_s`;
 - service `~/reload` (std_srvs/Trigger): publishes the calibration under `output_dir/latest`
   again, after `densecalib scale` / `floor` changed it or `latest` was pointed at another one;
   one that cannot be loaded leaves the current one published;
@@ -30,7 +30,7 @@ Interface (names relative to the node, default name `densecalib_node`):
 - calls (optional) `<camera ns>/set_camera_info` (sensor_msgs/SetCameraInfo) with a timeout;
 - files: `output_dir/<UTC timestamp>/` (calibration.json, <camera>.yaml, colmap/,
   reference_views/) written atomically, then the `output_dir/latest` symlink is swapped
-  atomically (core.calibration_store); with keep_calibrations > 0 the oldest beyond that many
+  atomically (core.io.calibration_store); with keep_calibrations > 0 the oldest beyond that many
   are then removed. At start-up the calibration under `latest` is republished. A failed
   calibration publishes, writes and removes nothing.
 
@@ -77,22 +77,22 @@ from tf2_msgs.msg import TFMessage
 
 from ..core.colmap_logging import show_colmap_log
 from ..core.errors import CalibrationError, InputError
-from ..core.calibration_store import (LATEST, prune_calibrations, stored_calibrations,
-                                      write_new_calibration)
-from ..core.export import (camera_info_yaml, read_calibration, write_calibration_files,
-                           write_calibration_json, write_text_atomic)
-from ..core.known_intrinsics import with_previous_intrinsics
-from ..core.report import info_strips_line
-from ..core.stereo import stereo_pair
-from ..core.sync import FrameSet, evenly_spaced
+from ..core.io.calibration_store import (LATEST, prune_calibrations, stored_calibrations,
+                                         write_new_calibration)
+from ..core.io.camera_info import camera_info_yaml
+from ..core.io.export import read_calibration, write_calibration_files, write_calibration_json
+from ..core.io.safe_write import write_text_atomic
+from ..core.io.sync import FrameSet, evenly_spaced
+from ..core.method.known_intrinsics import with_previous_intrinsics
+from ..core.products.report import info_strips_line
+from ..core.products.stereo import stereo_pair
 from ..core.types import RigCalibration
 from .conversions import camera_info_msg, frame_from_rig, point_cloud_msg, rig_tf_message
 from .core_logs import forward_core_logs, stop_forwarding
 from .frame_loss import LOSS_HINT, WARN_LOSS_FRACTION
 from .intake import ImageIntake
 from .replay import BagReplayer
-from .settings import (PARAMETERS, Settings, is_list_parameter, parse_settings,
-                       pipeline_config)
+from .settings import PARAMETERS, Settings, is_list_parameter, parse_settings, pipeline_config
 from .sync import MessageSynchronizer, malformed_note
 from .transport import configure_intake_transport
 
@@ -198,7 +198,7 @@ class DenseCalibNode(Node):
         # a bag is replayed again or sim time restarts; the buffer only appends and drops)
         self._watched_last: Optional[FrameSet] = None
         self._last_watch = -math.inf  # time.monotonic() of the last watch check
-        self._matcher = None  # ((name, max side), loaded core.matching.Matcher)
+        self._matcher = None  # ((name, max side), loaded core.method.matching.Matcher)
 
         self.sync = MessageSynchronizer(len(s.image_topics), s.slop_s, s.buffer_size,
                                         s.min_interval_s, s.sync_queue_size, s.stamp_offsets_s,
@@ -294,7 +294,7 @@ class DenseCalibNode(Node):
         scene points (as `densecalib floor` does) and record it in its calibration.json, so that
         it is published now and after a restart. No floor found: the calibration stays as it is
         and the status says why."""
-        from ..core.floor import find_floor_of_saved_calibration, set_floor
+        from ..core.products.floor import find_floor_of_saved_calibration, set_floor
 
         try:
             floor = find_floor_of_saved_calibration(self.calibration_dir, self.calibration, view)
@@ -495,7 +495,7 @@ class DenseCalibNode(Node):
 
     def _on_sync(self, request, response):
         """~/sync: measure the cameras' stamp offsets from the motion in their latest
-        sync_window_s seconds (core.motion_sync) and set stamp_offsets_s to them; on failure
+        sync_window_s seconds (core.io.motion_sync) and set stamp_offsets_s to them; on failure
         the offsets stay as they were."""
         s = self.settings
         try:
@@ -530,10 +530,10 @@ class DenseCalibNode(Node):
         return response
 
     def _check(self, sets: Optional[list] = None) -> _CheckOutcome:
-        from ..core.consistency import best_transfer_per_camera, check_latest
+        from ..core.monitor.consistency import best_transfer_per_camera, check_latest
         from ..core.pipeline import match_frame_sets
-        from ..core.reference_views import (check_verdict, compare_with_reference_views,
-                                            read_reference_views)
+        from ..core.io.reference_view_files import read_reference_views
+        from ..core.monitor.reference_views import check_verdict, compare_with_reference_views
 
         s, rig = self.settings, self.calibration
         if rig is None:
@@ -581,7 +581,7 @@ class DenseCalibNode(Node):
     def _calibrate(self, start: float) -> Outcome:
         # heavy (pycolmap, matchers): import on use
         from ..core.job import CalibrationRequest, run_job
-        from ..core.reference_view_files import read_reference_views
+        from ..core.io.reference_view_files import read_reference_views
 
         s = self.settings
         sets = self.sync.snapshot()
@@ -619,7 +619,7 @@ class DenseCalibNode(Node):
         job = run_job(request, progress=lambda msg: self._set_status(f"calibrating: {msg}", None))
         rig, reconstruction = job.rig, job.calibration.reconstruction
         before_change = rig.quality.get("frame_sets_before_change", 0)
-        if before_change:  # the provenance (core.export) names the frame sets calibrated
+        if before_change:  # the provenance (core.io.export) names the frame sets calibrated
             rig.quality["input"]["frame_set_stamps_ns"] = \
                 source["frame_set_stamps_ns"][before_change:]
         sets = sets[before_change:]
@@ -664,7 +664,7 @@ class DenseCalibNode(Node):
     def _matcher_for(self, s: Settings):
         """The loaded matcher of the current settings, kept across calibrations (loading learned
         weights takes seconds)."""
-        from ..core.matching import create_matcher
+        from ..core.method.matching import create_matcher
 
         key = (s.matcher, s.max_image_side_px)
         if self._matcher is None or self._matcher[0] != key:
@@ -789,7 +789,7 @@ class DenseCalibNode(Node):
         """Replace the latched ~/points cloud with the scene points of the calibration's saved
         COLMAP model, in rig_frame and the rig's units, in their image colours (RViz shows the
         scene beside the camera frames); an empty cloud when it saved none."""
-        from ..core.floor import saved_scene_points
+        from ..core.products.floor import saved_scene_points
 
         points, colours = np.zeros((0, 3)), None
         try:
@@ -808,8 +808,8 @@ class DenseCalibNode(Node):
 
     def _camera_infos(self, rig: RigCalibration, t_ns: int) -> dict:
         """CameraInfo per calibrated camera, the stereo_pairs' with their rectification. A pair
-        that cannot be rectified (see core.stereo) keeps R = I, and self.stereo_problem says
-        why."""
+        that cannot be rectified (see core.products.stereo) keeps R = I, and self.stereo_problem
+        says why."""
         frames = dict(zip(self.settings.camera_names, self.settings.frame_names))
         rectified, problems = self._rectifications(rig, warn=True)
         self.stereo_problem = "; ".join(problems) or None

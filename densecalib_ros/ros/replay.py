@@ -1,6 +1,6 @@
 """Replay of a rosbag2 bag's image topics into the running node (no rosbag2_py needed).
 
-Messages are read with `rosbags` (core.bag.iter_image_messages) in bag order and handed to the
+Messages are read with `rosbags` (core.io.bag.iter_image_messages) in bag order and handed to the
 node's intake (the same synchroniser the subscriptions feed) with their header stamps, paced by
 the bag's log times divided by `rate` (0 = as fast as possible), in a background thread.
 """
@@ -10,8 +10,8 @@ import threading
 import time
 from typing import Callable, Optional
 
-from ..core.bag import iter_image_messages
 from ..core.errors import CalibrationError
+from ..core.io.bag import iter_image_messages
 
 
 class BagReplayer:

@@ -16,7 +16,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from ..core.image_encoding import COMPRESSED_FORMATS
+from ..core.io.image_encoding import COMPRESSED_FORMATS
 from .conversions import numpy_to_compressed_msg, numpy_to_image_msg, transform_to_matrix
 from .node import LATCHED_QOS
 

@@ -13,16 +13,16 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange
 from rclpy.parameter import Parameter
 
-from ..core.bag import camera_names_from_topics, topic_namespace
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, PipelineConfig,
                            make_config)
-from ..core.consistency import DEFAULT_TOLERANCE_PX
 from ..core.errors import InputError
-from ..core.floor import VIEWS as FLOOR_VIEWS
-from ..core.known_intrinsics import read_known_intrinsics
-from ..core.masks import read_mask
-from ..core.matching import available_matchers
-from ..core.sync import DEFAULT_MAX_FRAME_SETS
+from ..core.io.bag import camera_names_from_topics, topic_namespace
+from ..core.io.sync import DEFAULT_MAX_FRAME_SETS
+from ..core.method.known_intrinsics import read_known_intrinsics
+from ..core.method.masks import read_mask
+from ..core.method.matching import available_matchers
+from ..core.monitor.consistency import DEFAULT_TOLERANCE_PX
+from ..core.products.floor import VIEWS as FLOOR_VIEWS
 
 TRANSPORTS = ("auto", "raw", "compressed")
 RIG_FRAME_AXES = ("optical", "body")
@@ -184,9 +184,9 @@ class Settings:
     recalibrate_on_change: bool
     preset: str
     camera_lens: dict[str, str]
-    camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.masks)
+    camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.method.masks)
     detect_info_strips: bool
-    known_intrinsics: dict  # camera name -> CameraIntrinsics kept (core.known_intrinsics)
+    known_intrinsics: dict  # camera name -> CameraIntrinsics kept (core.method.known_intrinsics)
     keep_intrinsics: bool
     pipeline: str
     matcher: str

@@ -1,4 +1,4 @@
-"""Thread-safe adapter from image messages to buffered frame sets (core.sync does the matching).
+"""Thread-safe adapter from image messages to buffered frame sets (core.io.sync does the matching).
 
 Subscription callbacks call `add` (cheap: no decoding, unless motion is tracked for measuring
 stamp offsets); the calibration worker takes a `snapshot` and decodes it with
@@ -13,8 +13,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.motion_sync import MotionEnergy, OffsetEstimate, stream_offsets
-from ..core.sync import ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer
+from ..core.io.motion_sync import MotionEnergy, OffsetEstimate, stream_offsets
+from ..core.io.sync import ApproximateTimeSynchronizer, FrameSet, FrameSetBuffer
 from .conversions import image_msg_to_numpy, message_stamp_ns, motion_image
 from .frame_loss import LOSS_HINT, StampGaps
 
@@ -88,7 +88,7 @@ class MessageSynchronizer:
             self._motion[stream].add((stamp_ns - self._motion_t0_ns) * 1e-9, image)
 
     def measure_offsets(self, names: list[str]) -> dict[str, OffsetEstimate]:
-        """Each stream's stamp offset from the first's (core.motion_sync's convention, that of
+        """Each stream's stamp offset from the first's (core.io.motion_sync's convention, that of
         stamp_offsets_s) from the motion in its latest motion_window_s seconds; InputError when
         motion is not tracked or does not determine them."""
         if self._motion is None:

@@ -11,8 +11,9 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..export import calibration_from_dict, calibration_to_dict, write_text_atomic
-from ..image_encoding import refuse_png_if_it_would_abort
+from ..io.export import calibration_from_dict, calibration_to_dict
+from ..io.image_encoding import refuse_png_if_it_would_abort
+from ..io.safe_write import write_text_atomic
 from ..json_text import json_text
 from ..types import CameraIntrinsics, RigCalibration, RigCamera
 from .lens import cam_rays, img_from_cam_any, is_perspective, monotonic_limit, radial_g
@@ -63,7 +64,7 @@ class RigSpec:
     # "arc": cameras around the scene, looking at its centre (gap_deg, max_arc_deg); "bar":
     # side by side bar_spacing_m apart at one wall, looking across the room with their axes
     # parallel to within BAR_YAW_DEG (a forward-facing array: what fixes the focal lengths is
-    # weak there, core.focal_determination).
+    # weak there, core.method.focal_determination).
     layout: str = "arc"
     bar_spacing_m: float = 0.3
     lenses: str = "real"

@@ -1,0 +1,110 @@
+"""What a calibration returns (CalibrationResult) and how an SfM state becomes one: the rig in its
+frame and units (rig_from_state), the COLMAP model saved with it, the warnings kept in it.
+
+Rig frame: the reference camera is the first camera of `camera_names` that was registered, so the
+rig frame stays the same camera across recalibrations (unless that camera fails). Translations
+are scaled so that the median distance of the other cameras from the reference camera is 1
+(the reconstruction has no metric scale).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+from typing import Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+from .config import PipelineConfig
+from .errors import NotEnoughCamerasError
+from .method.known_intrinsics import given_intrinsics_fit
+from .method.reconstruction import (SfMState, build_reconstruction, camera_quality,
+                                    reprojection_errors)
+from .products.scale import move_model_to_rig_frame
+from .progress import Progress
+from .types import RigCalibration, RigCamera, Tracks
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class CalibrationResult:
+    """A calibrated rig plus what produced it.
+
+    reconstruction: the final pycolmap Reconstruction (one image per registered camera, named by
+    camera), in the rig frame and the rig's units (its image poses are the cameras' cam_from_rig),
+    for export as a COLMAP model."""
+
+    rig: RigCalibration
+    reconstruction: pycolmap.Reconstruction
+    tracks: Tracks  # the tracks SfM ran on (after the F_err filter)
+    focal_init_px: np.ndarray  # (C,) initial focal lengths
+    stats: dict = field(default_factory=dict)
+    # The final SfM state (on the keypoint-match tracks when the rig was refined on them): what
+    # a later search (core.robust.focal_hops) continues from.
+    state: Optional[SfMState] = None
+
+
+def rig_from_state(state: SfMState, camera_names: Sequence[str], failed: Sequence[int],
+                   quality: Optional[dict] = None) -> RigCalibration:
+    """The registered cameras of `state` as a RigCalibration (module docstring: reference camera
+    and scale). Raises NotEnoughCamerasError with fewer than two registered cameras."""
+    registered = state.registered()
+    if len(registered) < 2:
+        raise NotEnoughCamerasError(
+            f"Only {len(registered)} camera(s) could be registered "
+            f"({', '.join(camera_names[c] for c in registered) or 'none'}): a rig needs two. "
+            "Check that the cameras overlap and see textured scene content.")
+    ref = registered[0]
+    rig_from_world = state.cam_from_world[ref]
+    world_from_rig = np.linalg.inv(rig_from_world)
+    cam_from_rig = {c: state.cam_from_world[c] @ world_from_rig for c in registered}
+    dist = [np.linalg.norm(np.linalg.inv(T)[:3, 3]) for c, T in cam_from_rig.items() if c != ref]
+    scale = 1.0 / np.median(dist) if np.median(dist) > 0 else 1.0
+    errors = reprojection_errors(state)
+    cameras = {}
+    for c in registered:
+        T = cam_from_rig[c].copy()
+        T[:3, 3] *= scale
+        cameras[camera_names[c]] = RigCamera(camera_names[c], state.camera(c), T,
+                                             camera_quality(state, c, errors))
+    finite = errors[np.isfinite(errors)]
+    overall = dict(quality or {})
+    overall.update(
+        reprojection_rms_px=float(np.sqrt(np.mean(finite ** 2))) if len(finite) else float("nan"),
+        num_points=int(state.point_mask().sum()), num_observations=int(len(finite)),
+        num_registered=len(registered), num_cameras=state.num_cameras)
+    return RigCalibration(reference_camera=camera_names[ref], cameras=cameras,
+                          failed_cameras=[camera_names[c] for c in sorted(failed)],
+                          quality=overall)
+
+
+def result_with_state(result: CalibrationResult, state: SfMState, camera_names: Sequence[str],
+                config: PipelineConfig) -> CalibrationResult:
+    """`result` with its rig and reconstruction rebuilt from another state of the same cameras
+    (the quality's per-run records kept, the fit figures recomputed)."""
+    failed = [camera_names.index(n) for n in result.rig.failed_cameras]
+    quality = dict(result.rig.quality)
+    rig = rig_from_state(state, camera_names, failed, quality)
+    if "given_intrinsics_fit" in quality:
+        rig.quality["given_intrinsics_fit"] = given_intrinsics_fit(state, camera_names,
+                                                                   config.sfm.num_threads)
+    return replace(result, rig=rig, reconstruction=saved_model(state, camera_names, rig),
+                   state=state)
+
+
+def saved_model(state: SfMState, camera_names: Sequence[str], rig: RigCalibration):
+    """The pycolmap.Reconstruction of `state` (what OUT/colmap holds) in `rig`'s frame and units,
+    so its points and cameras combine with calibration.json as they are."""
+    reconstruction, _ = build_reconstruction(state, camera_names)
+    move_model_to_rig_frame(reconstruction, rig)
+    return reconstruction
+
+
+def warn_user(rig: RigCalibration, warning: str, progress: Progress) -> None:
+    """Log a warning, pass it to progress and keep it in rig.quality["warnings"]: the node's
+    service reply and `densecalib report` show it to whoever looks at the calibration later."""
+    log.warning("%s", warning)
+    if progress is not None:
+        progress(warning)
+    rig.quality.setdefault("warnings", []).append(warning)

@@ -1,0 +1,281 @@
+"""Dense, sub-pixel correspondences for the last refinement, guided by the found rig.
+
+Why: keypoint matches find the rig but are too few and too biased to pin down what a camera's
+principal point and focal length do to its rotation. A SIFT keypoint is where a blob's scale-space
+extremum lies, and across a wide baseline the same blob's extremum moves with the perspective:
+on generated rigs 30 deg apart the keypoint matches lay 0.7 px (median) from the true
+correspondence, in directions the adjustment absorbs into a wrong principal point. The images
+themselves are unbiased: a patch around a point of one image, warped affinely onto the other and
+aligned there photometrically (Lucas-Kanade), lands within ~0.1 px.
+
+How: per frame set and reference camera a, well-textured points spread over the image (Shi-Tomasi
+corners, at most GRID_POINTS_PER_IMAGE); for every other camera b, each point's position is
+predicted by a local affine map fitted to the nearest keypoint matches of the pair (so no depth
+is needed), then refined by affine Lucas-Kanade with gain and offset on a PATCH_HALF_PX patch.
+A refined position is kept when the patches agree (normalised cross-correlation >= MIN_NCC), it
+moved at most MAX_SHIFT_PX from the prediction, aligning back from it returns to the reference
+point (MAX_ROUND_TRIP_PX), and it lies within MAX_EPIPOLAR_PX of the epipolar line of the found
+cameras. One track per reference point: its pixel in a and in every camera
+where it was found."""
+from __future__ import annotations
+
+import logging
+from concurrent.futures import ThreadPoolExecutor
+from typing import Optional, Sequence
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..parallel import available_cores
+from ..types import Tracks
+from .matching.utils import to_gray
+from .reconstruction import SfMState
+
+log = logging.getLogger(__name__)
+
+# Reference points per image: a track every ~22 px at 1024x768; more add time, not accuracy,
+# once each camera's principal point is held to a fraction of a pixel.
+GRID_POINTS_PER_IMAGE = 1500
+# Alignments per frame set (reference points x other cameras): larger rigs take fewer points per
+# image, since each point is then seen by more cameras (10 cameras: ~670 points per image).
+MAX_ALIGNMENTS = 60000
+MIN_CORNER_QUALITY = 0.01  # Shi-Tomasi quality level (fraction of the image's best corner)
+PATCH_HALF_PX = 7  # 15x15 patches: large enough to align, small enough to stay affine
+LK_ITERATIONS = 12
+# The normalised cross-correlation of the aligned patches below which a position is not trusted
+# (sensor noise alone keeps well-textured patches above 0.95).
+MIN_NCC = 0.85
+# Movement from the prediction beyond which the alignment is taken to have slipped to another
+# structure (the local affine prediction is off by a few px at most on a continuous surface).
+MAX_SHIFT_PX = 4.0
+# Aligned from a to b and back, a right correspondence returns within LK's own precision.
+MAX_ROUND_TRIP_PX = 0.2
+AFFINE_NEIGHBOURS = 8  # keypoint matches the local prediction is fitted to
+MIN_AFFINE_NEIGHBOURS = 4
+# Neighbours farther than this (px, in the reference image) do not predict a point: across an
+# occlusion or onto another surface the affine map does not hold.
+MAX_NEIGHBOUR_DISTANCE_PX = 60.0
+# Distance from the found cameras' epipolar line (px): the found rig fits its own matches to a
+# fraction of a pixel, so a right correspondence lies within a few px of it.
+MAX_EPIPOLAR_PX = 3.0
+MAX_FRAME_SETS = 4  # frame sets densified (evenly spaced); more repeat the static rig's geometry
+_CHUNK = 3000  # points aligned at once (memory: ~chunk x patch x 8 doubles)
+
+
+def reference_points(gray: np.ndarray, max_points: int = GRID_POINTS_PER_IMAGE,
+                     mask: Optional[np.ndarray] = None) -> np.ndarray:
+    """(N, 2) COLMAP px: Shi-Tomasi corners spread over the image (min distance from the image
+    area per point), away from the border by the patch size. mask: bool (H, W), True = ignored."""
+    h, w = gray.shape
+    spacing = 0.5 * np.sqrt(h * w / max_points)
+    allowed = np.zeros((h, w), np.uint8)
+    b = PATCH_HALF_PX + 2
+    allowed[b:h - b, b:w - b] = 255
+    if mask is not None:
+        allowed[mask] = 0
+    corners = cv2.goodFeaturesToTrack(gray, max_points, MIN_CORNER_QUALITY, spacing,
+                                      mask=allowed, blockSize=7)
+    if corners is None:
+        return np.zeros((0, 2))
+    return corners.reshape(-1, 2).astype(np.float64) + 0.5
+
+
+def local_affine(query: np.ndarray, src: np.ndarray, dst: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For query points (N, 2) of the source image: the predicted target position (N, 2), the
+    local affine Jacobian (N, 2, 2) and valid (N,), from a weighted least-squares affine fit to the
+    AFFINE_NEIGHBOURS nearest correspondences src -> dst within MAX_NEIGHBOUR_DISTANCE_PX."""
+    n = len(query)
+    pred, jac, valid = np.full((n, 2), np.nan), np.zeros((n, 2, 2)), np.zeros(n, bool)
+    if len(src) < MIN_AFFINE_NEIGHBOURS or n == 0:
+        return pred, jac, valid
+    k = min(AFFINE_NEIGHBOURS, len(src))
+    dist, nn = cKDTree(src).query(query, k=k)
+    dist, nn = dist.reshape(n, k), nn.reshape(n, k)
+    near = dist <= MAX_NEIGHBOUR_DISTANCE_PX
+    enough = near.sum(axis=1) >= MIN_AFFINE_NEIGHBOURS
+    # Weights fall with distance (the map is local); far neighbours weigh nothing.
+    wgt = np.where(near, 1.0 / (1.0 + (dist / 20.0) ** 2), 0.0)
+    P = src[nn] - query[:, None, :]
+    X = np.concatenate([P, np.ones((n, k, 1))], axis=2)  # (n, k, 3)
+    Y = dst[nn]
+    XtW = X.transpose(0, 2, 1) * wgt[:, None, :]
+    G = XtW @ X + 1e-9 * np.eye(3)[None]
+    ok = enough & (np.linalg.cond(G) < 1e8)
+    sol = np.zeros((n, 3, 2))
+    sol[ok] = np.linalg.solve(G[ok], XtW[ok] @ Y[ok])
+    jac[ok] = sol[ok, :2, :].transpose(0, 2, 1)
+    pred[ok] = sol[ok, 2, :]
+    det = np.linalg.det(jac)
+    valid = ok & (det > 0.1) & (det < 10.0)
+    return pred, jac, valid
+
+
+def _sample(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Bicubic samples of image at OpenCV pixel positions xy (..., 2) -> (...)."""
+    shape = xy.shape[:-1]
+    flat = xy.reshape(-1, 2).astype(np.float32)
+    n = len(flat)
+    width = 1024  # remap's maps must stay below 32767 rows and columns
+    m = np.zeros((-(-n // width) * width, 2), np.float32)
+    m[:n] = flat
+    m = m.reshape(-1, width, 2)
+    # Bicubic: bilinear interpolation pulls sub-pixel alignments towards whole pixels (pixel
+    # locking), a bias that varies smoothly over the image like a wrong lens would.
+    out = cv2.remap(image, m[..., 0], m[..., 1], cv2.INTER_CUBIC,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)[:n].reshape(shape)
+
+
+def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray,
+                  jac: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Affine Lucas-Kanade (Gauss-Newton on translation, the 2x2 map, gain and offset) of the
+    patches of image a around xy_a (N, 2) onto image b, starting at xy_b with the map jac.
+    COLMAP px in, COLMAP px out: (refined xy_b (N, 2), normalised cross-correlation (N,), the
+    refined map (N, 2, 2))."""
+    off = np.stack(np.meshgrid(np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1),
+                               np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1)), -1
+                   ).reshape(-1, 2).astype(np.float32)
+    grad_x = cv2.Sobel(gray_b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
+    grad_y = cv2.Sobel(gray_b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
+    out_xy, out_ncc = np.full_like(xy_b, np.nan), np.zeros(len(xy_b))
+    out_jac = np.zeros((len(xy_b), 2, 2))
+    for s in range(0, len(xy_a), _CHUNK):
+        sl = slice(s, s + _CHUNK)
+        n = len(xy_a[sl])
+        tmpl = _sample(gray_a, (xy_a[sl] - 0.5).astype(np.float32)[:, None, :] + off[None])
+        t, A = xy_b[sl] - 0.5, jac[sl].copy()
+        gain, bias = np.ones(n), np.zeros(n)
+        for _ in range(LK_ITERATIONS):
+            pts = (t[:, None, :] + off[None] @ A.transpose(0, 2, 1)).astype(np.float32)
+            Ib, Gx, Gy = _sample(gray_b, pts), _sample(grad_x, pts), _sample(grad_y, pts)
+            g32 = gain.astype(np.float32)[:, None]
+            r = g32 * Ib + bias.astype(np.float32)[:, None] - tmpl
+            gx, gy = g32 * Gx, g32 * Gy
+            J = np.stack([gx, gy, gx * off[:, 0], gx * off[:, 1], gy * off[:, 0], gy * off[:, 1],
+                          Ib, np.ones_like(Ib)], 1)  # (n, 8, p)
+            J = J.astype(np.float64)
+            H = J @ J.transpose(0, 2, 1) + 1e-6 * np.eye(8)[None]
+            grad = J @ r[:, :, None].astype(np.float64)
+            step = -np.linalg.solve(H, grad)[..., 0]
+            t += step[:, :2]
+            A += step[:, 2:6].reshape(n, 2, 2)
+            gain += step[:, 6]
+            bias += step[:, 7]
+        Ib = _sample(gray_b, (t[:, None, :] + off[None] @ A.transpose(0, 2, 1)).astype(np.float32))
+        ta = tmpl - tmpl.mean(axis=1, keepdims=True)
+        tb = Ib - Ib.mean(axis=1, keepdims=True)
+        ncc = (ta * tb).sum(1) / np.sqrt((ta * ta).sum(1) * (tb * tb).sum(1) + 1e-9)
+        out_xy[sl], out_ncc[sl] = t + 0.5, np.where(np.isfinite(ncc), ncc, 0.0)
+        out_jac[sl] = A
+    return out_xy, out_ncc, out_jac
+
+
+def epipolar_distance_px(state: SfMState, a: int, b: int, xy_a: np.ndarray,
+                         xy_b: np.ndarray) -> np.ndarray:
+    """(N,) distance (px of camera b, small-angle) of each xy_b from the epipolar plane of xy_a
+    under the state's cameras (lens distortion included: rays, not pixels)."""
+    Ta, Tb = state.cam_from_world[a], state.cam_from_world[b]
+    T_ba = Tb @ np.linalg.inv(Ta)
+    R, t = T_ba[:3, :3], T_ba[:3, 3]
+    ray_a = state.camera(a).to_pycolmap().cam_ray_from_img(xy_a)
+    ray_b = state.camera(b).to_pycolmap().cam_ray_from_img(xy_b)
+    normal = np.cross(t[None, :], ray_a @ R.T)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    ray_b = ray_b / np.linalg.norm(ray_b, axis=1, keepdims=True)
+    focal_b = float(state.camera(b).to_pycolmap().mean_focal_length())
+    return focal_b * np.abs(np.sum(normal * ray_b, axis=1))
+
+
+def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
+                 keypoint_tracks: Tracks, masks: Optional[Sequence] = None) -> Tracks:
+    """Guided dense tracks (module docstring) of the registered cameras of `state`, predicted from
+    keypoint_tracks (the keypoint matches as tracks, with their frame set index).
+
+    Two passes: the first predicts from the keypoint matches alone, the second, for the points
+    not yet found, also from the dense correspondences the first found, which reach the parts of
+    the images between sparse keypoints (a wider baseline's pairs share few of them)."""
+    C = state.num_cameras
+    registered = state.registered()
+    times = np.unique(keypoint_tracks.time_index)
+    if len(times) > MAX_FRAME_SETS:
+        times = times[np.round(np.linspace(0, len(times) - 1, MAX_FRAME_SETS)).astype(int)]
+    observed = keypoint_tracks.observed()
+    parts = []
+    for time in times:
+        grays = {c: to_gray(np.asarray(frame_sets[int(time)][c])).astype(np.float32)
+                 for c in registered}
+        in_set = keypoint_tracks.time_index == time
+        per_image = min(GRID_POINTS_PER_IMAGE,
+                        MAX_ALIGNMENTS // max(len(registered) * (len(registered) - 1), 1))
+        points = {a: reference_points(grays[a], per_image,
+                                      mask=None if masks is None else masks[a])
+                  for a in registered}
+        seeds = {(a, b): (keypoint_tracks.xy_px[rows, a], keypoint_tracks.xy_px[rows, b])
+                 for a in registered for b in registered if a != b
+                 for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
+        found = {k: (np.zeros(0, np.int64), np.zeros((0, 2))) for k in seeds}
+        for _ in range(2):
+            # Pairs are independent; OpenCV's remap and numpy's batched solves release the GIL.
+            with ThreadPoolExecutor(available_cores()) as pool:
+                new = dict(zip(seeds, pool.map(
+                    lambda ab: _pair_correspondences(state, grays, *ab, points[ab[0]],
+                                                     *seeds[ab], skip=found[ab][0]), seeds)))
+            seeds = {(a, b): (np.concatenate([seeds[a, b][0], points[a][new[a, b][0]],
+                                              new[b, a][1]]),
+                              np.concatenate([seeds[a, b][1], new[a, b][1],
+                                              points[b][new[b, a][0]]]))
+                     for (a, b) in seeds}
+            found = {k: (np.concatenate([found[k][0], new[k][0]]),
+                         np.concatenate([found[k][1], new[k][1]])) for k in seeds}
+        for a in registered:
+            xy = np.full((len(points[a]), C, 2), np.nan)
+            xy[:, a] = points[a]
+            for b in registered:
+                if b != a:
+                    idx, refined = found[a, b]
+                    xy[idx, b] = refined
+            seen = (~np.isnan(xy[..., 0])).sum(axis=1) >= 2
+            n = int(seen.sum())
+            parts.append(Tracks(xy[seen], np.full(n, 2, np.int32), np.zeros(n),
+                                np.full(n, int(time), np.int32)))
+    return Tracks.concatenate(parts, C)
+
+
+def _pair_correspondences(state: SfMState, grays: dict, a: int, b: int, points: np.ndarray,
+                          seed_a: np.ndarray, seed_b: np.ndarray, skip: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(indices into points, their refined positions in camera b (n, 2)) for the reference
+    points of camera a found in camera b, predicted from the seed correspondences; the points
+    `skip` (indices) are not looked for."""
+    none = (np.zeros(0, np.int64), np.zeros((0, 2)))
+    if not len(points):
+        return none
+    pred, jac, valid = local_affine(points, seed_a, seed_b)
+    valid[skip] = False
+    h, w = grays[b].shape
+    border = PATCH_HALF_PX + 2
+    inside = valid & (pred[:, 0] > border) & (pred[:, 0] < w - border) \
+        & (pred[:, 1] > border) & (pred[:, 1] < h - border)
+    idx = np.flatnonzero(inside)
+    if not len(idx):
+        return none
+    refined, ncc, map_ab = align_patches(grays[a], grays[b], points[idx], pred[idx], jac[idx])
+    shift = np.linalg.norm(refined - pred[idx], axis=1)
+    good = np.isfinite(refined).all(1) & (ncc >= MIN_NCC) & (shift <= MAX_SHIFT_PX)
+    good &= (refined[:, 0] > border) & (refined[:, 0] < w - border) \
+        & (refined[:, 1] > border) & (refined[:, 1] < h - border)
+    good &= np.abs(np.linalg.det(map_ab)) > 1e-3
+    idx, refined, map_ab = idx[good], refined[good], map_ab[good]
+    if len(idx):
+        # Aligned back from b, a right correspondence returns to its reference point; one that
+        # slid along an edge or onto another surface at an occlusion does not.
+        back, _, _ = align_patches(grays[b], grays[a], refined, points[idx],
+                                   np.linalg.inv(map_ab))
+        returned = np.linalg.norm(back - points[idx], axis=1) <= MAX_ROUND_TRIP_PX
+        idx, refined = idx[returned], refined[returned]
+    if len(idx):
+        keep = epipolar_distance_px(state, a, b, points[idx], refined) <= MAX_EPIPOLAR_PX
+        idx, refined = idx[keep], refined[keep]
+    return idx, refined

@@ -1,0 +1,274 @@
+"""The last stage of a pinhole calibration: the found rig refined on dense correspondences measured
+in the images (core.method.dense_matches), with Gaussian priors on the principal point and the pixel
+aspect (core.method.prior_adjustment), and the intrinsics' standard deviations from that adjustment.
+
+Order: matches find the rig (sampling, SfM, consensus, refinement on all keypoint matches); this
+stage only moves it within its basin. It runs where every registered camera has a perspective
+model (RADIAL; fisheye lenses keep their own path) and the images are at hand (run_calibration),
+and leaves the rig as it was when the dense correspondences do not reach every camera.
+
+Whether the images determine a camera's principal point (and pixel aspect) is decided from the
+data, per camera: the dense tracks are split into HOLDOUT_FOLDS spatial folds, each fold is
+adjusted on its own without priors, and the spread of the folds' estimates gives the uncertainty
+of the estimate from all the data, systematic errors included (the adjustment's own covariance
+assumes independent pixel noise; neighbouring patches and what the model cannot express make it
+several times too small on real photographs: a planar facade's folds disagreed by 5-11 px where
+the covariance said 0.2-0.7 px). A parameter whose uncertainty is below ESTIMATED_FRACTION of its
+prior's spread (the images carry at least four times the prior's information) is estimated with
+its prior; otherwise it is held at the prior's centre and reported as held. The prior's
+centre is the image centre, or in a recalibration the point the previous calibration of the
+same camera estimated from its images (pp_centres): a bump or a refocus leaves it where it was,
+and the fold decision, near its threshold, can go either way between runs (measured:
+docs/design-notes.md). The pixel aspect is always estimated with its prior (holding a real sensor's
+0.3 % at 1 moved principal points by 20 px on a generated rig); the cameras are written as
+OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
+folds determine it."""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from ..types import Tracks
+from .dense_matches import dense_tracks
+from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
+                               adjust_with_priors, posterior_covariance)
+from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
+                             triangulate_tracks)
+from .uncertainty import CameraUncertainty, projection_std_px
+
+log = logging.getLogger(__name__)
+
+# Real lenses put the principal point 0.5-2 % of the image side off-centre (Strecha's DSLR
+# 0.5-0.8 %, a DTU lab camera 1.4-1.6 %, phones 0.3-0.8 %, the fisheye pair 0.1-2.8 %): a prior
+# of 1 % of the long side per axis holds 2 % at two sigma.
+PP_PRIOR_STD_FRACTION = 0.01
+# Square pixels to within a few tenths of a percent (Strecha: fy / fx - 1 = 0.17 %).
+ASPECT_PRIOR_STD = 0.003
+MAD_TO_SIGMA = 1.4826  # median absolute deviation -> standard deviation of a normal
+# A parameter the images hold to less than this fraction of its prior's sigma is "estimated".
+ESTIMATED_FRACTION = 0.5
+HOLDOUT_FOLDS = 4  # spatial folds of the held-out check (module docstring)
+HOLDOUT_CELL_FRACTION = 0.1  # fold cells: this fraction of the image's long side
+# Observations farther than this many noise sigmas (per coordinate, robust) are dropped between
+# adjustments: a Gaussian 2-D residual lies beyond 4 sigma once in ~3000.
+GATE_SIGMAS = 4.0
+GATE_ROUNDS = 3
+TRIANGULATION_GATE_PX = 4.0  # the found rig fits right correspondences to well under this
+# A camera left with fewer dense observations than this is not refined here (nor the rig).
+MIN_CAMERA_OBSERVATIONS = 50
+
+
+@dataclass
+class ImageRefinement:
+    """What the stage did: the state after it, the adjustment, per camera name which intrinsics
+    the images determined (INTRINSIC_NAMES; a principal point not listed was held at the image
+    centre, an aspect not listed rests on its prior) and its CameraUncertainty."""
+
+    state: SfMState
+    adjustment: PriorAdjustment
+    num_tracks: int
+    estimated: dict  # camera name -> list of INTRINSIC_NAMES the images pinned down
+    uncertainty: dict  # camera name -> CameraUncertainty
+
+
+def applies(state: SfMState) -> bool:
+    """Whether every registered camera is a pinhole camera this stage adjusts (RADIAL) or holds
+    (given intrinsics of a perspective model)."""
+    return all(state.camera(c).model == "RADIAL" or (state.intrinsics_fixed(c) and
+                                                     state.camera(c).model in SUPPORTED_MODELS)
+               for c in state.registered())
+
+
+def refine_on_images(state: SfMState, frame_sets: Sequence[Sequence[np.ndarray]],
+                     seeds: Tracks, camera_names: Sequence[str],
+                     masks: Optional[Sequence] = None, seed: int = 0,
+                     say: Callable[[str], None] = lambda m: None,
+                     pp_centres: Optional[dict] = None) -> Optional[ImageRefinement]:
+    """The refined state (module docstring), or None where the stage does not apply or the dense
+    correspondences leave a registered camera with too few observations. `state` is not
+    modified. seeds: correspondences (tracks with their frame set) the dense ones are predicted
+    from; masks: per camera bool (H, W) regions to ignore, or None; pp_centres: camera name ->
+    (cx, cy, width, height) px, the principal point prior's centre where not the image centre
+    (used where the camera's images still have that size)."""
+    if not applies(state):
+        return None
+    try:
+        return _refine(state, frame_sets, seeds, camera_names, masks, seed, say,
+                       pp_centres or {})
+    except (ValueError, np.linalg.LinAlgError) as exc:  # a degenerate problem: keep the rig
+        log.warning("image refinement skipped: %s", exc)
+        say("the dense refinement did not apply; the rig is kept as found")
+        return None
+
+
+def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
+            ) -> Optional[ImageRefinement]:
+    tracks = dense_tracks(frame_sets, state, seeds, masks)
+    refined = state.on_tracks(tracks)
+    triangulate_tracks(refined, TRIANGULATION_GATE_PX, seed=seed)
+    remove_outlier_observations(refined, TRIANGULATION_GATE_PX)
+    per_camera = refined.registered_active()[refined.point_mask()].sum(axis=0)
+    thin = [camera_names[c] for c in refined.registered()
+            if per_camera[c] < MIN_CAMERA_OBSERVATIONS]
+    if thin:
+        say(f"dense correspondences: too few in {', '.join(thin)}; the rig is kept as found")
+        return None
+    blocks = sorted({int(refined.camera_block[c]) for c in refined.registered()
+                     if not refined.intrinsics_fixed(c)})
+    centres = {}  # block -> (cx, cy): a previous estimate of the same camera, at this size
+    for c in refined.registered():
+        b, given = int(refined.camera_block[c]), pp_centres.get(camera_names[c])
+        cam = refined.intrinsics[b]
+        if given is not None and tuple(given[2:]) == (cam.width, cam.height):
+            centres[b] = (float(given[0]), float(given[1]))
+    priors = Priors(
+        principal_point_std_px={b: PP_PRIOR_STD_FRACTION * max(refined.intrinsics[b].width,
+                                                               refined.intrinsics[b].height)
+                                for b in blocks},
+        principal_point_centre_px={b: centres[b] for b in blocks if b in centres},
+        aspect_std={b: ASPECT_PRIOR_STD for b in blocks})
+    start = refined.copy()
+    adjustment = _adjust_and_gate(refined, blocks, priors)
+    start.active &= refined.active  # the gated observations
+    start.drop_weak_points()
+    determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
+    held = Priors(
+        principal_point_std_px={b: (v if "principal point" in determined[b] else None)
+                                for b, v in priors.principal_point_std_px.items()},
+        principal_point_centre_px=priors.principal_point_centre_px,
+        aspect_std=priors.aspect_std)
+    if held != priors:
+        _reset_to_prior(refined, blocks, held)
+        adjustment = adjust_with_priors(refined, blocks, held, noise_px=adjustment.noise_px)
+    say(f"refined on {int(refined.point_mask().sum())} dense image correspondences "
+        f"(noise {adjustment.noise_px:.2f} px)")
+    # Sigmas with every prior in place: a held principal point may be off by its prior's spread,
+    # and the focal length leans on it.
+    covariance = posterior_covariance(refined, blocks, priors, adjustment.noise_px)
+    estimated, sigmas = {}, {}
+    for c in refined.registered():
+        b = int(refined.camera_block[c])
+        if b in covariance:
+            estimated[camera_names[c]] = ["f", "k1", "k2"] + \
+                (["cx", "cy"] if "principal point" in determined[b] else []) + \
+                (["aspect"] if "aspect" in determined[b] else [])
+            sigmas[camera_names[c]] = _camera_uncertainty(
+                refined, b, covariance[b], fold_sigmas.get(b, {}),
+                "principal point" in determined[b])
+    return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas)
+
+
+def _adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> PriorAdjustment:
+    """adjust_with_priors, then observations beyond GATE_SIGMAS dropped and adjusted again, at
+    most GATE_ROUNDS times; in place."""
+    adjustment = adjust_with_priors(state, blocks, priors)
+    for _ in range(GATE_ROUNDS):
+        gate_px = GATE_SIGMAS * adjustment.residual_scale_px
+        bad = np.nan_to_num(reprojection_errors(state), nan=0.0) > gate_px
+        if not bad.any():
+            break
+        state.active[bad] = False
+        state.drop_weak_points()
+        adjustment = adjust_with_priors(state, blocks, priors)
+    return adjustment
+
+
+def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors
+                          ) -> tuple[dict, dict]:
+    """Per block, which of "principal point" and "aspect" the images determine (module
+    docstring): the folds' estimates, adjusted without priors from `state` (the found rig: the
+    principal point at the image centre, square pixels), scatter by less than
+    ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
+    folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
+    images does not decide it. Also per block the folds' standard deviations of the mean of the
+    principal point and of the focal length (px): how far off the images leave them."""
+    first = np.argmax(tracks.observed(), axis=1)
+    xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
+    cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
+    cell = np.floor(xy / cell_px).astype(np.int64)
+    fold = (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
+    free = Priors(principal_point_std_px={b: np.inf for b in blocks},
+                  aspect_std={b: np.inf for b in blocks})
+    estimates = []  # per fold: block -> (cx, cy, aspect)
+    for k in range(HOLDOUT_FOLDS):
+        part = state.copy()
+        part.active[fold != k] = False
+        part.drop_weak_points()
+        try:
+            adjust_with_priors(part, blocks, free)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        estimates.append({b: _fold_values(part.intrinsics[b]) for b in blocks})
+    out, spread_of = {}, {}
+    for b in blocks:
+        values = np.array([e[b] for e in estimates])
+        if len(values) < 2 or not np.isfinite(values).all():
+            out[b] = set()
+            continue
+        spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
+        std_of_mean = spread / np.sqrt(len(values))
+        spread_of[b] = dict(principal_point_px=float(max(std_of_mean[0], std_of_mean[1])),
+                            focal_px=float(std_of_mean[3]))
+        log.debug("block %d: fold estimates of cx, cy, aspect %s, sigma of their mean %s", b,
+                  np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
+        out[b] = set()
+        if max(std_of_mean[0], std_of_mean[1]) < ESTIMATED_FRACTION * \
+                priors.principal_point_std_px[b]:
+            out[b].add("principal point")
+        if std_of_mean[2] < ESTIMATED_FRACTION * priors.aspect_std[b]:
+            out[b].add("aspect")
+    return out, spread_of
+
+
+def _fold_values(cam) -> tuple[float, float, float, float]:
+    """(cx, cy, aspect, mean focal) of a camera, as the folds compare them."""
+    p = np.asarray(cam.params, float)
+    if cam.model == "OPENCV":
+        return p[2], p[3], p[1] / p[0] - 1.0, 0.5 * (p[0] + p[1])
+    return p[1], p[2], 0.0, p[0]
+
+
+def _reset_to_prior(state: SfMState, blocks: list[int], priors: Priors) -> None:
+    """The principal point of the blocks whose prior is None back at the prior's centre (held
+    there by the next adjustment); in place."""
+    for b in blocks:
+        if priors.principal_point_std_px.get(b) is not None:
+            continue
+        cam = state.intrinsics[b]
+        p = np.array(cam.params, float)
+        pp = [2, 3] if cam.model == "OPENCV" else [1, 2]
+        p[pp] = priors.principal_point_centre_px.get(b, (cam.width / 2.0, cam.height / 2.0))
+        state.intrinsics[b] = type(cam)(cam.model, cam.width, cam.height, p)
+
+
+def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigmas: dict,
+                        pp_estimated: bool) -> CameraUncertainty:
+    """Focal, principal point and projection standard deviations of a block from the
+    adjustment's covariance of INTRINSIC_NAMES, in the block's COLMAP model; the focal's and an
+    estimated principal point's at least the folds' (fold_sigmas: _determined_by_images), which
+    see the errors the covariance assumes away."""
+    cam = state.intrinsics[block]
+    f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if cam.model == "OPENCV" else 0.0)
+    n = len(INTRINSIC_NAMES)
+    if cam.model == "OPENCV":  # fx, fy, cx, cy, k1, k2, p1, p2 from f, cx, cy, k1, k2, a, p1, p2
+        J = np.zeros((8, n))
+        J[0, 0] = 1.0
+        J[1, 0], J[1, 5] = 1.0 + a, f
+        J[2, 1] = J[3, 2] = J[4, 3] = J[5, 4] = J[6, 6] = J[7, 7] = 1.0
+    else:  # RADIAL: f, cx, cy, k1, k2
+        J = np.eye(5, n)
+    params_cov = J @ cov @ J.T
+    mean_focal = np.zeros(n)
+    mean_focal[0], mean_focal[5] = 1.0 + a / 2.0, f / 2.0
+    focal_std = max(float(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0))),
+                    fold_sigmas.get("focal_px", 0.0))
+    pp_std = float(np.sqrt(max(cov[1, 1], cov[2, 2], 0.0)))
+    if pp_estimated:
+        pp_std = max(pp_std, fold_sigmas.get("principal_point_px", 0.0))
+    else:  # held at the image centre: as far off as real lenses' points are (its prior)
+        pp_std = PP_PRIOR_STD_FRACTION * max(cam.width, cam.height)
+    projection = projection_std_px(cam.to_pycolmap(), list(range(len(cam.params))), params_cov)
+    return CameraUncertainty(focal_std, pp_std, projection)

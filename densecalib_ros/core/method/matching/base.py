@@ -1,0 +1,51 @@
+"""The matcher interface every backend implements."""
+from __future__ import annotations
+
+import abc
+from typing import ClassVar, Sequence
+
+import numpy as np
+
+from ...types import SiteMatchSet
+from .utils import check_images
+
+
+class Matcher(abc.ABC):
+    """Images in; per image a table of sites; per ordered camera pair a site map with certainty.
+
+    Usage: `m = create_matcher(name, **options); m.load(); match_set = m.match(images)`.
+    `load()` is the explicit heavy step (model weights); `match()` calls it if it was skipped.
+    Options are keyword arguments of the backend's constructor; every backend takes
+    `max_image_side_px` (images are matched at most at this size; coordinates are mapped back to
+    the original image exactly).
+    """
+
+    name: ClassVar[str]
+
+    def __init__(self, max_image_side_px: int | None = 1024):
+        self.max_image_side_px = max_image_side_px
+        self._loaded = False
+
+    def load(self) -> None:
+        """Load model weights; idempotent. Raises ModelWeightsError naming a missing file."""
+        if not self._loaded:
+            self._load()
+            self._loaded = True
+
+    def _load(self) -> None:
+        """Backend-specific heavy initialisation (default: nothing)."""
+
+    def match(self, images: Sequence[np.ndarray]) -> SiteMatchSet:
+        """Match every ordered pair of a frame set.
+
+        images: one per camera, (H, W, 3) uint8 RGB or (H, W) uint8 gray; sizes may differ.
+        Returns a SiteMatchSet with `sites[c]` float64 (S_c, 2) COLMAP pixel coordinates in the
+        original image c and `pairs[(i, j)]` for every ordered pair i != j.
+        """
+        images = check_images(images)
+        self.load()
+        return self._match(images)
+
+    @abc.abstractmethod
+    def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
+        """Backend matching on validated images."""

@@ -1,0 +1,185 @@
+"""OpenCV SIFT with Lowe's ratio test and a mutual nearest-neighbour check (no torch).
+
+root_sift=True compares RootSIFT descriptors (L1-normalised, element-wise square root: Euclidean
+distance then compares them by the Hellinger kernel, Arandjelovic & Zisserman 2012; COLMAP's
+default). It gives better matches (bench-sampling --quick: raw inliers 0.946 -> 0.968 pinhole,
+0.971 -> 0.982 fisheye; about half the wrong matches of weak 35 deg pairs gone), but end to end it
+measured worse (full bench, incremental mean AUC@3 90.6 -> 83.7, the real fox scene 62 -> 7):
+on weakly connected rigs small input changes flip the outcome (a different sampling seed does too;
+see core/robust/consensus.py), so one bench run cannot show a match-quality gain there. Opt-in for
+now.
+
+Sites are keypoint locations; OpenCV returns several keypoints at one location (one per dominant
+orientation), which are merged into one site whose descriptor distance to another site is the
+smallest over their keypoints. The ratio test compares the nearest and second-nearest *site*,
+so orientation duplicates do not reject each other. (j, i) is the exact inverse of (i, j).
+"""
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Optional
+
+import cv2
+import numpy as np
+
+from ...errors import InputError
+from ...parallel import available_cores
+from ...types import SiteMatchSet
+from .base import Matcher
+from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
+                    resize_for_matching, to_gray)
+
+# Row sites per block of the distance matrix: a 1024 x 8000 float32 block is 32 MB, so a pair's
+# memory no longer grows with the square of the keypoints.
+BLOCK_SITES = 1024
+
+
+def _site_layout(site: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(each site's first keypoint, in site order; the other keypoints, by site; their sites)."""
+    order = np.argsort(site, kind="stable")
+    sorted_site = site[order]
+    first = np.r_[True, sorted_site[1:] != sorted_site[:-1]]
+    return order[first], order[~first], sorted_site[~first]
+
+
+def _rank_within_site(sorted_site: np.ndarray) -> np.ndarray:
+    """0, 1, 2 ... along each run of equal values of a sorted array."""
+    return np.arange(len(sorted_site)) - np.searchsorted(sorted_site, sorted_site)
+
+
+def nearest_sites(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_c: np.ndarray,
+                  site_c: np.ndarray, n_c: int, rows_norm_first: bool
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """For each row site: the nearest column site (int64 (n_r,)) and the ratio of the distances
+    to the nearest and second-nearest column site (float32 (n_r,)); a site's distance to another
+    is the smallest over their keypoints (module docstring). desc_*: float32 (K, 128) keypoint
+    descriptors; site_*: int64 (K,) each keypoint's site. rows_norm_first: the order the squared
+    norms are added in, so that the call with rows and columns swapped adds them in the same
+    order and the two directions see bitwise equal distances.
+
+    Computed in blocks of BLOCK_SITES row sites. Within a block, the rows of a site's further
+    keypoints are folded into its first row (contiguous row operations); the columns are not
+    reduced: the nearest column keypoint gives the nearest site, and that site's columns are set
+    to infinity before the second-nearest is taken (numpy reduces fast along rows only)."""
+    firsts_r, extras_r, extra_site_r = _site_layout(site_r)
+    firsts_c, extras_c, extra_site_c = _site_layout(site_c)
+    desc_cols = desc_c[np.concatenate([firsts_c, extras_c])]
+    col_site = np.concatenate([np.arange(n_c), extra_site_c])
+    # Every site's columns, padded with its first one.
+    width = 1 + int(np.bincount(extra_site_c, minlength=n_c).max(initial=0))
+    site_cols = np.repeat(np.arange(n_c)[:, None], width, axis=1)
+    site_cols[extra_site_c, 1 + _rank_within_site(extra_site_c)] = n_c + np.arange(len(extras_c))
+    norm_c = np.einsum("ij,ij->i", desc_cols, desc_cols)
+    best = np.empty(n_r, np.int64)
+    ratio = np.empty(n_r, np.float32)
+    for s0 in range(0, n_r, BLOCK_SITES):
+        s1 = min(n_r, s0 + BLOCK_SITES)
+        lo, hi = np.searchsorted(extra_site_r, [s0, s1])
+        desc_rows = desc_r[np.concatenate([firsts_r[s0:s1], extras_r[lo:hi]])]
+        norm_r = np.einsum("ij,ij->i", desc_rows, desc_rows)
+        d2 = desc_rows @ desc_cols.T  # in place from here: the block is the memory peak
+        d2 *= -2.0
+        for norms in ((norm_r[:, None], norm_c[None, :]) if rows_norm_first
+                      else (norm_c[None, :], norm_r[:, None])):
+            d2 += norms
+        extra_rows_site = extra_site_r[lo:hi] - s0
+        rank = _rank_within_site(extra_rows_site)
+        for r in range(int(rank.max(initial=-1)) + 1):  # one keypoint per site at a time
+            k = np.flatnonzero(rank == r)
+            d2[extra_rows_site[k]] = np.minimum(d2[extra_rows_site[k]], d2[s1 - s0 + k])
+        d2 = d2[:s1 - s0]
+        rows = np.arange(s1 - s0)
+        nearest_col = np.argmin(d2, axis=1)
+        nearest_d2 = d2[rows, nearest_col].copy()
+        best[s0:s1] = col_site[nearest_col]
+        d2[rows[:, None], site_cols[best[s0:s1]]] = np.inf
+        ratio[s0:s1] = np.sqrt(np.maximum(nearest_d2, 0.0)
+                               / np.maximum(d2.min(axis=1), 1e-12))
+    return best, ratio
+
+
+class SiftMatcher(Matcher):
+    name = "sift"
+
+    def __init__(self, max_image_side_px: Optional[int] = 1024, max_keypoints: int = 8000,
+                 ratio_threshold: float = 0.8, contrast_threshold: float = 0.04,
+                 root_sift: bool = False, device: Optional[str] = None):
+        """max_keypoints: SIFT nfeatures per image; ratio_threshold: Lowe ratio (nearest /
+        second-nearest site distance) below which a match is kept, applied in both directions.
+        root_sift: compare RootSIFT descriptors instead of OpenCV's raw ones.
+        device: only None or 'cpu' (OpenCV SIFT runs on the CPU)."""
+        super().__init__(max_image_side_px)
+        if device not in (None, "cpu"):
+            raise InputError(f"Matcher 'sift' runs on the CPU only; got device={device!r}.")
+        if not 0.0 < ratio_threshold <= 1.0:
+            raise InputError(f"ratio_threshold must be in (0, 1], got {ratio_threshold}.")
+        self.max_keypoints = int(max_keypoints)
+        self.ratio_threshold = float(ratio_threshold)
+        self.contrast_threshold = float(contrast_threshold)
+        self.root_sift = bool(root_sift)
+
+    def _features(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Returns sites float64 (S, 2) original COLMAP px, keypoint site index int64 (K,),
+        descriptors float32 (K, 128)."""
+        gray, scale_xy = resize_for_matching(to_gray(image), self.max_image_side_px)
+        keypoints, descriptors = self._detector().detectAndCompute(gray, None)
+        if not keypoints:
+            return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
+        xy = np.array([k.pt for k in keypoints], dtype=np.float64)
+        # Within the image (asift maps keypoints of its tilted views back slightly beyond it).
+        inside = np.all((xy >= -0.5) & (xy <= np.array(gray.shape[1::-1]) - 0.5), axis=1)
+        xy, descriptors = xy[inside], descriptors[inside]
+        unique_xy, site_of_kp = np.unique(xy, axis=0, return_inverse=True)
+        descriptors = descriptors.astype(np.float32)
+        if self.root_sift:  # SIFT descriptors are non-negative
+            descriptors = np.sqrt(descriptors / np.maximum(
+                descriptors.sum(axis=1, keepdims=True), 1e-12))
+        return (opencv_to_original(unique_xy, scale_xy), site_of_kp.reshape(-1).astype(np.int64),
+                descriptors)
+
+    def _detector(self):
+        return cv2.SIFT_create(nfeatures=self.max_keypoints,
+                               contrastThreshold=self.contrast_threshold)
+
+    def _match_pair(self, fa, fb):
+        sites_a, site_a, desc_a = fa
+        sites_b, site_b, desc_b = fb
+        n_a, n_b = len(sites_a), len(sites_b)
+        if n_a < 2 or n_b < 2:
+            empty = np.zeros(0, np.int64)
+            return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
+        best_ab, ratio_ab = nearest_sites(desc_a, site_a, n_a, desc_b, site_b, n_b, True)
+        best_ba, ratio_ba = nearest_sites(desc_b, site_b, n_b, desc_a, site_a, n_a, False)
+        src = np.arange(n_a)
+        keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
+                & (ratio_ba[best_ab] < self.ratio_threshold))
+        src, dst = src[keep], best_ab[keep]
+        certainty = 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
+        return mutual_pair_maps(src, dst, certainty, n_a, n_b)
+
+    def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
+        # OpenCV's SIFT leaves most of its work on one core and releases the GIL: one image per
+        # core (the same features as one after another).
+        with ThreadPoolExecutor(min(len(images), available_cores())) as pool:
+            feats = list(pool.map(self._features, images))
+        return match_unordered_pairs(images, [f[0] for f in feats],
+                                     lambda i, j: self._match_pair(feats[i], feats[j]))
+
+
+class AsiftMatcher(SiftMatcher):
+    """SIFT on affine-simulated views of each image (ASIFT, Morel & Yu 2009, as OpenCV's
+    AffineFeature: the image tilted by up to 5x in several directions), so that a surface seen
+    from viewpoints 45-80 deg apart still has keypoints whose descriptors agree. Matched as
+    `sift` is (sites, ratio test, mutual check); max_keypoints is per simulated view (about 40
+    views: ~20 times the keypoints of `sift`, and its matching time)."""
+
+    name = "asift"
+
+    def __init__(self, max_image_side_px: Optional[int] = 1024, max_keypoints: int = 1000,
+                 ratio_threshold: float = 0.8, contrast_threshold: float = 0.04,
+                 root_sift: bool = False, device: Optional[str] = None):
+        super().__init__(max_image_side_px, max_keypoints, ratio_threshold, contrast_threshold,
+                         root_sift, device)
+
+    def _detector(self):
+        return cv2.AffineFeature_create(super()._detector())

@@ -1,0 +1,152 @@
+"""Physical plausibility of self-calibrated intrinsics.
+
+Bundle adjustment can trade a wrong pose against the distortion terms: on weakly constrained
+cameras (few, mostly 2-view tracks) we measured RADIAL k1 running to -1.1 while the reprojection
+error stayed small. Such a lens folds the image over itself (the radial map is no longer
+invertible inside the image), so the calibration is unusable whatever its residuals say. COLMAP
+guards the same failure with its "bogus camera parameters" test (focal ratio, |extra| <= 1); we
+test the property that matters instead: the radial distortion map must be strictly increasing
+from the principal point out to the farthest image corner (pinhole models: undistorting the whole
+image needs it) or, for fisheye models, the farthest observation (a circular fisheye images
+nothing in its corners, where the fitted polynomial is unconstrained).
+
+Radial maps (COLMAP models; r = undistorted radius on the normalised plane, theta = angle from
+the optical axis):
+- SIMPLE_RADIAL / RADIAL / OPENCV / FULL_OPENCV (radial part): r_d = r (1 + k1 r^2 + k2 r^4 [+ ...])
+- SIMPLE_RADIAL_FISHEYE / RADIAL_FISHEYE / OPENCV_FISHEYE: r_d = theta (1 + k1 theta^2 + ...)
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+from ..errors import FocalInitError
+from ..types import CameraIntrinsics
+from .reconstruction import BAStage, SfMState, bundle_adjust, reprojection_errors
+
+log = logging.getLogger(__name__)
+
+MAX_FOCAL_IMAGE_RATIO = 10.0  # beyond this x the image size a self-calibrated focal has run away
+MIN_FOCAL_IMAGE_RATIO = 0.1
+WELL_FIT_PX = 4.0  # observations a reconstruction explains (fisheye extent)
+_SAMPLES = 4000
+_PINHOLE_MAX_RADIUS = 20.0  # tan(87 deg): pinhole models cannot image further out
+_FISHEYE_MAX_THETA_RAD = np.pi - 1e-3
+
+# model -> (index of fx, index of fy or None, cx, cy, radial coefficient indices, fisheye?)
+_LAYOUT = {
+    "SIMPLE_PINHOLE": (0, None, 1, 2, (), False),
+    "PINHOLE": (0, 1, 2, 3, (), False),
+    "SIMPLE_RADIAL": (0, None, 1, 2, (3,), False),
+    "RADIAL": (0, None, 1, 2, (3, 4), False),
+    "OPENCV": (0, 1, 2, 3, (4, 5), False),
+    "FULL_OPENCV": (0, 1, 2, 3, (4, 5, 8), False),  # k1, k2, k3 (the rational k4-k6 ignored)
+    "SIMPLE_RADIAL_FISHEYE": (0, None, 1, 2, (3,), True),
+    "RADIAL_FISHEYE": (0, None, 1, 2, (3, 4), True),
+    "OPENCV_FISHEYE": (0, 1, 2, 3, (4, 5, 6, 7), True),
+}
+
+
+def intrinsics_problem(camera: CameraIntrinsics,
+                       observed_xy_px: Optional[np.ndarray] = None) -> Optional[str]:
+    """None when the intrinsics are physically plausible, else a sentence saying what is wrong:
+    a focal outside [MIN, MAX]_FOCAL_IMAGE_RATIO x max(width, height), or a radial distortion
+    that stops increasing before the farthest image corner (fisheye models: before the farthest
+    of `observed_xy_px`, (N, 2) COLMAP px, when given). Models without a known layout pass."""
+    size = max(camera.width, camera.height)
+    layout = _LAYOUT.get(camera.model)
+    params = np.asarray(camera.params, dtype=np.float64)
+    if not np.isfinite(params).all():
+        return "its parameters are not finite"
+    if layout is None:
+        return None
+    fx_i, fy_i, cx_i, cy_i, k_idx, fisheye = layout
+    focal = params[fx_i] if fy_i is None else 0.5 * (params[fx_i] + params[fy_i])
+    if not MIN_FOCAL_IMAGE_RATIO * size <= focal <= MAX_FOCAL_IMAGE_RATIO * size:
+        return (f"its focal length {focal:.0f} px is outside {MIN_FOCAL_IMAGE_RATIO:g}-"
+                f"{MAX_FOCAL_IMAGE_RATIO:g}x the image size")
+    if not k_idx:
+        return None
+    extent = np.array([[0, 0], [camera.width, 0], [0, camera.height],
+                       [camera.width, camera.height]], dtype=np.float64)
+    if fisheye and observed_xy_px is not None and len(observed_xy_px):
+        extent = np.asarray(observed_xy_px, dtype=np.float64).reshape(-1, 2)
+    f_xy = np.array([params[fx_i], params[fx_i if fy_i is None else fy_i]])
+    reach = np.max(np.linalg.norm((extent - params[[cx_i, cy_i]]) / f_xy, axis=1))
+    x = np.linspace(0.0, _FISHEYE_MAX_THETA_RAD if fisheye else _PINHOLE_MAX_RADIUS, _SAMPLES)
+    poly = np.ones_like(x)
+    for power, i in enumerate(k_idx, start=1):
+        poly += params[i] * x ** (2 * power)
+    r_d = x * poly
+    falling = np.flatnonzero(np.diff(r_d) <= 0)
+    monotone_reach = r_d[falling[0]] if falling.size else r_d[-1]
+    if monotone_reach < reach:
+        coeffs = ", ".join(f"{params[i]:.3g}" for i in k_idx)
+        return (f"its radial distortion ({coeffs}) folds the image over itself: the distorted "
+                f"radius stops increasing at {monotone_reach:.2f} before the image corner at "
+                f"{reach:.2f} (normalised)")
+    return None
+
+
+def implausible_cameras(state: SfMState) -> dict[int, str]:
+    """{camera index: problem} for the registered cameras of a reconstruction whose intrinsics
+    fail `intrinsics_problem`; a fisheye's extent is that of its observations the reconstruction
+    explains (reprojection error <= WELL_FIT_PX), so outlier matches in a circular fisheye's dark
+    corners do not count. Given intrinsics (held, never changed) are the user's to judge."""
+    err = reprojection_errors(state)
+    out = {}
+    for c in state.registered():
+        if state.intrinsics_fixed(c):
+            continue
+        fit = np.isfinite(err[:, c]) & (err[:, c] <= WELL_FIT_PX)
+        problem = intrinsics_problem(state.camera(c), state.tracks.xy_px[fit, c])
+        if problem is not None:
+            out[c] = problem
+    return out
+
+
+def bundle_adjust_plausibly(state: SfMState, camera_names: Sequence[str], stage: BAStage,
+                            num_threads: int) -> pycolmap.BundleAdjustmentSummary:
+    """`bundle_adjust` guarded for stages that refine intrinsics: a camera whose intrinsics the
+    BA drives into implausible values (e.g. a weakly constrained camera trading its pose against
+    k1) gets its intrinsics from before this BA back, held fixed while the BA is repeated. Later
+    BAs, with more cameras and points, may refine them again. Returns the last BA's summary."""
+    before = [CameraIntrinsics(c.model, c.width, c.height, c.params.copy())
+              for c in state.intrinsics]
+    summary = bundle_adjust(state, camera_names, stage, num_threads)
+    bad = implausible_cameras(state)
+    if not bad or not (stage.refine_focal or stage.refine_extra or stage.refine_principal_point):
+        return summary
+    log.debug("BA made intrinsics implausible, repeating with them fixed: %s", bad)
+    for c in bad:
+        block = int(state.camera_block[c])
+        state.intrinsics[block] = before[block]
+    fixed = tuple(sorted(set(stage.fixed_intrinsics_cameras) | set(bad)))
+    return bundle_adjust(state, camera_names,
+                         dataclasses.replace(stage, fixed_intrinsics_cameras=fixed), num_threads)
+
+
+def drop_implausible_cameras(state: SfMState, failed: list[int], camera_names: Sequence[str],
+                             say: Callable[[str], None]) -> None:
+    """Unregister the cameras whose intrinsics ran into physically implausible values
+    (plausibility.py) and add them to `failed`: their poses and intrinsics are not trustworthy,
+    whatever the residuals. Raises FocalInitError when fewer than two cameras remain."""
+    problems = implausible_cameras(state)
+    for c, problem in problems.items():
+        say(f"camera {camera_names[c]} left out: {problem}")
+        state.cam_from_world[c] = None
+        failed.append(c)
+    failed.sort()
+    state.drop_weak_points()
+    if problems and len(state.registered()) < 2:
+        raise FocalInitError(
+            "Self-calibration ran into implausible intrinsics (" + "; ".join(
+                f"{camera_names[c]}: {p}" for c, p in problems.items()) + "): the scene is "
+            "probably too close to planar or the views too similar to fix the focal lengths and "
+            "distortion. Add frame sets with depth variation (objects in front of the "
+            "background), or try the global pipeline (--pipeline global; node and "
+            "PipelineConfig: pipeline).")

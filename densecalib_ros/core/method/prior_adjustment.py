@@ -1,0 +1,471 @@
+"""Bundle adjustment of pinhole cameras with Gaussian priors on the intrinsics the images pin down
+least (maximum a posteriori), and the intrinsics' covariance at its solution.
+
+Why a prior and not a switch: a principal point offset by d px is almost the same image as the
+camera turned by d / f rad; only a second-order warp (~d tan^2 of the ray angle) and the
+distortion centre tell them apart. Held at the image centre, a real lens's point (0.5-2 % of the
+side off) turns every camera by ~d / f (1 deg at f = 800 px, d = 15 px). Freed with nothing to
+hold it, it wanders by tens of pixels on the noise and on what the model cannot express (lens
+aspect, wrong matches), with no better fit to show for it. A Gaussian prior of the spread real
+lenses have keeps it where the images do not speak and lets them move it where they do; the
+posterior covariance says which of the two happened.
+
+The same holds for the pixel aspect (fy / fx - 1): real sensors are within a few tenths of a
+percent of square, RADIAL cannot express any, and an unmodelled 0.5 % shows up as a residual
+warp that the principal point and poses then absorb.
+
+Parameters per camera block ("RADIAL" cameras): f, cx, cy, k1, k2 and the aspect a (fy = f (1 +
+a)); poses of every registered camera but the reference (gauge; the scale is left free and
+damped, it changes no intrinsics); every point. Residuals: COLMAP-pixel reprojection errors of
+the active observations of reconstruction points, Cauchy loss with COLMAP's scale, weighted by
+1 / sigma_n^2 with sigma_n the pixel noise of the fit (robust, from the residuals); priors
+(value - centre) / sigma. Levenberg-Marquardt on the reduced camera system (Schur complement over
+the points: every point is a 3x3 block)."""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Optional
+
+import cv2
+import numpy as np
+
+from ..types import CameraIntrinsics
+from .reconstruction import SfMState
+
+log = logging.getLogger(__name__)
+
+# Per block: f, cx, cy, k1, k2, aspect, tangential p1, p2 (OPENCV's). Poses: rotation (3, left
+# increment), translation (3).
+INTRINSIC_NAMES = ("f", "cx", "cy", "k1", "k2", "aspect", "p1", "p2")
+_NI, _NP = len(INTRINSIC_NAMES), 6
+# Cauchy loss scale (px), as every other adjustment here (reconstruction.bundle_adjust: COLMAP's).
+LOSS_SCALE_PX = 1.0
+# The noise floor: sigma_n is never taken below this (a fit of exact synthetic tracks would make
+# every prior irrelevant; no matcher localises better than ~0.05 px).
+MIN_NOISE_PX = 0.05
+NOISE_TOLERANCE = 0.2  # a re-measured noise within this fraction of the one used: solved
+# Converged when an iteration lowers the cost by less than this fraction (Ceres' default
+# function tolerance, as reconstruction.FUNCTION_TOLERANCE).
+RELATIVE_DECREASE = 1e-6
+_RAYLEIGH_MEDIAN = 1.1774  # median of |2D residual| / per-coordinate sigma for Gaussian noise
+
+
+@dataclass
+class Priors:
+    """Gaussian priors per intrinsics block (index into SfMState.intrinsics): the standard
+    deviation of each axis of the principal point around its prior centre (px; the image centre
+    unless principal_point_centre_px gives one) and of the pixel aspect around 1 (fraction).
+    None: that parameter is held at its current value."""
+
+    principal_point_std_px: dict = field(default_factory=dict)  # block -> px or None
+    aspect_std: dict = field(default_factory=dict)  # block -> fraction or None
+    tangential_std: dict = field(default_factory=dict)  # block -> p1, p2 sigma or None
+    principal_point_centre_px: dict = field(default_factory=dict)  # block -> (cx, cy)
+
+
+@dataclass
+class PriorAdjustment:
+    """What the adjustment did: blocks adjusted, the pixel noise sigma_n (px, per coordinate) it
+    weighted the images by, the MAP cost (at that noise) before and after, iterations, and per block
+    the posterior covariance of INTRINSIC_NAMES (6x6; rows of held parameters are zero) and the
+    prior sigmas it ran with."""
+
+    blocks: list[int]
+    noise_px: float
+    # Robust per-coordinate scale of the residuals at the solution (px; at least MIN_NOISE_PX):
+    # smaller than noise_px, since each point absorbs part of its observations' noise.
+    residual_scale_px: float
+    cost_before: float
+    cost_after: float
+    iterations: int
+    covariance: dict  # block -> (6, 6)
+    priors: Priors
+
+
+# The perspective models this adjustment projects, as (f, cx, cy, k1, k2, aspect, p1, p2).
+SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+
+
+def intrinsics_vector(cam: CameraIntrinsics) -> np.ndarray:
+    """cam's parameters as INTRINSIC_NAMES (ValueError for a model not in SUPPORTED_MODELS)."""
+    p = np.asarray(cam.params, float)
+    if cam.model == "SIMPLE_PINHOLE":
+        return np.array([p[0], p[1], p[2], 0, 0, 0, 0, 0])
+    if cam.model == "PINHOLE":
+        return np.array([p[0], p[2], p[3], 0, 0, p[1] / p[0] - 1.0, 0, 0])
+    if cam.model == "SIMPLE_RADIAL":
+        return np.array([p[0], p[1], p[2], p[3], 0, 0, 0, 0])
+    if cam.model == "RADIAL":
+        return np.array([p[0], p[1], p[2], p[3], p[4], 0, 0, 0])
+    if cam.model == "OPENCV":
+        return np.array([p[0], p[2], p[3], p[4], p[5], p[1] / p[0] - 1.0, p[6], p[7]])
+    raise ValueError(f"prior adjustment: a {cam.model} camera; it projects "
+                     f"{', '.join(SUPPORTED_MODELS)}")
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) cross-product matrices."""
+    z = np.zeros(len(v))
+    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], 1),
+                     np.stack([v[:, 2], z, -v[:, 0]], 1),
+                     np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
+
+
+class _Problem:
+    """Observations, parameter layout and the current estimate."""
+
+    def __init__(self, state: SfMState, blocks: list[int], priors: Priors):
+        self.state = state
+        registered = state.registered()
+        self.reference = registered[0]
+        points = state.point_mask()
+        obs = state.registered_active() & points[:, None]
+        t_idx, c_idx = np.nonzero(obs)
+        self.t_idx, self.c_idx = t_idx, c_idx
+        self.xy = state.tracks.xy_px[t_idx, c_idx]
+        self.tracks = np.flatnonzero(points)
+        self.point_of_track = np.full(state.tracks.num_tracks, -1)
+        self.point_of_track[self.tracks] = np.arange(len(self.tracks))
+        self.p_idx = self.point_of_track[t_idx]
+        self.X = state.points_xyz[self.tracks].copy()
+        C = state.num_cameras
+        self.R = np.zeros((C, 3, 3))
+        self.t = np.zeros((C, 3))
+        for c in registered:
+            self.R[c], self.t[c] = state.cam_from_world[c][:3, :3], state.cam_from_world[c][:3, 3]
+        self.block_of = np.asarray(state.camera_block)
+        self.K = np.zeros((len(state.intrinsics), _NI))
+        for b, cam in enumerate(state.intrinsics):
+            self.K[b] = intrinsics_vector(cam)
+        self.centre = np.array([priors.principal_point_centre_px.get(
+            b, (cam.width / 2.0, cam.height / 2.0)) for b, cam in enumerate(state.intrinsics)],
+            dtype=float)
+        self.priors = priors
+        # Free parameters: poses of registered cameras but the reference; per adjusted block f,
+        # k1, k2 and, where it has a prior, cx and cy and the aspect.
+        index = 0
+        self.pose_cols = np.full((C, _NP), -1)
+        for c in registered:
+            if c != self.reference:
+                self.pose_cols[c] = np.arange(index, index + _NP)
+                index += _NP
+        self.intr_cols = np.full((len(state.intrinsics), _NI), -1)
+        for b in blocks:
+            pp = priors.principal_point_std_px.get(b) is not None
+            tangential = priors.tangential_std.get(b) is not None
+            free = [True, pp, pp, True, True, priors.aspect_std.get(b) is not None,
+                    tangential, tangential]
+            for k in range(_NI):
+                if free[k]:
+                    self.intr_cols[b, k] = index
+                    index += 1
+        self.num_cam_params = index
+        # Per observation: the columns of its 6 pose + 8 intrinsic parameters (-1: held).
+        self.cols = np.concatenate([self.pose_cols[c_idx], self.intr_cols[self.block_of[c_idx]]],
+                                   axis=1)
+
+    def residuals_and_jacobians(self, with_jacobians: bool = True):
+        """r (N, 2) px and, if asked, A (N, 2, 6 + 8) camera-side and B (N, 2, 3) point
+        Jacobians."""
+        R, t = self.R[self.c_idx], self.t[self.c_idx]
+        Xw = self.X[self.p_idx]
+        Xc = np.einsum("nij,nj->ni", R, Xw) + t
+        z = Xc[:, 2]
+        z_safe = np.where(np.abs(z) > 1e-12, z, 1e-12)
+        u, v = Xc[:, 0] / z_safe, Xc[:, 1] / z_safe
+        K = self.K[self.block_of[self.c_idx]]
+        f, cx, cy, k1, k2, a, p1, p2 = K.T
+        r2 = u * u + v * v
+        d = 1 + k1 * r2 + k2 * r2 * r2
+        fy = f * (1 + a)
+        uv = u * v
+        xd = d * u + 2 * p1 * uv + p2 * (r2 + 2 * u * u)
+        yd = d * v + p1 * (r2 + 2 * v * v) + 2 * p2 * uv
+        proj = np.stack([f * xd + cx, fy * yd + cy], 1)
+        res = proj - self.xy
+        res[z <= 0] = 1e3  # behind the camera: a large, constant residual
+        if not with_jacobians:
+            return res
+        N = len(z)
+        dd_dr2 = k1 + 2 * k2 * r2
+        # d(xd, yd)/d(u, v)
+        dxd_du = d + 2 * u * u * dd_dr2 + 2 * p1 * v + 6 * p2 * u
+        dxd_dv = 2 * uv * dd_dr2 + 2 * p1 * u + 2 * p2 * v
+        dyd_du = 2 * uv * dd_dr2 + 2 * p1 * u + 2 * p2 * v
+        dyd_dv = d + 2 * v * v * dd_dr2 + 6 * p1 * v + 2 * p2 * u
+        J_uv = np.zeros((N, 2, 2))
+        J_uv[:, 0, 0], J_uv[:, 0, 1] = f * dxd_du, f * dxd_dv
+        J_uv[:, 1, 0], J_uv[:, 1, 1] = fy * dyd_du, fy * dyd_dv
+        J_xc = np.zeros((N, 2, 3))
+        J_xc[:, 0, 0], J_xc[:, 0, 2] = 1 / z_safe, -u / z_safe
+        J_xc[:, 1, 1], J_xc[:, 1, 2] = 1 / z_safe, -v / z_safe
+        J_p = J_uv @ J_xc  # d proj / d Xc (N, 2, 3)
+        B = J_p @ R
+        A = np.zeros((N, 2, _NP + _NI))
+        A[:, :, :3] = -J_p @ _skew(Xc)
+        A[:, :, 3:6] = J_p
+        A[:, 0, 6], A[:, 1, 6] = xd, (1 + a) * yd
+        A[:, 0, 7], A[:, 1, 8] = 1.0, 1.0
+        A[:, 0, 9], A[:, 1, 9] = f * u * r2, fy * v * r2
+        A[:, 0, 10], A[:, 1, 10] = f * u * r2 * r2, fy * v * r2 * r2
+        A[:, 1, 11] = f * yd
+        A[:, 0, 12], A[:, 1, 12] = f * 2 * uv, fy * (r2 + 2 * v * v)
+        A[:, 0, 13], A[:, 1, 13] = f * (r2 + 2 * u * u), fy * 2 * uv
+        return res, A, B
+
+    def prior_terms(self):
+        """[(column, residual in sigmas, 1 / sigma)] of every prior on a free parameter."""
+        out = []
+        for b in range(len(self.K)):
+            pp = self.priors.principal_point_std_px.get(b)
+            if pp is not None and self.intr_cols[b, 1] >= 0:
+                out.append((self.intr_cols[b, 1], (self.K[b, 1] - self.centre[b, 0]) / pp, 1 / pp))
+                out.append((self.intr_cols[b, 2], (self.K[b, 2] - self.centre[b, 1]) / pp, 1 / pp))
+            sa = self.priors.aspect_std.get(b)
+            if sa is not None and self.intr_cols[b, 5] >= 0:
+                out.append((self.intr_cols[b, 5], self.K[b, 5] / sa, 1 / sa))
+            st = self.priors.tangential_std.get(b)
+            if st is not None and self.intr_cols[b, 6] >= 0:
+                out.append((self.intr_cols[b, 6], self.K[b, 6] / st, 1 / st))
+                out.append((self.intr_cols[b, 7], self.K[b, 7] / st, 1 / st))
+        return out
+
+    def cost(self, noise_px: float, res: Optional[np.ndarray] = None) -> float:
+        res = self.residuals_and_jacobians(False) if res is None else res
+        s2 = np.sum(res * res, axis=1)
+        c2 = LOSS_SCALE_PX ** 2
+        data = np.sum(c2 * np.log1p(s2 / c2)) / noise_px ** 2
+        return float(data + sum(e * e for _, e, _ in self.prior_terms()))
+
+    def apply(self, delta_cam: np.ndarray, delta_pts: np.ndarray) -> dict:
+        """Apply a step; returns what is needed to undo it."""
+        saved = dict(R=self.R.copy(), t=self.t.copy(), K=self.K.copy(), X=self.X.copy())
+        for c in range(len(self.R)):
+            cols = self.pose_cols[c]
+            if cols[0] < 0:
+                continue
+            w, dt = delta_cam[cols[:3]], delta_cam[cols[3:]]
+            E = cv2.Rodrigues(np.asarray(w, float))[0]
+            self.R[c] = E @ self.R[c]
+            self.t[c] = E @ self.t[c] + dt
+        mask = self.intr_cols >= 0
+        self.K[mask] += delta_cam[self.intr_cols[mask]]
+        self.X += delta_pts
+        return saved
+
+    def restore(self, saved: dict) -> None:
+        self.R, self.t, self.K, self.X = saved["R"], saved["t"], saved["K"], saved["X"]
+
+
+def _normal_equations(problem: _Problem, noise_px: float):
+    """Robust-weighted normal equations: U (M, M), Wm (N, 14, 3), V (P, 3, 3), g_cam (M,),
+    g_pt (P, 3), and the residuals."""
+    res, A, B = problem.residuals_and_jacobians()
+    s2 = np.sum(res * res, axis=1)
+    w = 1.0 / (1.0 + s2 / LOSS_SCALE_PX ** 2) / noise_px ** 2  # Cauchy IRLS weight
+    cols = problem.cols
+    A = A * (cols >= 0)[:, None, :]
+    M, P = problem.num_cam_params, len(problem.X)
+    Aw = A * w[:, None, None]
+    AwT = Aw.transpose(0, 2, 1)
+    U_obs = AwT @ A
+    flat = np.where(cols >= 0, cols, M)
+    idx = (flat[:, :, None] * (M + 1) + flat[:, None, :]).ravel()
+    U = np.bincount(idx, U_obs.ravel(), (M + 1) ** 2).reshape(M + 1, M + 1)[:M, :M]
+    g_cam = np.bincount(flat.ravel(), (AwT @ res[:, :, None]).ravel(), M + 1)[:M]
+    BwT = (B * w[:, None, None]).transpose(0, 2, 1)
+    V_obs = BwT @ B
+    V = np.stack([np.bincount(problem.p_idx, V_obs[:, i, j], P)
+                  for i in range(3) for j in range(3)], 1).reshape(P, 3, 3)
+    g_obs = (BwT @ res[:, :, None])[:, :, 0]
+    g_pt = np.stack([np.bincount(problem.p_idx, g_obs[:, i], P) for i in range(3)], 1)
+    Wm = AwT @ B
+    for col, e, inv_sigma in problem.prior_terms():
+        U[col, col] += inv_sigma ** 2
+        g_cam[col] += e * inv_sigma
+    return U, Wm, V, g_cam, g_pt, flat, res
+
+
+def _camera_pairs(problem: _Problem) -> list:
+    """(a, b, the camera-side columns of a's and b's observations) for every pair of cameras that
+    see a common point (a == b included): the Schur complement's sparsity, fixed for a problem."""
+    cams = np.unique(problem.c_idx)
+    seen = np.zeros((len(problem.R), len(problem.X)), bool)
+    seen[problem.c_idx, problem.p_idx] = True
+    first = {c: int(np.flatnonzero(problem.c_idx == c)[0]) for c in cams}
+    shared = seen.astype(np.float64) @ seen.T.astype(np.float64)
+    return [(a, b) for a in cams for b in cams if shared[a, b] > 0], first
+
+
+def _reduced_system(problem: _Problem, U, Wm, V_inv, flat, pairs):
+    """S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and Y = Wm V^-1 (N, 14, 3). Per camera
+    the observations' blocks are laid out densely over the points, so each pair of cameras is one
+    matrix product."""
+    M = problem.num_cam_params
+    Y = Wm @ V_inv[problem.p_idx]
+    width = _NP + _NI
+    C, P = len(problem.R), len(problem.X)
+    Yd = np.zeros((C, P, 3, width))
+    Wd = np.zeros((C, P, 3, width))
+    Yd[problem.c_idx, problem.p_idx] = Y.transpose(0, 2, 1)
+    Wd[problem.c_idx, problem.p_idx] = Wm.transpose(0, 2, 1)
+    Yd, Wd = Yd.reshape(C, 3 * P, width), Wd.reshape(C, 3 * P, width)
+    S = np.zeros((M + 1, M + 1))
+    camera_pairs, first = pairs
+    for a, b in camera_pairs:
+        # Every observation of a camera has that camera's columns (M: held, dropped below).
+        S[np.ix_(flat[first[a]], flat[first[b]])] -= Yd[a].T @ Wd[b]
+    return U + S[:M, :M], Y
+
+
+def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
+                       max_iterations: int = 50, noise_px: Optional[float] = None
+                       ) -> PriorAdjustment:
+    """MAP adjustment of `state` in place (module docstring); `blocks`: the intrinsics blocks
+    refined (RADIAL, or OPENCV with p1 = p2 = 0); the others are held. A block whose aspect ends
+    free is written back as OPENCV (fx, fy, cx, cy, k1, k2, 0, 0), else in its own model.
+    noise_px: sigma_n; None estimates it from the residuals at the start."""
+    for b in blocks:
+        if state.intrinsics[b].model not in ("RADIAL", "OPENCV"):
+            raise ValueError(f"prior adjustment: block {b} is {state.intrinsics[b].model}; "
+                             "RADIAL or OPENCV cameras are adjusted (others may be held)")
+    problem = _Problem(state, blocks, priors)
+    if not len(problem.t_idx):
+        raise ValueError("prior adjustment: no observations")
+    pairs = _camera_pairs(problem)
+    estimate_noise = noise_px is None
+    noise_px = _noise_px(problem) if estimate_noise else noise_px
+    start = dict(R=problem.R.copy(), t=problem.t.copy(), K=problem.K.copy(), X=problem.X.copy())
+    iterations = 0
+    # The noise is measured on the residuals; from a start far from the solution they are larger
+    # than the noise, so it is measured again at the solution and the solve repeated once.
+    for _ in range(2 if estimate_noise else 1):
+        iterations += _levenberg_marquardt(problem, noise_px, pairs, max_iterations)
+        if not estimate_noise:
+            break
+        measured = _noise_px(problem)
+        if abs(measured - noise_px) <= NOISE_TOLERANCE * noise_px:
+            break
+        noise_px = measured
+    covariance = _intrinsics_covariance(problem, noise_px, blocks, pairs)
+    solution = dict(R=problem.R, t=problem.t, K=problem.K, X=problem.X)
+    problem.restore(start)
+    cost_before = problem.cost(noise_px)
+    problem.restore(solution)
+    _write_back(problem, state, blocks)
+    return PriorAdjustment(blocks=list(blocks), noise_px=noise_px,
+                           residual_scale_px=_residual_scale_px(problem),
+                           cost_before=cost_before, cost_after=problem.cost(noise_px),
+                           iterations=iterations, covariance=covariance, priors=priors)
+
+
+def posterior_covariance(state: SfMState, blocks: list[int], priors: Priors,
+                         noise_px: float) -> dict:
+    """Per block the posterior covariance of INTRINSIC_NAMES at `state` as it is (no adjustment)
+    under these priors and pixel noise: where a parameter was held at its prior's centre, the
+    covariance with it free under that prior says how far off it may be, and what the others
+    inherit from it."""
+    problem = _Problem(state, blocks, priors)
+    return _intrinsics_covariance(problem, noise_px, blocks, _camera_pairs(problem))
+
+
+def _levenberg_marquardt(problem: _Problem, noise_px: float, pairs: list,
+                         max_iterations: int) -> int:
+    """Levenberg-Marquardt on the reduced camera system, in place; returns the iterations."""
+    cost = problem.cost(noise_px)
+    lam, iterations = 1e-4, 0
+    M = problem.num_cam_params
+    for iterations in range(1, max_iterations + 1):
+        U, Wm, V, g_cam, g_pt, flat, _ = _normal_equations(problem, noise_px)
+        improved = False
+        for _ in range(10):
+            Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-9))
+            Vd = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)[None]
+            V_inv = np.linalg.inv(_regularised(Vd))
+            S, Y = _reduced_system(problem, Ud, Wm, V_inv, flat, pairs)
+            rhs = -g_cam + np.bincount(flat.ravel(), (Y @ g_pt[problem.p_idx][:, :, None]
+                                                      ).ravel(), M + 1)[:M]
+            try:
+                delta_cam = np.linalg.solve(S, rhs)
+            except np.linalg.LinAlgError:
+                delta_cam = np.linalg.lstsq(S, rhs, rcond=None)[0]
+            dc_obs = np.where(flat < M, np.r_[delta_cam, 0.0][flat], 0.0)
+            wt_dc = (Wm.transpose(0, 2, 1) @ dc_obs[:, :, None])[:, :, 0]
+            rhs_pt = -g_pt - np.stack([np.bincount(problem.p_idx, wt_dc[:, i], len(problem.X))
+                                       for i in range(3)], 1)
+            delta_pts = (V_inv @ rhs_pt[:, :, None])[:, :, 0]
+            saved = problem.apply(delta_cam, delta_pts)
+            new_cost = problem.cost(noise_px)
+            if np.isfinite(new_cost) and new_cost < cost:
+                improved = True
+                lam = max(lam / 3.0, 1e-9)
+                break
+            problem.restore(saved)
+            lam *= 4.0
+        if not improved:
+            break
+        decrease, cost = cost - new_cost, new_cost
+        if decrease < RELATIVE_DECREASE * cost:
+            break
+    return iterations
+
+
+def _regularised(V: np.ndarray) -> np.ndarray:
+    """Points' 3x3 blocks made invertible: a point whose observations do not fix it (all behind a
+    camera, rays parallel) gets a tiny ridge, so it moves by nothing instead of breaking the
+    solve."""
+    ridge = 1e-9 * np.maximum(np.trace(V, axis1=1, axis2=2), 1e-9)
+    return V + ridge[:, None, None] * np.eye(3)[None]
+
+
+def _residual_scale_px(problem: _Problem) -> float:
+    """Robust per-coordinate scale of the residuals (median of the 2-D norm over the Rayleigh
+    median), at least MIN_NOISE_PX."""
+    res = problem.residuals_and_jacobians(False)
+    return max(float(np.median(np.linalg.norm(res, axis=1))) / _RAYLEIGH_MEDIAN, MIN_NOISE_PX)
+
+
+def _noise_px(problem: _Problem) -> float:
+    """The pixel noise sigma_n per coordinate: the residuals' robust scale, corrected for the
+    degrees of freedom the points take (a 2-view point absorbs 3 of its 4 coordinates' noise)."""
+    n_obs, n_points = len(problem.t_idx), len(problem.X)
+    dof = max(2 * n_obs - 3 * n_points, 1)
+    return max(_residual_scale_px(problem) * np.sqrt(2 * n_obs / dof), MIN_NOISE_PX)
+
+
+def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int],
+                           pairs: list) -> dict:
+    """Per block the posterior covariance of INTRINSIC_NAMES (zeros where held): the inverse of
+    the reduced camera system at the solution (the points marginalised). The scale's null
+    direction moves no intrinsic, so the pseudo-inverse gives their marginal."""
+    U, Wm, V, _, _, flat, _ = _normal_equations(problem, noise_px)
+    V_inv = np.linalg.inv(_regularised(V))
+    S, _ = _reduced_system(problem, U, Wm, V_inv, flat, pairs)
+    cov = np.linalg.pinv(S, rcond=1e-12, hermitian=True)
+    out = {}
+    for b in blocks:
+        cols = problem.intr_cols[b]
+        block = np.zeros((_NI, _NI))
+        free = np.flatnonzero(cols >= 0)
+        block[np.ix_(free, free)] = cov[np.ix_(cols[free], cols[free])]
+        out[b] = block
+    return out
+
+
+def _write_back(problem: _Problem, state: SfMState, blocks: list[int]) -> None:
+    for c in state.registered():
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = problem.R[c], problem.t[c]
+        state.cam_from_world[c] = T
+    state.points_xyz[problem.tracks] = problem.X
+    for b in blocks:
+        cam = state.intrinsics[b]
+        f, cx, cy, k1, k2, a, p1, p2 = problem.K[b]
+        if (problem.intr_cols[b, 5:] >= 0).any() or np.any(problem.K[b, 5:] != 0.0):
+            state.intrinsics[b] = CameraIntrinsics("OPENCV", cam.width, cam.height,
+                                                   np.array([f, f * (1 + a), cx, cy, k1, k2,
+                                                             p1, p2]))
+        else:
+            state.intrinsics[b] = CameraIntrinsics("RADIAL", cam.width, cam.height,
+                                                   np.array([f, cx, cy, k1, k2]))

@@ -1,0 +1,278 @@
+"""How well the images pin down each camera's intrinsics: standard deviations of its focal length,
+of where a ray projects (the intrinsics as a whole) and, where it was refined, of its principal
+point, from the bundle adjustment's information matrix at the final solution
+(pycolmap.estimate_ba_covariance: Schur complement over the points, then the camera blocks).
+
+The problem is the final adjustment's: Cauchy loss, the reference camera's pose held and the
+scale fixed by COLMAP's two-camera gauge, the principal point free only where the calibration
+refined it. The covariance is that of unit pixel noise, scaled by the noise the fit shows
+(reprojection RMS / sqrt(2) per pixel coordinate). It treats observations as independent and the
+model as right. On tracks with independent Gaussian noise the errors are about 1 sigma
+(test_uncertainty).
+
+A principal point the calibration held (the regular preset holds it at the image centre) is
+where a real camera's is not: by 0.1-2.8 % of the long side on the real cameras we have. The
+covariance conditional on the held point cannot see that, and the other parameters lean on it (on
+4-camera generated rigs a few px of focal per px of principal point): taken as right, the focal
+errors there were 2.8 sigma at the median and up to 14 (8 development rigs, 20 deg apart). So
+the held point's unknown offset, HELD_PP_STD_FRACTION of the long side per axis, is added: the
+others move with it by their regression on the principal point in the same problem with the
+points free (cross-camera effects left out; pycolmap gives the covariance per camera block), and
+the projection moves with it too. Then 0.23 sigma at the median and 3.0 at most on those rigs,
+whose principal points are 0.0-0.4 % off (smaller than real cameras'); on tracks with a 1 %
+offset about 1 sigma (test_uncertainty).
+
+No rotation sigma is given: measured the same way it was 6-10x smaller than the rotation errors
+at the median on generated rigs (a principal point held at the image centre that is not there
+turns a camera by ~0.2 deg, which a covariance conditional on the held point cannot show), and
+with the principal point marginalised it was 1x on pinhole rigs but 6x on fisheye rigs and 0.2x
+on Strecha: not a number to act on. The consensus runs' disagreement
+(quality.consensus_disagreement_deg) is the measured spread of the extrinsics."""
+from __future__ import annotations
+
+import copy
+import logging
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+from ..metrics import invertible_pixel_rays, mean_focal_px, projection_map_error
+from ..config import PipelineConfig
+from ..types import RigCalibration, colmap_parameter_names
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class CameraUncertainty:
+    focal_std_px: Optional[float]  # of the mean focal length
+    principal_point_std_px: Optional[float]  # larger of cx, cy; None where it was held fixed
+    # Mean over the image of the standard deviation (px) of where a ray projects: the
+    # intrinsics' uncertainty as a whole. A focal that trades off against the distortion (a
+    # fisheye seen over part of its field) has a large focal_std_px but a small projection_std_px.
+    projection_std_px: Optional[float]
+
+
+# Rays sampled on a grid of this many points per image side for projection_std_px.
+PROJECTION_GRID = 12
+# How far from the image centre a principal point the calibration holds there may be, per axis,
+# as a fraction of the image's long side. Off-centre points of real cameras (their target-based
+# calibrations, per axis): Strecha's Canon 0.5-0.6 %, instant-ngp's fox phone 0.3-0.8 %, the
+# fisheye stereo pair 0.1-2.8 %.
+HELD_PP_STD_FRACTION = 0.01
+
+
+def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
+                refine_principal_point: bool, held_intrinsics: Sequence[str] = ()):
+    """(BACovariance, the reconstruction copy it refers to), or (None, None) when it fails.
+    held_intrinsics: cameras whose intrinsics are constant (a mixed rig's pinhole cameras while
+    the fisheye principal points are refined, as in incremental.final_adjustment)."""
+    rec = pycolmap.Reconstruction(reconstruction)  # the adjuster's problem points into it
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_principal_point = refine_principal_point
+    options.refine_sensor_from_rig = False  # trivial rigs, as in reconstruction.bundle_adjust
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = 1.0
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id, image in rec.images.items():
+        config.add_image(image_id)
+        if image.name == reference:
+            config.set_constant_rig_from_world_pose(image.frame_id)
+        if image.name in held_intrinsics:
+            config.set_constant_cam_intrinsics(image.camera_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, rec)
+    cov = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(), rec, adjuster)
+    return (cov, rec) if cov is not None else (None, None)
+
+
+def _unit_params_cov(cov, camera: pycolmap.Camera, free: Sequence[str]) -> Optional[np.ndarray]:
+    """The covariance (unit pixel noise) of the camera's parameters `free`, in params order."""
+    unit_cov = cov.get_other_params_cov(camera.params)
+    return unit_cov if unit_cov is not None and unit_cov.shape[0] == len(free) else None
+
+
+def _held_point_sensitivity(cov_free, camera_free: pycolmap.Camera) -> Optional[np.ndarray]:
+    """(others, 2): how far the camera's other parameters move per pixel of its principal point,
+    from the covariance of the problem with the principal points free (the regression of the
+    others on cx, cy)."""
+    names = colmap_parameter_names(camera_free)
+    unit_cov = _unit_params_cov(cov_free, camera_free, names)
+    if unit_cov is None:
+        return None
+    pp = [names.index("cx"), names.index("cy")]
+    others = [i for i in range(len(names)) if i not in pp]
+    try:
+        return unit_cov[np.ix_(others, pp)] @ np.linalg.inv(unit_cov[np.ix_(pp, pp)])
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image,
+                        noise_px: float, refine_principal_point: bool,
+                        held_point: Optional[tuple[np.ndarray, float]] = None
+                        ) -> CameraUncertainty:
+    """held_point: (sensitivity, std px) of a held principal point (_held_point_sensitivity and
+    the held point's standard deviation per axis): its unknown offset is added to the others'
+    covariance, and enters the projection's."""
+    camera = rec.cameras[image.camera_id]
+    names = colmap_parameter_names(camera)
+    # The rows of the free parameters, in order (held ones are left out of the covariance).
+    free = [n for n in names if refine_principal_point or n not in ("cx", "cy")]
+    unit_cov = _unit_params_cov(cov, camera, free)
+    if unit_cov is None:
+        return CameraUncertainty(None, None, None)
+    params_cov = unit_cov * noise_px ** 2
+    if held_point is not None:
+        # The held estimate is off by sensitivity @ offset, offset ~ N(0, std^2 I) per axis;
+        # the projection also moves with the offset itself.
+        sensitivity, std_px = held_point
+        params_cov = params_cov + std_px ** 2 * sensitivity @ sensitivity.T
+        free = free + ["cx", "cy"]
+        params_cov = np.block([[params_cov, std_px ** 2 * sensitivity],
+                               [std_px ** 2 * sensitivity.T, std_px ** 2 * np.eye(2)]])
+    focal_rows = [i for i, n in enumerate(free) if n in ("f", "fx", "fy")]
+    # The mean focal's variance: the sum of the focal block over its size squared.
+    focal = float(np.sqrt(params_cov[np.ix_(focal_rows, focal_rows)].sum()
+                          / len(focal_rows) ** 2))
+    pp = (float(np.sqrt(max(params_cov[free.index(n), free.index(n)] for n in ("cx", "cy"))))
+          if refine_principal_point else None)
+    projection = projection_std_px(camera, [names.index(n) for n in free], params_cov)
+    return CameraUncertainty(focal, pp, projection)
+
+
+def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],
+                      params_cov: np.ndarray) -> Optional[float]:
+    """Mean over a grid of image points of sqrt(trace) of the 2x2 covariance of where the point's
+    ray projects, params_cov being the covariance of camera.params[free_rows] (first-order
+    propagation, numerical Jacobian). Grid points whose ray does not map back to them (beyond a
+    fisheye model's invertible field) are left out; None when none is left."""
+    xs = np.linspace(0.5, camera.width - 0.5, PROJECTION_GRID)
+    ys = np.linspace(0.5, camera.height - 0.5, PROJECTION_GRID)
+    xy_px = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2).astype(np.float64)
+    rays, valid = invertible_pixel_rays(camera, xy_px)
+    if not valid.any():
+        return None
+    rays = rays[valid]
+    projected = camera.img_from_cam(rays)
+    params = np.array(camera.params, dtype=np.float64)
+    jacobian = np.zeros((len(rays), 2, len(free_rows)))
+    for k, row in enumerate(free_rows):
+        step = 1e-6 * max(1.0, abs(params[row]))
+        moved = copy.copy(camera)
+        shifted = params.copy()
+        shifted[row] += step
+        moved.params = shifted
+        jacobian[:, :, k] = (moved.img_from_cam(rays) - projected) / step
+    cov_px = np.einsum("nik,kl,njl->nij", jacobian, params_cov, jacobian)
+    std = np.sqrt(np.clip(np.trace(cov_px, axis1=1, axis2=2), 0.0, None))
+    return float(std[np.isfinite(std)].mean()) if np.isfinite(std).any() else None
+
+
+def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: str,
+                            noise_px: float, pp_refined: Sequence[str] = (),
+                            given: Sequence[str] = (),
+                            held_pp_std_fraction: float = HELD_PP_STD_FRACTION
+                            ) -> dict[str, CameraUncertainty]:
+    """Per camera (image name) of `reconstruction` its CameraUncertainty. reference: the camera
+    whose pose is held; noise_px: the standard deviation of one pixel coordinate of an
+    observation (reprojection RMS / sqrt(2)); pp_refined:
+    the cameras whose principal point the calibration refined; given: the cameras whose
+    intrinsics were given and held (constant here too; their values are None);
+    held_pp_std_fraction: how far a principal point held at the image centre may be off, per
+    axis, as a fraction of the image's long side (0: the held point is taken as right). Cameras
+    whose covariance cannot be estimated get None values."""
+    out = {name: CameraUncertainty(None, None, None) for name in given}
+    for refine_pp in (False, True):
+        wanted = [im for im in reconstruction.images.values()
+                  if (im.name in pp_refined) == refine_pp and im.name not in given]
+        if not wanted:
+            continue
+        held = [im.name for im in reconstruction.images.values()
+                if (refine_pp and im.name not in pp_refined) or im.name in given]
+        cov, rec = _covariance(reconstruction, reference, refine_pp, held)
+        cov_free = rec_free = None
+        if not refine_pp and held_pp_std_fraction > 0.0 and cov is not None:
+            cov_free, rec_free = _covariance(reconstruction, reference, True, held)
+        for image in wanted:
+            held_point = None
+            if cov_free is not None:
+                camera = rec_free.cameras[rec_free.images[image.image_id].camera_id]
+                sensitivity = _held_point_sensitivity(cov_free, camera)
+                if sensitivity is not None:
+                    held_point = (sensitivity,
+                                  held_pp_std_fraction * max(camera.width, camera.height))
+            out[image.name] = (_camera_uncertainty(cov, rec, rec.images[image.image_id], noise_px,
+                                                   refine_pp, held_point) if cov is not None
+                               else CameraUncertainty(None, None, None))
+    if any(u.focal_std_px is None for u in out.values()):
+        log.debug("no covariance for some cameras' intrinsics (degenerate bundle adjustment)")
+    return out
+
+
+def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
+    """How the sigmas compare with the actual errors against a ground truth (the benchmark's
+    check), per camera with a sigma: "focal": |focal error| / focal_std_px; "projection": the
+    mean projection-map error (metrics.projection_map_error) / projection_std_px."""
+    out = {"focal": [], "projection": []}
+    for name, cam in rig.cameras.items():
+        q, true = cam.quality, truth.cameras.get(name)
+        if q is None or true is None:
+            continue
+        if q.focal_std_px:
+            error = mean_focal_px(cam.intrinsics) - mean_focal_px(true.intrinsics)
+            out["focal"].append(abs(error) / q.focal_std_px)
+        if q.projection_std_px:
+            error = projection_map_error(true.intrinsics, cam.intrinsics)["mean_px"]
+            if np.isfinite(error):
+                out["projection"].append(error / q.projection_std_px)
+    return out
+
+
+def estimated_principal_points(rig: Optional[RigCalibration]) -> dict:
+    """Camera name -> (cx, cy, width, height) px of the cameras of `rig` whose principal point
+    its images determined (quality.estimated_intrinsics), in COLMAP pixels of images of that
+    size; {} without a rig."""
+    from ..metrics import principal_point_px
+
+    out = {}
+    for name, cam in (rig.cameras.items() if rig is not None else ()):
+        estimated = cam.quality.estimated_intrinsics if cam.quality is not None else None
+        if estimated and "cx" in estimated:
+            cx, cy = principal_point_px(cam.intrinsics)
+            out[name] = (float(cx), float(cy), cam.intrinsics.width, cam.intrinsics.height)
+    return out
+
+
+def add_uncertainty(rig: RigCalibration, reconstruction, camera_names: Sequence[str],
+                    config: PipelineConfig, sigmas: Optional[dict] = None) -> None:
+    """Record each camera's standard deviations in its quality, in place: `sigmas` (camera name
+    -> core.method.uncertainty.CameraUncertainty, from the image refinement) where given, else
+    core.method.uncertainty's."""
+    sigmas = dict(sigmas or {})
+    if set(sigmas) >= set(rig.cameras):
+        _record_sigmas(rig, sigmas)
+        return
+    pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
+    given = sorted(config.known_intrinsics or {})
+    # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
+    noise_px = float(rig.quality["reprojection_rms_px"]) / np.sqrt(2.0)
+    try:
+        sigmas = {**calibration_uncertainty(reconstruction, rig.reference_camera,
+                                            noise_px, pp_refined, given), **sigmas}
+    except (RuntimeError, ValueError) as exc:  # a diagnostic: never a reason to lose the result
+        log.warning("no standard deviations for this calibration: %s", exc)
+        return
+    rig.quality["held_pp_std_fraction"] = HELD_PP_STD_FRACTION  # in the held points' sigmas
+    _record_sigmas(rig, sigmas)
+
+
+def _record_sigmas(rig: RigCalibration, sigmas: dict) -> None:
+    for name, cam in rig.cameras.items():
+        if name in sigmas and cam.quality is not None:
+            cam.quality.focal_std_px = sigmas[name].focal_std_px
+            cam.quality.principal_point_std_px = sigmas[name].principal_point_std_px
+            cam.quality.projection_std_px = sigmas[name].projection_std_px

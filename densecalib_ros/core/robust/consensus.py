@@ -1,0 +1,189 @@
+"""Consensus over calibrations of the same matches from differently seeded track samples.
+
+Stage 2 of the sampling draws tracks at random (score-proportional picks, paper Sec. 3.2), and on
+weakly connected rigs (few 3-view tracks, converging optical axes, an end camera held by 2-view
+tracks) the SfM outcome depends on that draw: one seed gives AUC@3 100, the next 11 (measured in
+`densecalib bench` scenes, seeds 0-4). Running the SfM on a few independent samples and keeping the
+medoid (the run that disagrees least with the others in relative camera poses) turns that lottery
+into a majority vote; on well-connected rigs all runs agree and the medoid is any of them. How much
+the runs disagree is reported with the result: it is a direct measure of how well the data
+determine the rig.
+
+Before the vote, each run's cameras are scored on the same observations: a seeded sample of all
+runs' tracks in the cameras that every run registered, triangulated from that run's cameras
+(`common_track_costs`). Scoring only shared cameras lets a run that left out one hard camera
+compete on equal terms (the real fox, 8 frames, global pipeline: the one run that dropped a frame
+was right, the runs that posed all 8 were wrong and fit the other 7 twice as badly). A run that
+fits them clearly worse than the best run is a wrong reconstruction, not an equally good
+alternative, and is not kept even when it is the medoid (where most runs are wrong).
+
+Which observations judge the runs matters. Each run's tracks were drawn by its own seed and fitted
+by its own SfM, so on a sample of all runs' tracks every run is partly judged on what it was built
+from, and a wrong rig can fit them better than the right one (generated 3-camera rig 40 deg apart:
+wrong runs 0.646 px, right runs 0.685, the true rig 0.691). Where the runs were all refined last
+on the same keypoint-match tracks (pipeline.refine_on_all_matches), they are local optima of one
+objective on one data set, and the run that fits those tracks best is kept, as the focal
+multi-start inside each run keeps its best start: measured on 29 development rigs (bench and new
+seeds, 5 runs each), the best fit picked runs averaging AUC@3 92.1 against 88.8 for the vote, the
+best single run being 92.8 (4-camera rig 45 deg apart: 100 where the vote kept 38.9; 3 cameras 40
+deg apart: 100 where it kept 44.4; one loss, a 3-camera rig where every run is wrong, 33.3 -> 11.1).
+Only runs that registered the most cameras among those fitting about as well as the best compete,
+so a run does not win by leaving a camera out. Without such tracks (a dense matcher), runs that fit
+about equally well, the near-ambiguous case of converging cameras with free focals, are left to
+the vote.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import combinations
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..method.incremental import HELD_OUT_TRUNCATION_PX, truncated_cost
+from ..method.reconstruction import SfMState, triangulate_tracks
+from ..types import RigCalibration, Tracks
+
+# A camera pair that one of two runs did not register counts as this far apart.
+UNREGISTERED_PAIR_DEG = 180.0
+# After this many successful runs, stop if every two of them agree within AGREEMENT_DEG (mean over
+# camera pairs): a third of AUC@3's strictest threshold, so further runs could not change which
+# poses count as accurate. Measured on bench scenes: 3-camera s101 0.13 deg, 6-camera s101
+# 0.05 deg; weak wide rigs 2.9-7.4 deg, the real fox 12.4 deg.
+EARLY_STOP_RUNS = 3
+AGREEMENT_DEG = 1.0
+# The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
+# other runs put the cameras where the kept one would count as wrong.
+WARN_DISAGREEMENT_DEG = 3.0
+# A run whose truncated reprojection cost on the common tracks exceeds the best run's by this factor
+# is not kept. Measured on the bench's weak rigs (seeds 0-4, both pipelines): runs that are right or
+# near-ambiguous alternatives (converging cameras, free focals) cost at most 1.16x the best; wrong
+# runs 1.46x (global, wide 6-cam s101) to 7.5x. The factor sits between the two.
+WORSE_FIT_RATIO = 1.3
+COMMON_TRACKS_MAX = 3000  # the common tracks: a seeded sample of at most this many
+
+
+def _angle_deg(cos: float) -> float:
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def pair_disagreement_deg(a: RigCalibration, b: RigCalibration, cam_i: str, cam_j: str) -> float:
+    """max(angle between the relative rotations cam_j_from_cam_i of a and b, angle between their
+    relative translation directions) in degrees: the pose error AUC@3 thresholds, between runs."""
+    if not all(c in r.cameras for c in (cam_i, cam_j) for r in (a, b)):
+        return UNREGISTERED_PAIR_DEG
+    rel = [r.cameras[cam_j].cam_from_rig @ np.linalg.inv(r.cameras[cam_i].cam_from_rig)
+           for r in (a, b)]
+    rotation = _angle_deg((np.trace(rel[0][:3, :3] @ rel[1][:3, :3].T) - 1.0) / 2.0)
+    ta, tb = rel[0][:3, 3], rel[1][:3, 3]
+    norm = np.linalg.norm(ta) * np.linalg.norm(tb)
+    direction = _angle_deg(float(ta @ tb) / norm) if norm > 0 else 0.0
+    return max(rotation, direction)
+
+
+def rig_disagreement_deg(a: RigCalibration, b: RigCalibration,
+                         camera_names: Sequence[str]) -> float:
+    """Mean pair_disagreement_deg over all pairs of camera_names."""
+    pairs = list(combinations(camera_names, 2))
+    return float(np.mean([pair_disagreement_deg(a, b, i, j) for i, j in pairs])) if pairs else 0.0
+
+
+def medoid(rigs: Sequence[RigCalibration], camera_names: Sequence[str],
+           candidates: Optional[Sequence[int]] = None) -> tuple[int, np.ndarray]:
+    """Index of the rig among `candidates` (default: all) with the smallest summed disagreement
+    with all the others (the first on ties) and the (R, R) disagreement matrix in degrees."""
+    n = len(rigs)
+    D = np.zeros((n, n))
+    for i, j in combinations(range(n), 2):
+        D[i, j] = D[j, i] = rig_disagreement_deg(rigs[i], rigs[j], camera_names)
+    keep = list(range(n)) if candidates is None else list(candidates)
+    return keep[int(np.argmin(D[keep].sum(axis=1)))], D
+
+
+def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
+                       camera_names: Sequence[str], truncation_px, seed: int = 0
+                       ) -> np.ndarray:
+    """Per rig, the truncated reprojection cost (incremental.truncated_cost, px) of the common
+    tracks (a seeded sample of at most COMMON_TRACKS_MAX of all runs' tracks) triangulated from
+    that rig's cameras, held fixed, over the cameras that every rig registered: so every rig is
+    scored on the same observations, and a run that left out a hard camera is not favoured for
+    fitting fewer of them. All NaN when fewer than two cameras are shared."""
+    shared = [c for c, n in enumerate(camera_names) if all(n in r.cameras for r in rigs)]
+    if len(shared) < 2:
+        return np.full(len(rigs), np.nan)
+    common = Tracks.concatenate(list(runs_tracks), len(camera_names)).sample(COMMON_TRACKS_MAX,
+                                                                            seed)
+    costs = []
+    for rig in rigs:
+        any_camera = rig.cameras[camera_names[shared[0]]].intrinsics
+        state = SfMState.create(common, [rig.cameras[n].intrinsics if n in rig.cameras
+                                         else any_camera for n in camera_names])
+        for c in shared:
+            state.cam_from_world[c] = rig.cameras[camera_names[c]].cam_from_rig
+        triangulate_tracks(state, max_error_px=float(np.max(truncation_px)), seed=seed)
+        costs.append(truncated_cost(state, truncation_px))
+    return np.array(costs)
+
+
+def well_fitting_runs(costs: np.ndarray) -> list[int]:
+    """The runs whose common-track cost is within WORSE_FIT_RATIO of the best; every run when
+    the costs could not be computed (NaN)."""
+    if not np.isfinite(costs).any():
+        return list(range(len(costs)))
+    bar = WORSE_FIT_RATIO * np.nanmin(costs)
+    return [k for k, c in enumerate(costs) if c <= bar]
+
+
+@dataclass
+class Choice:
+    best: int  # the run to keep
+    disagreement_deg: np.ndarray  # (R, R) rig_disagreement_deg between runs
+    costs_px: np.ndarray  # (R,) common-track costs; NaN when the runs agree and none was needed
+    worse_fit: list[int]  # runs not kept because they fit the common tracks clearly worse
+    by_fit: bool = False  # kept as the best fit to the tracks all runs were refined on (not the vote)
+
+
+def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
+               camera_names: Sequence[str], truncation_px, seed: int = 0,
+               refined_on: Optional[Tracks] = None) -> Choice:
+    """The run to keep (module docstring). When all runs agree within AGREEMENT_DEG, simply the
+    medoid. Otherwise, among the runs that fit about as well as the best one (well_fitting_runs)
+    and registered the most cameras among those: with refined_on (tracks every run was refined
+    on last, e.g. all keypoint matches), the one that fits them best, its cost truncated at most
+    at HELD_OUT_TRUNCATION_PX as they are raw matches; without, the medoid of the costs on a
+    sample of all runs' own tracks (runs_tracks)."""
+    best, D = medoid(rigs, camera_names)
+    if len(rigs) < 2 or D.max() < AGREEMENT_DEG:
+        return Choice(best, D, np.full(len(rigs), np.nan), [])
+    judge = refined_on is not None and refined_on.num_tracks > 0
+    if judge:
+        costs = common_track_costs(rigs, [refined_on], camera_names,
+                                   np.minimum(truncation_px, HELD_OUT_TRUNCATION_PX), seed)
+    else:
+        costs = common_track_costs(rigs, runs_tracks, camera_names, truncation_px, seed)
+    fitting = well_fitting_runs(costs)
+    most = max(len(rigs[k].cameras) for k in fitting)
+    complete = [k for k in fitting if len(rigs[k].cameras) == most]
+    by_fit = judge and bool(np.isfinite(costs[complete]).all())
+    if by_fit:
+        best = complete[int(np.argmin(costs[complete]))]
+    else:
+        best = medoid(rigs, camera_names, complete)[0]
+    return Choice(best, D, costs, [k for k in range(len(rigs)) if k not in fitting], by_fit)
+
+
+def disagreement_warning(disagreement_deg: float, num_runs: int,
+                         few_wide_cameras: bool = False) -> Optional[str]:
+    """The message for a user whose runs disagree by more than WARN_DISAGREEMENT_DEG, else None.
+    few_wide_cameras: three or four perspective cameras matched with sift, whose matches a wide
+    viewpoint change thins out (docs/benchmarks.md): the message suggests asift."""
+    if disagreement_deg <= WARN_DISAGREEMENT_DEG:
+        return None
+    asift = (" With three or four cameras far apart, --matcher asift (node: matcher asift) finds "
+             "the matches a wide viewpoint change leaves sift." if few_wide_cameras else "")
+    return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
+            "(median over camera pairs) from the others, so the images allow quite different rigs "
+            "and this one may be wrong. Add frame sets (time-aligned images of a changing scene) or "
+            "more overlap between cameras, or use --share-intrinsics (node: share_intrinsics; "
+            "SfMConfig.share_intrinsics) if "
+            "the cameras are identical units." + asift)
