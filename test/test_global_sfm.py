@@ -232,7 +232,7 @@ def test_pipeline_global_dispatch_reports_stages():
 def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
     """Default global run: rotation averaging and the incremental result are both refined; the
     kept one has the lowest truncated reprojection cost of the two (checked by rerunning each)."""
-    from densecalib_ros.core.method.incremental import cost_truncation_px, truncated_cost
+    from densecalib_ros.core.method.multistart import cost_truncation_px, truncated_cost
 
     cams, poses = gt_rig(seed=7)
     tracks = gt_tracks(cams, poses, seed=7)

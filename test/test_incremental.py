@@ -10,7 +10,8 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import NotEnoughCamerasError, NotEnoughOverlapError
-from densecalib_ros.core.method.incremental import initial_intrinsics, run_incremental
+from densecalib_ros.core.method.incremental import initial_intrinsics
+from densecalib_ros.core.method.multistart import run_incremental
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.calibration_result import rig_from_state
 from densecalib_ros.core.method.reconstruction import (BAStage, SfMState, bundle_adjust,
@@ -94,8 +95,8 @@ def test_incremental_recovers_ground_truth(model, preset):
 def test_multistart_on_a_subsample_is_finished_on_every_track(monkeypatch):
     """Rigs with more tracks than MULTISTART_MAX_TRACKS run the focal multi-start on a subsample;
     the winning trial's cameras are then finished on all tracks (not re-run from scratch)."""
-    import densecalib_ros.core.method.incremental as incremental
-    monkeypatch.setattr(incremental, "MULTISTART_MAX_TRACKS", 800)
+    import densecalib_ros.core.method.multistart as multistart
+    monkeypatch.setattr(multistart, "MULTISTART_MAX_TRACKS", 800)
     names = ["a", "b", "c", "d", "e"]
     cams, poses = gt_rig(5, seed=7)
     tracks = gt_tracks(cams, poses, seed=7)
@@ -117,7 +118,7 @@ def test_focal_starts_are_eq2_scales_and_generic_priors_for_perspective_models()
     """Perspective models start from eq. 2 scaled and from every generic prior (ratio x the long
     side, for every camera alike, even where that is close to a scaled start); fisheye models,
     whose initial focal is a lens-model prior already, only from the scales."""
-    from densecalib_ros.core.method.incremental import focal_starts
+    from densecalib_ros.core.method.multistart import focal_starts
 
     sizes = [(1024, 768), (1024, 768), (800, 600)]
     starts = focal_starts(initial_intrinsics(sizes, np.array([1200.0, 1150.0, 1300.0]), "RADIAL"))
@@ -261,7 +262,7 @@ def test_held_out_cost_counts_raw_matches_at_the_inlier_scale_not_b_err():
     """Raw keypoint matches are judged at HELD_OUT_TRUNCATION_PX whatever B_err: a wrong match
     costs that much, not 20 px, so many wrong matches (repetitive texture) cannot outweigh how
     well a rig fits the right ones; a camera turned by 0.3 deg still costs more."""
-    from densecalib_ros.core.method.incremental import HELD_OUT_TRUNCATION_PX, held_out_cost
+    from densecalib_ros.core.method.multistart import HELD_OUT_TRUNCATION_PX, held_out_cost
     from scipy.spatial.transform import Rotation
 
     cams, poses = gt_rig(4, seed=5)
@@ -285,7 +286,7 @@ def test_truncated_cost_per_camera_truncation():
     fisheye 100 px): the cost equals the hand-computed mean, and one value for all cameras
     is the same as that value per camera."""
     from densecalib_ros.core.config import resolve_camera_lenses
-    from densecalib_ros.core.method.incremental import cost_truncation_px, truncated_cost
+    from densecalib_ros.core.method.multistart import cost_truncation_px, truncated_cost
     from densecalib_ros.core.method.reconstruction import reprojection_errors, triangulate_tracks
 
     cams, poses = gt_rig(4, seed=2)
@@ -311,8 +312,8 @@ def test_first_pair_starts_are_the_pairs_sharing_most_tracks():
     """With every camera's intrinsics given the multi-start runs from first pairs instead of
     focals: those sharing at least MIN_PAIR_CORRESPONDENCES tracks, most first, at most
     MAX_FIRST_PAIR_STARTS."""
-    from densecalib_ros.core.method.incremental import (MAX_FIRST_PAIR_STARTS,
-                                                        MIN_PAIR_CORRESPONDENCES, first_pair_starts)
+    from densecalib_ros.core.method.incremental import MIN_PAIR_CORRESPONDENCES
+    from densecalib_ros.core.method.multistart import MAX_FIRST_PAIR_STARTS, first_pair_starts
 
     counts = {(0, 1): 40, (0, 2): MIN_PAIR_CORRESPONDENCES, (1, 2): 60,
               (2, 3): MIN_PAIR_CORRESPONDENCES - 1}

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.method.incremental import initial_intrinsics, run_incremental
+from densecalib_ros.core.method.incremental import initial_intrinsics
+from densecalib_ros.core.method.multistart import run_incremental
 from densecalib_ros.core.parallel import is_running, descendant_pids
 
 import sfm_fixtures

@@ -134,7 +134,7 @@ def test_converging_wide_rig_whose_eq2_focals_are_far_off_is_calibrated():
     """Three cameras 45 deg apart whose optical axes meet: eq. 2 is degenerate there and puts the
     focals at about 0.2x the truth (140-175 px for 714-858 px), beyond the multi-start's eq. 2
     scale starts, and COLMAP's generic prior (1.2 x 1024 px) is too far the other way; the
-    wider-lens generic priors (incremental.PRIOR_FOCAL_IMAGE_RATIOS) reach it. With only the
+    wider-lens generic priors (multistart.PRIOR_FOCAL_IMAGE_RATIOS) reach it. With only the
     1.2 prior this rig came out wrong (every camera pair > 40 deg off)."""
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=1024, height=768,
                                seed=711, gap_deg=45.0, max_arc_deg=360.0))

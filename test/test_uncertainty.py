@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.method.incremental import initial_intrinsics, run_incremental
+from densecalib_ros.core.method.incremental import initial_intrinsics
+from densecalib_ros.core.method.multistart import run_incremental
 from densecalib_ros.core.metrics import projection_map_error
 from densecalib_ros.core.method.reconstruction import build_reconstruction
 from densecalib_ros.core.types import CameraIntrinsics

@@ -21,10 +21,11 @@ from .method.focal_determination import weak_focal_warning
 from .method.focal_start import (eq2_start, initial_focals, start_focals,
                                  with_known_intrinsics)
 from .method.frame_checks import check_frame_sets
-from .method.incremental import MULTISTART_MAX_TRACKS, initial_intrinsics, run_incremental
+from .method.incremental import initial_intrinsics
 from .method.known_intrinsics import (check_known_intrinsics, describe as describe_known,
                                       given_intrinsics_fit, given_intrinsics_warnings)
 from .method.masks import ignored_regions, info_strips
+from .method.multistart import MULTISTART_MAX_TRACKS, run_incremental
 from .method.reconstruction import colour_points
 from .method.twoview import epipolar_filter, fundamental_matrices
 from .method.uncertainty import add_uncertainty, estimated_principal_points
@@ -260,7 +261,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            camera_names: Sequence[str], config: PipelineConfig,
                            match_tracks: Optional[Tracks], progress: Progress
                            ) -> CalibrationResult:
-    from .method.incremental import cost_truncation_px
+    from .method.multistart import cost_truncation_px
     from .robust.consensus import (AGREEMENT_DEG, EARLY_STOP_RUNS, choose_run,
                                    disagreement_warning, medoid, rig_disagreement_deg)
     from .robust.focal_hops import hop_focals

@@ -23,6 +23,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from .calibration_result import CalibrationResult
 from .config import PipelineConfig
 from .errors import CalibrationError
 from .method.frame_checks import check_frame_sets
@@ -30,7 +31,6 @@ from .method.masks import ignored_regions, info_strips
 from .monitor.change import calibration_change, change_summary
 from .monitor.consistency import DEFAULT_TOLERANCE_PX, sets_since_change
 from .monitor.reference_views import fits_per_frame_set_and_view
-from .calibration_result import CalibrationResult
 from .pipeline import (calibrate_from_matches, match_frame_sets, record_info_strips,
                        with_point_colours)
 from .progress import Progress, say_progress

@@ -2,7 +2,7 @@
 (PipelineConfig.initial_focal_px), a previous calibration's, the images' EXIF; given intrinsics
 (config.known_intrinsics) override these for their cameras; else eq. 2 on the tracks' two-view
 geometry (core.method.focal). The focal multi-start then explores around this start
-(core.method.incremental.focal_starts)."""
+(core.method.multistart.focal_starts)."""
 from __future__ import annotations
 
 from typing import Optional, Sequence

@@ -11,7 +11,7 @@ implementation details), initialised without VGGT.
      the camera centres.
    - "previous": a previous RigCalibration of the same cameras (recalibration: the cameras may
      have moved a little); its intrinsics are the starting intrinsics too.
-   - "incremental": the result of the incremental pipeline (incremental.run_incremental).
+   - "incremental": the result of the incremental pipeline (multistart.run_incremental).
    With "rotation_averaging" and `global_multistart`, both it and "incremental" are refined and
    the better fit is kept, judged like the incremental multi-start on matches neither was fitted
    to (a sample of all keypoint matches) where the pipeline passes them.
@@ -45,8 +45,8 @@ from ..errors import (DisconnectedViewGraphError, FocalInitError, InputError, No
                       NotEnoughOverlapError)
 from ..progress import Progress, say_progress
 from ..types import CameraIntrinsics, RigCalibration, Tracks
-from .incremental import (ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES, cost_truncation_px,
-                          held_out_cost, run_incremental, truncated_cost)
+from .incremental import ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES
+from .multistart import cost_truncation_px, held_out_cost, run_incremental, truncated_cost
 from .plausibility import bundle_adjust_plausibly, drop_implausible_cameras, implausible_cameras
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
                              convert_camera_models, matrix_from_rigid, reprojection_errors,
@@ -399,7 +399,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     (model = config.camera_model, focal from the initial-focal step); previous: the calibration
     to start from when config.global_init == "previous"; validation_tracks: other tracks of the
     same cameras (e.g. a sample of all keypoint matches) on which the incremental start's
-    multi-start and the choice between starts are judged (incremental.held_out_cost; None: on
+    multi-start and the choice between starts are judged (multistart.held_out_cost; None: on
     the tracks themselves); extra_starts: more named starting intrinsics for the incremental
     start's focal multi-start (run_incremental). Raises DisconnectedViewGraphError, InputError
     (unknown init, missing/unusable previous calibration), NotEnoughCamerasError.

@@ -64,7 +64,7 @@ MAX_F_POINTS = 20000  # correspondences per pair given to MAGSAC++ (a seeded ran
 FISHEYE_ASSUMED_FOV_DEG = 180.0  # horizontal field of view of the assumed equidistant fisheye
 # Start focal (x max(width, height)) of a pinhole camera that shares a fundamental matrix with no
 # other pinhole camera (a rig mixing lenses), so eq. 2 cannot give one: COLMAP's prior for unknown
-# focals; the SfM's focal multi-start also tries the generic priors (incremental.focal_starts).
+# focals; the SfM's focal multi-start also tries the generic priors (multistart.focal_starts).
 MIXED_LONE_PINHOLE_FOCAL_RATIO = 1.2
 
 

@@ -38,8 +38,8 @@ from typing import Optional, Sequence
 import numpy as np
 import pycolmap
 
-from ..metrics import invertible_pixel_rays, mean_focal_px, projection_map_error
 from ..config import PipelineConfig
+from ..metrics import invertible_pixel_rays, mean_focal_px, projection_map_error
 from ..types import RigCalibration, colmap_parameter_names
 
 log = logging.getLogger(__name__)

@@ -40,7 +40,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..method.incremental import HELD_OUT_TRUNCATION_PX, truncated_cost
+from ..method.multistart import HELD_OUT_TRUNCATION_PX, truncated_cost
 from ..method.reconstruction import SfMState, triangulate_tracks
 from ..types import RigCalibration, Tracks
 
@@ -103,7 +103,7 @@ def medoid(rigs: Sequence[RigCalibration], camera_names: Sequence[str],
 def common_track_costs(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
                        camera_names: Sequence[str], truncation_px, seed: int = 0
                        ) -> np.ndarray:
-    """Per rig, the truncated reprojection cost (incremental.truncated_cost, px) of the common
+    """Per rig, the truncated reprojection cost (multistart.truncated_cost, px) of the common
     tracks (a seeded sample of at most COMMON_TRACKS_MAX of all runs' tracks) triangulated from
     that rig's cameras, held fixed, over the cameras that every rig registered: so every rig is
     scored on the same observations, and a run that left out a hard camera is not favoured for

@@ -27,8 +27,9 @@ import numpy as np
 
 from ..config import SfMConfig
 from ..method.all_matches import refine_on_tracks
-from ..method.incremental import (HELD_OUT_TRUNCATION_PX, MULTISTART_MAX_TRACKS, _set_focal,
-                                  absolute_pose, cost_truncation_px, held_out_cost)
+from ..method.incremental import absolute_pose, set_focal
+from ..method.multistart import (HELD_OUT_TRUNCATION_PX, MULTISTART_MAX_TRACKS, cost_truncation_px,
+                                 held_out_cost)
 from ..method.plausibility import implausible_cameras
 from ..method.reconstruction import SfMState, triangulate_tracks
 from ..types import Tracks
@@ -36,7 +37,7 @@ from ..types import Tracks
 log = logging.getLogger(__name__)
 
 # Focal kicks (x the current focal): within the ~1.3x a start may be off and still converge
-# (incremental.PRIOR_FOCAL_IMAGE_RATIOS), both sides; the wrong minima measured were 12-17 % off.
+# (multistart.PRIOR_FOCAL_IMAGE_RATIOS), both sides; the wrong minima measured were 12-17 % off.
 HOP_FACTORS = (0.8, 0.9, 1.1, 1.25)
 MIN_RELATIVE_GAIN = 0.01  # a hop must lower the cost by more than this fraction to be kept
 MAX_ROUNDS = 3
@@ -110,7 +111,7 @@ def _kicked(state: SfMState, c: int, focal_px: float, others: SfMState) -> Optio
     """A copy of `state` with camera c's focal set to focal_px and its pose re-estimated for it
     from the points of `others` (_points_without(state, c)); None when too few."""
     trial = state.copy()
-    _set_focal(trial, c, focal_px)
+    set_focal(trial, c, focal_px)
     rows = np.flatnonzero(others.point_mask() & trial.tracks.observed()[:, c])
     if len(rows) < MIN_POSE_POINTS:
         return None

@@ -1,0 +1,299 @@
+"""The incremental SfM run from several starts (run_incremental), and the costs that pick one.
+
+Focal-from-F (eq. 2) is degenerate when the cameras' optical axes nearly meet (a common rig
+layout) and then tends to be off by a common factor, from which incremental SfM
+(core.method.incremental) converges to a wrong reconstruction. So it is run from several starting
+intrinsics (focal_starts; first pairs where every camera's intrinsics are given), each a trial on
+a subsample of the tracks, side by side in worker processes (core.parallel), and the trial with the
+lowest truncated reprojection cost, judged on matches it was not built from where given
+(held_out_cost), is finished on all tracks.
+"""
+from __future__ import annotations
+
+import functools
+import itertools
+import logging
+from dataclasses import replace
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+import pycolmap
+
+from ..config import SfMConfig
+from ..errors import NotEnoughOverlapError
+from ..parallel import map_jobs
+from ..progress import say_progress
+from ..types import CameraIntrinsics, Tracks
+from .incremental import (MIN_PAIR_CORRESPONDENCES, TRUNCATION_FALLBACK_PX, IncrementalResult,
+                          finish_on, incremental_sfm)
+from .plausibility import drop_implausible_cameras, implausible_cameras
+from .reconstruction import SfMState, reprojection_errors, triangulate_tracks
+
+log = logging.getLogger(__name__)
+
+
+FOCAL_SCALE_STARTS = (1.0, 1.3, 0.8)  # multi-start factors on the initial focals (run_incremental)
+
+
+# One more step of 1.3 upwards where the initial focals come from eq. 2 (not fisheye models, whose
+# start is a lens-model assumption): eq. 2 errs low on converging rigs (docs/design-notes.md).
+EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
+
+
+# Generic focal priors (x max(width, height)), starts that do not depend on the F's, for perspective
+# models: COLMAP's prior for unknown focals, 1.2 (45 deg across the long side), two wider lenses
+# 1/sqrt(2) apart, 0.85 and 0.6 (62 and 81 deg: wide-angle trap and arena cameras), and two longer
+# ones, 1.7 and 2.4 (33 and 24 deg: telephoto surveillance and lab cameras, where eq. 2 is most
+# often degenerate: optical axes that nearly meet). Where eq. 2 degenerates it can miss by more
+# than the scale starts span; the starts sit closer together than the ~1.4x a start may be off
+# and still converge.
+PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6, 1.7, 2.4)
+
+
+MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
+
+
+# With every camera's intrinsics given there is no focal to explore; the run's other lottery is
+# its first pair (eq. 3 picks among the first three views, on few points). So the multi-start runs
+# from first pairs instead (the most shared tracks first), as many as the focal multi-start of the
+# same lenses would have run (7 perspective, 3 fisheye: no slower than self-calibrating), at most
+# this many (measured: docs/design-notes.md).
+MAX_FIRST_PAIR_STARTS = 8
+
+
+
+
+# Truncation (and triangulation gate) of the cost on raw keypoint matches (held_out_cost): COLMAP's
+# two-view inlier threshold, the scale of a right match's error on a right rig. Raw matches are not
+# cycle-verified (repetitive texture: many are wrong), and a loose gate lets a degenerate rig
+# absorb wrong matches (measured on the fox: docs/design-notes.md).
+HELD_OUT_TRUNCATION_PX = 4.0
+
+
+def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
+                    camera_names: Sequence[str], config: SfMConfig, seed: int = 0,
+                    progress: Optional[Callable[[str], None]] = None,
+                    validation_tracks: Optional[Tracks] = None,
+                    extra_starts: Optional[dict[str, list[CameraIntrinsics]]] = None
+                    ) -> IncrementalResult:
+    """Register the rig's cameras one by one and refine them (core.method.incremental), from the
+    best of several starts (module docstring).
+
+    tracks: (T, C, 2) COLMAP px observations; intrinsics: initial CameraIntrinsics per camera
+    (model = config.camera_model, focal from the initial-focal step). Raises NotEnoughOverlapError
+    when no camera pair among the first three of the view order can be initialised.
+
+    Multi-start on the focal scale: focal-from-F (eq. 2) is degenerate when the cameras' optical
+    axes nearly meet (a common rig layout) and then tends to be off by a common factor (measured
+    20-47 % low), from which incremental SfM converges to a wrong reconstruction. So the SfM is
+    run from the initial focals scaled by each of FOCAL_SCALE_STARTS (and, for perspective
+    models, EQ2_EXTRA_FOCAL_SCALE_STARTS and the generic priors PRIOR_FOCAL_IMAGE_RATIOS), on
+    a seeded subsample of at most MULTISTART_MAX_TRACKS tracks, and the start with the lowest
+    truncated reprojection cost gives the result: that trial itself when it ran on all tracks,
+    else its cameras finished on all tracks (`_on_all_tracks`). The cost is taken on
+    validation_tracks (other tracks of the same cameras, e.g. all keypoint matches, triangulated
+    from the trial's cameras: `held_out_cost`) when given, else on the trial's own tracks
+    (`truncated_cost`). A trial can fit the tracks it was built from better than the right rig
+    does and still fit the matches it never saw worse (a 3-camera rig: 0.33 vs 0.41 px on its
+    samples, 2.17 vs 2.02 px on the other matches), so the left-out matches judge more fairly.
+    extra_starts: more named starting intrinsics for the multi-start (the eq. 2 estimate where
+    `intrinsics` hold known focals: pipeline.calibrate_from_tracks). Where every camera's
+    intrinsics are given (config.fixed_intrinsics_cameras) there is one focal start, and the
+    multi-start runs from first pairs instead (first_pair_starts, MAX_FIRST_PAIR_STARTS).
+    """
+    say = functools.partial(say_progress, progress)
+    starts = {name: (start, None) for name, start in
+              {**focal_starts(intrinsics, config.fixed_intrinsics_cameras),
+               **(extra_starts or {})}.items()}
+    sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
+    if len(config.fixed_intrinsics_cameras) == tracks.num_cameras and \
+            config.brute_force_first_pair:
+        budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
+        starts.update({f"given, first pair {camera_names[i]}/{camera_names[j]}":
+                       (list(intrinsics), (i, j)) for i, j in first_pair_starts(sub, budget)})
+    # Trials are independent: they run side by side (core.parallel), each BA on one core, so
+    # the outcome does not depend on how many ran at once.
+    trial_config = replace(config, num_threads=1)
+    outcomes = map_jobs(_trial, [(sub, start, camera_names, trial_config, seed, pair,
+                                  validation_tracks) for start, pair in starts.values()],
+                        config.num_threads)
+    costs, trials = {}, {}
+    for name, (trial, messages, cost) in zip(starts, outcomes):
+        if trial is None:
+            continue
+        trials[name] = (trial, messages)
+        if cost is None:
+            log.debug("focal start %s: implausible intrinsics %s", name,
+                      implausible_cameras(trial.state))
+            continue
+        costs[name] = (-len(trial.state.registered()), cost)
+        log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
+                  -costs[name][0], costs[name][1])
+    best = min(costs, key=costs.get) if costs else next(iter(starts))
+    if costs:
+        judged_on = (f"{validation_tracks.num_tracks} keypoint-match tracks"
+                     if validation_tracks is not None and validation_tracks.num_tracks
+                     else "its own tracks")
+        say(f"focal multi-start: {best} fits best (truncated reprojection cost on {judged_on} "
+            f"{costs[best][1]:.2f} px; " + ", ".join(f"{n}: {c[1]:.2f}" for n, c in costs.items())
+            + ")")
+    if best in trials:
+        result, messages = trials[best]
+        for msg in messages:
+            say(msg)
+        if sub is not tracks:
+            result = _on_all_tracks(tracks, result, *starts[best], camera_names, config, seed,
+                                    say)
+    else:
+        start, pair = starts[best]
+        result = incremental_sfm(tracks, start, camera_names, config, seed, say, pair)
+    drop_implausible_cameras(result.state, result.failed, camera_names, say)
+    return result
+
+
+def _trial(tracks: Tracks, start: list[CameraIntrinsics], camera_names: Sequence[str],
+           config: SfMConfig, seed: int, first_pair: Optional[tuple[int, int]],
+           validation_tracks: Optional[Tracks]
+           ) -> tuple[Optional[IncrementalResult], list[str], Optional[float]]:
+    """One multi-start trial (run_incremental): (its result, None where no pair could start it;
+    its progress messages; its truncated cost, None where its intrinsics are implausible)."""
+    messages: list[str] = []
+    try:
+        trial = incremental_sfm(tracks, start, camera_names, config, seed, messages.append,
+                             first_pair)
+    except NotEnoughOverlapError:
+        return None, messages, None
+    if implausible_cameras(trial.state):
+        return trial, messages, None
+    truncation = cost_truncation_px(config, tracks.num_cameras)
+    if validation_tracks is not None and validation_tracks.num_tracks:
+        return trial, messages, held_out_cost(trial.state, validation_tracks, truncation, seed)
+    return trial, messages, truncated_cost(trial.state, truncation)
+
+
+def first_pair_starts(tracks: Tracks, max_pairs: int = MAX_FIRST_PAIR_STARTS
+                      ) -> list[tuple[int, int]]:
+    """The camera pairs (i < j) sharing at least MIN_PAIR_CORRESPONDENCES tracks, the most
+    shared first, at most min(max_pairs, MAX_FIRST_PAIR_STARTS)."""
+    obs = tracks.observed().astype(np.int64)
+    shared = obs.T @ obs
+    pairs = [(i, j) for i, j in itertools.combinations(range(tracks.num_cameras), 2)
+             if shared[i, j] >= MIN_PAIR_CORRESPONDENCES]
+    return sorted(pairs, key=lambda p: -shared[p])[:min(max_pairs, MAX_FIRST_PAIR_STARTS)]
+
+
+def focal_starts(intrinsics: Sequence[CameraIntrinsics], fixed: Sequence[int] = ()
+                 ) -> dict[str, list[CameraIntrinsics]]:
+    """The multi-start's starting intrinsics by name: the initial focals scaled ("x1.30"), and for
+    perspective models the generic priors ("prior 0.85"). The cameras in `fixed` (given
+    intrinsics) keep theirs in every start; when that is every camera there is one start,
+    "given".
+
+    A prior is run even where it is within ~1.15x of a scaled start for every camera: it gives
+    every camera the same focal where the scaled start keeps eq. 2's ratios between cameras, and
+    the two can end in different rigs. Skipping such priors saved ~13 % of the SfM time but
+    turned one of five consensus runs of a 4-camera rig wrong (from x1.30 and x1.69, where priors
+    0.6 and 0.85 had been right), AUC@3 94.4 -> 88.9."""
+    # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate: the
+    # eq. 2 step and the generic priors move only the perspective cameras (a rig mixing lenses).
+    free = [c not in fixed for c in range(len(intrinsics))]
+    if not any(free):
+        return {"given": list(intrinsics)}
+    perspective = ["FISHEYE" not in cam.model and f for cam, f in zip(intrinsics, free)]
+    starts = {f"x{f:.2f}": _scaled_focals(intrinsics, f, free) for f in FOCAL_SCALE_STARTS}
+    if any(perspective):
+        starts.update({f"x{f:.2f}": _scaled_focals(intrinsics, f, perspective)
+                       for f in EQ2_EXTRA_FOCAL_SCALE_STARTS})
+        starts.update({f"prior {ratio:g}": _prior_focals(intrinsics, ratio, perspective)
+                       for ratio in PRIOR_FOCAL_IMAGE_RATIOS})
+    return starts
+
+
+def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraIntrinsics],
+                   first_pair: Optional[tuple[int, int]], camera_names: Sequence[str],
+                   config: SfMConfig, seed: int, say: Callable[[str], None]
+                   ) -> IncrementalResult:
+    """The winning subsample trial carried to all tracks: its cameras finished on every track.
+
+    Not a fresh incremental run from the trial's start: on 7000 tracks that run takes another,
+    chaotic path through registration and ended in a wrong reconstruction although its start won
+    on the subsample (10-cam s102, sampling seed 1: three starts fit the subsample at 0.18 px,
+    the re-run from the best fit all tracks at 10.5 px, AUC@3 0; finished from the trial: 0.17 px).
+    Only when the trial left a camera unregistered is a full run made as well (it may register
+    the camera from the extra tracks), and the better of the two kept."""
+    finished = finish_on(tracks, trial, camera_names, config, seed)
+    say(f"multi-start trial finished on all {tracks.num_tracks} tracks: "
+        f"{int(finished.state.point_mask().sum())} points")
+    if not finished.failed:
+        return finished
+    full = incremental_sfm(tracks, start, camera_names, config, seed, say, first_pair)
+    truncation = cost_truncation_px(config, tracks.num_cameras)
+
+    def rank(r: IncrementalResult) -> tuple[int, float]:
+        return -len(r.state.registered()), truncated_cost(r.state, truncation)
+    return finished if rank(finished) <= rank(full) else full
+
+
+def _focal_idxs(cam: CameraIntrinsics) -> list[int]:
+    """Indices of the focal length(s) in cam.params (COLMAP's order for cam.model)."""
+    return list(pycolmap.Camera(model=cam.model, width=cam.width, height=cam.height,
+                                params=np.asarray(cam.params, dtype=np.float64)
+                                ).focal_length_idxs())
+
+
+def _prior_focals(intrinsics: Sequence[CameraIntrinsics], ratio: float,
+                  which: Optional[Sequence[bool]] = None) -> list[CameraIntrinsics]:
+    """The cameras (those `which` marks; default all) with focal = ratio x max(width, height) px."""
+    out = []
+    for c, cam in enumerate(intrinsics):
+        params = np.array(cam.params, dtype=np.float64)
+        if which is None or which[c]:
+            params[_focal_idxs(cam)] = ratio * max(cam.width, cam.height)
+        out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
+    return out
+
+
+def _scaled_focals(intrinsics: Sequence[CameraIntrinsics], factor: float,
+                   which: Optional[Sequence[bool]] = None) -> list[CameraIntrinsics]:
+    """The cameras (those `which` marks; default all) with their focal lengths times factor."""
+    out = []
+    for c, cam in enumerate(intrinsics):
+        params = np.array(cam.params, dtype=np.float64)
+        if which is None or which[c]:
+            params[_focal_idxs(cam)] *= factor
+        out.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
+    return out
+
+
+def held_out_cost(state: SfMState, tracks: Tracks, truncation_px, seed: int = 0) -> float:
+    """truncated_cost of other tracks of the same cameras, triangulated from state's cameras;
+    truncated at most at HELD_OUT_TRUNCATION_PX."""
+    truncation_px = np.minimum(truncation_px, HELD_OUT_TRUNCATION_PX)
+    scratch = state.on_tracks(tracks)
+    triangulate_tracks(scratch, max_error_px=float(np.max(truncation_px)), seed=seed)
+    return truncated_cost(scratch, truncation_px)
+
+
+def cost_truncation_px(config: SfMConfig, num_cameras: int):
+    """Where the truncated cost stops counting an error: B_err, per camera (C,) where a rig mixing
+    lenses judges its pinhole cameras by the regular preset's (SfMConfig.outlier_thresholds_px);
+    TRUNCATION_FALLBACK_PX where B_err is off."""
+    thresholds = config.outlier_thresholds_px(num_cameras)
+    return thresholds if thresholds is not None else TRUNCATION_FALLBACK_PX
+
+
+def truncated_cost(state: SfMState, truncation_px) -> float:
+    """Mean over every observation, in registered cameras, of the tracks seen by >= 2 registered
+    cameras of min(reprojection error, truncation_px); observations without a point (removed
+    or not triangulated) count truncation_px. truncation_px: one value or one per camera (C,).
+    Comparable between runs that register the same cameras, since it is computed over the same
+    observations."""
+    truncation_px = np.broadcast_to(np.asarray(truncation_px, float),
+                                    (state.num_cameras,))[None, :]
+    reg = np.zeros(state.num_cameras, dtype=bool)
+    reg[state.registered()] = True
+    obs = state.tracks.observed() & reg[None, :]
+    obs &= (obs.sum(axis=1) >= 2)[:, None]
+    err = reprojection_errors(state)
+    err = np.where(np.isfinite(err), np.minimum(err, truncation_px), truncation_px)
+    return float(err[obs].mean()) if obs.any() else float("inf")
