@@ -6,8 +6,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from densecalib_ros.eval.bench import (RECAL_METHOD, perturbed_calibration, run_method,
-                                       summarize_error_sigma_ratios)
+from densecalib_ros.eval.bench import RECAL_METHOD, perturbed_calibration, run_method
+from densecalib_ros.eval.tables import summarize_error_sigma_ratios
 from densecalib_ros.eval.datasets import scene_from_synthetic
 from densecalib_ros.core.metrics import relative_pose_errors
 from densecalib_ros.core.synthetic import RigSpec, generate_rig

@@ -2,9 +2,9 @@
 tables say of the warnings a result carried."""
 import numpy as np
 
-from densecalib_ros.eval.bench import (format_scene_table, format_summary, forward_scenes,
-                                       full_scenes, heldout_scenes, mixed_scenes, quick_scenes,
-                                       summarize)
+from densecalib_ros.eval.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
+                                       quick_scenes)
+from densecalib_ros.eval.tables import format_scene_table, format_summary, summarize
 
 
 def test_heldout_scenes_share_no_scene_or_generator_seed_with_the_bench():

@@ -139,7 +139,7 @@ def _check_one_group(two_view: dict, camera_names: Sequence[str]) -> None:
     """DisconnectedViewGraphError when the cameras form two or more groups of at least two that
     share no two-view geometry: SfM would calibrate one group (which one, by chance) and call the
     others failed. A lone camera without geometry is left to fail on its own (named failed)."""
-    from .method.global_sfm import connected_components, disconnected_error
+    from .method.view_graph import connected_components, disconnected_error
 
     edges = [k for k, g in two_view.items() if g.F_ji is not None]
     groups = connected_components(len(camera_names), edges)

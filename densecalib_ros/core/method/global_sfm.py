@@ -52,6 +52,7 @@ from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bund
                              convert_camera_models, matrix_from_rigid, reprojection_errors,
                              triangulate_tracks)
 from .twoview import estimate_essential_from_rays
+from .view_graph import check_connected, pair_track_counts
 from .view_order import track_weights
 
 log = logging.getLogger(__name__)
@@ -75,49 +76,6 @@ class GlobalResult:
     failed: list[int]
     gauge_camera: int
     quality: dict = field(default_factory=dict)
-
-
-def pair_track_counts(tracks: Tracks) -> np.ndarray:
-    """int (C, C): number of tracks observed by both cameras (diagonal 0)."""
-    obs = tracks.observed().astype(np.int64)
-    counts = obs.T @ obs
-    np.fill_diagonal(counts, 0)
-    return counts
-
-
-def connected_components(num_cameras: int, edges: Sequence[tuple[int, int]]) -> list[list[int]]:
-    """Camera groups (each sorted, groups by their first camera) of an undirected graph."""
-    parent = list(range(num_cameras))
-
-    def root(c: int) -> int:
-        while parent[c] != c:
-            parent[c] = parent[parent[c]]
-            c = parent[c]
-        return c
-
-    for i, j in edges:
-        parent[root(i)] = root(j)
-    groups: dict[int, list[int]] = {}
-    for c in range(num_cameras):
-        groups.setdefault(root(c), []).append(c)
-    return sorted(groups.values(), key=lambda g: g[0])
-
-
-def check_connected(num_cameras: int, edges: Sequence[tuple[int, int]],
-                    camera_names: Sequence[str], what: str) -> None:
-    """Raise DisconnectedViewGraphError naming the camera groups when `edges` split the cameras."""
-    groups = connected_components(num_cameras, edges)
-    if len(groups) > 1:
-        raise disconnected_error(groups, camera_names, what)
-
-
-def disconnected_error(groups: Sequence[Sequence[int]], camera_names: Sequence[str],
-                       what: str) -> DisconnectedViewGraphError:
-    text = "; ".join("{" + ", ".join(camera_names[c] for c in g) + "}" for g in groups)
-    return DisconnectedViewGraphError(
-        f"The cameras split into {len(groups)} groups that share no {what}: {text}. A rig can "
-        "only be calibrated as one: make the groups' fields of view overlap (or add frame sets "
-        "where they see common, textured content), or calibrate each group on its own.")
 
 
 def gauge_scores(tracks: Tracks) -> np.ndarray:

@@ -1,0 +1,134 @@
+"""The bench's tables: one per scene, the summary over scenes, the check of the sigmas."""
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+
+def _fmt(value, spec: str, missing: str = "-") -> str:
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return missing
+    return format(value, spec)
+
+
+_HEADER = (f"{'method':<28}{'reg':>7}{'AUC@3':>8}{'AUC@30':>8}{'rot deg':>8}{'focal%':>8}"
+           f"{'pp px':>7}{'proj px':>9}{'time s':>8}{'xCOLMAP':>8}{'peak MiB':>10}  status")
+
+
+def colmap_time_ratio(entry: dict, record: dict) -> Optional[float]:
+    """A method's wall time over COLMAP's on the same scene; None where COLMAP did not run."""
+    colmap = next((r for r in entry["results"] if r["method"] == "colmap"), None)
+    if colmap is None or not colmap.get("runtime_s") or record.get("runtime_s") is None:
+        return None
+    return record["runtime_s"] / colmap["runtime_s"]
+
+
+def format_scene_table(entry: dict) -> str:
+    """One scene's results as a fixed-width table."""
+    lines = [f"== {entry['scene']} ({entry['lens']}, {entry['num_cameras']} cameras, "
+             f"{entry['image_size'][0]}x{entry['image_size'][1]})", _HEADER]
+    for r in entry["results"]:
+        m = r["metrics"]
+        focal = m["median_focal_err"] * 100 if np.isfinite(m["median_focal_err"]) else None
+        status = r["status"] if r["status"] == "ok" else f"{r['status']}: {r['message'][:60]}"
+        lines.append(f"{r['method']:<28}{m['num_registered']:>3}/{m['num_cameras']:<3}"
+                     f"{m['auc3']:>8.1f}{m['auc30']:>8.1f}"
+                     f"{_fmt(m.get('median_rot_err_deg'), '8.3f'):>8}{_fmt(focal, '8.2f'):>8}"
+                     f"{_fmt(m.get('median_pp_err_px'), '7.1f'):>7}"
+                     f"{_fmt(m['median_proj_err_px'], '9.2f'):>9}{_fmt(r['runtime_s'], '8.1f'):>8}"
+                     f"{_fmt(colmap_time_ratio(entry, r), '8.2f'):>8}"
+                     f"{_fmt(r['peak_rss_mib'], '10.0f'):>10}  {status}")
+    for r in entry["results"]:
+        for warning in r.get("warnings", []):
+            lines.append(f"  {r['method']} warned: {_shorten(warning, 100)}")
+    return "\n".join(lines)
+
+
+def _shorten(text: str, width: int) -> str:
+    """The first `width` characters of a one-line text, '...' where cut."""
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def summarize(scenes: list[dict]) -> list[dict]:
+    """Per (lens, method): scenes, registered/total cameras, mean AUC@3/@30 (failures count as 0),
+    median AUC@3 over scenes,
+    median of the per-scene median focal error and projection error (over scenes where the method
+    registered cameras), median runtime and median ratio to COLMAP's runtime on the same scene,
+    the number of scenes that did not run ok and of those whose result carried a warning."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    ratios: dict[tuple[str, str], list[float]] = {}
+    for entry in scenes:
+        for r in entry["results"]:
+            groups.setdefault((entry["lens"], r["method"]), []).append(r)
+            ratio = colmap_time_ratio(entry, r)
+            if ratio is not None:
+                ratios.setdefault((entry["lens"], r["method"]), []).append(ratio)
+    out = []
+    for (lens, method), records in groups.items():
+        ms = [r["metrics"] for r in records]
+        focal = [m["median_focal_err"] for m in ms if np.isfinite(m["median_focal_err"])]
+        proj = [m["median_proj_err_px"] for m in ms if np.isfinite(m["median_proj_err_px"])]
+        # A scene's median pair rotation error (inf where a camera failed: its pairs count).
+        rot = [m.get("median_rot_err_deg", float("nan")) for m in ms]
+        times = [r["runtime_s"] for r in records if r["status"] == "ok"]
+        out.append(dict(
+            lens=lens, method=method, num_scenes=len(records),
+            registered=sum(m["num_registered"] for m in ms), cameras=sum(m["num_cameras"] for m in ms),
+            mean_auc3=float(np.mean([m["auc3"] for m in ms])),
+            mean_auc30=float(np.mean([m["auc30"] for m in ms])),
+            median_auc3=float(np.median([m["auc3"] for m in ms])),
+            median_rot_err_deg=float(np.median(rot)) if rot else float("nan"),
+            median_focal_err=float(np.median(focal)) if focal else float("nan"),
+            median_proj_err_px=float(np.median(proj)) if proj else float("nan"),
+            median_runtime_s=float(np.median(times)) if times else float("nan"),
+            median_colmap_time_ratio=(float(np.median(ratios[lens, method]))
+                                      if ratios.get((lens, method)) else float("nan")),
+            not_ok=sum(r["status"] != "ok" for r in records),
+            warned=sum(bool(r.get("warnings")) for r in records)))
+    return out
+
+
+def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
+    """Per our method: quantiles over all cameras of actual error / estimated sigma, focal and
+    projection (core.method.uncertainty.error_sigma_ratios); a sigma that is only a lower bound
+    shows as ratios well above 1."""
+    pooled: dict[str, dict[str, list]] = {}
+    for entry in scenes:
+        for r in entry["results"]:
+            for kind, ratios in r.get("error_sigma_ratios", {}).items():
+                pooled.setdefault(r["method"], {}).setdefault(kind, []).extend(ratios)
+    return {method: {kind: dict(n=len(v), median=float(np.median(v)),
+                                p90=float(np.percentile(v, 90)), max=float(np.max(v)))
+                     for kind, v in kinds.items() if v}
+            for method, kinds in pooled.items()}
+
+
+def format_error_sigma_ratios(check: dict) -> str:
+    lines = ["== uncertainty check: actual error / its estimated sigma over cameras (focal length; "
+             "projection: mean projection-map error / projection_std_px)"]
+    for method, kinds in check.items():
+        parts = [f"{kind} median {q['median']:.2f}, 90% {q['p90']:.2f}, max {q['max']:.2f} "
+                 f"(n={q['n']})" for kind, q in kinds.items()]
+        lines.append(f"{method:<28}" + ("; ".join(parts) or "no estimated intrinsics"))
+    return "\n".join(lines)
+
+
+def format_summary(summary: list[dict]) -> str:
+    lines = ["== summary (mean AUC over scenes, failures = 0; med@3 = median AUC@3 over scenes; "
+             "rot deg, focal, proj: medians of per-scene medians; rot deg: pair rotation error; "
+             "xCOLMAP: median over scenes of wall time / COLMAP's on the same images)",
+             f"{'lens':<9}{'method':<28}{'scenes':>7}{'reg':>10}{'AUC@3':>8}{'med@3':>7}{'AUC@30':>8}"
+             f"{'rot deg':>8}{'focal%':>8}{'proj px':>9}{'time s':>8}{'xCOLMAP':>8}{'not ok':>8}"
+             f"{'warned':>8}"]
+    for s in summary:
+        focal = s["median_focal_err"] * 100 if np.isfinite(s["median_focal_err"]) else None
+        lines.append(f"{s['lens']:<9}{s['method']:<28}{s['num_scenes']:>7}"
+                     f"{s['registered']:>5}/{s['cameras']:<4}{s['mean_auc3']:>8.1f}"
+                     f"{s['median_auc3']:>7.1f}{s['mean_auc30']:>8.1f}"
+                     f"{_fmt(s.get('median_rot_err_deg'), '8.3f'):>8}{_fmt(focal, '8.2f'):>8}"
+                     f"{_fmt(s['median_proj_err_px'], '9.2f'):>9}"
+                     f"{_fmt(s['median_runtime_s'], '8.1f'):>8}"
+                     f"{_fmt(s.get('median_colmap_time_ratio'), '8.2f'):>8}{s['not_ok']:>8}"
+                     f"{s.get('warned', 0):>8}")
+    return "\n".join(lines)
