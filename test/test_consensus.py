@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.robust.consensus import (UNREGISTERED_PAIR_DEG, WARN_DISAGREEMENT_DEG,
-                                                  disagreement_warning, medoid,
-                                                  pair_disagreement_deg, rig_disagreement_deg)
+                                                  disagreement_warning, least_determined_pairs,
+                                                  medoid, pair_disagreement_deg,
+                                                  rig_disagreement_deg)
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 NAMES = ["a", "b", "c"]
@@ -57,6 +58,27 @@ def test_users_are_warned_when_runs_disagree_beyond_auc3_threshold():
     assert "frame sets" in message and "share-intrinsics" in message
     assert "asift" not in message  # only where the rig is few perspective cameras
     assert "--matcher asift" in disagreement_warning(12.5, 5, few_wide_cameras=True)
+
+
+def test_the_warning_names_the_pairs_the_runs_disagree_about_and_the_camera_in_each():
+    """Camera c is placed 2 deg off by one run and 25-30 deg off by two: the pairs (a, c) and
+    (b, c) are named, with their shared matches, and c as the camera the images do not place;
+    (a, b), on which the runs agree, is not named."""
+    kept, others = _rig(), [_rig(2.0), _rig(25.0), _rig(-30.0)]
+    pairs = least_determined_pairs(kept, others, NAMES)
+    assert [(a, b) for a, b, _ in pairs] == [("a", "c"), ("b", "c")]
+    assert pairs[0][2] == pytest.approx(25.0)
+    assert least_determined_pairs(kept, [_rig(2.0)], NAMES) == []
+    message = disagreement_warning(8.0, 4, pairs=pairs, shared_matches={("a", "c"): 41},
+                                   num_cameras=3)
+    assert "a/c (25 deg; 41 shared matches), b/c (25 deg)" in message
+    assert "c is in each" in message and "--intrinsics c=FILE" in message
+    # Every pair undetermined: the whole rig is, and no camera is blamed.
+    whole = disagreement_warning(60.0, 3, pairs=[("a", "b", 50.0), ("a", "c", 70.0),
+                                                 ("b", "c", 60.0)], num_cameras=3)
+    assert "every pair of the cameras calibrated" in whole and "is in each" not in whole
+    # A camera the kept run did not register is failed, not undetermined: its pairs are not named.
+    assert least_determined_pairs(_rig(names=["a", "b"]), others, NAMES) == []
 
 
 def test_runs_that_fit_the_common_tracks_clearly_worse_are_not_kept_even_as_majority():

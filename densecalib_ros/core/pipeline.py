@@ -263,7 +263,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            ) -> CalibrationResult:
     from .method.multistart import cost_truncation_px
     from .robust.consensus import (AGREEMENT_DEG, EARLY_STOP_RUNS, choose_run,
-                                   disagreement_warning, medoid, rig_disagreement_deg)
+                                   disagreement_warning, least_determined_pairs, medoid,
+                                   rig_disagreement_deg)
     from .robust.focal_hops import hop_focals
 
     results, seeds, failed, first_error, run_s = [], [], 0, None, None
@@ -322,11 +323,27 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg")
     few_wide = (config.matcher == "sift" and len(camera_names) <= 4
                 and not any("FISHEYE" in m for m in config.sfm.models(len(camera_names))))
+    pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
+                                                if k != best], camera_names)
+    if pairs:
+        result.rig.quality["consensus_least_determined_pairs_deg"] = {
+            f"{a}/{b}": round(deg, 1) for a, b, deg in pairs}
     warning = disagreement_warning(result.rig.quality["consensus_disagreement_deg"], len(results),
-                                   few_wide)
+                                   few_wide, pairs, _shared_matches(match_tracks, camera_names),
+                                   len(result.rig.cameras))
     if warning:
         warn_user(result.rig, warning, progress)
     return result
+
+
+def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> dict:
+    """{(a, b): keypoint-match tracks seen by both cameras}; {} without tracks."""
+    if tracks is None or not tracks.num_tracks:
+        return {}
+    seen = tracks.observed().astype(np.int64)
+    shared = seen.T @ seen
+    return {(a, b): int(shared[i, j]) for i, a in enumerate(camera_names)
+            for j, b in enumerate(camera_names) if i < j}
 
 
 def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],

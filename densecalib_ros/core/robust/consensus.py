@@ -55,6 +55,7 @@ AGREEMENT_DEG = 1.0
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
 # other runs put the cameras where the kept one would count as wrong.
 WARN_DISAGREEMENT_DEG = 3.0
+MAX_PAIRS_SAID = 3  # a warning names this many pairs at most: the rest is in the quality record
 # A run whose truncated reprojection cost on the common tracks exceeds the best run's by this factor
 # is not kept. Measured on the bench's weak rigs (seeds 0-4, both pipelines): runs that are right or
 # near-ambiguous alternatives (converging cameras, free focals) cost at most 1.16x the best; wrong
@@ -172,18 +173,64 @@ def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
     return Choice(best, D, costs, [k for k in range(len(rigs)) if k not in fitting], by_fit)
 
 
+def least_determined_pairs(kept: RigCalibration, others: Sequence[RigCalibration],
+                           camera_names: Sequence[str]) -> list[tuple[str, str, float]]:
+    """(camera, camera, deg) for the camera pairs whose relative pose the other runs put more than
+    WARN_DISAGREEMENT_DEG from the kept run's (pair_disagreement_deg, the median over the other
+    runs), the least determined first. Only pairs of cameras the kept run registered: the others
+    are failed cameras, reported as such."""
+    if not others:
+        return []
+    pairs = []
+    for a, b in combinations([n for n in camera_names if n in kept.cameras], 2):
+        deg = float(np.median([pair_disagreement_deg(kept, o, a, b) for o in others]))
+        if deg > WARN_DISAGREEMENT_DEG:
+            pairs.append((a, b, deg))
+    return sorted(pairs, key=lambda p: -p[2])
+
+
 def disagreement_warning(disagreement_deg: float, num_runs: int,
-                         few_wide_cameras: bool = False) -> Optional[str]:
+                         few_wide_cameras: bool = False,
+                         pairs: Sequence[tuple[str, str, float]] = (),
+                         shared_matches: Optional[dict] = None,
+                         num_cameras: int = 0) -> Optional[str]:
     """The message for a user whose runs disagree by more than WARN_DISAGREEMENT_DEG, else None.
     few_wide_cameras: three or four perspective cameras matched with sift, whose matches a wide
-    viewpoint change thins out (docs/benchmarks.md): the message suggests asift."""
+    viewpoint change thins out (docs/benchmarks.md): the message suggests asift. pairs: the
+    least determined camera pairs (least_determined_pairs), named with their shared keypoint
+    matches (shared_matches: {(a, b): count}) and, where one camera is in each of them, that
+    camera: it is the one the images do not place. num_cameras: how many the kept run calibrated
+    (every pair of them named: the whole rig is undetermined)."""
     if disagreement_deg <= WARN_DISAGREEMENT_DEG:
         return None
     asift = (" With three or four cameras far apart, --matcher asift (node: matcher asift) finds "
              "the matches a wide viewpoint change leaves sift." if few_wide_cameras else "")
     return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
             "(median over camera pairs) from the others, so the images allow quite different rigs "
-            "and this one may be wrong. Add frame sets (time-aligned images of a changing scene) or "
+            "and this one may be wrong." + _pairs_said(pairs, shared_matches or {}, num_cameras)
+            + " Add frame sets (time-aligned images of a changing scene) or "
             "more overlap between cameras, or use --share-intrinsics (node: share_intrinsics; "
             "SfMConfig.share_intrinsics) if "
             "the cameras are identical units." + asift)
+
+
+def _pairs_said(pairs: Sequence[tuple[str, str, float]], shared: dict, num_cameras: int) -> str:
+    if not pairs:
+        return ""
+    if num_cameras >= 3 and len(pairs) == num_cameras * (num_cameras - 1) // 2:
+        return " The runs disagree about every pair of the cameras calibrated: the rig is not " \
+               "determined."
+
+    def said(a: str, b: str, deg: float) -> str:
+        count = shared.get((a, b), shared.get((b, a)))
+        return f"{a}/{b} ({deg:.0f} deg" + (f"; {count} shared matches)" if count is not None
+                                            else ")")
+    text = " Least determined: " + ", ".join(said(*p) for p in pairs[:MAX_PAIRS_SAID]) + "."
+    common = set(pairs[0][:2]).intersection(*(set(p[:2]) for p in pairs))
+    if len(common) == 1:
+        camera = common.pop()
+        text += (f" {camera} is in each: a frame set in which {camera} and the others see the "
+                 f"same textured things, or {camera}'s intrinsics from a lab calibration "
+                 f"(--intrinsics {camera}=FILE; a focal length alone, --focal-px, is only a "
+                 "start), would place it.")
+    return text
