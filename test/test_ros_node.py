@@ -670,12 +670,12 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
         p_right = published("cam1", "p")
         assert -p_right[3] / p_right[0] == pytest.approx(np.linalg.norm([0.1, 0.002, 0.001]))
         np.testing.assert_allclose(published("cam2", "r"), np.eye(3).ravel())
-        assert node.stereo_problem is None
+        assert node.publisher.stereo_problem is None
         # the pair named right-to-left: not rectifiable for stereo_image_proc, so R = I again
         assert node.set_parameters([Parameter("stereo_pairs",
                                               value=["cam1", "cam0"])])[0].successful
         assert wait_until(lambda: np.allclose(published("cam0", "r"), np.eye(3).ravel()), 10.0)
-        assert "--pair cam0 cam1" in node.stereo_problem
+        assert "--pair cam0 cam1" in node.publisher.stereo_problem
         assert node.set_parameters([Parameter("stereo_pairs",
                                               value=["cam2", "cam3"])])[0].successful
         assert wait_until(lambda: not np.allclose(published("cam3", "r"), np.eye(3).ravel()),
@@ -689,10 +689,10 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
         rear = rectify_pair(rig, "cam2", "cam3")
         np.testing.assert_allclose(published("cam3", "p"), rear.projection_right.ravel())
         np.testing.assert_allclose(published("cam1", "p"), want.projection_right.ravel())
-        assert node.stereo_problem is None
+        assert node.publisher.stereo_problem is None
         rig.metric_scale = False  # a pair without a known baseline is rectified, with a caveat
-        infos = node._camera_infos(rig, 0)
-        assert infos["cam3"].p[3] < 0 and "arbitrary units" in node.stereo_problem
+        infos = node.publisher.camera_infos(rig, 0)
+        assert infos["cam3"].p[3] < 0 and "arbitrary units" in node.publisher.stereo_problem
         # the files a calibration writes say what is published: the pairs' YAML their R and P
         import yaml
         written = node._write_files(rig)

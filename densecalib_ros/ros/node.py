@@ -57,9 +57,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
 
-import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.exceptions import (InvalidHandle, InvalidParameterTypeException,
@@ -68,12 +67,9 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
-from sensor_msgs.srv import SetCameraInfo
+from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
-from tf2_msgs.msg import TFMessage
 
 from ..core.colmap_logging import show_colmap_log
 from ..core.errors import CalibrationError, InputError
@@ -85,21 +81,16 @@ from ..core.io.safe_write import write_text_atomic
 from ..core.io.sync import FrameSet, evenly_spaced
 from ..core.method.known_intrinsics import with_previous_intrinsics
 from ..core.products.report import info_strips_line
-from ..core.products.stereo import stereo_pair
 from ..core.types import RigCalibration
-from .conversions import camera_info_msg, frame_from_rig, point_cloud_msg, rig_tf_message
 from .core_logs import forward_core_logs, stop_forwarding
-from .frame_loss import LOSS_HINT, WARN_LOSS_FRACTION
+from .frame_loss import LOSS_HINT
+from .diagnostics import rig_diagnostic_status
 from .intake import ImageIntake
+from .publishing import CalibrationPublisher, floor_parent
 from .replay import BagReplayer
 from .settings import PARAMETERS, Settings, is_list_parameter, parse_settings, pipeline_config
 from .sync import MessageSynchronizer, malformed_note
 from .transport import configure_intake_transport
-
-LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
 
 @dataclass
 class Outcome:
@@ -148,11 +139,6 @@ def _ends_with_the_node(callback: Callable[[], None]) -> Callable[[], None]:
     return run
 
 
-def _floor_parent(s: Settings) -> Optional[str]:
-    """The frame published above rig_frame, or None with floor off."""
-    return s.floor_frame if s.floor else None
-
-
 class DenseCalibNode(Node):
     """The calibration node (module docstring: interface and threading)."""
 
@@ -168,13 +154,7 @@ class DenseCalibNode(Node):
         self._writing = threading.Event()
         self._write_lock = threading.Lock()
         self._callers_waiting, self._num_callers_waiting = threading.Condition(), 0
-        for name, (default, description, read_only, ranges) in PARAMETERS.items():
-            if is_list_parameter(name):  # any array type, checked by parse_settings; [] if unset
-                self.declare_parameter(name, [], ParameterDescriptor(
-                    description=description, read_only=read_only, dynamic_typing=True))
-                continue
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=description, read_only=read_only, **ranges))
+        self._declare_parameters()
         try:
             self.settings = parse_settings(self._parameter_values())
             _check_output_dir(self.settings.output_dir)
@@ -191,7 +171,6 @@ class DenseCalibNode(Node):
         self.calibration_dir: Optional[Path] = None
         self._calibrated_at: Optional[float] = None  # time.time() of the published calibration
         self._last_failure: Optional[str] = None
-        self.stereo_problem: Optional[str] = None  # why stereo_pairs' CameraInfo lack R, P
         self._status = "idle"
         self._last_check: Optional[_CheckOutcome] = None
         # the newest frame set a watch check has seen (by identity: stamps may jump back when
@@ -207,28 +186,15 @@ class DenseCalibNode(Node):
         self._intake = ImageIntake(self)
         self._timer_group = MutuallyExclusiveCallbackGroup()
         self._service_group = ReentrantCallbackGroup()
-        self._client_group = ReentrantCallbackGroup()
         self._image_subs: list = [None] * len(s.image_topics)
 
         self._status_pub = self.create_publisher(String, "~/status", 20)
-        self._info_pubs = [self.create_publisher(CameraInfo, topic, LATCHED_QOS)
-                           for topic in s.camera_info_topics]
-        self._tf_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED_QOS)
-        self._points_pub = self.create_publisher(PointCloud2, "~/points", LATCHED_QOS)
+        self.publisher = CalibrationPublisher(self)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._set_info_clients = [
-            self.create_client(SetCameraInfo, srv, callback_group=self._client_group)
-            for srv in s.set_camera_info_services]
-        self.create_service(Trigger, "~/calibrate", self._on_calibrate,
-                            callback_group=self._service_group)
-        self.create_service(Trigger, "~/check", self._on_check,
-                            callback_group=self._service_group)
-        self.create_service(Trigger, "~/sync", self._on_sync,
-                            callback_group=self._service_group)
-        self.create_service(Trigger, "~/reload", self._on_reload,
-                            callback_group=self._service_group)
-        self.create_service(Trigger, "~/clear", self._on_clear,
-                            callback_group=self._service_group)
+        for name, callback in (("~/calibrate", self._on_calibrate), ("~/check", self._on_check),
+                               ("~/sync", self._on_sync), ("~/reload", self._on_reload),
+                               ("~/clear", self._on_clear)):
+            self.create_service(Trigger, name, callback, callback_group=self._service_group)
 
         self._subscribe_known_topics()
         if None in self._image_subs:
@@ -255,6 +221,16 @@ class DenseCalibNode(Node):
             f"{self.resolve_service_name('~/calibrate')} to calibrate")
 
     # ----------------------------------------------------------------- parameters
+    def _declare_parameters(self) -> None:
+        """Every parameter of ros.settings.PARAMETERS, with its description and range."""
+        for name, (default, description, read_only, ranges) in PARAMETERS.items():
+            if is_list_parameter(name):  # any array type, checked by parse_settings; [] if unset
+                self.declare_parameter(name, [], ParameterDescriptor(
+                    description=description, read_only=read_only, dynamic_typing=True))
+                continue
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=description, read_only=read_only, **ranges))
+
     def _parameter_values(self, changes: Optional[list[Parameter]] = None) -> dict[str, Any]:
         values = {}
         for name in PARAMETERS:
@@ -282,11 +258,11 @@ class DenseCalibNode(Node):
         if self.calibration is not None:
             t_ns = self.get_clock().now().nanoseconds
             if new.stereo_pairs != old.stereo_pairs:
-                self._publish_camera_infos(self.calibration, t_ns)
-            if _floor_parent(new) != _floor_parent(old):
+                self.publisher.publish_camera_infos(self.calibration, t_ns)
+            if floor_parent(new) != floor_parent(old):
                 if new.floor and not self.calibration.quality.get("floor"):
                     self._find_floor_of_current_calibration(new.floor)
-                self._publish_tf(self.calibration, t_ns)
+                self.publisher.publish_tf(self.calibration, t_ns)
         return SetParametersResult(successful=True)
 
     def _find_floor_of_current_calibration(self, view: str) -> None:
@@ -635,30 +611,10 @@ class DenseCalibNode(Node):
         finally:
             self._writing.clear()
         removed = prune_calibrations(s.output_dir, s.keep_calibrations, [out])
-        rms = rig.quality.get("reprojection_rms_px", float("nan"))
-        failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
-        scale = (f", metric scale from {'-'.join(s.baseline_cameras)} = {s.known_baseline_m} m"
-                 if rig.metric_scale else "")
-        message = (f"calibrated {len(rig.cameras)}/{len(s.camera_names)} cameras "
-                   f"({', '.join(rig.cameras)}{failed}) from {len(sets)} frame sets, reprojection "
-                   f"RMS {rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
-        if "change_summary" in rig.quality:
-            message += f"; {rig.quality['change_summary']} (started {rig.quality['init']})"
-        if rig.quality.get("frame_sets_before_change"):
-            message += (f"; the {rig.quality['frame_sets_before_change']} older frame sets "
-                        "still fitted the previous calibration and were left out: the rig "
-                        "changed after them")
-        if rig.quality.get("info_strips"):  # found in the images (detect_info_strips)
-            message += f"; {info_strips_line(rig.quality)}"
-        for warning in rig.quality.get("warnings", []):
-            message += f"; warning: {warning}"
-        if self.stereo_problem:
-            message += f"; warning: {self.stereo_problem}"
-        if s.call_set_camera_info:
-            message += "; set_camera_info: " + self._call_set_camera_info(rig)
-        if removed:
-            message += (f"; removed the {len(removed)} oldest calibration(s) "
-                        f"(keep_calibrations {s.keep_calibrations})")
+        set_info = (self.publisher.call_set_camera_info(rig) if s.call_set_camera_info
+                    else None)
+        message = _calibrated_message(s, rig, len(sets), elapsed, out, removed,
+                                      self.publisher.stereo_problem, set_info)
         return Outcome(True, message)
 
     def _matcher_for(self, s: Settings):
@@ -679,7 +635,7 @@ class DenseCalibNode(Node):
         """Write output_dir/<UTC time>/ atomically, then swap the `latest` symlink onto it. The
         stereo_pairs' camera YAML files carry their pair's rectification, as the CameraInfo
         the node publishes and sends to set_camera_info do."""
-        rectified, _ = self._rectifications(rig)
+        rectified, _ = self.publisher.rectifications(rig)
 
         def write(folder: Path) -> None:
             write_calibration_files(rig, folder, reconstruction, reference_views=reference_views)
@@ -719,7 +675,7 @@ class DenseCalibNode(Node):
         rms = rig.quality.get("reprojection_rms_px", float("nan"))
         extras = [x for x, on in (("metric", rig.metric_scale),
                                   ("with its floor", bool(rig.quality.get("floor")) and
-                                   _floor_parent(self.settings) is not None)) if on]
+                                   floor_parent(self.settings) is not None)) if on]
         return True, (f"published {latest.resolve()}: {len(rig.cameras)} cameras "
                       f"({', '.join(rig.cameras)}), reprojection RMS {rms:.2f} px"
                       + (f", {' and '.join(extras)}" if extras else ""))
@@ -767,115 +723,10 @@ class DenseCalibNode(Node):
                  calibrated_at: Optional[float] = None) -> None:
         """Publish CameraInfo per calibrated camera and all extrinsics in one /tf_static message;
         calibrated_at: when the calibration was made (time.time(); default now), for its age."""
-        t_ns = self.get_clock().now().nanoseconds
-        self._publish_camera_infos(rig, t_ns)
-        self._publish_tf(rig, t_ns)
-        self._publish_points(rig, directory, t_ns)
+        self.publisher.publish(rig, directory)
         self.calibration, self.calibration_dir = rig, directory
         self._calibrated_at = time.time() if calibrated_at is None else calibrated_at
         self._publish_diagnostics()
-
-    def _publish_tf(self, rig: RigCalibration, t_ns: int) -> None:
-        """Replace the latched /tf_static message: the cameras, and floor_frame -> rig_frame
-        when floor is on and the calibration found its floor. Turning floor off republishes
-        without it, so late joiners never see it (tf2 listeners that already hold it keep it:
-        tf2 never forgets a static transform)."""
-        s = self.settings
-        frames = dict(zip(s.camera_names, s.frame_names))
-        self._tf_pub.publish(rig_tf_message(rig, s.rig_frame, frames, t_ns, _floor_parent(s),
-                                            s.rig_frame_axes))
-
-    def _publish_points(self, rig: RigCalibration, directory: Path, t_ns: int) -> None:
-        """Replace the latched ~/points cloud with the scene points of the calibration's saved
-        COLMAP model, in rig_frame and the rig's units, in their image colours (RViz shows the
-        scene beside the camera frames); an empty cloud when it saved none."""
-        from ..core.products.floor import saved_scene_points
-
-        points, colours = np.zeros((0, 3)), None
-        try:
-            points, colours = saved_scene_points(directory, rig) or (points, colours)
-        except Exception as exc:  # an unreadable model costs the view, never the calibration
-            self.get_logger().warning(f"no scene points published: {exc}")
-        to_frame = frame_from_rig(self.settings.rig_frame_axes)[:3, :3]
-        self._points_pub.publish(point_cloud_msg(points @ to_frame.T, colours,
-                                                 self.settings.rig_frame, t_ns))
-
-    def _publish_camera_infos(self, rig: RigCalibration, t_ns: int) -> None:
-        infos = self._camera_infos(rig, t_ns)
-        for name, pub in zip(self.settings.camera_names, self._info_pubs):
-            if name in infos:
-                pub.publish(infos[name])
-
-    def _camera_infos(self, rig: RigCalibration, t_ns: int) -> dict:
-        """CameraInfo per calibrated camera, the stereo_pairs' with their rectification. A pair
-        that cannot be rectified (see core.products.stereo) keeps R = I, and self.stereo_problem
-        says why."""
-        frames = dict(zip(self.settings.camera_names, self.settings.frame_names))
-        rectified, problems = self._rectifications(rig, warn=True)
-        self.stereo_problem = "; ".join(problems) or None
-        return {name: camera_info_msg(name, cam.intrinsics, frames[name], t_ns,
-                                      *rectified.get(name, (None, None)))
-                for name, cam in rig.cameras.items() if name in frames}
-
-    def _rectifications(self, rig: RigCalibration, warn: bool = False
-                        ) -> tuple[dict, list[str]]:
-        """{camera: (rect_from_cam, projection)} of the stereo_pairs that rectify, and what is
-        wrong with the others (a pair that cannot be rectified also at WARN with `warn`)."""
-        rectified, problems = {}, []
-        for left, right in self.settings.stereo_pairs:
-            if left not in rig.cameras or right not in rig.cameras:
-                problems.append(f"stereo pair {left}-{right} not rectified: not both calibrated")
-                continue
-            try:
-                pair = stereo_pair(rig, (left, right))
-            except InputError as exc:
-                problems.append(f"stereo pair {left}-{right} not rectified: {exc}")
-                if warn:
-                    self.get_logger().warning(problems[-1])
-                continue
-            rectified[left] = (pair.rect_from_left, pair.projection_left)
-            rectified[right] = (pair.rect_from_right, pair.projection_right)
-            if not pair.metric:
-                problems.append(f"stereo pair {left}-{right} rectified, but without metric "
-                                "scale: its baseline and stereo depths are in arbitrary units "
-                                "(set known_baseline_m and baseline_cameras)")
-        return rectified, problems
-
-    def _call_set_camera_info(self, rig: RigCalibration) -> str:
-        """Call every calibrated camera's set_camera_info concurrently, waiting at most
-        set_camera_info_timeout_s in all; returns the per-camera outcome ("cam0 ok, cam1 timeout,
-        ...")."""
-        s = self.settings
-        infos = self._camera_infos(rig, self.get_clock().now().nanoseconds)
-        calls = []  # (camera, client, future or None when the service is not there)
-        for name, client in zip(s.camera_names, self._set_info_clients):
-            if name not in infos:
-                continue
-            future = None
-            if client.service_is_ready():
-                request = SetCameraInfo.Request()
-                request.camera_info = infos[name]
-                future = client.call_async(request)
-            calls.append((name, client, future))
-        deadline = time.monotonic() + s.set_camera_info_timeout_s
-        outcomes = []
-        for name, client, future in calls:
-            if future is None:
-                outcome = f"{name} no service {client.srv_name}"
-            else:
-                while not future.done() and time.monotonic() < deadline:
-                    time.sleep(0.01)
-                if not future.done():
-                    client.remove_pending_request(future)
-                    outcome = f"{name} timeout"
-                elif future.result() is None or not future.result().success:
-                    reason = future.result().status_message if future.result() else "no answer"
-                    outcome = f"{name} refused ({reason})"
-                else:
-                    outcome = f"{name} ok"
-            self.get_logger().info(f"set_camera_info: {outcome}")
-            outcomes.append(outcome)
-        return ", ".join(outcomes) or "no calibrated camera"
 
     # ----------------------------------------------------------------- status
     def _set_status(self, text: str, level: Optional[str] = "info") -> None:
@@ -900,88 +751,18 @@ class DenseCalibNode(Node):
             return self._job is not None
 
     def _publish_diagnostics(self) -> None:
-        stats = self.sync.stats()
-        status = DiagnosticStatus(name=f"{self.get_name()}: rig calibration",
-                                  hardware_id=self.settings.rig_frame)
-        if self.calibration is None:
-            status.level, status.message = DiagnosticStatus.WARN, "not calibrated"
-        elif self._last_failure:
-            status.level = DiagnosticStatus.WARN
-            status.message = "last calibration failed; previous one still published"
-        else:
-            status.level, status.message = DiagnosticStatus.OK, "calibrated"
-        if self._last_failure and self.calibration is None:
-            status.level = DiagnosticStatus.ERROR
         with self._state_lock:
             job = self._job
         state = ("idle" if job is None else
                  {CHECK_JOB: "checking", RELOAD_JOB: "reloading"}.get(job.reason, "calibrating"))
-        values = {"state": state,
-                  "status": self._status,
-                  "buffered_frame_sets": str(stats["buffered"]),
-                  "received_per_camera": ", ".join(
-                      f"{n}={k}" for n, k in zip(self.settings.camera_names, stats["received"])),
-                  "matched_frame_sets": str(stats["matched"]),
-                  "dropped_oldest_frame_sets": str(stats["dropped_oldest"])}
-        if any(self.settings.stamp_offsets_s):
-            values["stamp_offsets_s"] = ", ".join(
-                f"{n}={o:+.4f}" for n, o in zip(self.settings.camera_names,
-                                                self.settings.stamp_offsets_s))
-        if self.calibration is not None:
-            rms = self.calibration.quality.get("reprojection_rms_px", float("nan"))
-            values.update(
-                reprojection_rms_px=f"{rms:.3f}",
-                cameras=", ".join(self.calibration.cameras),
-                age_s=f"{time.time() - self._calibrated_at:.1f}",
-                files=str(self.calibration_dir))
-            for key, fmt in (("focal_std_px", ".1f"), ("projection_std_px", ".2f")):
-                per_camera = [f"{n}={getattr(c.quality, key):{fmt}}"
-                              for n, c in self.calibration.cameras.items()
-                              if c.quality is not None and getattr(c.quality, key) is not None]
-                if per_camera:
-                    values[key] = ", ".join(per_camera)
-            if self.calibration.failed_cameras:
-                values["failed_cameras"] = ", ".join(self.calibration.failed_cameras)
-            warnings = self.calibration.quality.get("warnings", [])
-            if warnings:  # e.g. the consensus runs disagree: the rig may be wrong
-                values["warnings"] = " | ".join(warnings)
-                if status.level == DiagnosticStatus.OK:
-                    status.level = DiagnosticStatus.WARN
-                    status.message = "calibrated, with warnings"
-        check = self._last_check  # shown while the calibration it judged is the current one
-        if (check is not None and self.calibration_dir is not None
-                and check.calibration_dir == self.calibration_dir):
-            values.update(last_check=check.message,
-                          last_check_age_s=f"{time.time() - check.at:.1f}")
-            if check.fits is False:  # before any other warning: the rig is not as published
-                status.level = DiagnosticStatus.WARN
-                status.message = ("the calibration no longer fits the latest images: a camera "
-                                  "moved or changed (last check)" +
-                                  ("; the last calibration failed" if self._last_failure else ""))
-        if self._last_failure:
-            values["last_failure"] = self._last_failure
-        values["lost_frames_per_camera"] = ", ".join(
-            f"{n}={k} ({100 * r:.0f} % lately, "
-            + (f"{1 / p:.1f} fps)" if p else "rate not steady)")
-            for n, k, r, p in zip(self.settings.camera_names, stats["lost"],
-                                  stats["recent_loss"], stats["period_s"]))
-        if any(stats["malformed"]):  # frames that reach the node but do not decode
-            values["malformed_frames_per_camera"] = ", ".join(
-                f"{n}={k}" + (f" ({r})" if r else "") for n, k, r in
-                zip(self.settings.camera_names, stats["malformed"], self.sync.last_malformed))
-            status.level = max(status.level, DiagnosticStatus.WARN)
-            status.message += "; frames that do not decode from " + ", ".join(
-                n for n, k in zip(self.settings.camera_names, stats["malformed"]) if k)
-        losing = [f"{n} ({100 * r:.0f} %)" for n, r in zip(self.settings.camera_names,
-                                                          stats["recent_loss"])
-                  if r > WARN_LOSS_FRACTION]
-        if losing:  # after the others: it adds to their message
-            status.level = max(status.level, DiagnosticStatus.WARN)
-            status.message += f"; frames lost on the way from {', '.join(losing)}"
+        status, losing = rig_diagnostic_status(
+            f"{self.get_name()}: rig calibration", self.settings, self.sync.stats(),
+            self.sync.last_malformed, state, self._status, self.calibration,
+            self.calibration_dir, self._calibrated_at, self._last_failure, self._last_check)
+        if losing:
             self.get_logger().warning(
                 f"{', '.join(losing)} of the recent frames missing (gaps in the header stamps): "
                 + LOSS_HINT, throttle_duration_sec=60.0)
-        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(msg)
@@ -1005,6 +786,38 @@ class DenseCalibNode(Node):
         if self._intake is not None:
             self._intake.destroy()
         return super().destroy_node()
+
+
+def _calibrated_message(s: Settings, rig: RigCalibration, num_sets: int, elapsed: float,
+                        out: Path, removed: list, stereo_problem: Optional[str],
+                        set_camera_info: Optional[str]) -> str:
+    """The ~/calibrate reply for a calibration written to `out`: what was calibrated, from
+    what, how well, its warnings and what became of the stored and the drivers' calibrations."""
+    rms = rig.quality.get("reprojection_rms_px", float("nan"))
+    failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
+    scale = (f", metric scale from {'-'.join(s.baseline_cameras)} = {s.known_baseline_m} m"
+             if rig.metric_scale else "")
+    message = (f"calibrated {len(rig.cameras)}/{len(s.camera_names)} cameras "
+               f"({', '.join(rig.cameras)}{failed}) from {num_sets} frame sets, reprojection "
+               f"RMS {rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
+    if "change_summary" in rig.quality:
+        message += f"; {rig.quality['change_summary']} (started {rig.quality['init']})"
+    if rig.quality.get("frame_sets_before_change"):
+        message += (f"; the {rig.quality['frame_sets_before_change']} older frame sets "
+                    "still fitted the previous calibration and were left out: the rig "
+                    "changed after them")
+    if rig.quality.get("info_strips"):  # found in the images (detect_info_strips)
+        message += f"; {info_strips_line(rig.quality)}"
+    for warning in rig.quality.get("warnings", []):
+        message += f"; warning: {warning}"
+    if stereo_problem:
+        message += f"; warning: {stereo_problem}"
+    if set_camera_info is not None:
+        message += "; set_camera_info: " + set_camera_info
+    if removed:
+        message += (f"; removed the {len(removed)} oldest calibration(s) "
+                    f"(keep_calibrations {s.keep_calibrations})")
+    return message
 
 
 def _check_output_dir(output_dir: Path) -> None:

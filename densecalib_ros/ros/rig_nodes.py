@@ -18,7 +18,7 @@ from tf2_msgs.msg import TFMessage
 
 from ..core.io.image_encoding import COMPRESSED_FORMATS
 from .conversions import numpy_to_compressed_msg, numpy_to_image_msg, transform_to_matrix
-from .node import LATCHED_QOS
+from .publishing import LATCHED_QOS
 
 # Reliable (a best-effort subscriber still matches) and deep enough for a burst of frame sets.
 CAMERA_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE)
