@@ -4,7 +4,8 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import NotEnoughOverlapError
-from densecalib_ros.core.method.sampling import _cell_ids, sample_tracks
+from densecalib_ros.core.method.grid_sampling import cell_ids
+from densecalib_ros.core.method.sampling import sample_tracks
 from densecalib_ros.core.method.twoview import symmetric_epipolar_distance_px
 from densecalib_ros.core.types import SiteMatches, SiteMatchSet
 from test_cycles import make_scene, match_set_from_scene
@@ -61,8 +62,8 @@ def test_filled_cell_not_refilled_by_lower_order():
     three = tracks.cycle_order == 3
     two01 = (tracks.cycle_order == 2) & obs[:, 0] & obs[:, 1]
     assert three.sum() > 30 and two01.sum() > 30
-    cells3 = set(_cell_ids(tracks.xy_px[three, 0], 40, (640, 480)).tolist())
-    cells2 = _cell_ids(tracks.xy_px[two01, 0], 40, (640, 480))
+    cells3 = set(cell_ids(tracks.xy_px[three, 0], 40, (640, 480)).tolist())
+    cells2 = cell_ids(tracks.xy_px[two01, 0], 40, (640, 480))
     assert not cells3 & set(cells2.tolist())
     assert len(set(cells2.tolist())) == len(cells2)  # one track per cell
     assert np.median(tracks.xy_px[two01, 0, 0]) > 320  # 2-cycles went where 3-cycles could not

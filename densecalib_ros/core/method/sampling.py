@@ -51,6 +51,7 @@ from ..errors import FocalInitError, InputError, NotEnoughOverlapError
 from ..types import CameraIntrinsics, SiteMatchSet, Tracks
 from .cycles import CycleSet, close_cycles
 from .focal import calibration_matrix, estimate_initial_focals
+from .grid_sampling import CycleCandidates, stage1_pick, stage2_tracks
 from .scoring import (angle_score, equidistant_rays, pair_poses_from_rig, rays_from_intrinsics,
                       top_k_sum)
 from .twoview import (F_THRESHOLD_PX, TwoViewGeometry, estimate_essential_from_rays,
@@ -82,58 +83,8 @@ class SamplingResult:
     stats: dict = field(default_factory=dict)
 
 
-@dataclass
-class _Candidates:
-    """Cycles of one subset at one time step with their pixel positions and scores."""
-
-    t: int
-    cycles: CycleSet
-    xy: np.ndarray  # float64 (M, n, 2) COLMAP px per camera of the subset
-    score: np.ndarray  # float64 (M,)
-
-
 def _is_fisheye(model: str) -> bool:
     return "FISHEYE" in model.upper()
-
-
-def _cell_ids(xy: np.ndarray, cell_px: float, image_size: tuple) -> np.ndarray:
-    """Linear cell index of (M, 2) COLMAP px on a grid of cell_px cells over the image."""
-    w, _ = image_size
-    cols = int(np.ceil(w / cell_px))
-    ij = np.floor(np.asarray(xy) / cell_px).astype(np.int64)
-    ij = np.maximum(ij, 0)
-    return ij[:, 1] * cols + np.minimum(ij[:, 0], cols - 1)
-
-
-def _pick_per_cell(cells: np.ndarray, key: np.ndarray) -> np.ndarray:
-    """Indices of the candidate with the largest key in each distinct cell (sorted by cell)."""
-    if cells.size == 0:
-        return np.zeros(0, np.int64)
-    order = np.lexsort((-key, cells))
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = cells[order][1:] != cells[order][:-1]
-    return order[first]
-
-
-def _selection_keys(score: np.ndarray, rng: np.random.Generator, probabilistic: bool,
-                    scoring: bool) -> np.ndarray:
-    """Keys whose per-cell argmax realises the stage-2 pick: Gumbel-max for a draw proportional to
-    score (zero scores lose to any positive one, uniform among themselves), the score itself with
-    a random tie-break for argmax, pure noise when scoring is off."""
-    gumbel = rng.gumbel(size=score.shape)
-    if not scoring:
-        return gumbel
-    if probabilistic:
-        with np.errstate(divide="ignore"):
-            return np.where(score > 0, np.log(np.where(score > 0, score, 1.0)), -1e6) + gumbel
-    return score + 1e-9 * gumbel
-
-
-def _stage1(cs: CycleSet, sites_xy: np.ndarray, cell_px: float, image_size: tuple,
-            rng: np.random.Generator) -> CycleSet:
-    cells = _cell_ids(sites_xy[cs.sites[:, 0]], cell_px, image_size)
-    keep = np.sort(_pick_per_cell(cells, rng.random(cells.size)))
-    return CycleSet(cs.cameras, cs.sites[keep])
 
 
 def _check_inputs(match_sets: list) -> tuple[int, list]:
@@ -150,6 +101,34 @@ def _check_inputs(match_sets: list) -> tuple[int, list]:
     return num_cams, sizes
 
 
+@dataclass
+class _Lenses:
+    """How pixels become rays while sampling, before any calibration: through the given
+    intrinsics, else an equidistant fisheye of FISHEYE_ASSUMED_FOV_DEG, else a centred pinhole of
+    the focal passed in."""
+
+    sizes: list
+    fisheye: list[bool]
+    fisheye_focal: np.ndarray  # (C,) px of the assumed fisheye
+    intrinsics: Optional[list[CameraIntrinsics]]
+    seed: int
+
+    def rays(self, c: int, xy: np.ndarray, focal: Optional[np.ndarray]) -> np.ndarray:
+        if self.intrinsics is not None:
+            return rays_from_intrinsics(self.intrinsics[c], xy)
+        if self.fisheye[c]:
+            return equidistant_rays(xy, self.sizes[c], self.fisheye_focal[c])
+        K = calibration_matrix(focal[c], (self.sizes[c][0] / 2.0, self.sizes[c][1] / 2.0))
+        return pixels_to_rays(xy, K)
+
+    def essential(self, i: int, j: int, xy_i: np.ndarray, xy_j: np.ndarray,
+                  focal: Optional[np.ndarray]) -> TwoViewGeometry:
+        f_mean = 0.5 * (_focal_hint(self.intrinsics, self.fisheye_focal, i, focal)
+                        + _focal_hint(self.intrinsics, self.fisheye_focal, j, focal))
+        return estimate_essential_from_rays(self.rays(i, xy_i, focal), self.rays(j, xy_j, focal),
+                                            F_THRESHOLD_PX / f_mean, seed=self.seed)
+
+
 def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
                   focal_px: Optional[np.ndarray] = None,
                   cam_from_rig: Optional[list[np.ndarray]] = None,
@@ -164,15 +143,69 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
       the rays (and focals).
     Raises NotEnoughOverlapError when no camera pair has a closed cycle, FocalInitError when
     focals must be estimated and cannot be.
+
+    Stages, each timed in stats["timing_s"]: n-cycle closure and stage 1 (fine grid, random
+    pick); two-view geometry per camera pair on the pooled stage-1 correspondences; the focals
+    the scores are computed with; relative poses; the F_err filter and a score per cycle;
+    stage 2 (coarse grid, orders N..2, coverage rule, budget).
     """
-    s_cfg, sfm_cfg = config.sampling, config.sfm
+    s_cfg = config.sampling
     num_cams, sizes = _check_inputs(match_sets)
-    rng = np.random.default_rng(s_cfg.seed)
+    rng = np.random.default_rng(s_cfg.seed)  # drawn from in this order: stage 1, F, stage 2
     stats: dict = {"timing_s": {}}
     clock = time.perf_counter()
-    max_order = max(2, min(s_cfg.max_cycle_order, num_cams))
+    stage1, closed_counts = _closed_cycles_stage1(
+        match_sets, max(2, min(s_cfg.max_cycle_order, num_cams)), s_cfg.fine_cell_px, sizes, rng,
+        stats)
+    stats["timing_s"]["cycles_stage1"] = time.perf_counter() - clock
 
-    # --- n-cycle closure and stage 1 (fine grid, random pick) -------------------------------
+    clock = time.perf_counter()
+    lenses = _Lenses(sizes, [(_is_fisheye(intrinsics[c].model) if intrinsics is not None
+                              else _is_fisheye(config.sfm.model_of(c))) for c in range(num_cams)],
+                     np.array([w / np.radians(FISHEYE_ASSUMED_FOV_DEG) for w, _ in sizes]),
+                     intrinsics, s_cfg.seed)
+    pair_xy = _pooled_pair_correspondences(match_sets, stage1, num_cams)
+    two_view, counts, deferred = _pair_geometry(pair_xy, lenses, rng)
+    weights = compute_pair_weights(counts)
+    stats["pair_correspondences"] = {f"{i}-{j}": n for (i, j), n in counts.items()}
+    stats["pair_inlier_ratio"] = {f"{i}-{j}": round(g.num_inliers / max(counts[(i, j)], 1), 4)
+                                  for (i, j), g in two_view.items()}
+    stats["timing_s"]["two_view"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    given = None if focal_px is None else np.asarray(focal_px, np.float64).reshape(num_cams)
+    focal = _scoring_focals(two_view, weights, lenses, given, stats)
+    for i, j in deferred:  # pinhole-fisheye pairs, which needed the pinhole camera's focal
+        two_view[(i, j)] = lenses.essential(i, j, *pair_xy[(i, j)], focal)
+        stats["pair_inlier_ratio"][f"{i}-{j}"] = round(two_view[(i, j)].num_inliers
+                                                       / max(counts[(i, j)], 1), 4)
+    stats["timing_s"]["focal"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    _relative_poses(two_view, pair_xy, focal, sizes, cam_from_rig)
+    stats["timing_s"]["poses"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    candidates = _filtered_scored_cycles(match_sets, stage1, closed_counts, two_view, lenses,
+                                         focal, config, stats)
+    stats["timing_s"]["filter_score"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    tracks, halvings = stage2_tracks(candidates, sizes, s_cfg, rng, num_cams, len(match_sets))
+    stats["halvings"] = halvings
+    stats["tracks_per_order"] = {n: int((tracks.cycle_order == n).sum()) for n in closed_counts}
+    stats["timing_s"]["stage2"] = time.perf_counter() - clock
+    LOG.info("sampled %d tracks (per order %s) from %s closed cycles", tracks.num_tracks,
+             stats["tracks_per_order"], closed_counts)
+    return SamplingResult(tracks, two_view, focal, weights, stats)
+
+
+def _closed_cycles_stage1(match_sets: list[SiteMatchSet], max_order: int, cell_px: float,
+                          sizes: list, rng: np.random.Generator, stats: dict
+                          ) -> tuple[list[dict[int, list[CycleSet]]], dict[int, int]]:
+    """Per time step, the closed n-cycles (n = 2..max_order) thinned by stage 1 (one per fine
+    cell, picked at random), and how many closed per order. NotEnoughOverlapError when no
+    2-cycle is left."""
     stage1: list[dict[int, list[CycleSet]]] = []
     closed_counts = {n: 0 for n in range(2, max_order + 1)}
     for ms in match_sets:
@@ -180,113 +213,105 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
         per_order = {}
         for n, sets in cycles.items():
             closed_counts[n] += sum(len(cs) for cs in sets)
-            per_order[n] = [_stage1(cs, ms.sites[cs.cameras[0]], s_cfg.fine_cell_px,
+            per_order[n] = [stage1_pick(cs, ms.sites[cs.cameras[0]], cell_px,
                                     sizes[cs.cameras[0]], rng) for cs in sets]
         stage1.append(per_order)
     stats["closed_cycles"] = closed_counts
     stats["stage1_cycles"] = {n: sum(len(cs) for p in stage1 for cs in p[n])
                               for n in closed_counts}
-    stats["timing_s"]["cycles_stage1"] = time.perf_counter() - clock
     if stats["stage1_cycles"].get(2, 0) == 0:
         raise NotEnoughOverlapError(
             "No cycle-consistent matches between any two cameras: check that the cameras overlap "
             "and the scene is textured, or try another matcher.")
+    return stage1, closed_counts
 
-    # --- two-view geometry per camera pair on pooled stage-1 correspondences ---------------
-    clock = time.perf_counter()
-    fisheye = [(_is_fisheye(intrinsics[c].model) if intrinsics is not None
-                else _is_fisheye(sfm_cfg.model_of(c))) for c in range(num_cams)]
-    fisheye_focal = np.array([w / np.radians(FISHEYE_ASSUMED_FOV_DEG) for w, _ in sizes])
 
-    def rays(c: int, xy: np.ndarray, focal: Optional[np.ndarray]) -> np.ndarray:
-        if intrinsics is not None:
-            return rays_from_intrinsics(intrinsics[c], xy)
-        if fisheye[c]:
-            return equidistant_rays(xy, sizes[c], fisheye_focal[c])
-        K = calibration_matrix(focal[c], (sizes[c][0] / 2.0, sizes[c][1] / 2.0))
-        return pixels_to_rays(xy, K)
-
-    given = None if focal_px is None else np.asarray(focal_px, np.float64).reshape(num_cams)
-
-    def essential(i: int, j: int, xy_i: np.ndarray, xy_j: np.ndarray,
-                  focal: Optional[np.ndarray]):
-        f_mean = 0.5 * (_focal_hint(intrinsics, fisheye_focal, i, focal)
-                        + _focal_hint(intrinsics, fisheye_focal, j, focal))
-        return estimate_essential_from_rays(rays(i, xy_i, focal), rays(j, xy_j, focal),
-                                            F_THRESHOLD_PX / f_mean, seed=s_cfg.seed)
-
-    pair_xy = _pooled_pair_correspondences(match_sets, stage1, num_cams)
+def _pair_geometry(pair_xy: dict, lenses: _Lenses, rng: np.random.Generator
+                   ) -> tuple[dict, dict, list]:
+    """({(i, j): TwoViewGeometry}, {(i, j): correspondences used}, the pairs deferred): F on
+    pixels between pinhole cameras, E on rays where a fisheye is involved. A pinhole camera
+    paired with a fisheye one (a rig mixing lenses) needs its focal for the rays: such pairs
+    wait for the focals the pinhole pairs give (or the user's). pair_xy is thinned in place to
+    MAX_F_POINTS per pair."""
     two_view: dict = {}
     counts: dict = {}
-    # A pinhole camera paired with a fisheye one (a rig mixing lenses) needs its focal for the
-    # rays: such pairs wait for the focals the pinhole pairs give (or the user's).
     deferred = []
+    fisheye = lenses.fisheye
     for (i, j), (xy_i, xy_j) in pair_xy.items():
         if len(xy_i) > MAX_F_POINTS:
             pick = np.sort(rng.choice(len(xy_i), MAX_F_POINTS, replace=False))
             xy_i, xy_j = xy_i[pick], xy_j[pick]
             pair_xy[(i, j)] = (xy_i, xy_j)
         counts[(i, j)] = len(xy_i)
-        if fisheye[i] != fisheye[j] and intrinsics is None:
+        if fisheye[i] != fisheye[j] and lenses.intrinsics is None:
             deferred.append((i, j))
         elif fisheye[i] or fisheye[j]:
-            two_view[(i, j)] = essential(i, j, xy_i, xy_j, None)
+            two_view[(i, j)] = lenses.essential(i, j, xy_i, xy_j, None)
         else:
-            two_view[(i, j)] = estimate_fundamental(xy_i, xy_j, F_THRESHOLD_PX,
-                                                    seed=s_cfg.seed)
-    weights = compute_pair_weights(counts)
-    stats["pair_correspondences"] = {f"{i}-{j}": n for (i, j), n in counts.items()}
-    stats["pair_inlier_ratio"] = {f"{i}-{j}": round(g.num_inliers / max(counts[(i, j)], 1), 4)
-                                  for (i, j), g in two_view.items()}
-    stats["timing_s"]["two_view"] = time.perf_counter() - clock
+            two_view[(i, j)] = estimate_fundamental(xy_i, xy_j, F_THRESHOLD_PX, seed=lenses.seed)
+    return two_view, counts, deferred
 
-    # --- initial focals ----------------------------------------------------------------------
-    clock = time.perf_counter()
+
+def _scoring_focals(two_view: dict, weights: dict, lenses: _Lenses,
+                    given: Optional[np.ndarray], stats: dict) -> np.ndarray:
+    """(C,) focal px the cycles are scored with: the given ones, the intrinsics', the assumed
+    fisheye's, or eq. 2's on the pinhole pairs' F (a generic lens where it fails); a given NaN
+    is estimated. Where they came from goes into stats["focal_source"]."""
+    fisheye, fisheye_focal, sizes = lenses.fisheye, lenses.fisheye_focal, lenses.sizes
+    num_cams = len(sizes)
     if given is not None and np.isfinite(given).all():
         focal = given
         stats["focal_source"] = "given"
-    elif intrinsics is not None:
-        focal = np.array([_focal_hint(intrinsics, fisheye_focal, c) for c in range(num_cams)])
+    elif lenses.intrinsics is not None:
+        focal = np.array([_focal_hint(lenses.intrinsics, fisheye_focal, c)
+                          for c in range(num_cams)])
         stats["focal_source"] = "intrinsics"
     elif all(fisheye):
         focal = fisheye_focal.copy()
         stats["focal_source"] = f"equidistant {FISHEYE_ASSUMED_FOV_DEG:.0f} deg assumption"
     else:
-        F = {k: g.F_ji for k, g in two_view.items() if not (fisheye[k[0]] or fisheye[k[1]])}
-        known = np.full(num_cams, np.nan) if given is None else given.copy()
-        known[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]  # not in eq. 2: no F
-        lone = [c for c in range(num_cams) if any(fisheye) and not fisheye[c]
-                and not np.isfinite(known[c]) and not any(c in k and F[k] is not None for k in F)]
-        for c in lone:  # a pinhole camera with no pinhole partner: a generic lens as its start
-            known[c] = MIXED_LONE_PINHOLE_FOCAL_RATIO * max(sizes[c])
-        stats["focal_source"] = "fundamental matrices (eq. 2)" + (
-            f", generic {MIXED_LONE_PINHOLE_FOCAL_RATIO:g} x image size for camera(s) {lone}"
-            if lone else "")
-        try:
-            focal = estimate_initial_focals(F, weights, sizes, known_px=known) \
-                if not np.isfinite(known).all() else known
-        except FocalInitError as exc:
-            # Eq. 2 degenerates where optical axes nearly meet (long lenses aimed at one spot)
-            # and fails on few, weak pairs; the SfM's focal multi-start does not need it (its
-            # generic priors span 25-90 deg lenses), so a generic lens starts the sampling.
-            LOG.info("no focal lengths from the fundamental matrices (%s); sampling with a "
-                     "generic %g x image size", exc, MIXED_LONE_PINHOLE_FOCAL_RATIO)
-            focal = np.where(np.isfinite(known), known, MIXED_LONE_PINHOLE_FOCAL_RATIO
-                             * np.array([max(s) for s in sizes], dtype=np.float64))
-            stats["focal_source"] = (f"generic {MIXED_LONE_PINHOLE_FOCAL_RATIO:g} x image size "
-                                     "(eq. 2 failed)")
-        focal[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]
+        focal = _eq2_focals(two_view, weights, lenses, given, stats)
     if given is not None and not np.isfinite(given).all():  # NaN: estimate this camera's focal
         focal = np.where(np.isfinite(given), given, focal)
         stats["focal_source"] = "given, the rest " + stats["focal_source"]
-    for i, j in deferred:
-        two_view[(i, j)] = essential(i, j, *pair_xy[(i, j)], focal)
-        stats["pair_inlier_ratio"][f"{i}-{j}"] = round(two_view[(i, j)].num_inliers
-                                                       / max(counts[(i, j)], 1), 4)
-    stats["timing_s"]["focal"] = time.perf_counter() - clock
+    return focal
 
-    # --- relative poses ----------------------------------------------------------------------
-    clock = time.perf_counter()
+
+def _eq2_focals(two_view: dict, weights: dict, lenses: _Lenses, given: Optional[np.ndarray],
+                stats: dict) -> np.ndarray:
+    fisheye, fisheye_focal, sizes = lenses.fisheye, lenses.fisheye_focal, lenses.sizes
+    num_cams = len(sizes)
+    F = {k: g.F_ji for k, g in two_view.items() if not (fisheye[k[0]] or fisheye[k[1]])}
+    known = np.full(num_cams, np.nan) if given is None else given.copy()
+    known[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]  # not in eq. 2: no F
+    lone = [c for c in range(num_cams) if any(fisheye) and not fisheye[c]
+            and not np.isfinite(known[c]) and not any(c in k and F[k] is not None for k in F)]
+    for c in lone:  # a pinhole camera with no pinhole partner: a generic lens as its start
+        known[c] = MIXED_LONE_PINHOLE_FOCAL_RATIO * max(sizes[c])
+    stats["focal_source"] = "fundamental matrices (eq. 2)" + (
+        f", generic {MIXED_LONE_PINHOLE_FOCAL_RATIO:g} x image size for camera(s) {lone}"
+        if lone else "")
+    try:
+        focal = estimate_initial_focals(F, weights, sizes, known_px=known) \
+            if not np.isfinite(known).all() else known
+    except FocalInitError as exc:
+        # Eq. 2 degenerates where optical axes nearly meet (long lenses aimed at one spot)
+        # and fails on few, weak pairs; the SfM's focal multi-start does not need it (its
+        # generic priors span 25-90 deg lenses), so a generic lens starts the sampling.
+        LOG.info("no focal lengths from the fundamental matrices (%s); sampling with a "
+                 "generic %g x image size", exc, MIXED_LONE_PINHOLE_FOCAL_RATIO)
+        focal = np.where(np.isfinite(known), known, MIXED_LONE_PINHOLE_FOCAL_RATIO
+                         * np.array([max(s) for s in sizes], dtype=np.float64))
+        stats["focal_source"] = (f"generic {MIXED_LONE_PINHOLE_FOCAL_RATIO:g} x image size "
+                                 "(eq. 2 failed)")
+    focal[np.array(fisheye)] = fisheye_focal[np.array(fisheye)]
+    return focal
+
+
+def _relative_poses(two_view: dict, pair_xy: dict, focal: np.ndarray, sizes: list,
+                    cam_from_rig: Optional[list[np.ndarray]]) -> None:
+    """Fill each pair's R_ji, t_ji (and E_ji from F): from the given rig, else from its F with
+    centred pinhole cameras of `focal`."""
     given_poses = pair_poses_from_rig(cam_from_rig) if cam_from_rig is not None else None
     for (i, j), geo in two_view.items():
         if given_poses is not None:
@@ -299,15 +324,21 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
             geo.R_ji, geo.t_ji, _ = relative_pose_from_essential(geo.F_ji, K_i, K_j, xy_i[inl],
                                                                   xy_j[inl])
             geo.E_ji = K_j.T @ geo.F_ji @ K_i
-    stats["timing_s"]["poses"] = time.perf_counter() - clock
 
-    # --- F_err filter and scores per stage-1 cycle --------------------------------------------
-    clock = time.perf_counter()
+
+def _filtered_scored_cycles(match_sets: list[SiteMatchSet], stage1: list, closed_counts: dict,
+                            two_view: dict, lenses: _Lenses, focal: np.ndarray,
+                            config: PipelineConfig, stats: dict
+                            ) -> dict[int, list[CycleCandidates]]:
+    """The stage-1 cycles that pass the F_err filter on every pair, with their scores (top-k
+    sum of the pairs' triangulation-angle scores), per order; 2-cycles of pairs whose two-view
+    geometry has too few inliers are not used."""
+    s_cfg = config.sampling
     unverified = {k for k, g in two_view.items()
                   if g.num_inliers < s_cfg.min_two_cycle_pair_inliers}
     stats["unverified_pairs"] = sorted(f"{i}-{j}" for i, j in unverified)
     removed_unverified = 0
-    candidates: dict[int, list[_Candidates]] = {n: [] for n in closed_counts}
+    candidates: dict[int, list[CycleCandidates]] = {n: [] for n in closed_counts}
     removed = {n: 0 for n in closed_counts}
     for t, ms in enumerate(match_sets):
         for n, sets in stage1[t].items():
@@ -316,34 +347,10 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
                     removed_unverified += len(cs)
                     continue
                 xy = cycle_observations_px(ms, cs)
-                keep = np.ones(len(cs), bool)
-                pair_scores = []
-                cam_rays = [rays(c, xy[:, k], focal) for k, c in enumerate(cs.cameras)]
-                for (a, ca), (b, cb) in combinations(enumerate(cs.cameras), 2):
-                    geo = two_view.get((ca, cb))
-                    thr = sfm_cfg.pair_f_err_px(ca, cb)
-                    if thr is None and n == 2:
-                        # Higher orders are verified by their closure; with F_err off (fisheye)
-                        # 2-cycles are not.
-                        thr = sfm_cfg.two_cycle_f_err_px
-                    if thr is not None and geo is not None:
-                        d = _epipolar_distance_px(geo, xy[:, a], xy[:, b], cam_rays[a],
-                                                  cam_rays[b], focal[ca], focal[cb])
-                        keep &= ~(d > thr)
-                    if s_cfg.top_k > 0:
-                        if geo is None or geo.R_ji is None:
-                            pair_scores.append(np.zeros(len(cs)))
-                        else:
-                            theta = triangulation_angles_deg(geo.R_ji, geo.t_ji, cam_rays[a],
-                                                             cam_rays[b])
-                            pair_scores.append(angle_score(theta, s_cfg.score_alpha_deg,
-                                                           s_cfg.score_sigma_deg, s_cfg.score_p,
-                                                           s_cfg.score_boundary_eps))
-                score = (top_k_sum(np.stack(pair_scores, axis=1), s_cfg.top_k)
-                         if pair_scores else np.zeros(len(cs)))
+                keep, score = _cycle_fit_and_score(cs, xy, n, two_view, lenses, focal, config)
                 removed[n] += int((~keep).sum())
                 if keep.any():
-                    candidates[n].append(_Candidates(
+                    candidates[n].append(CycleCandidates(
                         t, CycleSet(cs.cameras, cs.sites[keep]), xy[keep], score[keep]))
     stats["f_err_removed"] = removed
     stats["unverified_two_cycles_removed"] = removed_unverified
@@ -351,17 +358,39 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
         LOG.info("2-cycles of camera pairs %s not used: their two-view geometry has fewer than %d "
                  "inliers (%d cycles)", ", ".join(stats["unverified_pairs"]),
                  s_cfg.min_two_cycle_pair_inliers, removed_unverified)
-    stats["timing_s"]["filter_score"] = time.perf_counter() - clock
+    return candidates
 
-    # --- stage 2: coarse grid, orders N..2, coverage rule, budget -----------------------------
-    clock = time.perf_counter()
-    tracks, halvings = _stage2(candidates, sizes, s_cfg, rng, num_cams, len(match_sets))
-    stats["halvings"] = halvings
-    stats["tracks_per_order"] = {n: int((tracks.cycle_order == n).sum()) for n in closed_counts}
-    stats["timing_s"]["stage2"] = time.perf_counter() - clock
-    LOG.info("sampled %d tracks (per order %s) from %s closed cycles", tracks.num_tracks,
-             stats["tracks_per_order"], closed_counts)
-    return SamplingResult(tracks, two_view, focal, weights, stats)
+
+def _cycle_fit_and_score(cs: CycleSet, xy: np.ndarray, n: int, two_view: dict, lenses: _Lenses,
+                         focal: np.ndarray, config: PipelineConfig
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """(bool (M,) the cycles within F_err on every pair, float (M,) their scores)."""
+    s_cfg, sfm_cfg = config.sampling, config.sfm
+    keep = np.ones(len(cs), bool)
+    pair_scores = []
+    cam_rays = [lenses.rays(c, xy[:, k], focal) for k, c in enumerate(cs.cameras)]
+    for (a, ca), (b, cb) in combinations(enumerate(cs.cameras), 2):
+        geo = two_view.get((ca, cb))
+        thr = sfm_cfg.pair_f_err_px(ca, cb)
+        if thr is None and n == 2:
+            # Higher orders are verified by their closure; with F_err off (fisheye) 2-cycles
+            # are not.
+            thr = sfm_cfg.two_cycle_f_err_px
+        if thr is not None and geo is not None:
+            d = _epipolar_distance_px(geo, xy[:, a], xy[:, b], cam_rays[a], cam_rays[b],
+                                      focal[ca], focal[cb])
+            keep &= ~(d > thr)
+        if s_cfg.top_k > 0:
+            if geo is None or geo.R_ji is None:
+                pair_scores.append(np.zeros(len(cs)))
+            else:
+                theta = triangulation_angles_deg(geo.R_ji, geo.t_ji, cam_rays[a], cam_rays[b])
+                pair_scores.append(angle_score(theta, s_cfg.score_alpha_deg,
+                                               s_cfg.score_sigma_deg, s_cfg.score_p,
+                                               s_cfg.score_boundary_eps))
+    score = (top_k_sum(np.stack(pair_scores, axis=1), s_cfg.top_k)
+             if pair_scores else np.zeros(len(cs)))
+    return keep, score
 
 
 def _focal_hint(intrinsics: Optional[list], fisheye_focal: np.ndarray, c: int,
@@ -435,57 +464,3 @@ def _pooled_pair_correspondences(match_sets, stage1, num_cams) -> dict:
             out[(i, j)] = (np.concatenate(parts_i), np.concatenate(parts_j))
     return out
 
-
-def _stage2(candidates: dict, sizes: list, s_cfg, rng: np.random.Generator, num_cams: int,
-            num_times: int) -> tuple[Tracks, dict]:
-    budget = {int(k): int(v) for k, v in s_cfg.samples_per_order.items()}
-    scoring = s_cfg.top_k > 0
-    # selected[t][cameras] = (M, n, 2) xy of the kept tracks of that subset (for blocking).
-    selected: list[dict] = [dict() for _ in range(num_times)]
-    parts, halvings = [], {}
-    for n in sorted(candidates, reverse=True):
-        picked = []  # (t, cameras, xy (M, n, 2), score (M,))
-        halvings[n] = 0
-        for cand in candidates[n]:
-            cams = cand.cycles.cameras
-            ref = cams[0]
-            blocked = [xy[:, other.index(ref)] for other, xy in selected[cand.t].items()
-                       if len(other) > n and set(cams) <= set(other)]
-            blocked_xy = np.concatenate(blocked) if blocked else np.zeros((0, 2))
-            keys = _selection_keys(cand.score, rng, s_cfg.probabilistic_scoring, scoring)
-            d = float(s_cfg.cell_size_px)
-            w, h = sizes[ref]
-            n_min = s_cfg.c_min * np.ceil(w / d) * np.ceil(h / d)
-            chosen = np.zeros(len(cand.score), bool)
-            for level in range(max(1, s_cfg.max_grid_iterations)):
-                cells = _cell_ids(cand.xy[:, 0], d, sizes[ref])
-                filled = np.unique(np.concatenate([
-                    _cell_ids(blocked_xy, d, sizes[ref]), cells[chosen]]))
-                free = ~chosen & ~np.isin(cells, filled)
-                idx = np.flatnonzero(free)
-                chosen[idx[_pick_per_cell(cells[idx], keys[idx])]] = True
-                num_filled = filled.size + np.unique(cells[idx]).size
-                if num_filled >= n_min or level + 1 == s_cfg.max_grid_iterations:
-                    break
-                d /= 2.0
-                halvings[n] += 1
-            if chosen.any():
-                picked.append((cand.t, cams, cand.cycles.sites[chosen], cand.xy[chosen],
-                               cand.score[chosen]))
-        total = sum(len(p[3]) for p in picked)
-        cap = budget.get(n, total)
-        if total > cap:  # seeded uniform subset over all subsets and time steps
-            keep_all = np.zeros(total, bool)
-            keep_all[rng.choice(total, cap, replace=False)] = True
-            offsets = np.cumsum([0] + [len(p[3]) for p in picked])
-            picked = [(t, cams, s[keep_all[a:b]], xy[keep_all[a:b]], sc[keep_all[a:b]])
-                      for (t, cams, s, xy, sc), a, b in zip(picked, offsets[:-1], offsets[1:])]
-        for t, cams, _, xy, sc in picked:
-            if len(sc) == 0:
-                continue
-            selected[t][cams] = xy
-            out = np.full((len(sc), num_cams, 2), np.nan)
-            out[:, list(cams)] = xy
-            parts.append(Tracks(out, np.full(len(sc), n, np.int32), sc.astype(np.float64),
-                                np.full(len(sc), t, np.int32)))
-    return Tracks.concatenate(parts, num_cams), halvings
