@@ -84,9 +84,56 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
     does not converge to focals inside [0.1, 20] * max(w, h) with consistent F's.
     """
     num_cams = len(image_sizes)
-    sizes = np.array([max(int(w), int(h)) for w, h in image_sizes], dtype=np.float64)
     if principal_points is None:
         principal_points = [(w / 2.0, h / 2.0) for w, h in image_sizes]
+    pairs, F_list, w_list = _usable_pairs(F, weights)
+    known = np.full(num_cams, np.nan) if known_px is None else np.asarray(known_px, np.float64)
+    fixed = np.isfinite(known)
+    covered = {c for p in pairs for c in p}
+    missing = [c for c in range(num_cams) if c not in covered and not fixed[c]]
+    if missing:
+        raise FocalInitError(
+            "No usable fundamental matrix for camera(s) {cameras}: they share too few "
+            "cycle-consistent matches with the other cameras. Check that each of them sees the "
+            "scene (not a covered, dark, blank or defocused lens) and overlaps at least one other "
+            "camera; if so, " + KNOWN_FOCALS_HINT, missing)
+    if fixed.all():
+        return known.copy()
+    problem = _Eq2Problem(pairs, F_list, np.array(w_list), image_sizes, principal_points, known)
+    best = problem.solve()
+    if best is None:
+        raise FocalInitError(
+            "Initial focal estimation did not converge: the fundamental matrices are degenerate. "
+            "Use more overlapping views or scene texture, or "
+            + KNOWN_FOCALS_HINT)
+    log_f = problem.full(best.x)
+    focal = np.where(fixed, known, np.exp(log_f))
+    lower, upper = problem.lower, problem.upper
+    at_bound = np.abs(log_f - lower) < 1e-3 * np.abs(lower) + 1e-6
+    at_bound |= np.abs(log_f - upper) < 1e-3 * np.abs(upper) + 1e-6
+    at_bound &= ~fixed
+    if np.any(at_bound):
+        bad = np.flatnonzero(at_bound).tolist()
+        raise FocalInitError(
+            "Initial focal of camera(s) {cameras} ran to the limit of "
+            f"[{FOCAL_BOUNDS_FACTOR[0]}, {FOCAL_BOUNDS_FACTOR[1]}] x image size: the fundamental "
+            "matrices are inconsistent (wrong matches or a degenerate camera configuration). "
+            "Check the overlap between cameras, or " + KNOWN_FOCALS_HINT, bad)
+    median_residual = weighted_median(np.abs(problem.pair_residuals(log_f)), problem.weights)
+    if median_residual > MAX_MEDIAN_RESIDUAL:
+        raise FocalInitError(
+            f"Initial focals do not fit the fundamental matrices (weighted median residual "
+            f"{median_residual:.2f} > {MAX_MEDIAN_RESIDUAL}): most camera pairs have wrong "
+            "two-view geometry. Check the matches / overlap, or "
+            + KNOWN_FOCALS_HINT)
+    LOG.debug("initial focals %s px (median eq.2 residual %.4f)", np.round(focal, 1),
+              median_residual)
+    return focal
+
+
+def _usable_pairs(F: dict, weights: dict) -> tuple[list, list, list]:
+    """(pairs, their F normalised to s1 = 1, their weights) for the pairs with a positive weight
+    and a finite F of rank 2."""
     pairs, F_list, w_list = [], [], []
     for (i, j), F_ji in F.items():
         w = float(weights.get((i, j), 0.0))
@@ -99,60 +146,59 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
         pairs.append((i, j))
         F_list.append(F_ji / s[0])
         w_list.append(w)
-    known = np.full(num_cams, np.nan) if known_px is None else np.asarray(known_px, np.float64)
-    fixed = np.isfinite(known)
-    covered = {c for p in pairs for c in p}
-    missing = [c for c in range(num_cams) if c not in covered and not fixed[c]]
-    if missing:
-        raise FocalInitError(
-            "No usable fundamental matrix for camera(s) {cameras}: they share too few "
-            "cycle-consistent matches with the other cameras. Check that each of them sees the "
-            "scene (not a covered, dark, blank or defocused lens) and overlaps at least one other "
-            "camera; if so, " + KNOWN_FOCALS_HINT, missing)
-    weights_arr = np.array(w_list)
-    log_prior = np.log(PRIOR_FOCAL_FACTOR * sizes)
-    lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)
-    upper = np.log(FOCAL_BOUNDS_FACTOR[1] * sizes)
-    # The solver moves the free cameras' log focals only; known ones stay in place. With none
-    # known, `free` is a plain slice: a boolean index copies the Jacobian into another memory
-    # layout, which changed the focals' last digits (0.04 %), and SfM can amplify that.
-    if fixed.all():
-        return known.copy()
-    free = ~fixed if fixed.any() else slice(None)
-    log_known = np.log(np.where(fixed, known, 1.0))
-    log_prior = np.where(fixed, log_known, log_prior)
+    return pairs, F_list, w_list
 
-    def full(x_free: np.ndarray) -> np.ndarray:
-        log_f = log_known.copy()
-        log_f[free] = x_free
+
+class _Eq2Problem:
+    """Eq. 2 over all pairs in the free cameras' log focals (module docstring), with the prior
+    term, its analytic Jacobian and the smooth form the restarts run on."""
+
+    def __init__(self, pairs: list, F_list: list, weights: np.ndarray, image_sizes: list,
+                 principal_points: list, known: np.ndarray):
+        self.num_cams = len(image_sizes)
+        sizes = np.array([max(int(w), int(h)) for w, h in image_sizes], dtype=np.float64)
+        self.weights = weights
+        self.lower = np.log(FOCAL_BOUNDS_FACTOR[0] * sizes)
+        self.upper = np.log(FOCAL_BOUNDS_FACTOR[1] * sizes)
+        fixed = np.isfinite(known)
+        # The solver moves the free cameras' log focals only; known ones stay in place. With none
+        # known, `free` is a plain slice: a boolean index copies the Jacobian into another memory
+        # layout, which changed the focals' last digits (0.04 %), and SfM can amplify that.
+        self.free = ~fixed if fixed.any() else slice(None)
+        self.log_known = np.log(np.where(fixed, known, 1.0))
+        self.log_prior = np.where(fixed, self.log_known, np.log(PRIOR_FOCAL_FACTOR * sizes))
+        self.F_stack = np.stack(F_list)  # (P, 3, 3)
+        self.idx_i = np.array([i for i, _ in pairs])
+        self.idx_j = np.array([j for _, j in pairs])
+        self.pp = np.asarray(principal_points, dtype=np.float64)
+
+    def full(self, x_free: np.ndarray) -> np.ndarray:
+        log_f = self.log_known.copy()
+        log_f[self.free] = x_free
         return log_f
 
-    F_stack = np.stack(F_list)  # (P, 3, 3)
-    idx_i = np.array([i for i, _ in pairs])
-    idx_j = np.array([j for _, j in pairs])
-    pp = np.asarray(principal_points, dtype=np.float64)
-
-    def build_K(log_f: np.ndarray) -> np.ndarray:
-        K = np.zeros((num_cams, 3, 3))
+    def K(self, log_f: np.ndarray) -> np.ndarray:
+        K = np.zeros((self.num_cams, 3, 3))
         K[:, 0, 0] = K[:, 1, 1] = np.exp(log_f)
-        K[:, :2, 2] = pp
+        K[:, :2, 2] = self.pp
         K[:, 2, 2] = 1.0
         return K
 
-    def pair_residuals(log_f: np.ndarray) -> np.ndarray:
-        K = build_K(log_f)
-        E = np.einsum("pba,pbc,pcd->pad", K[idx_j], F_stack, K[idx_i])  # K_j^T F K_i
+    def pair_residuals(self, log_f: np.ndarray) -> np.ndarray:
+        K = self.K(log_f)
+        E = np.einsum("pba,pbc,pcd->pad", K[self.idx_j], self.F_stack, K[self.idx_i])
         s = np.linalg.svd(E, compute_uv=False)
         return (s[:, 0] - s[:, 1]) / (s[:, 0] + s[:, 1]) + s[:, 2] / s[:, 0]
 
-    def residuals(log_f: np.ndarray) -> np.ndarray:
-        return np.concatenate([weights_arr * pair_residuals(log_f),
-                               PRIOR_WEIGHT * (log_f - log_prior)])
+    def residuals(self, log_f: np.ndarray) -> np.ndarray:
+        return np.concatenate([self.weights * self.pair_residuals(log_f),
+                               PRIOR_WEIGHT * (log_f - self.log_prior)])
 
-    def jacobian(log_f: np.ndarray) -> np.ndarray:
+    def jacobian(self, log_f: np.ndarray) -> np.ndarray:
         # Analytic: ds_k = u_k^T dE v_k; dE/dlog f_i = K_j^T F D_i, dE/dlog f_j = D_j^T F K_i
         # with D = f diag(1, 1, 0) (the derivative of K in log-focal).
-        K = build_K(log_f)
+        idx_i, idx_j, F_stack = self.idx_i, self.idx_j, self.F_stack
+        K = self.K(log_f)
         D = np.zeros_like(K)
         D[:, 0, 0] = D[:, 1, 1] = np.exp(log_f)
         FK_i = np.einsum("pbc,pcd->pbd", F_stack, K[idx_i])
@@ -160,75 +206,53 @@ def estimate_initial_focals(F: dict, weights: dict, image_sizes: list,
         u, s, vt = np.linalg.svd(E)
         dE_i = np.einsum("pba,pbc,pcd->pad", K[idx_j], F_stack, D[idx_i])
         dE_j = np.einsum("pba,pbd->pad", D[idx_j], FK_i)
-        J = np.zeros((len(pairs) + num_cams, num_cams))
-        rows = np.arange(len(pairs))
+        J = np.zeros((len(idx_i) + self.num_cams, self.num_cams))
+        rows = np.arange(len(idx_i))
         for dE, cam in ((dE_i, idx_i), (dE_j, idx_j)):
             ds = np.einsum("pak,pab,pkb->pk", u, dE, vt)  # (P, 3): d s_k
             s1, s2, s3 = s[:, 0], s[:, 1], s[:, 2]
             dr = ((ds[:, 0] - ds[:, 1]) * (s1 + s2) - (s1 - s2) * (ds[:, 0] + ds[:, 1])) / (
                 s1 + s2) ** 2 + (ds[:, 2] * s1 - s3 * ds[:, 0]) / s1 ** 2
-            np.add.at(J, (rows, cam), weights_arr * dr)
-        J[len(pairs):, :] = PRIOR_WEIGHT * np.eye(num_cams)
+            np.add.at(J, (rows, cam), self.weights * dr)
+        J[len(idx_i):, :] = PRIOR_WEIGHT * np.eye(self.num_cams)
         return J
 
-    def smooth_residuals(log_f: np.ndarray) -> np.ndarray:
+    def smooth_residuals(self, log_f: np.ndarray) -> np.ndarray:
         # Same zero set, smooth: the cubic essential constraint 2 E E^T E - tr(E E^T) E = 0 on
         # E normalised to ||E||_F = 1; per pair its norm is (s1^2 - s2^2) ~ 2 * eq. 2 residual.
-        K = build_K(log_f)
-        E = np.einsum("pba,pbc,pcd->pad", K[idx_j], F_stack, K[idx_i])
+        K = self.K(log_f)
+        E = np.einsum("pba,pbc,pcd->pad", K[self.idx_j], self.F_stack, K[self.idx_i])
         E /= np.linalg.norm(E, axis=(1, 2), keepdims=True)
         cubic = 0.5 * (2.0 * E @ np.swapaxes(E, 1, 2) @ E - E)
-        return np.concatenate([(weights_arr[:, None] * cubic.reshape(-1, 9)).ravel(),
-                               PRIOR_WEIGHT * (log_f - log_prior)])
+        return np.concatenate([(self.weights[:, None] * cubic.reshape(-1, 9)).ravel(),
+                               PRIOR_WEIGHT * (log_f - self.log_prior)])
 
-    # Eq. 2's |s1 - s2| is a cone at its minimum, where Gauss-Newton crawls (~800 iterations
-    # measured); the smooth form converges in a few dozen. Restarts run on the smooth form, the
-    # best one (by eq. 2 cost) is then polished on eq. 2 itself.
-    best, best_cost = None, np.inf
-    for factor in RESTART_FACTORS:
-        x0 = np.clip(log_prior + np.log(factor), lower + 1e-6, upper - 1e-6)[free]
-        try:
-            res = least_squares(lambda x: smooth_residuals(full(x)), x0,
-                                bounds=(lower[free], upper[free]), loss="cauchy",
-                                f_scale=ROBUST_SCALE / 3.0, max_nfev=100 * (num_cams + 1))
-            r = weights_arr * pair_residuals(full(res.x)) / ROBUST_SCALE
-            cost = float(np.sum(np.log1p(r ** 2)))
-        except ValueError as exc:  # non-finite residuals from a pathological F
-            LOG.debug("focal restart %.1f failed: %s", factor, exc)
-            continue
-        if np.isfinite(cost) and cost < best_cost:
-            best, best_cost = res, cost
-    if best is not None:
-        polished = least_squares(lambda x: residuals(full(x)), best.x,
-                                 jac=lambda x: jacobian(full(x))[:, free],
-                                 bounds=(lower[free], upper[free]),
-                                 loss="cauchy", f_scale=ROBUST_SCALE, max_nfev=50 * num_cams)
-        if np.all(np.isfinite(polished.x)):
-            best = polished
-    if best is None:
-        raise FocalInitError(
-            "Initial focal estimation did not converge: the fundamental matrices are degenerate. "
-            "Use more overlapping views or scene texture, or "
-            + KNOWN_FOCALS_HINT)
-    log_f = full(best.x)
-    focal = np.where(fixed, known, np.exp(log_f))
-    at_bound = np.abs(log_f - lower) < 1e-3 * np.abs(lower) + 1e-6
-    at_bound |= np.abs(log_f - upper) < 1e-3 * np.abs(upper) + 1e-6
-    at_bound &= ~fixed
-    if np.any(at_bound):
-        bad = np.flatnonzero(at_bound).tolist()
-        raise FocalInitError(
-            "Initial focal of camera(s) {cameras} ran to the limit of "
-            f"[{FOCAL_BOUNDS_FACTOR[0]}, {FOCAL_BOUNDS_FACTOR[1]}] x image size: the fundamental "
-            "matrices are inconsistent (wrong matches or a degenerate camera configuration). "
-            "Check the overlap between cameras, or " + KNOWN_FOCALS_HINT, bad)
-    median_residual = weighted_median(np.abs(pair_residuals(log_f)), weights_arr)
-    if median_residual > MAX_MEDIAN_RESIDUAL:
-        raise FocalInitError(
-            f"Initial focals do not fit the fundamental matrices (weighted median residual "
-            f"{median_residual:.2f} > {MAX_MEDIAN_RESIDUAL}): most camera pairs have wrong "
-            "two-view geometry. Check the matches / overlap, or "
-            + KNOWN_FOCALS_HINT)
-    LOG.debug("initial focals %s px (median eq.2 residual %.4f)", np.round(focal, 1),
-              median_residual)
-    return focal
+    def solve(self):
+        """The least_squares result of the best restart polished on eq. 2, or None.
+
+        Eq. 2's |s1 - s2| is a cone at its minimum, where Gauss-Newton crawls (~800 iterations
+        measured); the smooth form converges in a few dozen. Restarts run on the smooth form,
+        the best one (by eq. 2 cost) is then polished on eq. 2 itself."""
+        free, lower, upper, num_cams = self.free, self.lower, self.upper, self.num_cams
+        best, best_cost = None, np.inf
+        for factor in RESTART_FACTORS:
+            x0 = np.clip(self.log_prior + np.log(factor), lower + 1e-6, upper - 1e-6)[free]
+            try:
+                res = least_squares(lambda x: self.smooth_residuals(self.full(x)), x0,
+                                    bounds=(lower[free], upper[free]), loss="cauchy",
+                                    f_scale=ROBUST_SCALE / 3.0, max_nfev=100 * (num_cams + 1))
+                r = self.weights * self.pair_residuals(self.full(res.x)) / ROBUST_SCALE
+                cost = float(np.sum(np.log1p(r ** 2)))
+            except ValueError as exc:  # non-finite residuals from a pathological F
+                LOG.debug("focal restart %.1f failed: %s", factor, exc)
+                continue
+            if np.isfinite(cost) and cost < best_cost:
+                best, best_cost = res, cost
+        if best is not None:
+            polished = least_squares(lambda x: self.residuals(self.full(x)), best.x,
+                                     jac=lambda x: self.jacobian(self.full(x))[:, free],
+                                     bounds=(lower[free], upper[free]),
+                                     loss="cauchy", f_scale=ROBUST_SCALE, max_nfev=50 * num_cams)
+            if np.all(np.isfinite(polished.x)):
+                best = polished
+        return best
