@@ -26,7 +26,7 @@ from .method.known_intrinsics import (check_known_intrinsics, describe as descri
                                       given_intrinsics_fit, given_intrinsics_warnings)
 from .method.masks import ignored_regions, info_strips
 from .method.multistart import MULTISTART_MAX_TRACKS, run_incremental
-from .method.reconstruction import colour_points
+from .method.reconstruction import SfMState, colour_points
 from .method.twoview import epipolar_filter, fundamental_matrices
 from .method.uncertainty import add_uncertainty, estimated_principal_points
 from .progress import Progress, say_progress
@@ -62,31 +62,9 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     start = time.perf_counter()
     C = len(camera_names)
     config = resolve_camera_lenses(config, camera_names)
-    if tracks.num_cameras != C or len(image_sizes) != C:
-        raise InputError(f"{C} camera names but tracks for {tracks.num_cameras} cameras and "
-                         f"{len(image_sizes)} image sizes.")
-    if C < 2:
-        raise TooFewCamerasGivenError(f"A rig needs at least two cameras, got {C}.")
-    if tracks.num_tracks == 0:
-        raise NotEnoughOverlapError(
-            "No correspondences survived cycle sampling: the cameras' views do not overlap enough "
-            "or the scene lacks texture. Point the cameras at a shared, textured scene or add "
-            "frame sets.")
+    _check_tracks(tracks, image_sizes, C)
     seed = config.sampling.seed
-    if two_view is None or (config.sfm.f_err_px is not None and
-                            not any(g.F_ji is not None for g in two_view.values())):
-        two_view = fundamental_matrices(tracks, seed)
-    _check_one_group(two_view, camera_names)
-    filtered = epipolar_filter(tracks, two_view, config.sfm.pair_f_err_px)
-    if config.sfm.f_err_px is not None:
-        f_err = f"{config.sfm.f_err_px} px"
-    elif config.sfm.pinhole_f_err_px is not None and \
-            len(config.sfm.mixed_rig_pinhole_cameras(C)) >= 2:
-        f_err = f"{config.sfm.pinhole_f_err_px} px between pinhole cameras"
-    else:
-        f_err = "off"
-    say_progress(progress, f"{filtered.num_tracks} of {tracks.num_tracks} tracks pass the epipolar "
-                           f"filter (F_err {f_err})")
+    filtered, two_view = _epipolar_filtered(tracks, two_view, config, camera_names, progress)
     if focal_px is None:
         focal_px = initial_focals(filtered, two_view, image_sizes)
     focal_px = np.asarray(focal_px, dtype=np.float64)
@@ -108,14 +86,9 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
                               progress=progress, validation_tracks=validation,
                               extra_starts=extra_starts)
-    state = sfm.state
-    moved: list[str] = []
+    state, moved = sfm.state, []
     if match_tracks is not None and match_tracks.num_tracks:
-        state = state.on_tracks(match_tracks)
-        moved = repair_placements(state, camera_names, lambda m: say_progress(progress, m))
-        state = refine_on_tracks(state, match_tracks, camera_names, config.sfm, seed)
-        say_progress(progress, f"refined on all {match_tracks.num_tracks} keypoint-match tracks: "
-                               f"{int(state.point_mask().sum())} points")
+        state, moved = _refined_on_matches(state, match_tracks, camera_names, config, progress)
     fit = given_intrinsics_fit(state, camera_names, config.sfm.num_threads)
     runtime = time.perf_counter() - start
     rig = rig_from_state(state, camera_names, sfm.failed, dict(
@@ -133,6 +106,53 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                    f"points ({runtime:.1f} s)")
     return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
                              focal_init_px=focal_px, state=state)
+
+
+def _check_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]], C: int) -> None:
+    if tracks.num_cameras != C or len(image_sizes) != C:
+        raise InputError(f"{C} camera names but tracks for {tracks.num_cameras} cameras and "
+                         f"{len(image_sizes)} image sizes.")
+    if C < 2:
+        raise TooFewCamerasGivenError(f"A rig needs at least two cameras, got {C}.")
+    if tracks.num_tracks == 0:
+        raise NotEnoughOverlapError(
+            "No correspondences survived cycle sampling: the cameras' views do not overlap enough "
+            "or the scene lacks texture. Point the cameras at a shared, textured scene or add "
+            "frame sets.")
+
+
+def _epipolar_filtered(tracks: Tracks, two_view: Optional[dict], config: PipelineConfig,
+                       camera_names: Sequence[str], progress: Progress) -> tuple[Tracks, dict]:
+    """(the tracks within F_err of every pair's epipolar lines, the two-view geometry used:
+    two_view, or estimated from the tracks where it has no F the filter needs)."""
+    C = len(camera_names)
+    if two_view is None or (config.sfm.f_err_px is not None and
+                            not any(g.F_ji is not None for g in two_view.values())):
+        two_view = fundamental_matrices(tracks, config.sampling.seed)
+    _check_one_group(two_view, camera_names)
+    filtered = epipolar_filter(tracks, two_view, config.sfm.pair_f_err_px)
+    if config.sfm.f_err_px is not None:
+        f_err = f"{config.sfm.f_err_px} px"
+    elif config.sfm.pinhole_f_err_px is not None and \
+            len(config.sfm.mixed_rig_pinhole_cameras(C)) >= 2:
+        f_err = f"{config.sfm.pinhole_f_err_px} px between pinhole cameras"
+    else:
+        f_err = "off"
+    say_progress(progress, f"{filtered.num_tracks} of {tracks.num_tracks} tracks pass the epipolar "
+                           f"filter (F_err {f_err})")
+    return filtered, two_view
+
+
+def _refined_on_matches(state: SfMState, match_tracks: Tracks, camera_names: Sequence[str],
+                        config: PipelineConfig, progress: Progress) -> tuple[SfMState, list[str]]:
+    """The SfM's cameras on every keypoint match: cameras the matches contradict moved
+    (core.robust.placement), then refined (core.method.all_matches); and the cameras moved."""
+    state = state.on_tracks(match_tracks)
+    moved = repair_placements(state, camera_names, lambda m: say_progress(progress, m))
+    state = refine_on_tracks(state, match_tracks, camera_names, config.sfm, config.sampling.seed)
+    say_progress(progress, f"refined on all {match_tracks.num_tracks} keypoint-match tracks: "
+                           f"{int(state.point_mask().sum())} points")
+    return state, moved
 
 
 def _check_one_group(two_view: dict, camera_names: Sequence[str]) -> None:

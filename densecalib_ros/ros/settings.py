@@ -269,118 +269,18 @@ def parse_settings(values: dict[str, Any]) -> Settings:
     v = {k: (list_parameter_value(k, values.get(k)) if is_list_parameter(k) else
              values.get(k) if values.get(k) is not None else PARAMETERS[k][0])
          for k in PARAMETERS}
-    topics = list(v["image_topics"])
-    if len(topics) < 2:
-        raise InputError(f"image_topics must list at least two image topics (one per camera), got "
-                         f"{topics or 'none'}.")
-    if len(set(topics)) != len(topics) or any(not t.strip("/") for t in topics):
-        raise InputError(f"image_topics must be distinct, non-empty topic names, got {topics}.")
+    topics, names, transports, stamp_offsets = _cameras(v)
     n = len(topics)
-    names = _per_camera(list(v["camera_names"]), n, "camera_names",
-                        lambda i: camera_names_from_topics(topics)[i])
-    bad = [c for c in names if not _NAME_RE.match(c)]
-    if bad or len(set(names)) != n:
-        raise InputError(f"camera_names must be distinct identifiers ([A-Za-z_][A-Za-z0-9_]*), "
-                         f"got {names}.")
-    transports = list(v["transports"]) or ["auto"]
-    if len(transports) == 1:
-        transports = transports * n
-    transports = _per_camera(transports, n, "transports", None)
-    if any(t not in TRANSPORTS for t in transports):
-        raise InputError(f"transports must be one of {', '.join(TRANSPORTS)} per topic, got "
-                         f"{transports}.")
-    stamp_offsets = [float(o) for o in v["stamp_offsets_s"]]
-    if stamp_offsets and (len(stamp_offsets) != n
-                          or not all(math.isfinite(o) for o in stamp_offsets)):
-        raise InputError(f"stamp_offsets_s must be empty or one offset [s] per camera ({n}), got "
-                         f"{stamp_offsets}.")
-    if v["preset"] not in PRESETS:
-        raise InputError(f"preset must be one of {', '.join(PRESETS)}, got {v['preset']!r}.")
-    lenses = list(v["camera_lens"])
-    if lenses and (len(lenses) != n or any(lens not in LENS_MODELS for lens in lenses)):
-        raise InputError(f"camera_lens must be empty or give one lens per camera ({n}), each "
-                         f"{' or '.join(LENS_MODELS)}, got {lenses}.")
-    mask_files = list(v["mask_files"])
-    if len(mask_files) == 1:
-        mask_files = mask_files * n
-    mask_files = _per_camera(mask_files, n, "mask_files", lambda i: "")
-    camera_masks = {name: read_mask(os.path.expanduser(path))
-                    for name, path in zip(names, mask_files) if path}
-    intrinsics_files = [os.path.expanduser(p) for p in v["intrinsics_files"]]
-    if len(intrinsics_files) == 1:
-        intrinsics_files = [p for p in intrinsics_files if p.strip()]
-    elif intrinsics_files:
-        intrinsics_files = [f"{name}={path}" for name, path in zip(
-            names, _per_camera(intrinsics_files, n, "intrinsics_files", None)) if path]
-    known_intrinsics = read_known_intrinsics(intrinsics_files, names)
-    unknown = sorted(set(known_intrinsics) - set(names))
-    if unknown:
-        raise InputError(f"intrinsics_files name camera(s) {', '.join(unknown)}, which are not "
-                         f"among {names}: give one file per camera in camera_names' order.")
-    if v["pipeline"] not in PIPELINES:
-        raise InputError(f"pipeline must be one of {', '.join(PIPELINES)}, got {v['pipeline']!r}.")
-    if v["matcher"] not in available_matchers():
-        raise InputError(f"matcher must be one of {', '.join(available_matchers())}, got "
-                         f"{v['matcher']!r}.")
-    if v["min_frame_sets"] > v["buffer_size"]:
-        raise InputError(f"min_frame_sets ({v['min_frame_sets']}) cannot exceed buffer_size "
-                         f"({v['buffer_size']}).")
-    if not str(v["output_dir"]).strip():
-        raise InputError("output_dir must name a directory for the calibration files.")
-    frames = _per_camera(list(v["frame_names"]), n, "frame_names",
-                         lambda i: f"{names[i]}_optical_frame")
-    rig_frame = v["rig_frame"]
-    for f in frames + [rig_frame]:
-        if not _FRAME_RE.match(f):
-            raise InputError(f"Frame name {f!r} is not a valid tf frame id (letters, digits, "
-                             "'_', '/', '.', '-').")
-    if rig_frame in frames or len(set(frames)) != n:
-        raise InputError(f"rig_frame {rig_frame!r} and frame_names {frames} must all differ "
-                         "(a transform from a frame to itself is invalid in tf).")
-    if v["rig_frame_axes"] not in RIG_FRAME_AXES:
-        raise InputError(f"rig_frame_axes must be one of {', '.join(RIG_FRAME_AXES)}, got "
-                         f"{v['rig_frame_axes']!r}.")
-    if v["floor"] not in ("", *FLOOR_VIEWS):
-        raise InputError(f"floor must be '' (off) or one of {', '.join(FLOOR_VIEWS)}, got "
-                         f"{v['floor']!r}.")
-    floor_frame = v["floor_frame"]
-    if not _FRAME_RE.match(floor_frame) or floor_frame in frames + [rig_frame]:
-        raise InputError(f"floor_frame {floor_frame!r} must be a valid tf frame id that differs "
-                         f"from rig_frame and frame_names.")
-    # the node's own namespace by default: the driver publishes <image ns>/camera_info itself,
-    # and two publishers of different CameraInfo on one topic leave each reader one at random
-    info_topics = _per_camera(list(v["camera_info_topics"]), n, "camera_info_topics",
-                              lambda i: f"~/{names[i]}/camera_info")
-    services = _per_camera(list(v["set_camera_info_services"]), n, "set_camera_info_services",
-                           lambda i: f"{topic_namespace(topics[i])}/set_camera_info")
-    for what, lst in (("camera_info_topics", info_topics),
-                      ("set_camera_info_services", services)):
-        if len(set(lst)) != n:
-            raise InputError(f"The default {what} collide ({lst}): set {what} explicitly, one per "
-                             "camera.")
-    paired = list(v["stereo_pairs"])
-    if len(paired) % 2 or len(set(paired)) != len(paired) or any(c not in names
-                                                                 for c in paired):
-        raise InputError(f"stereo_pairs must list pairs of cameras of {names}, each as left then "
-                         f"right, no camera twice (a CameraInfo holds one rectification), got "
-                         f"{paired}.")
-    pairs = list(zip(paired[::2], paired[1::2]))
-    baseline_cams = list(v["baseline_cameras"])
-    if v["known_baseline_m"] > 0:
-        if len(baseline_cams) != 2 or len(set(baseline_cams)) != 2 or \
-                any(c not in names for c in baseline_cams):
-            raise InputError(f"known_baseline_m > 0 needs baseline_cameras = two different names "
-                             f"of {names}, got {baseline_cams}.")
-    elif baseline_cams and (len(baseline_cams) != 2 or any(c not in names for c in baseline_cams)):
-        raise InputError(f"baseline_cameras must be two of {names}, got {baseline_cams}.")
+    _check_choices(v)
+    lenses, camera_masks, known_intrinsics = _lenses(v, names)
+    frames, rig_frame, floor_frame = _frames(v, names)
+    info_topics, services = _camera_info_outputs(v, names, topics)
+    pairs, baseline_cams = _camera_pairs(v, names)
     focals = [float(f) for f in v["initial_focal_px"]]
     if len(focals) not in (0, 1, n) or not all(math.isfinite(f) and f > 0 for f in focals):
         raise InputError(f"initial_focal_px must be empty, one positive focal length [px] for all "
                          f"cameras or one per camera ({n}), got {focals}.")
     initial_focal_px = {"*": focals[0]} if len(focals) == 1 else dict(zip(names, focals))
-    if v["replay_bag"] and not Path(os.path.expanduser(v["replay_bag"])).exists():
-        raise InputError(f"replay_bag {v['replay_bag']} does not exist: give a rosbag2 folder or "
-                         "an .mcap/.db3 file, or leave it empty.")
     return Settings(
         image_topics=topics, camera_names=names, transports=transports,
         slop_s=float(v["slop_s"]), stamp_offsets_s=stamp_offsets or [0.0] * n,
@@ -410,3 +310,134 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         known_baseline_m=float(v["known_baseline_m"]), baseline_cameras=baseline_cams,
         replay_bag=os.path.expanduser(v["replay_bag"]), replay_rate=float(v["replay_rate"]),
         calibrate_after_replay=bool(v["calibrate_after_replay"]))
+
+
+def _cameras(v: dict) -> tuple[list, list, list, list]:
+    """(image_topics, camera_names, transports, stamp_offsets_s), checked."""
+    topics = list(v["image_topics"])
+    if len(topics) < 2:
+        raise InputError(f"image_topics must list at least two image topics (one per camera), got "
+                         f"{topics or 'none'}.")
+    if len(set(topics)) != len(topics) or any(not t.strip("/") for t in topics):
+        raise InputError(f"image_topics must be distinct, non-empty topic names, got {topics}.")
+    n = len(topics)
+    names = _per_camera(list(v["camera_names"]), n, "camera_names",
+                        lambda i: camera_names_from_topics(topics)[i])
+    bad = [c for c in names if not _NAME_RE.match(c)]
+    if bad or len(set(names)) != n:
+        raise InputError(f"camera_names must be distinct identifiers ([A-Za-z_][A-Za-z0-9_]*), "
+                         f"got {names}.")
+    transports = list(v["transports"]) or ["auto"]
+    if len(transports) == 1:
+        transports = transports * n
+    transports = _per_camera(transports, n, "transports", None)
+    if any(t not in TRANSPORTS for t in transports):
+        raise InputError(f"transports must be one of {', '.join(TRANSPORTS)} per topic, got "
+                         f"{transports}.")
+    stamp_offsets = [float(o) for o in v["stamp_offsets_s"]]
+    if stamp_offsets and (len(stamp_offsets) != n
+                          or not all(math.isfinite(o) for o in stamp_offsets)):
+        raise InputError(f"stamp_offsets_s must be empty or one offset [s] per camera ({n}), got "
+                         f"{stamp_offsets}.")
+    return topics, names, transports, stamp_offsets
+
+
+def _check_choices(v: dict) -> None:
+    """The parameters that take one of a few values, and the buffer, output and bag."""
+    for key, allowed in (("preset", PRESETS), ("pipeline", PIPELINES),
+                         ("matcher", available_matchers()), ("rig_frame_axes", RIG_FRAME_AXES)):
+        if v[key] not in allowed:
+            raise InputError(f"{key} must be one of {', '.join(allowed)}, got {v[key]!r}.")
+    if v["floor"] not in ("", *FLOOR_VIEWS):
+        raise InputError(f"floor must be '' (off) or one of {', '.join(FLOOR_VIEWS)}, got "
+                         f"{v['floor']!r}.")
+    if v["min_frame_sets"] > v["buffer_size"]:
+        raise InputError(f"min_frame_sets ({v['min_frame_sets']}) cannot exceed buffer_size "
+                         f"({v['buffer_size']}).")
+    if not str(v["output_dir"]).strip():
+        raise InputError("output_dir must name a directory for the calibration files.")
+    if v["replay_bag"] and not Path(os.path.expanduser(v["replay_bag"])).exists():
+        raise InputError(f"replay_bag {v['replay_bag']} does not exist: give a rosbag2 folder or "
+                         "an .mcap/.db3 file, or leave it empty.")
+
+
+def _lenses(v: dict, names: list) -> tuple[list, dict, dict]:
+    """(camera_lens per camera or [], camera masks by name, known intrinsics by name)."""
+    n = len(names)
+    lenses = list(v["camera_lens"])
+    if lenses and (len(lenses) != n or any(lens not in LENS_MODELS for lens in lenses)):
+        raise InputError(f"camera_lens must be empty or give one lens per camera ({n}), each "
+                         f"{' or '.join(LENS_MODELS)}, got {lenses}.")
+    mask_files = list(v["mask_files"])
+    if len(mask_files) == 1:
+        mask_files = mask_files * n
+    mask_files = _per_camera(mask_files, n, "mask_files", lambda i: "")
+    camera_masks = {name: read_mask(os.path.expanduser(path))
+                    for name, path in zip(names, mask_files) if path}
+    intrinsics_files = [os.path.expanduser(p) for p in v["intrinsics_files"]]
+    if len(intrinsics_files) == 1:
+        intrinsics_files = [p for p in intrinsics_files if p.strip()]
+    elif intrinsics_files:
+        intrinsics_files = [f"{name}={path}" for name, path in zip(
+            names, _per_camera(intrinsics_files, n, "intrinsics_files", None)) if path]
+    known_intrinsics = read_known_intrinsics(intrinsics_files, names)
+    unknown = sorted(set(known_intrinsics) - set(names))
+    if unknown:
+        raise InputError(f"intrinsics_files name camera(s) {', '.join(unknown)}, which are not "
+                         f"among {names}: give one file per camera in camera_names' order.")
+    return lenses, camera_masks, known_intrinsics
+
+
+def _frames(v: dict, names: list) -> tuple[list, str, str]:
+    """(frame_names, rig_frame, floor_frame): valid tf frame ids, all different."""
+    frames = _per_camera(list(v["frame_names"]), len(names), "frame_names",
+                         lambda i: f"{names[i]}_optical_frame")
+    rig_frame = v["rig_frame"]
+    for f in frames + [rig_frame]:
+        if not _FRAME_RE.match(f):
+            raise InputError(f"Frame name {f!r} is not a valid tf frame id (letters, digits, "
+                             "'_', '/', '.', '-').")
+    if rig_frame in frames or len(set(frames)) != len(names):
+        raise InputError(f"rig_frame {rig_frame!r} and frame_names {frames} must all differ "
+                         "(a transform from a frame to itself is invalid in tf).")
+    floor_frame = v["floor_frame"]
+    if not _FRAME_RE.match(floor_frame) or floor_frame in frames + [rig_frame]:
+        raise InputError(f"floor_frame {floor_frame!r} must be a valid tf frame id that differs "
+                         f"from rig_frame and frame_names.")
+    return frames, rig_frame, floor_frame
+
+
+def _camera_info_outputs(v: dict, names: list, topics: list) -> tuple[list, list]:
+    """(camera_info_topics, set_camera_info_services), one per camera, distinct."""
+    n = len(names)
+    # the node's own namespace by default: the driver publishes <image ns>/camera_info itself,
+    # and two publishers of different CameraInfo on one topic leave each reader one at random
+    info_topics = _per_camera(list(v["camera_info_topics"]), n, "camera_info_topics",
+                              lambda i: f"~/{names[i]}/camera_info")
+    services = _per_camera(list(v["set_camera_info_services"]), n, "set_camera_info_services",
+                           lambda i: f"{topic_namespace(topics[i])}/set_camera_info")
+    for what, lst in (("camera_info_topics", info_topics),
+                      ("set_camera_info_services", services)):
+        if len(set(lst)) != n:
+            raise InputError(f"The default {what} collide ({lst}): set {what} explicitly, one per "
+                             "camera.")
+    return info_topics, services
+
+
+def _camera_pairs(v: dict, names: list) -> tuple[list, list]:
+    """(stereo_pairs as (left, right) tuples, baseline_cameras)."""
+    paired = list(v["stereo_pairs"])
+    if len(paired) % 2 or len(set(paired)) != len(paired) or any(c not in names
+                                                                 for c in paired):
+        raise InputError(f"stereo_pairs must list pairs of cameras of {names}, each as left then "
+                         f"right, no camera twice (a CameraInfo holds one rectification), got "
+                         f"{paired}.")
+    baseline_cams = list(v["baseline_cameras"])
+    if v["known_baseline_m"] > 0:
+        if len(baseline_cams) != 2 or len(set(baseline_cams)) != 2 or \
+                any(c not in names for c in baseline_cams):
+            raise InputError(f"known_baseline_m > 0 needs baseline_cameras = two different names "
+                             f"of {names}, got {baseline_cams}.")
+    elif baseline_cams and (len(baseline_cams) != 2 or any(c not in names for c in baseline_cams)):
+        raise InputError(f"baseline_cameras must be two of {names}, got {baseline_cams}.")
+    return list(zip(paired[::2], paired[1::2])), baseline_cams
