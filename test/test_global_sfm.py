@@ -257,7 +257,7 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
 def test_previous_cameras_of_another_model_are_re_expressed_in_the_preset_model():
     """A previous calibration from another tool (PINHOLE fx != fy) starts RADIAL with the mean
     focal and the same principal point; fisheye terms are not carried into a pinhole model."""
-    from densecalib_ros.core.method.global_sfm import convert_intrinsics, poses_from_previous
+    from densecalib_ros.core.method.previous_start import convert_intrinsics, poses_from_previous
     from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
     pinhole = CameraIntrinsics("PINHOLE", 640, 480, np.array([500.0, 510.0, 321.0, 242.0]))

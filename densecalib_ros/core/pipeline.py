@@ -391,7 +391,8 @@ def _sampled_tracks(match_sets: list, image_sizes: Sequence[tuple[int, int]],
 
     given = None
     if previous is not None and config.pipeline == "global" and config.sfm.global_init == "previous":
-        from .method.global_sfm import working_models, poses_from_previous
+        from .method.global_sfm import working_models
+        from .method.previous_start import poses_from_previous
 
         intrinsics, poses = poses_from_previous(previous, camera_names, image_sizes,
                                                 working_models(config.sfm, len(camera_names)))

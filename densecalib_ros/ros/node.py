@@ -83,8 +83,8 @@ from ..core.method.known_intrinsics import with_previous_intrinsics
 from ..core.products.report import info_strips_line
 from ..core.types import RigCalibration
 from .core_logs import forward_core_logs, stop_forwarding
-from .frame_loss import LOSS_HINT
 from .diagnostics import rig_diagnostic_status
+from .frame_loss import LOSS_HINT
 from .intake import ImageIntake
 from .publishing import CalibrationPublisher, floor_parent
 from .replay import BagReplayer

@@ -35,7 +35,7 @@ import copy
 import functools
 import logging
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 import pycolmap
@@ -48,6 +48,7 @@ from ..types import CameraIntrinsics, RigCalibration, Tracks
 from .incremental import ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES
 from .multistart import cost_truncation_px, held_out_cost, run_incremental, truncated_cost
 from .plausibility import bundle_adjust_plausibly, drop_implausible_cameras, implausible_cameras
+from .previous_start import poses_from_previous
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
                              convert_camera_models, matrix_from_rigid, reprojection_errors,
                              triangulate_tracks)
@@ -210,61 +211,6 @@ def snapped_centres(cam_from_world: Sequence[np.ndarray]) -> list[np.ndarray]:
     return out
 
 
-def poses_from_previous(previous: RigCalibration, camera_names: Sequence[str],
-                        image_sizes: Sequence[tuple[int, int]],
-                        models: Sequence[Sequence[str]] = ()
-                        ) -> tuple[list[CameraIntrinsics], list[np.ndarray]]:
-    """Intrinsics and cam_from_world (= cam_from_rig: world = the previous rig frame) of every
-    camera from a previous calibration. models: per camera, the models the pipeline works in (its
-    initial model first, then its refinement model: working_models); a previous camera of
-    another model (e.g. PINHOLE from another tool) is re-expressed in the first of them
-    (`convert_intrinsics`), since the staged BA refines exactly the parameters of that model.
-    Raises InputError when a camera is missing from it or its image size changed."""
-    intrinsics, poses = [], []
-    for c, (name, (w, h)) in enumerate(zip(camera_names, image_sizes)):
-        cam = previous.cameras.get(name)
-        if cam is None:
-            raise InputError(
-                f"Camera {name!r} is not in the previous calibration (cameras: "
-                f"{', '.join(previous.cameras) or 'none'}): recalibrate with "
-                "sfm.global_init='rotation_averaging' instead.")
-        if (int(cam.intrinsics.width), int(cam.intrinsics.height)) != (int(w), int(h)):
-            raise InputError(
-                f"Camera {name!r} was calibrated at {cam.intrinsics.width}x{cam.intrinsics.height} "
-                f"but its images are now {w}x{h}: recalibrate with "
-                "sfm.global_init='rotation_averaging'.")
-        start = CameraIntrinsics(cam.intrinsics.model, w, h,
-                                 np.array(cam.intrinsics.params, dtype=np.float64))
-        if models and start.model not in models[c]:
-            start = convert_intrinsics(start, models[c][0])
-        intrinsics.append(start)
-        poses.append(np.asarray(cam.cam_from_rig, dtype=np.float64).copy())
-    return intrinsics, poses
-
-
-# Positions of the radial terms k1, k2 (if any) in each COLMAP model's parameter vector.
-_RADIAL_TERMS = {"SIMPLE_PINHOLE": (), "PINHOLE": (), "SIMPLE_RADIAL": (3,), "RADIAL": (3, 4),
-                 "OPENCV": (4, 5), "FULL_OPENCV": (4, 5), "SIMPLE_RADIAL_FISHEYE": (3,),
-                 "RADIAL_FISHEYE": (3, 4), "OPENCV_FISHEYE": (4, 5)}
-
-
-def convert_intrinsics(camera: CameraIntrinsics, model: str) -> CameraIntrinsics:
-    """`camera` re-expressed in a (f, cx, cy, k1, k2) model (RADIAL or RADIAL_FISHEYE): mean focal,
-    principal point, and the first two radial terms when the source model has the same kind of
-    lens (pinhole family -> RADIAL, fisheye family -> RADIAL_FISHEYE), else zero. Approximate
-    where the source has more terms; it is a starting point for bundle adjustment."""
-    if model not in ("RADIAL", "RADIAL_FISHEYE") or camera.model not in _RADIAL_TERMS:
-        raise InputError(f"Cannot start a {model} calibration from a {camera.model} camera: "
-                         "recalibrate with sfm.global_init='rotation_averaging'.")
-    src = camera.to_pycolmap()
-    k = [0.0, 0.0]
-    if ("FISHEYE" in camera.model) == ("FISHEYE" in model):
-        for n, idx in enumerate(_RADIAL_TERMS[camera.model]):
-            k[n] = float(camera.params[idx])
-    params = [src.mean_focal_length(), src.principal_point_x, src.principal_point_y, *k]
-    return CameraIntrinsics(model, camera.width, camera.height, np.array(params, dtype=np.float64))
-
-
 def residual_stats(state: SfMState, max_error_px: float = TRIANGULATION_MAX_ERROR_PX) -> dict:
     """Reprojection residuals of the active observations of reconstruction points: median_px (all),
     rms_px (those <= max_error_px) and outlier_fraction (above it or behind the camera). Without
@@ -395,11 +341,24 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         raise NotEnoughCamerasError(
             "Global SfM found no usable start (rotation averaging and incremental both failed): "
             "check that the cameras overlap and see textured scene content.")
-    # Both starts are refined on the same observations; keep the better fit (no ground truth
-    # needed): most cameras posed with plausible intrinsics, then the lowest truncated
-    # reprojection cost, on the validation tracks where given (matches neither start was fitted
-    # to), else on the tracks.
-    trunc = cost_truncation_px(config, tracks.num_cameras)
+    init, state, stats, gauge, order = _best_start(candidates, config, seed, validation_tracks,
+                                                   say)
+    outliers, failed = _without_outliers(state, camera_names, say)
+    quality = dict(global_init=init, gauge_camera=camera_names[gauge],
+                   num_outlier_observations=int(outliers.sum()), stage_residuals=stats)
+    return GlobalResult(state=state, view_order=order, failed=failed, gauge_camera=gauge,
+                        quality=quality)
+
+
+def _best_start(candidates: list, config: SfMConfig, seed: int,
+                validation_tracks: Optional[Tracks], say: Callable[[str], None]) -> tuple:
+    """The candidate (name, state, stage stats, gauge camera, view order) that fits best.
+
+    Both starts are refined on the same observations; keep the better fit (no ground truth
+    needed): most cameras posed with plausible intrinsics, then the lowest truncated
+    reprojection cost, on the validation tracks where given (matches neither start was fitted
+    to), else on the tracks."""
+    trunc = cost_truncation_px(config, candidates[0][1].num_cameras)
     judge = validation_tracks is not None and validation_tracks.num_tracks > 0
 
     def cost(state: SfMState) -> float:
@@ -408,19 +367,27 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     costs = [(-(len(cand[1].registered()) - len(implausible_cameras(cand[1]))), cost(cand[1]))
              for cand in candidates]
     best = min(range(len(candidates)), key=lambda k: costs[k])
-    init, state, stats, gauge, order = candidates[best]
     if len(candidates) > 1:
         judged_on = (f"{validation_tracks.num_tracks} keypoint-match tracks" if judge
                      else "the sampled tracks")
         say(f"global starts (truncated reprojection cost on {judged_on}): " + ", ".join(
-            f"{cand[0]} {c[1]:.3f} px" for cand, c in zip(candidates, costs)) + f"; kept {init}")
-    # Gross outliers took part in every stage under the robust loss; they are left out of the
-    # result (its statistics and COLMAP model) only now, so the estimate does not depend on it.
+            f"{cand[0]} {c[1]:.3f} px" for cand, c in zip(candidates, costs))
+            + f"; kept {candidates[best][0]}")
+    return candidates[best]
+
+
+def _without_outliers(state: SfMState, camera_names: Sequence[str],
+                      say: Callable[[str], None]) -> tuple[np.ndarray, list[int]]:
+    """(the observations taken out as outliers, the failed cameras), in place.
+
+    Gross outliers took part in every stage under the robust loss; they are left out of the
+    result (its statistics and COLMAP model) only now, so the estimate does not depend on it.
+    A camera with (almost) no observations of reconstruction points has no trustworthy pose."""
+    C = state.num_cameras
     err = reprojection_errors(state)
     outliers = np.nan_to_num(err, nan=0.0) > TRIANGULATION_MAX_ERROR_PX
     state.active[outliers] = False
     err[outliers] = np.nan
-    # A camera with (almost) no observations of reconstruction points has no trustworthy pose.
     failed = [c for c in range(C) if state.cam_from_world[c] is None
               or np.isfinite(err[:, c]).sum() < MIN_CAMERA_OBSERVATIONS]
     for c in failed:
@@ -430,10 +397,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         raise NotEnoughCamerasError(
             "Fewer than two cameras keep enough observations after global SfM: check that the "
             "cameras overlap and see textured scene content.")
-    quality = dict(global_init=init, gauge_camera=camera_names[gauge],
-                   num_outlier_observations=int(outliers.sum()), stage_residuals=stats)
-    return GlobalResult(state=state, view_order=order, failed=failed, gauge_camera=gauge,
-                        quality=quality)
+    return outliers, failed
 
 
 def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
