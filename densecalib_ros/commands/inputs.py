@@ -113,28 +113,7 @@ def _frame_sets(args, default: int) -> int:
 def read_input(args) -> tuple[list, list[str], dict, list]:
     """(frame_sets, camera names, the input's record for quality["input"], image paths per set
     (--images only, else []))."""
-    video_only = [opt for opt, value in (("--start", args.start), ("--end", args.end))
-                  if value is not None]
-    if video_only and not args.videos:
-        raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
-    if args.time_offset and not (args.videos or args.bag or
-                                 (args.images and args.align == "time")):
-        raise InputError("--time-offset belongs to --videos, --bag or --images with --align "
-                         "time.")
-    if args.time_offset and "auto" in args.time_offset and args.time_offset != ["auto"]:
-        raise InputError(f"--time-offset {' '.join(args.time_offset)}: give `auto` alone or "
-                         "NAME=S values, not both.")
-    if args.align != "auto" and not args.images:
-        raise InputError("--align belongs to --images (camera subfolders).")
-    if args.slop is not None and not args.bag:
-        raise InputError("--slop belongs to --bag (how far apart the stamps of a frame set may "
-                         "be); with --images use --align time --max-time-gap.")
-    if args.max_time_gap is not None and not (args.images and args.align == "time"):
-        raise InputError("--max-time-gap belongs to --images with --align time (EXIF capture "
-                         "times); with --bag use --slop.")
-    for option, value in (("--slop", args.slop), ("--max-time-gap", args.max_time_gap)):
-        if value is not None and not (np.isfinite(value) and value >= 0):
-            raise InputError(f"{option} {value:g}: give a time in seconds, 0 or more.")
+    _check_input_options(args)
     if args.videos:
         if args.topics:
             raise InputError("--topics belongs to --bag; with --videos the camera names come "
@@ -193,6 +172,32 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
     return frame_sets, names, {"source": "bag", "path": str(Path(args.bag).resolve()),
                                "topics": list(args.topics), **record,
                                "frame_set_stamps_ns": stamps}, []
+
+
+def _check_input_options(args) -> None:
+    """InputError for an option given with an input it does not belong to, or out of range."""
+    video_only = [opt for opt, value in (("--start", args.start), ("--end", args.end))
+                  if value is not None]
+    if video_only and not args.videos:
+        raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
+    if args.time_offset and not (args.videos or args.bag or
+                                 (args.images and args.align == "time")):
+        raise InputError("--time-offset belongs to --videos, --bag or --images with --align "
+                         "time.")
+    if args.time_offset and "auto" in args.time_offset and args.time_offset != ["auto"]:
+        raise InputError(f"--time-offset {' '.join(args.time_offset)}: give `auto` alone or "
+                         "NAME=S values, not both.")
+    if args.align != "auto" and not args.images:
+        raise InputError("--align belongs to --images (camera subfolders).")
+    if args.slop is not None and not args.bag:
+        raise InputError("--slop belongs to --bag (how far apart the stamps of a frame set may "
+                         "be); with --images use --align time --max-time-gap.")
+    if args.max_time_gap is not None and not (args.images and args.align == "time"):
+        raise InputError("--max-time-gap belongs to --images with --align time (EXIF capture "
+                         "times); with --bag use --slop.")
+    for option, value in (("--slop", args.slop), ("--max-time-gap", args.max_time_gap)):
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            raise InputError(f"{option} {value:g}: give a time in seconds, 0 or more.")
 
 
 def _motion_offsets(estimates: dict, what: str) -> tuple[dict, dict]:

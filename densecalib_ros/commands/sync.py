@@ -64,31 +64,7 @@ def run(args: argparse.Namespace) -> int:
         if args.trim:
             from ..core.io.safe_write import check_output_folder
             check_output_folder(args.trim, TRIM_MARKERS, [args.videos])
-        if args.time_offset:
-            estimates = _given_offsets(args)
-            from .inputs import parse_time_offsets
-            named = parse_time_offsets(args.time_offset)
-            evidence = {n: "given" if n in named else "not given: 0" for n in estimates}
-            evidence_json = {n: {"given": n in named} for n in estimates}
-        elif args.videos:
-            from ..core.io.motion_sync import estimate_video_offsets
-            from ..core.io.video_io import list_video_folder
-            estimates = estimate_video_offsets(*list_video_folder(args.videos))
-            evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
-            evidence_json = _measured_evidence(estimates)
-        elif args.bag:
-            from ..core.io.bag import camera_names_from_topics
-            from ..core.io.motion_sync import bag_offsets
-            estimates = bag_offsets(args.bag, args.topics, camera_names_from_topics(args.topics))
-            evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
-            evidence_json = _measured_evidence(estimates)
-        else:
-            from ..core.io.clock_offsets import estimate_clock_offsets
-            from ..core.io.image_io import DEFAULT_MAX_TIME_GAP_S, capture_times_by_camera
-            gap = DEFAULT_MAX_TIME_GAP_S if args.max_time_gap is None else args.max_time_gap
-            estimates = estimate_clock_offsets(capture_times_by_camera(args.images), gap)
-            evidence = {n: f"{e.paired_shots} shots paired" for n, e in estimates.items()}
-            evidence_json = _measured_evidence(estimates)
+        estimates, evidence, evidence_json = _offsets(args)
     except InputError as exc:
         log.error("%s", exc)
         return 2
@@ -132,6 +108,37 @@ def run(args: argparse.Namespace) -> int:
         print("densecalib_node (image_topics in this order): stamp_offsets_s:=["
               + ", ".join(f"{e.offset_s:.4f}" for e in estimates.values()) + "]")
     return 0
+
+
+def _offsets(args: argparse.Namespace) -> tuple[dict, dict, dict]:
+    """(camera -> offset estimate, camera -> evidence said, camera -> evidence for --json): the
+    given offsets, else measured from the videos' motion, the bag's, or the images' times."""
+    if args.time_offset:
+        estimates = _given_offsets(args)
+        from .inputs import parse_time_offsets
+        named = parse_time_offsets(args.time_offset)
+        evidence = {n: "given" if n in named else "not given: 0" for n in estimates}
+        evidence_json = {n: {"given": n in named} for n in estimates}
+    elif args.videos:
+        from ..core.io.motion_sync import estimate_video_offsets
+        from ..core.io.video_io import list_video_folder
+        estimates = estimate_video_offsets(*list_video_folder(args.videos))
+        evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
+        evidence_json = _measured_evidence(estimates)
+    elif args.bag:
+        from ..core.io.bag import camera_names_from_topics
+        from ..core.io.motion_sync import bag_offsets
+        estimates = bag_offsets(args.bag, args.topics, camera_names_from_topics(args.topics))
+        evidence = {n: f"correlation {e.correlation:.2f}" for n, e in estimates.items()}
+        evidence_json = _measured_evidence(estimates)
+    else:
+        from ..core.io.clock_offsets import estimate_clock_offsets
+        from ..core.io.image_io import DEFAULT_MAX_TIME_GAP_S, capture_times_by_camera
+        gap = DEFAULT_MAX_TIME_GAP_S if args.max_time_gap is None else args.max_time_gap
+        estimates = estimate_clock_offsets(capture_times_by_camera(args.images), gap)
+        evidence = {n: f"{e.paired_shots} shots paired" for n, e in estimates.items()}
+        evidence_json = _measured_evidence(estimates)
+    return estimates, evidence, evidence_json
 
 
 def _measured_evidence(estimates: dict) -> dict:

@@ -56,9 +56,8 @@ def run(args: argparse.Namespace) -> int:
                                   write_calibration_files)
     from ..core.io.safe_write import (check_output_folder, replace_directory_atomic,
                                       write_text_atomic)
-    from ..core.io.image_io import camera_image_files, read_image
-    from ..core.products.stereo import stereo_pair
-    from ..core.products.undistort import pinhole_for, rectified_pinhole, undistortion_maps
+    from ..core.io.image_io import camera_image_files
+    from ..core.products.undistort import undistortion_maps
 
     try:
         if not 0.0 < args.max_fov < 180.0:
@@ -67,16 +66,8 @@ def run(args: argparse.Namespace) -> int:
             calibration_folder(args.calibration)]
         check_output_folder(args.out, CALIBRATION_MARKERS, inputs)
         rig = read_calibration(args.calibration)
-        # camera -> (target camera, rotation of the target from the source camera or None)
-        targets = {name: (pinhole_for(cam.intrinsics, args.max_fov), None)
-                   for name, cam in rig.cameras.items()}
-        if args.stereo_pair:
-            rect = stereo_pair(rig, args.stereo_pair, args.alpha, left_to_right=False)
-            targets = {
-                rect.left: (rectified_pinhole(rect.projection_left, rect.width, rect.height),
-                            rect.rect_from_left),
-                rect.right: (rectified_pinhole(rect.projection_right, rect.width, rect.height),
-                             rect.rect_from_right)}
+        targets, rect = _targets(rig, args)
+        if rect is not None:
             rig = _rectified_rig(rig, targets)
         source_dir = args.images or args.videos
         what = "videos" if args.videos else "images"
@@ -110,17 +101,8 @@ def run(args: argparse.Namespace) -> int:
                              target.params[0])
                     continue
                 for path in files:
-                    image = read_image(path)
-                    if (image.shape[1], image.shape[0]) != (source.width, source.height):
-                        raise InputError(f"{path} is {image.shape[1]}x{image.shape[0]}, but "
-                                         f"camera {name} was calibrated at {source.width}x"
-                                         f"{source.height}.")
-                    undistorted = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR,
-                                            borderMode=cv2.BORDER_CONSTANT)
-                    dest = tmp / f"{name}.png" if flat else tmp / name / f"{path.stem}.png"
-                    dest.parent.mkdir(parents=True, exist_ok=True)
-                    if not cv2.imwrite(str(dest), cv2.cvtColor(undistorted, cv2.COLOR_RGB2BGR)):
-                        raise InputError(f"Cannot write {dest}: check the disk and permissions.")
+                    _remap_image(path, tmp / f"{name}.png" if flat
+                                 else tmp / name / f"{path.stem}.png", (map_x, map_y), source, name)
                 log.info("%s: %d image(s), focal %.1f px, principal point (%.1f, %.1f)", name,
                          len(files), target.params[0], target.params[2] - 0.5,
                          target.params[3] - 0.5)
@@ -146,6 +128,36 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {count} of {len(jobs) - len(missing)} camera(s) and their pinhole "
           "calibration")
     return 0
+
+
+def _targets(rig, args: argparse.Namespace) -> tuple[dict, object]:
+    """(camera -> (target pinhole camera, rotation of the target from the source camera or
+    None), the stereo pair's rectification or None)."""
+    from ..core.products.stereo import stereo_pair
+    from ..core.products.undistort import pinhole_for, rectified_pinhole
+
+    if not args.stereo_pair:
+        return {name: (pinhole_for(cam.intrinsics, args.max_fov), None)
+                for name, cam in rig.cameras.items()}, None
+    rect = stereo_pair(rig, args.stereo_pair, args.alpha, left_to_right=False)
+    return {rect.left: (rectified_pinhole(rect.projection_left, rect.width, rect.height),
+                        rect.rect_from_left),
+            rect.right: (rectified_pinhole(rect.projection_right, rect.width, rect.height),
+                         rect.rect_from_right)}, rect
+
+
+def _remap_image(path: Path, dest: Path, maps, source, name: str) -> None:
+    """Write image `path` of camera `name`, resampled by maps (map_x, map_y), as PNG to dest."""
+    from ..core.io.image_io import read_image
+
+    image = read_image(path)
+    if (image.shape[1], image.shape[0]) != (source.width, source.height):
+        raise InputError(f"{path} is {image.shape[1]}x{image.shape[0]}, but camera {name} was "
+                         f"calibrated at {source.width}x{source.height}.")
+    undistorted = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(dest), cv2.cvtColor(undistorted, cv2.COLOR_RGB2BGR)):
+        raise InputError(f"Cannot write {dest}: check the disk and permissions.")
 
 
 def _camera_video(directory: str, name: str) -> list[Path]:

@@ -111,20 +111,39 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
             cv2.line(img, (int(x / texel_m), 0), (int(x / texel_m), h - 1),
                      (0.15, 0.1, 0.06), max(1, int(0.006 / texel_m)))
     px = 1.0 / texel_m
-    # Shape layers, densities per m^2, sizes log-uniform over a decade or two.
-    n_patch = rng.poisson(st["patches"] * area)
+    # Shape layers, densities per m^2, sizes log-uniform over a decade or two; drawn in this
+    # order (the rng's draws with them).
+    _patches(img, rng, colors, rng.poisson(st["patches"] * area), px)
+    _stones(img, rng, colors, rng.poisson(st["stones"] * area), px)
+    _leaves(img, rng, rng.poisson(st["leaves"] * area), px)
+    _lines(img, rng, colors, rng.poisson(st["lines"] * area), px)
+    # Fine multi-scale brightness texture over everything (grain, dirt, stains).
+    detail = value_noise(rng, h, w, texel_m, [0.3, 0.08, 0.03, 0.012, 3 * texel_m])
+    img *= (1 + 0.18 * detail)[..., None]
+    return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def _patches(img: np.ndarray, rng: np.random.Generator, colors: np.ndarray, n_patch: int,
+             px: float) -> None:
+    """Rectangles of the palette's colours, some with strokes ("print" on a poster)."""
+    h, w = img.shape[:2]
     for col in _shape_colors(rng, colors[rng.integers(0, 3, n_patch)][:, ::-1]):
         c = (rng.uniform(0, w), rng.uniform(0, h))
         size = (rng.uniform(0.08, 0.5) * px, rng.uniform(0.08, 0.5) * px)
         box = cv2.boxPoints((c, size, rng.uniform(0, 180))).astype(np.int32)
         cv2.fillPoly(img, [box], col)
-        n_strokes = int(rng.integers(0, 5))  # "print" on a poster: strokes
+        n_strokes = int(rng.integers(0, 5))
         for stroke in _shape_colors(rng, np.full((n_strokes, 3), 0.2)):
             p0 = box[0] + rng.uniform(0, 1, 2) * (box[2] - box[0])
             p1 = p0 + rng.normal(0, 0.04 * px, 2)
             cv2.line(img, tuple(int(v) for v in p0), tuple(int(v) for v in p1), stroke,
                      max(1, int(0.008 * px)), cv2.LINE_AA)
-    n_stones = rng.poisson(st["stones"] * area)
+
+
+def _stones(img: np.ndarray, rng: np.random.Generator, colors: np.ndarray, n_stones: int,
+            px: float) -> None:
+    """Ellipses, the larger with a shaded rim (3D look, corners for detectors)."""
+    h, w = img.shape[:2]
     sizes = np.maximum(np.exp(rng.uniform(np.log(0.004), np.log(0.09), n_stones)) * px, 1.0)
     centres = (rng.uniform(0, 1, (n_stones, 2)) * (w, h)).astype(int).tolist()
     flat = rng.uniform(0.4, 1.0, n_stones)
@@ -136,10 +155,14 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
     for i, s in enumerate(sizes.tolist()):
         axes = (max(1, int(s)), max(1, int(s * flat[i])))
         cv2.ellipse(img, centres[i], axes, angles[i, 0], 0, 360, fill[i], -1, cv2.LINE_AA)
-        if s > 6:  # shaded rim makes stones look 3D and adds corners for detectors
+        if s > 6:
             cv2.ellipse(img, centres[i], axes, angles[i, 1], angles[i, 2], angles[i, 3], rim[i],
                         max(1, int(s / 8)), cv2.LINE_AA)
-    n_leaves = rng.poisson(st["leaves"] * area)
+
+
+def _leaves(img: np.ndarray, rng: np.random.Generator, n_leaves: int, px: float) -> None:
+    """Green-brown leaf shapes with a vein."""
+    h, w = img.shape[:2]
     tt = np.linspace(0, np.pi, 7)
     half_leaf = np.stack([(1 - np.cos(tt)) / 2, np.sin(tt)], 1)
     outline = np.concatenate([half_leaf, half_leaf[::-1] * (1, -1)])  # unit length/width
@@ -156,8 +179,13 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
         cv2.fillPoly(img, [pts], leaf_fill[i], cv2.LINE_AA)
         cv2.line(img, tuple(pts[0].tolist()), tuple(pts[6].tolist()), leaf_vein[i], 1,
                  cv2.LINE_AA)
-    n_lines = rng.poisson(st["lines"] * area)
-    for col in _shape_colors(rng, np.tile(colors[0] * 0.4, (n_lines, 1))):  # cracks, twigs
+
+
+def _lines(img: np.ndarray, rng: np.random.Generator, colors: np.ndarray, n_lines: int,
+           px: float) -> None:
+    """Cracks and twigs: random walks."""
+    h, w = img.shape[:2]
+    for col in _shape_colors(rng, np.tile(colors[0] * 0.4, (n_lines, 1))):
         p = rng.uniform(0, 1, 2) * (w, h)
         ang = rng.uniform(0, 2 * np.pi)
         pts = [p.copy()]
@@ -167,10 +195,6 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
             pts.append(p.copy())
         cv2.polylines(img, [np.array(pts, np.int32)], False, col,
                       max(1, int(rng.uniform(0.001, 0.006) * px)), cv2.LINE_AA)
-    # Fine multi-scale brightness texture over everything (grain, dirt, stains).
-    detail = value_noise(rng, h, w, texel_m, [0.3, 0.08, 0.03, 0.012, 3 * texel_m])
-    img *= (1 + 0.18 * detail)[..., None]
-    return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
 def build_atlas(rng: np.random.Generator, extents: dict[int, tuple[float, float]],
