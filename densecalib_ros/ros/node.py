@@ -83,6 +83,7 @@ from ..core.method.known_intrinsics import with_previous_intrinsics
 from ..core.products.report import info_strips_line
 from ..core.types import RigCalibration
 from .core_logs import forward_core_logs, stop_forwarding
+from .checking import CheckOutcome, check_frame_sets
 from .diagnostics import rig_diagnostic_status
 from .frame_loss import LOSS_HINT
 from .intake import ImageIntake
@@ -107,16 +108,6 @@ _WRITE_GRACE_S = 1.5
 # be odd (few matches, something that moved between the shots of unsynchronised cameras), and is
 # not worth replacing a good calibration.
 WATCH_CONFIRM_SETS = 2
-
-
-@dataclass
-class _CheckOutcome:
-    """A check's result: fits None = it could not tell (too few matches, no frame sets)."""
-    fits: Optional[bool]
-    message: str
-    misfit_sets: int = 0  # the frame sets the failing figures come from
-    calibration_dir: Optional[Path] = None  # the calibration it judged
-    at: float = field(default_factory=time.time)
 
 
 @dataclass
@@ -172,7 +163,7 @@ class DenseCalibNode(Node):
         self._calibrated_at: Optional[float] = None  # time.time() of the published calibration
         self._last_failure: Optional[str] = None
         self._status = "idle"
-        self._last_check: Optional[_CheckOutcome] = None
+        self._last_check: Optional[CheckOutcome] = None
         # the newest frame set a watch check has seen (by identity: stamps may jump back when
         # a bag is replayed again or sim time restarts; the buffer only appends and drops)
         self._watched_last: Optional[FrameSet] = None
@@ -422,7 +413,7 @@ class DenseCalibNode(Node):
                          "info" if response.success or outcome is None else "warning")
         return response
 
-    def _run_check(self, sets: Optional[list] = None) -> Optional[_CheckOutcome]:
+    def _run_check(self, sets: Optional[list] = None) -> Optional[CheckOutcome]:
         """A check of `sets` (default: the buffer, as ~/check does); None when a job is running.
         It holds the job slot, so that no calibration swaps the matcher meanwhile."""
         with self._state_lock:
@@ -432,10 +423,10 @@ class DenseCalibNode(Node):
         try:
             outcome = self._check(sets)
         except CalibrationError as exc:  # InputError included
-            outcome = _CheckOutcome(None, f"check failed: {exc}")
+            outcome = CheckOutcome(None, f"check failed: {exc}")
         except Exception as exc:  # a bug must still answer the call
             self.get_logger().error(f"check crashed: {exc!r}")
-            outcome = _CheckOutcome(None, f"check crashed: {exc!r}")
+            outcome = CheckOutcome(None, f"check crashed: {exc!r}")
         finally:
             with self._state_lock:
                 self._job = None
@@ -505,41 +496,17 @@ class DenseCalibNode(Node):
         self._set_status(f"clear: {response.message}")
         return response
 
-    def _check(self, sets: Optional[list] = None) -> _CheckOutcome:
-        from ..core.monitor.consistency import best_transfer_per_camera, check_latest
-        from ..core.pipeline import match_frame_sets
-        from ..core.io.reference_view_files import read_reference_views
-        from ..core.monitor.reference_views import check_verdict, compare_with_reference_views
-
+    def _check(self, sets: Optional[list] = None) -> CheckOutcome:
         s, rig = self.settings, self.calibration
         if rig is None:
-            return _CheckOutcome(None, "no calibration to check yet: call ~/calibrate first")
+            return CheckOutcome(None, "no calibration to check yet: call ~/calibrate first")
         sets = evenly_spaced(self.sync.snapshot() if sets is None else sets, s.max_frame_sets)
         if not sets:
-            return _CheckOutcome(None, "no synchronised frame sets buffered to check the "
-                                       "calibration with: "
-                                 + self.sync.why_few_sets(s.camera_names, s.image_topics))
+            return CheckOutcome(None, "no synchronised frame sets buffered to check the "
+                                      "calibration with: "
+                                + self.sync.why_few_sets(s.camera_names, s.image_topics))
         sets, images = self._decoded(sets, 1)
-        match_sets = match_frame_sets(images, pipeline_config(s), matcher=self._matcher_for(s),
-                                      camera_names=s.camera_names)
-        report = check_latest(rig, s.camera_names, match_sets, s.check_tolerance_px)
-        k = report.frame_sets_before_change
-        since = (f" (the change came before the frame set stamped {sets[k].stamp_ns * 1e-9:.3f} "
-                 "s)" if k else "")
-        views = None
-        references = (read_reference_views(self.calibration_dir, s.camera_names)
-                      if self.calibration_dir is not None else {})
-        if references:
-            views = compare_with_reference_views(rig, s.camera_names, images, references,
-                                                 s.check_tolerance_px)
-        fits, verdict = check_verdict(report, views, report.verdict() + since,
-                                      [n for n in s.camera_names if n in rig.cameras])
-        per_camera = ", ".join(f"{t.target} {t.median_error_px:.2f}"
-                               for t in best_transfer_per_camera(report.transfers))
-        return _CheckOutcome(fits, f"{verdict}; {len(sets)} frame sets"
-                             + (f"; transfer error px: {per_camera}" if per_camera else ""),
-                             misfit_sets=max(0 if report.fits else len(sets) - k,
-                                             views.changed_sets if views else 0))
+        return check_frame_sets(rig, self.calibration_dir, s, sets, images, self._matcher_for(s))
 
     def _decoded(self, sets: list, needed: int) -> tuple[list, list]:
         """The sets whose images decode and their images; a camera whose frames do not decode
