@@ -374,7 +374,10 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
         sampled, given = _sampled_tracks(match_sets, image_sizes, camera_names, config, previous)
     except FocalInitError as exc:  # it knows the cameras by index only
         raise exc.named(camera_names) from exc
-    say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks")
+    stats = sampled.stats
+    say_progress(progress, f"sampled {sampled.tracks.num_tracks} tracks (per order "
+                           f"{stats['tracks_per_order']}) from {stats['closed_cycles']} closed "
+                           "cycles")
     # Focals the user or EXIF gave (a previous calibration's are calibrated, not guessed).
     known = previous is None and given is not None
     return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,

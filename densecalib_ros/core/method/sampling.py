@@ -195,7 +195,7 @@ def sample_tracks(match_sets: list[SiteMatchSet], config: PipelineConfig,
     stats["halvings"] = halvings
     stats["tracks_per_order"] = {n: int((tracks.cycle_order == n).sum()) for n in closed_counts}
     stats["timing_s"]["stage2"] = time.perf_counter() - clock
-    LOG.info("sampled %d tracks (per order %s) from %s closed cycles", tracks.num_tracks,
+    LOG.debug("sampled %d tracks (per order %s) from %s closed cycles", tracks.num_tracks,
              stats["tracks_per_order"], closed_counts)
     return SamplingResult(tracks, two_view, focal, weights, stats)
 
