@@ -175,10 +175,35 @@ PIPELINES = ("incremental", "global")
 DEFAULT_PIPELINE = "incremental"
 
 
+# What each pipeline sets on the defaults (section__field: value): the global pipeline samples
+# on a finer grid, scoring the best pair only, probabilistically, and has no B_err.
+PIPELINE_OPTIONS = {
+    "incremental": {},
+    "global": {"sampling__cell_size_px": 40, "sampling__top_k": 1,
+               "sampling__probabilistic_scoring": True, "sfm__b_err_px": None},
+}
+
+
+def preset_options(preset: str, pipeline: str) -> dict:
+    """What a preset sets on the defaults for a pipeline (section__field: value; a dict value
+    updates the default dict). fisheye: the fisheye lens model refined to OPENCV_FISHEYE, F_err
+    off (a fisheye pair breaks the pinhole epipolar constraint), the principal point refined,
+    B_err 100 px in the incremental pipeline (room for the rough early distortion), more global
+    BA iterations for the distortion, principal point and model stages."""
+    if preset != "fisheye":
+        return {}
+    return {"sfm__camera_model": LENS_MODELS["fisheye"], "sfm__refine_to_model": "OPENCV_FISHEYE",
+            "sfm__f_err_px": None, "sfm__refine_principal_point": True,
+            "sfm__b_err_px": B_ERR_PX["fisheye"] if pipeline == "incremental" else None,
+            "sfm__global_stage_iterations": {"distortion": 200, "principal_point": 100,
+                                             "model": 100}}
+
+
 def make_config(preset: str = "regular", pipeline: str = "incremental",
                 matcher: Optional[str] = None, **overrides) -> PipelineConfig:
-    """Build the configuration of a named preset and pipeline; `overrides` are
-    `section__field=value` (e.g. sampling__cell_size_px=40) or top-level fields."""
+    """Build the configuration of a named preset and pipeline (PIPELINE_OPTIONS, then
+    preset_options, on the defaults); `overrides` are `section__field=value` (e.g.
+    sampling__cell_size_px=40) or top-level fields."""
     if preset not in PRESETS:
         raise InputError(f"Unknown preset {preset!r}: choose one of {', '.join(PRESETS)}.")
     if pipeline not in PIPELINES:
@@ -186,23 +211,19 @@ def make_config(preset: str = "regular", pipeline: str = "incremental",
     cfg = PipelineConfig(preset=preset, pipeline=pipeline)
     if matcher is not None:
         cfg.matcher = matcher
-    s, b = cfg.sampling, cfg.sfm
-    if pipeline == "global":
-        s.cell_size_px, s.top_k, s.probabilistic_scoring = 40, 1, True
-        b.b_err_px = None
-    if preset == "fisheye":
-        _fisheye_sfm_options(b, pipeline)
+    _apply_options(cfg, {**PIPELINE_OPTIONS[pipeline], **preset_options(preset, pipeline)})
     for key, value in overrides.items():
         _apply_override(cfg, key, value)
     return cfg
 
 
-def _fisheye_sfm_options(b: SfMConfig, pipeline: str) -> None:
-    b.camera_model, b.refine_to_model = LENS_MODELS["fisheye"], "OPENCV_FISHEYE"
-    b.f_err_px = None
-    b.refine_principal_point = True
-    b.b_err_px = B_ERR_PX["fisheye"] if pipeline == "incremental" else None
-    b.global_stage_iterations.update(distortion=200, principal_point=100, model=100)
+def _apply_options(cfg: PipelineConfig, options: dict) -> None:
+    """Set a preset's or pipeline's options; a dict option updates the dict it names."""
+    for key, value in options.items():
+        if isinstance(value, dict):
+            section, name = key.split("__", 1)
+            value = {**getattr(getattr(cfg, section), name), **value}
+        _apply_override(cfg, key, value)
 
 
 def lens_of_model(model: str) -> str:
@@ -244,7 +265,7 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
     preset_lens = lens_of_model(config.sfm.camera_model)
     per_camera = [lenses.get(n, preset_lens) for n in camera_names]
     if "fisheye" in per_camera and preset_lens == "pinhole":
-        _fisheye_sfm_options(out.sfm, config.pipeline)
+        _apply_options(out, preset_options("fisheye", config.pipeline))
     if len(set(per_camera)) > 1:
         # The fisheye B_err (100 px) leaves room for the rough early fisheye models; a pinhole
         # camera's outliers are judged as in the regular preset. (B_err 20 px for every camera
