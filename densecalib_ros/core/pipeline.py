@@ -426,11 +426,8 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     poses). Raises CalibrationError subclasses."""
     start = time.perf_counter()
     camera_names = list(camera_names)
-    image_sizes = check_frame_sets(frame_sets, camera_names)
-    strips = info_strips(frame_sets, camera_names, config)
-    ignored = ignored_regions(frame_sets, camera_names, config, strips)
-    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
-                                  camera_names=camera_names, ignored=ignored)
+    image_sizes, strips, ignored, match_sets = checked_and_matched(frame_sets, camera_names,
+                                                                   config, matcher, progress)
     result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
                                     previous=previous, frame_sets=frame_sets, ignored=ignored,
                                     progress=progress)
@@ -446,6 +443,19 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
                                                for n, f in config.exif_focal_px.items()}
     return result
+
+
+def checked_and_matched(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
+                        config: PipelineConfig, matcher=None, progress: Progress = None
+                        ) -> tuple[list, dict, list, list]:
+    """The frame sets checked (check_frame_sets: the image sizes), their info strips and the
+    regions no match may use, and their matches (match_frame_sets)."""
+    image_sizes = check_frame_sets(frame_sets, camera_names)
+    strips = info_strips(frame_sets, camera_names, config)
+    ignored = ignored_regions(frame_sets, camera_names, config, strips)
+    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
+                                  camera_names=camera_names, ignored=ignored)
+    return image_sizes, strips, ignored, match_sets
 
 
 def record_info_strips(result: CalibrationResult, strips: dict) -> None:

@@ -26,12 +26,10 @@ import numpy as np
 from .calibration_result import CalibrationResult
 from .config import PipelineConfig
 from .errors import CalibrationError
-from .method.frame_checks import check_frame_sets
-from .method.masks import ignored_regions, info_strips
 from .monitor.change import calibration_change, change_summary
 from .monitor.consistency import DEFAULT_TOLERANCE_PX, sets_since_change
 from .monitor.reference_views import fits_per_frame_set_and_view
-from .pipeline import (calibrate_from_matches, match_frame_sets, record_info_strips,
+from .pipeline import (calibrate_from_matches, checked_and_matched, record_info_strips,
                        with_point_colours)
 from .progress import Progress, say_progress
 from .types import RigCalibration
@@ -72,11 +70,8 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     camera) and "change_summary". Raises CalibrationRejectedError when the best new result is worse
     than `previous`, and the pipeline's CalibrationError subclasses when calibration fails."""
     camera_names = list(camera_names)
-    image_sizes = check_frame_sets(frame_sets, camera_names)
-    strips = info_strips(frame_sets, camera_names, config)
-    ignored = ignored_regions(frame_sets, camera_names, config, strips)
-    match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
-                                  camera_names=camera_names, ignored=ignored)
+    image_sizes, strips, ignored, match_sets = checked_and_matched(frame_sets, camera_names,
+                                                                   config, matcher, progress)
     before_change = sets_since_change(fits_per_frame_set_and_view(
         previous, camera_names, match_sets, frame_sets, previous_views or {},
         DEFAULT_TOLERANCE_PX))
