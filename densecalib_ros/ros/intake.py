@@ -18,6 +18,7 @@ from typing import Callable, Optional
 import rclpy
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
@@ -62,6 +63,11 @@ class ImageIntake:
                 self._executor.spin_once(timeout_sec=_WAKE_S)
         except (ExternalShutdownException, ShutdownException):
             pass  # the context was shut down (Ctrl-C): the main node ends too
+        except _rclpy.RCLError:
+            # Ctrl-C between the check and the wait: rcl refuses a wait set on the shut-down
+            # context (seen under load). Any other rcl error is a fault.
+            if self.node.context.ok():
+                raise
 
     def destroy(self) -> None:
         """Stop the thread, then the executor and the node (not while the thread waits on them:
