@@ -28,6 +28,7 @@ from .method.masks import ignored_regions, info_strips
 from .method.multistart import MULTISTART_MAX_TRACKS, run_incremental
 from .method.reconstruction import SfMState, colour_points
 from .method.twoview import epipolar_filter, fundamental_matrices
+from .method.view_graph import pair_track_counts
 from .method.uncertainty import add_uncertainty, estimated_principal_points
 from .progress import Progress, say_progress
 from .robust.placement import repair_placements
@@ -360,8 +361,7 @@ def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> di
     """{(a, b): keypoint-match tracks seen by both cameras}; {} without tracks."""
     if tracks is None or not tracks.num_tracks:
         return {}
-    seen = tracks.observed().astype(np.int64)
-    shared = seen.T @ seen
+    shared = pair_track_counts(tracks)
     return {(a, b): int(shared[i, j]) for i, a in enumerate(camera_names)
             for j, b in enumerate(camera_names) if i < j}
 

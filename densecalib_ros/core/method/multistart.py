@@ -28,6 +28,7 @@ from .incremental import (MIN_PAIR_CORRESPONDENCES, TRUNCATION_FALLBACK_PX, Incr
                           finish_on, incremental_sfm)
 from .plausibility import drop_implausible_cameras, implausible_cameras
 from .reconstruction import SfMState, reprojection_errors, triangulate_tracks
+from .view_graph import pair_track_counts
 
 log = logging.getLogger(__name__)
 
@@ -175,8 +176,7 @@ def first_pair_starts(tracks: Tracks, max_pairs: int = MAX_FIRST_PAIR_STARTS
                       ) -> list[tuple[int, int]]:
     """The camera pairs (i < j) sharing at least MIN_PAIR_CORRESPONDENCES tracks, the most
     shared first, at most min(max_pairs, MAX_FIRST_PAIR_STARTS)."""
-    obs = tracks.observed().astype(np.int64)
-    shared = obs.T @ obs
+    shared = pair_track_counts(tracks)
     pairs = [(i, j) for i, j in itertools.combinations(range(tracks.num_cameras), 2)
              if shared[i, j] >= MIN_PAIR_CORRESPONDENCES]
     return sorted(pairs, key=lambda p: -shared[p])[:min(max_pairs, MAX_FIRST_PAIR_STARTS)]

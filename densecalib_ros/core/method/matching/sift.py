@@ -47,6 +47,57 @@ def _rank_within_site(sorted_site: np.ndarray) -> np.ndarray:
     return np.arange(len(sorted_site)) - np.searchsorted(sorted_site, sorted_site)
 
 
+def _columns(desc_c: np.ndarray, site_c: np.ndarray, n_c: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The column side of the distance matrix: (descriptors, first keypoint of every site then
+    the others; each column's site; every site's columns (n_c, width), padded with its first;
+    the columns' squared norms)."""
+    firsts_c, extras_c, extra_site_c = _site_layout(site_c)
+    desc_cols = desc_c[np.concatenate([firsts_c, extras_c])]
+    col_site = np.concatenate([np.arange(n_c), extra_site_c])
+    width = 1 + int(np.bincount(extra_site_c, minlength=n_c).max(initial=0))
+    site_cols = np.repeat(np.arange(n_c)[:, None], width, axis=1)
+    site_cols[extra_site_c, 1 + _rank_within_site(extra_site_c)] = n_c + np.arange(len(extras_c))
+    return desc_cols, col_site, site_cols, np.einsum("ij,ij->i", desc_cols, desc_cols)
+
+
+def _site_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_cols: np.ndarray,
+                 norm_c: np.ndarray, rows_norm_first: bool):
+    """Yield (s0, s1, d2): the squared distances (s1 - s0, columns) of row sites s0..s1 to every
+    column keypoint, BLOCK_SITES row sites at a time, a site's further keypoints folded into its
+    row (contiguous row operations; the block is the memory peak, so it is worked in place)."""
+    firsts_r, extras_r, extra_site_r = _site_layout(site_r)
+    for s0 in range(0, n_r, BLOCK_SITES):
+        s1 = min(n_r, s0 + BLOCK_SITES)
+        lo, hi = np.searchsorted(extra_site_r, [s0, s1])
+        desc_rows = desc_r[np.concatenate([firsts_r[s0:s1], extras_r[lo:hi]])]
+        norm_r = np.einsum("ij,ij->i", desc_rows, desc_rows)
+        d2 = desc_rows @ desc_cols.T
+        d2 *= -2.0
+        for norms in ((norm_r[:, None], norm_c[None, :]) if rows_norm_first
+                      else (norm_c[None, :], norm_r[:, None])):
+            d2 += norms
+        extra_rows_site = extra_site_r[lo:hi] - s0
+        rank = _rank_within_site(extra_rows_site)
+        for r in range(int(rank.max(initial=-1)) + 1):  # one keypoint per site at a time
+            k = np.flatnonzero(rank == r)
+            d2[extra_rows_site[k]] = np.minimum(d2[extra_rows_site[k]], d2[s1 - s0 + k])
+        yield s0, s1, d2[:s1 - s0]
+
+
+def _nearest_column_sites(d2: np.ndarray, col_site: np.ndarray, site_cols: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of a block: the nearest column site and the distance ratio to the next; the
+    nearest site's columns are set to infinity in d2 on the way (numpy reduces fast along rows
+    only, so the columns are not folded)."""
+    rows = np.arange(len(d2))
+    nearest_col = np.argmin(d2, axis=1)
+    nearest_d2 = d2[rows, nearest_col].copy()
+    best = col_site[nearest_col]
+    d2[rows[:, None], site_cols[best]] = np.inf
+    return best, np.sqrt(np.maximum(nearest_d2, 0.0) / np.maximum(d2.min(axis=1), 1e-12))
+
+
 def nearest_sites(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_c: np.ndarray,
                   site_c: np.ndarray, n_c: int, rows_norm_first: bool
                   ) -> tuple[np.ndarray, np.ndarray]:
@@ -57,44 +108,14 @@ def nearest_sites(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_c: np.n
     norms are added in, so that the call with rows and columns swapped adds them in the same
     order and the two directions see bitwise equal distances.
 
-    Computed in blocks of BLOCK_SITES row sites. Within a block, the rows of a site's further
-    keypoints are folded into its first row (contiguous row operations); the columns are not
-    reduced: the nearest column keypoint gives the nearest site, and that site's columns are set
-    to infinity before the second-nearest is taken (numpy reduces fast along rows only)."""
-    firsts_r, extras_r, extra_site_r = _site_layout(site_r)
-    firsts_c, extras_c, extra_site_c = _site_layout(site_c)
-    desc_cols = desc_c[np.concatenate([firsts_c, extras_c])]
-    col_site = np.concatenate([np.arange(n_c), extra_site_c])
-    # Every site's columns, padded with its first one.
-    width = 1 + int(np.bincount(extra_site_c, minlength=n_c).max(initial=0))
-    site_cols = np.repeat(np.arange(n_c)[:, None], width, axis=1)
-    site_cols[extra_site_c, 1 + _rank_within_site(extra_site_c)] = n_c + np.arange(len(extras_c))
-    norm_c = np.einsum("ij,ij->i", desc_cols, desc_cols)
+    Computed in blocks of BLOCK_SITES row sites (_site_blocks). The columns are not reduced:
+    the nearest column keypoint gives the nearest site, and that site's columns are set to
+    infinity before the second-nearest is taken."""
+    desc_cols, col_site, site_cols, norm_c = _columns(desc_c, site_c, n_c)
     best = np.empty(n_r, np.int64)
     ratio = np.empty(n_r, np.float32)
-    for s0 in range(0, n_r, BLOCK_SITES):
-        s1 = min(n_r, s0 + BLOCK_SITES)
-        lo, hi = np.searchsorted(extra_site_r, [s0, s1])
-        desc_rows = desc_r[np.concatenate([firsts_r[s0:s1], extras_r[lo:hi]])]
-        norm_r = np.einsum("ij,ij->i", desc_rows, desc_rows)
-        d2 = desc_rows @ desc_cols.T  # in place from here: the block is the memory peak
-        d2 *= -2.0
-        for norms in ((norm_r[:, None], norm_c[None, :]) if rows_norm_first
-                      else (norm_c[None, :], norm_r[:, None])):
-            d2 += norms
-        extra_rows_site = extra_site_r[lo:hi] - s0
-        rank = _rank_within_site(extra_rows_site)
-        for r in range(int(rank.max(initial=-1)) + 1):  # one keypoint per site at a time
-            k = np.flatnonzero(rank == r)
-            d2[extra_rows_site[k]] = np.minimum(d2[extra_rows_site[k]], d2[s1 - s0 + k])
-        d2 = d2[:s1 - s0]
-        rows = np.arange(s1 - s0)
-        nearest_col = np.argmin(d2, axis=1)
-        nearest_d2 = d2[rows, nearest_col].copy()
-        best[s0:s1] = col_site[nearest_col]
-        d2[rows[:, None], site_cols[best[s0:s1]]] = np.inf
-        ratio[s0:s1] = np.sqrt(np.maximum(nearest_d2, 0.0)
-                               / np.maximum(d2.min(axis=1), 1e-12))
+    for s0, s1, d2 in _site_blocks(desc_r, site_r, n_r, desc_cols, norm_c, rows_norm_first):
+        best[s0:s1], ratio[s0:s1] = _nearest_column_sites(d2, col_site, site_cols)
     return best, ratio
 
 
@@ -106,35 +127,14 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     and its distance to the second-nearest (numpy reduces along columns fast where no index is
     needed), and b's keypoints are folded into their sites at the end. Half the arithmetic of
     two nearest_sites calls, and both directions see the same distances."""
-    firsts_a, extras_a, extra_site_a = _site_layout(site_a)
-    firsts_b, extras_b, extra_site_b = _site_layout(site_b)
-    desc_cols = desc_b[np.concatenate([firsts_b, extras_b])]
-    col_site = np.concatenate([np.arange(n_b), extra_site_b])
-    width = 1 + int(np.bincount(extra_site_b, minlength=n_b).max(initial=0))
-    site_cols = np.repeat(np.arange(n_b)[:, None], width, axis=1)
-    site_cols[extra_site_b, 1 + _rank_within_site(extra_site_b)] = n_b + np.arange(len(extras_b))
-    norm_c = np.einsum("ij,ij->i", desc_cols, desc_cols)
+    desc_cols, col_site, site_cols, norm_c = _columns(desc_b, site_b, n_b)
     best_ab = np.empty(n_a, np.int64)
     ratio_ab = np.empty(n_a, np.float32)
     # per column keypoint of b: nearest a site, its distance, the distance to the next a site
     col_d1 = np.full(len(desc_cols), np.inf, np.float32)
     col_d2 = np.full(len(desc_cols), np.inf, np.float32)
     col_best = np.zeros(len(desc_cols), np.int64)
-    for s0 in range(0, n_a, BLOCK_SITES):
-        s1 = min(n_a, s0 + BLOCK_SITES)
-        lo, hi = np.searchsorted(extra_site_a, [s0, s1])
-        desc_rows = desc_a[np.concatenate([firsts_a[s0:s1], extras_a[lo:hi]])]
-        norm_r = np.einsum("ij,ij->i", desc_rows, desc_rows)
-        d2 = desc_rows @ desc_cols.T
-        d2 *= -2.0
-        d2 += norm_r[:, None]
-        d2 += norm_c[None, :]
-        extra_rows_site = extra_site_a[lo:hi] - s0
-        rank = _rank_within_site(extra_rows_site)
-        for r in range(int(rank.max(initial=-1)) + 1):
-            k = np.flatnonzero(rank == r)
-            d2[extra_rows_site[k]] = np.minimum(d2[extra_rows_site[k]], d2[s1 - s0 + k])
-        d2 = d2[:s1 - s0]
+    for s0, s1, d2 in _site_blocks(desc_a, site_a, n_a, desc_cols, norm_c, True):
         # b -> a, merged in per column: where this block holds a nearer a site, that site and
         # the next (taken on those columns only: numpy finds indices along rows fast only);
         # elsewhere its nearest is a candidate for the second
@@ -148,14 +148,7 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
             col_d2[closer] = np.minimum(col_d1[closer], sub.min(axis=1))
             col_best[closer] = s0 + first
             col_d1[closer] = near[closer]
-        # a -> b, as nearest_sites
-        rows = np.arange(s1 - s0)
-        nearest_col = np.argmin(d2, axis=1)
-        nearest_d2 = d2[rows, nearest_col].copy()
-        best_ab[s0:s1] = col_site[nearest_col]
-        d2[rows[:, None], site_cols[best_ab[s0:s1]]] = np.inf
-        ratio_ab[s0:s1] = np.sqrt(np.maximum(nearest_d2, 0.0)
-                                  / np.maximum(d2.min(axis=1), 1e-12))
+        best_ab[s0:s1], ratio_ab[s0:s1] = _nearest_column_sites(d2, col_site, site_cols)
     # fold b's keypoints into their sites: the nearest a site over a site's keypoints, and the
     # nearest other a site: a keypoint's own second where its nearest is that site, else its
     # nearest
