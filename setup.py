@@ -24,7 +24,7 @@ setup(
     entry_points={
         "console_scripts": [
             "densecalib = densecalib_ros.cli:main",
-            "densecalib_node = densecalib_ros.ros.node:main",
+            "densecalib_node = densecalib_ros.ros.main:main",
         ],
     },
 )

@@ -83,10 +83,10 @@ def test_refinement_on_all_matches_ties_in_a_camera_the_sampled_tracks_leave_loo
     loose = calibrate_from_tracks(sampled, sizes, names, config, focal_px=focal)
     refined = calibrate_from_tracks(sampled, sizes, names, config, focal_px=focal,
                                     match_tracks=matches)
-    assert loose.rig.quality["match_tracks"] == 0
-    assert refined.rig.quality["match_tracks"] == matches.num_tracks
-    assert refined.rig.quality["num_points"] > 0.8 * matches.num_tracks
-    assert refined.reconstruction.num_points3D() == refined.rig.quality["num_points"]
+    assert loose.rig.quality.match_tracks == 0
+    assert refined.rig.quality.match_tracks == matches.num_tracks
+    assert refined.rig.quality.num_points > 0.8 * matches.num_tracks
+    assert refined.reconstruction.num_points3D() == refined.rig.quality.num_points
     before, after = evaluate_calibration(loose.rig, gt), evaluate_calibration(refined.rig, gt)
     # Measured: AUC@3 83.3 -> 100, median focal error 1.8 % -> 0.3 %.
     assert before["auc3"] < 90 and after["auc3"] == pytest.approx(100.0)

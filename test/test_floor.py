@@ -16,7 +16,7 @@ from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.io.export import read_calibration
 from densecalib_ros.core.products.floor import find_floor
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
 
 LENS = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320.0, 240.0, 0.0, 0.0]))
 
@@ -116,7 +116,7 @@ def test_calibrate_floor_on_a_generated_room(tmp_path, capsys):
                  "--floor", "--known-baseline", "cam0", "cam1", str(baseline),
                  "--consensus-runs", "1", "--threads", "1"]) == 0
     calibration = read_calibration(out)
-    floor = calibration.quality["floor"]
+    floor = calibration.quality.floor
     rig_from_floor = np.linalg.inv(np.array(floor["floor_from_rig"]).reshape(4, 4))
     up_rig = rig.cam_from_world[0][:3, :3] @ [0.0, 0.0, 1.0]  # the scene's floor is z = 0
     assert np.degrees(np.arccos(rig_from_floor[:3, 2] @ up_rig)) < 1.0
@@ -143,8 +143,8 @@ def test_calibrate_floor_on_a_generated_room(tmp_path, capsys):
     assert "floor: " in capsys.readouterr().out and json.loads(path.read_text()) == data
     assert main(["floor", str(out)]) == 0
     again = read_calibration(out).quality
-    assert "warnings" not in again
-    np.testing.assert_allclose(again["floor"]["floor_from_rig"], floor["floor_from_rig"],
+    assert again.warnings == []
+    np.testing.assert_allclose(again.floor["floor_from_rig"], floor["floor_from_rig"],
                                atol=1e-9)
     # without the model there are no scene points: an error, the file untouched
     bare = tmp_path / "bare"
@@ -162,14 +162,14 @@ def test_a_recalibration_that_lost_the_floor_says_so():
     cameras = {n: RigCamera(n, lens, np.eye(4)) for n in ("a", "b")}
     floor = {"floor_from_rig": np.eye(4).ravel().tolist(), "num_points": 10, "rms": 0.01,
              "camera_heights": {"a": 1.0, "b": 1.0}}
-    previous = RigCalibration("a", cameras, quality={"floor": floor})
+    previous = RigCalibration("a", cameras, quality=RigQuality(floor=floor))
     new = RigCalibration("a", cameras)
     warn_if_floor_lost(new, None, "add --floor")
     warn_if_floor_lost(new, RigCalibration("a", cameras), "add --floor")
-    assert "warnings" not in new.quality
+    assert new.quality.warnings == []
     warn_if_floor_lost(new, previous, "add --floor")
-    assert new.quality["warnings"] == [
+    assert new.quality.warnings == [
         "no floor frame: the previous calibration had one, this one has none; add --floor"]
-    kept = RigCalibration("a", cameras, quality={"floor": floor})
+    kept = RigCalibration("a", cameras, quality=RigQuality(floor=floor))
     warn_if_floor_lost(kept, previous, "add --floor")
-    assert "warnings" not in kept.quality
+    assert kept.quality.warnings == []

@@ -17,7 +17,8 @@ from densecalib_ros.core.method.focal_determination import (WEAK_FOCAL_PREFIX,
 from densecalib_ros.core.metrics import mean_focal_px
 from densecalib_ros.core.pipeline import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
-from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
+from densecalib_ros.core.types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera,
+                                       RigQuality)
 
 
 def _camera(name: str, yaw_deg: float, f_std_px, model: str = "RADIAL") -> RigCamera:
@@ -31,7 +32,7 @@ def _camera(name: str, yaw_deg: float, f_std_px, model: str = "RADIAL") -> RigCa
 
 
 def _rig(*cameras: RigCamera, given=()) -> RigCalibration:
-    quality = {"given_intrinsics": list(given)} if given else {}
+    quality = RigQuality(given_intrinsics=list(given) if given else None)
     return RigCalibration(cameras[0].name, {c.name: c for c in cameras}, quality=quality)
 
 
@@ -88,7 +89,7 @@ def test_a_forward_facing_rig_is_warned_about_and_one_around_the_scene_is_not(la
     config = make_config("regular", matcher="sift", sfm__num_threads=1,
                          refine_on_images=refine_on_images)
     result = run_calibration([rig.images[0]], rig.names, config)
-    warnings = [w for w in result.rig.quality.get("warnings", [])
+    warnings = [w for w in result.rig.quality.warnings
                 if w.startswith(WEAK_FOCAL_PREFIX)]
     fractions = weak_focal_fractions(result.rig)
     assert len(fractions) == 4

@@ -161,14 +161,14 @@ def test_global_from_rotation_averaging_recovers_truth(model, preset):
     init = initial_intrinsics([(c.width, c.height) for c in cams], focal, cfg.camera_model)
     result = run_global(tracks, init, NAMES, cfg)
     assert result.failed == []
-    assert result.quality["global_init"] == "rotation_averaging"
-    stages = result.quality["stage_residuals"]
+    assert result.quality.global_init == "rotation_averaging"
+    stages = result.quality.stage_residuals
     assert list(stages)[:2] == ["triangulation", "extrinsics"]
     assert ("model" in stages) == (preset == "fisheye")
     # The 3 % outlier observations take part in BA (robust loss) but are left out of the result.
-    assert result.quality["num_outlier_observations"] > 0
+    assert result.quality.num_outlier_observations > 0
     rig = rig_from_state(result.state, NAMES, result.failed)
-    assert rig.quality["reprojection_rms_px"] < 0.6
+    assert rig.quality.reprojection_rms_px < 0.6
     assert rig.cameras["front"].intrinsics.model == model
     metrics = evaluate_calibration(rig, gt_calibration(NAMES, cams, poses))
     assert metrics["auc3"] > 90
@@ -185,7 +185,7 @@ def test_recalibration_from_previous_matches_from_scratch():
     init = initial_intrinsics([(c.width, c.height) for c in cams],
                               [c.params[0] * 1.05 for c in cams], cfg.camera_model)
     recal = run_global(tracks, init, NAMES, cfg, previous=previous)
-    assert recal.quality["global_init"] == "previous"
+    assert recal.quality.global_init == "previous"
     cfg.global_init = "rotation_averaging"
     scratch = run_global(tracks, init, NAMES, cfg)
     m_recal = evaluate_calibration(rig_from_state(recal.state, NAMES, []), gt)
@@ -221,10 +221,10 @@ def test_pipeline_global_dispatch_reports_stages():
     result = calibrate_from_tracks(tracks, [(c.width, c.height) for c in cams], names, config,
                                    focal_px=np.array([c.params[0] * 1.03 for c in cams]))
     quality = result.rig.quality
-    assert quality["pipeline"] == "global"
-    assert quality["gauge_camera"] in names
-    assert set(quality["stage_residuals"]) == {"triangulation", "extrinsics", "focal", "distortion"}
-    assert quality["reprojection_rms_px"] < 0.6  # 0.3 px noise; F_err removed the outlier tracks
+    assert quality.pipeline == "global"
+    assert quality.gauge_camera in names
+    assert set(quality.stage_residuals) == {"triangulation", "extrinsics", "focal", "distortion"}
+    assert quality.reprojection_rms_px < 0.6  # 0.3 px noise; F_err removed the outlier tracks
     assert result.reconstruction.num_reg_images() == 4
     assert evaluate_calibration(result.rig, gt_calibration(names, cams, poses))["auc30"] > 90
 
@@ -240,14 +240,14 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
     init = initial_intrinsics([(c.width, c.height) for c in cams],
                               [c.params[0] * 1.03 for c in cams], cfg.camera_model)
     both = run_global(tracks, init, NAMES, cfg)
-    assert both.quality["global_init"] in ("rotation_averaging", "incremental")
+    assert both.quality.global_init in ("rotation_averaging", "incremental")
     costs = {}
     for start in ("rotation_averaging", "incremental"):
         single = sfm_config("regular", distortion=200)
         single.global_init, single.global_multistart = start, False
         run = run_global(tracks, init, NAMES, single)
         costs[start] = truncated_cost(run.state, cost_truncation_px(single, tracks.num_cameras))
-    kept = both.quality["global_init"]
+    kept = both.quality.global_init
     assert costs[kept] <= min(costs.values()) + 1e-6
     metrics = evaluate_calibration(rig_from_state(both.state, NAMES, both.failed),
                                    gt_calibration(NAMES, cams, poses))

@@ -90,7 +90,7 @@ def test_real_lenses_calibrate_to_a_tenth_of_a_degree(real_rig):
     for cam in result.rig.cameras.values():
         assert "cx" in cam.quality.estimated_intrinsics
         assert cam.quality.principal_point_std_px < 5.0
-    assert result.rig.quality["image_refinement_tracks"] > 1000
+    assert result.rig.quality.image_refinement_tracks > 1000
     held = make_config("regular", "incremental", consensus_runs=1, refine_on_images=False)
     held.sfm.num_threads = 1
     before = evaluate_calibration(run_calibration(real_rig.images, real_rig.names, held).rig,

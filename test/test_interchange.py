@@ -17,7 +17,7 @@ from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.io.export import calibration_to_dict
 from densecalib_ros.core.products.interchange import anipose_toml, kalibr_camchain_yaml
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
 
 
 @pytest.fixture
@@ -33,7 +33,8 @@ def rig():
                                                      np.array([795.0, 509.9, 385.0, 0.04, -0.01])),
                            _pose([-2, 25, -4], [-0.6, 0.02, 0.1])),
     }
-    return RigCalibration("left", cams, quality={"reprojection_rms_px": 0.8}, metric_scale=True)
+    return RigCalibration("left", cams, quality=RigQuality(reprojection_rms_px=0.8),
+                          metric_scale=True)
 
 
 def _points_seen_by_all(rig, n=200, seed=0):
@@ -204,7 +205,7 @@ def _export_pinholes_on_a_floor(rig, tmp_path, fmt):
     the export folder, rig-frame points all cameras see, those points in the floor frame in mm)."""
     del rig.cameras["top"]
     floor_from_rig = _pose([-100, 10, 0], [0.2, -1.5, 0.1])
-    rig.quality["floor"] = {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
+    rig.quality.floor = {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
                             "rms": 0.0, "camera_heights": {}}
     calib = tmp_path / "calibration.json"
     calib.write_text(json.dumps(calibration_to_dict(rig)))

@@ -28,13 +28,13 @@ def test_a_recalibration_keeps_the_previous_metric_scale_and_says_the_floor_is_l
     first = run_job(_request(rig, known_baseline=("cam0", "cam2", baseline_m), floor="upright"))
     assert first.rig.metric_scale
     assert camera_distance(first.rig, "cam0", "cam2") == pytest.approx(baseline_m)
-    assert first.rig.quality["input"] == {"source": "test"}
-    assert "floor" in first.rig.quality
+    assert first.rig.quality.input == {"source": "test"}
+    assert first.rig.quality.floor is not None
     assert sorted(first.reference_views) == sorted(first.rig.cameras)
 
     again = run_job(_request(rig, previous=first.rig, floor_hint="ask for the floor again"))
-    assert "init" in again.rig.quality  # a recalibration, from the first calibration
+    assert again.rig.quality.init is not None  # a recalibration, from the first calibration
     assert again.rig.metric_scale  # the previous calibration's baseline, not given again
     assert camera_distance(again.rig, "cam0", "cam2") == pytest.approx(baseline_m)
-    (lost,) = [w for w in again.rig.quality.get("warnings", []) if "floor" in w]
+    (lost,) = [w for w in again.rig.quality.warnings if "floor" in w]
     assert lost.endswith("ask for the floor again")

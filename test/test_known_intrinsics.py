@@ -176,15 +176,15 @@ def test_given_intrinsics_are_held_exactly_and_the_rest_is_calibrated(rig, pipel
             assert cam.intrinsics.model == known[n].model
             np.testing.assert_array_equal(cam.intrinsics.params, known[n].params)
             assert cam.quality.focal_std_px is None  # nothing estimated
-        assert result.rig.quality["given_intrinsics"] == {n: "RADIAL" for n in sorted(given)}
+        assert result.rig.quality.given_intrinsics == {n: "RADIAL" for n in sorted(given)}
         metrics = evaluate_calibration(result.rig, gt)
         assert metrics["num_registered"] == 4 and metrics["auc3"] >= 80.0
         assert metrics["median_focal_err"] <= 0.02
         free = [n for n in rig.names if n not in given]
         assert all(result.rig.cameras[n].quality.focal_std_px > 0 for n in free)
         # the right intrinsics fit the scene: judged, and no warning
-        assert set(result.rig.quality["given_intrinsics_fit"]) == set(given)
-        assert not result.rig.quality.get("warnings")
+        assert set(result.rig.quality.given_intrinsics_fit) == set(given)
+        assert not result.rig.quality.warnings
 
 
 def test_given_intrinsics_the_scene_contradicts_are_named(rig):
@@ -202,10 +202,10 @@ def test_given_intrinsics_the_scene_contradicts_are_named(rig):
     result = run_calibration([rig.images[0]], rig.names, config)
     np.testing.assert_array_equal(result.rig.cameras["cam0"].intrinsics.params,
                                   known["cam0"].params)
-    fit = result.rig.quality["given_intrinsics_fit"]
+    fit = result.rig.quality.given_intrinsics_fit
     assert all(fit[n]["median_px"] > 1.3 * fit[n]["median_px_refined"] for n in known)
     assert all(fit[n]["focal_change_pct"] > 5.0 for n in known)
-    [warning] = result.rig.quality["warnings"]
+    [warning] = result.rig.quality.warnings
     assert warning.startswith("The given intrinsics do not fit the scene") and \
         "cam0 from" in warning and "cam1 from" in warning
 
@@ -295,7 +295,7 @@ def test_bag_camera_info_topics_give_the_intrinsics(tmp_path, caplog):
             rays),
                                    gt.cameras[n].intrinsics.to_pycolmap().img_from_cam(rays),
                                    atol=1e-9)
-    assert sorted(calib.quality["given_intrinsics"]) == ["rig_cam0", "rig_cam1", "rig_cam2"]
+    assert sorted(calib.quality.given_intrinsics) == ["rig_cam0", "rig_cam1", "rig_cam2"]
     with caplog.at_level(logging.INFO):  # check reads the topics the calibration recorded
         assert main(["check", str(out), "--bag", str(tmp_path / "bag")]) == 0
     assert "image topics as the calibration recorded them: /rig/cam0/image_raw" in caplog.text
@@ -321,7 +321,7 @@ def test_recalibration_of_a_bumped_rig_can_keep_the_previous_intrinsics(rig):
     known = {n: c.intrinsics for n, c in previous.cameras.items()}
     config = make_config("regular", matcher="sift", sfm__num_threads=1, known_intrinsics=known)
     result = recalibrate([rig.images[0]], rig.names, config, previous)
-    assert result.rig.quality["init"] == "previous calibration"
+    assert result.rig.quality.init == "previous calibration"
     for n in rig.names:
         np.testing.assert_array_equal(result.rig.cameras[n].intrinsics.params, known[n].params)
     metrics = evaluate_calibration(result.rig, gt)
@@ -342,7 +342,7 @@ def test_keep_intrinsics_recalibrates_the_extrinsics_from_the_previous_calibrati
     for n in rig.names:
         np.testing.assert_array_equal(new.cameras[n].intrinsics.params,
                                       old.cameras[n].intrinsics.params)
-    assert new.quality["init"] == "previous calibration"
+    assert new.quality.init == "previous calibration"
     assert evaluate_calibration(new, rig.ground_truth())["auc3"] >= 80.0
     with caplog.at_level(logging.ERROR):
         rc = main(base + ["--out", str(tmp_path / "o"), "--keep-intrinsics"])

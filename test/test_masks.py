@@ -77,13 +77,13 @@ def test_info_strip_is_used_unless_masked(tmp_path, capsys):
     assert _strip_observations(plain) > 0  # the strip's text matched across cameras
     assert _strip_observations(masked) == 0
     assert _strip_observations(found) == 0  # found by itself (core.method.info_strip) and ignored
-    assert read_calibration(found).quality["info_strips"] == {
+    assert read_calibration(found).quality.info_strips == {
         n: f"{STRIP_PX + 4} px at the bottom" for n in rig.names}  # the bar + a 4 px margin
-    assert "info_strips" not in read_calibration(masked).quality  # the user's mask rules
+    assert read_calibration(masked).quality.info_strips is None  # the user's mask rules
     assert main(["report", str(found)]) == 0
     assert "info strips ignored: cam0 52 px at the bottom, cam1 52 px" in capsys.readouterr().out
     for out in (masked, found):
         calibration = read_calibration(out)
         metrics = evaluate_calibration(calibration, rig.ground_truth())
         assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
-    assert read_calibration(masked).quality["masked_cameras"] == ["cam0", "cam1", "cam2", "cam3"]
+    assert read_calibration(masked).quality.masked_cameras == ["cam0", "cam1", "cam2", "cam3"]

@@ -31,7 +31,7 @@ def test_launch_file_starts_the_installed_node_with_an_installed_parameters_file
     assert len(nodes) == 1
     node = nodes[0]
     assert node.get("pkg") == package
-    assert re.search(rf'"{node.get("exec")} = densecalib_ros\.ros\.node:main"', setup)
+    assert re.search(rf'"{node.get("exec")} = densecalib_ros\.ros\.main:main"', setup)
     used = set(re.findall(r"\$\(var (\w+)\)", LAUNCH.read_text()))
     assert used <= set(args), used - set(args)
     # the default parameters file is the package's own, and installed where find-pkg-share looks

@@ -33,7 +33,7 @@ def test_generated_rig_recovers_ground_truth(rig):
     assert result.rig.reference_camera == rig.names[0]
     np.testing.assert_allclose(result.rig.cameras[rig.names[0]].cam_from_rig, np.eye(4),
                                atol=1e-9)
-    assert result.rig.quality["reprojection_rms_px"] < 5.0
+    assert result.rig.quality.reprojection_rms_px < 5.0
     assert result.reconstruction.num_reg_images() == 4
     assert {im.name for im in result.reconstruction.images.values()} == set(rig.names)
     # the points carry the scene's colour: that of the reference image where they project
@@ -76,7 +76,7 @@ def test_rig_mixing_lenses_gets_each_cameras_lens_model():
     result = run_calibration([rig.images[0]], rig.names, config)
     assert [result.rig.cameras[n].intrinsics.model for n in rig.names] == [
         "RADIAL", "OPENCV_FISHEYE", "RADIAL", "RADIAL"]
-    assert result.rig.quality["camera_lens"] == {"cam1": "fisheye"}
+    assert result.rig.quality.camera_lens == {"cam1": "fisheye"}
     metrics = evaluate_calibration(result.rig, rig.ground_truth())
     assert metrics["num_registered"] == 4
     assert metrics["auc3"] >= 80.0
@@ -163,7 +163,7 @@ def test_multistart_is_judged_on_matches_the_sampled_tracks_left_out(pipeline):
     result = run_calibration([rig.images[0]], rig.names, config)
     metrics = evaluate_calibration(result.rig, rig.ground_truth())
     assert metrics["auc3"] >= 66.0
-    assert result.rig.quality["consensus_disagreement_deg"] < 1.0
+    assert result.rig.quality.consensus_disagreement_deg < 1.0
 
 
 def test_images_without_overlap_fail_with_overlap_error():
@@ -241,12 +241,12 @@ def test_pipeline_stops_after_three_agreeing_runs_and_single_run_has_no_consensu
     assert config.consensus_runs == 5
     result = run_calibration([rig.images[0]], rig.names, config)
     q = result.rig.quality
-    assert q["consensus_runs"] == 3 and q["consensus_failed_runs"] == 0
-    assert q["consensus_seed"] in (0, 1, 2) and 0.0 <= q["consensus_disagreement_deg"] < 1.0
+    assert q.consensus_runs == 3 and q.consensus_failed_runs == 0
+    assert q.consensus_seed in (0, 1, 2) and 0.0 <= q.consensus_disagreement_deg < 1.0
     single = run_calibration([rig.images[0]], rig.names,
                              make_config("regular", matcher="sift", sfm__num_threads=1,
                                          consensus_runs=1))
-    assert "consensus_runs" not in single.rig.quality
+    assert single.rig.quality.consensus_runs is None
 
 
 def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
@@ -282,7 +282,7 @@ def test_exif_focals_start_the_cameras_they_name_below_the_users_and_a_previous_
                          exif_focal_px={names[0]: 1.05 * truth[0], "not-a-camera": 999.0})
     result = run_calibration([rig.images[0]], names, config)
     assert result.focal_init_px[0] == pytest.approx(1.05 * truth[0])
-    assert np.all(np.isfinite(result.focal_init_px)) and result.rig.quality["exif_focal_px"] == {
+    assert np.all(np.isfinite(result.focal_init_px)) and result.rig.quality.exif_focal_px == {
         names[0]: pytest.approx(1.05 * truth[0], abs=0.1), "not-a-camera": 999.0}
     metrics = evaluate_calibration(result.rig, gt)
     assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
@@ -329,7 +329,7 @@ def test_focal_hops_leave_a_minimum_that_every_consensus_run_ended_in():
     config = make_config("regular", matcher="sift", sfm__num_threads=1, refine_on_images=False)
     result = run_calibration([rig.images[0]], rig.names, config)
     metrics = evaluate_calibration(result.rig, rig.ground_truth())
-    assert result.rig.quality["consensus_kept_by_fit"]
-    assert len(result.rig.quality["focal_hops"]) >= 1
+    assert result.rig.quality.consensus_kept_by_fit
+    assert len(result.rig.quality.focal_hops) >= 1
     assert metrics["auc3"] >= 88.0
     assert metrics["median_focal_err"] <= 0.02

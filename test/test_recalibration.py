@@ -60,17 +60,17 @@ def test_change_report_points_at_the_bumped_camera(rig):
 def test_recalibration_starts_from_previous_and_recovers_truth(rig, config):
     truth = rig.ground_truth()
     previous = _bumped(truth, "cam1", 2.0, 1.03)  # the camera was bumped and refocused since
-    previous.quality["reprojection_rms_px"] = 0.8
+    previous.quality.reprojection_rms_px = 0.8
     result = recalibrate([rig.images[0]], rig.names, config, previous)
-    assert result.rig.quality["init"] == "previous calibration"
+    assert result.rig.quality.init == "previous calibration"
     metrics = evaluate_calibration(result.rig, truth)
     assert metrics["num_registered"] == 4
     assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02
     # The report says the bumped camera changed by about the bump.
-    change = result.rig.quality["change_vs_previous"]
+    change = result.rig.quality.change_vs_previous
     assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam1"
     assert 1.0 < change["cam1"]["rotation_change_deg"] < 3.0
-    assert "cam1" in result.rig.quality["change_summary"]
+    assert "cam1" in result.rig.quality.change_summary
 
 
 def test_worse_result_is_refused_so_the_previous_stays(rig, config):
@@ -92,7 +92,7 @@ def test_recalibration_uses_only_the_frame_sets_since_a_bump():
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640, height=480,
                                num_time_steps=4, seed=5))
     truth = rig.ground_truth()
-    truth.quality["reprojection_rms_px"] = 0.5
+    truth.quality.reprojection_rms_px = 0.5
     turn = _rotz(2.0)[:3, :3] @ np.array([[1, 0, 0], [0, np.cos(0.02), -np.sin(0.02)],
                                           [0, np.sin(0.02), np.cos(0.02)]])
     frame_sets = [list(fs) for fs in rig.images]
@@ -103,12 +103,12 @@ def test_recalibration_uses_only_the_frame_sets_since_a_bump():
     now.cameras["cam2"].cam_from_rig[:3, 3] = turn @ now.cameras["cam2"].cam_from_rig[:3, 3]
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     result = recalibrate(frame_sets, rig.names, config, truth)
-    assert result.rig.quality["frame_sets_before_change"] == 2
+    assert result.rig.quality.frame_sets_before_change == 2
     est = {n: c.cam_from_rig for n, c in result.rig.cameras.items()}
     errors_now = relative_pose_errors(est, {n: c.cam_from_rig for n, c in now.cameras.items()})
     assert max(e.rot_err_deg for e in errors_now) < 0.5, errors_now
-    change = result.rig.quality["change_vs_previous"]
+    change = result.rig.quality.change_vs_previous
     assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
     # the same four sets with nothing changed: all are used
     unchanged = recalibrate([list(fs) for fs in rig.images], rig.names, config, truth)
-    assert "frame_sets_before_change" not in unchanged.rig.quality
+    assert unchanged.rig.quality.frame_sets_before_change is None

@@ -10,7 +10,7 @@ from densecalib_ros.core.products.report import (camera_centres_in_rig, camera_t
                                                  distortion_text, intrinsics_note, layout_table,
                                                  overall_lines, rig_report)
 from densecalib_ros.core.products.scale import apply_known_baseline
-from densecalib_ros.core.types import CameraQuality
+from densecalib_ros.core.types import CameraQuality, RigQuality
 
 from sfm_fixtures import gt_calibration, gt_rig
 
@@ -47,7 +47,7 @@ def test_camera_table_names_each_models_parameters(rig):
     assert all(f"k{i}=" in lines["cam3"] for i in range(1, 5)) and "OPENCV_FISHEYE" in lines["cam3"]
     # the sigmas of a held principal point say what they include (files written before: nothing)
     assert intrinsics_note(rig) == ""
-    rig.quality["held_pp_std_fraction"] = 0.01
+    rig.quality.held_pp_std_fraction = 0.01
     note = intrinsics_note(rig)
     assert note.startswith("f_std and proj_std of cam0 include") and "1 % of the long side" in note
     assert note in rig_report(rig)
@@ -94,7 +94,7 @@ def test_report_names_missing_cameras_and_warnings(rig):
     partial = copy.deepcopy(rig)
     del partial.cameras["cam3"]
     partial.failed_cameras = ["cam3"]
-    partial.quality["warnings"] = ["the 5 calibration runs disagree"]
+    partial.quality.warnings = ["the 5 calibration runs disagree"]
     text = rig_report(partial, rig, "before")
     assert "not registered: cam3" in text and "warning: the 5 calibration runs disagree" in text
     assert "missing from this calibration: cam3" in text
@@ -103,16 +103,16 @@ def test_report_names_missing_cameras_and_warnings(rig):
 
 
 def test_overall_lines_give_the_time_offsets_and_how_they_were_found(rig):
-    rig.quality["input"] = {"source": "videos", "path": "/rec",
+    rig.quality.input = {"source": "videos", "path": "/rec",
                             "time_offsets_s": {"cam0": 0.0, "cam1": 0.7},
                             "time_offsets_estimated": {"cam0": {"correlation": 1.0},
                                                        "cam1": {"correlation": 0.88}}}
     line = next(li for li in overall_lines(rig) if li.startswith("time offsets"))
     assert "cam1 +0.700 (correlation 0.88)" in line and "found from the images' motion" in line
-    rig.quality["input"] = {"source": "topics", "topics": ["/a", "/b"],
+    rig.quality.input = {"source": "topics", "topics": ["/a", "/b"],
                             "stamp_offsets_s": {"cam0": 0.0, "cam1": -0.2}}
     assert "time offsets (s, ahead of the others): cam0 +0.000, cam1 -0.200" in overall_lines(rig)
-    rig.quality["input"] = {"source": "images", "path": "/traps",
+    rig.quality.input = {"source": "images", "path": "/traps",
                             "time_offsets_s": {"cam0": 0.0, "cam1": 3607.5},
                             "time_offsets_estimated": {"cam0": {"paired_shots": 12},
                                                        "cam1": {"paired_shots": 11}}}
@@ -134,8 +134,9 @@ def _upright_rig(with_floor: bool):
         pose[:3, 3] = -cam_from_floor_rotation @ np.array(position, dtype=float)
         cam_from_floor[name] = pose
     floor_from_rig = np.linalg.inv(cam_from_floor["cam0"])
-    quality = {"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 100,
-                         "rms": 0.01, "camera_heights": {}}} if with_floor else {}
+    quality = RigQuality(floor={"floor_from_rig": floor_from_rig.ravel().tolist(),
+                                "num_points": 100, "rms": 0.01, "camera_heights": {}}
+                         if with_floor else None)
     rig = RigCalibration("cam0", {n: RigCamera(n, lens, p @ floor_from_rig)
                                   for n, p in cam_from_floor.items()},
                          quality=quality, metric_scale=True)
@@ -274,7 +275,7 @@ def test_layout_plot_against_another_calibration_rings_where_a_camera_was():
 
     rig, wall = _upright_rig(with_floor=True)
     before = copy.deepcopy(rig)
-    floor_from_rig = np.asarray(rig.quality["floor"]["floor_from_rig"]).reshape(4, 4)
+    floor_from_rig = np.asarray(rig.quality.floor["floor_from_rig"]).reshape(4, 4)
     shift_rig = np.linalg.inv(floor_from_rig)[:3, :3] @ [-0.3, 0.0, 0.0]  # 0.3 m back in floor x
     before.cameras["cam2"].cam_from_rig[:3, 3] -= before.cameras["cam2"].cam_from_rig[:3, :3] @ \
         shift_rig
@@ -313,7 +314,7 @@ def test_report_json_is_strict_json_and_against_needs_common_cameras(rig, tmp_pa
         return json.loads(text, parse_constant=lambda token: pytest.fail(f"{token} in JSON"))
 
     rig.cameras["cam1"].quality = CameraQuality(float("nan"), 0, float("nan"), 0)
-    rig.quality["reprojection_rms_px"] = float("inf")
+    rig.quality.reprojection_rms_px = float("inf")
     write_calibration_files(rig, tmp_path / "calib")
     saved = strict((tmp_path / "calib" / "calibration.json").read_text())
     assert saved["quality"]["reprojection_rms_px"] is None

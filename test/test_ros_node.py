@@ -37,7 +37,7 @@ from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
 from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
 from densecalib_ros.core.products.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
-from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402
+from densecalib_ros.core.types import CameraIntrinsics, RigQuality  # noqa: E402
 from densecalib_ros.ros.conversions import (numpy_to_compressed_msg,  # noqa: E402
                                             point_cloud_to_numpy)
 from densecalib_ros.ros.node import DenseCalibNode  # noqa: E402
@@ -136,7 +136,7 @@ def publish_frame_sets(ros, node, frame_sets, first_stamp_s=1.0):
     drivers = [ros.add(CameraPublisherNode(name, topic, encoding, context=ros.context))
                for name, (topic, encoding, _) in CAMERAS.items()]
     try:  # discovery on a loaded 2-core CI machine once took over 10 s: wait up to 30
-        assert wait_until(lambda: None not in node._image_subs, 30.0), "topics not discovered"
+        assert wait_until(lambda: node.camera_subscriptions.complete, 30.0), "topics not discovered"
         assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 30.0)
         start = len(node.sync)
         for t, images in enumerate(frame_sets):
@@ -385,7 +385,7 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert response.success, response.message
     assert response.message.startswith("calibrated 4/4 cameras (cam0, cam1, cam2, cam3)")
     assert "reprojection RMS" in response.message and "2 frame sets" in response.message
-    source = node.calibration.quality["input"]
+    source = node.calibration.quality.input
     assert source["source"] == "topics" and source["topics"] == [c[0] for c in CAMERAS.values()]
     assert [s[0] for s in source["frame_set_stamps_ns"]] == [1_000_000_000, 2_000_000_000]
     check_against_truth(listener, rig, node)
@@ -433,7 +433,7 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     assert wait_until(lambda: diag_state() and diag_state()[0] == DiagnosticStatus.OK, 5.0)
     level, _, values = diag_state()
     assert float(values["reprojection_rms_px"]) == pytest.approx(
-        node.calibration.quality["reprojection_rms_px"], abs=1e-3)
+        node.calibration.quality.reprojection_rms_px, abs=1e-3)
     assert float(values["age_s"]) >= 0.0
     assert set(values["focal_std_px"].split(", ")) == {
         f"{n}={c.quality.focal_std_px:.1f}" for n, c in node.calibration.cameras.items()}
@@ -463,11 +463,11 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     ros.remove(checker)
     # floor turned on after calibrating without it: found in the saved scene points, recorded in
     # calibration.json and published; turned off again: gone from /tf_static
-    assert "floor" not in read_calibration(latest).quality
+    assert read_calibration(latest).quality.floor is None
     assert node.set_parameters([Parameter("floor", value="upright")])[0].successful
     assert wait_until(lambda: "rig" in listener.rig_from_optical(), 10.0), \
         listener.snapshot()["status"][-2:]
-    assert read_calibration(latest).quality["floor"]["num_points"] > 30
+    assert read_calibration(latest).quality.floor["num_points"] > 30
     assert any(s.startswith("floor: found in") for s in listener.snapshot()["status"])
     assert node.set_parameters([Parameter("floor", value="")])[0].successful
     assert wait_until(lambda: "rig" not in listener.rig_from_optical(), 10.0)
@@ -550,9 +550,9 @@ def test_recalibration_after_a_bump_leaves_out_the_frame_sets_from_before(ros, r
         assert "the 2 older frame sets still fitted the previous calibration" in response.message
         assert "removed the 1 oldest calibration(s) (keep_calibrations 1)" in response.message
         assert stored_calibrations(tmp_path / "calib") == [node.calibration_dir] != [first]
-        stamps = node.calibration.quality["input"]["frame_set_stamps_ns"]
+        stamps = node.calibration.quality.input["frame_set_stamps_ns"]
         assert [row[0] for row in stamps] == [10_000_000_000, 11_000_000_000]
-        change = node.calibration.quality["change_vs_previous"]
+        change = node.calibration.quality.change_vs_previous
         assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
     finally:
         for n in (caller, node):
@@ -568,7 +568,7 @@ def test_watch_checks_new_frame_sets_and_recalibrates_when_a_camera_moved(ros, r
     from densecalib_ros.core.io.export import write_calibration_files
 
     truth = rig.ground_truth()
-    truth.quality["reprojection_rms_px"] = 0.5
+    truth.quality.reprojection_rms_px = 0.5
     write_calibration_files(truth, tmp_path / "20260101T000000Z")
     os.symlink("20260101T000000Z", tmp_path / "latest")
     node = ros.densecalib(tmp_path, recalibrate_on_change=True)
@@ -616,9 +616,9 @@ def test_watch_checks_new_frame_sets_and_recalibrates_when_a_camera_moved(ros, r
         assert wait_until(lambda: node.calibration_dir != before, CALIBRATION_TIMEOUT_S), \
             listener.snapshot()["status"][-3:]
         assert watched()[-1] == "watch: recalibrating, the calibration no longer fits", watched()
-        change = node.calibration.quality["change_vs_previous"]
+        change = node.calibration.quality.change_vs_previous
         assert max(change, key=lambda n: change[n]["rotation_change_deg"]) == "cam2"
-        assert [row[0] for row in node.calibration.quality["input"]["frame_set_stamps_ns"]] == \
+        assert [row[0] for row in node.calibration.quality.input["frame_set_stamps_ns"]] == \
             [10_000_000_000, 11_000_000_000]
         # the new calibration has not been checked (no frame sets since): no last_check
         assert wait_until(lambda: diagnostic_state(listener)[2].get("files") ==
@@ -705,7 +705,7 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
         assert wait_until(lambda: any("floor: not found in 20260101T000000Z" in s and
                                       "no COLMAP model" in s
                                       for s in listener.snapshot()["status"]), 10.0)
-        assert "floor" not in read_calibration(tmp_path / "latest").quality
+        assert read_calibration(tmp_path / "latest").quality.floor is None
         assert "rig" not in listener.rig_from_optical()
     finally:
         ros.remove(listener)
@@ -728,9 +728,9 @@ def stored_rig_with_floor(folder, turn_deg=0.0, metric_scale=False):
     floor_from_rig[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # optical y down = floor -z
     floor_from_rig[:3, 3] = [0.0, 0.0, 1.5]  # the reference camera 1.5 m above the floor
     rig = RigCalibration("cam0", {n: RigCamera(n, lens, p) for n, p in poses.items()},
-                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
-                                            "num_points": 500, "rms": 0.002,
-                                            "camera_heights": {n: 1.5 for n in CAMERAS}}},
+                         quality=RigQuality(floor={
+                             "floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 500,
+                             "rms": 0.002, "camera_heights": {n: 1.5 for n in CAMERAS}}),
                          metric_scale=metric_scale)
     write_calibration_files(rig, folder / "20260101T000000Z")
     os.symlink("20260101T000000Z", folder / "latest")
@@ -927,7 +927,7 @@ def test_sync_service_measures_the_stamp_offsets(ros, tmp_path):
             wait_until(lambda: min(node.sync.received) >= before + n + 1, 1.0, 0.002)
 
     try:
-        assert wait_until(lambda: None not in node._image_subs, 10.0), "topics not discovered"
+        assert wait_until(lambda: node.camera_subscriptions.complete, 10.0), "topics not discovered"
         assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 10.0)
         response = caller.call(10.0)
         assert not response.success and "too short" in response.message
@@ -970,7 +970,7 @@ def test_frames_lost_on_the_way_are_counted_and_reported(ros, tmp_path):
     image = np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8)
     ticks, lost = 80, [k for k in range(80) if k % 4 == 3]
     try:
-        assert wait_until(lambda: None not in node._image_subs, 30.0), "topics not discovered"
+        assert wait_until(lambda: node.camera_subscriptions.complete, 30.0), "topics not discovered"
         assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 30.0)
         for k in range(ticks):
             before = list(node.sync.received)
@@ -1017,7 +1017,7 @@ def test_a_frame_that_does_not_decode_is_dropped_counted_and_named(ros, rig, tmp
                for name, (topic, encoding, _) in CAMERAS.items()]
     listener, caller = ros.listener(node), ros.caller("calibrate")
     try:
-        assert wait_until(lambda: None not in node._image_subs, 30.0), "topics not discovered"
+        assert wait_until(lambda: node.camera_subscriptions.complete, 30.0), "topics not discovered"
         assert wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 30.0)
         for t, stamp_s in enumerate((1.0, 2.0)):
             for c, (driver, image) in enumerate(zip(drivers, rig.images[t])):
@@ -1064,7 +1064,7 @@ def test_a_stop_while_the_files_are_written_tells_the_caller_what_became_current
     caller = ros.caller("calibrate")
     try:
         future = caller.call_async()
-        assert wait_until(node._writing.is_set, CALIBRATION_TIMEOUT_S, 0.005)
+        assert wait_until(node.jobs.writing.is_set, CALIBRATION_TIMEOUT_S, 0.005)
         node.stop()
         assert wait_until(future.done, 10.0)
         answer = future.result()
@@ -1151,11 +1151,11 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
                           transports=["auto"], keep_intrinsics=True)
     try:
         assert wait_until(lambda: node.calibration is not a and node.calibration is not None
-                          and "init" in node.calibration.quality or node._last_failure,
+                          and node.calibration.quality.init is not None or node._last_failure,
                           CALIBRATION_TIMEOUT_S, 0.1)
         assert node._last_failure is None, node._last_failure
         kept = node.calibration
-        assert sorted(kept.quality["given_intrinsics"]) == sorted(CAMERAS)
+        assert sorted(kept.quality.given_intrinsics) == sorted(CAMERAS)
         for name in CAMERAS:
             np.testing.assert_array_equal(kept.cameras[name].intrinsics.params,
                                           a.cameras[name].intrinsics.params)
@@ -1214,7 +1214,7 @@ def test_the_node_process_ends_cleanly_on_sigterm_and_says_what_a_bad_value_is(t
         for p in params:
             args += ["-p", p]
         return subprocess.Popen(
-            [sys.executable, "-c", "import sys; from densecalib_ros.ros.node import main; "
+            [sys.executable, "-c", "import sys; from densecalib_ros.ros.main import main; "
              "sys.exit(main())", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
             text=True, env={**os.environ, "ROS_DOMAIN_ID": str(int(os.environ.get(
                 "ROS_DOMAIN_ID", "0")) + 1)})
@@ -1248,7 +1248,7 @@ def test_ctrl_c_during_a_calibration_answers_the_caller_and_exits_cleanly(ros, r
     out = tmp_path / "out"
     topics = [c[0] for c in CAMERAS.values()]
     node = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from densecalib_ros.ros.node import main; "
+        [sys.executable, "-c", "import sys; from densecalib_ros.ros.main import main; "
          "sys.exit(main())", "--ros-args", "-p", f"image_topics:={topics}",
          "-p", f"camera_names:={list(CAMERAS)}", "-p", f"output_dir:={out}",
          "-p", f"transports:={[c[2] for c in CAMERAS.values()]}", "-p", "min_frame_sets:=2",

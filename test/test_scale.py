@@ -36,7 +36,7 @@ def test_a_baseline_camera_that_did_not_register_leaves_the_rig_up_to_scale_with
     rig.failed_cameras = ["cam3"]
     out = with_known_baseline(_result(rig), "cam0", "cam3", 0.5).rig
     assert not out.metric_scale
-    assert "cam3 did not register" in out.quality["warnings"][0]
+    assert "cam3 did not register" in out.quality.warnings[0]
 
 
 def test_scale_command_from_a_measured_length_in_the_scene(tmp_path, caplog):
@@ -84,13 +84,13 @@ def test_scale_command_from_a_measured_length_in_the_scene(tmp_path, caplog):
 
     assert main(["scale", str(out), "--distance", str(length_m), *points[0], *points[1]]) == 0
     metric = read_calibration(out)
-    assert metric.metric_scale and metric.quality["scale_from_points"]["relative_std"] < 0.02
+    assert metric.metric_scale and metric.quality.scale_from_points["relative_std"] < 0.02
     for a, b in (("cam0", "cam1"), ("cam1", "cam3"), ("cam0", "cam2")):
         ia, ib = rig.names.index(a), rig.names.index(b)
         truth = float(np.linalg.norm(rig.center(ia) - rig.center(ib)))
         assert camera_distance(metric, a, b) == pytest.approx(truth, rel=0.02), (a, b)
     for i, name in enumerate(rig.names):  # the scene's floor is z = 0, in metres
-        assert metric.quality["floor"]["camera_heights"][name] == pytest.approx(
+        assert metric.quality.floor["camera_heights"][name] == pytest.approx(
             rig.center(i)[2], rel=0.02)
     model = pycolmap.Reconstruction(str(out / "colmap"))
     centres = {im.name: np.asarray(im.projection_center()) for im in model.images.values()}
@@ -112,11 +112,11 @@ def test_a_recalibration_that_lost_the_metric_scale_says_so():
     assert camera_distance(previous, "cam0", "cam2") == pytest.approx(
         2.0 * camera_distance(rig, "cam0", "cam2"))
     warn_if_scale_lost(rig, previous)
-    assert "previous calibration was metric from two scene points" in rig.quality["warnings"][0]
+    assert "previous calibration was metric from two scene points" in rig.quality.warnings[0]
     metric = apply_known_baseline(rig, "cam0", "cam2", 0.5)
     warn_if_scale_lost(metric, previous)
-    assert metric.quality["warnings"] == []  # metric again: the up-to-scale warning is gone
+    assert metric.quality.warnings == []  # metric again: the up-to-scale warning is gone
     # a scale replaced drops the warnings about the old one, keeps the others
-    rig.quality["warnings"] += ["scale from points: point A: its pixels miss", "camera cam3 ..."]
-    assert apply_known_baseline(rig, "cam0", "cam2", 0.5).quality["warnings"] == [
+    rig.quality.warnings += ["scale from points: point A: its pixels miss", "camera cam3 ..."]
+    assert apply_known_baseline(rig, "cam0", "cam2", 0.5).quality.warnings == [
         "camera cam3 ..."]

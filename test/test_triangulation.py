@@ -13,7 +13,7 @@ from densecalib_ros.cli import main
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.io.export import calibration_to_dict
 from densecalib_ros.core.products.triangulation import triangulate
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
 
 
 @pytest.fixture
@@ -29,8 +29,9 @@ def rig():
         "c": RigCamera("c", CameraIntrinsics("RADIAL", 1024, 768,
                                              np.array([790.0, 510.0, 385.0, 0.03, 0.0])),
                        _pose([0, 20, 0], [0.8, 0.05, 0.1]))},
-        quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 1,
-                           "rms": 0.0, "camera_heights": {}}}, metric_scale=True)
+        quality=RigQuality(floor={"floor_from_rig": floor_from_rig.ravel().tolist(),
+                                  "num_points": 1, "rms": 0.0, "camera_heights": {}}),
+        metric_scale=True)
 
 
 def _pixels(rig, xyz):
@@ -61,7 +62,7 @@ def test_points_come_back_and_their_sigma_matches_the_scatter(rig):
                       for _ in range(400)], axis=0)
     np.testing.assert_allclose(scatter, predicted, rtol=0.15)
     # the floor frame: the calibration's floor_from_rig applied
-    floor_from_rig = np.reshape(rig.quality["floor"]["floor_from_rig"], (4, 4))
+    floor_from_rig = np.reshape(rig.quality.floor["floor_from_rig"], (4, 4))
     np.testing.assert_allclose(triangulate(rig, clean).xyz_floor,
                                floor_from_rig[:3, :3] @ xyz + floor_from_rig[:3, 3], atol=1e-7)
 

@@ -10,7 +10,7 @@ import pytest
 from densecalib_ros.cli import main
 from densecalib_ros.core.io.camera_info import ros_camera_info
 from densecalib_ros.core.io.export import calibration_to_dict, read_calibration
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
 from densecalib_ros.core.products.undistort import pinhole_for, undistortion_maps
 
 RADIAL = CameraIntrinsics("RADIAL", 320, 240, np.array([260.0, 163.0, 118.5, -0.18, 0.04]))
@@ -109,14 +109,14 @@ def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys)
 
     def height(calibration, name):  # of the camera's centre, in its calibration's floor frame
         centre = np.linalg.inv(calibration.cameras[name].cam_from_rig)[:, 3]
-        return (np.reshape(calibration.quality["floor"]["floor_from_rig"], (4, 4)) @ centre)[2]
+        return (np.reshape(calibration.quality.floor["floor_from_rig"], (4, 4)) @ centre)[2]
 
     rig = RigCalibration("a", {"a": RigCamera("a", lens, np.eye(4)),
                                "b": RigCamera("b", lens, pose),
                                "c": RigCamera("c", RADIAL, third)}, metric_scale=True,
-                         quality={"floor": {"floor_from_rig": floor_from_rig.ravel().tolist(),
-                                            "num_points": 100, "rms": 0.01,
-                                            "camera_heights": {"a": 1.0, "b": 1.0, "c": 1.0}}})
+                         quality=RigQuality(floor={
+                             "floor_from_rig": floor_from_rig.ravel().tolist(), "num_points": 100,
+                             "rms": 0.01, "camera_heights": {"a": 1.0, "b": 1.0, "c": 1.0}}))
     calib = tmp_path / "calibration.json"
     calib.write_text(json.dumps(calibration_to_dict(rig)))
     images = tmp_path / "images"
@@ -140,7 +140,7 @@ def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys)
     assert np.abs(right[1:3, 3]).max() < 1e-9
     for name in ("a", "b"):  # the floor frame follows the new rig frame
         assert height(result, name) == pytest.approx(height(rig, name), abs=1e-9)
-    assert sorted(result.quality["floor"]["camera_heights"]) == ["a", "b"]
+    assert sorted(result.quality.floor["camera_heights"]) == ["a", "b"]
     for name in ("a", "b"):
         info = yaml.safe_load((tmp_path / "stereo" / f"{name}.yaml").read_text())
         k = np.array(info["camera_matrix"]["data"]).reshape(3, 3)

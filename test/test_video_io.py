@@ -141,8 +141,8 @@ def test_rig_calibrated_from_its_videos(tmp_path):
     unaligned, _, _ = read_video_frame_sets(videos, 2)
     assert not unaligned[0][2].any()  # without the offset: a black frame
     calibration = read_calibration(out)
-    assert calibration.quality["input"]["time_offsets_s"] == {"cam2": 1.0}
-    assert calibration.quality["input"]["frame_set_times_s"] == pytest.approx([0.5, 1.5])
+    assert calibration.quality.input["time_offsets_s"] == {"cam2": 1.0}
+    assert calibration.quality.input["frame_set_times_s"] == pytest.approx([0.5, 1.5])
     metrics = evaluate_calibration(calibration, rig.ground_truth())
     assert metrics["num_registered"] == 4
     assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02

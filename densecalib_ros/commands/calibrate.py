@@ -227,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
         print(note)
     if rig.failed_cameras:
         print("not registered: " + ", ".join(rig.failed_cameras))
-    if "change_summary" in rig.quality:
-        print(f"{rig.quality['change_summary']} (started {rig.quality['init']})")
+    if rig.quality.change_summary is not None:
+        print(f"{rig.quality.change_summary} (started {rig.quality.init})")
     print(f"reference camera {rig.reference_camera}; wrote {args.out}")
     return 0

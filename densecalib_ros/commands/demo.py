@@ -88,8 +88,8 @@ def _run_offline(rig, config, out: Path) -> int:
     focal = {n: float(c.intrinsics.params[0]) for n, c in est.cameras.items()}
     rig_from_cam = {n: np.linalg.inv(c.cam_from_rig) for n, c in est.cameras.items()}
     _print_comparison(rig, focal, rig_from_cam, est.reference_camera,
-                      f"offline calibrate_rig: RMS {est.quality['reprojection_rms_px']:.2f} px, "
-                      f"{est.quality['runtime_s']:.1f} s")
+                      f"offline calibrate_rig: RMS {est.quality.reprojection_rms_px:.2f} px, "
+                      f"{est.quality.runtime_s:.1f} s")
     print(f"files: {out / 'offline'} (read them with: densecalib report {out / 'offline'})")
     return 0
 

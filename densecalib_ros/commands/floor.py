@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         log.error("%s calibration.json is unchanged.", exc)
         return 2
-    replaced = "floor" in rig.quality
+    replaced = rig.quality.floor is not None
     set_floor(rig, floor)
     print(format_floor(rig))
     if args.dry_run:

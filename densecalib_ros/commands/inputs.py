@@ -1,7 +1,7 @@
 """Where a rig's frame sets come from, for the commands that read them (calibrate, check): a folder
 of images (one per camera, or camera subfolders paired by name, position or EXIF time), one video
 per camera, or a rosbag2 bag, and the masks of what in the images is not scene. Each source is
-recorded as it was used (quality["input"])."""
+recorded as it was used (quality.input)."""
 from __future__ import annotations
 
 import argparse
@@ -72,7 +72,7 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _alignment(args) -> tuple[dict, dict]:
     """(list_image_folder's alignment arguments, the estimated offsets' record for
-    quality["input"] when --time-offset auto found them)."""
+    quality.input when --time-offset auto found them)."""
     record = {}
     if args.time_offset == ["auto"]:
         offsets, record = _estimated_clock_offsets(args)
@@ -111,7 +111,7 @@ def _frame_sets(args, default: int) -> int:
 
 
 def read_input(args) -> tuple[list, list[str], dict, list]:
-    """(frame_sets, camera names, the input's record for quality["input"], image paths per set
+    """(frame_sets, camera names, the input's record for quality.input, image paths per set
     (--images only, else []))."""
     _check_input_options(args)
     if args.videos:
@@ -201,7 +201,7 @@ def _check_input_options(args) -> None:
 
 
 def _motion_offsets(estimates: dict, what: str) -> tuple[dict, dict]:
-    """({camera: offset s}, the record for quality["input"]) of core.io.motion_sync estimates."""
+    """({camera: offset s}, the record for quality.input) of core.io.motion_sync estimates."""
     offsets = {name: round(est.offset_s, 4) for name, est in estimates.items()}
     log.info("time offsets from the %s' motion (s, from %s): %s", what, next(iter(offsets)),
              ", ".join(f"{n}={o:+.3f}" for n, o in offsets.items()))

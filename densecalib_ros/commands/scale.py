@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         log.error("%s The calibration is unchanged.", exc)
         return 2
-    record = scaled.quality.get("scale_from_points") or scaled.quality["scale_from_baseline"]
+    record = scaled.quality.scale_from_points or scaled.quality.scale_from_baseline
     factor = record["factor"]
     sure = (f" (1 sigma {100 * record['relative_std']:.2g} %)" if "relative_std" in record
             else "")

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         flat = args.videos or not any((Path(args.images) / n).is_dir() for n in jobs)
         frames = {}  # camera -> frames written (videos)
         out_rig = copy.deepcopy(rig)
-        out_rig.quality = {**rig.quality, "undistorted_from": str(args.calibration)}
+        out_rig.quality.undistorted_from = str(args.calibration)
 
         def build(tmp: Path) -> None:
             for name, files in jobs.items():
@@ -194,14 +194,15 @@ def _rectified_rig(rig, targets):
         turned[name] = pose @ rig.cameras[name].cam_from_rig
     left = next(iter(targets))
     rig_from_left = np.linalg.inv(turned[left])
-    quality = {**rig.quality, "stereo_rectified_pair": list(targets)}
-    if "floor" in quality:  # the floor frame, from the new rig frame (the rectified left camera)
-        floor = dict(quality["floor"])
+    quality = rig.quality.copy()
+    quality.stereo_rectified_pair = list(targets)
+    if quality.floor is not None:  # the floor frame, from the new rig frame (the left camera)
+        floor = dict(quality.floor)
         floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
         floor["floor_from_rig"] = (floor_from_rig @ rig_from_left).ravel().tolist()
         floor["camera_heights"] = {n: h for n, h in floor["camera_heights"].items()
                                    if n in targets}
-        quality["floor"] = floor
+        quality.floor = floor
     return RigCalibration(
         reference_camera=left,
         cameras={name: RigCamera(name, rig.cameras[name].intrinsics, pose @ rig_from_left)

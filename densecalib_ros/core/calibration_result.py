@@ -22,7 +22,7 @@ from .method.reconstruction import (SfMState, build_reconstruction, camera_quali
                                     reprojection_errors)
 from .products.scale import move_model_to_rig_frame
 from .progress import Progress
-from .types import RigCalibration, RigCamera, Tracks
+from .types import RigCalibration, RigCamera, RigQuality, Tracks
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ class CalibrationResult:
 
 
 def rig_from_state(state: SfMState, camera_names: Sequence[str], failed: Sequence[int],
-                   quality: Optional[dict] = None) -> RigCalibration:
+                   quality: Optional[RigQuality] = None) -> RigCalibration:
     """The registered cameras of `state` as a RigCalibration (module docstring: reference camera
     and scale). Raises NotEnoughCamerasError with fewer than two registered cameras."""
     registered = state.registered()
@@ -69,7 +69,7 @@ def rig_from_state(state: SfMState, camera_names: Sequence[str], failed: Sequenc
         cameras[camera_names[c]] = RigCamera(camera_names[c], state.camera(c), T,
                                              camera_quality(state, c, errors))
     finite = errors[np.isfinite(errors)]
-    overall = dict(quality or {})
+    overall = quality.copy() if quality is not None else RigQuality()
     overall.update(
         reprojection_rms_px=float(np.sqrt(np.mean(finite ** 2))) if len(finite) else float("nan"),
         num_points=int(state.point_mask().sum()), num_observations=int(len(finite)),
@@ -84,10 +84,10 @@ def result_with_state(result: CalibrationResult, state: SfMState, camera_names: 
     """`result` with its rig and reconstruction rebuilt from another state of the same cameras
     (the quality's per-run records kept, the fit figures recomputed)."""
     failed = [camera_names.index(n) for n in result.rig.failed_cameras]
-    quality = dict(result.rig.quality)
+    quality = result.rig.quality.copy()
     rig = rig_from_state(state, camera_names, failed, quality)
-    if "given_intrinsics_fit" in quality:
-        rig.quality["given_intrinsics_fit"] = given_intrinsics_fit(state, camera_names,
+    if quality.given_intrinsics_fit is not None:
+        rig.quality.given_intrinsics_fit = given_intrinsics_fit(state, camera_names,
                                                                    config.sfm.num_threads)
     return replace(result, rig=rig, reconstruction=saved_model(state, camera_names, rig),
                    state=state)
@@ -102,9 +102,9 @@ def saved_model(state: SfMState, camera_names: Sequence[str], rig: RigCalibratio
 
 
 def warn_user(rig: RigCalibration, warning: str, progress: Progress) -> None:
-    """Log a warning, pass it to progress and keep it in rig.quality["warnings"]: the node's
+    """Log a warning, pass it to progress and keep it in rig.quality.warnings: the node's
     service reply and `densecalib report` show it to whoever looks at the calibration later."""
     log.warning("%s", warning)
     if progress is not None:
         progress(warning)
-    rig.quality.setdefault("warnings", []).append(warning)
+    rig.quality.warnings.append(warning)

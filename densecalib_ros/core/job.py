@@ -35,8 +35,7 @@ class CalibrationRequest:
     known_baseline: (camera_a, camera_b, metres) between the two cameras' centres; None: the
         previous calibration's baseline where it was scaled by one, else up to scale.
     floor: "upright" or "top" to find the floor frame (core.products.floor); floor_hint: what finds
-    it
-        again in the front end's terms, said when a recalibration lost the previous floor.
+        it again in the front end's terms, said when a recalibration lost the previous floor.
     source: what the images came from, recorded as the provenance (core.io.export).
     matcher: a loaded matcher to reuse (the node keeps one across calibrations)."""
 
@@ -94,7 +93,7 @@ def run_job(request: CalibrationRequest, progress: Progress = None) -> JobResult
 
 def previous_baseline(previous: Optional[RigCalibration]) -> Optional[tuple[str, str, float]]:
     """The known baseline a metric previous calibration was scaled with, or None."""
-    scale = (previous.quality.get("scale_from_baseline")
+    scale = (previous.quality.scale_from_baseline
              if previous is not None and previous.metric_scale else None)
     if not scale:
         return None

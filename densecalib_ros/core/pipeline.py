@@ -32,7 +32,7 @@ from .method.view_graph import pair_track_counts
 from .method.uncertainty import add_uncertainty, estimated_principal_points
 from .progress import Progress, say_progress
 from .robust.placement import repair_placements
-from .types import RigCalibration, Tracks
+from .types import RigCalibration, RigQuality, Tracks
 
 log = logging.getLogger(__name__)
 
@@ -92,18 +92,18 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
         state, moved = _refined_on_matches(state, match_tracks, camera_names, config, progress)
     fit = given_intrinsics_fit(state, camera_names, config.sfm.num_threads)
     runtime = time.perf_counter() - start
-    rig = rig_from_state(state, camera_names, sfm.failed, dict(
+    rig = rig_from_state(state, camera_names, sfm.failed, RigQuality(
         pipeline=config.pipeline, preset=config.preset, sfm_runtime_s=runtime,
         view_order=[camera_names[c] for c in sfm.view_order],
         match_tracks=0 if match_tracks is None else match_tracks.num_tracks,
         moved_cameras=moved))
     if config.pipeline == "global":
-        rig.quality.update(sfm.quality)  # init, gauge camera, residuals per BA stage
+        rig.quality.update(**sfm.quality.to_dict())  # init, gauge camera, BA stage residuals
     if fit:
-        rig.quality["given_intrinsics_fit"] = fit  # judged in calibrate_from_matches
+        rig.quality.given_intrinsics_fit = fit  # judged in calibrate_from_matches
     reconstruction = saved_model(state, camera_names, rig)
     say_progress(progress, f"registered {len(rig.cameras)}/{C} cameras, reprojection RMS "
-                   f"{rig.quality['reprojection_rms_px']:.2f} px, {rig.quality['num_points']} "
+                   f"{rig.quality.reprojection_rms_px:.2f} px, {rig.quality.num_points} "
                    f"points ({runtime:.1f} s)")
     return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
                              focal_init_px=focal_px, state=state)
@@ -235,9 +235,9 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
                                             match_tracks, ignored, progress, previous)
     add_uncertainty(result.rig, result.reconstruction, camera_names, config, sigmas)
     if config.known_intrinsics:
-        result.rig.quality["given_intrinsics"] = describe_known(config.known_intrinsics)
-        for warning in given_intrinsics_warnings(result.rig.quality.get("given_intrinsics_fit",
-                                                                        {})):
+        result.rig.quality.given_intrinsics = describe_known(config.known_intrinsics)
+        for warning in given_intrinsics_warnings(result.rig.quality.given_intrinsics_fit
+                                                       or {}):
             warn_user(result.rig, warning, progress)
     warning = weak_focal_warning(result.rig)
     if warning:
@@ -264,10 +264,10 @@ def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequ
         return result, {}
     # Whether given intrinsics fit the scene was judged on the keypoint matches; the dense
     # correspondences were gated against them already.
-    given_fit = result.rig.quality.get("given_intrinsics_fit")
+    given_fit = result.rig.quality.given_intrinsics_fit
     result = result_with_state(result, refinement.state, camera_names, config)
     if given_fit is not None:
-        result.rig.quality["given_intrinsics_fit"] = given_fit
+        result.rig.quality.given_intrinsics_fit = given_fit
     result.rig.quality.update(
         image_refinement_tracks=refinement.num_tracks,
         image_refinement_noise_px=round(refinement.adjustment.noise_px, 4),
@@ -332,7 +332,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                                  config.sampling.seed, lambda m: say_progress(progress, m))
         if hops:
             result = result_with_state(result, state, camera_names, config)
-            result.rig.quality["focal_hops"] = hops
+            result.rig.quality.focal_hops = hops
             others = np.array([rig_disagreement_deg(result.rig, r.rig, camera_names)
                                for k, r in enumerate(results) if k != best])
     result.rig.quality.update(
@@ -341,15 +341,15 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
         consensus_disagreement_deg=float(np.median(others)) if len(others) else 0.0)
     say_progress(progress, f"consensus: median disagreement of the result with the other "
                            f"{len(results) - 1} runs "
-                           f"{result.rig.quality['consensus_disagreement_deg']:.2f} deg")
+                           f"{result.rig.quality.consensus_disagreement_deg:.2f} deg")
     few_wide = (config.matcher == "sift" and len(camera_names) <= 4
                 and not any("FISHEYE" in m for m in config.sfm.models(len(camera_names))))
     pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
                                                 if k != best], camera_names)
     if pairs:
-        result.rig.quality["consensus_least_determined_pairs_deg"] = {
+        result.rig.quality.consensus_least_determined_pairs_deg = {
             f"{a}/{b}": round(deg, 1) for a, b, deg in pairs}
-    warning = disagreement_warning(result.rig.quality["consensus_disagreement_deg"], len(results),
+    warning = disagreement_warning(result.rig.quality.consensus_disagreement_deg, len(results),
                                    few_wide, pairs, _shared_matches(match_tracks, camera_names),
                                    len(result.rig.cameras))
     if warning:
@@ -435,12 +435,12 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
     if config.camera_lens:
-        result.rig.quality["camera_lens"] = dict(config.camera_lens)
+        result.rig.quality.camera_lens = dict(config.camera_lens)
     if config.camera_masks:
-        result.rig.quality["masked_cameras"] = sorted(config.camera_masks)
+        result.rig.quality.masked_cameras = sorted(config.camera_masks)
     record_info_strips(result, strips)
     if config.exif_focal_px:
-        result.rig.quality["exif_focal_px"] = {n: round(float(f), 1)
+        result.rig.quality.exif_focal_px = {n: round(float(f), 1)
                                                for n, f in config.exif_focal_px.items()}
     return result
 
@@ -459,10 +459,10 @@ def checked_and_matched(frame_sets: Sequence[Sequence[np.ndarray]], camera_names
 
 
 def record_info_strips(result: CalibrationResult, strips: dict) -> None:
-    """Note the info strips that were ignored (info_strips) in rig.quality["info_strips"]
+    """Note the info strips that were ignored (info_strips) in rig.quality.info_strips
     (camera -> what)."""
     if strips:
-        result.rig.quality["info_strips"] = {
+        result.rig.quality.info_strips = {
             n: ", ".join(s.describe() for s in found) for n, found in strips.items()}
 
 

@@ -13,7 +13,7 @@ camera bumped a moment before the service call leaves most of them from before. 
 together, the old images pull the rig back to where it was. So each frame set is first held
 against the previous calibration (core.monitor.consistency, as `check` does); when sets that fit it
 are followed by sets that do not, the rig changed in between, and only the sets since the change are
-calibrated (quality["frame_sets_before_change"] counts the ones left out).
+calibrated (quality.frame_sets_before_change counts the ones left out).
 """
 from __future__ import annotations
 
@@ -51,8 +51,8 @@ def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:
     lost = [n for n in previous.cameras if n not in new.cameras]
     if lost:
         return f"camera(s) {', '.join(lost)} calibrated before but not now"
-    rms_new = float(new.quality.get("reprojection_rms_px", np.nan))
-    rms_old = float(previous.quality.get("reprojection_rms_px", np.nan))
+    rms_new, rms_old = (np.nan if r.quality.reprojection_rms_px is None
+                        else float(r.quality.reprojection_rms_px) for r in (new, previous))
     if np.isfinite(rms_old) and not (rms_new <= max(MAX_RMS_RATIO * rms_old,
                                                     rms_old + MAX_RMS_INCREASE_PX)):
         return f"reprojection RMS {rms_new:.2f} px against {rms_old:.2f} px before"
@@ -94,7 +94,7 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
         except CalibrationError as exc:
             why_not_previous = str(exc)
         if why_not_previous is None:
-            result.rig.quality["init"] = "previous calibration"
+            result.rig.quality.init = "previous calibration"
         else:
             result = None
             say_progress(progress, f"starting from the previous calibration did not work "
@@ -105,7 +105,7 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
         result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
                                         previous=None, frame_sets=frame_sets, ignored=ignored,
                                         progress=progress)
-        result.rig.quality["init"] = f"from scratch ({why_not_previous})"
+        result.rig.quality.init = f"from scratch ({why_not_previous})"
         worse = worse_than(result.rig, previous)
         if worse is not None:
             raise CalibrationRejectedError(
@@ -113,11 +113,11 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
                 "calibration is kept. Check that every camera sees the shared scene (lens covered, "
                 "out of focus, moved away?) and calibrate again.")
     change = calibration_change(previous, result.rig)
-    result.rig.quality["change_vs_previous"] = {n: vars(c) for n, c in change.items()}
-    result.rig.quality["change_summary"] = change_summary(change)
-    say_progress(progress, result.rig.quality["change_summary"])
+    result.rig.quality.change_vs_previous = {n: vars(c) for n, c in change.items()}
+    result.rig.quality.change_summary = change_summary(change)
+    say_progress(progress, result.rig.quality.change_summary)
     if before_change:
-        result.rig.quality["frame_sets_before_change"] = before_change
+        result.rig.quality.frame_sets_before_change = before_change
     with_point_colours(result, frame_sets)
     record_info_strips(result, strips)
     return result

@@ -9,7 +9,7 @@ Conventions (used everywhere in the core):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -187,6 +187,100 @@ class RigCamera:
 
 
 @dataclass
+class RigQuality:
+    """What a calibration was made from, how well it fits and what was found on the way; saved as
+    calibration.json's "quality" (to_dict/from_dict: a field left None is left out; keys this
+    version does not know, from a newer or hand-edited file, are kept in `extra`)."""
+
+    # the fit (calibration_result.rig_from_state)
+    reprojection_rms_px: Optional[float] = None
+    num_points: Optional[int] = None
+    num_observations: Optional[int] = None
+    num_registered: Optional[int] = None
+    num_cameras: Optional[int] = None
+    # the run (pipeline)
+    pipeline: Optional[str] = None
+    preset: Optional[str] = None
+    sfm_runtime_s: Optional[float] = None
+    view_order: Optional[list] = None  # camera names in the order they were registered
+    match_tracks: Optional[int] = None  # keypoint-match tracks the rig was refined on
+    moved_cameras: Optional[list] = None  # cameras that refinement on those tracks moved
+    global_init: Optional[str] = None  # the global pipeline's start (core.method.global_sfm)
+    gauge_camera: Optional[str] = None
+    num_outlier_observations: Optional[int] = None
+    stage_residuals: Optional[dict] = None  # the global pipeline's residuals per BA stage
+    consensus_runs: Optional[int] = None  # core.robust.consensus
+    consensus_failed_runs: Optional[int] = None
+    consensus_seed: Optional[int] = None
+    consensus_worse_fit_runs: Optional[int] = None
+    consensus_kept_by_fit: Optional[bool] = None
+    consensus_disagreement_deg: Optional[float] = None
+    consensus_least_determined_pairs_deg: Optional[dict] = None  # "a/b" -> deg
+    focal_hops: Optional[list] = None  # core.robust.focal_hops, one line per hop
+    image_refinement_tracks: Optional[int] = None  # core.method.image_refinement
+    image_refinement_noise_px: Optional[float] = None
+    principal_point_prior_std_fraction: Optional[float] = None
+    held_pp_std_fraction: Optional[float] = None  # core.method.uncertainty
+    matcher: Optional[str] = None
+    num_frame_sets: Optional[int] = None
+    runtime_s: Optional[float] = None
+    # the user's data it was given (camera -> ...)
+    given_intrinsics: Optional[dict] = None  # camera -> model (known_intrinsics.describe_known)
+    given_intrinsics_fit: Optional[dict] = None  # camera -> how they fit the scene
+    camera_lens: Optional[dict] = None
+    masked_cameras: Optional[list] = None
+    exif_focal_px: Optional[dict] = None
+    info_strips: Optional[dict] = None  # camera -> the info strips ignored
+    # a recalibration (core.recalibration)
+    init: Optional[str] = None  # what the kept run started from
+    change_vs_previous: Optional[dict] = None  # camera -> its change (vars of CameraChange)
+    change_summary: Optional[str] = None
+    frame_sets_before_change: Optional[int] = None  # older frame sets left out: the rig changed
+    # the provenance (core.io.export.note_provenance)
+    input: Optional[dict] = None
+    densecalib_version: Optional[str] = None
+    calibrated_utc: Optional[str] = None
+    # the products recorded with it
+    floor: Optional[dict] = None  # core.products.floor.Floor.to_dict
+    scale_from_baseline: Optional[dict] = None  # core.products.scale
+    scale_from_points: Optional[dict] = None
+    undistorted_from: Optional[str] = None  # densecalib undistort
+    stereo_rectified_pair: Optional[list] = None
+    source: Optional[str] = None  # where it came from when no calibration made it (ground truth)
+    # said to the user once and kept for whoever looks later (calibration_result.warn_user)
+    warnings: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+
+    def update(self, **values) -> None:
+        """Set the named fields (TypeError on a name that is none)."""
+        for name, value in values.items():
+            if name not in _RIG_QUALITY_FIELDS:
+                raise TypeError(f"RigQuality has no field {name!r}")
+            setattr(self, name, value)
+
+    def copy(self) -> "RigQuality":
+        """A copy whose warnings can change without changing these."""
+        return replace(self, warnings=list(self.warnings), extra=dict(self.extra))
+
+    def to_dict(self) -> dict:
+        out = {name: getattr(self, name) for name in _RIG_QUALITY_FIELDS
+               if getattr(self, name) is not None}
+        if not self.warnings:
+            out.pop("warnings")
+        return {**out, **self.extra}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "RigQuality":
+        known = {k: v for k, v in data.items() if k in _RIG_QUALITY_FIELDS}
+        known["warnings"] = list(known.get("warnings") or [])
+        return cls(**known, extra={k: v for k, v in data.items()
+                                   if k not in _RIG_QUALITY_FIELDS})
+
+
+_RIG_QUALITY_FIELDS = tuple(f.name for f in fields(RigQuality) if f.name != "extra")
+
+
+@dataclass
 class RigCalibration:
     """A calibrated rig. Translation units are those of the reconstruction (arbitrary scale) unless
     `metric_scale` is True (a known baseline was applied)."""
@@ -194,5 +288,5 @@ class RigCalibration:
     reference_camera: str
     cameras: dict[str, RigCamera]
     failed_cameras: list[str] = field(default_factory=list)
-    quality: dict = field(default_factory=dict)  # overall: rms, points, runtime_s, pipeline...
+    quality: RigQuality = field(default_factory=RigQuality)
     metric_scale: bool = False

@@ -292,7 +292,7 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             start = time.perf_counter()  # the perturbation is set-up, not recalibration time
             with quiet_colmap(min_level=2):
                 calib = recalibrate(scene.frame_sets, scene.camera_names, config, previous).rig
-            record["message"] = f"started from {calib.quality.get('init')}"
+            record["message"] = f"started from {calib.quality.init}"
         else:
             raise InputError(f"Unknown method {method!r}: choose from {', '.join(ALL_METHODS)}.")
     except CalibrationError as exc:
@@ -321,7 +321,7 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
         # What the user would have been told about this result (consensus disagreement, focal
         # lengths left open, ...): a warning on a right result is a false alarm, none on a wrong
         # one a miss.
-        record["warnings"] = list(calib.quality.get("warnings", []))
+        record["warnings"] = list(calib.quality.warnings)
     return record
 
 

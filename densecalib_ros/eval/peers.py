@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core.colmap_logging import quiet_colmap
 from ..core.errors import InputError
-from ..core.types import CameraIntrinsics, RigCalibration, RigCamera
+from ..core.types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +63,9 @@ class PeerResult:
                        for n in registered}
         return RigCalibration(reference, cameras,
                               failed_cameras=[n for n in camera_names if n not in self.cam_from_world],
-                              quality=dict(method=self.method, runtime_s=self.runtime_s,
-                                           num_points3d=self.num_points3d, message=self.message))
+                              quality=RigQuality(runtime_s=self.runtime_s, extra=dict(
+                                  method=self.method, num_points3d=self.num_points3d,
+                                  message=self.message)))
 
 
 def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[str],

@@ -173,7 +173,7 @@ def rig_tf_message(rig: RigCalibration, rig_frame: str, optical_frames: dict[str
     transforms = [transform_msg(rig_frame, optical_frames[name], published_from_rig @ np.linalg.inv(
                       np.asarray(cam.cam_from_rig, dtype=np.float64)), t_ns)
                   for name, cam in rig.cameras.items()]
-    floor = rig.quality.get("floor")
+    floor = rig.quality.floor
     if floor_frame and floor:
         floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
         transforms.append(transform_msg(

@@ -83,9 +83,9 @@ def _add_calibration(values: dict, status: DiagnosticStatus, calibration: RigCal
                      calibration_dir: Optional[Path], calibrated_at: Optional[float]) -> None:
     """The published calibration's fit, sigmas, failed cameras and warnings, into values (and
     the status: warnings make it WARN)."""
-    rms = calibration.quality.get("reprojection_rms_px", float("nan"))
+    rms = calibration.quality.reprojection_rms_px
     values.update(
-        reprojection_rms_px=f"{rms:.3f}",
+        reprojection_rms_px=f"{float('nan') if rms is None else rms:.3f}",
         cameras=", ".join(calibration.cameras),
         age_s=f"{time.time() - calibrated_at:.1f}",
         files=str(calibration_dir))
@@ -97,7 +97,7 @@ def _add_calibration(values: dict, status: DiagnosticStatus, calibration: RigCal
             values[key] = ", ".join(per_camera)
     if calibration.failed_cameras:
         values["failed_cameras"] = ", ".join(calibration.failed_cameras)
-    warnings = calibration.quality.get("warnings", [])
+    warnings = calibration.quality.warnings
     if warnings:  # e.g. the consensus runs disagree: the rig may be wrong
         values["warnings"] = " | ".join(warnings)
         if status.level == DiagnosticStatus.OK:

@@ -9,7 +9,7 @@ each callback where it takes the message: no task list, no other thread to wait 
 
 The intake node ignores the process's --ros-args (use_global_arguments=False: a `__node:=` rename
 would otherwise give it the main node's name); it subscribes to the topic names that the main
-node resolved, with its namespace and remappings."""
+node resolved, with its namespace and remappings; an 'auto' topic once the graph tells its type."""
 from __future__ import annotations
 
 import threading
@@ -21,6 +21,7 @@ from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventType
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CompressedImage, Image
 
 INTAKE_SUFFIX = "_images"  # the intake node's name: the main node's with this after it
 _WAKE_S = 0.1  # how often the spinning thread looks whether it should stop
@@ -78,3 +79,48 @@ class ImageIntake:
         self._thread.join(_JOIN_TIMEOUT_S)
         self._executor.shutdown(timeout_sec=0)
         self.node.destroy_node()
+
+
+class CameraSubscriptions:
+    """Each camera's image topic subscribed on the intake, its messages added to `sync`: a topic
+    whose transport is given (or whose name ends in /compressed) at once, an 'auto' one when
+    subscribe_discovered finds its type in the graph."""
+
+    def __init__(self, parent: Node, intake: ImageIntake, settings, sync):
+        self._parent, self._intake, self._settings, self._sync = parent, intake, settings, sync
+        self.subscriptions: list = [None] * len(settings.image_topics)
+        for i, (topic, transport) in enumerate(zip(settings.image_topics, settings.transports)):
+            if transport == "auto" and topic.rstrip("/").endswith("/compressed"):
+                transport = "compressed"
+            if transport != "auto":
+                self._subscribe(i, CompressedImage if transport == "compressed" else Image)
+
+    @property
+    def complete(self) -> bool:
+        return None not in self.subscriptions
+
+    def subscribe_discovered(self) -> None:
+        """Subscribe the 'auto' topics whose type the graph now tells."""
+        types = dict(self._parent.get_topic_names_and_types())
+        for i, topic in enumerate(self._settings.image_topics):
+            if self.subscriptions[i] is not None:
+                continue
+            found = types.get(self._parent.resolve_topic_name(topic), [])
+            if "sensor_msgs/msg/CompressedImage" in found:
+                self._subscribe(i, CompressedImage)
+            elif "sensor_msgs/msg/Image" in found:
+                self._subscribe(i, Image)
+            elif found:
+                self._parent.get_logger().error(
+                    f"{topic} has type {found}, not an image: fix image_topics",
+                    throttle_duration_sec=30.0)
+
+    def _subscribe(self, i: int, msg_type) -> None:
+        s = self._settings
+        topic = self._parent.resolve_topic_name(s.image_topics[i])  # namespace, remappings
+        self.subscriptions[i] = self._intake.subscribe(
+            msg_type, topic, lambda msg, i=i: self._sync.add(i, msg),
+            on_lost=lambda total, i=i: self._sync.add_lost(i, total))
+        given = "" if topic == s.image_topics[i] else f", image_topics: {s.image_topics[i]}"
+        self._parent.get_logger().info(f"camera {s.camera_names[i]}: subscribed to {topic} "
+                                       f"({msg_type.__name__}{given})")

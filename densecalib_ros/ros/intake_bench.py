@@ -232,7 +232,7 @@ def _node_command(spec: IntakeBenchSpec, output_dir: str) -> list[str]:
     args = ["--ros-args", "-r", f"__node:={NODE_NAME}"]
     for p in params:
         args += ["-p", p]
-    return _python("from densecalib_ros.ros.node import main; sys.exit(main())") + args
+    return _python("from densecalib_ros.ros.main import main; sys.exit(main())") + args
 
 
 class _Process:

@@ -226,3 +226,13 @@ def malformed_note(names: list[str], dropped: list[int], reasons: list[Optional[
         return ""
     return ("frame sets dropped: images that do not decode from " + "; ".join(bad)
             + ": check that camera's driver (encoding, compression format)")
+
+
+def offsets_line(names: list[str], offsets_s: list[float],
+                 correlations: Optional[list[Optional[float]]] = None) -> str:
+    """The cameras' stamp offsets in one line, each with the correlation it was measured with
+    where given (None for the reference camera)."""
+    correlations = correlations or [None] * len(names)
+    return "stamp offsets [s]: " + ", ".join(
+        f"{n} {o:+.4f}" + (f" (correlation {c:.2f})" if c is not None else "")
+        for n, o, c in zip(names, offsets_s, correlations))

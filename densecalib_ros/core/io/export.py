@@ -14,7 +14,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..json_text import json_text, jsonable
-from ..types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera, check_camera_names
+from ..types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera, RigQuality,
+                     check_camera_names)
 from .camera_info import camera_info_yaml
 from .safe_write import disk_hint, write_text_atomic
 
@@ -56,7 +57,7 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
         cams[name] = entry
     return {"reference_camera": rig.reference_camera, "cameras": cams,
             "failed_cameras": list(rig.failed_cameras), "metric_scale": bool(rig.metric_scale),
-            "quality": jsonable(rig.quality), "conventions": FILE_CONVENTIONS}
+            "quality": jsonable(rig.quality.to_dict()), "conventions": FILE_CONVENTIONS}
 
 
 def calibration_from_dict(data: dict) -> RigCalibration:
@@ -73,7 +74,7 @@ def calibration_from_dict(data: dict) -> RigCalibration:
                                          for k, v in q.items()}) if q else None)
         rig = RigCalibration(reference_camera=data["reference_camera"], cameras=cams,
                              failed_cameras=list(data.get("failed_cameras", [])),
-                             quality=dict(data.get("quality", {})),
+                             quality=RigQuality.from_dict(data.get("quality", {})),
                              metric_scale=bool(data.get("metric_scale", False)))
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise InputError(f"Not a densecalib calibration file ({exc!r}): expected keys "
@@ -175,9 +176,9 @@ def record_provenance(rig: RigCalibration, source: dict) -> None:
     and when: a calibration file that says how to reproduce it."""
     from ... import __version__
 
-    rig.quality["input"] = source
-    rig.quality["densecalib_version"] = __version__
-    rig.quality["calibrated_utc"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
+    rig.quality.input = source
+    rig.quality.densecalib_version = __version__
+    rig.quality.calibrated_utc = datetime.datetime.now(datetime.timezone.utc).isoformat(
         timespec="seconds")
 
 

@@ -52,7 +52,7 @@ def optical_axes_spread_deg(rig: RigCalibration) -> float:
 def weak_focal_fractions(rig: RigCalibration) -> dict[str, float]:
     """Per pinhole-model camera whose intrinsics were calibrated (not given) and have a sigma:
     focal_std_px / focal_px."""
-    given = set(rig.quality.get("given_intrinsics") or ())
+    given = set(rig.quality.given_intrinsics or ())
     out = {}
     for name, cam in rig.cameras.items():
         q = cam.quality

@@ -44,7 +44,7 @@ from ..config import B_ERR_PX, SfMConfig
 from ..errors import (DisconnectedViewGraphError, FocalInitError, InputError, NotEnoughCamerasError,
                       NotEnoughOverlapError)
 from ..progress import Progress, say_progress
-from ..types import CameraIntrinsics, RigCalibration, Tracks
+from ..types import CameraIntrinsics, RigCalibration, RigQuality, Tracks
 from .incremental import ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES
 from .multistart import cost_truncation_px, held_out_cost, run_incremental, truncated_cost
 from .plausibility import bundle_adjust_plausibly, drop_implausible_cameras, implausible_cameras
@@ -76,7 +76,7 @@ class GlobalResult:
     view_order: list[int]
     failed: list[int]
     gauge_camera: int
-    quality: dict = field(default_factory=dict)
+    quality: RigQuality = field(default_factory=RigQuality)
 
 
 def gauge_scores(tracks: Tracks) -> np.ndarray:
@@ -344,7 +344,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     init, state, stats, gauge, order = _best_start(candidates, config, seed, validation_tracks,
                                                    say)
     outliers, failed = _without_outliers(state, camera_names, say)
-    quality = dict(global_init=init, gauge_camera=camera_names[gauge],
+    quality = RigQuality(global_init=init, gauge_camera=camera_names[gauge],
                    num_outlier_observations=int(outliers.sum()), stage_residuals=stats)
     return GlobalResult(state=state, view_order=order, failed=failed, gauge_camera=gauge,
                         quality=quality)

@@ -259,14 +259,14 @@ def add_uncertainty(rig: RigCalibration, reconstruction, camera_names: Sequence[
     pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
     given = sorted(config.known_intrinsics or {})
     # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
-    noise_px = float(rig.quality["reprojection_rms_px"]) / np.sqrt(2.0)
+    noise_px = float(rig.quality.reprojection_rms_px) / np.sqrt(2.0)
     try:
         sigmas = {**calibration_uncertainty(reconstruction, rig.reference_camera,
                                             noise_px, pp_refined, given), **sigmas}
     except (RuntimeError, ValueError) as exc:  # a diagnostic: never a reason to lose the result
         log.warning("no standard deviations for this calibration: %s", exc)
         return
-    rig.quality["held_pp_std_fraction"] = HELD_PP_STD_FRACTION  # in the held points' sigmas
+    rig.quality.held_pp_std_fraction = HELD_PP_STD_FRACTION  # in the held points' sigmas
     _record_sigmas(rig, sigmas)
 
 

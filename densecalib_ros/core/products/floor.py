@@ -165,7 +165,7 @@ def world_from_rig(rig: RigCalibration) -> tuple[np.ndarray, str]:
     """(4x4 world_from_rig, the world's description) of the world frame that exports and views
     use: the floor frame when the calibration has one (z up, so points come out as heights above
     the floor), else the rig frame."""
-    floor = rig.quality.get("floor")
+    floor = rig.quality.floor
     if floor:
         return (np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4),
                 "the floor frame (z up, origin on the floor)")
@@ -207,8 +207,8 @@ def saved_scene_points(folder: str | os.PathLike, rig: RigCalibration
 
 
 def record_floor(result, view: str = "upright") -> None:
-    """Find the floor of a pipeline CalibrationResult and record it in rig.quality["floor"]
-    (Floor.to_dict), or, when there is none, say why in rig.quality["warnings"]: the
+    """Find the floor of a pipeline CalibrationResult and record it in rig.quality.floor
+    (Floor.to_dict), or, when there is none, say why in rig.quality.warnings: the
     calibration itself is worth keeping either way."""
     rig = result.rig
     try:
@@ -219,7 +219,7 @@ def record_floor(result, view: str = "upright") -> None:
     except InputError as exc:
         warning = f"{NO_FLOOR_WARNING}{exc}"
         log.warning("%s", warning)
-        rig.quality.setdefault("warnings", []).append(warning)
+        rig.quality.warnings.append(warning)
         return
     set_floor(rig, floor)
     unit = "m" if rig.metric_scale else "units"
@@ -241,21 +241,17 @@ def find_floor_of_saved_calibration(folder: str | os.PathLike, rig: RigCalibrati
 
 
 def set_floor(rig: RigCalibration, floor: Floor) -> None:
-    """Record `floor` in rig.quality["floor"], dropping an earlier "no floor" warning."""
-    rig.quality["floor"] = floor.to_dict()
-    warnings = [w for w in rig.quality.get("warnings", []) if not w.startswith(NO_FLOOR_WARNING)]
-    if warnings:
-        rig.quality["warnings"] = warnings
-    else:
-        rig.quality.pop("warnings", None)
+    """Record `floor` in rig.quality.floor, dropping an earlier "no floor" warning."""
+    rig.quality.floor = floor.to_dict()
+    rig.quality.warnings = [w for w in rig.quality.warnings if not w.startswith(NO_FLOOR_WARNING)]
 
 
 def warn_if_floor_lost(rig: RigCalibration, previous: Optional[RigCalibration], how: str) -> None:
     """A recalibration of a calibration with a floor frame that came out without one: say so in
-    rig.quality["warnings"] (exports would silently change their world to the rig frame).
+    rig.quality.warnings (exports would silently change their world to the rig frame).
     how: what finds it again, in the caller's terms."""
-    if previous is None or not previous.quality.get("floor") or rig.quality.get("floor"):
+    if previous is None or not previous.quality.floor or rig.quality.floor:
         return
     warning = f"no floor frame: the previous calibration had one, this one has none; {how}"
     log.warning("%s", warning)
-    rig.quality.setdefault("warnings", []).append(warning)
+    rig.quality.warnings.append(warning)

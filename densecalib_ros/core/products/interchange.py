@@ -116,7 +116,7 @@ def anipose_toml(rig: RigCalibration) -> str:
         if fisheye:
             lines.append("fisheye = true")
         lines.append("")
-    rms = rig.quality.get("reprojection_rms_px")
+    rms = rig.quality.reprojection_rms_px
     lines += ["[metadata]", "adjusted = false",
               f"error = {float(rms) if rms is not None else 0.0!r}", ""]
     return "\n".join(lines)
@@ -129,7 +129,7 @@ def _yaml_list(values) -> str:
 def recorded_image_topics(rig: RigCalibration) -> dict[str, str]:
     """{camera: the image topic it was calibrated from}, for calibrations made from a bag or by
     the node (their provenance, core.io.export.record_provenance); {} for images and videos."""
-    record = rig.quality.get("input") or {}
+    record = rig.quality.input or {}
     topics = record.get("topics") or []
     if record.get("source") == "bag":
         from ..io.bag import camera_names_from_topics

@@ -32,7 +32,7 @@ _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 def plot_from_rig(rig: RigCalibration) -> tuple[np.ndarray, str]:
     """The 4x4 transform from the rig frame to the plot frame (module docstring) and its name."""
-    if rig.quality.get("floor"):
+    if rig.quality.floor:
         return world_from_rig(rig)[0], "the floor frame"
     poses = [np.asarray(c.cam_from_rig, dtype=np.float64) for c in rig.cameras.values()]
     up = -sum(p[1, :3] for p in poses)  # each camera's image-up (-y) in the rig frame

@@ -15,7 +15,7 @@ from ..io.calibration_store import LATEST, stored_calibrations
 from ..io.export import read_calibration
 from ..metrics import mean_focal_px
 from ..monitor.change import CameraChange, calibration_change, change_summary, pose_agreement
-from ..types import CameraIntrinsics, RigCalibration
+from ..types import CameraIntrinsics, RigCalibration, RigQuality
 
 
 def distortion_text(intrinsics: CameraIntrinsics) -> str:
@@ -52,7 +52,7 @@ def camera_table(rig: RigCalibration) -> str:
     reprojection RMS, observations (all / seen by >= 3 cameras) and the fraction of the image
     covered by observations. Standard deviations: core.method.uncertainty ('-' where not estimated,
     'given' for intrinsics the user gave and the calibration kept)."""
-    given = set(rig.quality.get("given_intrinsics") or ())
+    given = set(rig.quality.given_intrinsics or ())
     focal_width = max([9] + [len(focal_text(c.intrinsics)) for c in rig.cameras.values()])
     rows = [f"{'camera':<16} {'model':<15} {'size':>9} {'focal_px':>{focal_width}} {'f_std':>6} "
             f"{'cx':>7} {'cy':>7} {'pp_std':>6} {'proj_std':>8} {'rms_px':>6} {'obs':>6} "
@@ -84,7 +84,7 @@ def intrinsics_note(rig: RigCalibration) -> str:
     lens's may be from there), or, for calibrations that held every pinhole camera's point
     (held_pp_std_fraction), that their sigmas include that offset. '' where there is nothing to
     say."""
-    given = set(rig.quality.get("given_intrinsics") or ())
+    given = set(rig.quality.given_intrinsics or ())
     judged = {n: c.quality.estimated_intrinsics for n, c in rig.cameras.items()
               if n not in given and c.quality is not None
               and isinstance(c.quality.estimated_intrinsics, list)}
@@ -101,7 +101,7 @@ def intrinsics_note(rig: RigCalibration) -> str:
         if aspect:
             lines.append(f"pixel aspect estimated (fx/fy): {', '.join(aspect)}")
         return "\n".join(lines)
-    fraction = rig.quality.get("held_pp_std_fraction")  # absent in files written before it
+    fraction = rig.quality.held_pp_std_fraction  # absent in files written before it
     held = [n for n, c in rig.cameras.items() if n not in given and c.quality is not None
             and c.quality.focal_std_px is not None and c.quality.principal_point_std_px is None]
     if not held or not fraction:
@@ -149,31 +149,31 @@ def change_table(change: dict[str, CameraChange]) -> str:
     return "\n".join(rows)
 
 
-def info_strips_line(quality: dict) -> str:
-    """The info strips a calibration ignored (quality["info_strips"]), as one line."""
+def info_strips_line(quality: RigQuality) -> str:
+    """The info strips a calibration ignored (quality.info_strips), as one line."""
     return "info strips ignored: " + ", ".join(
-        f"{n} {what}" for n, what in quality.get("info_strips", {}).items())
+        f"{n} {what}" for n, what in (quality.info_strips or {}).items())
 
 
 def overall_lines(rig: RigCalibration) -> list[str]:
-    """What the calibration was made from and how well it fits, from rig.quality (keys written by
-    the pipeline; older or hand-written files may lack some)."""
+    """What the calibration was made from and how well it fits, from rig.quality (older or
+    hand-written files may lack some of it)."""
     q = rig.quality
-    made = [f"{q[k]} {label}" for k, label in (("pipeline", "pipeline"), ("preset", "preset"),
-                                               ("matcher", "matcher")) if k in q]
-    if "num_frame_sets" in q:
-        made.append(f"{q['num_frame_sets']} frame set(s)")
-    if q.get("camera_lens"):
-        made.append("lenses " + ", ".join(f"{n} {lens}" for n, lens in q["camera_lens"].items()))
+    made = [f"{value} {label}" for value, label in ((q.pipeline, "pipeline"), (q.preset, "preset"),
+                                                    (q.matcher, "matcher")) if value is not None]
+    if q.num_frame_sets is not None:
+        made.append(f"{q.num_frame_sets} frame set(s)")
+    if q.camera_lens:
+        made.append("lenses " + ", ".join(f"{n} {lens}" for n, lens in q.camera_lens.items()))
     lines = [f"{len(rig.cameras)} camera(s), reference {rig.reference_camera}"
              + (f"; {', '.join(made)}" if made else "")]
-    source = q.get("input") or {}
+    source = q.input or {}
     if source:
         where = ", ".join(source.get("topics", [])) if source.get("source") == "topics" \
             else source.get("path", "?")
         lines.append(f"from {source.get('source', '?')} {where}"
-                     + (f", densecalib {q['densecalib_version']}" if "densecalib_version" in q
-                        else "") + (f", {q['calibrated_utc']}" if "calibrated_utc" in q else ""))
+                     + (f", densecalib {q.densecalib_version}" if q.densecalib_version else "")
+                     + (f", {q.calibrated_utc}" if q.calibrated_utc else ""))
         offsets = source.get("time_offsets_s") or source.get("stamp_offsets_s")
         if offsets:
             estimated = source.get("time_offsets_estimated") or {}
@@ -191,25 +191,25 @@ def overall_lines(rig: RigCalibration) -> list[str]:
             lines.append("time offsets (s, ahead of the others): " + ", ".join(
                 f"{n} {float(o):+.3f}{how(n)}" for n, o in offsets.items()) + found)
     fit = []
-    if "reprojection_rms_px" in q:
-        fit.append(f"reprojection RMS {float(q['reprojection_rms_px']):.2f} px")
-    if "num_points" in q:
-        fit.append(f"{q['num_points']} points")
-    if "consensus_disagreement_deg" in q:
-        fit.append(f"runs disagree by {float(q['consensus_disagreement_deg']):.2f} deg")
+    if q.reprojection_rms_px is not None:
+        fit.append(f"reprojection RMS {float(q.reprojection_rms_px):.2f} px")
+    if q.num_points is not None:
+        fit.append(f"{q.num_points} points")
+    if q.consensus_disagreement_deg is not None:
+        fit.append(f"runs disagree by {float(q.consensus_disagreement_deg):.2f} deg")
     if fit:
         lines.append(", ".join(fit))
     if rig.failed_cameras:
         lines.append("not registered: " + ", ".join(rig.failed_cameras))
-    if q.get("info_strips"):
+    if q.info_strips:
         lines.append(info_strips_line(q))
-    for warning in q.get("warnings", []) or []:
+    for warning in q.warnings:
         lines.append(f"warning: {warning}")
-    if "change_summary" in q:
-        lines.append(f"{q['change_summary']} (started {q.get('init', '?')})")
-    if q.get("floor"):
+    if q.change_summary is not None:
+        lines.append(f"{q.change_summary} (started {q.init or '?'})")
+    if q.floor:
         lines.append(format_floor(rig))
-    baseline, points = q.get("scale_from_baseline"), q.get("scale_from_points")
+    baseline, points = q.scale_from_baseline, q.scale_from_points
     lines.append(f"scale: metric, from the {baseline['baseline_m']} m baseline "
                  f"{baseline['cameras'][0]}-{baseline['cameras'][1]}"
                  if rig.metric_scale and baseline
@@ -246,8 +246,8 @@ def rig_report(rig: RigCalibration, against: Optional[RigCalibration] = None,
 
 
 def format_floor(rig: RigCalibration) -> str:
-    """One line on the floor recorded in rig.quality["floor"] (core.products.floor)."""
-    floor = rig.quality["floor"]
+    """One line on the floor recorded in rig.quality.floor (core.products.floor)."""
+    floor = rig.quality.floor
     unit = "m" if rig.metric_scale else "units"
     return (f"floor: {floor['num_points']} points within {floor['rms']:.3g} {unit} (rms); camera "
             "heights " + ", ".join(f"{n} {h:.3g}" for n, h in floor["camera_heights"].items())
@@ -270,7 +270,7 @@ def history_rows(root: str | Path) -> list[dict]:
             continue
         rows.append({"name": folder.name, "latest": folder.resolve() == latest,
                      "cameras": list(rig.cameras), "failed": list(rig.failed_cameras),
-                     "reprojection_rms_px": rig.quality.get("reprojection_rms_px"),
+                     "reprojection_rms_px": rig.quality.reprojection_rms_px,
                      "change": (change_summary(calibration_change(previous, rig), prefix="")
                                 if previous is not None else None)})
         previous = rig

@@ -62,7 +62,7 @@ def scaled_rig(rig: RigCalibration, factor: float, record: dict) -> RigCalibrati
             cam.cam_from_rig[:3, 3] *= factor
         if not np.isfinite(cam.cam_from_rig).all():
             raise unusable
-    floor = scaled.quality.get("floor")
+    floor = scaled.quality.floor
     if floor:
         floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
         floor_from_rig[:3, 3] *= factor  # floor(s p) = s floor(p): only the offset scales
@@ -70,12 +70,10 @@ def scaled_rig(rig: RigCalibration, factor: float, record: dict) -> RigCalibrati
         floor["rms"] = float(floor["rms"]) * factor
         floor["camera_heights"] = {n: float(h) * factor
                                    for n, h in floor["camera_heights"].items()}
-    for key in SCALE_RECORDS:
-        scaled.quality.pop(key, None)
-    if "warnings" in scaled.quality:  # those about the scale replaced
-        scaled.quality["warnings"] = [w for w in scaled.quality["warnings"]
-                                      if not w.startswith(SCALE_WARNINGS)]
-    scaled.quality.update(record)
+    scaled.quality.update(**{key: None for key in SCALE_RECORDS})
+    scaled.quality.warnings = [w for w in scaled.quality.warnings  # those about the scale replaced
+                               if not w.startswith(SCALE_WARNINGS)]
+    scaled.quality.update(**record)
     scaled.metric_scale = True
     return scaled
 
@@ -126,7 +124,7 @@ def apply_known_distance(rig: RigCalibration, point_a: dict, point_b: dict, dist
     for problem in problems:
         warning = f"scale from points: {problem}"
         log.warning("%s", warning)
-        scaled.quality.setdefault("warnings", []).append(warning)
+        scaled.quality.warnings.append(warning)
     return scaled
 
 
@@ -183,14 +181,14 @@ def scale_reconstruction_to_baseline(reconstruction, camera_a: str, camera_b: st
 def with_known_baseline(result, camera_a: str, camera_b: str, baseline_m: float):
     """A pipeline CalibrationResult made metric: its rig scaled by apply_known_baseline (a copy)
     and its reconstruction scaled to match (in place). When a baseline camera did not register,
-    the result stays up to scale with a warning in rig.quality["warnings"] (the calibration of
+    the result stays up to scale with a warning in rig.quality.warnings (the calibration of
     the other cameras is still worth keeping)."""
     missing = [c for c in (camera_a, camera_b) if c not in result.rig.cameras]
     if missing:
         warning = (f"no metric scale: {', '.join(missing)} did not register, so the known "
                    f"baseline {camera_a}-{camera_b} cannot be applied; the rig is up to scale")
         log.warning("%s", warning)
-        result.rig.quality.setdefault("warnings", []).append(warning)
+        result.rig.quality.warnings.append(warning)
         return result
     rig = apply_known_baseline(result.rig, camera_a, camera_b, baseline_m)
     if result.reconstruction is not None:
@@ -201,11 +199,11 @@ def with_known_baseline(result, camera_a: str, camera_b: str, baseline_m: float)
 def warn_if_scale_lost(rig: RigCalibration, previous: RigCalibration | None) -> None:
     """A recalibration of a metric calibration that came out up to scale (its scale was from
     scene points, which moved cameras no longer see where they did, and no baseline was given):
-    say so in rig.quality["warnings"]."""
+    say so in rig.quality.warnings."""
     if previous is None or not previous.metric_scale or rig.metric_scale:
         return
     warning = ("no metric scale: the previous calibration was metric"
-               + (" from two scene points" if "scale_from_points" in previous.quality else "")
+               + (" from two scene points" if previous.quality.scale_from_points else "")
                + ", this one is up to scale; for metres again " + HOW_TO_SCALE)
     log.warning("%s", warning)
-    rig.quality.setdefault("warnings", []).append(warning)
+    rig.quality.warnings.append(warning)

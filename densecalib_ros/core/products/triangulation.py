@@ -133,7 +133,7 @@ def triangulate(rig: RigCalibration, observations: dict,
     if parallax < MIN_PARALLAX_DEG:
         point.warnings.append(f"its rays meet at only {parallax:.2f} deg: the depth is barely "
                               "determined (see the standard deviations)")
-    floor = rig.quality.get("floor")
+    floor = rig.quality.floor
     if floor:
         floor_from_rig = np.asarray(floor["floor_from_rig"], dtype=np.float64).reshape(4, 4)
         point.xyz_floor = floor_from_rig[:3, :3] @ xyz + floor_from_rig[:3, 3]

@@ -15,7 +15,7 @@ from ..io.export import calibration_from_dict, calibration_to_dict
 from ..io.image_encoding import refuse_png_if_it_would_abort
 from ..io.safe_write import write_text_atomic
 from ..json_text import json_text
-from ..types import CameraIntrinsics, RigCalibration, RigCamera
+from ..types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
 from .lens import cam_rays, img_from_cam_any, is_perspective, monotonic_limit, radial_g
 from .render import Photometry, render_camera
 from .scene import Box, Scene, random_scene
@@ -95,7 +95,7 @@ class SyntheticRig:
         cams = {n: RigCamera(n, cam, c_w @ rig_from_world_inv)
                 for n, cam, c_w in zip(self.names, self.cameras, self.cam_from_world)}
         return RigCalibration(reference_camera=self.names[0], cameras=cams,
-                              quality={"source": "synthetic ground truth"}, metric_scale=True)
+                              quality=RigQuality(source="synthetic ground truth"), metric_scale=True)
 
     def center(self, c: int) -> np.ndarray:
         """Camera c's projection centre (3,) in the world frame."""
