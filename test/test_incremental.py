@@ -156,7 +156,7 @@ def test_shared_intrinsics_in_a_rig_mixing_lenses_stay_within_one_lens():
     fisheye, _ = gt_rig(4, model="OPENCV_FISHEYE", seed=11)
     cams = [pinhole[0]] * 3 + [fisheye[3]]
     tracks = gt_tracks(cams, poses, seed=11)
-    cfg = resolve_camera_lenses(make_config("regular", camera_lens={"d": "fisheye"},
+    cfg = resolve_camera_lenses(make_config("regular", cameras__lens={"d": "fisheye"},
                                             sfm__share_intrinsics=True, sfm__num_threads=1),
                                 names).sfm
     init = initial_intrinsics([(c.width, c.height) for c in cams], noisy_focals(cams),
@@ -296,7 +296,7 @@ def test_truncated_cost_per_camera_truncation():
         state.cam_from_world[c] = pose
     triangulate_tracks(state, max_error_px=100.0)
     names = ["a", "b", "c", "d"]
-    cfg = resolve_camera_lenses(make_config("regular", camera_lens={"b": "fisheye"}), names).sfm
+    cfg = resolve_camera_lenses(make_config("regular", cameras__lens={"b": "fisheye"}), names).sfm
     trunc = cost_truncation_px(cfg, 4)
     assert list(trunc) == [20.0, 100.0, 20.0, 20.0]
     err = reprojection_errors(state)

@@ -166,7 +166,7 @@ def test_given_intrinsics_are_held_exactly_and_the_rest_is_calibrated(rig, pipel
     for given in (rig.names, rig.names[1:2]):
         known = {n: gt.cameras[n].intrinsics for n in given}
         config = make_config("regular", pipeline, matcher="sift", sfm__num_threads=1,
-                             consensus_runs=1, known_intrinsics=known)
+                             consensus_runs=1, cameras__known_intrinsics=known)
         messages = []
         result = run_calibration([rig.images[0]], rig.names, config, progress=messages.append)
         # every camera given: the multi-start explores first pairs instead of focals
@@ -198,7 +198,7 @@ def test_given_intrinsics_the_scene_contradicts_are_named(rig):
         params[0] *= 0.9
         known[n] = CameraIntrinsics(cam.model, cam.width, cam.height, params)
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
-                         known_intrinsics=known)
+                         cameras__known_intrinsics=known)
     result = run_calibration([rig.images[0]], rig.names, config)
     np.testing.assert_array_equal(result.rig.cameras["cam0"].intrinsics.params,
                                   known["cam0"].params)
@@ -219,7 +219,7 @@ def test_a_given_fisheye_camera_makes_a_rig_mixing_lenses():
     gt = rig.ground_truth()
     known = {"cam1": gt.cameras["cam1"].intrinsics}
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
-                         known_intrinsics=known)
+                         cameras__known_intrinsics=known)
     result = run_calibration([rig.images[0]], rig.names, config)
     assert [result.rig.cameras[n].intrinsics.model for n in rig.names] == list(models)
     np.testing.assert_array_equal(result.rig.cameras["cam1"].intrinsics.params,
@@ -228,8 +228,8 @@ def test_a_given_fisheye_camera_makes_a_rig_mixing_lenses():
     assert metrics["num_registered"] == 4 and metrics["auc3"] >= 80.0
     with pytest.raises(InputError, match="another lens than --lens says"):
         run_calibration([rig.images[0]], rig.names,
-                        make_config("regular", known_intrinsics=known,
-                                    camera_lens={"cam1": "pinhole"}))
+                        make_config("regular", cameras__known_intrinsics=known,
+                                    cameras__lens={"cam1": "pinhole"}))
 
 
 def test_calibrate_command_keeps_the_lab_intrinsics_it_is_given(tmp_path, capsys, caplog):
@@ -319,7 +319,8 @@ def test_recalibration_of_a_bumped_rig_can_keep_the_previous_intrinsics(rig):
     gt = rig.ground_truth()
     previous = perturbed_calibration(gt, 2.0, 0.05)
     known = {n: c.intrinsics for n, c in previous.cameras.items()}
-    config = make_config("regular", matcher="sift", sfm__num_threads=1, known_intrinsics=known)
+    config = make_config("regular", matcher="sift", sfm__num_threads=1,
+                         cameras__known_intrinsics=known)
     result = recalibrate([rig.images[0]], rig.names, config, previous)
     assert result.rig.quality.init == "previous calibration"
     for n in rig.names:
@@ -472,7 +473,7 @@ def test_intrinsics_without_image_size_are_held_at_their_images_size(rig, tmp_pa
     path.write_text("\n".join(lines) + "\n")
     known = read_known_intrinsics([f"{rig.names[0]},{rig.names[1]}={path}"], rig.names)
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
-                         known_intrinsics=known)
+                         cameras__known_intrinsics=known)
     result = run_calibration([rig.images[0]], rig.names, config)
     rays = _rays()
     for n in rig.names[:2]:

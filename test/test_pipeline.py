@@ -72,7 +72,7 @@ def test_rig_mixing_lenses_gets_each_cameras_lens_model():
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_models=models, width=640, height=480,
                                seed=0))
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
-                         camera_lens={"cam1": "fisheye"})
+                         cameras__lens={"cam1": "fisheye"})
     result = run_calibration([rig.images[0]], rig.names, config)
     assert [result.rig.cameras[n].intrinsics.model for n in rig.names] == [
         "RADIAL", "OPENCV_FISHEYE", "RADIAL", "RADIAL"]
@@ -83,7 +83,7 @@ def test_rig_mixing_lenses_gets_each_cameras_lens_model():
     assert max(c["focal_err"] for c in metrics["cameras"].values()) <= 0.03
     with pytest.raises(InputError, match="unknown camera"):
         run_calibration([rig.images[0]], rig.names,
-                        make_config("regular", camera_lens={"cam7": "fisheye"}))
+                        make_config("regular", cameras__lens={"cam7": "fisheye"}))
 
 
 def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
@@ -92,14 +92,14 @@ def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
     names = ["a", "b", "c"]
     plain = make_config("regular")
     assert resolve_camera_lenses(plain, names) is plain and plain.sfm.models(3) == ["RADIAL"] * 3
-    mixed = resolve_camera_lenses(make_config("regular", camera_lens={"c": "fisheye"}), names)
+    mixed = resolve_camera_lenses(make_config("regular", cameras__lens={"c": "fisheye"}), names)
     assert mixed.sfm.models(3) == ["RADIAL", "RADIAL", "RADIAL_FISHEYE"]
     fisheye = make_config("fisheye")
     for name in ("f_err_px", "b_err_px", "refine_to_model", "refine_principal_point"):
         assert getattr(mixed.sfm, name) == getattr(fisheye.sfm, name), name
     assert resolve_camera_lenses(mixed, names) is mixed  # idempotent
-    inverse = resolve_camera_lenses(make_config("fisheye", "global", camera_lens={"a": "pinhole"}),
-                                    names)
+    inverse = resolve_camera_lenses(
+        make_config("fisheye", "global", cameras__lens={"a": "pinhole"}), names)
     assert inverse.sfm.models(3) == ["RADIAL", "RADIAL_FISHEYE", "RADIAL_FISHEYE"]
     assert inverse.sfm.b_err_px is None  # the global preset's
     # Whose principal point the final adjustment refines (and whose sigma core.method.uncertainty
@@ -113,9 +113,9 @@ def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
     assert mixed.sfm.pair_f_err_px(0, 1) == 10.0 and mixed.sfm.pair_f_err_px(0, 2) is None
     assert inverse.sfm.pair_f_err_px(0, 1) is None and inverse.sfm.pair_f_err_px(1, 2) is None
     with pytest.raises(InputError, match="Unknown lens"):
-        resolve_camera_lenses(make_config(camera_lens={"a": "tele"}), names)
+        resolve_camera_lenses(make_config(cameras__lens={"a": "tele"}), names)
     with pytest.raises(InputError, match="unknown camera"):
-        resolve_camera_lenses(make_config(camera_lens={"z": "fisheye"}), names)
+        resolve_camera_lenses(make_config(cameras__lens={"z": "fisheye"}), names)
 
 
 def test_loaded_matcher_is_reused_and_result_is_deterministic(rig):
@@ -255,7 +255,8 @@ def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
     gt = rig.ground_truth()
     truth = np.array([gt.cameras[n].intrinsics.params[0] for n in rig.names])
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
-                         initial_focal_px={"*": 1.1 * truth[0], rig.names[1]: 1.1 * truth[1]})
+                         cameras__initial_focal_px={"*": 1.1 * truth[0],
+                                                    rig.names[1]: 1.1 * truth[1]})
     result = run_calibration([rig.images[0]], rig.names, config)
     start = np.full(len(rig.names), 1.1 * truth[0])
     start[1] = 1.1 * truth[1]
@@ -269,17 +270,17 @@ def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
         with pytest.raises(InputError, match=message):
             run_calibration([rig.images[0]], rig.names,
                             make_config("regular", matcher="sift", consensus_runs=1,
-                                        initial_focal_px=hint))
+                                        cameras__initial_focal_px=hint))
 
 
 def test_exif_focals_start_the_cameras_they_name_below_the_users_and_a_previous_calibration(rig):
-    """config.exif_focal_px (the offline command reads it from the images' EXIF) is the start of
-    the cameras it names; the others are estimated (eq. 2, at the named cameras' scale)."""
+    """config.cameras.exif_focal_px (the offline command reads it from the images' EXIF) is the
+    start of the cameras it names; the others are estimated (eq. 2, at the named cameras' scale)."""
     gt = rig.ground_truth()
     truth = np.array([gt.cameras[n].intrinsics.params[0] for n in rig.names])
     names, sizes = rig.names, [(640, 480)] * 4
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
-                         exif_focal_px={names[0]: 1.05 * truth[0], "not-a-camera": 999.0})
+                         cameras__exif_focal_px={names[0]: 1.05 * truth[0], "not-a-camera": 999.0})
     result = run_calibration([rig.images[0]], names, config)
     assert result.focal_init_px[0] == pytest.approx(1.05 * truth[0])
     assert np.all(np.isfinite(result.focal_init_px)) and result.rig.quality.exif_focal_px == {
@@ -290,10 +291,10 @@ def test_exif_focals_start_the_cameras_they_name_below_the_users_and_a_previous_
     exif = {n: 800.0 for n in names}
     user_some = {names[0]: 700.0, names[1]: 710.0, names[2]: 720.0}
     np.testing.assert_allclose(  # the user's focals first, EXIF for the rest
-        start_focals(make_config(initial_focal_px=user_some, exif_focal_px=exif), None, names,
-                     sizes), [700.0, 710.0, 720.0, 800.0])
+        start_focals(make_config(cameras__initial_focal_px=user_some, cameras__exif_focal_px=exif),
+                     None, names, sizes), [700.0, 710.0, 720.0, 800.0])
     np.testing.assert_allclose(  # a previous calibration of the same cameras before EXIF
-        start_focals(make_config(exif_focal_px=exif), gt, names, sizes), truth)
+        start_focals(make_config(cameras__exif_focal_px=exif), gt, names, sizes), truth)
 
 
 def test_known_focals_add_a_start_and_keep_the_eq2_start():
@@ -309,7 +310,7 @@ def test_known_focals_add_a_start_and_keep_the_eq2_start():
     # basin afterwards, is left out (on this rig of ideal lenses it turned AUC@3 100 to 44: see
     # core.method.image_refinement on rigs of three cameras).
     config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
-                         initial_focal_px=truth, refine_on_images=False)
+                         cameras__initial_focal_px=truth, refine_on_images=False)
     messages = []
     result = run_calibration([rig.images[0]], rig.names, config, progress=messages.append)
     metrics = evaluate_calibration(result.rig, gt)

@@ -291,42 +291,42 @@ def test_parameters_are_validated(ros, tmp_path):
         cv2.imwrite(str(tmp_path / "strip.png"), mask)
         masks = ["", str(tmp_path / "strip.png"), "", ""]
         assert node.set_parameters([Parameter("mask_files", value=masks)])[0].successful
-        camera_masks = pipeline_config(node.settings).camera_masks
+        camera_masks = pipeline_config(node.settings).cameras.masks
         assert list(camera_masks) == ["cam1"] and camera_masks["cam1"][-20:].all()
-        assert pipeline_config(node.settings).initial_focal_px == {}
+        assert pipeline_config(node.settings).cameras.initial_focal_px == {}
         assert node.set_parameters([Parameter("initial_focal_px", value=[800.0])])[0].successful
-        assert pipeline_config(node.settings).initial_focal_px == {"*": 800.0}
+        assert pipeline_config(node.settings).cameras.initial_focal_px == {"*": 800.0}
         assert node.set_parameters([Parameter("initial_focal_px",
                                               value=[800.0, 810.0, 820.0, 830.0])])[0].successful
-        assert pipeline_config(node.settings).initial_focal_px == {
+        assert pipeline_config(node.settings).cameras.initial_focal_px == {
             "cam0": 800.0, "cam1": 810.0, "cam2": 820.0, "cam3": 830.0}
         result = node.set_parameters([Parameter("initial_focal_px", value=[800.0, 810.0])])[0]
         assert not result.successful and "one per camera (4)" in result.reason
         assert not node.set_parameters([Parameter("initial_focal_px",
                                                   value=[-1.0])])[0].successful
-        assert pipeline_config(node.settings).camera_lens == {}
+        assert pipeline_config(node.settings).cameras.lens == {}
         lenses = ["pinhole", "fisheye", "pinhole", "pinhole"]
         assert node.set_parameters([Parameter("camera_lens", value=lenses)])[0].successful
-        assert pipeline_config(node.settings).camera_lens == dict(zip(node.settings.camera_names,
+        assert pipeline_config(node.settings).cameras.lens == dict(zip(node.settings.camera_names,
                                                                       lenses))
         for bad in (["fisheye"], ["pinhole", "tele", "pinhole", "pinhole"]):
             result = node.set_parameters([Parameter("camera_lens", value=bad)])[0]
             assert not result.successful and "one lens per camera (4)" in result.reason
         # Given intrinsics: one camera_info YAML per camera ('' = calibrate that one).
-        assert pipeline_config(node.settings).known_intrinsics == {}
+        assert pipeline_config(node.settings).cameras.known_intrinsics == {}
         lab = CameraIntrinsics("OPENCV", 320, 240, np.array([300.0, 300.0, 160.0, 120.0, -0.05,
                                                              0.0, 0.0, 0.0]))
         (tmp_path / "lab2.yaml").write_text(camera_info_yaml("lab_name", lab))
         files = ["", "", str(tmp_path / "lab2.yaml"), ""]
         assert node.set_parameters([Parameter("intrinsics_files", value=files)])[0].successful
-        known = pipeline_config(node.settings).known_intrinsics
+        known = pipeline_config(node.settings).cameras.known_intrinsics
         assert list(known) == ["cam2"] and known["cam2"].model == "OPENCV"
         result = node.set_parameters([Parameter("intrinsics_files", value=files[:2])])[0]
         assert not result.successful and "intrinsics_files has 2 entries" in result.reason
         result = node.set_parameters([Parameter("intrinsics_files",
                                                 value=[str(tmp_path / "lab2.yaml")])])[0]
         assert not result.successful and "lab_name, which are not among" in result.reason
-        assert list(pipeline_config(node.settings).known_intrinsics) == ["cam2"]  # kept
+        assert list(pipeline_config(node.settings).cameras.known_intrinsics) == ["cam2"]  # kept
     finally:
         ros.remove(node)
 

@@ -168,8 +168,8 @@ def run(args: argparse.Namespace) -> int:
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.jobs,
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
-                     "initial_focal_px": parse_focal_px(args.focal_px),
-                     "camera_lens": parse_camera_lens(args.lens)}
+                     "cameras__initial_focal_px": parse_focal_px(args.focal_px),
+                     "cameras__lens": parse_camera_lens(args.lens)}
         if args.max_side is not None:
             overrides["max_image_side_px"] = args.max_side
         config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
@@ -181,28 +181,30 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--bag-camera-info reads the CameraInfo topics of a bag: use it "
                              "with --bag, or give camera_info YAML files with --intrinsics.")
         frame_sets, names, source, paths = read_input(args)
-        config.known_intrinsics = read_known_intrinsics(args.intrinsics or [], names)
+        config.cameras.known_intrinsics = read_known_intrinsics(args.intrinsics or [], names)
         previous = None
         if args.previous:
             from ..core.io.export import read_calibration
             previous = read_calibration(args.previous)
         if args.keep_intrinsics:
-            config.known_intrinsics = with_previous_intrinsics(config.known_intrinsics,
-                                                               previous, names)
+            config.cameras.known_intrinsics = with_previous_intrinsics(
+                config.cameras.known_intrinsics, previous, names)
         if args.bag_camera_info:
-            config.known_intrinsics = _bag_intrinsics(args, names, config.known_intrinsics)
+            config.cameras.known_intrinsics = _bag_intrinsics(args, names,
+                                                              config.cameras.known_intrinsics)
         config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
-        config.known_intrinsics = check_known_intrinsics(
-            config.known_intrinsics, names, check_frame_sets(frame_sets, names))
-        config.camera_masks = parse_masks(args.mask, names)
+        config.cameras.known_intrinsics = check_known_intrinsics(
+            config.cameras.known_intrinsics, names, check_frame_sets(frame_sets, names))
+        config.cameras.masks = parse_masks(args.mask, names)
         config.detect_info_strips = not args.keep_info_strips
-        if config.known_intrinsics:
-            log.info("intrinsics given and kept for %s", ", ".join(sorted(config.known_intrinsics)))
+        if config.cameras.known_intrinsics:
+            log.info("intrinsics given and kept for %s",
+                     ", ".join(sorted(config.cameras.known_intrinsics)))
         if args.images and not args.ignore_exif:
-            config.exif_focal_px = _exif_focals(paths, frame_sets, names)
+            config.cameras.exif_focal_px = _exif_focals(paths, frame_sets, names)
         log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",
                  len(names), ", ".join(names), len(frame_sets), config.preset,
-                 "".join(f", {n} {lens}" for n, lens in config.camera_lens.items()),
+                 "".join(f", {n} {lens}" for n, lens in config.cameras.lens.items()),
                  config.pipeline, config.matcher)
         request = CalibrationRequest(
             frame_sets, names, config, source, previous=previous,

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         topics_from_calibration(args, rig)
         frame_sets, names, record, _ = read_input(args)
         require_calibrated_cameras(rig, names, frame_sets[0], at_least=2)
-        config = make_config(matcher=args.matcher, camera_masks=parse_masks(args.mask, names),
+        config = make_config(matcher=args.matcher, cameras__masks=parse_masks(args.mask, names),
                              detect_info_strips=not args.keep_info_strips)
         match_sets = match_frame_sets(frame_sets, config, camera_names=names)
     except InputError as exc:

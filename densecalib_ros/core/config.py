@@ -47,7 +47,7 @@ class SamplingConfig:
 class SfMConfig:
     camera_model: str = "RADIAL"  # initial COLMAP model per camera
     # Per camera (the calibration's camera order), a model that replaces camera_model for that
-    # camera: a rig mixing lenses (resolve_camera_lenses fills it from PipelineConfig.camera_lens).
+    # camera: a rig mixing lenses (resolve_camera_lenses fills it from PipelineConfig.cameras.lens).
     camera_models: tuple = ()
     # e.g. "OPENCV_FISHEYE": final distortion-only refinement of the cameras of its lens family
     refine_to_model: Optional[str] = None
@@ -77,7 +77,7 @@ class SfMConfig:
     global_stage_iterations: dict = field(default_factory=lambda: {
         "extrinsics": 300, "focal": 200, "distortion": 200, "principal_point": 0, "model": 0})
     num_threads: int = -1  # -1 = all cores
-    # Cameras (indices) whose intrinsics the user gave (PipelineConfig.known_intrinsics;
+    # Cameras (indices) whose intrinsics the user gave (PipelineConfig.cameras.known_intrinsics;
     # resolve_camera_lenses fills it): they start at those values and no step refines them.
     fixed_intrinsics_cameras: tuple = ()
 
@@ -119,21 +119,10 @@ class SfMConfig:
 
 
 @dataclass
-class PipelineConfig:
-    preset: str = "regular"
-    pipeline: str = "incremental"  # "incremental" | "global"
-    matcher: str = "sift"
-    max_image_side_px: int = 1024  # images are matched at most at this size (coordinates rescaled)
-    # Fresh calibrations run the sampling + SfM up to this many times (seeds seed, seed+1, ...) and
-    # keep the medoid run (consensus.py): on weakly connected rigs one sample's outcome is a
-    # lottery. They stop after 3 runs that agree (consensus.AGREEMENT_DEG). 1 = a single run.
-    consensus_runs: int = 5
-    # Refine the found rig once more on every keypoint match (all_matches.py; keypoint matchers
-    # only): the sampled tracks find the rig, all the matches it agrees with refine it.
-    refine_on_all_matches: bool = True
-    # Refine the kept rig last on dense correspondences measured in the images, with priors on
-    # the principal point and pixel aspect (core.method.image_refinement; perspective lenses).
-    refine_on_images: bool = True
+class CameraData:
+    """What the user knows about the cameras (camera name -> ...; empty: nothing known), kept
+    apart from the options of how to calibrate them."""
+
     # Focal lengths the user knows [px] (lens datasheet: f_mm / pixel pitch in mm, or
     # (width / 2) / tan(horizontal FOV / 2)): camera name -> px, "*" for every camera not named.
     # They replace the estimate from the fundamental matrices (eq. 2; fisheye: the equidistant
@@ -149,19 +138,39 @@ class PipelineConfig:
     # mixing lenses, e.g. a fisheye overhead camera among pinhole side cameras). Each camera gets
     # its lens's model (LENS_MODELS); a rig with any fisheye camera runs with the fisheye
     # preset's SfM options (resolve_camera_lenses).
-    camera_lens: dict = field(default_factory=dict)
+    lens: dict = field(default_factory=dict)
     # Regions whose matches are not used (core/method/masks.py): camera name -> bool (H, W), True =
     # ignored (an info strip, the rig's own structure). Cameras not named use the whole image.
-    camera_masks: dict = field(default_factory=dict)
-    # Find burnt-in info strips (a trail camera's bar of date and temperature along the top or
-    # bottom edge) and ignore their rows, for the cameras without a camera_masks entry
-    # (core/method/info_strip.py): their glyphs match across cameras and fit no geometry.
-    detect_info_strips: bool = True
+    masks: dict = field(default_factory=dict)
     # Intrinsics the user knows and wants kept (core/method/known_intrinsics.py: a lab calibration's
     # camera_info YAML, a previous calibration): camera name -> CameraIntrinsics at the images'
     # size. Those cameras start from them and keep them exactly: only the extrinsics (and the
     # other cameras' intrinsics) are calibrated. Their lens follows from the model.
     known_intrinsics: dict = field(default_factory=dict)
+
+
+@dataclass
+class PipelineConfig:
+    preset: str = "regular"
+    pipeline: str = "incremental"  # "incremental" | "global"
+    matcher: str = "sift"
+    max_image_side_px: int = 1024  # images are matched at most at this size (coordinates rescaled)
+    # Fresh calibrations run the sampling + SfM up to this many times (seeds seed, seed+1, ...) and
+    # keep the medoid run (consensus.py): on weakly connected rigs one sample's outcome is a
+    # lottery. They stop after 3 runs that agree (consensus.AGREEMENT_DEG). 1 = a single run.
+    consensus_runs: int = 5
+    # Refine the found rig once more on every keypoint match (all_matches.py; keypoint matchers
+    # only): the sampled tracks find the rig, all the matches it agrees with refine it.
+    refine_on_all_matches: bool = True
+    # Refine the kept rig last on dense correspondences measured in the images, with priors on
+    # the principal point and pixel aspect (core.method.image_refinement; perspective lenses).
+    refine_on_images: bool = True
+    # Find burnt-in info strips (a trail camera's bar of date and temperature along the top or
+    # bottom edge) and ignore their rows, for the cameras without a mask (CameraData.masks)
+    # (core/method/info_strip.py): their glyphs match across cameras and fit no geometry.
+    detect_info_strips: bool = True
+    # What the user knows about the cameras, apart from how to calibrate them.
+    cameras: CameraData = field(default_factory=CameraData)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
 
@@ -231,7 +240,7 @@ def lens_of_model(model: str) -> str:
 
 
 def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -> PipelineConfig:
-    """`config` for these cameras: without config.camera_lens, itself. Otherwise a copy whose
+    """`config` for these cameras: without config.cameras.lens, itself. Otherwise a copy whose
     sfm.camera_models gives every camera its lens's model (cameras not named keep the preset's
     lens) and which, when any camera is fisheye, runs with the fisheye preset's SfM options:
     F_err off (a fisheye pair breaks the pinhole epipolar constraint), B_err 100 px while the
@@ -241,10 +250,10 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
     (SfMConfig.pinhole_b_err_px, pinhole_f_err_px). Idempotent: a resolved config is returned
     as it is. InputError on unknown cameras or lenses.
 
-    Cameras of config.known_intrinsics get their model (a lens differing from the preset's makes
-    a rig mixing lenses) and are listed in sfm.fixed_intrinsics_cameras."""
-    known = dict(config.known_intrinsics or {})
-    lenses = dict(config.camera_lens or {})
+    Cameras of config.cameras.known_intrinsics get their model (a lens differing from the preset's
+    makes a rig mixing lenses) and are listed in sfm.fixed_intrinsics_cameras."""
+    known = dict(config.cameras.known_intrinsics or {})
+    lenses = dict(config.cameras.lens or {})
     if config.sfm.camera_models or (not lenses and not known):
         return config
     unknown = sorted((set(lenses) | set(known)) - set(camera_names))

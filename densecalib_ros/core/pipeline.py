@@ -173,7 +173,7 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
                      camera_names: Optional[Sequence[str]] = None,
                      strips: Optional[dict] = None, ignored: Optional[list] = None) -> list:
     """One SiteMatchSet per frame set. matcher: an already loaded core.method.matching.Matcher to
-    reuse (else config.matcher is created and loaded here). With config.camera_masks (then
+    reuse (else config.matcher is created and loaded here). With config.cameras.masks (then
     camera_names is needed), matches on masked regions are dropped (core.method.masks), and on the
     info strips found (`strips` as info_strips gives them; None: looked for here); `ignored`:
     those regions as ignored_regions gives them, when already resolved."""
@@ -207,7 +207,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
     the previous calibration's poses and intrinsics also give the triangulation angles that score
     the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused.
-    config.camera_lens gives cameras another lens than the preset's (config.resolve_camera_lenses).
+    config.cameras.lens gives cameras another lens than the preset's (config.resolve_camera_lenses).
 
     A fresh calibration (no previous) with config.consensus_runs > 1 repeats sampling + SfM with
     consecutive seeds and returns the medoid run (core.robust.consensus); its quality records the
@@ -218,8 +218,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     config.refine_on_images, the kept rig is refined once more on dense correspondences measured
     in them (core.method.image_refinement), away from the `ignored` regions (ignored_regions)."""
     config = resolve_camera_lenses(config, camera_names)
-    config = replace(config, known_intrinsics=check_known_intrinsics(
-        config.known_intrinsics or {}, camera_names, image_sizes))
+    known = check_known_intrinsics(config.cameras.known_intrinsics or {}, camera_names, image_sizes)
+    config = replace(config, cameras=replace(config.cameras, known_intrinsics=known))
     match_tracks = None
     if config.refine_on_all_matches:
         match_tracks = keypoint_tracks(match_sets, len(camera_names), seed=config.sampling.seed)
@@ -234,8 +234,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
         result, sigmas = _refined_on_images(result, frame_sets, camera_names, config,
                                             match_tracks, ignored, progress, previous)
     add_uncertainty(result.rig, result.reconstruction, camera_names, config, sigmas)
-    if config.known_intrinsics:
-        result.rig.quality.given_intrinsics = describe_known(config.known_intrinsics)
+    if config.cameras.known_intrinsics:
+        result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
         for warning in given_intrinsics_warnings(result.rig.quality.given_intrinsics_fit
                                                        or {}):
             warn_user(result.rig, warning, progress)
@@ -406,7 +406,7 @@ def _sampled_tracks(match_sets: list, image_sizes: Sequence[tuple[int, int]],
         # included) instead of a pinhole or equidistant guess.
         given = start_focals(config, previous, camera_names, image_sizes)
         sampled = sample_tracks(match_sets, config, focal_px=given, intrinsics=[
-            config.known_intrinsics[n] for n in camera_names])
+            config.cameras.known_intrinsics[n] for n in camera_names])
     else:
         given = start_focals(config, previous, camera_names, image_sizes)
         sampled = sample_tracks(match_sets, config, focal_px=given)
@@ -434,14 +434,14 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     with_point_colours(result, frame_sets)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
-    if config.camera_lens:
-        result.rig.quality.camera_lens = dict(config.camera_lens)
-    if config.camera_masks:
-        result.rig.quality.masked_cameras = sorted(config.camera_masks)
+    if config.cameras.lens:
+        result.rig.quality.camera_lens = dict(config.cameras.lens)
+    if config.cameras.masks:
+        result.rig.quality.masked_cameras = sorted(config.cameras.masks)
     record_info_strips(result, strips)
-    if config.exif_focal_px:
+    if config.cameras.exif_focal_px:
         result.rig.quality.exif_focal_px = {n: round(float(f), 1)
-                                               for n, f in config.exif_focal_px.items()}
+                                               for n, f in config.cameras.exif_focal_px.items()}
     return result
 
 

@@ -46,7 +46,8 @@ RECAL_METHOD = "densecalib-recal"
 RECAL_ROTATION_DEG = 2.0
 RECAL_MOVE_FRACTION = 0.05
 # Extrinsics only: our incremental pipeline given the reference intrinsics of every camera and
-# holding them (PipelineConfig.known_intrinsics), as a rig of lab-calibrated cameras would be.
+# holding them (PipelineConfig.cameras.known_intrinsics), as a rig of lab-calibrated cameras
+# would be.
 # Not in the default run: it answers what given intrinsics add, not how the product compares.
 GIVEN_INTRINSICS_METHOD = "densecalib-given-intrinsics"
 METHODS = (*PEER_METHODS, *OUR_METHODS, RECAL_METHOD)
@@ -274,8 +275,8 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
                 given = {n: c.intrinsics for n, c in scene.gt.cameras.items()}
             config = make_config("fisheye" if scene.lens == "fisheye" else "regular",
                                  OUR_METHODS.get(method, "incremental"),
-                                 camera_lens={} if given else dict(scene.camera_lens),
-                                 known_intrinsics=given)
+                                 cameras__lens={} if given else dict(scene.camera_lens),
+                                 cameras__known_intrinsics=given)
             config.sfm.share_intrinsics = share
             config.sfm.num_threads = num_threads
             # Ceres/COLMAP warnings (e.g. failed LM steps) would bury the tables; errors still show.
@@ -286,7 +287,7 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             from ..core.recalibration import recalibrate
 
             config = make_config("fisheye" if scene.lens == "fisheye" else "regular", "global",
-                                 camera_lens=dict(scene.camera_lens))
+                                 cameras__lens=dict(scene.camera_lens))
             config.sfm.num_threads = num_threads
             previous = perturbed_calibration(scene.gt, RECAL_ROTATION_DEG, RECAL_MOVE_FRACTION)
             start = time.perf_counter()  # the perturbation is set-up, not recalibration time

@@ -21,8 +21,8 @@ def calibration_request(s: Settings, sets: list, images: list,
 
     config = pipeline_config(s)
     if s.keep_intrinsics and previous is not None:
-        config.known_intrinsics = with_previous_intrinsics(
-            config.known_intrinsics, previous, s.camera_names)
+        config.cameras.known_intrinsics = with_previous_intrinsics(
+            config.cameras.known_intrinsics, previous, s.camera_names)
     previous_views = (read_reference_views(previous_dir, s.camera_names)
                       if previous is not None and previous_dir is not None else {})
     offsets = ({"stamp_offsets_s": dict(zip(s.camera_names, s.stamp_offsets_s))}
@@ -48,12 +48,13 @@ def calibrated_message(s: Settings, rig: RigCalibration, num_sets: int, elapsed:
     """The ~/calibrate reply for a calibration written to `out`: what was calibrated, from
     what, how well, its warnings and what became of the stored and the drivers' calibrations."""
     rms = rig.quality.reprojection_rms_px
+    rms = float("nan") if rms is None else rms
     failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
     scale = (f", metric scale from {'-'.join(s.baseline_cameras)} = {s.known_baseline_m} m"
              if rig.metric_scale else "")
     message = (f"calibrated {len(rig.cameras)}/{len(s.camera_names)} cameras "
                f"({', '.join(rig.cameras)}{failed}) from {num_sets} frame sets, reprojection "
-               f"RMS {float('nan') if rms is None else rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
+               f"RMS {rms:.2f} px, {elapsed:.1f} s{scale}; files in {out}")
     if rig.quality.change_summary is not None:
         message += f"; {rig.quality.change_summary} (started {rig.quality.init})"
     if rig.quality.frame_sets_before_change:

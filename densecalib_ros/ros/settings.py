@@ -217,10 +217,9 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     """The core pipeline configuration the node's method parameters select."""
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
-                       consensus_runs=s.consensus_runs, initial_focal_px=s.initial_focal_px,
-                       camera_lens=s.camera_lens, camera_masks=s.camera_masks,
-                       detect_info_strips=s.detect_info_strips,
-                       known_intrinsics=s.known_intrinsics)
+                       consensus_runs=s.consensus_runs, detect_info_strips=s.detect_info_strips,
+                       cameras__initial_focal_px=s.initial_focal_px, cameras__lens=s.camera_lens,
+                       cameras__masks=s.camera_masks, cameras__known_intrinsics=s.known_intrinsics)
 
 
 def _per_camera(values: list[str], n: int, what: str, default) -> list[str]:

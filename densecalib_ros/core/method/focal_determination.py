@@ -85,6 +85,7 @@ def weak_focal_warning(rig: RigCalibration) -> Optional[str]:
                      "between the others")
     return (f"{WEAK_FOCAL_PREFIX}: f_std is {listed} of the focal length (1 sigma; a rig's "
             f"cameras err together). {why} Give one camera's intrinsics from a lab calibration "
-            "(--intrinsics NAME=PATH; node: intrinsics_files; PipelineConfig.known_intrinsics) "
+            "(--intrinsics NAME=PATH; node: intrinsics_files; library: "
+            "PipelineConfig.cameras.known_intrinsics) "
             f"and the others follow from it, {other_fix}. A known focal given as a start "
             "(--focal-px) does not help: it is refined like any other.")

@@ -1,7 +1,7 @@
 """Where a calibration's focal lengths start, per camera, first found: the user's
-(PipelineConfig.initial_focal_px), a previous calibration's, the images' EXIF; given intrinsics
-(config.known_intrinsics) override these for their cameras; else eq. 2 on the tracks' two-view
-geometry (core.method.focal). The focal multi-start then explores around this start
+(PipelineConfig.cameras.initial_focal_px), a previous calibration's, the images' EXIF; given
+intrinsics (config.cameras.known_intrinsics) override these for their cameras; else eq. 2 on the
+tracks' two-view geometry (core.method.focal). The focal multi-start then explores around this start
 (core.method.multistart.focal_starts)."""
 from __future__ import annotations
 
@@ -22,11 +22,11 @@ def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
                  camera_names: Sequence[str], image_sizes: Sequence[tuple[int, int]]
                  ) -> Optional[np.ndarray]:
     """(C,) focal px the calibration starts from instead of estimating them, or None. Per camera,
-    first found: the user's config.initial_focal_px, a previous calibration's focal, the images'
-    EXIF focal (config.exif_focal_px). NaN for a camera only EXIF could have named and did not:
-    its focal is estimated (sampling.sample_tracks). InputError when the user's focals name
-    unknown cameras, are not positive, or leave a camera without a focal. Given intrinsics
-    (config.known_intrinsics) override all of these for their cameras."""
+    first found: the user's config.cameras.initial_focal_px, a previous calibration's focal, the
+    images' EXIF focal (config.cameras.exif_focal_px). NaN for a camera only EXIF could have named
+    and did not: its focal is estimated (sampling.sample_tracks). InputError when the user's focals
+    name unknown cameras, are not positive, or leave a camera without a focal. Given intrinsics
+    (config.cameras.known_intrinsics) override all of these for their cameras."""
     focal = _start_focals(config, previous, camera_names, image_sizes)
     known = _known_focals(config, camera_names)
     if not known:
@@ -40,8 +40,8 @@ def start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
 def _start_focals(config: PipelineConfig, previous: Optional[RigCalibration],
                   camera_names: Sequence[str], image_sizes: Sequence[tuple[int, int]]
                   ) -> Optional[np.ndarray]:
-    hint = dict(config.initial_focal_px or {})
-    exif = {k: v for k, v in (config.exif_focal_px or {}).items() if k in camera_names}
+    hint = dict(config.cameras.initial_focal_px or {})
+    exif = {k: v for k, v in (config.cameras.exif_focal_px or {}).items() if k in camera_names}
     focal = _previous_focals(previous, camera_names, image_sizes)
     if not hint and not exif:
         return focal
@@ -98,13 +98,13 @@ def _previous_focals(previous: Optional[RigCalibration], camera_names: Sequence[
 def _known_focals(config: PipelineConfig, camera_names: Sequence[str]) -> dict[str, float]:
     """The mean focal [px] of every camera with given intrinsics."""
     return {n: float(cam.to_pycolmap().mean_focal_length())
-            for n, cam in (config.known_intrinsics or {}).items() if n in camera_names}
+            for n, cam in (config.cameras.known_intrinsics or {}).items() if n in camera_names}
 
 
 def with_known_intrinsics(intrinsics: Sequence[CameraIntrinsics], config: PipelineConfig,
                           camera_names: Sequence[str]) -> list[CameraIntrinsics]:
-    """`intrinsics` with the cameras of config.known_intrinsics at their given values."""
-    known = config.known_intrinsics or {}
+    """`intrinsics` with the cameras of config.cameras.known_intrinsics at their given values."""
+    known = config.cameras.known_intrinsics or {}
     return [known.get(n, cam) for n, cam in zip(camera_names, intrinsics)]
 
 

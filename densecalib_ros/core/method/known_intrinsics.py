@@ -1,5 +1,5 @@
 """Intrinsics the user already knows, read from the files other tools write, for an
-extrinsics-only calibration (PipelineConfig.known_intrinsics).
+extrinsics-only calibration (PipelineConfig.cameras.known_intrinsics).
 
 A field rig is often made of cameras calibrated one by one in the lab (ROS camera_calibration's
 camera_info YAML) and then mounted where no target can be shown to all of them; or of cameras

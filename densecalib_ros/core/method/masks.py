@@ -101,7 +101,7 @@ def info_strips(frame_sets: Sequence[Sequence[np.ndarray]],
     if not config.detect_info_strips or camera_names is None or not frame_sets:
         return {}
     found = find_info_strips(frame_sets, camera_names)
-    return {n: strips for n, strips in found.items() if n not in config.camera_masks}
+    return {n: strips for n, strips in found.items() if n not in config.cameras.masks}
 
 
 def _info_strip_masks(strips: dict, frame_sets: Sequence[Sequence[np.ndarray]],
@@ -121,9 +121,9 @@ def _info_strip_masks(strips: dict, frame_sets: Sequence[Sequence[np.ndarray]],
 def ignored_regions(frame_sets: Sequence[Sequence[np.ndarray]],
                     camera_names: Optional[Sequence[str]], config: PipelineConfig,
                     strips: dict) -> list:
-    """Per camera its bool (H, W) mask of what no match may use (the user's config.camera_masks,
+    """Per camera its bool (H, W) mask of what no match may use (the user's config.cameras.masks,
     else the info strips found), or None; [] when no camera has one."""
-    masks = {**_info_strip_masks(strips, frame_sets, camera_names), **config.camera_masks}
+    masks = {**_info_strip_masks(strips, frame_sets, camera_names), **config.cameras.masks}
     if not masks:
         return []
     if camera_names is None:

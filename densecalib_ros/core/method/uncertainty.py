@@ -257,7 +257,7 @@ def add_uncertainty(rig: RigCalibration, reconstruction, camera_names: Sequence[
         _record_sigmas(rig, sigmas)
         return
     pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
-    given = sorted(config.known_intrinsics or {})
+    given = sorted(config.cameras.known_intrinsics or {})
     # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
     noise_px = float(rig.quality.reprojection_rms_px) / np.sqrt(2.0)
     try:
