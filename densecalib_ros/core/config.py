@@ -32,8 +32,8 @@ class SamplingConfig:
     top_k: int = 3  # number of best pair scores summed per cycle; 0 = no scoring
     # A pair's 2-cycles are sampled only if its F (or fisheye E) has at least this many inliers
     # (COLMAP's two-view min_num_inliers). Closure verifies higher cycles; a 2-cycle has only
-    # F_err, which a fit to a handful of matches cannot give (measured on 35-deg rigs: pairs with
-    # 9-17 inliers of 21-45 matches supplied most of the wrong 2-view tracks).
+    # F_err, which a fit to a handful of matches cannot give: such weak pairs supply most of the
+    # wrong 2-view tracks (docs/design-notes.md, Two-view tracks of weak pairs).
     min_two_cycle_pair_inliers: int = 15
     probabilistic_scoring: bool = True  # stage-2 pick proportional to score, else argmax
     score_alpha_deg: float = 30.0
@@ -73,7 +73,8 @@ class SfMConfig:
     # rotation averaging on few views can leave a camera in a wrong basin that BA cannot leave.
     global_multistart: bool = True
     # Distortion is on for both presets (paper Sec. 3.4 order): without it the global pipeline
-    # measured AUC@3 2-7 vs 98-100 with it on generated RADIAL rigs (k1 up to 0.15).
+    # fails on lenses with real distortion (docs/design-notes.md, Distortion stage of the global
+    # pipeline).
     global_stage_iterations: dict = field(default_factory=lambda: {
         "extrinsics": 300, "focal": 200, "distortion": 200, "principal_point": 0, "model": 0})
     num_threads: int = -1  # -1 = all cores

@@ -19,8 +19,9 @@ import numpy as np
 
 RECENT_INTERVALS = 100  # the intervals that the period, steadiness and recent loss come from
 MIN_INTERVALS = 10  # fewer: no period yet
-# The period is found again after this many new intervals, not on every message (64 us a time
-# on this machine, inside the synchroniser's lock on the intake thread).
+# The period is found again after this many new intervals, not on every message (it costs tens
+# of microseconds, inside the synchroniser's lock on the intake thread: docs/design-notes.md, Lost
+# frames from the stamps).
 PERIOD_REFRESH = 10
 # The frame period is taken from the shortest intervals (this percentile, then the mean of those
 # within tolerance of one period): right as long as a tenth of consecutive frames both arrive,

@@ -3,10 +3,9 @@
 Cycle sampling (sampling.py) summarises a matcher's output into tracks spread over the images and
 biased towards wide triangulation angles: the right input to *find* the rig (registration, the
 focal multi-start, the consensus). With a keypoint matcher (SIFT, XFeat + LighterGlue) the summary
-also discards most of the matches, and with them information the found cameras could use: on a
-generated 6-camera rig (bench "6cam s102") 703 sampled tracks of the 2472 that all matches form
-left camera cam0 weakly tied in; its pairs were 1-4.7 deg off (AUC@3 82.2) while every other pair
-was within 1 deg.
+also discards most of the matches, and with them information the found cameras could use: a camera
+the sampled tracks tie in weakly keeps its pairs degrees off while the matches would hold it
+(docs/design-notes.md, Refinement on all keypoint matches).
 
 So once the cameras are found, every match takes part once more: the matches of all pairs of a
 frame set join into tracks (connected components over mutual matches; a component holding two
@@ -16,14 +15,8 @@ preset's B_err, at most 20 px) are dropped, and a final bundle adjustment refine
 intrinsics on them (filtered against the adjusted cameras and adjusted again while observations
 above the gate remain, at most 3 rounds). The found cameras decide which matches are inliers, so
 a wrong match cannot pull the rig far; what it cannot do is move a rig out of a wrong basin (the
-consensus and the focal multi-start do that before).
-
-Measured on the bench's generated and real pinhole rigs (single incremental runs, sampling seed 0,
-on the same matches with and without this step): 6cam s102 82.2 -> 100, 3cam s103 66.7 -> 100,
-gap35 6cam s101 88.9 -> 100, gap35 4cam s102 44.4 -> 83.3, instant-ngp fox 62.2 -> 86.7, 10cam
-s102/s103 97.8/99.3 -> 98.5/100; worse: gap35 4cam s103 100 -> 94.4, Strecha 100 -> 99.3 (one pair
-at 1.0-1.1 deg).
-Fisheye focal errors 0.80 -> 0.17 % (4 cameras) and 0.07 -> 0.04 % (6).
+consensus and the focal multi-start do that before). Measured with and without this step:
+docs/design-notes.md (Refinement on all keypoint matches).
 
 Dense matchers (RoMa, XFeat*) give sub-pixel target positions and grid or coarse sites that do
 not compose into exact keypoint tracks; their output is what the sampling exists to summarise, so
@@ -51,9 +44,8 @@ MAX_TRACKS = 20000
 # Raw matches are not cycle-verified, so the found cameras gate them even where the preset keeps
 # every observation (B_err off) or allows much (fisheye B_err 100 px: room for the incremental
 # stages' rough fisheye distortion, while these cameras are final). 20 px = the regular B_err.
-# Measured with the 100 px fisheye gate: the same rig, but a reported RMS of 4.2-5.6 px on
-# 6- and 8-camera fisheye rigs (raw-match outliers; the global pipeline's 16 px gate: 0.4-0.5 px);
-# with this gate and GATE_REFINEMENTS, 0.32-0.34 px (fisheye 4cam s201, 6cam s202), same AUC.
+# The fisheye gate left the same rig but raw-match outliers in its reported RMS
+# (docs/design-notes.md, Refinement on all keypoint matches).
 RAW_MATCH_MAX_GATE_PX = 20.0
 GATE_REFINEMENTS = 3  # filter + BA rounds after the first BA (refine_on_tracks)
 
@@ -117,9 +109,9 @@ def refine_on_tracks(state: SfMState, tracks: Tracks, camera_names: Sequence[str
     gate_px = raw_match_gate_px(config)
     retriangulate_and_adjust(refined, camera_names, config, seed, outlier_px=gate_px)
     # A wrong 2-view match within the gate splits its error between its two views; the BA's
-    # Cauchy loss then fits one view and leaves the other far off (measured: 40 px wrong matches,
-    # 20 px gate: 25 of 1674 observations above the gate after the BA, RMS 4.4 px for 0.3 px
-    # noise). As COLMAP's global refinement: filter against the adjusted cameras, adjust again.
+    # Cauchy loss then fits one view and leaves the other far off, above the gate
+    # (docs/design-notes.md, Refinement on all keypoint matches). As COLMAP's global
+    # refinement: filter against the adjusted cameras, adjust again.
     for _ in range(GATE_REFINEMENTS):
         if not remove_outlier_observations(refined, gate_px):
             break

@@ -2,11 +2,11 @@
 
 Why: keypoint matches find the rig but are too few and too biased to pin down what a camera's
 principal point and focal length do to its rotation. A SIFT keypoint is where a blob's scale-space
-extremum lies, and across a wide baseline the same blob's extremum moves with the perspective:
-on generated rigs 30 deg apart the keypoint matches lay 0.7 px (median) from the true
-correspondence, in directions the adjustment absorbs into a wrong principal point. The images
-themselves are unbiased: a patch around a point of one image, warped affinely onto the other and
-aligned there photometrically (Lucas-Kanade), lands within ~0.1 px.
+extremum lies, and across a wide baseline the same blob's extremum moves with the perspective,
+off the true correspondence in directions the adjustment absorbs into a wrong principal point. The
+images themselves are unbiased: a patch around a point of one image, warped affinely onto the
+other and aligned there photometrically (Lucas-Kanade), lands several times closer
+(docs/design-notes.md, Dense correspondences).
 
 How: per frame set and reference camera a, well-textured points spread over the image (Shi-Tomasi
 corners, at most GRID_POINTS_PER_IMAGE); for every other camera b, each point's position is

@@ -17,10 +17,10 @@ least_squares, Cauchy loss so one bad pair is down-weighted), from a few uniform
 prior f = 1.2 * max(w, h). The restarts minimise a smooth form with the same zero set (the cubic
 essential-matrix constraint), because eq. 2's |s1 - s2| is a cone at the optimum on which
 Gauss-Newton needs ~800 iterations; the best restart is then polished on eq. 2 itself (analytic
-Jacobian). Measured on 6-camera synthetic rigs: ~0.07 s, focal errors 0.2-1.2 % at 0.5 px noise. A
-tiny prior term (weight 1e-3 on log(f / f_prior)) keeps directions that the F's do not constrain
-(e.g. a camera pair whose optical axes intersect, the classical degeneracy of focal-from-F) at the
-prior instead of drifting; its bias on constrained directions is negligible (measured < 0.01 %).
+Jacobian). Its time and accuracy: docs/design-notes.md (Initial focals from the F's). A tiny prior
+term (weight 1e-3 on log(f / f_prior)) keeps directions that the F's do not constrain (e.g. a
+camera pair whose optical axes intersect, the classical degeneracy of focal-from-F) at the prior
+instead of drifting; its bias on constrained directions is negligible (same section).
 """
 from __future__ import annotations
 
@@ -40,8 +40,8 @@ PRIOR_WEIGHT = 1e-3
 ROBUST_SCALE = 0.05  # Cauchy scale on r_ij: a good pair's residual is ~0.01, a wrong F's ~0.3
 # Above this (median over pairs, weighted by w_ij as in the solve) the F's agree on no focals.
 # Weighted: pairs with few matches are the ones likely to carry a wrong F between cameras that
-# barely overlap, and the solve already discounts them (measured: 4 cameras 40 deg apart, the
-# true focals fit the two strong pairs at 0.006 / 0.023 and the three weak ones at 0.27-0.64).
+# barely overlap, and the solve already discounts them (docs/design-notes.md, Initial focals
+# from the F's).
 MAX_MEDIAN_RESIDUAL = 0.2
 RESTART_FACTORS = (1.0, 0.5, 2.0, 4.0)
 # How the user can skip this estimate (focal_start.start_focals); ends every FocalInitError message.

@@ -192,10 +192,10 @@ def snapped_centres(cam_from_world: Sequence[np.ndarray]) -> list[np.ndarray]:
     about CENTRE_GRID x the rig's size (a power of two, so the grid itself does not wobble).
 
     pycolmap's global positioning runs Ceres on every core (the thread count is not exposed),
-    and the order in which the threads add up terms varies: on a generated 4-camera rig the
-    centres differed by up to 7e-9 of the rig's size from run to run, and the staged BA after
-    it (outlier cuts, the choice between two starts) turned that into rigs 40 px of focal
-    apart in one run of three. Rounding makes the start identical unless a centre lies within
+    and the order in which the threads add up terms varies, so the centres differ by a
+    rounding-error amount from run to run, which the staged BA after it (outlier cuts, the
+    choice between two starts) can turn into different rigs (docs/design-notes.md, Global
+    positioning's run-to-run noise). Rounding makes the start identical unless a centre lies within
     that noise of a grid line (~1e-3 per coordinate); the BA refines the centres anyway."""
     centres = np.array([-T[:3, :3].T @ T[:3, 3] for T in cam_from_world])
     centres -= centres[0]

@@ -12,15 +12,16 @@ data, per camera: the dense tracks are split into HOLDOUT_FOLDS spatial folds, e
 adjusted on its own without priors, and the spread of the folds' estimates gives the uncertainty
 of the estimate from all the data, systematic errors included (the adjustment's own covariance
 assumes independent pixel noise; neighbouring patches and what the model cannot express make it
-several times too small on real photographs: a planar facade's folds disagreed by 5-11 px where
-the covariance said 0.2-0.7 px). A parameter whose uncertainty is below ESTIMATED_FRACTION of its
+several times too small on real photographs: docs/design-notes.md, Image refinement: folds and
+the aspect prior). A parameter whose uncertainty is below ESTIMATED_FRACTION of its
 prior's spread (the images carry at least four times the prior's information) is estimated with
 its prior; otherwise it is held at the prior's centre and reported as held. The prior's
 centre is the image centre, or in a recalibration the point the previous calibration of the
 same camera estimated from its images (pp_centres): a bump or a refocus leaves it where it was,
 and the fold decision, near its threshold, can go either way between runs (measured:
-docs/design-notes.md). The pixel aspect is always estimated with its prior (holding a real sensor's
-0.3 % at 1 moved principal points by 20 px on a generated rig); the cameras are written as
+docs/design-notes.md, Principal point prior in a recalibration). The pixel aspect is always
+estimated with its prior (holding a real sensor's aspect at 1 moves the principal points far:
+docs/design-notes.md, Image refinement: folds and the aspect prior); the cameras are written as
 OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
 folds determine it."""
 from __future__ import annotations
@@ -41,11 +42,11 @@ from .uncertainty import CameraUncertainty, projection_std_px
 
 log = logging.getLogger(__name__)
 
-# Real lenses put the principal point 0.5-2 % of the image side off-centre (Strecha's DSLR
-# 0.5-0.8 %, a DTU lab camera 1.4-1.6 %, phones 0.3-0.8 %, the fisheye pair 0.1-2.8 %): a prior
-# of 1 % of the long side per axis holds 2 % at two sigma.
+# Real lenses put the principal point 0.5-2 % of the image side off-centre (docs/design-notes.md,
+# Real cameras' principal points): a prior of 1 % of the long side per axis holds 2 % at two sigma.
 PP_PRIOR_STD_FRACTION = 0.01
-# Square pixels to within a few tenths of a percent (Strecha: fy / fx - 1 = 0.17 %).
+# Square pixels to within a few tenths of a percent (docs/design-notes.md, Real cameras'
+# principal points).
 ASPECT_PRIOR_STD = 0.003
 MAD_TO_SIGMA = 1.4826  # median absolute deviation -> standard deviation of a normal
 # A parameter the images hold to less than this fraction of its prior's sigma is "estimated".

@@ -49,7 +49,8 @@ ABSOLUTE_POSE_MAX_ERROR_PX = 12.0  # COLMAP's default RANSAC threshold for absol
 TRUNCATION_FALLBACK_PX = 20.0  # truncation of the costs when B_err is off
 MIN_RAY_Z = 0.05  # rays closer to the image plane than this do not fit a perspective E model
 # Focal candidates (x the current focal) for a camera registered from 2-view tracks only: eq. 2
-# errs by up to a third there (docs/design-notes.md); the span is kept about symmetric in log.
+# errs by up to a third there (docs/design-notes.md, Focal starts and multi-start costs); the
+# span is kept about symmetric in log.
 PAIR_REGISTRATION_FOCAL_SCALES = (0.6, 0.75, 0.9, 1.0, 1.15, 1.35, 1.6)
 PAIR_REGISTRATION_BA_ITERATIONS = 30
 
@@ -138,11 +139,12 @@ def _register_from_pairs(state: SfMState, c: int, camera_names: Sequence[str], s
     2-cycle tracks; common when baselines are wide and few 3-cycles close).
 
     Camera c's focal is still its initial estimate, which nothing has refined yet, and a relative
-    pose from an essential matrix on wrongly scaled rays is biased (measured: wrong translation
-    directions at 30 % focal error). So the pose is computed for several focal candidates
-    (`_pair_registration_focals`) and the one whose 2-view points reproject best after a BA of
-    c's pose and focal (everything else fixed) is kept: for 2-view tracks the reprojection error
-    measures how well the E's agree across c's partners, which the wrong focal breaks."""
+    pose from an essential matrix on wrongly scaled rays is biased (wrong translation directions
+    at a focal error eq. 2 can make: docs/design-notes.md, Incremental SfM). So the pose is
+    computed for several focal candidates (`_pair_registration_focals`) and the one whose 2-view
+    points reproject best after a BA of c's pose and focal (everything else fixed) is kept: for
+    2-view tracks the reprojection error measures how well the E's agree across c's partners,
+    which the wrong focal breaks."""
     best = (np.inf, None)
     for focal in _pair_registration_focals(state, c):
         trial = state.copy()
@@ -348,7 +350,7 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         pending.remove(c)
         # Poses first, then intrinsics (as the global pipeline's stages): refining the focals
         # against a new camera's still-rough pose can drift them towards an affine solution on
-        # near-planar scenes (measured on Strecha entry-P10: focals ran to 15x image size).
+        # near-planar scenes (docs/design-notes.md, Incremental SfM).
         bundle_adjust(state, camera_names, extrinsics_only, config.num_threads)
         bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
         _triangulate_new(state, b_err)
@@ -376,8 +378,8 @@ def final_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMCo
     its fisheye cameras only (as the fisheye preset does; the regular preset keeps it fixed, the
     paper's ablation: refining it costs pinhole cameras AUC@3): pycolmap refines every camera's
     principal point or none, so a second pass refines it with the pinhole cameras' intrinsics
-    held. Measured on generated rigs of 3-4 cameras with one fisheye: refining every camera's
-    let every focal drift 4-8 % short (AUC@3 22-56); held for the pinhole cameras, 78-100."""
+    held: refining every camera's lets every focal drift short (docs/design-notes.md,
+    Incremental SfM)."""
     pinhole = config.mixed_rig_pinhole_cameras(state.num_cameras)
     if not (config.refine_principal_point and pinhole):
         bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
@@ -394,8 +396,8 @@ def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, see
     fisheye model refinement (module docstring, step 4); in place."""
     # As COLMAP's mapper ends: every track re-triangulated (LO-RANSAC) from the final cameras, so
     # observations dropped against earlier, rougher cameras and tracks that could not be
-    # triangulated then count again; B_err, then the final BA once more. Measured: 3-camera rigs
-    # with ~100 tracks went from 4 % to 0.3 % focal error (AUC@3 44 -> 100).
+    # triangulated then count again; B_err, then the final BA once more. It matters most on rigs
+    # with few tracks (docs/design-notes.md, Incremental SfM).
     retriangulate_and_adjust(state, camera_names, config, seed,
                              config.outlier_thresholds_px(state.num_cameras))
     if config.refine_to_model:

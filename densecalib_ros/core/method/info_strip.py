@@ -3,9 +3,8 @@ the top or bottom edge of every image, with the date, time, temperature or camer
 
 Its glyphs are the same at the same pixels in every camera, so they match each other across
 cameras, survive the cycle checks and enter the reconstruction as points that fit no real
-geometry: on generated 3-6 camera rigs with such a bar (32 px of 768, white text on black) the
-reprojection RMS came out 2-4x higher and a 3-camera rig's focal error 0.44 -> 1.16 %. Ignoring
-the bar's rows (core.method.masks) removes them.
+geometry, raising the reprojection error and pulling the focals (docs/design-notes.md, Info
+strips). Ignoring the bar's rows (core.method.masks) removes them.
 
 A bar is told from the scene by what no scene does at an image edge: rows from the very edge
 inward in which most pixels, and those at both ends, have one flat colour (the bar's); among

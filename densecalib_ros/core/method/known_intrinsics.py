@@ -399,18 +399,14 @@ def given_intrinsics_fit(state, camera_names: Sequence[str], num_threads: int = 
     keeps the given values), and how far that moves its mean focal [%]. A camera whose file is
     wrong (another resolution's, a mislabelled lens model, a refocused lens) fits clearly better
     freed (given_intrinsics_warnings). Cameras seen with fewer multi-view points are not judged:
-    two views alone do not pin a focal down, and freed they fit what the right files leave. Judging
-    a rig of two cameras on all their observations was tried (2026-11-24): on 16 generated pairs
-    (pinhole and fisheye) right files gave 0.91-1.02x and files 5 % or 10 % off in focal or 0.1 in
-    k1 2.2-9.7x, but on real pairs with right files it warned 3 times in 13: the fisheye stereo bag
-    with its lab (1.5x, focals -28 %) and its target-based intrinsics (2.5x), and one of 5 fox
-    pairs (3.4x, focals -17 % and -31 %); Strecha's 6 pairs stayed within 1.15x. Of 3 real pairs
-    with one file 5 % off in focal none warned (2.1x under the 0.05 px gain, 0.84x, 1.05x). So a
-    stereo pair's files are not judged.
+    two views alone do not pin a focal down, and freed they fit what the right files leave. A
+    stereo pair's files are not judged either: judged on all their observations, real pairs with
+    right files warned and real pairs with a wrong file did not (docs/design-notes.md, Checking
+    given intrinsics).
 
-    Freeing one camera at a time instead would name the wrong camera alone, but measured less:
-    with two cameras 5 % off, each freed alone gained a fraction of what both freed gained, and on
-    Strecha the neighbour of a wrong camera still gained 1.65x by bending towards it."""
+    Freeing one camera at a time instead would name the wrong camera alone, but shows less: with
+    two cameras wrong, each freed alone gains a fraction of what both freed gain, and the
+    neighbour of a wrong camera gains by bending towards it (same section)."""
     from .reconstruction import BAStage, bundle_adjust, camera_quality, reprojection_errors
 
     before = reprojection_errors(state)
@@ -437,11 +433,10 @@ def given_intrinsics_fit(state, camera_names: Sequence[str], num_threads: int = 
 
 
 MIN_CHECK_MULTIVIEW_OBSERVATIONS = 30  # reconstruction.camera_quality's num_multiview_observations
-# With the right intrinsics, freeing them changed a camera's median reprojection error by at most
-# 1.16x (real fox frames, reference intrinsics from COLMAP; Strecha and generated rigs 1.0x);
-# a focal 5 % off or a k1 0.1 off made it 2-7x (generated rigs, Strecha). A focal's move alone
-# is no sign: on the fox's wall correct focals of weak cameras moved 4-13 % when freed, with no
-# better fit.
+# A camera's median reprojection error, given over freed, above which its intrinsics are suspect:
+# right ones stay near 1, a focal or k1 clearly off gives several times that. A focal's move alone
+# is no sign: correct focals of weak cameras move when freed, with no better fit
+# (docs/design-notes.md, Checking given intrinsics).
 SUSPECT_ERROR_RATIO = 1.3
 MIN_ERROR_GAIN_PX = 0.05  # below this the ratio of two tiny errors says nothing
 

@@ -1,14 +1,14 @@
 """Physical plausibility of self-calibrated intrinsics.
 
 Bundle adjustment can trade a wrong pose against the distortion terms: on weakly constrained
-cameras (few, mostly 2-view tracks) we measured RADIAL k1 running to -1.1 while the reprojection
-error stayed small. Such a lens folds the image over itself (the radial map is no longer
-invertible inside the image), so the calibration is unusable whatever its residuals say. COLMAP
-guards the same failure with its "bogus camera parameters" test (focal ratio, |extra| <= 1); we
-test the property that matters instead: the radial distortion map must be strictly increasing
-from the principal point out to the farthest image corner (pinhole models: undistorting the whole
-image needs it) or, for fisheye models, the farthest observation (a circular fisheye images
-nothing in its corners, where the fitted polynomial is unconstrained).
+cameras (few, mostly 2-view tracks) RADIAL k1 can run far negative while the reprojection error
+stays small (docs/design-notes.md, Plausible intrinsics). Such a lens folds the image over itself
+(the radial map is no longer invertible inside the image), so the calibration is unusable whatever
+its residuals say. COLMAP guards the same failure with its "bogus camera parameters" test (focal
+ratio, |extra| <= 1); we test the property that matters instead: the radial distortion map must
+be strictly increasing from the principal point out to the farthest image corner (pinhole models:
+undistorting the whole image needs it) or, for fisheye models, the farthest observation (a
+circular fisheye images nothing in its corners, where the fitted polynomial is unconstrained).
 
 Radial maps (COLMAP models; r = undistorted radius on the normalised plane, theta = angle from
 the optical axis):

@@ -11,23 +11,22 @@ model as right. On tracks with independent Gaussian noise the errors are about 1
 (test_uncertainty).
 
 A principal point the calibration held (the regular preset holds it at the image centre) is
-where a real camera's is not: by 0.1-2.8 % of the long side on the real cameras we have. The
-covariance conditional on the held point cannot see that, and the other parameters lean on it (on
-4-camera generated rigs a few px of focal per px of principal point): taken as right, the focal
-errors there were 2.8 sigma at the median and up to 14 (8 development rigs, 20 deg apart). So
+where a real camera's is not: by up to a few percent of the long side (docs/design-notes.md, Real
+cameras' principal points). The covariance conditional on the held point cannot see that, and the
+other parameters lean on it (a few px of focal per px of principal point): taken as right, it
+puts the focal errors at many sigma (docs/design-notes.md, Intrinsics' standard deviations). So
 the held point's unknown offset, HELD_PP_STD_FRACTION of the long side per axis, is added: the
 others move with it by their regression on the principal point in the same problem with the
 points free (cross-camera effects left out; pycolmap gives the covariance per camera block), and
-the projection moves with it too. Then 0.23 sigma at the median and 3.0 at most on those rigs,
-whose principal points are 0.0-0.4 % off (smaller than real cameras'); on tracks with a 1 %
-offset about 1 sigma (test_uncertainty).
+the projection moves with it too. Then the errors are within a few sigma (same section); on tracks
+with a 1 % offset about 1 sigma (test_uncertainty).
 
-No rotation sigma is given: measured the same way it was 6-10x smaller than the rotation errors
-at the median on generated rigs (a principal point held at the image centre that is not there
-turns a camera by ~0.2 deg, which a covariance conditional on the held point cannot show), and
-with the principal point marginalised it was 1x on pinhole rigs but 6x on fisheye rigs and 0.2x
-on Strecha: not a number to act on. The consensus runs' disagreement
-(quality.consensus_disagreement_deg) is the measured spread of the extrinsics."""
+No rotation sigma is given: measured the same way it was several times smaller than the rotation
+errors on generated rigs (a principal point held at the image centre that is not there turns a
+camera, which a covariance conditional on the held point cannot show), and with the principal
+point marginalised its ratio to the errors varied from rig to rig (same section): not a number to
+act on. The consensus runs' disagreement (quality.consensus_disagreement_deg) is the measured
+spread of the extrinsics."""
 from __future__ import annotations
 
 import copy
@@ -58,9 +57,9 @@ class CameraUncertainty:
 # Rays sampled on a grid of this many points per image side for projection_std_px.
 PROJECTION_GRID = 12
 # How far from the image centre a principal point the calibration holds there may be, per axis,
-# as a fraction of the image's long side. Off-centre points of real cameras (their target-based
-# calibrations, per axis): Strecha's Canon 0.5-0.6 %, instant-ngp's fox phone 0.3-0.8 %, the
-# fisheye stereo pair 0.1-2.8 %.
+# as a fraction of the image's long side: real cameras' target-based calibrations put it mostly
+# within about that, some up to a few percent (docs/design-notes.md, Real cameras' principal
+# points).
 HELD_PP_STD_FRACTION = 0.01
 
 

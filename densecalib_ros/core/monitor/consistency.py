@@ -8,11 +8,11 @@ Two figures:
 - per pair, the epipolar error of a match (px): the angle between each ray and the epipolar plane
   of the other, times that camera's focal length, averaged over the two cameras; the pair's figure
   is the median over its matches that agree with their own two-view geometry (self_consistent):
-  raw matches of a wide pair can be mostly outliers, which would move even a median (the exact
-  ground truth of generated rigs "no longer fitted" on 5 of 7 rigs, from pairs 80-100 deg apart
-  with 20-55 matches, before they were left out). It misses motion
-  along the epipolar lines: a camera panned about an axis across its baselines moves its points
-  mostly along them (0.5 deg of pan gave 0.6-1.6 px on a 1024-px rig where a tilt shows fully);
+  raw matches of a wide pair can be mostly outliers, which would move even a median (before they
+  were left out, the exact ground truth of generated rigs "no longer fitted": docs/design-notes.md,
+  Rig consistency check). It misses motion along the epipolar lines: a camera panned about an axis
+  across its baselines moves its points mostly along them (a fraction of what a tilt shows: same
+  section);
 - per camera triple, the transfer error (px): a point matched in two cameras is triangulated from
   them and projected into the third, where it is compared with its match; with three cameras or
   more this sees any rotation. The triple's figure is the median over its points, each divided by

@@ -2,35 +2,32 @@
 
 Stage 2 of the sampling draws tracks at random (score-proportional picks, paper Sec. 3.2), and on
 weakly connected rigs (few 3-view tracks, converging optical axes, an end camera held by 2-view
-tracks) the SfM outcome depends on that draw: one seed gives AUC@3 100, the next 11 (measured in
-`densecalib bench` scenes, seeds 0-4). Running the SfM on a few independent samples and keeping the
-medoid (the run that disagrees least with the others in relative camera poses) turns that lottery
-into a majority vote; on well-connected rigs all runs agree and the medoid is any of them. How much
-the runs disagree is reported with the result: it is a direct measure of how well the data
-determine the rig.
+tracks) the SfM outcome depends on that draw: one seed gives a right rig, the next a wrong one
+(docs/design-notes.md, Consensus: best fit vs vote). Running the SfM on a few independent samples
+and keeping the medoid (the run that disagrees least with the others in relative camera poses)
+turns that lottery into a majority vote; on well-connected rigs all runs agree and the medoid is
+any of them. How much the runs disagree is reported with the result: it is a direct measure of
+how well the data determine the rig.
 
 Before the vote, each run's cameras are scored on the same observations: a seeded sample of all
 runs' tracks in the cameras that every run registered, triangulated from that run's cameras
 (`common_track_costs`). Scoring only shared cameras lets a run that left out one hard camera
-compete on equal terms (the real fox, 8 frames, global pipeline: the one run that dropped a frame
-was right, the runs that posed all 8 were wrong and fit the other 7 twice as badly). A run that
-fits them clearly worse than the best run is a wrong reconstruction, not an equally good
-alternative, and is not kept even when it is the medoid (where most runs are wrong).
+compete on equal terms: it can be the right run, the others fitting the remaining cameras worse
+(same section). A run that fits them clearly worse than the best run is a wrong reconstruction,
+not an equally good alternative, and is not kept even when it is the medoid (where most runs are
+wrong).
 
 Which observations judge the runs matters. Each run's tracks were drawn by its own seed and fitted
 by its own SfM, so on a sample of all runs' tracks every run is partly judged on what it was built
-from, and a wrong rig can fit them better than the right one (generated 3-camera rig 40 deg apart:
-wrong runs 0.646 px, right runs 0.685, the true rig 0.691). Where the runs were all refined last
-on the same keypoint-match tracks (pipeline.refine_on_all_matches), they are local optima of one
-objective on one data set, and the run that fits those tracks best is kept, as the focal
-multi-start inside each run keeps its best start: measured on 29 development rigs (bench and new
-seeds, 5 runs each), the best fit picked runs averaging AUC@3 92.1 against 88.8 for the vote, the
-best single run being 92.8 (4-camera rig 45 deg apart: 100 where the vote kept 38.9; 3 cameras 40
-deg apart: 100 where it kept 44.4; one loss, a 3-camera rig where every run is wrong, 33.3 -> 11.1).
-Only runs that registered the most cameras among those fitting about as well as the best compete,
-so a run does not win by leaving a camera out. Without such tracks (a dense matcher), runs that fit
-about equally well, the near-ambiguous case of converging cameras with free focals, are left to
-the vote.
+from, and a wrong rig can fit them better than the right one (same section). Where the runs were
+all refined last on the same keypoint-match tracks (pipeline.refine_on_all_matches), they are
+local optima of one objective on one data set, and the run that fits those tracks best is kept,
+as the focal multi-start inside each run keeps its best start: on development rigs the best fit
+picked better runs than the vote did, near the best single run (same section). Only runs that
+registered the most cameras among those fitting about as well as the best compete, so a run does
+not win by leaving a camera out. Without such tracks (a dense matcher), runs that fit about
+equally well, the near-ambiguous case of converging cameras with free focals, are left to the
+vote.
 """
 from __future__ import annotations
 
@@ -48,8 +45,8 @@ from ..types import RigCalibration, Tracks
 UNREGISTERED_PAIR_DEG = 180.0
 # After this many successful runs, stop if every two of them agree within AGREEMENT_DEG (mean over
 # camera pairs): a third of AUC@3's strictest threshold, so further runs could not change which
-# poses count as accurate. Measured on bench scenes: 3-camera s101 0.13 deg, 6-camera s101
-# 0.05 deg; weak wide rigs 2.9-7.4 deg, the real fox 12.4 deg.
+# poses count as accurate. Well-connected rigs agree to a fraction of it, weak ones disagree by
+# several times it (docs/design-notes.md, Consensus: best fit vs vote).
 EARLY_STOP_RUNS = 3
 AGREEMENT_DEG = 1.0
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
@@ -57,9 +54,9 @@ AGREEMENT_DEG = 1.0
 WARN_DISAGREEMENT_DEG = 3.0
 MAX_PAIRS_SAID = 3  # a warning names this many pairs at most: the rest is in the quality record
 # A run whose truncated reprojection cost on the common tracks exceeds the best run's by this factor
-# is not kept. Measured on the bench's weak rigs (seeds 0-4, both pipelines): runs that are right or
-# near-ambiguous alternatives (converging cameras, free focals) cost at most 1.16x the best; wrong
-# runs 1.46x (global, wide 6-cam s101) to 7.5x. The factor sits between the two.
+# is not kept. It sits between what runs that are right or near-ambiguous alternatives (converging
+# cameras, free focals) cost and what wrong runs cost (docs/design-notes.md, Consensus: best fit
+# vs vote).
 WORSE_FIT_RATIO = 1.3
 COMMON_TRACKS_MAX = 3000  # the common tracks: a seeded sample of at most this many
 

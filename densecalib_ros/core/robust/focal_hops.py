@@ -2,12 +2,10 @@
 
 Where the consensus runs disagree, the rig is weakly determined and the refined cost on all
 keypoint matches has several minima that differ mainly in one camera's focal length and pose
-(an end camera held by few 3-view tracks). No run need find the right one: on a generated
-4-camera rig 45 deg apart the best of five runs kept an end camera 12 % short (AUC@3 44; the
-other runs 0-6), while the rig started from the truth fitted the same matches better (0.659 px
-against 0.729).
-A scaled start of the whole rig does not leave such a minimum (the multi-start already ran
-those); a kick to one camera does.
+(an end camera held by few 3-view tracks). No run need find the right one: the best of the runs
+can keep an end camera's focal short while the true rig fits the same matches better
+(docs/design-notes.md, Focal hops). A scaled start of the whole rig does not leave such a minimum
+(the multi-start already ran those); a kick to one camera does.
 
 So, from the kept rig: for each free camera, its focal is scaled by each of HOP_FACTORS, its
 pose re-estimated for that focal from the points the other cameras triangulate, and the whole
@@ -16,7 +14,7 @@ the trial is judged by the same truncated cost on the matches as the runs (incre
 held_out_cost). The best trial replaces the rig when it lowers that cost by more than
 MIN_RELATIVE_GAIN; rounds repeat until none does, at most MAX_ROUNDS. The kick only chooses the
 basin: the refinement frees the focal again, so the result does not depend on the factor's exact
-value. On that rig: two hops, cost 0.730 -> 0.672 -> 0.658 px, AUC@3 44 -> 100.
+value.
 """
 from __future__ import annotations
 
@@ -37,7 +35,8 @@ from ..types import Tracks
 log = logging.getLogger(__name__)
 
 # Focal kicks (x the current focal): within the ~1.3x a start may be off and still converge
-# (multistart.PRIOR_FOCAL_IMAGE_RATIOS), both sides; the wrong minima measured were 12-17 % off.
+# (multistart.PRIOR_FOCAL_IMAGE_RATIOS), both sides, and far enough to reach the wrong minima seen
+# (docs/design-notes.md, Focal hops).
 HOP_FACTORS = (0.8, 0.9, 1.1, 1.25)
 MIN_RELATIVE_GAIN = 0.01  # a hop must lower the cost by more than this fraction to be kept
 MAX_ROUNDS = 3

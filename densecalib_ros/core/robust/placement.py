@@ -2,11 +2,10 @@
 
 Cycle sampling verifies tracks by closing cycles, which wrong matches can also do where a scene
 repeats itself: on a wall covered in patterned wallpaper (the instant-ngp fox capture) a pair's
-matches can be 98 % wrong and still agree with one fundamental matrix (the pattern shifted by a
-period), and cycles through two such pairs close. Incremental SfM can then register a camera from
-those tracks into a wrong place that the rest of the rig cannot pull it out of (fox, 8 frames: one
-camera turned by 113-132 deg while the others were within a degree; 10 frames: two nearly
-identical frames 40-110 deg off together).
+matches can be almost all wrong and still agree with one fundamental matrix (the pattern shifted
+by a period), and cycles through two such pairs close. Incremental SfM can then register a camera
+(or two nearly identical frames together) from those tracks into a wrong place that the rest of
+the rig cannot pull it out of (docs/design-notes.md, Placement repair).
 
 Such a placement shows in the raw matches (keypoint-match tracks): few of the camera's matches
 with the other cameras fit it, while the other cameras' points, triangulated without it, place it
@@ -54,12 +53,13 @@ log = logging.getLogger(__name__)
 # COLMAP's two-view geometry threshold (4 px). The cameras are final here, so right matches
 # reproject to about a pixel.
 SUPPORT_MAX_ERROR_PX = 4.0
-# The alternative must explain half as many matches again (measured: right placements within
-# +-6 % of their alternative, wrong ones 2.4x and more behind it) ...
+# The alternative must explain half as many matches again: right placements come close to their
+# alternative, wrong ones fall far behind it (docs/design-notes.md, Placement repair) ...
 REPLACE_SUPPORT_RATIO = 1.5
 MIN_SUPPORT_GAIN = 20  # ... and this many more (counts of a few matches are noise)
-# A hypothesis within this of the current placement is that placement (the wrong placements
-# measured were 40-130 deg off; smaller errors are the bundle adjustment's job).
+# A hypothesis within this of the current placement is that placement (wrong placements are tens
+# of degrees off: docs/design-notes.md, Placement repair; smaller errors are the bundle
+# adjustment's job).
 SAME_PLACEMENT_DEG = 2.0
 SAME_PLACEMENT_CENTRE = 0.05  # x the median distance between registered cameras
 # Points for the alternative pose: reprojection gate in the views outside the group (the regular
@@ -69,8 +69,8 @@ MAX_POSE_POINTS = 1000
 # Focal tie-break: when an alternative placement fits at least as many matches, and its focal is
 # this many times closer (as a ratio) to the focal of the other cameras of the same image size,
 # it is taken. Matches cannot tell focal from distance for a camera facing a flat scene nearly
-# square on (fox, 12 frames: camera 0014 registered with its focal 68 % short and 64 deg off,
-# 1425 matches fit; at the other cameras' focal 1454 fit); the rig's other cameras can.
+# square on (a wrong focal and pose can fit as many: docs/design-notes.md, Placement repair);
+# the rig's other cameras can.
 FOCAL_TIE_BREAK_RATIO = 1.5
 
 
@@ -143,7 +143,7 @@ def pose_hypotheses(state: SfMState, c: int, left_out: Sequence[int]
 def _start_intrinsics(state: SfMState, c: int, shared: bool) -> list[CameraIntrinsics]:
     """Camera c's intrinsics, and, unless they are shared with a registered camera, the median
     intrinsics of the other registered cameras of its model and image size: a camera registered
-    wrongly often has a wrong focal too (measured: fox, 8 frames, 83 % short), from which the
+    wrongly often has a wrong focal too (docs/design-notes.md, Placement repair), from which the
     absolute pose's RANSAC does not find the right pose (rigs often use identical cameras)."""
     own = state.camera(c)
     peers = _peers(state, c)

@@ -2,12 +2,10 @@
 
 root_sift=True compares RootSIFT descriptors (L1-normalised, element-wise square root: Euclidean
 distance then compares them by the Hellinger kernel, Arandjelovic & Zisserman 2012; COLMAP's
-default). It gives better matches (bench-sampling --quick: raw inliers 0.946 -> 0.968 pinhole,
-0.971 -> 0.982 fisheye; about half the wrong matches of weak 35 deg pairs gone), but end to end it
-measured worse (full bench, incremental mean AUC@3 90.6 -> 83.7, the real fox scene 62 -> 7):
-on weakly connected rigs small input changes flip the outcome (a different sampling seed does too;
-see core/robust/consensus.py), so one bench run cannot show a match-quality gain there. Opt-in for
-now.
+default). It gives better matches, but end to end it measured worse: on weakly connected rigs
+small input changes flip the outcome (a different sampling seed does too; see
+core/robust/consensus.py), so one bench run cannot show a match-quality gain there. Opt-in for
+now (docs/design-notes.md, SIFT RootSIFT option).
 
 Sites are keypoint locations; OpenCV returns several keypoints at one location (one per dominant
 orientation), which are merged into one site whose descriptor distance to another site is the

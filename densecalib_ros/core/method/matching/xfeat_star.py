@@ -14,13 +14,14 @@ predicts the offset of the FIRST keypoint that puts it on the scene point at the
 scales0). Run both ways, it gives for pair (i -> j) the position in j of the point at i's keypoint
 (fine_matcher([desc_j, desc_i]) refines j's keypoint) and for (j -> i) the position in i of the
 point at j's keypoint. These fill `SiteMatches.target_xy_px`; `target` keeps the keypoint index.
-Pixel conventions (from XFeat's code, measured below): a coarse keypoint is `8 * cell index` (times
+Pixel conventions (from XFeat's code): a coarse keypoint is `8 * cell index` (times
 its scale), the top-left pixel of its 8x8 cell, while its descriptor describes the whole cell; the
 fine offset is a soft-argmax over the 8x8 pixels of the moved cell with indices shifted by -4
 (`subpix_softmax2d`). So a site is placed at its cell centre (keypoint + 3.5 * scale) and a refined
 position at keypoint + (offset + 4) * scale, the pixel of the moved cell the classifier points to.
-Measured on a generated 4-camera 1024x768 rig: raw matches within 2 px of the truth 0.40 -> 0.58,
-median error 2.2 -> 1.4 px (XFeat's literal convention leaves a (-0.9, -0.9) px bias).
+Checked on a generated rig, these positions lie closer to the truth than XFeat's literal convention,
+which leaves a bias of about a pixel towards the top left (docs/design-notes.md, XFeat* pixel
+conventions).
 Certainty of a match: the lower of the two fine-matcher confidences (softmax peak of the 8x8 offset
 classifier, as XFeat computes it); a match is kept only where both exceed `min_confidence` (XFeat*'s
 own filter, applied to each of the two refinements). With `refine=False` the filter still applies
