@@ -16,7 +16,8 @@ import pytest
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.method.incremental import initial_intrinsics
 from densecalib_ros.core.method.multistart import run_incremental
-from densecalib_ros.core.parallel import is_running, descendant_pids
+from densecalib_ros.core.parallel import is_running, descendant_pids, map_jobs
+from densecalib_ros.core.progress import StageClock
 
 import sfm_fixtures
 
@@ -40,7 +41,10 @@ def test_the_multistart_gives_the_same_rig_and_log_on_one_core_and_on_several(ca
             result = run_incremental(tracks, init, names, cfg, progress=messages.append)
         results.append((result, messages, [(r.name, r.levelno, r.getMessage())
                                            for r in caplog.records]))
-    (one, said_one, log_one), (two, said_two, log_two) = results
+    # (the lines saying the trials' time left come by the clock, not by the work: left out)
+    (one, said_one, log_one), (two, said_two, log_two) = [
+        (r, [m for m in said if "trials done" not in m],
+         [x for x in log if "trials done" not in x[2]]) for r, said, log in results]
     assert said_one == said_two and any("focal multi-start" in m for m in said_one)
     # The trials' own debug lines (eq. 3 first-pair costs) reach this process's log from the
     # workers, in the same order.
@@ -121,3 +125,20 @@ def test_where_no_worker_can_start_the_work_runs_here_and_says_so_once(monkeypat
         assert parallel.map_jobs(math.factorial, [(3,), (6,)], 2) == [6, 720]
     (said,) = [r.getMessage() for r in caplog.records]
     assert "no worker processes here" in said and "/dev/shm" in said
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_map_jobs_says_how_many_results_are_in_and_the_stage_clock_its_time_left(jobs):
+    heard = []
+    assert map_jobs(pow, [(2, k) for k in range(5)], jobs, on_done=heard.append) == \
+        [1, 2, 4, 8, 16]
+    assert heard == [1, 2, 3, 4, 5]
+    clock = StageClock(4)
+    assert clock.left(0) == "" and not clock.due(60.0)
+    time.sleep(0.2)
+    assert clock.due(0.1)
+    left = clock.left(1)  # one step took >= 0.2 s: three more, >= 0.6 s
+    assert left.startswith(", about ") and left.endswith(" s left")
+    assert int(left.split()[2]) >= 1  # 0.6 s at least, said to the second
+    assert not clock.due(60.0)  # just said
+    assert clock.left(4) == ""  # the stage is over: nothing left to say

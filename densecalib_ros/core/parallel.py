@@ -199,17 +199,18 @@ def stop_workers() -> None:
         process.join(timeout=5)
 
 
-def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int) -> list:
+def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int,
+             on_done: Optional[Callable[[int], None]] = None) -> list:
     """[fn(*args) for args in arg_tuples], spread over job_count(jobs) worker processes when
     that is more than one and there is more than one task. fn and its arguments and results must
     pickle (fn a module-level function). What the tasks log under this package reaches this
-    process's handlers, task by task in order."""
+    process's handlers, task by task in order; on_done(k) hears that the first k results are in."""
     import pycolmap
 
     global _no_workers
     workers = min(job_count(jobs), len(arg_tuples))
     if workers <= 1 or _no_workers:
-        return [fn(*args) for args in arg_tuples]
+        return _in_this_process(fn, arg_tuples, on_done)
     levels = (pycolmap.logging.minloglevel,
               logging.getLogger(PACKAGE_LOGGER).getEffectiveLevel())
     results: list = [None] * len(arg_tuples)
@@ -222,19 +223,23 @@ def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int) -> list:
                     "core", exc)
         _no_workers = True  # said once; not tried again
         stop_workers()
-        return [fn(*args) for args in arg_tuples]
+        return _in_this_process(fn, arg_tuples, on_done)
     try:
         for k in list(pending):
             results[k], records = futures[k].result()
             for record in records:  # reported here, once, as if the task had run here
                 logging.getLogger(record.name).handle(record)
             pending.remove(k)
+            if on_done is not None:
+                on_done(k + 1)
     except BrokenProcessPool as exc:
         log.warning("a worker process ended unexpectedly (%s); running the %d remaining "
                     "piece(s) of work in this process", exc, len(pending))
         stop_workers()
         for k in pending:
             results[k] = fn(*arg_tuples[k])
+            if on_done is not None:
+                on_done(k + 1)
     except Exception:  # a task's own error: the others' results are not needed
         for future in futures.values():
             future.cancel()
@@ -242,4 +247,14 @@ def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int) -> list:
     except BaseException:  # Ctrl-C, SIGTERM: no worker outlives the call
         stop_workers()
         raise
+    return results
+
+
+def _in_this_process(fn: Callable, arg_tuples: Sequence[tuple],
+                     on_done: Optional[Callable[[int], None]]) -> list:
+    results = []
+    for args in arg_tuples:
+        results.append(fn(*args))
+        if on_done is not None:
+            on_done(len(results))
     return results

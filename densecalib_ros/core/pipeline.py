@@ -30,7 +30,7 @@ from .method.reconstruction import SfMState, colour_points
 from .method.twoview import epipolar_filter, fundamental_matrices
 from .method.view_graph import pair_track_counts
 from .method.uncertainty import add_uncertainty, estimated_principal_points
-from .progress import Progress, say_progress
+from .progress import Progress, StageClock, say_progress
 from .robust.placement import repair_placements
 from .types import RigCalibration, RigQuality, Tracks
 
@@ -57,9 +57,9 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
 
     Known focals add a start to the SfM's focal multi-start; they do not take the eq. 2 start's
     place. The path SfM takes depends on the start, not only on how close it is: from the true
-    focals (no distortion yet) a 3-camera rig 40 deg apart chose another first pair, whose
-    relative pose the unmodelled distortion had turned 11 deg, and ended wrong (AUC@3 22); from
-    eq. 2's focals, 3-32 % short, it ended right (100), and fitted all matches better."""
+    focals (no distortion yet) a rig can choose another first pair, whose relative pose the
+    unmodelled distortion turned, and end wrong where eq. 2's shorter focals end right
+    (docs/design-notes.md, Known focals as a start)."""
     start = time.perf_counter()
     C = len(camera_names)
     config = resolve_camera_lenses(config, camera_names)
@@ -188,13 +188,14 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     if matcher is None:
         matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
         matcher.load()
-    match_sets = []
+    match_sets, clock = [], StageClock(len(frame_sets))
     for t, frames in enumerate(frame_sets):
         match_sets.append(matcher.match(list(frames)))
         if ignored:
             log.debug("frame set %d: %d match(es) on masked regions dropped", t,
                       apply_masks(match_sets[-1], ignored))
-        say_progress(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})")
+        say_progress(progress, f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})"
+                     + clock.left(t + 1))
     return match_sets
 
 

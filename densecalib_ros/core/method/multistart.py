@@ -22,7 +22,7 @@ import pycolmap
 from ..config import SfMConfig
 from ..errors import NotEnoughOverlapError
 from ..parallel import map_jobs
-from ..progress import say_progress
+from ..progress import StageClock, say_progress
 from ..types import CameraIntrinsics, Tracks
 from .incremental import (MIN_PAIR_CORRESPONDENCES, TRUNCATION_FALLBACK_PX, IncrementalResult,
                           finish_on, incremental_sfm)
@@ -37,7 +37,8 @@ FOCAL_SCALE_STARTS = (1.0, 1.3, 0.8)  # multi-start factors on the initial focal
 
 
 # One more step of 1.3 upwards where the initial focals come from eq. 2 (not fisheye models, whose
-# start is a lens-model assumption): eq. 2 errs low on converging rigs (docs/design-notes.md).
+# start is a lens-model assumption): eq. 2 errs low on converging rigs (docs/design-notes.md,
+# Focal starts and multi-start costs).
 EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
 
 
@@ -58,7 +59,7 @@ MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsamp
 # its first pair (eq. 3 picks among the first three views, on few points). So the multi-start runs
 # from first pairs instead (the most shared tracks first), as many as the focal multi-start of the
 # same lenses would have run (7 perspective, 3 fisheye: no slower than self-calibrating), at most
-# this many (measured: docs/design-notes.md).
+# this many (docs/design-notes.md, Focal starts and multi-start costs).
 MAX_FIRST_PAIR_STARTS = 8
 
 
@@ -67,8 +68,11 @@ MAX_FIRST_PAIR_STARTS = 8
 # Truncation (and triangulation gate) of the cost on raw keypoint matches (held_out_cost): COLMAP's
 # two-view inlier threshold, the scale of a right match's error on a right rig. Raw matches are not
 # cycle-verified (repetitive texture: many are wrong), and a loose gate lets a degenerate rig
-# absorb wrong matches (measured on the fox: docs/design-notes.md).
+# absorb wrong matches (docs/design-notes.md, Focal starts and multi-start costs).
 HELD_OUT_TRUNCATION_PX = 4.0
+# While the trials run, a line this often tells a person the work goes on and how long it has
+# left, without a line per trial in the log.
+TRIALS_PROGRESS_EVERY_S = 15.0
 
 
 def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
@@ -85,18 +89,18 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     when no camera pair among the first three of the view order can be initialised.
 
     Multi-start on the focal scale: focal-from-F (eq. 2) is degenerate when the cameras' optical
-    axes nearly meet (a common rig layout) and then tends to be off by a common factor (measured
-    20-47 % low), from which incremental SfM converges to a wrong reconstruction. So the SfM is
-    run from the initial focals scaled by each of FOCAL_SCALE_STARTS (and, for perspective
-    models, EQ2_EXTRA_FOCAL_SCALE_STARTS and the generic priors PRIOR_FOCAL_IMAGE_RATIOS), on
-    a seeded subsample of at most MULTISTART_MAX_TRACKS tracks, and the start with the lowest
-    truncated reprojection cost gives the result: that trial itself when it ran on all tracks,
-    else its cameras finished on all tracks (`_on_all_tracks`). The cost is taken on
-    validation_tracks (other tracks of the same cameras, e.g. all keypoint matches, triangulated
-    from the trial's cameras: `held_out_cost`) when given, else on the trial's own tracks
-    (`truncated_cost`). A trial can fit the tracks it was built from better than the right rig
-    does and still fit the matches it never saw worse (a 3-camera rig: 0.33 vs 0.41 px on its
-    samples, 2.17 vs 2.02 px on the other matches), so the left-out matches judge more fairly.
+    axes nearly meet (a common rig layout) and then tends to be off by a common factor, low
+    (docs/design-notes.md, Focal starts and multi-start costs), from which incremental SfM converges
+    to a wrong reconstruction. So the SfM is run from the initial focals scaled by each of
+    FOCAL_SCALE_STARTS (and, for perspective models, EQ2_EXTRA_FOCAL_SCALE_STARTS and the generic
+    priors PRIOR_FOCAL_IMAGE_RATIOS), on a seeded subsample of at most MULTISTART_MAX_TRACKS tracks,
+    and the start with the lowest truncated reprojection cost gives the result: that trial itself
+    when it ran on all tracks, else its cameras finished on all tracks (`_on_all_tracks`). The cost
+    is taken on validation_tracks (other tracks of the same cameras, e.g. all keypoint matches,
+    triangulated from the trial's cameras: `held_out_cost`) when given, else on the trial's own
+    tracks (`truncated_cost`). A trial can fit the tracks it was built from better than the right
+    rig does and still fit the matches it never saw worse (same section), so the left-out matches
+    judge more fairly.
     extra_starts: more named starting intrinsics for the multi-start (the eq. 2 estimate where
     `intrinsics` hold known focals: pipeline.calibrate_from_tracks). Where every camera's
     intrinsics are given (config.fixed_intrinsics_cameras) there is one focal start, and the
@@ -115,9 +119,14 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     # Trials are independent: they run side by side (core.parallel), each BA on one core, so
     # the outcome does not depend on how many ran at once.
     trial_config = replace(config, num_threads=1)
+    clock = StageClock(len(starts))
+
+    def trials_done(k: int) -> None:
+        if clock.due(TRIALS_PROGRESS_EVERY_S) and k < len(starts):
+            say(f"focal multi-start: {k} of {len(starts)} trials done{clock.left(k)}")
     outcomes = map_jobs(_trial, [(sub, start, camera_names, trial_config, seed, pair,
                                   validation_tracks) for start, pair in starts.values()],
-                        config.num_threads)
+                        config.num_threads, on_done=trials_done)
     costs, trials = {}, {}
     for name, (trial, messages, cost) in zip(starts, outcomes):
         if trial is None:
@@ -191,9 +200,9 @@ def focal_starts(intrinsics: Sequence[CameraIntrinsics], fixed: Sequence[int] = 
 
     A prior is run even where it is within ~1.15x of a scaled start for every camera: it gives
     every camera the same focal where the scaled start keeps eq. 2's ratios between cameras, and
-    the two can end in different rigs. Skipping such priors saved ~13 % of the SfM time but
-    turned one of five consensus runs of a 4-camera rig wrong (from x1.30 and x1.69, where priors
-    0.6 and 0.85 had been right), AUC@3 94.4 -> 88.9."""
+    the two can end in different rigs: skipping such priors saved some SfM time but turned runs
+    wrong that a prior had got right (docs/design-notes.md, Focal starts and multi-start
+    costs)."""
     # A fisheye model's initial focal is already a lens-model prior, not an eq. 2 estimate: the
     # eq. 2 step and the generic priors move only the perspective cameras (a rig mixing lenses).
     free = [c not in fixed for c in range(len(intrinsics))]
@@ -215,10 +224,9 @@ def _on_all_tracks(tracks: Tracks, trial: IncrementalResult, start: list[CameraI
                    ) -> IncrementalResult:
     """The winning subsample trial carried to all tracks: its cameras finished on every track.
 
-    Not a fresh incremental run from the trial's start: on 7000 tracks that run takes another,
-    chaotic path through registration and ended in a wrong reconstruction although its start won
-    on the subsample (10-cam s102, sampling seed 1: three starts fit the subsample at 0.18 px,
-    the re-run from the best fit all tracks at 10.5 px, AUC@3 0; finished from the trial: 0.17 px).
+    Not a fresh incremental run from the trial's start: on all tracks that run takes another,
+    chaotic path through registration and can end in a wrong reconstruction although its start
+    won on the subsample (docs/design-notes.md, Focal starts and multi-start costs).
     Only when the trial left a camera unregistered is a full run made as well (it may register
     the camera from the extra tracks), and the better of the two kept."""
     finished = finish_on(tracks, trial, camera_names, config, seed)
