@@ -287,35 +287,39 @@ def _normal_equations(problem: _Problem, noise_px: float):
     return U, Wm, V, g_cam, g_pt, flat, res
 
 
-def _camera_pairs(problem: _Problem) -> list:
-    """(a, b, the camera-side columns of a's and b's observations) for every pair of cameras that
-    see a common point (a == b included): the Schur complement's sparsity, fixed for a problem."""
+def _camera_pairs(problem: _Problem) -> tuple[list, dict]:
+    """The Schur complement's sparsity, fixed for a problem: ([(a, b, obs_a, obs_b)] for every
+    pair of cameras that see a common point, a == b included, with the two cameras' observations
+    of their common points in point order; {camera: one of its observations}, whose columns are
+    the camera's)."""
     cams = np.unique(problem.c_idx)
-    seen = np.zeros((len(problem.R), len(problem.X)), bool)
-    seen[problem.c_idx, problem.p_idx] = True
+    obs_of = np.full((len(problem.R), len(problem.X)), -1)
+    obs_of[problem.c_idx, problem.p_idx] = np.arange(len(problem.c_idx))
     first = {c: int(np.flatnonzero(problem.c_idx == c)[0]) for c in cams}
-    shared = seen.astype(np.float64) @ seen.T.astype(np.float64)
-    return [(a, b) for a in cams for b in cams if shared[a, b] > 0], first
+    pairs = []
+    for a in cams:
+        for b in cams:
+            shared = (obs_of[a] >= 0) & (obs_of[b] >= 0)
+            if shared.any():
+                pairs.append((a, b, obs_of[a, shared], obs_of[b, shared]))
+    return pairs, first
 
 
 def _reduced_system(problem: _Problem, U, Wm, V_inv, flat, pairs):
-    """S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and Y = Wm V^-1 (N, 14, 3). Per camera
-    the observations' blocks are laid out densely over the points, so each pair of cameras is one
-    matrix product."""
+    """S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and Y = Wm V^-1 (N, 14, 3). Each pair
+    of cameras is one matrix product over the observations of their common points only (a pair
+    shares a fraction of either camera's points)."""
     M = problem.num_cam_params
     Y = Wm @ V_inv[problem.p_idx]
     width = _NP + _NI
-    C, P = len(problem.R), len(problem.X)
-    Yd = np.zeros((C, P, 3, width))
-    Wd = np.zeros((C, P, 3, width))
-    Yd[problem.c_idx, problem.p_idx] = Y.transpose(0, 2, 1)
-    Wd[problem.c_idx, problem.p_idx] = Wm.transpose(0, 2, 1)
-    Yd, Wd = Yd.reshape(C, 3 * P, width), Wd.reshape(C, 3 * P, width)
+    Yt = np.ascontiguousarray(Y.transpose(0, 2, 1))  # (N, 3, 14): a point's 3 rows per obs
+    Wt = np.ascontiguousarray(Wm.transpose(0, 2, 1))
     S = np.zeros((M + 1, M + 1))
     camera_pairs, first = pairs
-    for a, b in camera_pairs:
+    for a, b, obs_a, obs_b in camera_pairs:
         # Every observation of a camera has that camera's columns (M: held, dropped below).
-        S[np.ix_(flat[first[a]], flat[first[b]])] -= Yd[a].T @ Wd[b]
+        S[np.ix_(flat[first[a]], flat[first[b]])] -= \
+            Yt[obs_a].reshape(-1, width).T @ Wt[obs_b].reshape(-1, width)
     return U + S[:M, :M], Y
 
 
