@@ -163,13 +163,20 @@ def build_reconstruction(state: SfMState, camera_names: Sequence[str]
         rec.add_image_with_trivial_frame(image, rigid_from_matrix(state.cam_from_world[c]))
     # Point2D index of track t in camera c = its rank among c's observed tracks.
     point2d_idx = np.cumsum(state.tracks.observed(), axis=0) - 1
+    # Every point's elements found at once (row-major: a point's cameras in order); the loop
+    # only builds the pycolmap objects, the one part that has to be a Python call per point.
+    rows = np.flatnonzero(points)
+    t_obs, c_obs = np.nonzero(obs[rows])
+    image_ids = (c_obs + 1).tolist()
+    point2d = point2d_idx[rows[t_obs], c_obs].tolist()
+    ends = np.cumsum(np.count_nonzero(obs[rows], axis=1)).tolist()
+    element = pycolmap.TrackElement
     track_of_point: dict[int, int] = {}
-    for t in np.flatnonzero(points):
-        cams = np.flatnonzero(obs[t])
-        track = pycolmap.Track()
-        track.add_elements([pycolmap.TrackElement(int(c) + 1, int(point2d_idx[t, c]))
-                            for c in cams])
-        track_of_point[rec.add_point3D(state.points_xyz[t], track)] = int(t)
+    start = 0
+    for t, end in zip(rows.tolist(), ends):
+        track = pycolmap.Track([element(image_ids[k], point2d[k]) for k in range(start, end)])
+        track_of_point[rec.add_point3D(state.points_xyz[t], track)] = t
+        start = end
     return rec, track_of_point
 
 
