@@ -75,6 +75,10 @@ def test_calibration_round_trip(tmp_path):
     assert data["quality"] == {"reprojection_rms_px": 0.5, "hand_written": [1, 2]}
     assert back.quality.reprojection_rms_px == 0.5 and back.quality.warnings == []
     assert calibration_to_dict(back)["quality"] == data["quality"]
+    with pytest.raises(AttributeError):  # a misspelt field is an error, not a value never saved
+        back.quality.reprojection_rms = 0.4
+    back.quality.extra["reprojection_rms_px"] = 9.0  # a field's own value wins over extra's
+    assert back.quality.to_dict()["reprojection_rms_px"] == 0.5
     # The file says how to read it, and the YAML beside it is what that says: cx 0.5 smaller.
     assert "(0.5, 0.5)" in data["conventions"]["params"]
     assert yaml.safe_load((tmp_path / "a.yaml").read_text())["camera_matrix"]["data"][2] == \

@@ -186,11 +186,12 @@ class RigCamera:
     quality: Optional[CameraQuality] = None
 
 
-@dataclass
+@dataclass(slots=True)
 class RigQuality:
     """What a calibration was made from, how well it fits and what was found on the way; saved as
     calibration.json's "quality" (to_dict/from_dict: a field left None is left out; keys this
-    version does not know, from a newer or hand-edited file, are kept in `extra`)."""
+    version does not know, from a newer or hand-edited file, are kept in `extra`). Slots: a
+    misspelt field is an error, not a value that is silently never saved."""
 
     # the fit (calibration_result.rig_from_state)
     reprojection_rms_px: Optional[float] = None
@@ -266,8 +267,9 @@ class RigQuality:
         out = {name: getattr(self, name) for name in _RIG_QUALITY_FIELDS
                if getattr(self, name) is not None}
         if not self.warnings:
-            out.pop("warnings")
-        return {**out, **self.extra}
+            out.pop("warnings", None)
+        out.update((k, v) for k, v in self.extra.items() if k not in _RIG_QUALITY_FIELDS)
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> "RigQuality":

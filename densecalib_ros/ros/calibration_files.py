@@ -105,14 +105,12 @@ def _newest_readable_calibration(output_dir: Path, camera_names: list[str]
     return None
 
 
-def record_floor(folder: Path, rig: RigCalibration, view: str) -> str:
-    """Find the floor of the calibration `rig` stored in `folder`, made without it, in its saved
-    scene points (as `densecalib floor` does) and record it in `rig` and its calibration.json, so
-    that it is published now and after a restart; what was done. InputError: no floor found, the
-    calibration stays as it is."""
-    from ..core.products.floor import find_floor_of_saved_calibration, set_floor
+def save_found_floor(folder: Path, rig: RigCalibration, floor) -> str:
+    """Record `floor` (core.products.floor.Floor, found in the saved scene points of the
+    calibration `rig` stored in `folder`) in `rig` and its calibration.json, so that it is
+    published now and after a restart; what was done."""
+    from ..core.products.floor import set_floor
 
-    floor = find_floor_of_saved_calibration(folder, rig, view)
     set_floor(rig, floor)
     write_calibration_json(rig, folder)
     return (f"floor: found in {folder.name} ({floor.num_points} points) and recorded in its "

@@ -89,6 +89,8 @@ class JobSlot:
             try:
                 run(job)
             finally:
+                if job.outcome is None:  # run raised: its caller still gets an answer
+                    job.outcome = Outcome(False, "the calibration job crashed (see the log)")
                 self.release()
                 job.done.set()
         self._worker = threading.Thread(target=work, name="densecalib-worker", daemon=True)

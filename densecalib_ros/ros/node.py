@@ -7,10 +7,10 @@ intake (ros.intake, ros.sync), the job slot and its shutdown hand-over (ros.job_
 calibration as a core.job request (ros.calibrating), the check (ros.checking), the files
 (ros.calibration_files), what is published (ros.publishing, ros.diagnostics).
 
-Threads: image callbacks (the intake's executor) only append messages to the synchroniser; a
-calibration runs in the job slot's worker thread, its ~/calibrate caller (reentrant group,
-multi-threaded executor) waiting meanwhile; a check (~/check, or the watch's timer in a group of
-its own) runs in its caller's thread; a calibration, a check and a reload hold the slot in turn.
+Threads: image callbacks (the intake's executor) only append to the synchroniser; a calibration
+runs in the job slot's worker thread while its ~/calibrate caller waits (multi-threaded executor);
+a check (~/check, or the watch's own timer) runs in its caller's thread; a calibration, a check
+and a reload hold the slot in turn.
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from ..core.io.calibration_store import prune_calibrations
 from ..core.io.sync import evenly_spaced
 from ..core.types import RigCalibration
 from .calibrating import calibrated_message, calibration_request
-from .calibration_files import (check_output_dir, latest_calibration, record_floor,
+from .calibration_files import (check_output_dir, latest_calibration, save_found_floor,
                                 write_calibration)
 from .checking import CheckOutcome, check_frame_sets
 from .core_logs import forward_core_logs, stop_forwarding
@@ -123,9 +123,9 @@ class DenseCalibNode(Node):
         (self.get_logger().info if loaded or "no calibration" in message else
          self.get_logger().error)(f"start-up: {message}")
         if s.replay_bag:
-            self._replayer = BagReplayer(s.replay_bag, s.image_topics, self._on_replayed_message,
-                                         rate=s.replay_rate, on_done=self._on_replay_done,
-                                         logger=self.get_logger())
+            self._replayer = BagReplayer(
+                s.replay_bag, s.image_topics, lambda i, t_ns, msg: self.sync.add(i, msg, t_ns),
+                rate=s.replay_rate, on_done=self._on_replay_done, logger=self.get_logger())
             self._replayer.start()
         self.get_logger().info(
             f"ready: {len(s.image_topics)} cameras ({', '.join(s.camera_names)}), preset "
@@ -158,12 +158,17 @@ class DenseCalibNode(Node):
         return SetParametersResult(successful=True)
 
     def _find_floor_of_current_calibration(self, view: str) -> None:
-        """`floor` turned on for a calibration made without it: recorded when found
-        (ros.calibration_files.record_floor); the status says what became of it."""
+        """`floor` turned on for a calibration made without it: found in its saved scene points
+        (as `densecalib floor` does) and recorded (ros.calibration_files.save_found_floor); not
+        found, the calibration stays as it is and the status says why."""
+        from ..core.products.floor import find_floor_of_saved_calibration
+
         try:
-            self._set_status(record_floor(self.calibration_dir, self.calibration, view))
+            floor = find_floor_of_saved_calibration(self.calibration_dir, self.calibration, view)
         except InputError as exc:
             self._set_status(f"floor: not found in {self.calibration_dir.name}: {exc}", "warning")
+            return
+        self._set_status(save_found_floor(self.calibration_dir, self.calibration, floor))
 
     # ----------------------------------------------------------------- intake
     def _subscribe_discovered_topics(self) -> None:
@@ -171,9 +176,6 @@ class DenseCalibNode(Node):
         self.camera_subscriptions.subscribe_discovered()
         if self.camera_subscriptions.complete:
             self._discovery_timer.cancel()
-
-    def _on_replayed_message(self, stream: int, stamp_ns: int, msg) -> None:
-        self.sync.add(stream, msg, stamp_ns)
 
     def _on_replay_done(self, num_messages: int, error: Optional[str]) -> None:
         if error:
@@ -293,16 +295,18 @@ class DenseCalibNode(Node):
             response.success, response.message = False, f"sync crashed: {exc!r}"
         else:
             offsets = [estimates[n].offset_s for n in s.camera_names]
-            dropped = len(self.sync)
+            changed, dropped = offsets != list(s.stamp_offsets_s), len(self.sync)
             result = self.set_parameters([Parameter("stamp_offsets_s", value=offsets)])[0]
             response.success = result.successful
             response.message = offsets_line(
                 s.camera_names, offsets, [None] + [estimates[n].correlation
                                                    for n in s.camera_names[1:]]) + (
+                f"; not set: {result.reason}" if not result.successful else
                 f"; stamp_offsets_s set, {dropped} buffered frame sets dropped (paired by the "
-                "old offsets)" if result.successful else f"; not set: {result.reason}")
-        # a success's new offsets were logged as the parameter changed: ~/status only
-        self._set_status(f"sync: {response.message}", None if response.success else "error")
+                "old offsets)" if changed else "; the offsets already set")
+        # new offsets were logged as the parameter changed: then ~/status only
+        self._set_status(f"sync: {response.message}",
+                         "error" if not response.success else None if changed else "info")
         return response
 
     def _on_clear(self, request, response):
@@ -475,9 +479,7 @@ class DenseCalibNode(Node):
         self._diag_pub.publish(msg)
 
     def stop(self) -> None:
-        """Shutdown begins: a caller waiting for a calibration is answered that it was abandoned,
-        and the calibration writes and publishes nothing (one writing its files already ends
-        that, and its caller is told so)."""
+        """Shutdown begins: the job slot's hand-over (ros.job_slot: answer, write nothing)."""
         self.jobs.stop()
 
     def destroy_node(self):
@@ -488,3 +490,9 @@ class DenseCalibNode(Node):
         if self._intake is not None:
             self._intake.destroy()
         return super().destroy_node()
+
+
+def main(args=None) -> int:
+    """ros.main.main, for `densecalib_node` scripts installed before it moved there."""
+    from .main import main as run_node
+    return run_node(args)
