@@ -60,7 +60,7 @@ def _columns(desc_c: np.ndarray, site_c: np.ndarray, n_c: int
 
 
 def _site_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_cols: np.ndarray,
-                 norm_c: np.ndarray, rows_norm_first: bool):
+                 norm_c: np.ndarray):
     """Yield (s0, s1, d2): the squared distances (s1 - s0, columns) of row sites s0..s1 to every
     column keypoint, BLOCK_SITES row sites at a time, a site's further keypoints folded into its
     row (contiguous row operations; the block is the memory peak, so it is worked in place)."""
@@ -72,9 +72,8 @@ def _site_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_cols: np
         norm_r = np.einsum("ij,ij->i", desc_rows, desc_rows)
         d2 = desc_rows @ desc_cols.T
         d2 *= -2.0
-        for norms in ((norm_r[:, None], norm_c[None, :]) if rows_norm_first
-                      else (norm_c[None, :], norm_r[:, None])):
-            d2 += norms
+        d2 += norm_r[:, None]
+        d2 += norm_c[None, :]
         extra_rows_site = extra_site_r[lo:hi] - s0
         rank = _rank_within_site(extra_rows_site)
         for r in range(int(rank.max(initial=-1)) + 1):  # one keypoint per site at a time
@@ -96,35 +95,22 @@ def _nearest_column_sites(d2: np.ndarray, col_site: np.ndarray, site_cols: np.nd
     return best, np.sqrt(np.maximum(nearest_d2, 0.0) / np.maximum(d2.min(axis=1), 1e-12))
 
 
-def nearest_sites(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, desc_c: np.ndarray,
-                  site_c: np.ndarray, n_c: int, rows_norm_first: bool
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """For each row site: the nearest column site (int64 (n_r,)) and the ratio of the distances
-    to the nearest and second-nearest column site (float32 (n_r,)); a site's distance to another
-    is the smallest over their keypoints (module docstring). desc_*: float32 (K, 128) keypoint
-    descriptors; site_*: int64 (K,) each keypoint's site. rows_norm_first: the order the squared
-    norms are added in, so that the call with rows and columns swapped adds them in the same
-    order and the two directions see bitwise equal distances.
-
-    Computed in blocks of BLOCK_SITES row sites (_site_blocks). The columns are not reduced:
-    the nearest column keypoint gives the nearest site, and that site's columns are set to
-    infinity before the second-nearest is taken."""
-    desc_cols, col_site, site_cols, norm_c = _columns(desc_c, site_c, n_c)
-    best = np.empty(n_r, np.int64)
-    ratio = np.empty(n_r, np.float32)
-    for s0, s1, d2 in _site_blocks(desc_r, site_r, n_r, desc_cols, norm_c, rows_norm_first):
-        best[s0:s1], ratio[s0:s1] = _nearest_column_sites(d2, col_site, site_cols)
-    return best, ratio
-
-
 def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
                             desc_b: np.ndarray, site_b: np.ndarray, n_b: int
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """nearest_sites from a to b and from b to a, (best_ab, ratio_ab, best_ba, ratio_ba), from one
-    distance matrix: each block of a's sites also updates, per keypoint of b, its nearest a site
-    and its distance to the second-nearest (numpy reduces along columns fast where no index is
-    needed), and b's keypoints are folded into their sites at the end. Half the arithmetic of
-    two nearest_sites calls, and both directions see the same distances."""
+    """(best_ab, ratio_ab, best_ba, ratio_ba): for each site of a the nearest site of b (int64
+    (n_a,)) and the ratio of the distances to the nearest and second-nearest site of b (float32
+    (n_a,)), and the same from b to a; a site's distance to another is the smallest over their
+    keypoints (module docstring). desc_*: float32 (K, 128) keypoint descriptors; site_*: int64
+    (K,) each keypoint's site.
+
+    One distance matrix, in blocks of BLOCK_SITES sites of a (_site_blocks), serves both
+    directions: a -> b reduces the block's rows (the nearest column keypoint gives the nearest
+    site, whose columns are set to infinity before the second-nearest is taken); b -> a keeps,
+    per keypoint of b, its nearest a site and its distance to the second-nearest (numpy reduces
+    along columns fast where no index is needed), and b's keypoints are folded into their sites
+    at the end. Half the arithmetic of one matrix per direction, and both directions see the
+    same distances."""
     desc_cols, col_site, site_cols, norm_c = _columns(desc_b, site_b, n_b)
     best_ab = np.empty(n_a, np.int64)
     ratio_ab = np.empty(n_a, np.float32)
@@ -132,7 +118,7 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     col_d1 = np.full(len(desc_cols), np.inf, np.float32)
     col_d2 = np.full(len(desc_cols), np.inf, np.float32)
     col_best = np.zeros(len(desc_cols), np.int64)
-    for s0, s1, d2 in _site_blocks(desc_a, site_a, n_a, desc_cols, norm_c, True):
+    for s0, s1, d2 in _site_blocks(desc_a, site_a, n_a, desc_cols, norm_c):
         # b -> a, merged in per column: where this block holds a nearer a site, that site and
         # the next (taken on those columns only: numpy finds indices along rows fast only);
         # elsewhere its nearest is a candidate for the second
@@ -208,22 +194,15 @@ class SiftMatcher(Matcher):
         if n_a < 2 or n_b < 2:
             empty = np.zeros(0, np.int64)
             return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
-        best_ab, ratio_ab, best_ba, ratio_ba = self._nearest_sites(fa, fb)
+        (_, site_a, desc_a), (_, site_b, desc_b) = fa, fb
+        best_ab, ratio_ab, best_ba, ratio_ba = nearest_sites_both_ways(desc_a, site_a, n_a,
+                                                                       desc_b, site_b, n_b)
         src = np.arange(n_a)
         keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
                 & (ratio_ba[best_ab] < self.ratio_threshold))
         src, dst = src[keep], best_ab[keep]
         certainty = 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
         return mutual_pair_maps(src, dst, certainty, n_a, n_b)
-
-    def _nearest_sites(self, fa, fb) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(best_ab, ratio_ab, best_ba, ratio_ba): nearest_sites in both directions."""
-        (sites_a, site_a, desc_a), (sites_b, site_b, desc_b) = fa, fb
-        best_ab, ratio_ab = nearest_sites(desc_a, site_a, len(sites_a), desc_b, site_b,
-                                          len(sites_b), True)
-        best_ba, ratio_ba = nearest_sites(desc_b, site_b, len(sites_b), desc_a, site_a,
-                                          len(sites_a), False)
-        return best_ab, ratio_ab, best_ba, ratio_ba
 
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
         # OpenCV's SIFT leaves most of its work on one core and releases the GIL: one image per
@@ -251,10 +230,3 @@ class AsiftMatcher(SiftMatcher):
 
     def _detector(self):
         return cv2.AffineFeature_create(super()._detector())
-
-    def _nearest_sites(self, fa, fb) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        # About 35k keypoints per image, where the distance matrix is most of the time: one
-        # matrix for both directions.
-        (sites_a, site_a, desc_a), (sites_b, site_b, desc_b) = fa, fb
-        return nearest_sites_both_ways(desc_a, site_a, len(sites_a), desc_b, site_b,
-                                       len(sites_b))
