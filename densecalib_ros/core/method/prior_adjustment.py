@@ -164,6 +164,9 @@ class _Problem:
         # Per observation: the columns of its 6 pose + 8 intrinsic parameters (-1: held).
         self.cols = np.concatenate([self.pose_cols[c_idx], self.intr_cols[self.block_of[c_idx]]],
                                    axis=1)
+        # Per camera its observations: they share the camera's columns (a camera's part of the
+        # normal equations is one product).
+        self.camera_rows = [np.flatnonzero(c_idx == c) for c in np.unique(c_idx)]
 
     def residuals_and_jacobians(self, with_jacobians: bool = True):
         """r (N, 2) px and, if asked, A (N, 2, 6 + 8) camera-side and B (N, 2, 3) point
@@ -269,11 +272,14 @@ def _normal_equations(problem: _Problem, noise_px: float):
     M, P = problem.num_cam_params, len(problem.X)
     Aw = A * w[:, None, None]
     AwT = Aw.transpose(0, 2, 1)
-    U_obs = AwT @ A
     flat = np.where(cols >= 0, cols, M)
-    idx = (flat[:, :, None] * (M + 1) + flat[:, None, :]).ravel()
-    U = np.bincount(idx, U_obs.ravel(), (M + 1) ** 2).reshape(M + 1, M + 1)[:M, :M]
-    g_cam = np.bincount(flat.ravel(), (AwT @ res[:, :, None]).ravel(), M + 1)[:M]
+    U, g_cam = np.zeros((M + 1, M + 1)), np.zeros(M + 1)
+    width = A.shape[2]
+    for rows in problem.camera_rows:  # held columns go to M, dropped below
+        own, Ac, Awc = flat[rows[0]], A[rows].reshape(-1, width), Aw[rows].reshape(-1, width)
+        U[np.ix_(own, own)] += Awc.T @ Ac
+        g_cam[own] += Awc.T @ res[rows].reshape(-1)
+    U, g_cam = U[:M, :M], g_cam[:M]
     BwT = (B * w[:, None, None]).transpose(0, 2, 1)
     V_obs = BwT @ B
     V = np.stack([np.bincount(problem.p_idx, V_obs[:, i, j], P)
