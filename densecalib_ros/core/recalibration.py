@@ -51,8 +51,7 @@ def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:
     lost = [n for n in previous.cameras if n not in new.cameras]
     if lost:
         return f"camera(s) {', '.join(lost)} calibrated before but not now"
-    rms_new, rms_old = (np.nan if r.quality.reprojection_rms_px is None
-                        else float(r.quality.reprojection_rms_px) for r in (new, previous))
+    rms_new, rms_old = new.quality.fit_rms_px(), previous.quality.fit_rms_px()
     if np.isfinite(rms_old) and not (rms_new <= max(MAX_RMS_RATIO * rms_old,
                                                     rms_old + MAX_RMS_INCREASE_PX)):
         return f"reprojection RMS {rms_new:.2f} px against {rms_old:.2f} px before"

@@ -253,11 +253,13 @@ class RigQuality:
     extra: dict = field(default_factory=dict)
 
     def update(self, **values) -> None:
-        """Set the named fields (TypeError on a name that is none)."""
+        """Set the named fields (AttributeError on a name that is none: slots)."""
         for name, value in values.items():
-            if name not in _RIG_QUALITY_FIELDS:
-                raise TypeError(f"RigQuality has no field {name!r}")
             setattr(self, name, value)
+
+    def fit_rms_px(self) -> float:
+        """The reprojection RMS [px], NaN where none was recorded (a hand-written file)."""
+        return float("nan") if self.reprojection_rms_px is None else self.reprojection_rms_px
 
     def copy(self) -> "RigQuality":
         """A copy whose warnings can change without changing these."""

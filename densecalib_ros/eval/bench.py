@@ -52,7 +52,6 @@ RECAL_MOVE_FRACTION = 0.05
 GIVEN_INTRINSICS_METHOD = "densecalib-given-intrinsics"
 METHODS = (*PEER_METHODS, *OUR_METHODS, RECAL_METHOD)
 ALL_METHODS = (*METHODS, GIVEN_INTRINSICS_METHOD)
-WIDE_GAP_DEG = 35.0  # the wide-baseline rigs' azimuth between neighbouring cameras
 
 
 @dataclass

@@ -47,8 +47,7 @@ def calibrated_message(s: Settings, rig: RigCalibration, num_sets: int, elapsed:
                        set_camera_info: Optional[str]) -> str:
     """The ~/calibrate reply for a calibration written to `out`: what was calibrated, from
     what, how well, its warnings and what became of the stored and the drivers' calibrations."""
-    rms = rig.quality.reprojection_rms_px
-    rms = float("nan") if rms is None else rms
+    rms = rig.quality.fit_rms_px()
     failed = f", failed: {', '.join(rig.failed_cameras)}" if rig.failed_cameras else ""
     scale = (f", metric scale from {'-'.join(s.baseline_cameras)} = {s.known_baseline_m} m"
              if rig.metric_scale else "")

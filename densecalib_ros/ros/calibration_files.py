@@ -53,12 +53,12 @@ class StoredCalibration:
         """What the node says when it publishes this calibration (floor_on: the floor parameter
         is on, so its floor, where it has one, is published too)."""
         rig = self.rig
-        rms = rig.quality.reprojection_rms_px
         extras = [x for x, on in (("metric", rig.metric_scale),
                                   ("with its floor", bool(rig.quality.floor) and floor_on))
                   if on]
         return (f"published {self.folder}: {len(rig.cameras)} cameras ({', '.join(rig.cameras)}), "
-                f"reprojection RMS {float('nan') if rms is None else rms:.2f} px" + (f", {' and '.join(extras)}" if extras else ""))
+                f"reprojection RMS {rig.quality.fit_rms_px():.2f} px"
+                + (f", {' and '.join(extras)}" if extras else ""))
 
 
 def latest_calibration(output_dir: Path, camera_names: list[str],

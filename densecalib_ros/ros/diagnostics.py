@@ -83,9 +83,8 @@ def _add_calibration(values: dict, status: DiagnosticStatus, calibration: RigCal
                      calibration_dir: Optional[Path], calibrated_at: Optional[float]) -> None:
     """The published calibration's fit, sigmas, failed cameras and warnings, into values (and
     the status: warnings make it WARN)."""
-    rms = calibration.quality.reprojection_rms_px
     values.update(
-        reprojection_rms_px=f"{float('nan') if rms is None else rms:.3f}",
+        reprojection_rms_px=f"{calibration.quality.fit_rms_px():.3f}",
         cameras=", ".join(calibration.cameras),
         age_s=f"{time.time() - calibrated_at:.1f}",
         files=str(calibration_dir))

@@ -164,9 +164,9 @@ class _Problem:
         # Per observation: the columns of its 6 pose + 8 intrinsic parameters (-1: held).
         self.cols = np.concatenate([self.pose_cols[c_idx], self.intr_cols[self.block_of[c_idx]]],
                                    axis=1)
-        # Per camera its observations: they share the camera's columns (a camera's part of the
+        # {camera: its observations}: they share the camera's columns (a camera's part of the
         # normal equations is one product).
-        self.camera_rows = [np.flatnonzero(c_idx == c) for c in np.unique(c_idx)]
+        self.camera_rows = {int(c): np.flatnonzero(c_idx == c) for c in np.unique(c_idx)}
 
     def residuals_and_jacobians(self, with_jacobians: bool = True):
         """r (N, 2) px and, if asked, A (N, 2, 6 + 8) camera-side and B (N, 2, 3) point
@@ -275,7 +275,7 @@ def _normal_equations(problem: _Problem, noise_px: float):
     flat = np.where(cols >= 0, cols, M)
     U, g_cam = np.zeros((M + 1, M + 1)), np.zeros(M + 1)
     width = A.shape[2]
-    for rows in problem.camera_rows:  # held columns go to M, dropped below
+    for rows in problem.camera_rows.values():  # held columns go to M, dropped below
         own, Ac, Awc = flat[rows[0]], A[rows].reshape(-1, width), Aw[rows].reshape(-1, width)
         U[np.ix_(own, own)] += Awc.T @ Ac
         g_cam[own] += Awc.T @ res[rows].reshape(-1)
@@ -293,22 +293,19 @@ def _normal_equations(problem: _Problem, noise_px: float):
     return U, Wm, V, g_cam, g_pt, flat, res
 
 
-def _camera_pairs(problem: _Problem) -> tuple[list, dict]:
-    """The Schur complement's sparsity, fixed for a problem: ([(a, b, obs_a, obs_b)] for every
+def _camera_pairs(problem: _Problem) -> list:
+    """The Schur complement's sparsity, fixed for a problem: [(a, b, obs_a, obs_b)] for every
     pair of cameras that see a common point, a == b included, with the two cameras' observations
-    of their common points in point order; {camera: one of its observations}, whose columns are
-    the camera's)."""
-    cams = np.unique(problem.c_idx)
+    of their common points in point order."""
     obs_of = np.full((len(problem.R), len(problem.X)), -1)
     obs_of[problem.c_idx, problem.p_idx] = np.arange(len(problem.c_idx))
-    first = {c: int(np.flatnonzero(problem.c_idx == c)[0]) for c in cams}
     pairs = []
-    for a in cams:
-        for b in cams:
+    for a in problem.camera_rows:
+        for b in problem.camera_rows:
             shared = (obs_of[a] >= 0) & (obs_of[b] >= 0)
             if shared.any():
                 pairs.append((a, b, obs_of[a, shared], obs_of[b, shared]))
-    return pairs, first
+    return pairs
 
 
 def _reduced_system(problem: _Problem, U, Wm, V_inv, flat, pairs):
@@ -321,10 +318,10 @@ def _reduced_system(problem: _Problem, U, Wm, V_inv, flat, pairs):
     Yt = np.ascontiguousarray(Y.transpose(0, 2, 1))  # (N, 3, 14): a point's 3 rows per obs
     Wt = np.ascontiguousarray(Wm.transpose(0, 2, 1))
     S = np.zeros((M + 1, M + 1))
-    camera_pairs, first = pairs
-    for a, b, obs_a, obs_b in camera_pairs:
+    rows = problem.camera_rows
+    for a, b, obs_a, obs_b in pairs:
         # Every observation of a camera has that camera's columns (M: held, dropped below).
-        S[np.ix_(flat[first[a]], flat[first[b]])] -= \
+        S[np.ix_(flat[rows[a][0]], flat[rows[b][0]])] -= \
             Yt[obs_a].reshape(-1, width).T @ Wt[obs_b].reshape(-1, width)
     return U + S[:M, :M], Y
 

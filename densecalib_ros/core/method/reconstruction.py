@@ -169,7 +169,7 @@ def build_reconstruction(state: SfMState, camera_names: Sequence[str]
     t_obs, c_obs = np.nonzero(obs[rows])
     image_ids = (c_obs + 1).tolist()
     point2d = point2d_idx[rows[t_obs], c_obs].tolist()
-    ends = np.cumsum(np.count_nonzero(obs[rows], axis=1)).tolist()
+    ends = np.cumsum(np.bincount(t_obs, minlength=len(rows))).tolist()
     element = pycolmap.TrackElement
     track_of_point: dict[int, int] = {}
     start = 0
