@@ -237,8 +237,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     add_uncertainty(result.rig, result.reconstruction, camera_names, config, sigmas)
     if config.cameras.known_intrinsics:
         result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
-        for warning in given_intrinsics_warnings(result.rig.quality.given_intrinsics_fit
-                                                       or {}):
+        for warning in given_intrinsics_warnings(result.rig.quality.given_intrinsics_fit or {}):
             warn_user(result.rig, warning, progress)
     warning = weak_focal_warning(result.rig)
     if warning:
