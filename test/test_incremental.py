@@ -112,6 +112,52 @@ def test_multistart_on_a_subsample_is_finished_on_every_track(monkeypatch):
     rig = rig_from_state(result.state, names, result.failed)
     metrics = evaluate_calibration(rig, gt_calibration(names, cams, poses))
     assert metrics["auc3"] > 85.0 and metrics["median_focal_err"] < 0.01
+    # An easy rig: the starts that fit about as well all end in this rig (settled), and a run
+    # restricted to its two best starts tries only those.
+    assert len(result.settled_starts) == multistart.SETTLED_STARTS
+    messages = []
+    again = run_incremental(tracks, init, names, cfg, seed=1, progress=messages.append,
+                            only_starts=result.settled_starts)
+    said = next(m for m in messages if m.startswith("focal multi-start:"))
+    tried = said[said.index("(") + 1:].split(": ")[1:]
+    assert len(tried) == 2 and again.settled_starts is None and again.failed == []
+
+
+def test_the_multistart_settled_only_where_every_start_that_fits_as_well_ends_in_one_rig():
+    """settled_starts: two or more trials register as many cameras as the best and fit within
+    WORSE_FIT_RATIO of it, and all agree with it within AGREEMENT_DEG (mean over pairs)."""
+    from densecalib_ros.core.method.multistart import (AGREEMENT_DEG, WORSE_FIT_RATIO,
+                                                       settled_starts, states_disagreement_deg)
+
+    cams, poses = gt_rig(4, seed=3)
+    tracks = gt_tracks(cams, poses, seed=3)
+
+    def state(turn_deg=0.0, registered=4):
+        st = SfMState.create(tracks, cams)
+        for c in range(registered):
+            st.cam_from_world[c] = poses[c].copy()
+        c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
+        turn = np.eye(4)  # about camera 1's own centre
+        turn[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+        st.cam_from_world[1] = turn @ st.cam_from_world[1]
+        return st
+
+    # Turning one camera of four by 3 deg changes 3 of 6 pairs by 3 deg: 1.5 deg on the mean.
+    assert states_disagreement_deg(state(), state(3.0)) == pytest.approx(1.5)
+    assert states_disagreement_deg(state(), state(registered=3)) == pytest.approx(90.0)
+    same = {"x1.00": state(), "x1.30": state(0.1), "prior 1.2": state(0.2)}
+    costs = {"x1.00": (-4, 0.80), "x1.30": (-4, 0.79), "prior 1.2": (-4, 0.81)}
+    assert settled_starts(costs, same) == ["x1.30", "x1.00"]
+    # A start that fits about as well but ends elsewhere: the focal lengths are in doubt.
+    other = {**same, "prior 2.4": state(4.0)}
+    assert AGREEMENT_DEG < 2.0
+    assert settled_starts({**costs, "prior 2.4": (-4, 0.9)}, other) is None
+    # ... unless it fits clearly worse, or registered fewer cameras: a wrong rig, not a doubt.
+    assert settled_starts({**costs, "prior 2.4": (-4, 0.79 * WORSE_FIT_RATIO + 0.01)},
+                          other) == ["x1.30", "x1.00"]
+    assert settled_starts({**costs, "prior 2.4": (-3, 0.5)}, other) == ["x1.30", "x1.00"]
+    # A lone winner (no second start reached it) is not settled.
+    assert settled_starts({"x1.00": (-4, 0.8), "prior 2.4": (-4, 2.0)}, other) is None
 
 
 def test_focal_starts_are_eq2_scales_and_generic_priors_for_perspective_models():

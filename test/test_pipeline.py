@@ -236,13 +236,19 @@ def test_bad_names_and_images_are_refused_before_any_work(rig, tmp_path):
         read_calibration(tmp_path / "calib")
 
 
-def test_pipeline_stops_after_three_agreeing_runs_and_single_run_has_no_consensus(rig):
+def test_pipeline_stops_after_two_agreeing_runs_of_a_settled_multistart_and_single_run_has_no_consensus(rig):
+    """An easy rig: every focal start ends in one rig (settled), so the second run tries only the
+    first run's two best starts, and the two runs agree: no third."""
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     assert config.consensus_runs == 5
-    result = run_calibration([rig.images[0]], rig.names, config)
+    lines = []
+    result = run_calibration([rig.images[0]], rig.names, config, progress=lines.append)
     q = result.rig.quality
-    assert q.consensus_runs == 3 and q.consensus_failed_runs == 0
-    assert q.consensus_seed in (0, 1, 2) and 0.0 <= q.consensus_disagreement_deg < 1.0
+    assert q.consensus_runs == 2 and q.consensus_failed_runs == 0
+    assert q.consensus_seed in (0, 1) and 0.0 <= q.consensus_disagreement_deg < 1.0
+    assert len(q.consensus_settled_starts) == 2
+    second = next(m for m in lines if m.startswith("consensus run 2 of up to 5"))
+    assert " and ".join(q.consensus_settled_starts) + " only" in second
     single = run_calibration([rig.images[0]], rig.names,
                              make_config("regular", matcher="sift", sfm__num_threads=1,
                                          consensus_runs=1))

@@ -43,6 +43,9 @@ class CalibrationResult:
     # The final SfM state (on the keypoint-match tracks when the rig was refined on them): what
     # a later search (core.robust.focal_hops) continues from.
     state: Optional[SfMState] = None
+    # The focal multi-start's starts that a later run on another sample needs, where its starts
+    # all ended in one rig (core.method.multistart.settled_starts); None where they did not.
+    settled_starts: Optional[list] = None
 
 
 def rig_from_state(state: SfMState, camera_names: Sequence[str], failed: Sequence[int],

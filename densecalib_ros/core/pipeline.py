@@ -43,6 +43,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                           previous: Optional[RigCalibration] = None,
                           match_tracks: Optional[Tracks] = None,
                           known_focals: bool = False,
+                          only_starts: Optional[Sequence[str]] = None,
                           progress: Progress = None) -> CalibrationResult:
     """Calibrate from sampled tracks.
 
@@ -53,7 +54,9 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     keypoint match as tracks (all_matches.keypoint_tracks), on which the incremental focal
     multi-start and the global pipeline's choice of start are judged (a seeded sample) and the
     found rig is refined last, after cameras the matches contradict are moved (placement.py)
-    (None: none of these); known_focals: focal_px are known ones (the user's, EXIF), not eq. 2's.
+    (None: none of these); known_focals: focal_px are known ones (the user's, EXIF), not eq. 2's;
+    only_starts: the incremental focal multi-start's starts to run (an earlier run's settled
+    ones, run_incremental), None for all.
 
     Known focals add a start to the SfM's focal multi-start; they do not take the eq. 2 start's
     place. The path SfM takes depends on the start, not only on how close it is: from the true
@@ -78,6 +81,7 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     validation = None
     if match_tracks is not None and match_tracks.num_tracks:
         validation = match_tracks.sample(MULTISTART_MAX_TRACKS, seed)
+    settled = None  # the global pipeline's choice of start is not a focal multi-start
     if config.pipeline == "global":
         from .method.global_sfm import run_global
         sfm = run_global(filtered, init, camera_names, config.sfm, seed=seed, progress=progress,
@@ -86,7 +90,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
     else:
         sfm = run_incremental(filtered, init, camera_names, config.sfm, seed=seed,
                               progress=progress, validation_tracks=validation,
-                              extra_starts=extra_starts)
+                              extra_starts=extra_starts, only_starts=only_starts)
+        settled = sfm.settled_starts
     state, moved = sfm.state, []
     if match_tracks is not None and match_tracks.num_tracks:
         state, moved = _refined_on_matches(state, match_tracks, camera_names, config, progress)
@@ -106,7 +111,8 @@ def calibrate_from_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]]
                    f"{rig.quality.reprojection_rms_px:.2f} px, {rig.quality.num_points} "
                    f"points ({runtime:.1f} s)")
     return CalibrationResult(rig=rig, reconstruction=reconstruction, tracks=filtered,
-                             focal_init_px=focal_px, state=state)
+                             focal_init_px=focal_px, state=state,
+                             settled_starts=settled)
 
 
 def _check_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]], C: int) -> None:
@@ -282,35 +288,13 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            camera_names: Sequence[str], config: PipelineConfig,
                            match_tracks: Optional[Tracks], progress: Progress
                            ) -> CalibrationResult:
-    from .method.multistart import cost_truncation_px
-    from .robust.consensus import (AGREEMENT_DEG, EARLY_STOP_RUNS, choose_run,
-                                   disagreement_warning, least_determined_pairs, medoid,
+    from .method.multistart import AGREEMENT_DEG, cost_truncation_px
+    from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
     from .robust.focal_hops import hop_focals
 
-    results, seeds, failed, first_error, run_s = [], [], 0, None, None
-    for k in range(config.consensus_runs):
-        if k == EARLY_STOP_RUNS and len(results) == k and \
-                medoid([r.rig for r in results], camera_names)[1].max() < AGREEMENT_DEG:
-            break  # a well-determined rig: more runs would only repeat the answer
-        seed = config.sampling.seed + k
-        run_config = copy.deepcopy(config)
-        run_config.sampling.seed = seed
-        took = f"; about {run_s:.0f} s each" if run_s else ""  # what this run will take
-        say_progress(progress, f"consensus run {k + 1} of up to {config.consensus_runs} "
-                               f"(sampling seed {seed}{took})")
-        started = time.perf_counter()
-        try:
-            results.append(_calibrate_once(match_sets, image_sizes, camera_names, run_config,
-                                           None, match_tracks, progress if k == 0 else None))
-            seeds.append(seed)
-            run_s = time.perf_counter() - started
-        except CalibrationError as exc:
-            log.info("consensus run %d (seed %d) failed: %s", k + 1, seed, exc)
-            failed += 1
-            first_error = first_error or exc
-    if not results:
-        raise first_error
+    results, seeds, failed, settled = _consensus_runs(match_sets, image_sizes, camera_names,
+                                                      config, match_tracks, progress)
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
                         cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed,
                         refined_on=match_tracks)
@@ -337,6 +321,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                                for k, r in enumerate(results) if k != best])
     result.rig.quality.update(
         consensus_runs=len(results), consensus_failed_runs=failed, consensus_seed=seeds[best],
+        consensus_settled_starts=settled,
         consensus_worse_fit_runs=len(choice.worse_fit), consensus_kept_by_fit=choice.by_fit,
         consensus_disagreement_deg=float(np.median(others)) if len(others) else 0.0)
     say_progress(progress, f"consensus: median disagreement of the result with the other "
@@ -357,6 +342,55 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     return result
 
 
+def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
+                    camera_names: Sequence[str], config: PipelineConfig,
+                    match_tracks: Optional[Tracks], progress: Progress
+                    ) -> tuple[list[CalibrationResult], list[int], int, Optional[list[str]]]:
+    """Sampling + SfM with consecutive seeds, up to config.consensus_runs times: (the results,
+    their seeds, how many runs failed, the first run's settled starts or None). The first run's
+    error is raised if every run fails.
+
+    Stops early where further runs could only repeat the answer: after EARLY_STOP_RUNS runs that
+    agree, or SETTLED_EARLY_STOP_RUNS where the first run's focal multi-start settled (every start
+    that fit about as well ended in one rig: multistart.settled_starts); later runs then try only
+    its best starts, as the focal lengths are not what is in doubt, only the sampling's draw."""
+    from .method.multistart import AGREEMENT_DEG
+    from .robust.consensus import EARLY_STOP_RUNS, SETTLED_EARLY_STOP_RUNS, medoid
+
+    results, seeds, failed, first_error, run_s, settled = [], [], 0, None, None, None
+    for k in range(config.consensus_runs):
+        checks = (SETTLED_EARLY_STOP_RUNS, EARLY_STOP_RUNS) if settled else (EARLY_STOP_RUNS,)
+        if k in checks and len(results) == k and \
+                medoid([r.rig for r in results], camera_names)[1].max() < AGREEMENT_DEG:
+            log.info("consensus: the %d runs agree within %.1f deg; no more runs", k,
+                     AGREEMENT_DEG)
+            break  # a well-determined rig: more runs would only repeat the answer
+        seed = config.sampling.seed + k
+        run_config = copy.deepcopy(config)
+        run_config.sampling.seed = seed
+        took = f"; about {run_s:.0f} s each" if run_s else ""  # what this run will take
+        only = f"; focal starts {' and '.join(settled)} only" if settled else ""
+        say_progress(progress, f"consensus run {k + 1} of up to {config.consensus_runs} "
+                               f"(sampling seed {seed}{only}{took})")
+        started = time.perf_counter()
+        try:
+            results.append(_calibrate_once(match_sets, image_sizes, camera_names, run_config,
+                                           None, match_tracks, progress if k == 0 else None,
+                                           only_starts=settled))
+            seeds.append(seed)
+            run_s = time.perf_counter() - started
+        except CalibrationError as exc:
+            log.info("consensus run %d (seed %d) failed: %s", k + 1, seed, exc)
+            failed += 1
+            first_error = first_error or exc
+        if k == 0 and results and results[0].settled_starts:
+            settled = results[0].settled_starts
+            run_s = None  # the later runs try fewer starts: the first run's time says nothing
+    if not results:
+        raise first_error
+    return results, seeds, failed, settled
+
+
 def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> dict:
     """{(a, b): keypoint-match tracks seen by both cameras}; {} without tracks."""
     if tracks is None or not tracks.num_tracks:
@@ -369,7 +403,8 @@ def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> di
 def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                     camera_names: Sequence[str], config: PipelineConfig,
                     previous: Optional[RigCalibration], match_tracks: Optional[Tracks],
-                    progress: Progress) -> CalibrationResult:
+                    progress: Progress, only_starts: Optional[Sequence[str]] = None
+                    ) -> CalibrationResult:
     try:
         sampled, given = _sampled_tracks(match_sets, image_sizes, camera_names, config, previous)
     except FocalInitError as exc:  # it knows the cameras by index only
@@ -383,7 +418,8 @@ def _calibrate_once(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     return calibrate_from_tracks(sampled.tracks, image_sizes, camera_names, config,
                                  two_view=sampled.two_view, focal_px=sampled.focal_px,
                                  previous=previous, match_tracks=match_tracks,
-                                 known_focals=known, progress=progress)
+                                 known_focals=known, only_starts=only_starts,
+                                 progress=progress)
 
 
 def _sampled_tracks(match_sets: list, image_sizes: Sequence[tuple[int, int]],

@@ -213,6 +213,8 @@ class RigQuality:
     consensus_runs: Optional[int] = None  # core.robust.consensus
     consensus_failed_runs: Optional[int] = None
     consensus_seed: Optional[int] = None
+    # The first run's focal multi-start settled: the later runs tried only these starts.
+    consensus_settled_starts: Optional[list] = None
     consensus_worse_fit_runs: Optional[int] = None
     consensus_kept_by_fit: Optional[bool] = None
     consensus_disagreement_deg: Optional[float] = None

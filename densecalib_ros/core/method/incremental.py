@@ -64,6 +64,9 @@ class IncrementalResult:
     # The cameras after registration and the first final BA, before `_finish` (re-triangulation
     # of every track, B_err, final BA, model refinement): what a multi-start trial hands on.
     registration: Optional[SfMState] = None
+    # Set by the multi-start (multistart.settled_starts): the starts a later run on another
+    # sample of the same matches needs, where this run's starts all ended in one rig; else None.
+    settled_starts: Optional[list[str]] = None
 
 
 def initial_intrinsics(image_sizes: Sequence[tuple[int, int]], focal_px: np.ndarray,

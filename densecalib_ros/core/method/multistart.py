@@ -21,6 +21,7 @@ import pycolmap
 
 from ..config import SfMConfig
 from ..errors import NotEnoughOverlapError
+from ..metrics import relative_pose_errors
 from ..parallel import map_jobs
 from ..progress import StageClock, say_progress
 from ..types import CameraIntrinsics, Tracks
@@ -70,6 +71,19 @@ MAX_FIRST_PAIR_STARTS = 8
 # cycle-verified (repetitive texture: many are wrong), and a loose gate lets a degenerate rig
 # absorb wrong matches (docs/design-notes.md, Focal starts and multi-start costs).
 HELD_OUT_TRUNCATION_PX = 4.0
+# Two reconstructions that agree within this (mean over camera pairs of the larger of the relative
+# rotation and translation-direction differences, deg) are one answer: a third of AUC@3's strictest
+# threshold, so a choice between them could not change which poses count as accurate.
+AGREEMENT_DEG = 1.0
+# A reconstruction whose truncated reprojection cost exceeds the best one's by this factor is a
+# wrong one, not an equally good alternative: the factor sits between what right or near-ambiguous
+# alternatives (converging cameras, free focals) cost and what wrong reconstructions cost
+# (docs/design-notes.md, Consensus: best fit vs vote).
+WORSE_FIT_RATIO = 1.3
+# Where the multi-start settled (settled_starts), a later consensus run tries this many of its
+# best starts: two, so that a start that misses on another sample has a second, and both cores
+# are busy for the time of one trial.
+SETTLED_STARTS = 2
 # While the trials run, a line this often tells a person the work goes on and how long it has
 # left, without a line per trial in the log.
 TRIALS_PROGRESS_EVERY_S = 15.0
@@ -79,8 +93,8 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                     camera_names: Sequence[str], config: SfMConfig, seed: int = 0,
                     progress: Optional[Callable[[str], None]] = None,
                     validation_tracks: Optional[Tracks] = None,
-                    extra_starts: Optional[dict[str, list[CameraIntrinsics]]] = None
-                    ) -> IncrementalResult:
+                    extra_starts: Optional[dict[str, list[CameraIntrinsics]]] = None,
+                    only_starts: Optional[Sequence[str]] = None) -> IncrementalResult:
     """Register the rig's cameras one by one and refine them (core.method.incremental), from the
     best of several starts (module docstring).
 
@@ -105,6 +119,8 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     `intrinsics` hold known focals: pipeline.calibrate_from_tracks). Where every camera's
     intrinsics are given (config.fixed_intrinsics_cameras) there is one focal start, and the
     multi-start runs from first pairs instead (first_pair_starts, MAX_FIRST_PAIR_STARTS).
+    only_starts: run only the starts of these names (those present; all where none is): what
+    an earlier run's settled multi-start (the result's settled_starts) leaves to try.
     """
     say = functools.partial(say_progress, progress)
     starts = {name: (start, None) for name, start in
@@ -116,6 +132,9 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
         starts.update({f"given, first pair {camera_names[i]}/{camera_names[j]}":
                        (list(intrinsics), (i, j)) for i, j in first_pair_starts(sub, budget)})
+    restricted = only_starts is not None and any(n in starts for n in only_starts)
+    if restricted:
+        starts = {n: starts[n] for n in starts if n in only_starts}
     # Trials are independent: they run side by side (core.parallel), each BA on one core, so
     # the outcome does not depend on how many ran at once.
     trial_config = replace(config, num_threads=1)
@@ -158,7 +177,40 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         start, pair = starts[best]
         result = incremental_sfm(tracks, start, camera_names, config, seed, say, pair)
     drop_implausible_cameras(result.state, result.failed, camera_names, say)
+    if not restricted:
+        result.settled_starts = settled_starts(costs, {n: t[0].state for n, t in trials.items()})
     return result
+
+
+def settled_starts(costs: dict, states: dict) -> Optional[list[str]]:
+    """The SETTLED_STARTS best starts' names where the multi-start settled, else None.
+
+    costs: start name -> (-registered cameras, truncated cost) of the plausible trials; states:
+    start name -> the trial's SfMState. Settled: the trials that register as many cameras as the
+    best and fit within WORSE_FIT_RATIO of it are at least two, and all of them agree with the
+    best within AGREEMENT_DEG. Then the focal lengths are not in doubt: every start that fits
+    about as well ends in the same rig, so a later run on another track sample needs no more
+    than its best starts (core.pipeline's consensus)."""
+    if not costs:
+        return None
+    best = min(costs, key=costs.get)
+    registered, best_cost = costs[best]
+    contenders = sorted((n for n, (r, c) in costs.items()
+                         if r == registered and c <= WORSE_FIT_RATIO * best_cost),
+                        key=costs.get)
+    if len(contenders) < 2 or any(states_disagreement_deg(states[best], states[n])
+                                  >= AGREEMENT_DEG for n in contenders[1:]):
+        return None
+    return contenders[:SETTLED_STARTS]
+
+
+def states_disagreement_deg(a: SfMState, b: SfMState) -> float:
+    """Mean over the pairs of cameras registered in `a` of the larger of the relative-rotation and
+    translation-direction differences between the two reconstructions (deg; a pair with a
+    camera that `b` did not register counts 180)."""
+    poses = [{c: state.cam_from_world[c] for c in state.registered()} for state in (a, b)]
+    pairs = relative_pose_errors(poses[1], poses[0])
+    return float(np.mean([min(p.max_err_deg, 180.0) for p in pairs])) if pairs else 0.0
 
 
 def _trial(tracks: Tracks, start: list[CameraIntrinsics], camera_names: Sequence[str],

@@ -37,27 +37,27 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..method.multistart import HELD_OUT_TRUNCATION_PX, truncated_cost
+from ..method.multistart import (AGREEMENT_DEG, HELD_OUT_TRUNCATION_PX, WORSE_FIT_RATIO,
+                                 truncated_cost)
 from ..method.reconstruction import SfMState, triangulate_tracks
 from ..types import RigCalibration, Tracks
 
 # A camera pair that one of two runs did not register counts as this far apart.
 UNREGISTERED_PAIR_DEG = 180.0
 # After this many successful runs, stop if every two of them agree within AGREEMENT_DEG (mean over
-# camera pairs): a third of AUC@3's strictest threshold, so further runs could not change which
-# poses count as accurate. Well-connected rigs agree to a fraction of it, weak ones disagree by
-# several times it (docs/design-notes.md, Consensus: best fit vs vote).
+# camera pairs; multistart): further runs could not change which poses count as accurate.
+# Well-connected rigs agree to a fraction of it, weak ones disagree by several times it
+# (docs/design-notes.md, Consensus: best fit vs vote). Where the first run's focal multi-start
+# settled (multistart.settled_starts), the focal lengths are not in doubt and two agreeing runs
+# answer the sampling's lottery: SETTLED_EARLY_STOP_RUNS.
 EARLY_STOP_RUNS = 3
-AGREEMENT_DEG = 1.0
+SETTLED_EARLY_STOP_RUNS = 2
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
 # other runs put the cameras where the kept one would count as wrong.
 WARN_DISAGREEMENT_DEG = 3.0
 MAX_PAIRS_SAID = 3  # a warning names this many pairs at most: the rest is in the quality record
-# A run whose truncated reprojection cost on the common tracks exceeds the best run's by this factor
-# is not kept. It sits between what runs that are right or near-ambiguous alternatives (converging
-# cameras, free focals) cost and what wrong runs cost (docs/design-notes.md, Consensus: best fit
-# vs vote).
-WORSE_FIT_RATIO = 1.3
+# A run whose truncated reprojection cost on the common tracks exceeds the best run's by
+# WORSE_FIT_RATIO (multistart) is not kept: a wrong reconstruction, not an alternative.
 COMMON_TRACKS_MAX = 3000  # the common tracks: a seeded sample of at most this many
 
 
