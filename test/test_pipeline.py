@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
-from densecalib_ros.core.errors import InputError, NotEnoughCamerasError, NotEnoughOverlapError
+from densecalib_ros.core.errors import (CalibrationError, InputError, NotEnoughCamerasError,
+                                       NotEnoughOverlapError)
 from densecalib_ros.core.method.matching import create_matcher
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.method.focal_start import start_focals
@@ -340,3 +341,34 @@ def test_focal_hops_leave_a_minimum_that_every_consensus_run_ended_in():
     assert len(result.rig.quality.focal_hops) >= 1
     assert metrics["auc3"] >= 88.0
     assert metrics["median_focal_err"] <= 0.02
+
+
+def test_three_cameras_far_apart_that_sift_cannot_calibrate_are_matched_again_with_asift():
+    """Three cameras 55 deg apart (640x480): sift's matches give no calibration; the pipeline
+    matches again with asift (config.few_camera_matcher) and calibrates the rig, and says so."""
+    wide = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
+                                seed=1, gap_deg=55.0, max_arc_deg=360.0))
+    off = make_config("regular", matcher="sift", few_camera_matcher=None, sfm__num_threads=1)
+    with pytest.raises(CalibrationError):
+        run_calibration([wide.images[0]], wide.names, off)
+    lines = []
+    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    result = run_calibration([wide.images[0]], wide.names, config, progress=lines.append)
+    q = result.rig.quality
+    assert q.matcher == "asift" and q.few_camera_rematch == {
+        "first": "sift", "first_result": "no calibration came out", "second": "asift",
+        "second_result": "determined", "kept": "asift"}
+    assert any(m.startswith("sift: no calibration came out; matching again with asift")
+               for m in lines)
+    assert evaluate_calibration(result.rig, wide.ground_truth())["auc3"] > 80.0
+
+
+def test_an_essential_matrix_with_too_few_inliers_is_a_failed_pair_not_an_opencv_error():
+    """Three cameras 55 deg apart (640x480, another seed): one pair's essential matrix fit too
+    few of sift's matches for OpenCV's recoverPose, which raised an assertion error; the pair now
+    counts as failed, and the other pairs calibrate the rig."""
+    wide = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
+                                seed=3, gap_deg=55.0, max_arc_deg=360.0))
+    off = make_config("regular", matcher="sift", few_camera_matcher=None, sfm__num_threads=1)
+    result = run_calibration([wide.images[0]], wide.names, off)
+    assert len(result.rig.cameras) == 3

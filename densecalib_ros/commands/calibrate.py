@@ -14,6 +14,7 @@ from typing import Optional
 from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
                            resolve_camera_lenses)
 from ..core.errors import CalibrationError, InputError
+from ..core.method.matching import available_matchers
 from ..core.products.report import camera_table, intrinsics_note
 from .argtypes import number_in, positive, seed
 from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
@@ -35,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see docs/method.md)")
     parser.add_argument("--matcher", default=None,
                         help="matcher backend (default: the preset's, sift)")
+    parser.add_argument("--few-camera-matcher", default="asift",
+                        choices=[*available_matchers(), "none"],
+                        help="where three or four perspective cameras matched with sift come out "
+                             "undetermined (a camera not registered, runs that disagree), match "
+                             "again with this one and keep the better-determined calibration "
+                             "(default asift; none: keep sift's)")
     parser.add_argument("--max-side", type=number_in(64, integer=True), default=None, metavar="PX",
                         help="match images at most at this size (default 1024)")
     parser.add_argument("--share-intrinsics", action="store_true",
@@ -169,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.jobs,
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
+                     "few_camera_matcher": None if args.few_camera_matcher == "none"
+                     else args.few_camera_matcher,
                      "cameras__initial_focal_px": parse_focal_px(args.focal_px),
                      "cameras__lens": parse_camera_lens(args.lens)}
         if args.max_side is not None:

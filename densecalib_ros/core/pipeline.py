@@ -327,7 +327,10 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     say_progress(progress, f"consensus: median disagreement of the result with the other "
                            f"{len(results) - 1} runs "
                            f"{result.rig.quality.consensus_disagreement_deg:.2f} deg")
+    # A few perspective cameras on sift's matches: suggest asift, unless it is tried anyway
+    # (config.few_camera_matcher, core.robust.few_cameras).
     few_wide = (config.matcher == "sift" and len(camera_names) <= 4
+                and not config.few_camera_matcher
                 and not any("FISHEYE" in m for m in config.sfm.models(len(camera_names))))
     pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
                                                 if k != best], camera_names)
@@ -464,9 +467,8 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     camera_names = list(camera_names)
     image_sizes, strips, ignored, match_sets = checked_and_matched(frame_sets, camera_names,
                                                                    config, matcher, progress)
-    result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
-                                    previous=previous, frame_sets=frame_sets, ignored=ignored,
-                                    progress=progress)
+    result, config = _calibrated(frame_sets, camera_names, config, image_sizes, ignored,
+                                 match_sets, previous, progress)
     with_point_colours(result, frame_sets)
     result.rig.quality.update(matcher=config.matcher, num_frame_sets=len(frame_sets),
                               runtime_s=time.perf_counter() - start)
@@ -479,6 +481,55 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         result.rig.quality.exif_focal_px = {n: round(float(f), 1)
                                                for n, f in config.cameras.exif_focal_px.items()}
     return result
+
+
+def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
+                config: PipelineConfig, image_sizes: Sequence[tuple[int, int]], ignored: list,
+                match_sets: list, previous: Optional[RigCalibration], progress: Progress
+                ) -> tuple[CalibrationResult, PipelineConfig]:
+    """calibrate_from_matches on match_sets; where three or four perspective cameras matched with
+    sift come out undetermined (core.robust.few_cameras), also on config.few_camera_matcher's
+    matches, keeping the better-determined calibration. Returns it with the config that made
+    it. Raises the first calibration's error where neither gives one."""
+    from .robust.few_cameras import better_determined, rematch_applies, undetermined
+
+    def calibrate(cfg: PipelineConfig, sets: list) -> CalibrationResult:
+        return calibrate_from_matches(sets, image_sizes, camera_names, cfg, previous=previous,
+                                      frame_sets=frame_sets, ignored=ignored, progress=progress)
+    if not rematch_applies(config, camera_names, fresh=previous is None):
+        return calibrate(config, match_sets), config
+    first, error = None, None
+    try:
+        first = calibrate(config, match_sets)
+    except CalibrationError as exc:
+        error = exc
+    why = undetermined(first.rig if first else None)
+    if why is None:
+        return first, config
+    wide = replace(config, matcher=config.few_camera_matcher)
+    say_progress(progress, f"{config.matcher}: {why}; matching again with {wide.matcher}, which "
+                           "keeps matches across wide viewpoint changes (several times slower)")
+    second = None
+    try:
+        second = calibrate(wide, match_frame_sets(frame_sets, wide, progress=progress,
+                                                  camera_names=camera_names, ignored=ignored))
+    except CalibrationError as exc:
+        log.info("the calibration on %s's matches failed too: %s", wide.matcher, exc)
+    if first is None and second is None:
+        raise error
+    second_came = undetermined(second.rig if second else None) or "determined"
+    keep_second = better_determined(second.rig if second else None,
+                                    first.rig if first else None)
+    kept, kept_config = (second, wide) if keep_second else (first, config)
+    kept.rig.quality.few_camera_rematch = {
+        "first": config.matcher, "first_result": why, "second": wide.matcher,
+        "second_result": second_came, "kept": kept_config.matcher}
+    say_progress(progress, f"{wide.matcher}: {second_came}; kept the calibration on "
+                           f"{kept_config.matcher}'s matches")
+    if not keep_second:
+        warn_user(kept.rig, f"{wide.matcher}'s matches were tried as well and gave no better "
+                            f"determined rig ({second_came}).", progress)
+    return kept, kept_config
 
 
 def checked_and_matched(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],

@@ -107,6 +107,8 @@ def _relative_pose(state: SfMState, i: int, j: int, seed: int
     if E is None or E.shape != (3, 3):
         return None, rows
     inl = mask.ravel() > 0
+    if inl.sum() < MIN_PAIR_CORRESPONDENCES:  # E fits too few (none: recoverPose would raise)
+        return None, rows
     R, t, _ = relative_pose_from_rays(E, rays_i[usable][inl], rays_j[usable][inl])
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = R, t

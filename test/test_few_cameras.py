@@ -1,0 +1,51 @@
+"""Three or four perspective cameras far apart (core.robust.few_cameras): when sift's calibration
+counts as undetermined, which result is kept, and where the second matcher applies at all. The
+pipeline's use of it on a generated wide rig is in test_pipeline.py."""
+import numpy as np
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG
+from densecalib_ros.core.robust.few_cameras import (better_determined, rematch_applies,
+                                                    undetermined)
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+
+
+def _rig(names=("a", "b", "c"), failed=(), disagreement=None):
+    cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
+    rig = RigCalibration("a", {n: RigCamera(n, cam, np.eye(4)) for n in names},
+                         failed_cameras=list(failed))
+    rig.quality.consensus_disagreement_deg = disagreement
+    return rig
+
+
+def test_a_calibration_is_undetermined_without_result_with_a_failed_camera_or_runs_apart():
+    assert undetermined(None) == "no calibration came out"
+    assert undetermined(_rig(("a", "b"), failed=["c"])) == "c not registered"
+    far = undetermined(_rig(disagreement=WARN_DISAGREEMENT_DEG + 2.0))
+    assert far == f"the calibration runs disagree by {WARN_DISAGREEMENT_DEG + 2.0:.1f} deg"
+    assert undetermined(_rig(disagreement=WARN_DISAGREEMENT_DEG)) is None
+    assert undetermined(_rig(disagreement=None)) is None  # a single run: nothing to disagree
+
+
+def test_the_better_determined_calibration_registers_more_cameras_then_agrees_more():
+    full, partial = _rig(disagreement=6.0), _rig(("a", "b"), failed=["c"], disagreement=0.1)
+    assert better_determined(full, partial) and not better_determined(partial, full)
+    assert better_determined(_rig(disagreement=0.5), _rig(disagreement=8.0))
+    assert not better_determined(_rig(disagreement=0.5), _rig(disagreement=0.5))  # tie: keep b
+    assert better_determined(partial, None) and not better_determined(None, partial)
+    assert not better_determined(None, None)
+
+
+def test_the_second_matcher_applies_to_fresh_calibrations_of_few_perspective_cameras_on_sift():
+    three, five = ["a", "b", "c"], ["a", "b", "c", "d", "e"]
+    config = make_config("regular", matcher="sift")
+    assert config.few_camera_matcher == "asift"
+    assert rematch_applies(config, three) and rematch_applies(config, three[:2])
+    assert not rematch_applies(config, five)
+    assert not rematch_applies(config, three, fresh=False)  # a recalibration
+    assert not rematch_applies(make_config("fisheye", matcher="sift"), three)
+    assert not rematch_applies(make_config("regular", matcher="sift",
+                                           cameras__lens={"b": "fisheye"}), three)
+    assert not rematch_applies(make_config("regular", matcher="asift"), three)
+    assert not rematch_applies(make_config("regular", matcher="sift", few_camera_matcher=None),
+                               three)
