@@ -371,7 +371,8 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
         seed = config.sampling.seed + k
         run_config = copy.deepcopy(config)
         run_config.sampling.seed = seed
-        took = f"; about {run_s:.0f} s each" if run_s else ""  # what this run will take
+        # What this run will take; nothing where runs take under a second.
+        took = f"; about {run_s:.0f} s each" if run_s and run_s >= 1.0 else ""
         only = f"; focal starts {' and '.join(settled)} only" if settled else ""
         say_progress(progress, f"consensus run {k + 1} of up to {config.consensus_runs} "
                                f"(sampling seed {seed}{only}{took})")
