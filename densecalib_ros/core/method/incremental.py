@@ -42,6 +42,8 @@ from .view_order import view_order
 log = logging.getLogger(__name__)
 
 MIN_PAIR_CORRESPONDENCES = 15  # fewer common tracks give no usable essential matrix
+# An essential matrix is fixed by five correspondences: one that fits fewer fits nothing.
+MIN_ESSENTIAL_INLIERS = 5
 MIN_REGISTRATION_POINTS = 12  # 2D-3D correspondences needed to register a camera
 MIN_REGISTRATION_INLIERS = 10
 ESSENTIAL_THRESHOLD_PX = 2.0  # MAGSAC++ threshold of the first pair's essential matrix
@@ -107,7 +109,7 @@ def _relative_pose(state: SfMState, i: int, j: int, seed: int
     if E is None or E.shape != (3, 3):
         return None, rows
     inl = mask.ravel() > 0
-    if inl.sum() < MIN_PAIR_CORRESPONDENCES:  # E fits too few (none: recoverPose would raise)
+    if inl.sum() < MIN_ESSENTIAL_INLIERS:  # none: recoverPose would raise
         return None, rows
     R, t, _ = relative_pose_from_rays(E, rays_i[usable][inl], rays_j[usable][inl])
     pose = np.eye(4)

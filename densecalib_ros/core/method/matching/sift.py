@@ -206,11 +206,13 @@ class SiftMatcher(Matcher):
 
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
         # OpenCV's SIFT leaves most of its work on one core and releases the GIL: one image per
-        # core (the same features as one after another).
-        with ThreadPoolExecutor(min(len(images), available_cores())) as pool:
+        # core (the same features as one after another); the pairs' distance matrices likewise
+        # (numpy's reductions run on one core, outside the GIL).
+        cores = available_cores()
+        with ThreadPoolExecutor(min(len(images), cores)) as pool:
             feats = list(pool.map(self._features, images))
         return match_unordered_pairs(images, [f[0] for f in feats],
-                                     lambda i, j: self._match_pair(feats[i], feats[j]))
+                                     lambda i, j: self._match_pair(feats[i], feats[j]), cores)
 
 
 class AsiftMatcher(SiftMatcher):
