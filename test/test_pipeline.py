@@ -274,10 +274,13 @@ def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
     for hint, message in (({"nope": 500.0}, "unknown camera"),
                           ({rig.names[0]: 500.0}, "No initial focal length for camera"),
                           ({"*": -5.0}, "must be positive")):
+        lines = []
         with pytest.raises(InputError, match=message):
             run_calibration([rig.images[0]], rig.names,
                             make_config("regular", matcher="sift", consensus_runs=1,
-                                        cameras__initial_focal_px=hint))
+                                        cameras__initial_focal_px=hint), progress=lines.append)
+        # Refused at once: bad input is not a reason to match again with asift (few cameras).
+        assert not any("matching again" in m for m in lines)
 
 
 def test_exif_focals_start_the_cameras_they_name_below_the_users_and_a_previous_calibration(rig):

@@ -502,6 +502,8 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     first, error = None, None
     try:
         first = calibrate(config, match_sets)
+    except InputError:
+        raise  # the user's input, not sift's matches: another matcher would be refused too
     except CalibrationError as exc:
         error = exc
     why = undetermined(first.rig if first else None)
