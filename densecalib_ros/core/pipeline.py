@@ -291,6 +291,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .method.multistart import AGREEMENT_DEG, cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
+    from .robust.few_cameras import few_perspective_on_sift
     from .robust.focal_hops import hop_focals
 
     results, seeds, failed, settled = _consensus_runs(match_sets, image_sizes, camera_names,
@@ -327,11 +328,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     say_progress(progress, f"consensus: median disagreement of the result with the other "
                            f"{len(results) - 1} runs "
                            f"{result.rig.quality.consensus_disagreement_deg:.2f} deg")
-    # A few perspective cameras on sift's matches: suggest asift, unless it is tried anyway
-    # (config.few_camera_matcher, core.robust.few_cameras).
-    few_wide = (config.matcher == "sift" and len(camera_names) <= 4
-                and not config.few_camera_matcher
-                and not any("FISHEYE" in m for m in config.sfm.models(len(camera_names))))
+    # A few perspective cameras on sift's matches: suggest asift, unless it is tried anyway.
+    few_wide = few_perspective_on_sift(config, camera_names) and not config.few_camera_matcher
     pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
                                                 if k != best], camera_names)
     if pairs:

@@ -23,16 +23,22 @@ from .consensus import WARN_DISAGREEMENT_DEG
 MAX_CAMERAS = 4
 
 
+def few_perspective_on_sift(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
+    """Whether `config` matches at most MAX_CAMERAS cameras, all of perspective lenses, with
+    sift: the rigs whose wide steps thin sift's matches out."""
+    C = len(camera_names)
+    models = resolve_camera_lenses(config, camera_names).sfm.models(C)
+    return (config.matcher == "sift" and C <= MAX_CAMERAS
+            and not any("FISHEYE" in m for m in models))
+
+
 def rematch_applies(config: PipelineConfig, camera_names: Sequence[str],
                     fresh: bool = True) -> bool:
     """Whether a calibration with `config` gets a second matcher where sift's leaves the rig
-    undetermined: a fresh calibration (a recalibration keeps the matches of its kind), matched with
-    sift, config.few_camera_matcher set, at most MAX_CAMERAS cameras, all of perspective lenses."""
-    C = len(camera_names)
-    models = resolve_camera_lenses(config, camera_names).sfm.models(C)
-    return (fresh and config.matcher == "sift" and bool(config.few_camera_matcher)
-            and config.few_camera_matcher != config.matcher and C <= MAX_CAMERAS
-            and not any("FISHEYE" in m for m in models))
+    undetermined: a fresh calibration (a recalibration keeps the matches of its kind) of
+    few_perspective_on_sift, with config.few_camera_matcher set to another matcher."""
+    return (fresh and few_perspective_on_sift(config, camera_names)
+            and config.few_camera_matcher not in (None, "", config.matcher))
 
 
 def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
