@@ -57,7 +57,7 @@ def test_users_are_warned_when_runs_disagree_beyond_auc3_threshold():
     assert "5 calibration runs disagree" in message and "12.5 deg" in message
     assert "frame sets" in message and "share-intrinsics" in message
     assert "asift" not in message  # only where the rig is few perspective cameras
-    assert "--matcher asift" in disagreement_warning(12.5, 5, few_wide_cameras=True)
+    assert "--matcher asift" in disagreement_warning(12.5, 5, perspective_on_sift=True)
 
 
 def test_the_warning_names_the_pairs_the_runs_disagree_about_and_the_camera_in_each():

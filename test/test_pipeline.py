@@ -339,7 +339,7 @@ def test_focal_hops_leave_a_minimum_that_every_consensus_run_ended_in():
     # lenses (principal points within 4 px of the centre) from 100 to 83.3.
     # sift's runs, which the hops search from, stay the result (no second matcher).
     config = make_config("regular", matcher="sift", sfm__num_threads=1, refine_on_images=False,
-                         few_camera_matcher=None)
+                         second_matcher=None)
     result = run_calibration([rig.images[0]], rig.names, config)
     metrics = evaluate_calibration(result.rig, rig.ground_truth())
     assert result.rig.quality.consensus_kept_by_fit
@@ -350,17 +350,17 @@ def test_focal_hops_leave_a_minimum_that_every_consensus_run_ended_in():
 
 def test_three_cameras_far_apart_that_sift_cannot_calibrate_are_matched_again_with_asift():
     """Three cameras 55 deg apart (640x480): sift's matches give no calibration; the pipeline
-    matches again with asift (config.few_camera_matcher) and calibrates the rig, and says so."""
+    matches again with asift (config.second_matcher) and calibrates the rig, and says so."""
     wide = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
                                 seed=1, gap_deg=55.0, max_arc_deg=360.0))
-    off = make_config("regular", matcher="sift", few_camera_matcher=None, sfm__num_threads=1)
+    off = make_config("regular", matcher="sift", second_matcher=None, sfm__num_threads=1)
     with pytest.raises(CalibrationError):
         run_calibration([wide.images[0]], wide.names, off)
     lines = []
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     result = run_calibration([wide.images[0]], wide.names, config, progress=lines.append)
     q = result.rig.quality
-    assert q.matcher == "asift" and q.few_camera_rematch == {
+    assert q.matcher == "asift" and q.rematch == {
         "first": "sift", "first_result": "no calibration came out", "second": "asift",
         "second_result": "determined", "kept": "asift"}
     assert any(m.startswith("sift: no calibration came out; matching again with asift")
@@ -374,6 +374,6 @@ def test_an_essential_matrix_with_too_few_inliers_is_a_failed_pair_not_an_opencv
     counts as failed, and the other pairs calibrate the rig."""
     wide = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=640, height=480,
                                 seed=3, gap_deg=55.0, max_arc_deg=360.0))
-    off = make_config("regular", matcher="sift", few_camera_matcher=None, sfm__num_threads=1)
+    off = make_config("regular", matcher="sift", second_matcher=None, sfm__num_threads=1)
     result = run_calibration([wide.images[0]], wide.names, off)
     assert len(result.rig.cameras) == 3

@@ -36,10 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see docs/method.md)")
     parser.add_argument("--matcher", default=None,
                         help="matcher backend (default: the preset's, sift)")
-    parser.add_argument("--few-camera-matcher", default="asift",
+    parser.add_argument("--second-matcher", default="asift",
                         choices=[*available_matchers(), "none"],
-                        help="where three or four perspective cameras matched with sift come out "
-                             "undetermined (a camera not registered, runs that disagree), match "
+                        help="where perspective cameras matched with sift come out undetermined "
+                             "(a camera not registered, runs that disagree), match "
                              "again with this one and keep the better-determined calibration "
                              "(default asift; none: keep sift's)")
     parser.add_argument("--max-side", type=number_in(64, integer=True), default=None, metavar="PX",
@@ -176,8 +176,8 @@ def run(args: argparse.Namespace) -> int:
         overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.jobs,
                      "sfm__share_intrinsics": args.share_intrinsics,
                      "consensus_runs": args.consensus_runs,
-                     "few_camera_matcher": None if args.few_camera_matcher == "none"
-                     else args.few_camera_matcher,
+                     "second_matcher": None if args.second_matcher == "none"
+                     else args.second_matcher,
                      "cameras__initial_focal_px": parse_focal_px(args.focal_px),
                      "cameras__lens": parse_camera_lens(args.lens)}
         if args.max_side is not None:

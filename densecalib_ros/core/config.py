@@ -155,10 +155,10 @@ class PipelineConfig:
     preset: str = "regular"
     pipeline: str = "incremental"  # "incremental" | "global"
     matcher: str = "sift"
-    # Where three or four perspective cameras matched with sift come out undetermined (a camera
-    # not registered, no calibration, runs that disagree), match again with this one and keep the
-    # better-determined calibration (core/robust/few_cameras.py); None: keep sift's.
-    few_camera_matcher: Optional[str] = "asift"
+    # Where perspective cameras matched with sift come out undetermined (a camera not
+    # registered, no calibration, runs that disagree), match again with this one and keep the
+    # better-determined calibration (core/robust/second_matcher.py); None: keep sift's.
+    second_matcher: Optional[str] = "asift"
     max_image_side_px: int = 1024  # images are matched at most at this size (coordinates rescaled)
     # Fresh calibrations run the sampling + SfM up to this many times (seeds seed, seed+1, ...) and
     # keep the medoid run (consensus.py): on weakly connected rigs one sample's outcome is a

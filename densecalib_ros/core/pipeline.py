@@ -291,7 +291,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .method.multistart import AGREEMENT_DEG, cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
-    from .robust.few_cameras import few_perspective_on_sift
+    from .robust.second_matcher import perspective_on_sift
     from .robust.focal_hops import hop_focals
 
     results, seeds, failed, settled = _consensus_runs(match_sets, image_sizes, camera_names,
@@ -328,15 +328,15 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     say_progress(progress, f"consensus: median disagreement of the result with the other "
                            f"{len(results) - 1} runs "
                            f"{result.rig.quality.consensus_disagreement_deg:.2f} deg")
-    # A few perspective cameras on sift's matches: suggest asift, unless it is tried anyway.
-    few_wide = few_perspective_on_sift(config, camera_names) and not config.few_camera_matcher
+    # Perspective cameras on sift's matches: suggest asift, unless it is tried anyway.
+    on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
                                                 if k != best], camera_names)
     if pairs:
         result.rig.quality.consensus_least_determined_pairs_deg = {
             f"{a}/{b}": round(deg, 1) for a, b, deg in pairs}
     warning = disagreement_warning(result.rig.quality.consensus_disagreement_deg, len(results),
-                                   few_wide, pairs, _shared_matches(match_tracks, camera_names),
+                                   on_sift, pairs, _shared_matches(match_tracks, camera_names),
                                    len(result.rig.cameras))
     if warning:
         warn_user(result.rig, warning, progress)
@@ -486,11 +486,11 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
                 config: PipelineConfig, image_sizes: Sequence[tuple[int, int]], ignored: list,
                 match_sets: list, previous: Optional[RigCalibration], progress: Progress
                 ) -> tuple[CalibrationResult, PipelineConfig]:
-    """calibrate_from_matches on match_sets; where three or four perspective cameras matched with
-    sift come out undetermined (core.robust.few_cameras), also on config.few_camera_matcher's
+    """calibrate_from_matches on match_sets; where perspective cameras matched with sift come
+    out undetermined (core.robust.second_matcher), also on config.second_matcher's
     matches, keeping the better-determined calibration. Returns it with the config that made
     it. Raises the first calibration's error where neither gives one."""
-    from .robust.few_cameras import better_determined, rematch_applies, undetermined
+    from .robust.second_matcher import better_determined, rematch_applies, undetermined
 
     def calibrate(cfg: PipelineConfig, sets: list) -> CalibrationResult:
         return calibrate_from_matches(sets, image_sizes, camera_names, cfg, previous=previous,
@@ -507,7 +507,7 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     why = undetermined(first.rig if first else None)
     if why is None:
         return first, config
-    wide = replace(config, matcher=config.few_camera_matcher)
+    wide = replace(config, matcher=config.second_matcher)
     say_progress(progress, f"{config.matcher}: {why}; matching again with {wide.matcher}, which "
                            "keeps matches across wide viewpoint changes (several times slower)")
     second = None
@@ -522,7 +522,7 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     keep_second = better_determined(second.rig if second else None,
                                     first.rig if first else None)
     kept, kept_config = (second, wide) if keep_second else (first, config)
-    kept.rig.quality.few_camera_rematch = {
+    kept.rig.quality.rematch = {
         "first": config.matcher, "first_result": why, "second": wide.matcher,
         "second_result": second_came, "kept": kept_config.matcher}
     say_progress(progress, f"{wide.matcher}: {second_came}; kept the calibration on "

@@ -219,10 +219,10 @@ class RigQuality:
     consensus_kept_by_fit: Optional[bool] = None
     consensus_disagreement_deg: Optional[float] = None
     consensus_least_determined_pairs_deg: Optional[dict] = None  # "a/b" -> deg
-    # Sift left a rig of few perspective cameras undetermined, so it was matched again
-    # (core.robust.few_cameras): {why, matcher, kept (the matcher kept), other (how the one not
+    # Sift left a rig of perspective cameras undetermined, so it was matched again
+    # (core.robust.second_matcher): {why, matcher, kept (the matcher kept), other (how the one not
     # kept came out)}.
-    few_camera_rematch: Optional[dict] = None
+    rematch: Optional[dict] = None
     focal_hops: Optional[list] = None  # core.robust.focal_hops, one line per hop
     image_refinement_tracks: Optional[int] = None  # core.method.image_refinement
     image_refinement_noise_px: Optional[float] = None

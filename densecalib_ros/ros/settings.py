@@ -102,8 +102,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                         "after a refocus or zoom)", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
-    "few_camera_matcher": ("asift", "where three or four perspective cameras matched with sift "
-                           "come out undetermined (a camera not registered, runs that disagree), "
+    "second_matcher": ("asift", "where perspective cameras matched with sift "
+                       "come out undetermined (a camera not registered, runs that disagree), "
                            "match again with this one and keep the better-determined calibration "
                            "(none: keep sift's)", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
@@ -198,7 +198,7 @@ class Settings:
     share_intrinsics: bool
     initial_focal_px: dict[str, float]
     consensus_runs: int
-    few_camera_matcher: Optional[str]
+    second_matcher: Optional[str]
     max_image_side_px: int
     output_dir: Path
     keep_calibrations: int
@@ -224,7 +224,7 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
                        consensus_runs=s.consensus_runs, detect_info_strips=s.detect_info_strips,
-                       few_camera_matcher=s.few_camera_matcher,
+                       second_matcher=s.second_matcher,
                        cameras__initial_focal_px=s.initial_focal_px, cameras__lens=s.camera_lens,
                        cameras__masks=s.camera_masks, cameras__known_intrinsics=s.known_intrinsics)
 
@@ -305,8 +305,8 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
         initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),
-        few_camera_matcher=None if v["few_camera_matcher"] == "none"
-        else v["few_camera_matcher"],
+        second_matcher=None if v["second_matcher"] == "none"
+        else v["second_matcher"],
         max_image_side_px=int(v["max_image_side_px"]),
         output_dir=Path(os.path.expanduser(str(v["output_dir"]))),
         keep_calibrations=int(v["keep_calibrations"]), rig_frame=rig_frame,
@@ -354,7 +354,7 @@ def _check_choices(v: dict) -> None:
     """The parameters that take one of a few values, and the buffer, output and bag."""
     for key, allowed in (("preset", PRESETS), ("pipeline", PIPELINES),
                          ("matcher", available_matchers()),
-                         ("few_camera_matcher", [*available_matchers(), "none"]),
+                         ("second_matcher", [*available_matchers(), "none"]),
                          ("rig_frame_axes", RIG_FRAME_AXES)):
         if v[key] not in allowed:
             raise InputError(f"{key} must be one of {', '.join(allowed)}, got {v[key]!r}.")

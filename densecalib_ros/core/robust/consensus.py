@@ -187,21 +187,21 @@ def least_determined_pairs(kept: RigCalibration, others: Sequence[RigCalibration
 
 
 def disagreement_warning(disagreement_deg: float, num_runs: int,
-                         few_wide_cameras: bool = False,
+                         perspective_on_sift: bool = False,
                          pairs: Sequence[tuple[str, str, float]] = (),
                          shared_matches: Optional[dict] = None,
                          num_cameras: int = 0) -> Optional[str]:
     """The message for a user whose runs disagree by more than WARN_DISAGREEMENT_DEG, else None.
-    few_wide_cameras: three or four perspective cameras matched with sift, whose matches a wide
-    viewpoint change thins out (docs/benchmarks.md): the message suggests asift. pairs: the
+    perspective_on_sift: perspective cameras matched with sift, whose matches a wide viewpoint
+    change or a long lens thins out (docs/benchmarks.md): the message suggests asift. pairs: the
     least determined camera pairs (least_determined_pairs), named with their shared keypoint
     matches (shared_matches: {(a, b): count}) and, where one camera is in each of them, that
     camera: it is the one the images do not place. num_cameras: how many the kept run calibrated
     (every pair of them named: the whole rig is undetermined)."""
     if disagreement_deg <= WARN_DISAGREEMENT_DEG:
         return None
-    asift = (" With three or four cameras far apart, --matcher asift (node: matcher asift) finds "
-             "the matches a wide viewpoint change leaves sift." if few_wide_cameras else "")
+    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
+             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
     return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
             "(median over camera pairs) from the others, so the images allow quite different rigs "
             "and this one may be wrong." + _pairs_said(pairs, shared_matches or {}, num_cameras)

@@ -1,11 +1,11 @@
-"""Three or four perspective cameras far apart (core.robust.few_cameras): when sift's calibration
-counts as undetermined, which result is kept, and where the second matcher applies at all. The
-pipeline's use of it on a generated wide rig is in test_pipeline.py."""
+"""The second matcher where sift leaves a perspective rig undetermined (core.robust.second_matcher):
+when sift's calibration counts as undetermined, which result is kept, and where the second matcher
+applies at all. The pipeline's use of it on a generated wide rig is in test_pipeline.py."""
 import numpy as np
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG
-from densecalib_ros.core.robust.few_cameras import (better_determined, rematch_applies,
+from densecalib_ros.core.robust.second_matcher import (better_determined, rematch_applies,
                                                     undetermined)
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
@@ -36,16 +36,18 @@ def test_the_better_determined_calibration_registers_more_cameras_then_agrees_mo
     assert not better_determined(None, None)
 
 
-def test_the_second_matcher_applies_to_fresh_calibrations_of_few_perspective_cameras_on_sift():
-    three, five = ["a", "b", "c"], ["a", "b", "c", "d", "e"]
+def test_the_second_matcher_applies_to_fresh_calibrations_of_perspective_cameras_on_sift():
+    three, eight = ["a", "b", "c"], [f"c{k}" for k in range(8)]
     config = make_config("regular", matcher="sift")
-    assert config.few_camera_matcher == "asift"
+    assert config.second_matcher == "asift"
     assert rematch_applies(config, three) and rematch_applies(config, three[:2])
-    assert not rematch_applies(config, five)
+    assert rematch_applies(config, eight)  # long lenses and wide steps thin larger rigs out too
+    assert not rematch_applies(make_config("regular", matcher="sift",
+                                           cameras__lens={"c5": "fisheye"}), eight)
     assert not rematch_applies(config, three, fresh=False)  # a recalibration
     assert not rematch_applies(make_config("fisheye", matcher="sift"), three)
     assert not rematch_applies(make_config("regular", matcher="sift",
                                            cameras__lens={"b": "fisheye"}), three)
     assert not rematch_applies(make_config("regular", matcher="asift"), three)
-    assert not rematch_applies(make_config("regular", matcher="sift", few_camera_matcher=None),
+    assert not rematch_applies(make_config("regular", matcher="sift", second_matcher=None),
                                three)

@@ -1,14 +1,15 @@
-"""Three or four perspective cameras far apart: where sift's calibration leaves the rig
-undetermined, the pipeline matches again with an affine-invariant matcher (asift) and keeps the
-better-determined calibration (core.pipeline.run_calibration).
+"""A second matcher where sift's matches leave a perspective rig undetermined: the pipeline
+matches again with an affine-invariant matcher (asift) and keeps the better-determined calibration
+(core.pipeline._calibrated).
 
-A wide viewpoint change (45-65 deg between neighbours) leaves sift a few dozen correct matches per
-pair, and with three or four cameras there are too few pairs to make up for it: a camera fails to
+A wide viewpoint change between neighbours (45-65 deg), or a long lens (25-35 deg field of view)
+whose views share little, leaves sift a few dozen correct matches per pair: a camera fails to
 register, no calibration comes out, or the consensus runs disagree about the rig. asift finds ten
 times the correct matches at those angles but takes five to ten times as long (docs/benchmarks.md,
-Three and four cameras far apart), so it runs only where sift's calibration says it did not
-suffice. Fisheye lenses keep sift: their wide view keeps shared surfaces large, and sift's matches
-calibrate those rigs (same section).
+A second matcher), so it runs only where sift's calibration says it did not suffice, on rigs of
+any size: five to eight cameras leave those pairs as undetermined as three or four do. Fisheye
+lenses keep sift: their wide view keeps shared surfaces large, and sift's matches calibrate those
+rigs (same section).
 """
 from __future__ import annotations
 
@@ -18,27 +19,21 @@ from ..config import PipelineConfig, resolve_camera_lenses
 from ..types import RigCalibration
 from .consensus import WARN_DISAGREEMENT_DEG
 
-# Rigs of more cameras have pairs enough that a wide step between two of them is bridged by the
-# others (docs/benchmarks.md: six or more cameras calibrate with sift).
-MAX_CAMERAS = 4
 
-
-def few_perspective_on_sift(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
-    """Whether `config` matches at most MAX_CAMERAS cameras, all of perspective lenses, with
-    sift: the rigs whose wide steps thin sift's matches out."""
-    C = len(camera_names)
-    models = resolve_camera_lenses(config, camera_names).sfm.models(C)
-    return (config.matcher == "sift" and C <= MAX_CAMERAS
-            and not any("FISHEYE" in m for m in models))
+def perspective_on_sift(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
+    """Whether `config` matches cameras all of perspective lenses with sift: the rigs whose wide
+    steps or narrow views thin sift's matches out."""
+    models = resolve_camera_lenses(config, camera_names).sfm.models(len(camera_names))
+    return config.matcher == "sift" and not any("FISHEYE" in m for m in models)
 
 
 def rematch_applies(config: PipelineConfig, camera_names: Sequence[str],
                     fresh: bool = True) -> bool:
     """Whether a calibration with `config` gets a second matcher where sift's leaves the rig
     undetermined: a fresh calibration (a recalibration keeps the matches of its kind) of
-    few_perspective_on_sift, with config.few_camera_matcher set to another matcher."""
-    return (fresh and few_perspective_on_sift(config, camera_names)
-            and config.few_camera_matcher not in (None, "", config.matcher))
+    perspective_on_sift, with config.second_matcher set to another matcher."""
+    return (fresh and perspective_on_sift(config, camera_names)
+            and config.second_matcher not in (None, "", config.matcher))
 
 
 def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
