@@ -112,3 +112,75 @@ def test_nerf_loader_axes_and_intrinsics_agree_with_the_images():
         lines[:, :2], axis=1)
     assert len(d_px) > 100
     assert np.median(d_px) < 1.0
+
+
+CALISCOPE = default_data_dir() / "caliscope_4webcams"
+MEVA = default_data_dir() / "meva_6cam_surveillance"
+
+
+def _reprojection_px(scene, name, world_xyz, observed_opencv_px):
+    """Distances (px) of world points projected with the loaded reference camera `name` from their
+    observed OpenCV pixels (+0.5: COLMAP's convention, that of the loaded intrinsics)."""
+    pose = scene.gt_cam_from_world[name]
+    cam_xyz = world_xyz @ pose[:3, :3].T + pose[:3, 3]
+    projected = scene.gt.cameras[name].intrinsics.to_pycolmap().img_from_cam(cam_xyz)
+    return np.linalg.norm(projected - (observed_opencv_px + 0.5), axis=1)
+
+
+@pytest.mark.skipif(not (CALISCOPE / "camera_array.toml").is_file(),
+                    reason=f"Caliscope's session not found at {CALISCOPE} (set DENSECALIB_DATA)")
+def test_caliscope_loader_reference_reprojects_the_boards_corners():
+    """The loaded reference (K, k1 k2 p1 p2 k3 as FULL_OPENCV, world -> camera poses) puts
+    Caliscope's triangulated ChArUco corners on its detections: about 1 px median per camera, as
+    its source notes measured; the frame sets come from the videos as `calibrate --videos` reads
+    them."""
+    import csv
+
+    from densecalib_ros.eval.datasets import load_caliscope
+
+    scene = load_caliscope(CALISCOPE, num_sets=2)
+    assert scene.camera_names == ["cam_0", "cam_1", "cam_2", "cam_3"]
+    assert len(scene.frame_sets) == 2 and scene.frame_sets[0][0].shape == (720, 1280, 3)
+    focal = [scene.gt.cameras[n].intrinsics.params[0] for n in scene.camera_names]
+    assert np.allclose(focal, [904, 760, 651, 640], atol=1.0)
+    folder = CALISCOPE / "calibration" / "extrinsic" / "CHARUCO"
+    with open(folder / "xyz_CHARUCO.csv") as f:
+        world = {(r["sync_index"], r["keypoint_id"]): [float(r[k]) for k in
+                                                      ("x_coord", "y_coord", "z_coord")]
+                 for r in csv.DictReader(f)}
+    with open(folder / "xy_CHARUCO.csv") as f:
+        rows = [r for r in csv.DictReader(f) if (r["sync_index"], r["keypoint_id"]) in world]
+    for cam_id, name in enumerate(scene.camera_names):
+        mine = [r for r in rows if int(r["cam_id"]) == cam_id]
+        xyz = np.array([world[(r["sync_index"], r["keypoint_id"])] for r in mine])
+        px = np.array([[float(r["img_loc_x"]), float(r["img_loc_y"])] for r in mine])
+        assert len(mine) > 50 and np.median(_reprojection_px(scene, name, xyz, px)) < 2.0, name
+
+
+@pytest.mark.skipif(not (MEVA / "cameras").is_dir(),
+                    reason=f"MEVA's cameras not found at {MEVA} (set DENSECALIB_DATA)")
+def test_krtd_loader_reference_reprojects_the_annotated_landmarks():
+    """MEVA's KRTD models as loaded put the hand-annotated landmarks (landmarks.ply) on their
+    annotations (tracks.txt, camera n = line n of frames.txt) within a fraction of a pixel at the
+    median, as its source notes measured; cameras without a still are left out."""
+    from densecalib_ros.eval.datasets import load_krtd_stills
+
+    scene = load_krtd_stills(MEVA)
+    assert scene.camera_names == ["G328", "G341", "G424", "G436", "G505", "G506"]
+    assert [f.shape[0] for f in scene.frame_sets[0]] == [1072, 1080, 1080, 1080, 1072, 1072]
+    lines = (MEVA / "landmarks.ply").read_text().splitlines()
+    body = lines[lines.index("end_header") + 1:]
+    landmarks = {int(v[9]): [float(x) for x in v[:3]] for v in (line.split() for line in body)}
+    camera_of_index = {n + 1: path.split("/")[-1][:-4] for n, path in
+                       enumerate((MEVA / "frames.txt").read_text().split())}
+    observed: dict = {}
+    for line in (MEVA / "tracks.txt").read_text().splitlines():
+        track, index, x, y = line.split()[:4]
+        name = camera_of_index[int(index)]
+        if int(track) in landmarks and name in scene.camera_names:
+            observed.setdefault(name, []).append((landmarks[int(track)], (float(x), float(y))))
+    assert set(observed) == set(scene.camera_names)
+    for name, pairs in observed.items():
+        xyz = np.array([p[0] for p in pairs])
+        px = np.array([p[1] for p in pairs])
+        assert np.median(_reprojection_px(scene, name, xyz, px)) < 1.0, name

@@ -33,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="6 generated rigs of 3-8 pinhole cameras side by side on a bar, "
                             "looking the same way (a stereo head, a camera array): focal "
                             "lengths weakly determined; does the calibration say so")
+    which.add_argument("--real", action="store_true",
+                       help="the real scenes of the full set only: Strecha entry-P10 (ten "
+                            "cameras, one camera), the fox, Caliscope's 4 webcams (8 frame sets "
+                            "of its videos), MEVA's 6 surveillance cameras")
     parser.add_argument("--out", default="bench_out", help="folder for bench.json")
     parser.add_argument("--scenes", nargs="+", default=None, metavar="PATTERN",
                         help="only scenes whose name contains one of these (e.g. fisheye, "
@@ -50,11 +54,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..eval.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
-                              quick_scenes, run_bench)
+                              quick_scenes, real_scenes, run_bench)
 
     specs = (quick_scenes() if args.quick else heldout_scenes() if args.heldout
              else mixed_scenes() if args.mixed else forward_scenes() if args.forward
-             else full_scenes())
+             else real_scenes() if args.real else full_scenes())
     if args.scenes:
         specs = [s for s in specs if any(p in s.name for p in args.scenes)]
         if not specs:

@@ -30,8 +30,8 @@ from ..core.colmap_logging import quiet_colmap
 from ..core.errors import CalibrationError, InputError
 from ..core.json_text import json_text
 from ..core.metrics import evaluate_calibration
-from .datasets import (Scene, default_data_dir, load_nerf_transforms, load_strecha,
-                       scene_from_synthetic)
+from .datasets import (Scene, default_data_dir, load_caliscope, load_krtd_stills,
+                       load_nerf_transforms, load_strecha, scene_from_synthetic)
 from .peers import PEER_METHODS, run_peer
 from .tables import (format_error_sigma_ratios, format_scene_table, format_summary, summarize,
                      summarize_error_sigma_ratios)
@@ -60,7 +60,9 @@ class SceneSpec:
     height, seed, gap_deg: azimuth between neighbouring cameras, max_arc_deg: the cameras' arc at
     most; see synthetic.RigSpec); kind "strecha": the Strecha
     folder `folder` under the data dir, long side `max_side_px`; kind "nerf": `num_cameras`
-    evenly spaced frames of the NeRF capture in `folder`, long side `max_side_px`."""
+    evenly spaced frames of the NeRF capture in `folder`, long side `max_side_px`; kind
+    "caliscope": the videos of a Caliscope session in `folder`, `num_frame_sets` frame sets;
+    kind "krtd": one still per camera with KRTD models in `folder` (datasets.py)."""
 
     name: str
     kind: str
@@ -81,6 +83,7 @@ class SceneSpec:
     # --share-intrinsics; COLMAP: its single-camera mode).
     share_intrinsics: bool = False
     fov_range_deg: Optional[tuple] = None  # synthetic.RigSpec.fov_range_deg
+    num_frame_sets: int = 1  # kind "caliscope": frame sets read from the videos
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
@@ -145,7 +148,23 @@ def full_scenes() -> list[SceneSpec]:
                             folder="strecha_entry_p10", max_side_px=1024, share_intrinsics=True))
     scenes.append(SceneSpec("ngp-fox-6view-1024", "nerf", num_cameras=6, folder="ngp_fox",
                             max_side_px=1024))
-    return scenes
+    return scenes + rig_scenes()
+
+
+def rig_scenes() -> list[SceneSpec]:
+    """Real rigs with a target-based or surveyed reference: Caliscope's four webcams in a room
+    (8 frame sets of its videos, as `calibrate --videos` takes them) and MEVA's six outdoor
+    surveillance cameras (one still each, long lenses, 10-230 m apart)."""
+    return [SceneSpec("caliscope-4webcams-8sets", "caliscope", num_cameras=4,
+                      folder="caliscope_4webcams", num_frame_sets=8),
+            SceneSpec("meva-6cam-stills", "krtd", num_cameras=6,
+                      folder="meva_6cam_surveillance")]
+
+
+def real_scenes() -> list[SceneSpec]:
+    """Every real scene of the full set: Strecha (ten cameras and one camera), the fox, and the
+    real rigs (rig_scenes)."""
+    return [s for s in full_scenes() if s.kind != "synthetic"]
 
 
 # Held-out scenes: never used to develop or tune the method (checked only after a change was
@@ -215,7 +234,15 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
         if not (folder / "transforms.json").is_file():
             raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
         return load_nerf_transforms(folder, spec.num_cameras, spec.max_side_px, name=spec.name)
-    raise InputError(f"Unknown scene kind {spec.kind!r}: choose synthetic, strecha or nerf.")
+    if spec.kind in ("caliscope", "krtd"):
+        folder = Path(data_dir) / spec.folder
+        if not folder.is_dir():
+            raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
+        if spec.kind == "caliscope":
+            return load_caliscope(folder, spec.num_frame_sets, name=spec.name)
+        return load_krtd_stills(folder, name=spec.name)
+    raise InputError(f"Unknown scene kind {spec.kind!r}: choose synthetic, strecha, nerf, "
+                     "caliscope or krtd.")
 
 
 def _own_processes() -> list[int]:
@@ -262,7 +289,8 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
         if method in PEER_METHODS:
             peer = run_peer(method, scene.frame_sets[0], scene.camera_names,
                             lens=[scene.camera_lens.get(n, scene.lens) for n in scene.camera_names],
-                            num_threads=num_threads, single_camera=share)
+                            num_threads=num_threads, single_camera=share,
+                            later_frames=scene.frame_sets[1:])
             calib = peer.to_rig_calibration(scene.camera_names)
             record["message"] = peer.message
         elif method in OUR_METHODS or method == GIVEN_INTRINSICS_METHOD:

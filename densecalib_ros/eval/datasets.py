@@ -221,3 +221,89 @@ def load_generated(directory: str | os.PathLike, name: Optional[str] = None) -> 
     return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets, gt=gt,
                  gt_cam_from_world=cam_from_world, lens=lens, camera_lens=camera_lens,
                  notes="generated rig, exact ground truth")
+
+
+def load_caliscope(directory: str | os.PathLike, num_sets: int = 8,
+                   name: Optional[str] = None) -> Scene:
+    """Caliscope's session of four webcams in a room (`calibration/extrinsic/cam_N.mp4` and
+    `camera_array.toml`): `num_sets` frame sets at evenly spaced times, read as `densecalib
+    calibrate --videos` reads them (core.io.video_io), at full size.
+
+    Reference (ChArUco bundle adjustment, Caliscope): per `[cameras.N]` an OpenCV K (`matrix`;
+    pixel centre at 0, so COLMAP's principal point is +0.5), `distortions` k1, k2, p1, p2, k3 (as
+    FULL_OPENCV) and `rotation`, `translation` (m) from world to camera: cam_from_world =
+    [rotation | translation]. A target-based estimate, not independent ground truth.
+    """
+    import tomllib
+
+    from ..core.io.video_io import read_video_frame_sets
+
+    root = Path(directory)
+    videos = root / "calibration" / "extrinsic"
+    array_file = root / "camera_array.toml"
+    if not array_file.is_file() or not videos.is_dir():
+        raise InputError(f"No Caliscope session in {root}: expected camera_array.toml and "
+                         "calibration/extrinsic/cam_N.mp4.")
+    table = tomllib.loads(array_file.read_text())["cameras"]
+    frame_sets, names, _ = read_video_frame_sets(videos, num_sets)
+    cameras, cam_from_world = {}, {}
+    for cam in names:
+        entry = table[cam.removeprefix("cam_")]
+        width, height = (int(v) for v in entry["size"])
+        k = np.asarray(entry["matrix"], float)
+        k1, k2, p1, p2, k3 = (float(v) for v in entry["distortions"])
+        cameras[cam] = CameraIntrinsics("FULL_OPENCV", width, height, np.array(
+            [k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]))
+        pose = np.eye(4)
+        pose[:3, :3] = np.asarray(entry["rotation"], float)
+        pose[:3, 3] = np.asarray(entry["translation"], float)
+        cam_from_world[cam] = pose
+    return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets,
+                 gt=rig_from_cam_from_world(cameras, cam_from_world),
+                 gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
+                 notes="4 webcams in a furnished room, a person moving a board (57 frames); "
+                       "reference = Caliscope's ChArUco bundle adjustment.")
+
+
+def _read_krtd(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """K (3x3), R (3x3), T (3,) world -> camera, distortion coefficients of a KRTD file."""
+    values = [float(v) for v in path.read_text().split()]
+    if len(values) < 15:
+        raise InputError(f"{path}: expected K, R, T (and D) in a KRTD file, got {len(values)} "
+                         "numbers.")
+    return (np.array(values[:9]).reshape(3, 3), np.array(values[9:18]).reshape(3, 3),
+            np.array(values[18:21]), np.array(values[21:]))
+
+
+def load_krtd_stills(directory: str | os.PathLike, name: Optional[str] = None) -> Scene:
+    """One still per camera (`frames/<camera>.png`) with a KWIVER/TeleSculptor model each
+    (`cameras/<camera>.krtd`: x = K distort(R X + T), D = k1, k2[, p1, p2]): MEVA's surveillance
+    cameras. K's principal point is OpenCV's (pixel centre at 0: COLMAP's is +0.5). Images at
+    full size (their heights may differ). Reference model: OPENCV. The references are a bundle
+    adjustment on hand-annotated landmarks, not independent ground truth."""
+    root = Path(directory)
+    krtd_files = sorted((root / "cameras").glob("*.krtd"))
+    krtd_files = [p for p in krtd_files if (root / "frames" / f"{p.stem}.png").is_file()]
+    if len(krtd_files) < 2:
+        raise InputError(f"{root}: fewer than two cameras/<name>.krtd with frames/<name>.png.")
+    names, frame, cameras, cam_from_world = [], [], {}, {}
+    for path in krtd_files:
+        k, r, t, d = _read_krtd(path)
+        image = _read_rgb(root / "frames" / f"{path.stem}.png")
+        height, width = image.shape[:2]
+        dist = np.zeros(4)
+        dist[:min(4, d.size)] = d[:4]
+        names.append(path.stem)
+        frame.append(np.ascontiguousarray(image))
+        cameras[path.stem] = CameraIntrinsics("OPENCV", width, height, np.array(
+            [k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5, *dist]))
+        u, _, vt = np.linalg.svd(r)  # printed to limited digits: the nearest rotation
+        pose = np.eye(4)
+        pose[:3, :3] = u @ vt
+        pose[:3, 3] = t
+        cam_from_world[path.stem] = pose
+    return Scene(name=name or root.name, camera_names=names, frame_sets=[frame],
+                 gt=rig_from_cam_from_world(cameras, cam_from_world),
+                 gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
+                 notes="stills of outdoor surveillance cameras 10-230 m apart, long lenses, "
+                       "partial overlap; reference = a bundle adjustment on annotated landmarks.")

@@ -1,7 +1,10 @@
 """Peer baselines: what a user would otherwise run on the rig's images, with pycolmap 4.2.1.
 
-One image per camera (the first time step), one camera per image (camera_mode PER_IMAGE), SIFT
-features, exhaustive matching, then either
+One image per camera (the first time step), one camera per image (camera_mode PER_IMAGE); where
+the scene has several frame sets (a rig filmed while the scene changes), every frame of a camera
+in one folder and one COLMAP camera per folder (PER_FOLDER: its intrinsics shared by its frames,
+as a user who knows the rig would set it up), the camera's pose taken from its first registered
+frame. SIFT features, exhaustive matching, then either
 - "colmap": incremental SfM (pycolmap.incremental_mapping), or
 - "glomap": global SfM. COLMAP 4.x's global mapper does not estimate unknown focal lengths itself
   (the standalone GLOMAP did, in its view-graph calibration step), so, as COLMAP documents for
@@ -70,10 +73,12 @@ class PeerResult:
 
 def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[str],
              lens: str | Sequence[str] = "pinhole", num_threads: int = -1, seed: int = 0,
-             workdir: Optional[str] = None, single_camera: bool = False) -> PeerResult:
+             workdir: Optional[str] = None, single_camera: bool = False,
+             later_frames: Sequence[Sequence[np.ndarray]] = ()) -> PeerResult:
     """Reconstruct one image per camera with a peer method.
 
-    images[c]: (H, W, 3) uint8 RGB image of camera camera_names[c]. lens: "pinhole" or "fisheye"
+    images[c]: (H, W, 3) uint8 RGB image of camera camera_names[c]; later_frames[t][c]: the
+    camera's images at later times (module docstring). lens: "pinhole" or "fisheye"
     (picks the initial camera model), for all cameras or one per camera (a rig mixing lenses).
     num_threads: -1 = all cores. workdir: keep the COLMAP database and models there (default: a
     temporary folder, removed afterwards). single_camera: one camera for all images (COLMAP's
@@ -85,7 +90,7 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
     if any(v not in PEER_CAMERA_MODELS for v in lenses) or len(lenses) != len(camera_names):
         raise InputError(f"Unknown lens type(s) {lens!r}: choose one of "
                          f"{', '.join(PEER_CAMERA_MODELS)}, for all cameras or one per camera.")
-    if len(images) != len(camera_names):
+    if any(len(frame) != len(camera_names) for frame in (images, *later_frames)):
         raise InputError(f"{len(images)} images for {len(camera_names)} camera names.")
     with contextlib.ExitStack() as stack:
         root = Path(workdir) if workdir else Path(stack.enter_context(
@@ -93,8 +98,8 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
         start = time.perf_counter()
         try:
             with quiet_colmap():
-                result = _reconstruct(method, images, list(camera_names), lenses, num_threads,
-                                      seed, root, single_camera)
+                result = _reconstruct(method, [images, *later_frames], list(camera_names),
+                                      lenses, num_threads, seed, root, single_camera)
         except Exception as exc:  # a peer's failure is a benchmark result, not a crash
             log.warning("%s failed: %s", method, exc)
             result = PeerResult(method, unregistered=list(camera_names),
@@ -103,7 +108,7 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
         return result
 
 
-def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[str],
+def _reconstruct(method: str, frames: Sequence[Sequence[np.ndarray]], camera_names: list[str],
                  lenses: list[str], num_threads: int, seed: int, root: Path,
                  single_camera: bool = False) -> PeerResult:
     import pycolmap
@@ -114,27 +119,31 @@ def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[s
     # File names by index: camera names need not be valid file names. BMP, not PNG: once pycolmap
     # is imported before cv2, cv2's PNG encoder aborts the process (the two disagree on zlib:
     # "free(): invalid pointer" in deflateEnd, pycolmap 4.2.1 + opencv 5.0.0); BMP needs no zlib.
-    file_to_name = {}
-    for k, (image, name) in enumerate(zip(images, camera_names)):
-        file_name = f"{k:03d}.bmp"
-        if not cv2.imwrite(str(image_dir / file_name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-            raise InputError(f"Cannot write image of camera {name!r} to {image_dir}.")
-        file_to_name[file_name] = name
+    per_folder = len(frames) > 1
+    file_to_name, lens_of_file = {}, {}
+    for t, frame in enumerate(frames):
+        for k, (image, name) in enumerate(zip(frame, camera_names)):
+            file_name = f"{k:03d}/{t:03d}.bmp" if per_folder else f"{k:03d}.bmp"
+            (image_dir / file_name).parent.mkdir(exist_ok=True)
+            if not cv2.imwrite(str(image_dir / file_name),
+                               cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+                raise InputError(f"Cannot write image of camera {name!r} to {image_dir}.")
+            file_to_name[file_name], lens_of_file[file_name] = name, lenses[k]
+    mode = (pycolmap.CameraMode.SINGLE if single_camera else
+            pycolmap.CameraMode.PER_FOLDER if per_folder else pycolmap.CameraMode.PER_IMAGE)
 
     pycolmap.set_random_seed(seed)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = num_threads
     extraction.use_gpu = False
     # One extraction per camera model: the reader gives every image of a call the same model.
-    lens_of_file = {f"{k:03d}.bmp": lens for k, lens in enumerate(lenses)}
     for lens in sorted(set(lenses)):
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = PEER_CAMERA_MODELS[lens]
         pycolmap.extract_features(database, image_dir,
                                   image_names=sorted(f for f in file_to_name
                                                      if lens_of_file[f] == lens),
-                                  camera_mode=pycolmap.CameraMode.SINGLE if single_camera
-                                  else pycolmap.CameraMode.PER_IMAGE,
+                                  camera_mode=mode,
                                   reader_options=reader, extraction_options=extraction,
                                   device=pycolmap.Device.cpu)
     matching = pycolmap.FeatureMatchingOptions()
@@ -148,7 +157,7 @@ def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[s
     database_handle = pycolmap.Database.open(database)
     num_verified = int(database_handle.num_verified_image_pairs())
     database_handle.close()
-    num_pairs = len(camera_names) * (len(camera_names) - 1) // 2
+    num_pairs = len(file_to_name) * (len(file_to_name) - 1) // 2
     message = ""
     if method == "colmap":
         options = pycolmap.IncrementalPipelineOptions()
@@ -173,10 +182,10 @@ def _reconstruct(method: str, images: Sequence[np.ndarray], camera_names: list[s
                           f"({num_verified} of {num_pairs} image pairs verified)")
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     result = PeerResult(method, num_points3d=int(rec.num_points3D()), message=message)
-    for image in rec.images.values():
-        if not image.has_pose:
-            continue
+    for image in sorted(rec.images.values(), key=lambda im: im.name):
         name = file_to_name[image.name]
+        if not image.has_pose or name in result.cam_from_world:  # a later frame of the camera
+            continue
         result.cameras[name] = CameraIntrinsics.from_pycolmap(rec.cameras[image.camera_id])
         result.cam_from_world[name] = np.asarray(image.cam_from_world().matrix(), float)
         result.cam_from_world[name] = np.vstack([result.cam_from_world[name], [0, 0, 0, 1]])
