@@ -134,7 +134,8 @@ def full_scenes() -> list[SceneSpec]:
     """Pinhole rigs of 5-10 cameras 20-45 deg apart (PINHOLE_RIGS), long-lens rigs
     (LONG_LENS_RIGS), 3-4 cameras 45-60 deg apart (FEW_CAMERA_RIGS), fisheye rigs of 4, 6 and 8
     cameras (150-190 deg, 2 seeds each), all 1024x768 with the intrinsics of real lenses, Strecha
-    entry-P10 at 1024 px, and 6 frames of instant-ngp's fox (a phone walked around an object)."""
+    entry-P10 at 1024 px, 6 frames of instant-ngp's fox (a phone walked around an object), and
+    the real rigs (rig_scenes)."""
     scenes = [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0)
               for n, gap, seed in PINHOLE_RIGS]
     scenes += [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0,
