@@ -90,8 +90,10 @@ def run_peer(method: str, images: Sequence[np.ndarray], camera_names: Sequence[s
     if any(v not in PEER_CAMERA_MODELS for v in lenses) or len(lenses) != len(camera_names):
         raise InputError(f"Unknown lens type(s) {lens!r}: choose one of "
                          f"{', '.join(PEER_CAMERA_MODELS)}, for all cameras or one per camera.")
-    if any(len(frame) != len(camera_names) for frame in (images, *later_frames)):
-        raise InputError(f"{len(images)} images for {len(camera_names)} camera names.")
+    for t, frame in enumerate((images, *later_frames)):
+        if len(frame) != len(camera_names):
+            raise InputError(f"Frame set {t} has {len(frame)} images for {len(camera_names)} "
+                             "camera names.")
     with contextlib.ExitStack() as stack:
         root = Path(workdir) if workdir else Path(stack.enter_context(
             tempfile.TemporaryDirectory(prefix=f"densecalib_{method}_")))
