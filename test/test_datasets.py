@@ -184,3 +184,37 @@ def test_krtd_loader_reference_reprojects_the_annotated_landmarks():
         xyz = np.array([p[0] for p in pairs])
         px = np.array([p[1] for p in pairs])
         assert np.median(_reprojection_px(scene, name, xyz, px)) < 1.0, name
+
+
+POSE2SIM = default_data_dir() / "pose2sim_4cam_ring"
+
+
+@pytest.mark.skipif(not (POSE2SIM / "calibration" / "Calib.qca.txt").is_file(),
+                    reason=f"Pose2Sim's demo ring not found at {POSE2SIM} (set DENSECALIB_DATA)")
+def test_qualisys_loader_scales_letterboxed_videos_and_sees_the_platform():
+    """Qualisys units (1/64 px, mm, y-up camera axes) as loaded: cam01's centre and viewing
+    direction as the set's notes give them; the 1080-wide letterboxed videos get K scaled by
+    1080/1088 and shifted by the letterbox; the force platform's ends (Config.toml, world m) lie
+    in front of every camera and inside its image (the set ships no 2D points to measure)."""
+    from densecalib_ros.eval.datasets import load_qualisys_videos
+
+    scene = load_qualisys_videos(POSE2SIM, num_sets=1)
+    assert scene.camera_names == ["cam01", "cam02", "cam03", "cam04"]
+    cam01 = scene.gt.cameras["cam01"].intrinsics
+    assert (cam01.width, cam01.height) == (1080, 1920)
+    assert cam01.params[0] == pytest.approx(107599.671875 / 64 * 1080 / 1088)
+    assert cam01.params[3] == pytest.approx((60680.792969 / 64 + 0.5) * 1080 / 1088
+                                            + (1920 - 1920 * 1080 / 1088) / 2)
+    assert scene.gt.cameras["cam03"].intrinsics.width == 1088
+    pose = scene.gt_cam_from_world["cam01"]
+    assert np.allclose(-pose[:3, :3].T @ pose[:3, 3], [1.460, -1.909, 1.897], atol=1e-3)
+    assert np.allclose(pose[2, :3], [-0.71, 0.59, -0.38], atol=0.01)
+    platform = np.array([(-2.0, 0.3, 0), (-2.0, 0, 0), (-2.0, 0, 0.05), (-2.0, -0.3, 0),
+                         (0, 0.3, 0), (0, 0, 0), (0, 0, 0.05), (0, -0.3, 0)])
+    for name in scene.camera_names:
+        pose = scene.gt_cam_from_world[name]
+        xyz = platform @ pose[:3, :3].T + pose[:3, 3]
+        cam = scene.gt.cameras[name].intrinsics
+        uv = cam.to_pycolmap().img_from_cam(xyz)
+        assert np.all(xyz[:, 2] > 1.0), name
+        assert np.all((uv > 0) & (uv < [cam.width, cam.height])), name

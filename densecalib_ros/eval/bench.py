@@ -31,7 +31,8 @@ from ..core.errors import CalibrationError, InputError
 from ..core.json_text import json_text
 from ..core.metrics import evaluate_calibration
 from .datasets import (Scene, default_data_dir, load_caliscope, load_krtd_stills,
-                       load_nerf_transforms, load_strecha, scene_from_synthetic)
+                       load_nerf_transforms, load_qualisys_videos, load_strecha,
+                       scene_from_synthetic)
 from .peers import PEER_METHODS, run_peer
 from .tables import (format_error_sigma_ratios, format_scene_table, format_summary, summarize,
                      summarize_error_sigma_ratios)
@@ -62,7 +63,8 @@ class SceneSpec:
     folder `folder` under the data dir, long side `max_side_px`; kind "nerf": `num_cameras`
     evenly spaced frames of the NeRF capture in `folder`, long side `max_side_px`; kind
     "caliscope": the videos of a Caliscope session in `folder`, `num_frame_sets` frame sets;
-    kind "krtd": one still per camera with KRTD models in `folder` (datasets.py)."""
+    kind "krtd": one still per camera with KRTD models in `folder`; kind "qualisys": videos with
+    a Qualisys calibration in `folder`, `num_frame_sets` frame sets (datasets.py)."""
 
     name: str
     kind: str
@@ -83,7 +85,7 @@ class SceneSpec:
     # --share-intrinsics; COLMAP: its single-camera mode).
     share_intrinsics: bool = False
     fov_range_deg: Optional[tuple] = None  # synthetic.RigSpec.fov_range_deg
-    num_frame_sets: int = 1  # kind "caliscope": frame sets read from the videos
+    num_frame_sets: int = 1  # kinds "caliscope", "qualisys": frame sets read from the videos
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
@@ -154,10 +156,13 @@ def full_scenes() -> list[SceneSpec]:
 
 def rig_scenes() -> list[SceneSpec]:
     """Real rigs with a target-based or surveyed reference: Caliscope's four webcams in a room
-    (8 frame sets of its videos, as `calibrate --videos` takes them) and MEVA's six outdoor
-    surveillance cameras (one still each, long lenses, 10-230 m apart)."""
+    and Pose2Sim's four-camera ring in a motion-capture lab (8 frame sets of their videos, as
+    `calibrate --videos` takes them), and MEVA's six outdoor surveillance cameras (one still
+    each, long lenses, 10-230 m apart)."""
     return [SceneSpec("caliscope-4webcams-8sets", "caliscope", num_cameras=4,
                       folder="caliscope_4webcams", num_frame_sets=8),
+            SceneSpec("pose2sim-4cam-ring-8sets", "qualisys", num_cameras=4,
+                      folder="pose2sim_4cam_ring", num_frame_sets=8),
             SceneSpec("meva-6cam-stills", "krtd", num_cameras=6,
                       folder="meva_6cam_surveillance")]
 
@@ -235,15 +240,17 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
         if not (folder / "transforms.json").is_file():
             raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
         return load_nerf_transforms(folder, spec.num_cameras, spec.max_side_px, name=spec.name)
-    if spec.kind in ("caliscope", "krtd"):
+    loaders = {"caliscope": lambda folder: load_caliscope(folder, spec.num_frame_sets, spec.name),
+               "qualisys": lambda folder: load_qualisys_videos(folder, spec.num_frame_sets,
+                                                               spec.name),
+               "krtd": lambda folder: load_krtd_stills(folder, spec.name)}
+    if spec.kind in loaders:
         folder = Path(data_dir) / spec.folder
         if not folder.is_dir():
             raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
-        if spec.kind == "caliscope":
-            return load_caliscope(folder, spec.num_frame_sets, name=spec.name)
-        return load_krtd_stills(folder, name=spec.name)
+        return loaders[spec.kind](folder)
     raise InputError(f"Unknown scene kind {spec.kind!r}: choose synthetic, strecha, nerf, "
-                     "caliscope or krtd.")
+                     f"{', '.join(loaders)}.")
 
 
 def _own_processes() -> list[int]:

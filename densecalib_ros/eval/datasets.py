@@ -307,3 +307,63 @@ def load_krtd_stills(directory: str | os.PathLike, name: Optional[str] = None) -
                  gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
                  notes="stills of outdoor surveillance cameras 10-230 m apart, long lenses, "
                        "partial overlap; reference = a bundle adjustment on annotated landmarks.")
+
+
+def load_qualisys_videos(directory: str | os.PathLike, num_sets: int = 8,
+                         name: Optional[str] = None) -> Scene:
+    """Pose2Sim's demo ring (`videos/camNN.mp4`, `calibration/Calib.qca.txt`, a Qualisys QTM
+    wand calibration): `num_sets` frame sets read as `calibrate --videos` reads them.
+
+    Per `<camera serial>`: `<intrinsic>` focal lengths and principal point in 1/64 px of the
+    `<fov_video>` window (its left/top subtracted), k1, k2, p1, p2 as OpenCV's (raw; the set's
+    notes find them more likely than Pose2Sim's division by 64); `<transform>` the camera centre
+    (mm) and M, whose rows are the camera's axes in the world with y up and -z forward:
+    cam_from_world = [diag(1, -1, -1) M | -diag(1, -1, -1) M C]. A video narrower than the window
+    is the window scaled to its width and letterboxed (the set's cam01, cam02: 1088 -> 1080 px,
+    7 rows at top and bottom): K follows the scale and the letterbox's offset, in COLMAP's pixel
+    convention (OpenCV's + 0.5). A reference of its own kind, not independent ground truth.
+    """
+    import xml.etree.ElementTree as ElementTree
+
+    from ..core.io.video_io import read_video_frame_sets
+
+    root = Path(directory)
+    qca = root / "calibration" / "Calib.qca.txt"
+    if not qca.is_file() or not (root / "videos").is_dir():
+        raise InputError(f"No Qualisys calibration in {root}: expected "
+                         "calibration/Calib.qca.txt and videos/<camera>.mp4.")
+    entries = {c.get("serial"): c for c in ElementTree.parse(qca).getroot().iter("camera")}
+    frame_sets, names, _ = read_video_frame_sets(root / "videos", num_sets)
+    cameras, cam_from_world = {}, {}
+    for c, cam in enumerate(names):
+        if cam not in entries:
+            raise InputError(f"{qca}: no camera with serial {cam!r} for videos/{cam}.*")
+        entry = entries[cam]
+        window, intr, pose = (entry.find(k).attrib for k in ("fov_video", "intrinsic",
+                                                             "transform"))
+        window_w = float(window["right"]) - float(window["left"]) + 1
+        window_h = float(window["bottom"]) - float(window["top"]) + 1
+        height, width = frame_sets[0][c].shape[:2]
+        scale = width / window_w
+        offset_y = (height - window_h * scale) / 2  # the letterbox's rows above the image
+        cx = float(intr["centerPointU"]) / 64 - float(window["left"]) + 0.5  # COLMAP px
+        cy = float(intr["centerPointV"]) / 64 - float(window["top"]) + 0.5
+        cameras[cam] = CameraIntrinsics("OPENCV", width, height, np.array([
+            float(intr["focalLengthU"]) / 64 * scale, float(intr["focalLengthV"]) / 64 * scale,
+            cx * scale, cy * scale + offset_y, float(intr["radialDistortion1"]),
+            float(intr["radialDistortion2"]), float(intr["tangentalDistortion1"]),
+            float(intr["tangentalDistortion2"])]))
+        m = np.array([[float(pose[f"r{i}{j}"]) for j in (1, 2, 3)] for i in (1, 2, 3)])
+        rotation = np.diag([1.0, -1.0, -1.0]) @ m
+        u, _, vt = np.linalg.svd(rotation)  # printed to limited digits: the nearest rotation
+        rotation = u @ vt
+        centre_m = np.array([float(pose[k]) for k in "xyz"]) / 1000.0
+        matrix = np.eye(4)
+        matrix[:3, :3] = rotation
+        matrix[:3, 3] = -rotation @ centre_m
+        cam_from_world[cam] = matrix
+    return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets,
+                 gt=rig_from_cam_from_world(cameras, cam_from_world),
+                 gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
+                 notes="4-camera inward ring in a mocap lab (portrait, a person on a platform, "
+                       "little texture); reference = a Qualisys wand calibration.")
