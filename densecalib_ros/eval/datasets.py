@@ -58,6 +58,18 @@ def default_data_dir() -> Path:
     return Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
+def _cam_from_world(rotation, translation=None, centre=None) -> np.ndarray:
+    """4x4 cam_from_world of a world -> camera rotation and either its translation or the
+    camera's centre in the world (translation = -R centre); the rotation snapped to the nearest
+    one (reference files print it to a few digits), so that poses stay rigid."""
+    u, _, vt = np.linalg.svd(np.asarray(rotation, float))
+    pose = np.eye(4)
+    pose[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    pose[:3, 3] = (np.asarray(translation, float) if centre is None
+                   else -pose[:3, :3] @ np.asarray(centre, float))
+    return pose
+
+
 def _downscaled_size(width: int, height: int, max_side_px: Optional[int]) -> tuple[int, int]:
     """(w, h) with the long side at most max_side_px (None: unchanged), aspect kept."""
     if not max_side_px or max(width, height) <= max_side_px:
@@ -126,13 +138,8 @@ def load_strecha(directory: str | os.PathLike, max_side_px: Optional[int] = 1024
         names.append(cam)
         frame.append(np.ascontiguousarray(image))
         cameras[cam] = CameraIntrinsics("PINHOLE", new_w, new_h, params)
-        # The files print R with 6 digits: snap it to the nearest rotation to keep poses rigid.
-        u, _, vt = np.linalg.svd(r)
-        r = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-        t = np.eye(4)
-        t[:3, :3] = r.T
-        t[:3, 3] = -r.T @ c
-        cam_from_world[cam] = t
+        # The files print R with 6 digits (_cam_from_world snaps it).
+        cam_from_world[cam] = _cam_from_world(r.T, centre=c)
     return Scene(name=name or root.name, camera_names=names, frame_sets=[frame],
                  gt=rig_from_cam_from_world(cameras, cam_from_world),
                  gt_cam_from_world=cam_from_world, lens="pinhole",
@@ -254,10 +261,7 @@ def load_caliscope(directory: str | os.PathLike, num_sets: int = 8,
         k1, k2, p1, p2, k3 = (float(v) for v in entry["distortions"])
         cameras[cam] = CameraIntrinsics("FULL_OPENCV", width, height, np.array(
             [k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]))
-        pose = np.eye(4)
-        pose[:3, :3] = np.asarray(entry["rotation"], float)
-        pose[:3, 3] = np.asarray(entry["translation"], float)
-        cam_from_world[cam] = pose
+        cam_from_world[cam] = _cam_from_world(entry["rotation"], entry["translation"])
     return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets,
                  gt=rig_from_cam_from_world(cameras, cam_from_world),
                  gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
@@ -297,11 +301,7 @@ def load_krtd_stills(directory: str | os.PathLike, name: Optional[str] = None) -
         frame.append(np.ascontiguousarray(image))
         cameras[path.stem] = CameraIntrinsics("OPENCV", width, height, np.array(
             [k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5, *dist]))
-        u, _, vt = np.linalg.svd(r)  # printed to limited digits: the nearest rotation
-        pose = np.eye(4)
-        pose[:3, :3] = u @ vt
-        pose[:3, 3] = t
-        cam_from_world[path.stem] = pose
+        cam_from_world[path.stem] = _cam_from_world(r, t)
     return Scene(name=name or root.name, camera_names=names, frame_sets=[frame],
                  gt=rig_from_cam_from_world(cameras, cam_from_world),
                  gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
@@ -355,13 +355,8 @@ def load_qualisys_videos(directory: str | os.PathLike, num_sets: int = 8,
             float(intr["tangentalDistortion2"])]))
         m = np.array([[float(pose[f"r{i}{j}"]) for j in (1, 2, 3)] for i in (1, 2, 3)])
         rotation = np.diag([1.0, -1.0, -1.0]) @ m
-        u, _, vt = np.linalg.svd(rotation)  # printed to limited digits: the nearest rotation
-        rotation = u @ vt
         centre_m = np.array([float(pose[k]) for k in "xyz"]) / 1000.0
-        matrix = np.eye(4)
-        matrix[:3, :3] = rotation
-        matrix[:3, 3] = -rotation @ centre_m
-        cam_from_world[cam] = matrix
+        cam_from_world[cam] = _cam_from_world(rotation, centre=centre_m)
     return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets,
                  gt=rig_from_cam_from_world(cameras, cam_from_world),
                  gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
