@@ -29,15 +29,20 @@ def test_colmap_incremental_registers_and_is_accurate(rig):
     assert metrics["median_focal_err"] < 0.05
 
 
-def test_colmap_on_several_frame_sets_gives_one_camera_per_folder():
+def test_colmap_on_several_frame_sets_gives_one_camera_per_folder(tmp_path):
     """A rig filmed at two moments: each camera's frames share one COLMAP camera (PER_FOLDER) and
     the camera's pose is that of its first frame; the cameras do not move, so the rig is as
     accurate as from one frame set."""
     twice = generate_rig(RigSpec(lenses="ideal", num_cameras=3, camera_model="RADIAL", width=640,
                                   height=480, seed=0, supersample=1, num_time_steps=2))
     result = run_peer("colmap", twice.images[0], twice.names, lens="pinhole", num_threads=1,
-                      later_frames=twice.images[1:])
+                      later_frames=twice.images[1:], workdir=str(tmp_path))
     assert len(result.cam_from_world) == 3, result.message
+    import pycolmap
+
+    database = pycolmap.Database.open(tmp_path / "database.db")
+    assert (database.num_images(), database.num_cameras()) == (6, 3)  # one camera per folder
+    database.close()
     metrics = evaluate_calibration(result.to_rig_calibration(twice.names),
                                    twice.ground_truth())
     assert metrics["auc30"] > 50.0 and metrics["median_focal_err"] < 0.05

@@ -291,8 +291,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .method.multistart import AGREEMENT_DEG, cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
-    from .robust.second_matcher import perspective_on_sift
     from .robust.focal_hops import hop_focals
+    from .robust.second_matcher import perspective_on_sift
 
     results, seeds, failed, settled = _consensus_runs(match_sets, image_sizes, camera_names,
                                                       config, match_tracks, progress)

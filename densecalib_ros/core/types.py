@@ -220,8 +220,8 @@ class RigQuality:
     consensus_disagreement_deg: Optional[float] = None
     consensus_least_determined_pairs_deg: Optional[dict] = None  # "a/b" -> deg
     # Sift left a rig of perspective cameras undetermined, so it was matched again
-    # (core.robust.second_matcher): {why, matcher, kept (the matcher kept), other (how the one not
-    # kept came out)}.
+    # (core.robust.second_matcher): {first, first_result (why it was undetermined), second,
+    # second_result, kept (the matcher whose calibration was kept)}.
     rematch: Optional[dict] = None
     focal_hops: Optional[list] = None  # core.robust.focal_hops, one line per hop
     image_refinement_tracks: Optional[int] = None  # core.method.image_refinement

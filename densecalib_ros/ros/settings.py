@@ -102,10 +102,10 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                         "after a refocus or zoom)", False, {}),
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
-    "second_matcher": ("asift", "where perspective cameras matched with sift "
-                       "come out undetermined (a camera not registered, runs that disagree), "
-                           "match again with this one and keep the better-determined calibration "
-                           "(none: keep sift's)", False, {}),
+    "second_matcher": ("asift", "where perspective cameras matched with sift come out "
+                       "undetermined (a camera not registered, runs that disagree), match again "
+                       "with this one and keep the better-determined calibration (none: keep "
+                       "sift's)", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
                        "run that fits all keypoint matches best (stops after 3 that agree, 2 "
                        "where the first run's focal starts all agree; 1 = one run, no focal "
