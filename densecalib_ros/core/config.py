@@ -165,6 +165,9 @@ class PipelineConfig:
     # lottery. They stop after 3 runs that agree (multistart.AGREEMENT_DEG), 2 where the first
     # run's focal multi-start settled (pipeline._consensus_runs). 1 = a single run.
     consensus_runs: int = 5
+    # In frame sets after the first, match only where a camera's image shows what its earlier
+    # frame sets did not (core/method/new_content.py): the static scene was matched in the first.
+    new_content_only: bool = True
     # Refine the found rig once more on every keypoint match (all_matches.py; keypoint matchers
     # only): the sampled tracks find the rig, all the matches it agrees with refine it.
     refine_on_all_matches: bool = True

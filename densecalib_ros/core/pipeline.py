@@ -32,7 +32,7 @@ from .method.view_graph import pair_track_counts
 from .method.uncertainty import add_uncertainty, estimated_principal_points
 from .progress import Progress, StageClock, say_progress
 from .robust.placement import repair_placements
-from .types import RigCalibration, RigQuality, Tracks
+from .types import RigCalibration, RigQuality, SiteMatchSet, Tracks
 
 log = logging.getLogger(__name__)
 
@@ -182,9 +182,13 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     reuse (else config.matcher is created and loaded here). With config.cameras.masks (then
     camera_names is needed), matches on masked regions are dropped (core.method.masks), and on the
     info strips found (`strips` as info_strips gives them; None: looked for here); `ignored`:
-    those regions as ignored_regions gives them, when already resolved."""
+    those regions as ignored_regions gives them, when already resolved. With
+    config.new_content_only, frame sets after the first are matched only where they show
+    something new (core.method.new_content)."""
     from .method.masks import apply_masks
     from .method.matching import create_matcher
+    from .method.new_content import describe as describe_regions
+    from .method.new_content import new_content_regions
 
     if ignored is None:
         if strips is None:
@@ -194,9 +198,19 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     if matcher is None:
         matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
         matcher.load()
+    regions = new_content_regions(frame_sets) if config.new_content_only else None
     match_sets, clock = [], StageClock(len(frame_sets))
     for t, frames in enumerate(frame_sets):
-        match_sets.append(matcher.match(list(frames)))
+        if regions is not None and t > 0:
+            log.info("frame set %d: matched on %s of the images (what earlier frame sets did "
+                     "not show)", t + 1, describe_regions(regions[t]))
+        if regions is not None and all(r is not None and not r.any() for r in regions[t]):
+            match_sets.append(SiteMatchSet(  # nothing new in any camera: nothing to match
+                sites=[np.zeros((0, 2)) for _ in frames], pairs={},
+                image_sizes=[(f.shape[1], f.shape[0]) for f in frames]))
+        else:
+            match_sets.append(matcher.match(list(frames),
+                                            regions[t] if regions is not None else None))
         if ignored:
             log.debug("frame set %d: %d match(es) on masked regions dropped", t,
                       apply_masks(match_sets[-1], ignored))

@@ -90,6 +90,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "detect_info_strips": (True, "find burnt-in info strips (a trail camera's bar of date and "
                            "temperature along the top or bottom edge) and ignore their rows in "
                            "cameras without a mask_files entry", False, {}),
+    "new_content_only": (True, "match frame sets after the first only where a camera's image "
+                         "shows what its earlier frame sets did not (false: whole images)",
+                         False, {}),
     "intrinsics_files": (Parameter.Type.STRING_ARRAY,
                          "intrinsics to keep (cameras calibrated before: camera_info YAML, a "
                          "densecalib calibration, an anipose calibration.toml, a Kalibr "
@@ -191,6 +194,7 @@ class Settings:
     camera_lens: dict[str, str]
     camera_masks: dict  # camera name -> bool (H, W), True = ignored (core.method.masks)
     detect_info_strips: bool
+    new_content_only: bool
     known_intrinsics: dict  # camera name -> CameraIntrinsics kept (core.method.known_intrinsics)
     keep_intrinsics: bool
     pipeline: str
@@ -224,6 +228,7 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
                        consensus_runs=s.consensus_runs, detect_info_strips=s.detect_info_strips,
+                       new_content_only=s.new_content_only,
                        second_matcher=s.second_matcher,
                        cameras__initial_focal_px=s.initial_focal_px, cameras__lens=s.camera_lens,
                        cameras__masks=s.camera_masks, cameras__known_intrinsics=s.known_intrinsics)
@@ -300,6 +305,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         preset=v["preset"],
         camera_lens=dict(zip(names, lenses)), camera_masks=camera_masks,
         detect_info_strips=bool(v["detect_info_strips"]),
+        new_content_only=bool(v["new_content_only"]),
         known_intrinsics=known_intrinsics, keep_intrinsics=bool(v["keep_intrinsics"]),
         pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),

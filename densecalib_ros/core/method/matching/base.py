@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import abc
-from typing import ClassVar, Sequence
+from typing import ClassVar, Optional, Sequence
 
 import numpy as np
 
@@ -35,16 +35,31 @@ class Matcher(abc.ABC):
     def _load(self) -> None:
         """Backend-specific heavy initialisation (default: nothing)."""
 
-    def match(self, images: Sequence[np.ndarray]) -> SiteMatchSet:
+    def match(self, images: Sequence[np.ndarray],
+              regions: Optional[Sequence[Optional[np.ndarray]]] = None) -> SiteMatchSet:
         """Match every ordered pair of a frame set.
 
         images: one per camera, (H, W, 3) uint8 RGB or (H, W) uint8 gray; sizes may differ.
+        regions: per image None or bool (H, W), True where its matches may lie (e.g.
+        core.method.new_content); a backend that can detect in regions only does
+        (detects_in_regions), the others' matches outside them are dropped.
         Returns a SiteMatchSet with `sites[c]` float64 (S_c, 2) COLMAP pixel coordinates in the
         original image c and `pairs[(i, j)]` for every ordered pair i != j.
         """
         images = check_images(images)
         self.load()
-        return self._match(images)
+        if regions is None or all(r is None for r in regions):
+            return self._match(images)
+        if self.detects_in_regions:
+            return self._match(images, list(regions))
+        from ..masks import apply_masks
+
+        match_set = self._match(images)
+        apply_masks(match_set, [None if r is None else ~r for r in regions])
+        return match_set
+
+    # Whether _match takes the regions (its keypoints only there) as its second argument.
+    detects_in_regions: ClassVar[bool] = False
 
     @abc.abstractmethod
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:

@@ -176,11 +176,17 @@ class SiftMatcher(Matcher):
         self.contrast_threshold = float(contrast_threshold)
         self.root_sift = bool(root_sift)
 
-    def _features(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _features(self, image: np.ndarray, region: Optional[np.ndarray] = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Returns sites float64 (S, 2) original COLMAP px, keypoint site index int64 (K,),
-        descriptors float32 (K, 128)."""
+        descriptors float32 (K, 128); keypoints only where `region` (bool, the image's size) is
+        True, if given."""
         gray, scale_xy = resize_for_matching(to_gray(image), self.max_image_side_px)
-        keypoints, descriptors = self._detector().detectAndCompute(gray, None)
+        mask = None
+        if region is not None:
+            mask = cv2.resize(region.astype(np.uint8) * 255, gray.shape[::-1],
+                              interpolation=cv2.INTER_NEAREST)
+        keypoints, descriptors = self._detector().detectAndCompute(gray, mask)
         if not keypoints:
             return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
         xy = np.array([k.pt for k in keypoints], dtype=np.float64)
@@ -214,13 +220,17 @@ class SiftMatcher(Matcher):
         certainty = 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
         return mutual_pair_maps(src, dst, certainty, n_a, n_b)
 
-    def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
+    detects_in_regions = True
+
+    def _match(self, images: list[np.ndarray],
+               regions: Optional[list[Optional[np.ndarray]]] = None) -> SiteMatchSet:
         # OpenCV's SIFT leaves most of its work on one core and releases the GIL: one image per
         # core (the same features as one after another); the pairs' distance matrices likewise
         # (numpy's reductions run on one core, outside the GIL).
         cores = available_cores()
+        regions = regions or [None] * len(images)
         with ThreadPoolExecutor(min(len(images), cores)) as pool:
-            feats = list(pool.map(self._features, images))
+            feats = list(pool.map(self._features, images, regions))
         return match_unordered_pairs(images, [f[0] for f in feats],
                                      lambda i, j: self._match_pair(feats[i], feats[j]), cores)
 

@@ -1,0 +1,81 @@
+"""Where a later frame set shows something the earlier ones did not: only there can it give new
+correspondences.
+
+The rig is rigid and its cameras do not move, so what stayed put between frame sets (walls,
+floor, furniture) looks the same in each of them, and its matches were found in the first frame
+set already: matched again in every later one, the same points come back as near-copies (the
+same scene point, not new evidence), and a keypoint matcher pays for them each time (asift:
+about 13 s per frame set of four 1280x720 webcams, most of it on the static room). What a later
+frame set adds is what moved into view (a person, an animal, a board carried around) and what it
+uncovered. So in frame set t > 0 keypoints are kept only where the image differs from every
+earlier frame set of the same camera (a region that differs from one earlier set but not from
+another showed this content before); both ends of a new correspondence lie in such regions, as a
+scene point that moved changed in every view that sees it. Where nothing is new (a static scene
+filmed twice), the frame set adds no matches; where everything changed (the light, or a camera
+that moved), it is matched whole.
+"""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import cv2
+import numpy as np
+
+# The images are compared at most this large (long side, px), blurred: enough to outline what
+# moved, and the earlier frame sets kept for the comparison stay small (uint8).
+COMPARE_SIDE_PX = 640
+# Blur sigma (px at the compared size): video compression and sensor noise vary pixel by pixel,
+# what moved changes whole patches.
+BLUR_SIGMA_PX = 2.0
+# Grey levels (0-255) a blurred pixel must differ by from every earlier frame set to count as new:
+# well above the noise of blurred video frames (a few levels) and well below the contrast of the
+# textured things that carry matches.
+CHANGE_GREY_LEVELS = 20
+# New regions are grown by this fraction of the image's long side: a keypoint's descriptor looks
+# at a patch around it (SIFT: about 8x its scale), so features on the edge of what moved, half
+# on the unchanged background, are kept.
+MARGIN_FRACTION = 0.02
+
+
+def _small_grey(image: np.ndarray) -> np.ndarray:
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    scale = min(1.0, COMPARE_SIDE_PX / max(grey.shape))
+    if scale < 1.0:
+        grey = cv2.resize(grey, (max(1, round(grey.shape[1] * scale)),
+                                 max(1, round(grey.shape[0] * scale))),
+                          interpolation=cv2.INTER_AREA)
+    return cv2.GaussianBlur(grey, (0, 0), BLUR_SIGMA_PX)
+
+
+def new_content_regions(frame_sets: Sequence[Sequence[np.ndarray]]
+                        ) -> list[list[Optional[np.ndarray]]]:
+    """Per frame set and camera, bool (H, W) of the image's size: where that image shows what no
+    earlier frame set of the camera showed (module docstring), or None where the whole image is
+    to be matched (the first frame set; a camera whose image size changed)."""
+    regions: list[list[Optional[np.ndarray]]] = []
+    earlier: dict[int, list[np.ndarray]] = {}
+    for t, frames in enumerate(frame_sets):
+        row: list[Optional[np.ndarray]] = []
+        for c, image in enumerate(frames):
+            small = _small_grey(image)
+            seen = earlier.setdefault(c, [])
+            if t == 0 or any(g.shape != small.shape for g in seen):
+                row.append(None)
+            else:
+                new = np.ones(small.shape, bool)
+                for g in seen:
+                    new &= cv2.absdiff(small, g) > CHANGE_GREY_LEVELS
+                height, width = image.shape[:2]
+                full = cv2.resize(new.astype(np.uint8), (width, height),
+                                  interpolation=cv2.INTER_NEAREST)
+                margin = max(1, int(round(MARGIN_FRACTION * max(height, width))))
+                kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
+                row.append(cv2.dilate(full, kernel) > 0)
+            seen.append(small)
+        regions.append(row)
+    return regions
+
+
+def describe(regions: Sequence[Optional[np.ndarray]]) -> str:
+    """How much of each camera's image a frame set matches, for the log ("100 %, 23 %, ...")."""
+    return ", ".join("100 %" if r is None else f"{100.0 * r.mean():.0f} %" for r in regions)

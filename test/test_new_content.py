@@ -1,0 +1,83 @@
+"""Later frame sets are matched only where they show something new (core.method.new_content)."""
+import numpy as np
+import pytest
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.metrics import evaluate_calibration
+from densecalib_ros.core.method.matching import create_matcher
+from densecalib_ros.core.method.new_content import new_content_regions
+from densecalib_ros.core.pipeline import calibrate_rig, match_frame_sets
+from densecalib_ros.core.synthetic import RigSpec, generate_rig
+
+
+def _room(square_at=None, brightness=0):
+    """A textured static background 240x320 with a bright 40x40 square at (row, col)."""
+    rng = np.random.default_rng(0)
+    image = np.kron(rng.integers(0, 200, (24, 32)), np.ones((10, 10))).astype(np.int16)
+    if square_at is not None:
+        r, c = square_at
+        image[r:r + 40, c:c + 40] = 250
+    return np.clip(image + brightness, 0, 255).astype(np.uint8)
+
+
+def test_regions_are_what_no_earlier_frame_set_showed():
+    sets = [[_room((100, 50))], [_room((100, 200))], [_room((100, 50))], [_room(None, 60)]]
+    regions = [r[0] for r in new_content_regions(sets)]
+    assert regions[0] is None  # the first frame set is matched whole
+    new = regions[1]
+    assert new.shape == (240, 320)
+    # the square's new place and the background it uncovered are new, the rest is not
+    assert new[110:130, 210:230].all() and new[110:130, 60:80].all()
+    assert not new[:60].any() and not new[:, 280:].any()
+    # back where it was in the first set: nothing there is new; where it was in the second, the
+    # background shows again, as in the first set
+    assert not regions[2].any()
+    # the light changed: everything is new
+    assert regions[3].mean() > 0.9
+
+
+def test_sift_keypoints_only_in_the_regions_and_other_matchers_drop_matches_outside():
+    image = _room((100, 50))
+    region = np.zeros(image.shape, bool)
+    region[:, :160] = True
+    matcher = create_matcher("sift")
+    match_set = matcher.match([image, image.copy()], [region, region])
+    assert len(match_set.sites[0]) > 20
+    assert match_set.sites[0][:, 0].max() < 160 + 2  # within the region (keypoint subpixel)
+    whole = matcher.match([image, image.copy()])
+    assert len(whole.sites[0]) > len(match_set.sites[0])
+
+
+def test_a_static_scene_filmed_twice_adds_no_matches_and_the_same_calibration():
+    """The second frame set repeats the first (sensor noise only): nothing in it is new, so it
+    is not matched, and the calibration is the one from the first frame set alone."""
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                               height=480, seed=0))
+    noisy = [np.clip(im.astype(np.int16) + np.random.default_rng(1).integers(-3, 4, im.shape),
+                     0, 255).astype(np.uint8) for im in rig.images[0]]
+    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    match_sets = match_frame_sets([rig.images[0], noisy], config, camera_names=rig.names)
+    assert sum(len(s) for s in match_sets[0].sites) > 1000
+    assert all(len(s) == 0 for s in match_sets[1].sites) and not match_sets[1].pairs
+    once = calibrate_rig([rig.images[0]], rig.names, config)
+    twice = calibrate_rig([rig.images[0], noisy], rig.names, config)
+    for name in rig.names:
+        np.testing.assert_allclose(twice.cameras[name].intrinsics.params,
+                                   once.cameras[name].intrinsics.params, rtol=1e-9)
+    assert evaluate_calibration(twice, rig.ground_truth())["auc3"] >= 80.0
+
+
+@pytest.mark.parametrize("new_content_only", [True, False])
+def test_a_scene_that_moves_between_frame_sets_calibrates_either_way(new_content_only):
+    """Objects move between the time steps: the later ones are matched on them (and what they
+    uncovered) only, or whole when switched off; both calibrate the rig."""
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                               height=480, seed=3, num_time_steps=3))
+    config = make_config("regular", matcher="sift", sfm__num_threads=1,
+                         new_content_only=new_content_only)
+    match_sets = match_frame_sets(rig.images, config, camera_names=rig.names)
+    sites = [sum(len(s) for s in m.sites) for m in match_sets]
+    if new_content_only:
+        assert 0 < sites[1] < sites[0] and 0 < sites[2] < sites[0]
+    result = calibrate_rig(rig.images, rig.names, config)
+    assert evaluate_calibration(result, rig.ground_truth())["auc3"] >= 80.0
