@@ -158,7 +158,7 @@ def test_a_change_inside_the_buffer_is_judged_on_the_frame_sets_since(buffer_rig
     frame_sets = [list(fs) for fs in rig.images]
     for fs in frame_sets[3:]:
         fs[2] = turned_image(fs[2], truth.cameras["cam2"].intrinsics, tilt)
-    match_sets = match_frame_sets(frame_sets, make_config(matcher="sift"))
+    match_sets = match_frame_sets(frame_sets, make_config(matcher="sift"), each_on_its_own=True)
     assert fits_per_frame_set(truth, rig.names, match_sets) == [True, True, True, False, False]
     assert check_calibration(truth, rig.names, match_sets).fits  # what pooling misses
     latest = check_latest(truth, rig.names, match_sets)
@@ -169,7 +169,8 @@ def test_a_change_inside_the_buffer_is_judged_on_the_frame_sets_since(buffer_rig
     seen_once = check_latest(truth, rig.names, match_sets[:4])  # only the last set since
     assert (seen_once.frame_sets_before_change, seen_once.num_frame_sets) == (3, 4)
     assert "only the last frame set shows it: check again" in seen_once.verdict()
-    unchanged = check_latest(truth, rig.names, match_frame_sets(rig.images, make_config()))
+    unchanged = check_latest(truth, rig.names, match_frame_sets(rig.images, make_config(),
+                                                                each_on_its_own=True))
     assert unchanged.fits and unchanged.frame_sets_before_change == 0
 
     # `densecalib check` on camera folders in time order says which images came first after it

@@ -81,3 +81,29 @@ def test_a_scene_that_moves_between_frame_sets_calibrates_either_way(new_content
         assert 0 < sites[1] < sites[0] and 0 < sites[2] < sites[0]
     result = calibrate_rig(rig.images, rig.names, config)
     assert evaluate_calibration(result, rig.ground_truth())["auc3"] >= 80.0
+
+
+def test_a_camera_bumped_between_frame_sets_of_a_static_scene_is_found_by_checks():
+    """A static scene, cam2 turned by 1 deg before the second frame set: only cam2's image is
+    new there, its partners' are not, so new-content matching leaves cam2 without matches in
+    that set; a check matches every frame set whole (each_on_its_own) and names cam2."""
+    from densecalib_ros.core.monitor.consistency import check_latest
+    from scipy.spatial.transform import Rotation
+    from sfm_fixtures import turned_image  # pytest puts test/ on sys.path
+
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                               height=480, seed=3))
+    truth = rig.ground_truth()
+    later = [np.clip(im.astype(np.int16) + np.random.default_rng(c).integers(-3, 4, im.shape),
+                     0, 255).astype(np.uint8) for c, im in enumerate(rig.images[0])]
+    later[2] = turned_image(later[2], truth.cameras["cam2"].intrinsics,
+                            Rotation.from_euler("x", 1.0, degrees=True).as_matrix())
+    sets = [rig.images[0], later]
+    config = make_config("regular", matcher="sift")
+    regions = list(new_content_regions(sets))[1]
+    assert regions[2].mean() > 0.9 and not any(regions[c].any() for c in (0, 1, 3))
+    bumped = match_frame_sets(sets, config)[1]
+    assert all((m.target < 0).all() for m in bumped.pairs.values())
+    whole = match_frame_sets(sets, config, each_on_its_own=True)
+    report = check_latest(truth, rig.names, whole)
+    assert report.frame_sets_before_change == 1 and report.suspects == ["cam2"]

@@ -44,9 +44,9 @@ def run(args: argparse.Namespace) -> int:
         frame_sets, names, record, _ = read_input(args)
         require_calibrated_cameras(rig, names, frame_sets[0], at_least=2)
         config = make_config(matcher=args.matcher, cameras__masks=parse_masks(args.mask, names),
-                             detect_info_strips=not args.keep_info_strips,
-                             new_content_only=not args.match_whole_frames)
-        match_sets = match_frame_sets(frame_sets, config, camera_names=names)
+                             detect_info_strips=not args.keep_info_strips)
+        match_sets = match_frame_sets(frame_sets, config, camera_names=names,
+                                      each_on_its_own=True)
     except InputError as exc:
         log.error("%s", exc)
         return 2

@@ -177,14 +177,16 @@ def _check_one_group(two_view: dict, camera_names: Sequence[str]) -> None:
 def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,
                      matcher=None, progress: Progress = None,
                      camera_names: Optional[Sequence[str]] = None,
-                     strips: Optional[dict] = None, ignored: Optional[list] = None) -> list:
+                     strips: Optional[dict] = None, ignored: Optional[list] = None,
+                     each_on_its_own: bool = False) -> list:
     """One SiteMatchSet per frame set. matcher: an already loaded core.method.matching.Matcher to
     reuse (else config.matcher is created and loaded here). With config.cameras.masks (then
     camera_names is needed), matches on masked regions are dropped (core.method.masks), and on the
     info strips found (`strips` as info_strips gives them; None: looked for here); `ignored`:
     those regions as ignored_regions gives them, when already resolved. With
     config.new_content_only, frame sets after the first are matched only where they show
-    something new (core.method.new_content)."""
+    something new (core.method.new_content), unless each_on_its_own: every frame set whole, for
+    what judges each on its own (a check, a recalibration: a camera may have moved in between)."""
     from .method.masks import apply_masks
     from .method.matching import create_matcher
     from .method.new_content import describe as describe_regions
@@ -198,19 +200,23 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     if matcher is None:
         matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
         matcher.load()
-    regions = new_content_regions(frame_sets) if config.new_content_only else None
+    regions = new_content_regions(frame_sets) \
+        if config.new_content_only and not each_on_its_own else None
     match_sets, clock = [], StageClock(len(frame_sets))
     for t, frames in enumerate(frame_sets):
-        if regions is not None and t > 0:
+        where = next(regions) if regions is not None else None
+        if where is not None and ignored:  # nothing to detect where no match may lie
+            where = [r if r is None or skip is None else r & ~skip
+                     for r, skip in zip(where, ignored)]
+        if where is not None and t > 0:
             log.info("frame set %d: matched on %s of the images (what earlier frame sets did "
-                     "not show)", t + 1, describe_regions(regions[t]))
-        if regions is not None and all(r is not None and not r.any() for r in regions[t]):
+                     "not show)", t + 1, describe_regions(where))
+        if where is not None and all(r is not None and not r.any() for r in where):
             match_sets.append(SiteMatchSet(  # nothing new in any camera: nothing to match
                 sites=[np.zeros((0, 2)) for _ in frames], pairs={},
                 image_sizes=[(f.shape[1], f.shape[0]) for f in frames]))
         else:
-            match_sets.append(matcher.match(list(frames),
-                                            regions[t] if regions is not None else None))
+            match_sets.append(matcher.match(list(frames), where))
         if ignored:
             log.debug("frame set %d: %d match(es) on masked regions dropped", t,
                       apply_masks(match_sets[-1], ignored))
@@ -548,15 +554,16 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
 
 
 def checked_and_matched(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
-                        config: PipelineConfig, matcher=None, progress: Progress = None
-                        ) -> tuple[list, dict, list, list]:
+                        config: PipelineConfig, matcher=None, progress: Progress = None,
+                        each_on_its_own: bool = False) -> tuple[list, dict, list, list]:
     """The frame sets checked (check_frame_sets: the image sizes), their info strips and the
-    regions no match may use, and their matches (match_frame_sets)."""
+    regions no match may use, and their matches (match_frame_sets, each_on_its_own as there)."""
     image_sizes = check_frame_sets(frame_sets, camera_names)
     strips = info_strips(frame_sets, camera_names, config)
     ignored = ignored_regions(frame_sets, camera_names, config, strips)
     match_sets = match_frame_sets(frame_sets, config, matcher=matcher, progress=progress,
-                                  camera_names=camera_names, ignored=ignored)
+                                  camera_names=camera_names, ignored=ignored,
+                                  each_on_its_own=each_on_its_own)
     return image_sizes, strips, ignored, match_sets
 
 

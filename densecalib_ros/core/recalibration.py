@@ -69,8 +69,9 @@ def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     camera) and "change_summary". Raises CalibrationRejectedError when the best new result is worse
     than `previous`, and the pipeline's CalibrationError subclasses when calibration fails."""
     camera_names = list(camera_names)
-    image_sizes, strips, ignored, match_sets = checked_and_matched(frame_sets, camera_names,
-                                                                   config, matcher, progress)
+    # Every frame set matched whole: each is judged against the previous calibration on its own.
+    image_sizes, strips, ignored, match_sets = checked_and_matched(
+        frame_sets, camera_names, config, matcher, progress, each_on_its_own=True)
     before_change = sets_since_change(fits_per_frame_set_and_view(
         previous, camera_names, match_sets, frame_sets, previous_views or {},
         DEFAULT_TOLERANCE_PX))

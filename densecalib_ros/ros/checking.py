@@ -33,7 +33,7 @@ def check_frame_sets(rig: RigCalibration, calibration_dir: Optional[Path], s: Se
     from ..core.pipeline import match_frame_sets
 
     match_sets = match_frame_sets(images, pipeline_config(s), matcher=matcher,
-                                  camera_names=s.camera_names)
+                                  camera_names=s.camera_names, each_on_its_own=True)
     report = check_latest(rig, s.camera_names, match_sets, s.check_tolerance_px)
     k = report.frame_sets_before_change
     since = (f" (the change came before the frame set stamped {sets[k].stamp_ns * 1e-9:.3f} "

@@ -11,12 +11,15 @@ uncovered. So in frame set t > 0 keypoints are kept only where the image differs
 earlier frame set of the same camera (a region that differs from one earlier set but not from
 another showed this content before); both ends of a new correspondence lie in such regions, as a
 scene point that moved changed in every view that sees it. Where nothing is new (a static scene
-filmed twice), the frame set adds no matches; where everything changed (the light, or a camera
-that moved), it is matched whole.
+filmed twice), the frame set adds no matches; where the light changed, it is matched whole.
+
+This assumes the cameras stayed put over the frame sets. A camera bumped in between sees all new,
+its partners nothing new, so its later frame sets give it no matches: what judges each frame set
+on its own (checks, recalibration) matches them whole (pipeline.match_frame_sets' each_on_its_own).
 """
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Iterator, Optional, Sequence
 
 import cv2
 import numpy as np
@@ -48,11 +51,11 @@ def _small_grey(image: np.ndarray) -> np.ndarray:
 
 
 def new_content_regions(frame_sets: Sequence[Sequence[np.ndarray]]
-                        ) -> list[list[Optional[np.ndarray]]]:
-    """Per frame set and camera, bool (H, W) of the image's size: where that image shows what no
-    earlier frame set of the camera showed (module docstring), or None where the whole image is
-    to be matched (the first frame set; a camera whose image size changed)."""
-    regions: list[list[Optional[np.ndarray]]] = []
+                        ) -> Iterator[list[Optional[np.ndarray]]]:
+    """Per frame set (one at a time, as they are matched), per camera bool (H, W) of the image's
+    size: where that image shows what no earlier frame set of the camera showed (module
+    docstring), or None where the whole image is to be matched (the first frame set; a camera
+    whose image size changed)."""
     earlier: dict[int, list[np.ndarray]] = {}
     for t, frames in enumerate(frame_sets):
         row: list[Optional[np.ndarray]] = []
@@ -66,14 +69,13 @@ def new_content_regions(frame_sets: Sequence[Sequence[np.ndarray]]
                 for g in seen:
                     new &= cv2.absdiff(small, g) > CHANGE_GREY_LEVELS
                 height, width = image.shape[:2]
-                full = cv2.resize(new.astype(np.uint8), (width, height),
-                                  interpolation=cv2.INTER_NEAREST)
-                margin = max(1, int(round(MARGIN_FRACTION * max(height, width))))
+                margin = max(1, int(round(MARGIN_FRACTION * max(small.shape))))
                 kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
-                row.append(cv2.dilate(full, kernel) > 0)
+                grown = cv2.dilate(new.astype(np.uint8), kernel)
+                row.append(cv2.resize(grown, (width, height),
+                                      interpolation=cv2.INTER_NEAREST) > 0)
             seen.append(small)
-        regions.append(row)
-    return regions
+        yield row
 
 
 def describe(regions: Sequence[Optional[np.ndarray]]) -> str:

@@ -6,6 +6,7 @@ from typing import ClassVar, Optional, Sequence
 
 import numpy as np
 
+from ...errors import InputError
 from ...types import SiteMatchSet
 from .utils import check_images
 
@@ -50,6 +51,10 @@ class Matcher(abc.ABC):
         self.load()
         if regions is None or all(r is None for r in regions):
             return self._match(images)
+        if len(regions) != len(images) or any(
+                r is not None and r.shape != im.shape[:2] for r, im in zip(regions, images)):
+            raise InputError(f"{len(regions)} regions for {len(images)} images: give one per "
+                             "image, None or a bool mask of the image's height and width.")
         if self.detects_in_regions:
             return self._match(images, list(regions))
         from ..masks import apply_masks
