@@ -137,7 +137,8 @@ def test_a_pan_the_epipolar_figures_pass_fails_the_check(rig, references):
     names = rig.names[:2]
     pan = _pan_along_epipolar_lines(truth, "cam1", "cam0", 0.5)
     images = [fs[:2] for fs in _turned(rig.images[1:], rig, "cam1", pan)]
-    report = check_calibration(truth, names, match_frame_sets(images, make_config()), TOL)
+    report = check_calibration(truth, names, match_frame_sets(images, make_config(),
+                                                              each_on_its_own=True), TOL)
     assert report.fits  # the epipolar check alone passes it
     views = compare_with_reference_views(truth, names, images, references, TOL)
     fits, verdict = check_verdict(report, views)
@@ -147,7 +148,7 @@ def test_a_pan_the_epipolar_figures_pass_fails_the_check(rig, references):
     # a recalibration's split of its frame sets: the set from before the pan fits, the panned
     # ones do not (the epipolar figures alone call all three fitting)
     sets = [rig.images[1][:2], *images]
-    match_sets = match_frame_sets(sets, make_config())
+    match_sets = match_frame_sets(sets, make_config(), each_on_its_own=True)
     assert fits_per_frame_set(truth, names, match_sets) == [True, True, True]
     fits = fits_per_frame_set_and_view(truth, names, match_sets, sets, references, TOL)
     assert fits == [True, False, False] and sets_since_change(fits) == 1
