@@ -55,10 +55,16 @@ def test_a_static_scene_filmed_twice_adds_no_matches_and_the_same_calibration():
                                height=480, seed=0))
     noisy = [np.clip(im.astype(np.int16) + np.random.default_rng(1).integers(-3, 4, im.shape),
                      0, 255).astype(np.uint8) for im in rig.images[0]]
-    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    # sift (cheap to test with) made a matcher that matches later frame sets on what is new only
+    config = make_config("regular", matcher="sift", sfm__num_threads=1,
+                         new_content_matchers=("sift",))
     match_sets = match_frame_sets([rig.images[0], noisy], config, camera_names=rig.names)
     assert sum(len(s) for s in match_sets[0].sites) > 1000
     assert all(len(s) == 0 for s in match_sets[1].sites) and not match_sets[1].pairs
+    # by default sift matches every frame set whole (asift only on what is new)
+    whole = match_frame_sets([rig.images[0], noisy], make_config("regular", matcher="sift"),
+                             camera_names=rig.names)
+    assert sum(len(s) for s in whole[1].sites) > 1000
     once = calibrate_rig([rig.images[0]], rig.names, config)
     twice = calibrate_rig([rig.images[0], noisy], rig.names, config)
     for name in rig.names:
@@ -74,7 +80,7 @@ def test_a_scene_that_moves_between_frame_sets_calibrates_either_way(new_content
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
                                height=480, seed=3, num_time_steps=3))
     config = make_config("regular", matcher="sift", sfm__num_threads=1,
-                         new_content_only=new_content_only)
+                         new_content_matchers=("sift",) if new_content_only else ())
     match_sets = match_frame_sets(rig.images, config, camera_names=rig.names)
     sites = [sum(len(s) for s in m.sites) for m in match_sets]
     if new_content_only:
@@ -99,7 +105,7 @@ def test_a_camera_bumped_between_frame_sets_of_a_static_scene_is_found_by_checks
     later[2] = turned_image(later[2], truth.cameras["cam2"].intrinsics,
                             Rotation.from_euler("x", 1.0, degrees=True).as_matrix())
     sets = [rig.images[0], later]
-    config = make_config("regular", matcher="sift")
+    config = make_config("regular", matcher="sift", new_content_matchers=("sift",))
     regions = list(new_content_regions(sets))[1]
     assert regions[2].mean() > 0.9 and not any(regions[c].any() for c in (0, 1, 3))
     bumped = match_frame_sets(sets, config)[1]

@@ -207,7 +207,8 @@ def run(args: argparse.Namespace) -> int:
             config.cameras.known_intrinsics, names, check_frame_sets(frame_sets, names))
         config.cameras.masks = parse_masks(args.mask, names)
         config.detect_info_strips = not args.keep_info_strips
-        config.new_content_only = not args.match_whole_frames
+        if args.match_whole_frames:
+            config.new_content_matchers = ()
         if config.cameras.known_intrinsics:
             log.info("intrinsics given and kept for %s",
                      ", ".join(sorted(config.cameras.known_intrinsics)))

@@ -69,10 +69,11 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                              "date and temperature along the top or bottom edge), whose rows "
                              "are otherwise ignored in cameras without a --mask")
     parser.add_argument("--match-whole-frames", action="store_true",
-                        help="calibrate: match every frame set's whole images; by default frame "
-                             "sets after the first are matched only where a camera's image shows "
-                             "what its earlier ones did not (the static scene was matched in the "
-                             "first). Checks and recalibrations always match them whole")
+                        help="calibrate: match every frame set's whole images; by default asift "
+                             "(--matcher or the second matcher) matches frame sets after the first "
+                             "only where a camera's image shows what its earlier ones did not "
+                             "(the static scene was matched in the first). sift, checks and "
+                             "recalibrations always match them whole")
 
 
 def _alignment(args) -> tuple[dict, dict]:

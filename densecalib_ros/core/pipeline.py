@@ -184,8 +184,8 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     camera_names is needed), matches on masked regions are dropped (core.method.masks), and on the
     info strips found (`strips` as info_strips gives them; None: looked for here); `ignored`:
     those regions as ignored_regions gives them, when already resolved. With
-    config.new_content_only, frame sets after the first are matched only where they show
-    something new (core.method.new_content), unless each_on_its_own: every frame set whole, for
+    config.matcher in config.new_content_matchers, frame sets after the first are matched only
+    where they show something new (core.method.new_content), unless each_on_its_own: every frame set whole, for
     what judges each on its own (a check, a recalibration: a camera may have moved in between)."""
     from .method.masks import apply_masks
     from .method.matching import create_matcher
@@ -201,7 +201,7 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
         matcher = create_matcher(config.matcher, max_image_side_px=config.max_image_side_px)
         matcher.load()
     regions = new_content_regions(frame_sets) \
-        if config.new_content_only and not each_on_its_own else None
+        if config.matcher in config.new_content_matchers and not each_on_its_own else None
     match_sets, clock = [], StageClock(len(frame_sets))
     for t, frames in enumerate(frame_sets):
         where = next(regions) if regions is not None else None

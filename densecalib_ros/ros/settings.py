@@ -90,9 +90,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "detect_info_strips": (True, "find burnt-in info strips (a trail camera's bar of date and "
                            "temperature along the top or bottom edge) and ignore their rows in "
                            "cameras without a mask_files entry", False, {}),
-    "new_content_only": (True, "match frame sets after the first only where a camera's image "
-                         "shows what its earlier frame sets did not (false: whole images)",
-                         False, {}),
+    "new_content_only": (True, "asift (matcher or second_matcher) matches frame sets after the "
+                         "first only where a camera's image shows what its earlier frame sets "
+                         "did not (false: whole images)", False, {}),
     "intrinsics_files": (Parameter.Type.STRING_ARRAY,
                          "intrinsics to keep (cameras calibrated before: camera_info YAML, a "
                          "densecalib calibration, an anipose calibration.toml, a Kalibr "
@@ -228,7 +228,7 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
                        consensus_runs=s.consensus_runs, detect_info_strips=s.detect_info_strips,
-                       new_content_only=s.new_content_only,
+                       new_content_matchers=("asift",) if s.new_content_only else (),
                        second_matcher=s.second_matcher,
                        cameras__initial_focal_px=s.initial_focal_px, cameras__lens=s.camera_lens,
                        cameras__masks=s.camera_masks, cameras__known_intrinsics=s.known_intrinsics)
