@@ -19,6 +19,7 @@ value.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -30,6 +31,7 @@ from ..method.multistart import (HELD_OUT_TRUNCATION_PX, MULTISTART_MAX_TRACKS, 
                                  held_out_cost)
 from ..method.plausibility import implausible_cameras
 from ..method.reconstruction import SfMState, triangulate_tracks
+from ..parallel import map_jobs
 from ..types import Tracks
 
 log = logging.getLogger(__name__)
@@ -55,24 +57,27 @@ def hop_focals(state: SfMState, match_tracks: Tracks, camera_names: Sequence[str
     truncation = np.minimum(cost_truncation_px(config, state.num_cameras), HELD_OUT_TRUNCATION_PX)
     current = refine_on_tracks(state, sample, camera_names, config, seed)
     cost = held_out_cost(current, sample, truncation, seed)
+    # The trials of a round are independent: they run side by side (core.parallel), each BA on
+    # one core, so the outcome does not depend on how many ran at once (as the multi-start's).
+    trial_config = replace(config, num_threads=1)
     hops: list[str] = []
     for _ in range(MAX_ROUNDS):
         best = (cost * (1.0 - MIN_RELATIVE_GAIN), None, "")
+        tasks, labels = [], []
         for c in _hop_cameras(current):
             focal = float(current.camera(c).to_pycolmap().mean_focal_length())
             points = _points_without(current, c, seed)
             for factor in HOP_FACTORS:
-                trial = _kicked(current, c, focal * factor, points)
-                if trial is None:
-                    continue
-                trial = refine_on_tracks(trial, sample, camera_names, config, seed)
-                if implausible_cameras(trial):
-                    continue
-                trial_cost = held_out_cost(trial, sample, truncation, seed)
-                log.debug("focal hop %s x%.2f: %.4f px (now %.4f)", camera_names[c], factor,
-                          trial_cost, cost)
-                if trial_cost < best[0]:
-                    best = (trial_cost, trial, f"{camera_names[c]} x{factor:g}")
+                tasks.append((current, c, focal * factor, points, sample, camera_names,
+                              trial_config, seed, truncation))
+                labels.append(f"{camera_names[c]} x{factor:g}")
+        for label, outcome in zip(labels, map_jobs(_hop_trial, tasks, config.num_threads)):
+            if outcome is None:
+                continue
+            trial_cost, trial = outcome
+            log.debug("focal hop %s: %.4f px (now %.4f)", label, trial_cost, cost)
+            if trial_cost < best[0]:
+                best = (trial_cost, trial, label)
         if best[1] is None:
             break
         hops.append(f"focal hop {best[2]}: truncated cost on {sample.num_tracks} keypoint-match "
@@ -82,6 +87,20 @@ def hop_focals(state: SfMState, match_tracks: Tracks, camera_names: Sequence[str
     if not hops:
         return state, hops
     return refine_on_tracks(current, match_tracks, camera_names, config, seed), hops
+
+
+def _hop_trial(state: SfMState, c: int, focal_px: float, others: SfMState, sample: Tracks,
+               camera_names: Sequence[str], config: SfMConfig, seed: int,
+               truncation) -> Optional[tuple[float, SfMState]]:
+    """One hop (a worker's task): camera c kicked to focal_px (_kicked), the rig refined on
+    `sample`, and its truncated cost; None where it could not be posed or ended implausible."""
+    trial = _kicked(state, c, focal_px, others)
+    if trial is None:
+        return None
+    trial = refine_on_tracks(trial, sample, camera_names, config, seed)
+    if implausible_cameras(trial):
+        return None
+    return held_out_cost(trial, sample, truncation, seed), trial
 
 
 def _hop_cameras(state: SfMState) -> list[int]:
