@@ -166,10 +166,10 @@ class PipelineConfig:
     # run's focal multi-start settled (pipeline._consensus_runs). 1 = a single run.
     consensus_runs: int = 5
     # With these matchers, frame sets after the first are matched only where a camera's image
-    # shows what its earlier frame sets did not (core/method/new_content.py): asift costs ten
-    # times sift per frame set and its first set already holds ten times sift's matches of the
-    # static scene; sift matches every frame set whole, as its repeated detections of the static
-    # scene average their noise (docs/design-notes.md, Later frame sets: only what is new).
+    # shows what its earlier frame sets did not (core/method/new_content.py): asift costs tens of
+    # times sift per frame set and its first set already holds about ten times sift's matches of
+    # the static scene; sift matches every frame set whole, as its repeated detections of the
+    # static scene average their noise (docs/design-notes.md, Later frame sets: only what is new).
     new_content_matchers: tuple = ("asift",)
     # Refine the found rig once more on every keypoint match (all_matches.py; keypoint matchers
     # only): the sampled tracks find the rig, all the matches it agrees with refine it.

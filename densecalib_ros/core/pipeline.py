@@ -183,9 +183,9 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     reuse (else config.matcher is created and loaded here). With config.cameras.masks (then
     camera_names is needed), matches on masked regions are dropped (core.method.masks), and on the
     info strips found (`strips` as info_strips gives them; None: looked for here); `ignored`:
-    those regions as ignored_regions gives them, when already resolved. With
-    config.matcher in config.new_content_matchers, frame sets after the first are matched only
-    where they show something new (core.method.new_content), unless each_on_its_own: every frame set whole, for
+    those regions as ignored_regions gives them, when already resolved. With config.matcher in
+    config.new_content_matchers, frame sets after the first are matched only where they show
+    something new (core.method.new_content), unless each_on_its_own: every frame set whole, for
     what judges each on its own (a check, a recalibration: a camera may have moved in between)."""
     from .method.masks import apply_masks
     from .method.matching import create_matcher

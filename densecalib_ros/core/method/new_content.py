@@ -3,9 +3,9 @@ correspondences.
 
 The rig is rigid and its cameras do not move, so what stayed put between frame sets (walls,
 floor, furniture) looks the same in each of them, and its matches were found in the first frame
-set already: matched again in every later one, the same points come back as near-copies (the
-same scene point, not new evidence), and a keypoint matcher pays for them each time (asift:
-about 13 s per frame set of four 1280x720 webcams, most of it on the static room). What a later
+set already: matched again in every later one, the same points come back, re-detected with the
+frame's noise, and a keypoint matcher pays for them each time (asift: about 13 s per frame set
+of four 1280x720 webcams; matched on what is new only, the later sets took about 6 s). What a later
 frame set adds is what moved into view (a person, an animal, a board carried around) and what it
 uncovered. So in frame set t > 0 keypoints are kept only where the image differs from every
 earlier frame set of the same camera (a region that differs from one earlier set but not from
@@ -24,6 +24,8 @@ from typing import Iterator, Optional, Sequence
 import cv2
 import numpy as np
 
+from .matching.utils import resize_for_matching, to_gray
+
 # The images are compared at most this large (long side, px), blurred: enough to outline what
 # moved, and the earlier frame sets kept for the comparison stay small (uint8).
 COMPARE_SIDE_PX = 640
@@ -41,13 +43,8 @@ MARGIN_FRACTION = 0.02
 
 
 def _small_grey(image: np.ndarray) -> np.ndarray:
-    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    scale = min(1.0, COMPARE_SIDE_PX / max(grey.shape))
-    if scale < 1.0:
-        grey = cv2.resize(grey, (max(1, round(grey.shape[1] * scale)),
-                                 max(1, round(grey.shape[0] * scale))),
-                          interpolation=cv2.INTER_AREA)
-    return cv2.GaussianBlur(grey, (0, 0), BLUR_SIGMA_PX)
+    small, _ = resize_for_matching(to_gray(image), COMPARE_SIDE_PX)
+    return cv2.GaussianBlur(small, (0, 0), BLUR_SIGMA_PX)
 
 
 def new_content_regions(frame_sets: Sequence[Sequence[np.ndarray]]

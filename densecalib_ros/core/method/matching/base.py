@@ -22,6 +22,8 @@ class Matcher(abc.ABC):
     """
 
     name: ClassVar[str]
+    # Whether _match takes the regions (its keypoints only there) as its second argument.
+    detects_in_regions: ClassVar[bool] = False
 
     def __init__(self, max_image_side_px: int | None = 1024):
         self.max_image_side_px = max_image_side_px
@@ -62,9 +64,6 @@ class Matcher(abc.ABC):
         match_set = self._match(images)
         apply_masks(match_set, [None if r is None else ~r for r in regions])
         return match_set
-
-    # Whether _match takes the regions (its keypoints only there) as its second argument.
-    detects_in_regions: ClassVar[bool] = False
 
     @abc.abstractmethod
     def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
