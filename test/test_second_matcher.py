@@ -5,14 +5,17 @@ import numpy as np
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG
-from densecalib_ros.core.robust.second_matcher import (better_determined, rematch_applies,
+from densecalib_ros.core.robust.second_matcher import (AIMED_FOCAL_STD_FRACTION,
+                                                    better_determined, rematch_applies,
                                                     undetermined)
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
 
 
-def _rig(names=("a", "b", "c"), failed=(), disagreement=None):
+def _rig(names=("a", "b", "c"), failed=(), disagreement=None, focal_std_fraction=None):
     cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
-    rig = RigCalibration("a", {n: RigCamera(n, cam, np.eye(4)) for n in names},
+    quality = None if focal_std_fraction is None else \
+        CameraQuality(0.5, 1000, 0.8, focal_std_px=500.0 * focal_std_fraction)
+    rig = RigCalibration("a", {n: RigCamera(n, cam, np.eye(4), quality) for n in names},
                          failed_cameras=list(failed))
     rig.quality.consensus_disagreement_deg = disagreement
     return rig
@@ -25,6 +28,11 @@ def test_a_calibration_is_undetermined_without_result_with_a_failed_camera_or_ru
     assert far == f"the calibration runs disagree by {WARN_DISAGREEMENT_DEG + 2.0:.1f} deg"
     assert undetermined(_rig(disagreement=WARN_DISAGREEMENT_DEG)) is None
     assert undetermined(_rig(disagreement=None)) is None  # a single run: nothing to disagree
+    loose = undetermined(_rig(disagreement=0.2, focal_std_fraction=0.016))
+    assert loose == "the focal lengths are determined to 1.6 % only (1 sigma, median over the " \
+                    "cameras)"
+    assert undetermined(_rig(disagreement=0.2,
+                             focal_std_fraction=AIMED_FOCAL_STD_FRACTION)) is None
 
 
 def test_the_better_determined_calibration_registers_more_cameras_then_agrees_more():
@@ -34,6 +42,12 @@ def test_the_better_determined_calibration_registers_more_cameras_then_agrees_mo
     assert not better_determined(_rig(disagreement=0.5), _rig(disagreement=0.5))  # tie: keep b
     assert better_determined(partial, None) and not better_determined(None, partial)
     assert not better_determined(None, None)
+    # runs that agree (within AUC@3's threshold): the tighter focal lengths decide, not which
+    # agree more closely
+    tight = _rig(disagreement=0.9, focal_std_fraction=0.008)
+    assert better_determined(tight, _rig(disagreement=0.0, focal_std_fraction=0.017))
+    assert better_determined(_rig(disagreement=0.5, focal_std_fraction=0.03),
+                             _rig(disagreement=8.0, focal_std_fraction=0.001))
 
 
 def test_the_second_matcher_applies_to_fresh_calibrations_of_perspective_cameras_on_sift():

@@ -4,7 +4,8 @@ matches again with an affine-invariant matcher (asift) and keeps the better-dete
 
 A wide viewpoint change between neighbours (45-65 deg), or a long lens (25-35 deg field of view)
 whose views share little, leaves sift a few dozen correct matches per pair: a camera fails to
-register, no calibration comes out, or the consensus runs disagree about the rig. asift finds ten
+register, no calibration comes out, the consensus runs disagree about the rig, or the runs agree
+but the images leave the focal lengths looser than the calibration aims at. asift finds ten
 times the correct matches at those angles but takes five to ten times as long (docs/benchmarks.md,
 A second matcher), so it runs only where sift's calibration says it did not suffice, on rigs of
 any size: five to eight cameras leave those pairs as undetermined as three or four do. Fisheye
@@ -15,9 +16,17 @@ from __future__ import annotations
 
 from typing import Optional, Sequence
 
+import numpy as np
+
 from ..config import PipelineConfig, resolve_camera_lenses
+from ..method.focal_determination import weak_focal_fractions
 from ..types import RigCalibration
 from .consensus import WARN_DISAGREEMENT_DEG
+
+# The calibration aims at focal lengths right to 1 % (3D lengths and angles as right): a rig whose
+# cameras' focal sigma is above that at the median is not determined to the aim by its matches,
+# and its cameras err together, so a tenfold set of matches is worth its time.
+AIMED_FOCAL_STD_FRACTION = 0.01
 
 
 def perspective_on_sift(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
@@ -36,10 +45,18 @@ def rematch_applies(config: PipelineConfig, camera_names: Sequence[str],
             and config.second_matcher not in (None, "", config.matcher))
 
 
+def focal_std_fraction(rig: RigCalibration) -> float:
+    """The median over the rig's calibrated pinhole cameras of focal_std_px / focal
+    (focal_determination.weak_focal_fractions); 0 where none has a sigma."""
+    fractions = list(weak_focal_fractions(rig).values())
+    return float(np.median(fractions)) if fractions else 0.0
+
+
 def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
-    """Why a calibration leaves the rig undetermined (no calibration, a camera not registered, or
+    """Why a calibration leaves the rig undetermined (no calibration, a camera not registered,
     consensus runs that put the cameras beyond AUC@3's threshold from each other:
-    consensus.WARN_DISAGREEMENT_DEG), or None where it does not."""
+    consensus.WARN_DISAGREEMENT_DEG, or focal lengths looser than AIMED_FOCAL_STD_FRACTION), or
+    None where it does not."""
     if rig is None:
         return "no calibration came out"
     if rig.failed_cameras:
@@ -47,16 +64,23 @@ def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     disagreement = rig.quality.consensus_disagreement_deg
     if disagreement is not None and disagreement > WARN_DISAGREEMENT_DEG:
         return f"the calibration runs disagree by {disagreement:.1f} deg"
+    focal_fraction = focal_std_fraction(rig)
+    if focal_fraction > AIMED_FOCAL_STD_FRACTION:
+        return (f"the focal lengths are determined to {100 * focal_fraction:.1f} % only (1 sigma, "
+                "median over the cameras)")
     return None
 
 
 def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) -> bool:
     """Whether `a` is the calibration to keep over `b`: one where the other is None, else more
-    cameras registered, then the smaller disagreement between its consensus runs (the direct
-    measure of how well the images determine the rig); `b` on a tie."""
+    cameras registered, then the smaller disagreement between its consensus runs where they
+    disagree beyond WARN_DISAGREEMENT_DEG (the direct measure of how well the images determine
+    the rig), then the smaller focal sigma (focal_std_fraction); `b` on a tie."""
     if a is None or b is None:
         return b is None and a is not None
 
-    def rank(rig: RigCalibration) -> tuple[int, float]:
-        return len(rig.cameras), -(rig.quality.consensus_disagreement_deg or 0.0)
+    def rank(rig: RigCalibration) -> tuple[int, float, float]:
+        disagreement = rig.quality.consensus_disagreement_deg or 0.0
+        return (len(rig.cameras), -(disagreement if disagreement > WARN_DISAGREEMENT_DEG else 0.0),
+                -focal_std_fraction(rig))
     return rank(a) > rank(b)
