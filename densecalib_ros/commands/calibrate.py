@@ -39,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--second-matcher", default="asift",
                         choices=[*available_matchers(), "none"],
                         help="where perspective cameras matched with sift come out undetermined "
-                             "(a camera not registered, runs that disagree), match "
+                             "(a camera not registered, runs that disagree, focal lengths "
+                             "looser than 1 %%), match "
                              "again with this one and keep the better-determined calibration "
                              "(default asift; none: keep sift's)")
     parser.add_argument("--max-side", type=number_in(64, integer=True), default=None, metavar="PX",

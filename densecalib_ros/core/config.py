@@ -156,8 +156,9 @@ class PipelineConfig:
     pipeline: str = "incremental"  # "incremental" | "global"
     matcher: str = "sift"
     # Where perspective cameras matched with sift come out undetermined (a camera not
-    # registered, no calibration, runs that disagree), match again with this one and keep the
-    # better-determined calibration (core/robust/second_matcher.py); None: keep sift's.
+    # registered, no calibration, runs that disagree, focal lengths looser than the aim), match
+    # again with this one and keep the better-determined calibration
+    # (core/robust/second_matcher.py); None: keep sift's.
     second_matcher: Optional[str] = "asift"
     max_image_side_px: int = 1024  # images are matched at most at this size (coordinates rescaled)
     # Fresh calibrations run the sampling + SfM up to this many times (seeds seed, seed+1, ...) and

@@ -106,7 +106,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "pipeline": (DEFAULT_PIPELINE, "SfM pipeline: incremental or global", False, {}),
     "matcher": ("sift", "matcher backend", False, {}),
     "second_matcher": ("asift", "where perspective cameras matched with sift come out "
-                       "undetermined (a camera not registered, runs that disagree), match again "
+                       "undetermined (a camera not registered, runs that disagree, focal lengths "
+                       "looser than 1 %), match again "
                        "with this one and keep the better-determined calibration (none: keep "
                        "sift's)", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
