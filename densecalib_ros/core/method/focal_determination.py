@@ -63,12 +63,19 @@ def weak_focal_fractions(rig: RigCalibration) -> dict[str, float]:
     return out
 
 
+def median_focal_std_fraction(rig: RigCalibration) -> float:
+    """The median of weak_focal_fractions over the rig's cameras (its cameras err together, so
+    the rig is as determined as its median camera); 0 where none has a sigma."""
+    fractions = list(weak_focal_fractions(rig).values())
+    return float(np.median(fractions)) if fractions else 0.0
+
+
 def weak_focal_warning(rig: RigCalibration) -> Optional[str]:
-    """The message for a user whose images leave the rig's focal lengths open (the median of its
-    cameras' f_std / focal above WEAK_FOCAL_STD_FRACTION), else None."""
-    fractions = weak_focal_fractions(rig)
-    if not fractions or np.median(list(fractions.values())) <= WEAK_FOCAL_STD_FRACTION:
+    """The message for a user whose images leave the rig's focal lengths open
+    (median_focal_std_fraction above WEAK_FOCAL_STD_FRACTION), else None."""
+    if median_focal_std_fraction(rig) <= WEAK_FOCAL_STD_FRACTION:
         return None
+    fractions = weak_focal_fractions(rig)
     listed = ", ".join(f"{n} {100 * v:.1f} %" for n, v in
                        sorted(fractions.items(), key=lambda item: -item[1]))
     spread_deg = optical_axes_spread_deg(rig)

@@ -21,9 +21,10 @@ weighed by their spreads put it: the precision-weighted mean of the estimate fro
 images place 1.7 % of the side off moved every camera of a generated rig (focal 6 % low, pair
 rotations 3 deg off) although the folds' mean lay within 1 px of the truth (docs/design-notes.md,
 Image refinement: a held principal point). The prior's centre is the image centre, or in a
-recalibration the point the previous calibration of the same camera estimated from its images (pp_centres): a bump or a refocus leaves it where it was,
-and the fold decision, near its threshold, can go either way between runs (measured:
-docs/design-notes.md, Principal point prior in a recalibration). The pixel aspect is always
+recalibration the point the previous calibration of the same camera estimated from its images
+(pp_centres): a bump or a refocus leaves it where it was, and the fold decision, near its
+threshold, can go either way between runs (measured: docs/design-notes.md, Principal point prior
+in a recalibration). The pixel aspect is always
 estimated with its prior (holding a real sensor's aspect at 1 moves the principal points far:
 docs/design-notes.md, Image refinement: folds and the aspect prior); the cameras are written as
 OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
@@ -69,8 +70,9 @@ MIN_CAMERA_OBSERVATIONS = 50
 @dataclass
 class ImageRefinement:
     """What the stage did: the state after it, the adjustment, per camera name which intrinsics
-    the images determined (INTRINSIC_NAMES; a principal point not listed was held at the image
-    centre, an aspect not listed rests on its prior) and its CameraUncertainty."""
+    the images determined (INTRINSIC_NAMES; a principal point not listed was held between the
+    images' estimate and the prior's centre, an aspect not listed rests on its prior) and its
+    CameraUncertainty."""
 
     state: SfMState
     adjustment: PriorAdjustment
@@ -189,7 +191,8 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
     folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
     images does not decide it. Also per block the folds' standard deviations of the mean of the
-    principal point and of the focal length (px): how far off the images leave them."""
+    principal point (per axis) and of the focal length (px): how far off the images leave
+    them."""
     first = np.argmax(tracks.observed(), axis=1)
     xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
     cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
@@ -215,8 +218,7 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
             continue
         spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
         std_of_mean = spread / np.sqrt(len(values))
-        spread_of[b] = dict(principal_point_px=float(max(std_of_mean[0], std_of_mean[1])),
-                            principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
+        spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
                             focal_px=float(std_of_mean[3]))
         log.debug("block %d: fold estimates of cx, cy, aspect %s, sigma of their mean %s", b,
                   np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
@@ -283,7 +285,7 @@ def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigma
                     fold_sigmas.get("focal_px", 0.0))
     pp_std = float(np.sqrt(max(cov[1, 1], cov[2, 2], 0.0)))
     if pp_estimated:
-        pp_std = max(pp_std, fold_sigmas.get("principal_point_px", 0.0))
+        pp_std = max(pp_std, *fold_sigmas.get("principal_point_axes_px", (0.0,)))
     else:  # held: at most as far off as its prior allows (real lenses' offsets)
         pp_std = PP_PRIOR_STD_FRACTION * max(cam.width, cam.height)
     projection = projection_std_px(cam.to_pycolmap(), list(range(len(cam.params))), params_cov)

@@ -16,10 +16,8 @@ from __future__ import annotations
 
 from typing import Optional, Sequence
 
-import numpy as np
-
 from ..config import PipelineConfig, resolve_camera_lenses
-from ..method.focal_determination import weak_focal_fractions
+from ..method.focal_determination import median_focal_std_fraction
 from ..types import RigCalibration
 from .consensus import WARN_DISAGREEMENT_DEG
 
@@ -45,13 +43,6 @@ def rematch_applies(config: PipelineConfig, camera_names: Sequence[str],
             and config.second_matcher not in (None, "", config.matcher))
 
 
-def focal_std_fraction(rig: RigCalibration) -> float:
-    """The median over the rig's calibrated pinhole cameras of focal_std_px / focal
-    (focal_determination.weak_focal_fractions); 0 where none has a sigma."""
-    fractions = list(weak_focal_fractions(rig).values())
-    return float(np.median(fractions)) if fractions else 0.0
-
-
 def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     """Why a calibration leaves the rig undetermined (no calibration, a camera not registered,
     consensus runs that put the cameras beyond AUC@3's threshold from each other:
@@ -64,7 +55,7 @@ def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     disagreement = rig.quality.consensus_disagreement_deg
     if disagreement is not None and disagreement > WARN_DISAGREEMENT_DEG:
         return f"the calibration runs disagree by {disagreement:.1f} deg"
-    focal_fraction = focal_std_fraction(rig)
+    focal_fraction = median_focal_std_fraction(rig)
     if focal_fraction > AIMED_FOCAL_STD_FRACTION:
         return (f"the focal lengths are determined to {100 * focal_fraction:.1f} % only (1 sigma, "
                 "median over the cameras)")
@@ -75,12 +66,13 @@ def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) 
     """Whether `a` is the calibration to keep over `b`: one where the other is None, else more
     cameras registered, then the smaller disagreement between its consensus runs where they
     disagree beyond WARN_DISAGREEMENT_DEG (the direct measure of how well the images determine
-    the rig), then the smaller focal sigma (focal_std_fraction); `b` on a tie."""
+    the rig), then the smaller focal sigma
+    (focal_determination.median_focal_std_fraction); `b` on a tie."""
     if a is None or b is None:
         return b is None and a is not None
 
     def rank(rig: RigCalibration) -> tuple[int, float, float]:
         disagreement = rig.quality.consensus_disagreement_deg or 0.0
         return (len(rig.cameras), -(disagreement if disagreement > WARN_DISAGREEMENT_DEG else 0.0),
-                -focal_std_fraction(rig))
+                -median_focal_std_fraction(rig))
     return rank(a) > rank(b)
