@@ -106,3 +106,51 @@ def test_a_forward_facing_rig_is_warned_about_and_one_around_the_scene_is_not(la
         assert optical_axes_spread_deg(result.rig) > 30.0
         assert warnings == [] and max(fractions.values()) < 0.05
         assert np.median(errors) < 0.02
+
+
+def _probe_state(yaws_deg, noise_px=0.3):
+    """Four cameras with the same intrinsics 0.3 m apart along x, each turned by its yaw about
+    the vertical, or on gt_rig's 60 deg arc (yaws_deg None); the truth's poses, points
+    triangulated and adjusted with the image refinement's priors. (state, blocks, priors, noise
+    of the adjustment)."""
+    from sfm_fixtures import gt_rig, gt_tracks, look_at
+
+    from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
+    from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+
+    cams, poses = gt_rig(4, seed=1)
+    if yaws_deg is not None:
+        poses = []
+        for c, yaw in enumerate(yaws_deg):
+            centre = np.array([0.3 * (c - 1.5), 0.0, 0.0])
+            target = centre + [np.sin(np.radians(yaw)), 0.0, np.cos(np.radians(yaw))]
+            poses.append(look_at(centre, target))
+        cams = [cams[0]] * 4
+    tracks = gt_tracks(cams, poses, num_points=3000, noise_px=noise_px, outlier_frac=0.0)
+    state = SfMState.create(tracks, list(cams))
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state, max_error_px=50.0)
+    blocks = sorted(set(int(b) for b in state.camera_block))
+    priors = Priors({b: 6.4 for b in blocks}, {b: None for b in blocks})
+    adjustment = adjust_with_priors(state, blocks, priors)
+    return state, blocks, priors, adjustment.noise_px
+
+
+@pytest.mark.parametrize("layout", ["bar", "arc"])
+def test_the_probe_finds_the_focal_scale_open_on_a_bar_and_fixed_around_the_scene(layout):
+    from densecalib_ros.core.method.focal_determination import (axes_spread_deg,
+                                                                probed_focal_scale_std)
+
+    # On the bar the axes are within 1 deg of each other: the images leave the common scale of
+    # the focal lengths open (exactly so for parallel axes), and a restart 15 % away fits as
+    # well. 60 deg around the scene the restarts' cost rises by hundreds of sigmas.
+    state, blocks, priors, noise_px = _probe_state([0.5, -0.5, 0.3, -0.2] if layout == "bar"
+                                                   else None)
+    spread = axes_spread_deg([state.cam_from_world[c][:3, :3] for c in state.registered()])
+    before = [c.params.copy() for c in state.intrinsics]
+    std = probed_focal_scale_std(state, blocks, priors, noise_px)
+    assert all(np.array_equal(a, c.params) for a, c in zip(before, state.intrinsics))  # untouched
+    if layout == "bar":
+        assert spread < 2.0 and std > 0.05
+    else:
+        assert spread > 30.0 and std < 0.01

@@ -2,6 +2,7 @@
 when sift's calibration counts as undetermined, which result is kept, and where the second matcher
 applies at all. The pipeline's use of it on a generated wide rig is in test_pipeline.py."""
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG
@@ -11,12 +12,18 @@ from densecalib_ros.core.robust.second_matcher import (AIMED_FOCAL_STD_FRACTION,
 from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
 
 
-def _rig(names=("a", "b", "c"), failed=(), disagreement=None, focal_std_fraction=None):
+def _rig(names=("a", "b", "c"), failed=(), disagreement=None, focal_std_fraction=None,
+         step_deg=30.0):
+    """Cameras turned step_deg from each other about the vertical."""
     cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
     quality = None if focal_std_fraction is None else \
         CameraQuality(0.5, 1000, 0.8, focal_std_px=500.0 * focal_std_fraction)
-    rig = RigCalibration("a", {n: RigCamera(n, cam, np.eye(4), quality) for n in names},
-                         failed_cameras=list(failed))
+    cameras = {}
+    for i, n in enumerate(names):
+        cam_from_rig = np.eye(4)
+        cam_from_rig[:3, :3] = Rotation.from_euler("y", i * step_deg, degrees=True).as_matrix()
+        cameras[n] = RigCamera(n, cam, cam_from_rig, quality)
+    rig = RigCalibration("a", cameras, failed_cameras=list(failed))
     rig.quality.consensus_disagreement_deg = disagreement
     return rig
 
@@ -33,6 +40,8 @@ def test_a_calibration_is_undetermined_without_result_with_a_failed_camera_or_ru
                     "cameras)"
     assert undetermined(_rig(disagreement=0.2,
                              focal_std_fraction=AIMED_FOCAL_STD_FRACTION)) is None
+    # cameras that look the same way: their layout, not their matches, leaves the focal open
+    assert undetermined(_rig(disagreement=0.2, focal_std_fraction=0.11, step_deg=2.0)) is None
 
 
 def test_the_better_determined_calibration_registers_more_cameras_then_agrees_more():

@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         choices=[*available_matchers(), "none"],
                         help="where perspective cameras matched with sift come out undetermined "
                              "(a camera not registered, runs that disagree, focal lengths "
-                             "looser than 1 %%), match "
+                             "looser than 1 %% where the cameras do not all look one way), match "
                              "again with this one and keep the better-determined calibration "
                              "(default asift; none: keep sift's)")
     parser.add_argument("--max-side", type=number_in(64, integer=True), default=None, metavar="PX",

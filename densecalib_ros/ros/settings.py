@@ -107,7 +107,7 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "matcher": ("sift", "matcher backend", False, {}),
     "second_matcher": ("asift", "where perspective cameras matched with sift come out "
                        "undetermined (a camera not registered, runs that disagree, focal lengths "
-                       "looser than 1 %), match again "
+                       "looser than 1 % where the cameras do not all look one way), match again "
                        "with this one and keep the better-determined calibration (none: keep "
                        "sift's)", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "

@@ -21,16 +21,30 @@ Fisheye cameras are left out: their focal trades against the distortion terms ov
 seen field with the projection still well determined (read their proj_std). The same figure
 flags cameras well apart whose matches leave the focal open (3-camera rigs with few or bunched
 matches; on the held-out bench it fired on such rigs whose result was off): the message then
-names the matches, not the layout, as the cause (FORWARD_SPREAD_DEG)."""
+names the matches, not the layout, as the cause (FORWARD_SPREAD_DEG).
+
+On a rig whose optical axes spread under FORWARD_SPREAD_DEG the covariance does not see it: the
+cost over the focal lengths there is a long, curved, nearly flat valley, the adjustment stops
+anywhere along it, and the local curvature it inverts says 0.2-3 % where the focal lengths are
+15-35 % off (docs/design-notes.md, Cameras that look the same way: the focal-scale probe). So on
+such rigs the image refinement probes the valley (probed_focal_scale_std): it restarts the
+adjustment from the found rig with every focal length PROBE_STEP shorter and longer, and a
+restart that ends as good a fit at a focal scale well away from the found one shows the images
+leave that scale open; the cameras' focal sigmas are raised to what the probe shows."""
 from __future__ import annotations
 
+import logging
 from typing import Optional
 
 import numpy as np
 
 from ..config import lens_of_model
 from ..metrics import mean_focal_px
-from ..types import RigCalibration
+from ..types import CameraIntrinsics, RigCalibration
+from .prior_adjustment import Priors, adjust_with_priors
+from .reconstruction import SfMState
+
+log = logging.getLogger(__name__)
 
 # A focal whose 1-sigma is 5 % of it may well be 10 % off: 3D lengths and angles off by as much,
 # ten times the 1 % the calibration aims at.
@@ -39,14 +53,80 @@ WEAK_FOCAL_PREFIX = "focal lengths weakly determined by these images"
 # Below this spread of the optical axes the rig's layout is the likely cause (a bar, a stereo
 # head); above it, the matches are.
 FORWARD_SPREAD_DEG = 20.0
+# The probe's restarts: every focal length this fraction shorter and longer, three times the
+# warning's 5 %, so that on a rig determined to that a restart's cost rises by 9 (3 sigma).
+PROBE_STEP = 0.15
+# Adjustment iterations of each restart, and of the found rig again so that all three have had as
+# many (the adjustment crawls along the valley: from 15 % off a determined rig comes back most of
+# the way in this many).
+PROBE_ITERATIONS = 30
+
+
+def axes_spread_deg(cam_from_world_rotations) -> float:
+    """The largest angle (deg) between two cameras' optical axes, given their (3, 3) rotations
+    from a common frame; 0 for one camera."""
+    axes = np.array([np.asarray(R)[2, :] for R in cam_from_world_rotations])
+    if not len(axes):
+        return 0.0
+    cosines = np.clip(axes @ axes.T, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cosines.min())))
 
 
 def optical_axes_spread_deg(rig: RigCalibration) -> float:
-    """The largest angle (deg) between two cameras' optical axes; 0 for one camera."""
-    axes = np.array([cam.cam_from_rig[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-                     for cam in rig.cameras.values()])
-    cosines = np.clip(axes @ axes.T, -1.0, 1.0)
-    return float(np.degrees(np.arccos(cosines.min()))) if len(axes) else 0.0
+    """axes_spread_deg of a calibrated rig's cameras."""
+    return axes_spread_deg([cam.cam_from_rig[:3, :3] for cam in rig.cameras.values()])
+
+
+def probed_focal_scale_std(state: SfMState, blocks: list[int], priors: Priors,
+                           noise_px: float) -> float:
+    """The standard deviation (fraction) of a common scale of the `blocks`' focal lengths that a
+    probe of the adjustment's cost shows (module docstring): from `state` (adjusted with `priors`
+    at `noise_px`; left as it is) every focal length is scaled by 1 / (1 + PROBE_STEP) and
+    1 + PROBE_STEP, and each restart and the found rig are adjusted PROBE_ITERATIONS more. A
+    restart that ends at focal lengths |ln r| from the found ones (r: the median ratio) for a
+    cost rise dC (in units of the noise: one is one sigma) puts the sigma at |ln r| / sqrt(dC),
+    with dC taken at least 1: a rig as good a fit that far away is within one sigma of it. The
+    larger of the two; 0 where no restart could be adjusted."""
+    found = state.copy()
+    try:
+        found_cost = adjust_with_priors(found, blocks, priors, PROBE_ITERATIONS,
+                                        noise_px).cost_after
+    except (ValueError, np.linalg.LinAlgError):
+        return 0.0
+    std = 0.0
+    for k in (1.0 / (1.0 + PROBE_STEP), 1.0 + PROBE_STEP):
+        trial = _focal_scaled(found, blocks, k)
+        try:
+            cost = adjust_with_priors(trial, blocks, priors, PROBE_ITERATIONS,
+                                      noise_px).cost_after
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        ratio = np.median([trial.intrinsics[b].params[0] / found.intrinsics[b].params[0]
+                           for b in blocks])
+        std = max(std, abs(float(np.log(ratio))) / np.sqrt(max(cost - found_cost, 1.0)))
+        log.debug("focal-scale probe from %.3f: ended at %.3f of the found focal lengths, cost "
+                  "%+.1f", k, ratio, cost - found_cost)
+    return std
+
+
+def _focal_scaled(state: SfMState, blocks: list[int], k: float) -> SfMState:
+    """A copy of `state` with the blocks' focal lengths times k and the points stretched by k
+    along the reference camera's axis, which for cameras that only translate reprojects every
+    point as before with k1 -> k^2 k1, k2 -> k^4 k2 (module docstring)."""
+    out = state.copy()
+    for b in blocks:
+        cam = out.intrinsics[b]
+        p = np.array(cam.params, float)
+        f, k1 = ([0, 1], 4) if cam.model == "OPENCV" else ([0], 3)
+        p[f] *= k
+        p[k1] *= k ** 2
+        p[k1 + 1] *= k ** 4
+        out.intrinsics[b] = CameraIntrinsics(cam.model, cam.width, cam.height, p)
+    T = out.cam_from_world[out.registered()[0]]
+    in_reference = out.points_xyz @ T[:3, :3].T + T[:3, 3]
+    in_reference[:, 2] *= k
+    out.points_xyz = (in_reference - T[:3, 3]) @ T[:3, :3]
+    return out
 
 
 def weak_focal_fractions(rig: RigCalibration) -> dict[str, float]:

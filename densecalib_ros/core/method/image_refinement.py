@@ -39,6 +39,7 @@ import numpy as np
 
 from ..types import Tracks
 from .dense_matches import dense_tracks
+from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, posterior_covariance)
 from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
@@ -150,8 +151,15 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     if held != priors:
         _hold_principal_points(refined, blocks, held, priors, fold_sigmas)
         adjustment = adjust_with_priors(refined, blocks, held, noise_px=adjustment.noise_px)
+        # The held point moved the rig: an observation it now leaves beyond the gate (a point
+        # pushed behind a camera) is not part of the fit, nor of the camera's reported RMS.
+        remove_outlier_observations(refined, GATE_SIGMAS * adjustment.residual_scale_px)
     say(f"refined on {int(refined.point_mask().sum())} dense image correspondences "
         f"(noise {adjustment.noise_px:.2f} px)")
+    scale_std = 0.0  # of the focal lengths' common scale, where the layout leaves it open
+    if axes_spread_deg([refined.cam_from_world[c][:3, :3] for c in refined.registered()]) \
+            < FORWARD_SPREAD_DEG:
+        scale_std = probed_focal_scale_std(refined, blocks, held, adjustment.noise_px)
     # Sigmas with every prior in place: a held principal point may be off by its prior's spread,
     # and the focal length leans on it.
     covariance = posterior_covariance(refined, blocks, priors, adjustment.noise_px)
@@ -164,7 +172,7 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
                 (["aspect"] if "aspect" in determined[b] else [])
             sigmas[camera_names[c]] = _camera_uncertainty(
                 refined, b, covariance[b], fold_sigmas.get(b, {}),
-                "principal point" in determined[b])
+                "principal point" in determined[b], scale_std)
     return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas)
 
 
@@ -263,11 +271,12 @@ def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, pri
 
 
 def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigmas: dict,
-                        pp_estimated: bool) -> CameraUncertainty:
+                        pp_estimated: bool, focal_scale_std: float = 0.0) -> CameraUncertainty:
     """Focal, principal point and projection standard deviations of a block from the
     adjustment's covariance of INTRINSIC_NAMES, in the block's COLMAP model; the focal's and an
     estimated principal point's at least the folds' (fold_sigmas: _determined_by_images), which
-    see the errors the covariance assumes away."""
+    see the errors the covariance assumes away, and the focal's at least focal_scale_std (a
+    fraction: focal_determination.probed_focal_scale_std) of it."""
     cam = state.intrinsics[block]
     f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if cam.model == "OPENCV" else 0.0)
     n = len(INTRINSIC_NAMES)
@@ -282,7 +291,7 @@ def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigma
     mean_focal = np.zeros(n)
     mean_focal[0], mean_focal[5] = 1.0 + a / 2.0, f / 2.0
     focal_std = max(float(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0))),
-                    fold_sigmas.get("focal_px", 0.0))
+                    fold_sigmas.get("focal_px", 0.0), focal_scale_std * f * (1.0 + a / 2.0))
     pp_std = float(np.sqrt(max(cov[1, 1], cov[2, 2], 0.0)))
     if pp_estimated:
         pp_std = max(pp_std, *fold_sigmas.get("principal_point_axes_px", (0.0,)))

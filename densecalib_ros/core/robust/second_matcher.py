@@ -17,7 +17,8 @@ from __future__ import annotations
 from typing import Optional, Sequence
 
 from ..config import PipelineConfig, resolve_camera_lenses
-from ..method.focal_determination import median_focal_std_fraction
+from ..method.focal_determination import (FORWARD_SPREAD_DEG, median_focal_std_fraction,
+                                          optical_axes_spread_deg)
 from ..types import RigCalibration
 from .consensus import WARN_DISAGREEMENT_DEG
 
@@ -46,8 +47,8 @@ def rematch_applies(config: PipelineConfig, camera_names: Sequence[str],
 def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     """Why a calibration leaves the rig undetermined (no calibration, a camera not registered,
     consensus runs that put the cameras beyond AUC@3's threshold from each other:
-    consensus.WARN_DISAGREEMENT_DEG, or focal lengths looser than AIMED_FOCAL_STD_FRACTION), or
-    None where it does not."""
+    consensus.WARN_DISAGREEMENT_DEG, or focal lengths looser than AIMED_FOCAL_STD_FRACTION on a
+    rig whose optical axes spread FORWARD_SPREAD_DEG or more), or None where it does not."""
     if rig is None:
         return "no calibration came out"
     if rig.failed_cameras:
@@ -56,7 +57,10 @@ def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     if disagreement is not None and disagreement > WARN_DISAGREEMENT_DEG:
         return f"the calibration runs disagree by {disagreement:.1f} deg"
     focal_fraction = median_focal_std_fraction(rig)
-    if focal_fraction > AIMED_FOCAL_STD_FRACTION:
+    # Where the cameras look the same way the focal lengths rest on the few degrees between
+    # their axes, which no matcher adds to (docs/design-notes.md, the focal-scale probe).
+    if focal_fraction > AIMED_FOCAL_STD_FRACTION and \
+            optical_axes_spread_deg(rig) >= FORWARD_SPREAD_DEG:
         return (f"the focal lengths are determined to {100 * focal_fraction:.1f} % only (1 sigma, "
                 "median over the cameras)")
     return None
