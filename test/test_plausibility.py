@@ -91,3 +91,35 @@ def test_radial_coefficients_are_read_from_the_colmap_parameter_order():
                 folded = params.copy()
                 folded[names.index(k)] = -3.0
                 assert "folds the image" in intrinsics_problem(cam(model, folded)), (model, k)
+
+
+def test_principal_points_and_aspects_no_real_lens_has_are_named_and_warned():
+    from densecalib_ros.core.method.plausibility import (UNLIKE_LENS_PREFIX, unlike_a_real_lens,
+                                                         unlike_lens_warning)
+
+    def opencv(fx, fy, cx, cy):
+        return CameraIntrinsics("OPENCV", 1024, 768, np.array([fx, fy, cx, cy, -0.1, 0.0, 0, 0]))
+
+    # s603 of `densecalib bench --forward` (four cameras on a bar) came out like this
+    stretched = opencv(1994.0, 2476.1, 361.0, 394.2)
+    assert unlike_a_real_lens(stretched) == \
+        "principal point 151 px (15 % of the long side) off the image centre, pixel aspect " \
+        "fy/fx 1.242"
+    # a real lens: 2 % off-centre on both axes, pixels square to 0.5 %
+    real = opencv(800.0, 804.0, 512 + 20.0, 384 - 20.0)
+    assert unlike_a_real_lens(real) is None
+    assert unlike_a_real_lens(opencv(800.0, 800.0, 512 + 52.0, 384.0)) is not None  # 5.1 %
+    assert unlike_a_real_lens(opencv(800.0, 813.0, 512.0, 384.0)) is not None  # 1.6 %
+    radial = CameraIntrinsics("RADIAL", 1024, 768, np.array([800.0, 512 + 60.0, 384.0, 0, 0]))
+    assert unlike_a_real_lens(radial) == \
+        "principal point 60 px (6 % of the long side) off the image centre"
+    fisheye = CameraIntrinsics("OPENCV_FISHEYE", 1024, 768,
+                               np.array([300.0, 330.0, 600.0, 384.0, 0.0, 0.0, 0.0, 0.0]))
+    assert unlike_a_real_lens(fisheye) is None  # the images place a fisheye's centre
+
+    warning = unlike_lens_warning({"cam0": stretched, "cam1": real, "lab": stretched},
+                                  given=["lab"])
+    assert warning.startswith(f"{UNLIKE_LENS_PREFIX}: cam0 principal point 151 px")
+    assert "lab" not in warning.split(". ")[0] and "cam1" not in warning
+    assert "--intrinsics" in warning
+    assert unlike_lens_warning({"cam1": real}) is None

@@ -26,6 +26,7 @@ from .method.known_intrinsics import (check_known_intrinsics, describe as descri
                                       given_intrinsics_fit, given_intrinsics_warnings)
 from .method.masks import ignored_regions, info_strips
 from .method.multistart import MULTISTART_MAX_TRACKS, run_incremental
+from .method.plausibility import unlike_lens_warning
 from .method.reconstruction import SfMState, colour_points
 from .method.twoview import epipolar_filter, fundamental_matrices
 from .method.view_graph import pair_track_counts
@@ -265,9 +266,11 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
         result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
         for warning in given_intrinsics_warnings(result.rig.quality.given_intrinsics_fit or {}):
             warn_user(result.rig, warning, progress)
-    warning = weak_focal_warning(result.rig)
-    if warning:
-        warn_user(result.rig, warning, progress)
+    for warning in (unlike_lens_warning({n: c.intrinsics for n, c in result.rig.cameras.items()},
+                                        list(result.rig.quality.given_intrinsics or ())),
+                    weak_focal_warning(result.rig)):
+        if warning:
+            warn_user(result.rig, warning, progress)
     return result
 
 

@@ -92,6 +92,52 @@ def intrinsics_problem(camera: CameraIntrinsics,
     return None
 
 
+# Real lenses put the principal point within about 2 % of the image's long side from its centre
+# and their pixels are square to within 0.5 % (docs/design-notes.md, Real cameras' principal
+# points). Five of the image refinement's prior sigmas (1 % and 0.3 %) out, a self-calibrated value
+# is one the images moved where they do not determine it, not a lens.
+UNLIKE_PP_OFFSET_FRACTION = 0.05
+UNLIKE_ASPECT_DEVIATION = 0.015
+UNLIKE_LENS_PREFIX = "intrinsics no real lens has"
+
+
+def unlike_a_real_lens(camera: CameraIntrinsics) -> Optional[str]:
+    """What about a perspective camera's principal point or pixel aspect no real lens has (an
+    offset from the image centre beyond UNLIKE_PP_OFFSET_FRACTION of the long side, fy / fx
+    beyond 1 +- UNLIKE_ASPECT_DEVIATION), else None. Fisheye and unknown models: None (a fisheye's
+    principal point is the images' to place)."""
+    layout = _LAYOUT.get(camera.model)
+    if layout is None or layout[5]:
+        return None
+    fx_i, fy_i, cx_i, cy_i = layout[:4]
+    params = np.asarray(camera.params, dtype=np.float64)
+    size = max(camera.width, camera.height)
+    problems = []
+    offset_px = float(np.hypot(params[cx_i] - camera.width / 2.0,
+                               params[cy_i] - camera.height / 2.0))
+    if offset_px > UNLIKE_PP_OFFSET_FRACTION * size:
+        problems.append(f"principal point {offset_px:.0f} px ({100 * offset_px / size:.0f} % "
+                        "of the long side) off the image centre")
+    if fy_i is not None and abs(params[fy_i] / params[fx_i] - 1.0) > UNLIKE_ASPECT_DEVIATION:
+        problems.append(f"pixel aspect fy/fx {params[fy_i] / params[fx_i]:.3f}")
+    return ", ".join(problems) or None
+
+
+def unlike_lens_warning(cameras: dict, given: Sequence[str] = ()) -> Optional[str]:
+    """The warning for a calibration whose self-calibrated cameras (name -> CameraIntrinsics;
+    those in `given` left out) include one unlike_a_real_lens, else None."""
+    problems = {name: problem for name, cam in cameras.items()
+                if name not in set(given) and (problem := unlike_a_real_lens(cam)) is not None}
+    if not problems:
+        return None
+    return (f"{UNLIKE_LENS_PREFIX}: " + "; ".join(f"{n} {p}" for n, p in problems.items())
+            + ". The images leave these open and the adjustment moved them there, so this "
+            "calibration is likely wrong. Give one camera's intrinsics from a lab calibration "
+            "(--intrinsics NAME=PATH; node: intrinsics_files; library: "
+            "PipelineConfig.cameras.known_intrinsics), or add views of the scene from other "
+            "directions.")
+
+
 def implausible_cameras(state: SfMState) -> dict[int, str]:
     """{camera index: problem} for the registered cameras of a reconstruction whose intrinsics
     fail `intrinsics_problem`; a fisheye's extent is that of its observations the reconstruction
