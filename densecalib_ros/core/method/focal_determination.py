@@ -86,7 +86,9 @@ def probed_focal_scale_std(state: SfMState, blocks: list[int], priors: Priors,
     restart that ends at focal lengths |ln r| from the found ones (r: the median ratio) for a
     cost rise dC (in units of the noise: one is one sigma) puts the sigma at |ln r| / sqrt(dC),
     with dC taken at least 1: a rig as good a fit that far away is within one sigma of it. The
-    larger of the two; 0 where no restart could be adjusted."""
+    larger of the two; 0 where no restart could be adjusted or no focal length is adjusted."""
+    if not blocks:
+        return 0.0
     found = state.copy()
     try:
         found_cost = adjust_with_priors(found, blocks, priors, PROBE_ITERATIONS,
