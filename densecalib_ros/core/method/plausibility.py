@@ -130,11 +130,14 @@ def unlike_lens_warning(cameras: dict, given: Sequence[str] = ()) -> Optional[st
                 if name not in set(given) and (problem := unlike_a_real_lens(cam)) is not None}
     if not problems:
         return None
+    # Given intrinsics that contradict the scene push the other cameras there too.
+    fix = "Check the given intrinsics (are they these cameras', at this image size?)" \
+        if given else ("Give one camera's intrinsics from a lab calibration (--intrinsics "
+                       "NAME=PATH; node: intrinsics_files; library: "
+                       "PipelineConfig.cameras.known_intrinsics)")
     return (f"{UNLIKE_LENS_PREFIX}: " + "; ".join(f"{n} {p}" for n, p in problems.items())
             + ". The images leave these open and the adjustment moved them there, so this "
-            "calibration is likely wrong. Give one camera's intrinsics from a lab calibration "
-            "(--intrinsics NAME=PATH; node: intrinsics_files; library: "
-            "PipelineConfig.cameras.known_intrinsics), or add views of the scene from other "
+            f"calibration is likely wrong. {fix}, or add views of the scene from other "
             "directions.")
 
 
