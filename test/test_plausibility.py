@@ -8,7 +8,7 @@ import numpy as np
 from densecalib_ros.core.method.plausibility import (bundle_adjust_plausibly, implausible_cameras,
                                                      intrinsics_problem)
 from densecalib_ros.core.method.reconstruction import BAStage, SfMState, bundle_adjust, triangulate
-from densecalib_ros.core.types import CameraIntrinsics
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
 
 from sfm_fixtures import gt_rig, gt_tracks
 
@@ -117,10 +117,16 @@ def test_principal_points_and_aspects_no_real_lens_has_are_named_and_warned():
                                np.array([300.0, 330.0, 600.0, 384.0, 0.0, 0.0, 0.0, 0.0]))
     assert unlike_a_real_lens(fisheye) is None  # the images place a fisheye's centre
 
-    warning = unlike_lens_warning({"cam0": stretched, "cam1": real, "lab": stretched},
-                                  given=["lab"])
+    def rig(cameras, given=()):
+        return RigCalibration(next(iter(cameras)),
+                              {n: RigCamera(n, c, np.eye(4)) for n, c in cameras.items()},
+                              quality=RigQuality(given_intrinsics={n: "OPENCV" for n in given}
+                                                 or None))
+
+    warning = unlike_lens_warning(rig({"cam0": stretched, "cam1": real, "lab": stretched},
+                                      given=["lab"]))
     assert warning.startswith(f"{UNLIKE_LENS_PREFIX}: cam0 principal point 151 px")
     assert "lab" not in warning.split(". ")[0] and "cam1" not in warning
     assert "Check the given intrinsics" in warning  # they may be what pushed cam0 there
-    assert "--intrinsics" in unlike_lens_warning({"cam0": stretched})
-    assert unlike_lens_warning({"cam1": real}) is None
+    assert "--intrinsics" in unlike_lens_warning(rig({"cam0": stretched}))
+    assert unlike_lens_warning(rig({"cam1": real})) is None

@@ -266,9 +266,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
         result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
         for warning in given_intrinsics_warnings(result.rig.quality.given_intrinsics_fit or {}):
             warn_user(result.rig, warning, progress)
-    for warning in (unlike_lens_warning({n: c.intrinsics for n, c in result.rig.cameras.items()},
-                                        list(result.rig.quality.given_intrinsics or ())),
-                    weak_focal_warning(result.rig)):
+    for warning in (unlike_lens_warning(result.rig), weak_focal_warning(result.rig)):
         if warning:
             warn_user(result.rig, warning, progress)
     return result

@@ -25,7 +25,7 @@ import numpy as np
 import pycolmap
 
 from ..errors import FocalInitError
-from ..types import CameraIntrinsics
+from ..types import CameraIntrinsics, RigCalibration
 from .reconstruction import BAStage, SfMState, bundle_adjust, reprojection_errors
 
 log = logging.getLogger(__name__)
@@ -123,11 +123,12 @@ def unlike_a_real_lens(camera: CameraIntrinsics) -> Optional[str]:
     return ", ".join(problems) or None
 
 
-def unlike_lens_warning(cameras: dict, given: Sequence[str] = ()) -> Optional[str]:
-    """The warning for a calibration whose self-calibrated cameras (name -> CameraIntrinsics;
-    those in `given` left out) include one unlike_a_real_lens, else None."""
-    problems = {name: problem for name, cam in cameras.items()
-                if name not in set(given) and (problem := unlike_a_real_lens(cam)) is not None}
+def unlike_lens_warning(rig: RigCalibration) -> Optional[str]:
+    """The warning for a calibration whose self-calibrated cameras (those whose intrinsics were
+    given left out) include one unlike_a_real_lens, else None."""
+    given = set(rig.quality.given_intrinsics or ())
+    problems = {name: problem for name, cam in rig.cameras.items()
+                if name not in given and (problem := unlike_a_real_lens(cam.intrinsics))}
     if not problems:
         return None
     # Given intrinsics that contradict the scene push the other cameras there too.
