@@ -55,11 +55,6 @@ MIN_RAY_Z = 0.05  # rays closer to the image plane than this do not fit a perspe
 # span is kept about symmetric in log.
 PAIR_REGISTRATION_FOCAL_SCALES = (0.6, 0.75, 0.9, 1.0, 1.15, 1.35, 1.6)
 PAIR_REGISTRATION_BA_ITERATIONS = 30
-# The adjustments while cameras are being registered stop once an iteration lowers the cost by
-# under 0.01 % (the final ones by under FUNCTION_TOLERANCE): the next camera's observations move
-# the cost by percents, so converging further is spent on changes the next adjustment redoes.
-# They are most of a multi-start trial's time (docs/benchmarks.md, Speed).
-REGISTRATION_FUNCTION_TOLERANCE = 1e-4
 
 
 @dataclass
@@ -170,8 +165,7 @@ def _register_from_pairs(state: SfMState, c: int, camera_names: Sequence[str], s
         bundle_adjust(trial, camera_names,
                       BAStage(PAIR_REGISTRATION_BA_ITERATIONS, refine_focal=True,
                               refine_extra=False, fixed_pose_cameras=others,
-                              fixed_intrinsics_cameras=others,
-                              function_tolerance=REGISTRATION_FUNCTION_TOLERANCE), num_threads)
+                              fixed_intrinsics_cameras=others), num_threads)
         cost = _camera_truncated_cost(trial, c, max_error_px)
         log.debug("pair registration of camera %d with focal %.1f px: cost %.3f px", c, focal, cost)
         if cost < best[0]:
@@ -340,15 +334,14 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     (i, j), pose_j = best[1], best[2]
     state.cam_from_world[i], state.cam_from_world[j] = np.eye(4), pose_j
     _triangulate_new(state, b_err)
-    extrinsics_only = BAStage(config.ba_iterations, refine_focal=False, refine_extra=False,
-                              function_tolerance=REGISTRATION_FUNCTION_TOLERANCE)
-    bundle_adjust(state, camera_names, extrinsics_only, config.num_threads)
+    bundle_adjust(state, camera_names, BAStage(config.ba_iterations, refine_focal=False,
+                                               refine_extra=False), config.num_threads)
     say(f"initial pair {camera_names[i]} / {camera_names[j]}: "
         f"{int(state.point_mask().sum())} points")
     pending = [c for c in order if c not in (i, j)]
     stage = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
-                    refine_principal_point=False,
-                    function_tolerance=REGISTRATION_FUNCTION_TOLERANCE)
+                    refine_principal_point=False)
+    extrinsics_only = BAStage(config.ba_iterations, refine_focal=False, refine_extra=False)
     while pending:
         # The next camera in view order that registers from 3D points; a camera can become
         # registrable once later cameras add points, so every pending camera is tried.
