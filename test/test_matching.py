@@ -195,6 +195,40 @@ def test_sift_site_distances_are_the_smallest_over_each_sites_keypoints(monkeypa
         np.testing.assert_allclose(ratio, ref_ratio, rtol=1e-4)
 
 
+def test_asift_site_search_is_the_site_definition_when_it_searches_everything(monkeypatch):
+    """The approximate search (asift) folds keypoint neighbours into sites as the exact one does:
+    with every keypoint checked and enough neighbours, the nearest site and ratio as defined."""
+    import densecalib_ros.core.method.matching.sift as sift
+
+    monkeypatch.setattr(sift, "FLANN_CHECKS", -1)  # FLANN_CHECKS_UNLIMITED: every leaf
+    monkeypatch.setattr(sift, "FLANN_NEIGHBOURS", 12)
+    rng = np.random.default_rng(5)
+
+    def keypoints(n_sites):
+        site = rng.permutation(np.concatenate([np.arange(n_sites),
+                                               rng.integers(0, n_sites, n_sites // 2)]))
+        return rng.random((len(site), 128)).astype(np.float32) * 100, site.astype(np.int64)
+
+    desc_a, site_a = keypoints(60)
+    desc_b, site_b = keypoints(45)
+    best, ratio = sift.nearest_sites_approximate(desc_a, site_a, 60, sift.site_index(desc_b),
+                                                 site_b)
+    ref_best, ref_ratio = _reference_nearest_sites(desc_a, site_a, 60, desc_b, site_b, 45)
+    np.testing.assert_array_equal(best, ref_best)
+    np.testing.assert_allclose(ratio, ref_ratio, rtol=1e-4)
+
+
+def test_asift_matches_are_the_same_every_time(image_pair):
+    """The kd-trees are randomised; their seed is fixed, so a frame set gives the same matches in
+    every run and on every worker thread."""
+    matcher = create_matcher("asift", max_image_side_px=320)
+    first, second = matcher.match(list(image_pair)), matcher.match(list(image_pair))
+    assert np.sum(first.pairs[(0, 1)].target >= 0) >= 50
+    for key in first.pairs:
+        np.testing.assert_array_equal(first.pairs[key].target, second.pairs[key].target)
+        np.testing.assert_array_equal(first.pairs[key].certainty, second.pairs[key].certainty)
+
+
 def test_resized_matching_maps_back_to_original_pixels(image_pair):
     gray = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in image_pair]
     ms = create_matcher("sift", max_image_side_px=200).match(gray)

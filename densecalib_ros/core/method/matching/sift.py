@@ -156,6 +156,56 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     return best_ab, ratio_ab, best_ba, ratio_ba
 
 
+# asift's nearest neighbours are searched approximately (FLANN's randomized kd-trees, Muja & Lowe
+# 2009): its ~30k keypoints per image make the exact distance matrix ~15 times sift's per pair,
+# and the few per cent of matches a kd-tree search misses or adds are what the cycle sampling
+# filters anyway (a wide pair has thousands). Trees and checks are OpenCV's FLANN defaults.
+FLANN_TREES = 4
+FLANN_CHECKS = 32
+# Neighbour keypoints per keypoint: a site holds one keypoint per dominant orientation (rarely
+# more than three), so four nearly always reach a second site for the ratio test.
+FLANN_NEIGHBOURS = 4
+
+
+def site_index(desc: np.ndarray):
+    """A FLANN kd-tree index of an image's keypoint descriptors (float32 (K, 128)); the same
+    trees for the same descriptors (the tree randomisation draws from this thread's OpenCV
+    generator, seeded here). Searching it is thread-safe and releases the GIL."""
+    cv2.setRNGSeed(0)
+    return cv2.flann_Index(desc, dict(algorithm=1, trees=FLANN_TREES))  # 1: FLANN_INDEX_KDTREE
+
+
+def nearest_sites_approximate(desc_q: np.ndarray, site_q: np.ndarray, n_q: int, index_r,
+                              site_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(best, ratio) as one direction of nearest_sites_both_ways, from FLANN_NEIGHBOURS
+    approximate nearest keypoints of each query keypoint in the reference image's index
+    (site_index): a query site's candidates are its keypoints' neighbours' sites, each at its
+    smallest distance. Where every neighbour found is of the nearest site, the farthest of them
+    stands in for the second site's distance (a lower bound: the ratio errs towards rejecting).
+    A site with no neighbour found gets ratio 1 (rejected)."""
+    k = min(FLANN_NEIGHBOURS, len(site_r))
+    best = np.zeros(n_q, np.int64)
+    ratio = np.ones(n_q, np.float32)
+    if k == 0 or len(desc_q) == 0:
+        return best, ratio
+    neighbour, d2 = index_r.knnSearch(desc_q, k, params=dict(checks=FLANN_CHECKS))
+    found = neighbour.reshape(-1) >= 0
+    q = np.repeat(site_q, k)[found]
+    r = site_r[neighbour.reshape(-1)[found]]
+    d2 = d2.reshape(-1)[found]
+    order = np.lexsort((d2, q))  # by query site, nearest first
+    q, r, d2 = q[order], r[order], d2[order]
+    start = np.flatnonzero(np.r_[True, q[1:] != q[:-1]])
+    sites = q[start]
+    best[sites], d1 = r[start], d2[start]
+    second = d2[np.r_[start[1:], len(q)] - 1]  # farthest candidate, unless another site is found
+    other = np.flatnonzero(r != np.repeat(best[sites], np.diff(np.r_[start, len(q)])))
+    first_other = other[np.r_[True, q[other[1:]] != q[other[:-1]]]] if len(other) else other
+    second[np.searchsorted(sites, q[first_other])] = d2[first_other]
+    ratio[sites] = np.sqrt(np.maximum(d1, 0.0) / np.maximum(second, 1e-12))
+    return best, ratio
+
+
 class SiftMatcher(Matcher):
     name = "sift"
 
@@ -205,14 +255,17 @@ class SiftMatcher(Matcher):
         return cv2.SIFT_create(nfeatures=self.max_keypoints,
                                contrastThreshold=self.contrast_threshold)
 
+    def _nearest_sites(self, fa, fb):
+        """(best_ab, ratio_ab, best_ba, ratio_ba) of two images' features (nearest_sites_both_ways)."""
+        (_, site_a, desc_a), (_, site_b, desc_b) = fa[:3], fb[:3]
+        return nearest_sites_both_ways(desc_a, site_a, len(fa[0]), desc_b, site_b, len(fb[0]))
+
     def _match_pair(self, fa, fb):
         n_a, n_b = len(fa[0]), len(fb[0])
         if n_a < 2 or n_b < 2:
             empty = np.zeros(0, np.int64)
             return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
-        (_, site_a, desc_a), (_, site_b, desc_b) = fa, fb
-        best_ab, ratio_ab, best_ba, ratio_ba = nearest_sites_both_ways(desc_a, site_a, n_a,
-                                                                       desc_b, site_b, n_b)
+        best_ab, ratio_ab, best_ba, ratio_ba = self._nearest_sites(fa, fb)
         src = np.arange(n_a)
         keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
                 & (ratio_ba[best_ab] < self.ratio_threshold))
@@ -240,7 +293,8 @@ class AsiftMatcher(SiftMatcher):
     AffineFeature: the image tilted by up to 5x in several directions), so that a surface seen
     from viewpoints 45-80 deg apart still has keypoints whose descriptors agree. Matched as
     `sift` is (sites, ratio test, mutual check); max_keypoints is per simulated view (about 40
-    views: ~20 times the keypoints of `sift`, and its matching time)."""
+    views: ~20 times the keypoints of `sift`), with the nearest sites searched approximately in
+    a kd-tree index per image (FLANN_CHECKS)."""
 
     name = "asift"
 
@@ -252,3 +306,13 @@ class AsiftMatcher(SiftMatcher):
 
     def _detector(self):
         return cv2.AffineFeature_create(super()._detector())
+
+    def _features(self, image: np.ndarray, region: Optional[np.ndarray] = None):
+        """SiftMatcher._features and the descriptors' index (site_index), built once per image."""
+        sites, site_of_kp, desc = super()._features(image, region)
+        return sites, site_of_kp, desc, site_index(desc) if len(desc) else None
+
+    def _nearest_sites(self, fa, fb):
+        (_, site_a, desc_a, index_a), (_, site_b, desc_b, index_b) = fa, fb
+        return (*nearest_sites_approximate(desc_a, site_a, len(fa[0]), index_b, site_b),
+                *nearest_sites_approximate(desc_b, site_b, len(fb[0]), index_a, site_a))
