@@ -218,6 +218,37 @@ def test_asift_site_search_is_the_site_definition_when_it_searches_everything(mo
     np.testing.assert_allclose(ratio, ref_ratio, rtol=1e-4)
 
 
+def test_exact_rows_of_chosen_sites_are_the_site_definition():
+    """nearest_sites_of: the exact nearest site and ratio for the row sites asked, in their order."""
+    from densecalib_ros.core.method.matching.sift import nearest_sites_of
+
+    rng = np.random.default_rng(7)
+    site_a = rng.permutation(np.concatenate([np.arange(50), rng.integers(0, 50, 30)]))
+    site_b = rng.permutation(np.concatenate([np.arange(40), rng.integers(0, 40, 20)]))
+    desc_a = rng.random((len(site_a), 128)).astype(np.float32) * 100
+    desc_b = rng.random((len(site_b), 128)).astype(np.float32) * 100
+    rows = np.array([33, 2, 47, 10])
+    best, ratio = nearest_sites_of(rows, desc_a, site_a, desc_b, site_b, 40)
+    ref_best, ref_ratio = _reference_nearest_sites(desc_a, site_a, 50, desc_b, site_b, 40)
+    np.testing.assert_array_equal(best, ref_best[rows])
+    np.testing.assert_allclose(ratio, ref_ratio[rows], rtol=1e-4)
+
+
+def test_asift_keeps_only_matches_the_exact_search_makes(image_pair):
+    """asift's kd-tree candidates, verified on their exact rows: a subset of the matches the exact
+    distance matrix gives on the same keypoints (with their certainties), and most of them."""
+    from densecalib_ros.core.method.matching.sift import SiftMatcher
+
+    asift = create_matcher("asift", max_image_side_px=320)
+    fa, fb = asift._features(image_pair[0]), asift._features(image_pair[1])
+    approx, _ = asift._match_pair(fa, fb)
+    exact, _ = SiftMatcher._match_pair(asift, fa[:3], fb[:3])
+    kept = np.flatnonzero(approx.target >= 0)
+    assert len(kept) >= 0.8 * np.sum(exact.target >= 0) and len(kept) >= 50
+    np.testing.assert_array_equal(approx.target[kept], exact.target[kept])
+    np.testing.assert_allclose(approx.certainty[kept], exact.certainty[kept], rtol=1e-5)
+
+
 def test_asift_matches_are_the_same_every_time(image_pair):
     """The kd-trees are randomised; their seed is fixed, so a frame set gives the same matches in
     every run and on every worker thread."""

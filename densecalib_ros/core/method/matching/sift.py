@@ -156,10 +156,29 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     return best_ab, ratio_ab, best_ba, ratio_ba
 
 
-# asift's nearest neighbours are searched approximately (FLANN's randomized kd-trees, Muja & Lowe
-# 2009): its ~30k keypoints per image make the exact distance matrix ~15 times sift's per pair,
-# and the few per cent of matches a kd-tree search misses or adds are what the cycle sampling
-# filters anyway (a wide pair has thousands). Trees and checks are OpenCV's FLANN defaults.
+def nearest_sites_of(rows: np.ndarray, desc_r: np.ndarray, site_r: np.ndarray,
+                     desc_c: np.ndarray, site_c: np.ndarray, n_c: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(best, ratio) as one direction of nearest_sites_both_ways, exactly, for the row sites
+    `rows` (distinct int64 site indices, in their order) only."""
+    row_of_site = np.full(int(site_r.max(initial=-1)) + 1, -1)
+    row_of_site[rows] = np.arange(len(rows))
+    kept = np.flatnonzero(row_of_site[site_r] >= 0) if len(site_r) else np.zeros(0, np.int64)
+    cols, col_site, site_cols = _columns(desc_c, site_c, n_c)
+    best = np.empty(len(rows), np.int64)
+    ratio = np.empty(len(rows), np.float32)
+    for s0, s1, d2 in _site_blocks(desc_r[kept], row_of_site[site_r[kept]], len(rows), cols):
+        best[s0:s1], ratio[s0:s1] = _nearest_column_sites(d2, col_site, site_cols)
+    return best, ratio
+
+
+# asift's candidate matches come from an approximate search (FLANN's randomized kd-trees, Muja &
+# Lowe 2009) and are kept only where the exact site distances of their two rows agree: its ~30k
+# keypoints per image make the exact distance matrix ~15 times sift's per pair, while the exact
+# rows of the few thousand candidates cost a fraction of it. A kd-tree search alone also passes
+# false matches (a missed second neighbour makes a ratio look distinctive; up to a quarter more
+# matches on a wide pair), which the verification removes: the result is a subset of the exact
+# matches, those whose nearest sites the trees found. Trees and checks are OpenCV's FLANN defaults.
 FLANN_TREES = 4
 FLANN_CHECKS = 32
 # Neighbour keypoints per keypoint: a site holds one keypoint per dominant orientation (rarely
@@ -255,22 +274,23 @@ class SiftMatcher(Matcher):
         return cv2.SIFT_create(nfeatures=self.max_keypoints,
                                contrastThreshold=self.contrast_threshold)
 
-    def _nearest_sites(self, fa, fb):
-        """(best_ab, ratio_ab, best_ba, ratio_ba) of two images' features (nearest_sites_both_ways)."""
-        (_, site_a, desc_a), (_, site_b, desc_b) = fa[:3], fb[:3]
-        return nearest_sites_both_ways(desc_a, site_a, len(fa[0]), desc_b, site_b, len(fb[0]))
+    def _mutual_distinct(self, best_ab, ratio_ab, best_ba, ratio_ba):
+        """(src, dst, certainty) of the site pairs that are each other's nearest and pass the
+        ratio test both ways."""
+        src = np.arange(len(best_ab))
+        keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
+                & (ratio_ba[best_ab] < self.ratio_threshold))
+        src, dst = src[keep], best_ab[keep]
+        return src, dst, 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
 
     def _match_pair(self, fa, fb):
         n_a, n_b = len(fa[0]), len(fb[0])
         if n_a < 2 or n_b < 2:
             empty = np.zeros(0, np.int64)
             return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
-        best_ab, ratio_ab, best_ba, ratio_ba = self._nearest_sites(fa, fb)
-        src = np.arange(n_a)
-        keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
-                & (ratio_ba[best_ab] < self.ratio_threshold))
-        src, dst = src[keep], best_ab[keep]
-        certainty = 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
+        (_, site_a, desc_a), (_, site_b, desc_b) = fa[:3], fb[:3]
+        src, dst, certainty = self._mutual_distinct(*nearest_sites_both_ways(
+            desc_a, site_a, n_a, desc_b, site_b, n_b))
         return mutual_pair_maps(src, dst, certainty, n_a, n_b)
 
     detects_in_regions = True
@@ -293,8 +313,8 @@ class AsiftMatcher(SiftMatcher):
     AffineFeature: the image tilted by up to 5x in several directions), so that a surface seen
     from viewpoints 45-80 deg apart still has keypoints whose descriptors agree. Matched as
     `sift` is (sites, ratio test, mutual check); max_keypoints is per simulated view (about 40
-    views: ~20 times the keypoints of `sift`), with the nearest sites searched approximately in
-    a kd-tree index per image (FLANN_CHECKS)."""
+    views: ~20 times the keypoints of `sift`), its candidate matches found in a kd-tree index per
+    image and verified exactly (FLANN_CHECKS)."""
 
     name = "asift"
 
@@ -312,7 +332,20 @@ class AsiftMatcher(SiftMatcher):
         sites, site_of_kp, desc = super()._features(image, region)
         return sites, site_of_kp, desc, site_index(desc) if len(desc) else None
 
-    def _nearest_sites(self, fa, fb):
+    def _match_pair(self, fa, fb):
+        """The candidates of the kd-tree search, each kept where the exact rows of its two sites
+        (nearest_sites_of) make it a match too: a subset of SiftMatcher's matches."""
+        n_a, n_b = len(fa[0]), len(fb[0])
+        if n_a < 2 or n_b < 2:
+            empty = np.zeros(0, np.int64)
+            return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
         (_, site_a, desc_a, index_a), (_, site_b, desc_b, index_b) = fa, fb
-        return (*nearest_sites_approximate(desc_a, site_a, len(fa[0]), index_b, site_b),
-                *nearest_sites_approximate(desc_b, site_b, len(fb[0]), index_a, site_a))
+        src, dst, _ = self._mutual_distinct(
+            *nearest_sites_approximate(desc_a, site_a, n_a, index_b, site_b),
+            *nearest_sites_approximate(desc_b, site_b, n_b, index_a, site_a))
+        best_ab, ratio_ab = nearest_sites_of(src, desc_a, site_a, desc_b, site_b, n_b)
+        best_ba, ratio_ba = nearest_sites_of(dst, desc_b, site_b, desc_a, site_a, n_a)
+        keep = ((best_ab == dst) & (best_ba == src) & (ratio_ab < self.ratio_threshold)
+                & (ratio_ba < self.ratio_threshold))
+        certainty = 1.0 - np.maximum(ratio_ab[keep], ratio_ba[keep])
+        return mutual_pair_maps(src[keep], dst[keep], certainty, n_a, n_b)
