@@ -333,19 +333,27 @@ class AsiftMatcher(SiftMatcher):
         return sites, site_of_kp, desc, site_index(desc) if len(desc) else None
 
     def _match_pair(self, fa, fb):
-        """The candidates of the kd-tree search, each kept where the exact rows of its two sites
-        (nearest_sites_of) make it a match too: a subset of SiftMatcher's matches."""
+        """SiftMatcher's matches on the same keypoints whose a site the kd-tree search proposes:
+        a site of a that has a distinct approximate nearest site in b, or is one for a site of b.
+        The exact rows (nearest_sites_of) of those a sites, then of the b sites they make
+        nearest, decide. Requiring both searches to find a match (the mutual check on
+        approximate neighbours) would lose what either missed (5-14 % of the matches, not 1-3 %)."""
         n_a, n_b = len(fa[0]), len(fb[0])
         if n_a < 2 or n_b < 2:
             empty = np.zeros(0, np.int64)
             return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
         (_, site_a, desc_a, index_a), (_, site_b, desc_b, index_b) = fa, fb
-        src, dst, _ = self._mutual_distinct(
-            *nearest_sites_approximate(desc_a, site_a, n_a, index_b, site_b),
-            *nearest_sites_approximate(desc_b, site_b, n_b, index_a, site_a))
-        best_ab, ratio_ab = nearest_sites_of(src, desc_a, site_a, desc_b, site_b, n_b)
-        best_ba, ratio_ba = nearest_sites_of(dst, desc_b, site_b, desc_a, site_a, n_a)
-        keep = ((best_ab == dst) & (best_ba == src) & (ratio_ab < self.ratio_threshold)
-                & (ratio_ba < self.ratio_threshold))
-        certainty = 1.0 - np.maximum(ratio_ab[keep], ratio_ba[keep])
+        near_ab, ratio_ab = nearest_sites_approximate(desc_a, site_a, n_a, index_b, site_b)
+        near_ba, ratio_ba = nearest_sites_approximate(desc_b, site_b, n_b, index_a, site_a)
+        # a's sites with a candidate from either search, then their exact rows; the b sites
+        # those make nearest (the ratio passing), then theirs
+        rows_a = np.union1d(np.flatnonzero(ratio_ab < self.ratio_threshold),
+                            near_ba[ratio_ba < self.ratio_threshold])
+        best_ab, exact_ab = nearest_sites_of(rows_a, desc_a, site_a, desc_b, site_b, n_b)
+        distinct = exact_ab < self.ratio_threshold
+        src, dst, exact_ab = rows_a[distinct], best_ab[distinct], exact_ab[distinct]
+        rows_b, at_b = np.unique(dst, return_inverse=True)
+        best_ba, exact_ba = nearest_sites_of(rows_b, desc_b, site_b, desc_a, site_a, n_a)
+        keep = (best_ba[at_b] == src) & (exact_ba[at_b] < self.ratio_threshold)
+        certainty = 1.0 - np.maximum(exact_ab[keep], exact_ba[at_b][keep])
         return mutual_pair_maps(src[keep], dst[keep], certainty, n_a, n_b)
