@@ -4,8 +4,8 @@ correspondences.
 The rig is rigid and its cameras do not move, so what stayed put between frame sets (walls,
 floor, furniture) looks the same in each of them, and its matches were found in the first frame
 set already: matched again in every later one, the same points come back, re-detected with the
-frame's noise, and a keypoint matcher pays for them each time (asift: about 13 s per frame set
-of four 1280x720 webcams; matched on what is new only, the later sets took about 6 s). What a later
+frame's noise, and a keypoint matcher pays for them each time (asift: tens of times sift's
+matching time per frame set; docs/design-notes.md, Later frame sets). What a later
 frame set adds is what moved into view (a person, an animal, a board carried around) and what it
 uncovered. So in frame set t > 0 keypoints are kept only where the image differs from every
 earlier frame set of the same camera (a region that differs from one earlier set but not from
