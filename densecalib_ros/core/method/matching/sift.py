@@ -156,75 +156,6 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     return best_ab, ratio_ab, best_ba, ratio_ba
 
 
-def nearest_sites_of(rows: np.ndarray, desc_r: np.ndarray, site_r: np.ndarray,
-                     desc_c: np.ndarray, site_c: np.ndarray, n_c: int
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """(best, ratio) as one direction of nearest_sites_both_ways, exactly, for the row sites
-    `rows` (distinct int64 site indices, in their order) only."""
-    row_of_site = np.full(int(site_r.max(initial=-1)) + 1, -1)
-    row_of_site[rows] = np.arange(len(rows))
-    kept = np.flatnonzero(row_of_site[site_r] >= 0) if len(site_r) else np.zeros(0, np.int64)
-    cols, col_site, site_cols = _columns(desc_c, site_c, n_c)
-    best = np.empty(len(rows), np.int64)
-    ratio = np.empty(len(rows), np.float32)
-    for s0, s1, d2 in _site_blocks(desc_r[kept], row_of_site[site_r[kept]], len(rows), cols):
-        best[s0:s1], ratio[s0:s1] = _nearest_column_sites(d2, col_site, site_cols)
-    return best, ratio
-
-
-# asift's candidate matches come from an approximate search (FLANN's randomized kd-trees, Muja &
-# Lowe 2009) and are kept only where the exact site distances of their two rows agree: its ~30k
-# keypoints per image make the exact distance matrix ~15 times sift's per pair, while the exact
-# rows of the few thousand candidates cost a fraction of it. A kd-tree search alone also passes
-# false matches (a missed second neighbour makes a ratio look distinctive; up to a quarter more
-# matches on a wide pair), which the verification removes: the result is a subset of the exact
-# matches, those whose nearest sites the trees found. Trees and checks are OpenCV's FLANN defaults.
-FLANN_TREES = 4
-FLANN_CHECKS = 32
-# Neighbour keypoints per keypoint: a site holds one keypoint per dominant orientation (rarely
-# more than three), so four nearly always reach a second site for the ratio test.
-FLANN_NEIGHBOURS = 4
-
-
-def site_index(desc: np.ndarray):
-    """A FLANN kd-tree index of an image's keypoint descriptors (float32 (K, 128)); the same
-    trees for the same descriptors (the tree randomisation draws from this thread's OpenCV
-    generator, seeded here). Searching it is thread-safe and releases the GIL."""
-    cv2.setRNGSeed(0)
-    return cv2.flann_Index(desc, dict(algorithm=1, trees=FLANN_TREES))  # 1: FLANN_INDEX_KDTREE
-
-
-def nearest_sites_approximate(desc_q: np.ndarray, site_q: np.ndarray, n_q: int, index_r,
-                              site_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(best, ratio) as one direction of nearest_sites_both_ways, from FLANN_NEIGHBOURS
-    approximate nearest keypoints of each query keypoint in the reference image's index
-    (site_index): a query site's candidates are its keypoints' neighbours' sites, each at its
-    smallest distance. Where every neighbour found is of the nearest site, the farthest of them
-    stands in for the second site's distance (a lower bound: the ratio errs towards rejecting).
-    A site with no neighbour found gets ratio 1 (rejected)."""
-    k = min(FLANN_NEIGHBOURS, len(site_r))
-    best = np.zeros(n_q, np.int64)
-    ratio = np.ones(n_q, np.float32)
-    if k == 0 or len(desc_q) == 0:
-        return best, ratio
-    neighbour, d2 = index_r.knnSearch(desc_q, k, params=dict(checks=FLANN_CHECKS))
-    found = neighbour.reshape(-1) >= 0
-    q = np.repeat(site_q, k)[found]
-    r = site_r[neighbour.reshape(-1)[found]]
-    d2 = d2.reshape(-1)[found]
-    order = np.lexsort((d2, q))  # by query site, nearest first
-    q, r, d2 = q[order], r[order], d2[order]
-    start = np.flatnonzero(np.r_[True, q[1:] != q[:-1]])
-    sites = q[start]
-    best[sites], d1 = r[start], d2[start]
-    second = d2[np.r_[start[1:], len(q)] - 1]  # farthest candidate, unless another site is found
-    other = np.flatnonzero(r != np.repeat(best[sites], np.diff(np.r_[start, len(q)])))
-    first_other = other[np.r_[True, q[other[1:]] != q[other[:-1]]]] if len(other) else other
-    second[np.searchsorted(sites, q[first_other])] = d2[first_other]
-    ratio[sites] = np.sqrt(np.maximum(d1, 0.0) / np.maximum(second, 1e-12))
-    return best, ratio
-
-
 class SiftMatcher(Matcher):
     name = "sift"
 
@@ -274,23 +205,19 @@ class SiftMatcher(Matcher):
         return cv2.SIFT_create(nfeatures=self.max_keypoints,
                                contrastThreshold=self.contrast_threshold)
 
-    def _mutual_distinct(self, best_ab, ratio_ab, best_ba, ratio_ba):
-        """(src, dst, certainty) of the site pairs that are each other's nearest and pass the
-        ratio test both ways."""
-        src = np.arange(len(best_ab))
-        keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
-                & (ratio_ba[best_ab] < self.ratio_threshold))
-        src, dst = src[keep], best_ab[keep]
-        return src, dst, 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
-
     def _match_pair(self, fa, fb):
         n_a, n_b = len(fa[0]), len(fb[0])
         if n_a < 2 or n_b < 2:
             empty = np.zeros(0, np.int64)
             return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
-        (_, site_a, desc_a), (_, site_b, desc_b) = fa[:3], fb[:3]
-        src, dst, certainty = self._mutual_distinct(*nearest_sites_both_ways(
-            desc_a, site_a, n_a, desc_b, site_b, n_b))
+        (_, site_a, desc_a), (_, site_b, desc_b) = fa, fb
+        best_ab, ratio_ab, best_ba, ratio_ba = nearest_sites_both_ways(desc_a, site_a, n_a,
+                                                                       desc_b, site_b, n_b)
+        src = np.arange(n_a)
+        keep = ((best_ba[best_ab] == src) & (ratio_ab < self.ratio_threshold)
+                & (ratio_ba[best_ab] < self.ratio_threshold))
+        src, dst = src[keep], best_ab[keep]
+        certainty = 1.0 - np.maximum(ratio_ab[src], ratio_ba[dst])
         return mutual_pair_maps(src, dst, certainty, n_a, n_b)
 
     detects_in_regions = True
@@ -313,8 +240,7 @@ class AsiftMatcher(SiftMatcher):
     AffineFeature: the image tilted by up to 5x in several directions), so that a surface seen
     from viewpoints 45-80 deg apart still has keypoints whose descriptors agree. Matched as
     `sift` is (sites, ratio test, mutual check); max_keypoints is per simulated view (about 40
-    views: ~20 times the keypoints of `sift`), its candidate matches found in a kd-tree index per
-    image and verified exactly (FLANN_CHECKS)."""
+    views: ~20 times the keypoints of `sift`, and its matching time)."""
 
     name = "asift"
 
@@ -326,34 +252,3 @@ class AsiftMatcher(SiftMatcher):
 
     def _detector(self):
         return cv2.AffineFeature_create(super()._detector())
-
-    def _features(self, image: np.ndarray, region: Optional[np.ndarray] = None):
-        """SiftMatcher._features and the descriptors' index (site_index), built once per image."""
-        sites, site_of_kp, desc = super()._features(image, region)
-        return sites, site_of_kp, desc, site_index(desc) if len(desc) else None
-
-    def _match_pair(self, fa, fb):
-        """SiftMatcher's matches on the same keypoints whose a site the kd-tree search proposes:
-        a site of a that has a distinct approximate nearest site in b, or is one for a site of b.
-        The exact rows (nearest_sites_of) of those a sites, then of the b sites they make
-        nearest, decide. Requiring both searches to find a match (the mutual check on
-        approximate neighbours) would lose what either missed (5-14 % of the matches, not 1-3 %)."""
-        n_a, n_b = len(fa[0]), len(fb[0])
-        if n_a < 2 or n_b < 2:
-            empty = np.zeros(0, np.int64)
-            return mutual_pair_maps(empty, empty, np.zeros(0), n_a, n_b)
-        (_, site_a, desc_a, index_a), (_, site_b, desc_b, index_b) = fa, fb
-        near_ab, ratio_ab = nearest_sites_approximate(desc_a, site_a, n_a, index_b, site_b)
-        near_ba, ratio_ba = nearest_sites_approximate(desc_b, site_b, n_b, index_a, site_a)
-        # a's sites with a candidate from either search, then their exact rows; the b sites
-        # those make nearest (the ratio passing), then theirs
-        rows_a = np.union1d(np.flatnonzero(ratio_ab < self.ratio_threshold),
-                            near_ba[ratio_ba < self.ratio_threshold])
-        best_ab, exact_ab = nearest_sites_of(rows_a, desc_a, site_a, desc_b, site_b, n_b)
-        distinct = exact_ab < self.ratio_threshold
-        src, dst, exact_ab = rows_a[distinct], best_ab[distinct], exact_ab[distinct]
-        rows_b, at_b = np.unique(dst, return_inverse=True)
-        best_ba, exact_ba = nearest_sites_of(rows_b, desc_b, site_b, desc_a, site_a, n_a)
-        keep = (best_ba[at_b] == src) & (exact_ba[at_b] < self.ratio_threshold)
-        certainty = 1.0 - np.maximum(exact_ab[keep], exact_ba[at_b][keep])
-        return mutual_pair_maps(src[keep], dst[keep], certainty, n_a, n_b)
