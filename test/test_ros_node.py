@@ -989,7 +989,7 @@ def test_frames_lost_on_the_way_are_counted_and_reported(ros, tmp_path):
         def reported():
             state = diagnostic_state(listener)
             return state if state and state[2].get("received_per_camera") == received else None
-        assert wait_until(reported, 5.0)
+        assert wait_until(reported, 5.0), diagnostic_state(listener)
         level, message, values = reported()
         counts = dict(re.findall(r"(cam\d)=(\d+)", values["lost_frames_per_camera"]))
         # the first intervals only find the period (ros.frame_loss.MIN_INTERVALS)
