@@ -55,6 +55,12 @@ MIN_RAY_Z = 0.05  # rays closer to the image plane than this do not fit a perspe
 # span is kept about symmetric in log.
 PAIR_REGISTRATION_FOCAL_SCALES = (0.6, 0.75, 0.9, 1.0, 1.15, 1.35, 1.6)
 PAIR_REGISTRATION_BA_ITERATIONS = 30
+# A camera placed from 2-view tracks takes its orientation from one partner's relative pose, and
+# a partner whose matches are wrong (cameras facing each other across a ring, repeated texture)
+# gives an orientation far from the others'. Orientations for the camera that differ by less
+# than this are one hypothesis (the pose adjustment that follows converges from either); each
+# farther one is tried on its own and the camera's reprojection cost decides, as between focals.
+PAIR_ORIENTATION_AGREEMENT_DEG = 30.0
 
 
 @dataclass
@@ -148,28 +154,33 @@ def _register_from_pairs(state: SfMState, c: int, camera_names: Sequence[str], s
     Camera c's focal is still its initial estimate, which nothing has refined yet, and a relative
     pose from an essential matrix on wrongly scaled rays is biased (wrong translation directions
     at a focal error eq. 2 can make: docs/design-notes.md, Incremental SfM). So the pose is
-    computed for several focal candidates (`_pair_registration_focals`) and the one whose 2-view
-    points reproject best after a BA of c's pose and focal (everything else fixed) is kept: for
-    2-view tracks the reprojection error measures how well the E's agree across c's partners,
-    which the wrong focal breaks."""
+    computed for several focal candidates (`_pair_registration_focals`) and, for each, from
+    every distinct orientation the partners give (`_partner_poses`,
+    PAIR_ORIENTATION_AGREEMENT_DEG); the one whose 2-view points reproject best after a BA of c's
+    pose and focal (everything else fixed) is kept: for 2-view tracks the reprojection error
+    measures how well the E's agree across c's partners, which the wrong focal or a wrong
+    partner breaks."""
     best = (np.inf, None)
     for focal in _pair_registration_focals(state, c):
-        trial = state.copy()
-        set_focal(trial, c, focal)
-        if not _place_from_pairs(trial, c, seed):
-            continue
-        rows = np.flatnonzero(trial.active[:, c] & ~trial.triangulated()
-                              & (trial.registered_active().sum(axis=1) >= 2))
-        triangulate(trial, rows, max_error_px)
-        others = tuple(r for r in trial.registered() if r != c)
-        bundle_adjust(trial, camera_names,
-                      BAStage(PAIR_REGISTRATION_BA_ITERATIONS, refine_focal=True,
-                              refine_extra=False, fixed_pose_cameras=others,
-                              fixed_intrinsics_cameras=others), num_threads)
-        cost = _camera_truncated_cost(trial, c, max_error_px)
-        log.debug("pair registration of camera %d with focal %.1f px: cost %.3f px", c, focal, cost)
-        if cost < best[0]:
-            best = (cost, trial)
+        base = state.copy()
+        set_focal(base, c, focal)
+        partners = _partner_poses(base, c, seed)
+        for anchor in _distinct_orientations(partners):
+            trial = base.copy()
+            _place_from_pairs(trial, c, partners, anchor)
+            rows = np.flatnonzero(trial.active[:, c] & ~trial.triangulated()
+                                  & (trial.registered_active().sum(axis=1) >= 2))
+            triangulate(trial, rows, max_error_px)
+            others = tuple(r for r in trial.registered() if r != c)
+            bundle_adjust(trial, camera_names,
+                          BAStage(PAIR_REGISTRATION_BA_ITERATIONS, refine_focal=True,
+                                  refine_extra=False, fixed_pose_cameras=others,
+                                  fixed_intrinsics_cameras=others), num_threads)
+            cost = _camera_truncated_cost(trial, c, max_error_px)
+            log.debug("pair registration of camera %d with focal %.1f px, orientation from "
+                      "camera %d: cost %.3f px", c, focal, partners[anchor].camera, cost)
+            if cost < best[0]:
+                best = (cost, trial)
     if best[1] is None:
         return False
     state.cam_from_world[c] = best[1].cam_from_world[c]
@@ -214,25 +225,57 @@ def _camera_truncated_cost(state: SfMState, c: int, truncation_px: float) -> flo
     return float(np.where(np.isfinite(err), np.minimum(err, truncation_px), truncation_px).mean())
 
 
-def _place_from_pairs(state: SfMState, c: int, seed: int) -> bool:
-    """Pose of camera c from its relative poses to registered cameras: orientation from the
-    partner it shares the most tracks with; position from the baseline directions to all partners
-    (least-squares intersection of the lines), or, with one partner, at the median distance
-    between registered cameras (later 3-cycles and BA fix that scale)."""
-    lines = []  # (partner centre, unit direction to c's centre in world, number of tracks)
-    rotation, best = None, 0
+@dataclass
+class _PartnerPose:
+    """What one registered partner's relative pose says about camera c."""
+    camera: int
+    c_from_world: np.ndarray  # (3, 3) c's orientation
+    centre: np.ndarray  # the partner's centre (world)
+    direction: np.ndarray  # unit direction from the partner's centre to c's (world)
+    num_tracks: int
+
+
+def _partner_poses(state: SfMState, c: int, seed: int) -> list[_PartnerPose]:
+    """Camera c's orientation and direction from each registered partner's relative pose (an E on
+    their shared tracks: `_relative_pose`), in registration order."""
+    out = []
     for r in state.registered():
         pose_cr, rows = _relative_pose(state, r, c, seed)
         if pose_cr is None:
             continue
         R_r, t_r = state.cam_from_world[r][:3, :3], state.cam_from_world[r][:3, 3]
-        centre_r = -R_r.T @ t_r
         direction = R_r.T @ (-pose_cr[:3, :3].T @ pose_cr[:3, 3])
-        lines.append((centre_r, direction / np.linalg.norm(direction)))
-        if len(rows) > best:
-            rotation, best = pose_cr[:3, :3] @ R_r, len(rows)
-    if rotation is None:
-        return False
+        out.append(_PartnerPose(r, pose_cr[:3, :3] @ R_r, -R_r.T @ t_r,
+                                direction / np.linalg.norm(direction), len(rows)))
+    return out
+
+
+def _rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def _distinct_orientations(partners: list[_PartnerPose]) -> list[int]:
+    """Indices of the partners, the most shared tracks first, whose orientations for c differ
+    from every earlier kept one's by PAIR_ORIENTATION_AGREEMENT_DEG or more: each hypothesis is
+    represented by its best-supported partner (with one hypothesis: the partner sharing the
+    most tracks, as a single orientation always was)."""
+    kept: list[int] = []
+    for k in sorted(range(len(partners)), key=lambda k: -partners[k].num_tracks):
+        if all(_rotation_gap_deg(partners[k].c_from_world, partners[a].c_from_world)
+               >= PAIR_ORIENTATION_AGREEMENT_DEG for a in kept):
+            kept.append(k)
+    return kept
+
+
+def _place_from_pairs(state: SfMState, c: int, partners: list[_PartnerPose], anchor: int
+                      ) -> None:
+    """Pose of camera c: orientation from partners[anchor]; position from the baseline
+    directions of the partners whose orientations agree with it (least-squares intersection of
+    the lines), or, with one such partner, at the median distance between registered cameras
+    (later 3-cycles and BA fix that scale)."""
+    rotation = partners[anchor].c_from_world
+    lines = [(p.centre, p.direction) for p in partners
+             if _rotation_gap_deg(p.c_from_world, rotation) < PAIR_ORIENTATION_AGREEMENT_DEG]
     centres = [-T[:3, :3].T @ T[:3, 3] for T in (state.cam_from_world[r]
                                                  for r in state.registered())]
     spread = np.median([np.linalg.norm(a - b) for k, a in enumerate(centres)
@@ -248,7 +291,6 @@ def _place_from_pairs(state: SfMState, c: int, seed: int) -> bool:
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = rotation, -rotation @ centre
     state.cam_from_world[c] = T
-    return True
 
 
 def _register_next(state: SfMState, c: int, config: SfMConfig) -> bool:
