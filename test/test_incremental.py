@@ -304,6 +304,40 @@ def test_pair_registration_picks_the_focal_that_fits_the_two_view_tracks():
     assert np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 2.0
 
 
+def test_pair_registration_tries_each_partner_orientation_not_only_the_best_supported():
+    """A camera seen in 2-view tracks only, whose best-supported partner's matches are consistent
+    but wrong (as for cameras facing each other across a ring): those tracks alone say the camera
+    is rolled 120 deg. The orientation the other partners agree on fits more of the camera's
+    tracks and must win over the partner with the most tracks."""
+    from densecalib_ros.core.method.incremental import _register_from_pairs
+
+    cams, poses = gt_rig(5, seed=11)
+    tracks = two_view_only(gt_tracks(cams, poses, num_points=1500, outlier_frac=0.02, seed=11), 4)
+    obs = ~np.isnan(tracks.xy_px[:, :, 0])
+    partner_of = {t: int(np.flatnonzero(obs[t])[np.flatnonzero(obs[t]) != 4][0])
+                  for t in np.flatnonzero(obs[:, 4])}
+    counts = np.bincount(list(partner_of.values()), minlength=4)
+    wrong = int(np.argmax(counts))
+    assert counts[wrong] < counts.sum() / 2  # the truth keeps the majority of the camera's tracks
+    rows = [t for t, p in partner_of.items() if p == wrong]
+    roll = np.radians(120.0)
+    ghost_from_cam = np.array([[np.cos(roll), -np.sin(roll), 0.0],
+                               [np.sin(roll), np.cos(roll), 0.0], [0.0, 0.0, 1.0]])
+    camera = cams[4].to_pycolmap()
+    xy = tracks.xy_px.copy()
+    rays = np.column_stack([camera.cam_from_img(xy[rows, 4]), np.ones(len(rows))])
+    xy[rows, 4] = camera.img_from_cam(rays @ ghost_from_cam.T)
+    tracks = Tracks(xy, tracks.cycle_order, tracks.score, tracks.time_index)
+
+    state = SfMState.create(tracks, cams)
+    for c in range(4):
+        state.cam_from_world[c] = poses[c].copy()
+    triangulate(state, np.flatnonzero(state.registered_active().sum(axis=1) >= 2), 20.0)
+    assert _register_from_pairs(state, 4, list("abcde"), seed=0, max_error_px=20.0, num_threads=1)
+    R_err = state.cam_from_world[4][:3, :3] @ poses[4][:3, :3].T
+    assert np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 2.0
+
+
 def test_held_out_cost_counts_raw_matches_at_the_inlier_scale_not_b_err():
     """Raw keypoint matches are judged at HELD_OUT_TRUNCATION_PX whatever B_err: a wrong match
     costs that much, not 20 px, so many wrong matches (repetitive texture) cannot outweigh how
