@@ -30,6 +30,7 @@ import pycolmap
 
 from ..config import SfMConfig
 from ..errors import NotEnoughOverlapError
+from ..metrics import rotation_angle_deg
 from ..types import CameraIntrinsics, Tracks
 from .plausibility import bundle_adjust_plausibly
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
@@ -250,10 +251,6 @@ def _partner_poses(state: SfMState, c: int, seed: int) -> list[_PartnerPose]:
     return out
 
 
-def _rotation_gap_deg(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def _distinct_orientations(partners: list[_PartnerPose]) -> list[int]:
     """Indices of the partners, the most shared tracks first, whose orientations for c differ
     from every earlier kept one's by PAIR_ORIENTATION_AGREEMENT_DEG or more: each hypothesis is
@@ -261,7 +258,7 @@ def _distinct_orientations(partners: list[_PartnerPose]) -> list[int]:
     most tracks, as a single orientation always was)."""
     kept: list[int] = []
     for k in sorted(range(len(partners)), key=lambda k: -partners[k].num_tracks):
-        if all(_rotation_gap_deg(partners[k].c_from_world, partners[a].c_from_world)
+        if all(rotation_angle_deg(partners[k].c_from_world @ partners[a].c_from_world.T)
                >= PAIR_ORIENTATION_AGREEMENT_DEG for a in kept):
             kept.append(k)
     return kept
@@ -275,7 +272,7 @@ def _place_from_pairs(state: SfMState, c: int, partners: list[_PartnerPose], anc
     (later 3-cycles and BA fix that scale)."""
     rotation = partners[anchor].c_from_world
     lines = [(p.centre, p.direction) for p in partners
-             if _rotation_gap_deg(p.c_from_world, rotation) < PAIR_ORIENTATION_AGREEMENT_DEG]
+             if rotation_angle_deg(p.c_from_world @ rotation.T) < PAIR_ORIENTATION_AGREEMENT_DEG]
     centres = [-T[:3, :3].T @ T[:3, 3] for T in (state.cam_from_world[r]
                                                  for r in state.registered())]
     spread = np.median([np.linalg.norm(a - b) for k, a in enumerate(centres)
