@@ -3,10 +3,13 @@ pipeline's use of it is tested in test_pipeline.py)."""
 import numpy as np
 import pytest
 
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.method.multistart import (AGREEMENT_DEG, MAX_AGREEMENT_DEG,
+                                                   agreement_deg)
 from densecalib_ros.core.robust.consensus import (UNREGISTERED_PAIR_DEG, WARN_DISAGREEMENT_DEG,
-                                                  disagreement_warning, least_determined_pairs,
-                                                  medoid, pair_disagreement_deg,
-                                                  rig_disagreement_deg)
+                                                  choose_run, disagreement_warning,
+                                                  least_determined_pairs, medoid,
+                                                  pair_disagreement_deg, rig_disagreement_deg)
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 NAMES = ["a", "b", "c"]
@@ -195,3 +198,27 @@ def _turned(rig, name, deg):
     pose[:3, :3] = _rotation_z(deg) @ pose[:3, :3]
     return RigCalibration(rig.reference_camera,
                           {**rig.cameras, name: RigCamera(name, cam.intrinsics, pose)})
+
+
+def test_runs_agree_within_the_turn_a_held_principal_point_leaves():
+    """Where the SfM holds the principal point at the image centre (the regular preset), a real
+    lens's offset of up to 2 % of the long side turns every run alike by about offset / focal:
+    runs closer than that are one answer. Long lenses keep AGREEMENT_DEG, and so does the fisheye
+    preset, which refines the principal point; never more than AUC@3's threshold."""
+    def cameras(focal_px, n=3):
+        return [CameraIntrinsics("RADIAL", 1024, 768, np.array([focal_px, 512, 384, 0, 0]))] * n
+
+    regular, fisheye = make_config("regular").sfm, make_config("fisheye").sfm
+    assert agreement_deg(cameras(2000.0), regular) == AGREEMENT_DEG
+    wide_deg = np.degrees(0.02 * 1024 / 512.0)
+    assert agreement_deg(cameras(512.0), regular) == pytest.approx(wide_deg)
+    assert agreement_deg(cameras(512.0), fisheye) == AGREEMENT_DEG
+    assert agreement_deg(cameras(250.0), regular) == MAX_AGREEMENT_DEG == WARN_DISAGREEMENT_DEG
+    # Cameras a run did not register do not count.
+    assert agreement_deg([None, None] + cameras(512.0, 1), regular) == pytest.approx(wide_deg)
+    assert agreement_deg([None] * 3, regular) == AGREEMENT_DEG
+    # Runs 1.3 deg apart: one answer for wide lenses held at the centre (the medoid, no costs).
+    rigs = [_rig(), _rig(2.0), _rig()]
+    assert 1.0 < medoid(rigs, NAMES)[1].max() < wide_deg
+    choice = choose_run(rigs, [], NAMES, truncation_px=20.0, agree_deg=wide_deg)
+    assert choice.best == 0 and np.isnan(choice.costs_px).all()

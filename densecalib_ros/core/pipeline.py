@@ -309,7 +309,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            camera_names: Sequence[str], config: PipelineConfig,
                            match_tracks: Optional[Tracks], progress: Progress
                            ) -> CalibrationResult:
-    from .method.multistart import AGREEMENT_DEG, cost_truncation_px
+    from .method.multistart import cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
     from .robust.focal_hops import hop_focals
@@ -317,9 +317,10 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
 
     results, seeds, failed, settled = _consensus_runs(match_sets, image_sizes, camera_names,
                                                       config, match_tracks, progress)
+    agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
                         cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed,
-                        refined_on=match_tracks)
+                        refined_on=match_tracks, agree_deg=agree_deg)
     best, D, costs = choice.best, choice.disagreement_deg, choice.costs_px
     if choice.worse_fit:
         say_progress(progress, "consensus: the runs with seeds " + ", ".join(
@@ -331,7 +332,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
            if choice.by_fit else "agrees best with the others")
     say_progress(progress, f"consensus: kept the run with seed {seeds[best]}, which {why}")
     others = np.delete(D[best], best)
-    if D.max() >= AGREEMENT_DEG and match_tracks is not None and match_tracks.num_tracks \
+    if D.max() >= agree_deg and match_tracks is not None and match_tracks.num_tracks \
             and result.state is not None:
         # The runs found different minima: search around the kept one (core.robust.focal_hops).
         state, hops = hop_focals(result.state, match_tracks, camera_names, config.sfm,
@@ -373,20 +374,20 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     error is raised if every run fails.
 
     Stops early where further runs could only repeat the answer: after EARLY_STOP_RUNS runs that
-    agree, or SETTLED_EARLY_STOP_RUNS where the first run's focal multi-start settled (every start
+    agree (multistart.agreement_deg), or SETTLED_EARLY_STOP_RUNS where the first run's focal multi-start settled (every start
     that fit about as well ended in one rig: multistart.settled_starts); later runs then try only
     its best starts, as the focal lengths are not what is in doubt, only the sampling's draw."""
-    from .method.multistart import AGREEMENT_DEG
     from .robust.consensus import EARLY_STOP_RUNS, SETTLED_EARLY_STOP_RUNS, medoid
 
     results, seeds, failed, first_error, run_s, settled = [], [], 0, None, None, None
     for k in range(config.consensus_runs):
         checks = (SETTLED_EARLY_STOP_RUNS, EARLY_STOP_RUNS) if settled else (EARLY_STOP_RUNS,)
-        if k in checks and len(results) == k and \
-                medoid([r.rig for r in results], camera_names)[1].max() < AGREEMENT_DEG:
-            log.info("consensus: the %d runs agree within %.1f deg; no more runs", k,
-                     AGREEMENT_DEG)
-            break  # a well-determined rig: more runs would only repeat the answer
+        if k in checks and len(results) == k:
+            agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
+            if medoid([r.rig for r in results], camera_names)[1].max() < agree_deg:
+                log.info("consensus: the %d runs agree within %.1f deg; no more runs", k,
+                         agree_deg)
+                break  # more runs could not make the rig more accurate
         seed = config.sampling.seed + k
         run_config = copy.deepcopy(config)
         run_config.sampling.seed = seed
@@ -412,6 +413,15 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     if not results:
         raise first_error
     return results, seeds, failed, settled
+
+
+def _runs_agreement_deg(rig: RigCalibration, camera_names: Sequence[str],
+                        config: PipelineConfig) -> float:
+    """multistart.agreement_deg for the cameras as `rig` (a consensus run's) calibrated them."""
+    from .method.multistart import agreement_deg
+
+    return agreement_deg([rig.cameras[n].intrinsics if n in rig.cameras else None
+                          for n in camera_names], config.sfm)
 
 
 def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> dict:

@@ -21,7 +21,7 @@ import pycolmap
 
 from ..config import SfMConfig
 from ..errors import NotEnoughOverlapError
-from ..metrics import relative_pose_errors
+from ..metrics import mean_focal_px, relative_pose_errors
 from ..parallel import map_jobs
 from ..progress import StageClock, say_progress
 from ..types import CameraIntrinsics, Tracks
@@ -75,6 +75,14 @@ HELD_OUT_TRUNCATION_PX = 4.0
 # rotation and translation-direction differences, deg) are one answer: a third of AUC@3's strictest
 # threshold, so a choice between them could not change which poses count as accurate.
 AGREEMENT_DEG = 1.0
+# Real lenses put the principal point up to this fraction of the long image side off-centre
+# (docs/design-notes.md, Real cameras' principal points). Where the SfM holds it at the centre, a
+# camera inherits a turn of about this fraction x side / f (rad) that no choice between two
+# reconstructions of it can remove: see agreement_deg.
+HELD_PRINCIPAL_POINT_OFFSET_FRACTION = 0.02
+# agreement_deg never exceeds AUC@3's strictest threshold: reconstructions this far apart place
+# cameras differently by the measure of accuracy itself.
+MAX_AGREEMENT_DEG = 3.0
 # A reconstruction whose truncated reprojection cost exceeds the best one's by this factor is a
 # wrong one, not an equally good alternative: the factor sits between what right or near-ambiguous
 # alternatives (converging cameras, free focals) cost and what wrong reconstructions cost
@@ -178,19 +186,44 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         result = incremental_sfm(tracks, start, camera_names, config, seed, say, pair)
     drop_implausible_cameras(result.state, result.failed, camera_names, say)
     if not restricted:
-        result.settled_starts = settled_starts(costs, {n: t[0].state for n, t in trials.items()})
+        states = {n: t[0].state for n, t in trials.items()}
+        agree = (agreement_deg([states[best].camera(c) for c in range(tracks.num_cameras)],
+                               config) if best in states else AGREEMENT_DEG)
+        result.settled_starts = settled_starts(costs, states, agree)
     return result
 
 
-def settled_starts(costs: dict, states: dict) -> Optional[list[str]]:
+def agreement_deg(intrinsics: Sequence[Optional[CameraIntrinsics]], config: SfMConfig) -> float:
+    """How far apart (deg, as states_disagreement_deg and consensus.rig_disagreement_deg measure)
+    two reconstructions of these cameras may be and still count as one answer.
+
+    AGREEMENT_DEG, or where the SfM held the principal point at the image centre (the regular
+    preset: SfMConfig.principal_point_cameras) the turn a real lens's offset leaves in every
+    reconstruction alike (HELD_PRINCIPAL_POINT_OFFSET_FRACTION x side / focal, the median over
+    those cameras; None: a camera not registered), if larger, at most MAX_AGREEMENT_DEG.
+    Reconstructions that differ by less than that bias are one answer: a choice between them
+    cannot make the rig more accurate than the held principal point lets it be, which the image
+    refinement then frees (docs/design-notes.md, Consensus: early stop). It exceeds
+    AGREEMENT_DEG for lenses wider than about 47 deg across the long side (focal under 1.15x it)."""
+    refined = set(config.principal_point_cameras(len(intrinsics)))
+    turns = [np.degrees(HELD_PRINCIPAL_POINT_OFFSET_FRACTION * max(cam.width, cam.height)
+                        / mean_focal_px(cam))
+             for c, cam in enumerate(intrinsics) if cam is not None and c not in refined]
+    if not turns:
+        return AGREEMENT_DEG
+    return float(np.clip(np.median(turns), AGREEMENT_DEG, MAX_AGREEMENT_DEG))
+
+
+def settled_starts(costs: dict, states: dict, agree_deg: float = AGREEMENT_DEG
+                   ) -> Optional[list[str]]:
     """The SETTLED_STARTS best starts' names where the multi-start settled, else None.
 
     costs: start name -> (-registered cameras, truncated cost) of the plausible trials; states:
     start name -> the trial's SfMState. Settled: the trials that register as many cameras as the
     best and fit within WORSE_FIT_RATIO of it are at least two, and all of them agree with the
-    best within AGREEMENT_DEG. Then the focal lengths are not in doubt: every start that fits
-    about as well ends in the same rig, so a later run on another track sample needs no more
-    than its best starts (core.pipeline's consensus)."""
+    best within agree_deg (agreement_deg). Then the focal lengths are not in doubt: every start
+    that fits about as well ends in the same rig, so a later run on another track sample needs no
+    more than its best starts (core.pipeline's consensus)."""
     if not costs:
         return None
     best = min(costs, key=costs.get)
@@ -199,7 +232,7 @@ def settled_starts(costs: dict, states: dict) -> Optional[list[str]]:
                          if r == registered and c <= WORSE_FIT_RATIO * best_cost),
                         key=costs.get)
     if len(contenders) < 2 or any(states_disagreement_deg(states[best], states[n])
-                                  >= AGREEMENT_DEG for n in contenders[1:]):
+                                  >= agree_deg for n in contenders[1:]):
         return None
     return contenders[:SETTLED_STARTS]
 

@@ -44,8 +44,8 @@ from ..types import RigCalibration, Tracks
 
 # A camera pair that one of two runs did not register counts as this far apart.
 UNREGISTERED_PAIR_DEG = 180.0
-# After this many successful runs, stop if every two of them agree within AGREEMENT_DEG (mean over
-# camera pairs; multistart): further runs could not change which poses count as accurate.
+# After this many successful runs, stop if every two of them agree (multistart.agreement_deg: mean
+# over camera pairs): further runs could not make the rig more accurate.
 # Well-connected rigs agree to a fraction of it, weak ones disagree by several times it
 # (docs/design-notes.md, Consensus: best fit vs vote). Where the first run's focal multi-start
 # settled (multistart.settled_starts), the focal lengths are not in doubt and two agreeing runs
@@ -143,15 +143,15 @@ class Choice:
 
 def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
                camera_names: Sequence[str], truncation_px, seed: int = 0,
-               refined_on: Optional[Tracks] = None) -> Choice:
-    """The run to keep (module docstring). When all runs agree within AGREEMENT_DEG, simply the
-    medoid. Otherwise, among the runs that fit about as well as the best one (well_fitting_runs)
+               refined_on: Optional[Tracks] = None, agree_deg: float = AGREEMENT_DEG) -> Choice:
+    """The run to keep (module docstring). When all runs agree within agree_deg
+    (multistart.agreement_deg), simply the medoid. Otherwise, among the runs that fit about as well as the best one (well_fitting_runs)
     and registered the most cameras among those: with refined_on (tracks every run was refined
     on last, e.g. all keypoint matches), the one that fits them best, its cost truncated at most
     at HELD_OUT_TRUNCATION_PX as they are raw matches; without, the medoid of the costs on a
     sample of all runs' own tracks (runs_tracks)."""
     best, D = medoid(rigs, camera_names)
-    if len(rigs) < 2 or D.max() < AGREEMENT_DEG:
+    if len(rigs) < 2 or D.max() < agree_deg:
         return Choice(best, D, np.full(len(rigs), np.nan), [])
     judge = refined_on is not None and refined_on.num_tracks > 0
     if judge:
