@@ -374,9 +374,10 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     error is raised if every run fails.
 
     Stops early where further runs could only repeat the answer: after EARLY_STOP_RUNS runs that
-    agree (multistart.agreement_deg), or SETTLED_EARLY_STOP_RUNS where the first run's focal multi-start settled (every start
-    that fit about as well ended in one rig: multistart.settled_starts); later runs then try only
-    its best starts, as the focal lengths are not what is in doubt, only the sampling's draw."""
+    agree (multistart.agreement_deg), or SETTLED_EARLY_STOP_RUNS where the first run's focal
+    multi-start settled (every start that fit about as well ended in one rig:
+    multistart.settled_starts); later runs then try only its best starts, as the focal lengths
+    are not what is in doubt, only the sampling's draw."""
     from .robust.consensus import EARLY_STOP_RUNS, SETTLED_EARLY_STOP_RUNS, medoid
 
     results, seeds, failed, first_error, run_s, settled = [], [], 0, None, None, None

@@ -203,7 +203,7 @@ def agreement_deg(intrinsics: Sequence[Optional[CameraIntrinsics]], config: SfMC
     those cameras; None: a camera not registered), if larger, at most MAX_AGREEMENT_DEG.
     Reconstructions that differ by less than that bias are one answer: a choice between them
     cannot make the rig more accurate than the held principal point lets it be, which the image
-    refinement then frees (docs/design-notes.md, Consensus: early stop). It exceeds
+    refinement then frees (docs/design-notes.md, Consensus: best fit vs vote). It exceeds
     AGREEMENT_DEG for lenses wider than about 47 deg across the long side (focal under 1.15x it)."""
     refined = set(config.principal_point_cameras(len(intrinsics)))
     turns = [np.degrees(HELD_PRINCIPAL_POINT_OFFSET_FRACTION * max(cam.width, cam.height)

@@ -145,11 +145,11 @@ def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
                camera_names: Sequence[str], truncation_px, seed: int = 0,
                refined_on: Optional[Tracks] = None, agree_deg: float = AGREEMENT_DEG) -> Choice:
     """The run to keep (module docstring). When all runs agree within agree_deg
-    (multistart.agreement_deg), simply the medoid. Otherwise, among the runs that fit about as well as the best one (well_fitting_runs)
-    and registered the most cameras among those: with refined_on (tracks every run was refined
-    on last, e.g. all keypoint matches), the one that fits them best, its cost truncated at most
-    at HELD_OUT_TRUNCATION_PX as they are raw matches; without, the medoid of the costs on a
-    sample of all runs' own tracks (runs_tracks)."""
+    (multistart.agreement_deg), simply the medoid. Otherwise, among the runs that fit about as
+    well as the best one (well_fitting_runs) and registered the most cameras among those: with
+    refined_on (tracks every run was refined on last, e.g. all keypoint matches), the one that
+    fits them best, its cost truncated at most at HELD_OUT_TRUNCATION_PX as they are raw
+    matches; without, the medoid of the costs on a sample of all runs' own tracks (runs_tracks)."""
     best, D = medoid(rigs, camera_names)
     if len(rigs) < 2 or D.max() < agree_deg:
         return Choice(best, D, np.full(len(rigs), np.nan), [])
