@@ -37,8 +37,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..method.multistart import (AGREEMENT_DEG, HELD_OUT_TRUNCATION_PX, WORSE_FIT_RATIO,
-                                 truncated_cost)
+from ..method.multistart import (AGREEMENT_DEG, HELD_OUT_TRUNCATION_PX, MAX_AGREEMENT_DEG,
+                                 WORSE_FIT_RATIO, truncated_cost)
 from ..method.reconstruction import SfMState, triangulate_tracks
 from ..types import RigCalibration, Tracks
 
@@ -53,8 +53,9 @@ UNREGISTERED_PAIR_DEG = 180.0
 EARLY_STOP_RUNS = 3
 SETTLED_EARLY_STOP_RUNS = 2
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
-# other runs put the cameras where the kept one would count as wrong.
-WARN_DISAGREEMENT_DEG = 3.0
+# other runs put the cameras where the kept one would count as wrong; runs closer than it can
+# still count as one answer (multistart.agreement_deg), so both are that one threshold.
+WARN_DISAGREEMENT_DEG = MAX_AGREEMENT_DEG
 MAX_PAIRS_SAID = 3  # a warning names this many pairs at most: the rest is in the quality record
 # A run whose truncated reprojection cost on the common tracks exceeds the best run's by
 # WORSE_FIT_RATIO (multistart) is not kept: a wrong reconstruction, not an alternative.
