@@ -172,6 +172,9 @@ def _register_from_pairs(state: SfMState, c: int, camera_names: Sequence[str], s
             rows = np.flatnonzero(trial.active[:, c] & ~trial.triangulated()
                                   & (trial.registered_active().sum(axis=1) >= 2))
             triangulate(trial, rows, max_error_px)
+            # Only c moves, so the points c does not see cannot change its pose, focal or cost:
+            # they stay out of the adjustment (and only c's pose and intrinsics are kept).
+            trial.points_xyz[~trial.active[:, c]] = np.nan
             others = tuple(r for r in trial.registered() if r != c)
             bundle_adjust(trial, camera_names,
                           BAStage(PAIR_REGISTRATION_BA_ITERATIONS, refine_focal=True,
