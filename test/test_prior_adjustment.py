@@ -144,3 +144,20 @@ def test_fixed_blocks_are_left_alone():
         fisheye.intrinsics[0] = CameraIntrinsics("OPENCV_FISHEYE", 640, 480,
                                                  np.r_[300.0, 300.0, 320, 240, 0, 0, 0, 0])
         adjust_with_priors(fisheye, [0], Priors())
+
+
+def test_a_prior_on_any_intrinsic_holds_it():
+    """Priors.intrinsics: a tight prior on the focal length and k1 holds them at its centre
+    against the images; a loose one leaves the images' estimate."""
+    true, poses = _rig_with_offset_points()
+    blocks = list(range(len(true)))
+    tight = _state(true, poses, 0.2)
+    centres = {b: {0: (true[b].params[0] * 1.02, 1e-3), 3: (0.0, 1e-6)} for b in blocks}
+    adjust_with_priors(tight, blocks, Priors({b: 6.4 for b in blocks}, intrinsics=centres))
+    loose = _state(true, poses, 0.2)
+    adjust_with_priors(loose, blocks, Priors({b: 6.4 for b in blocks}, intrinsics={
+        b: {0: (true[b].params[0] * 1.02, 1e6)} for b in blocks}))
+    for b in blocks:
+        assert abs(tight.intrinsics[b].params[0] - true[b].params[0] * 1.02) < 0.01
+        assert abs(tight.intrinsics[b].params[3]) < 1e-4
+        assert abs(loose.intrinsics[b].params[0] / true[b].params[0] - 1) < 0.005

@@ -24,7 +24,14 @@ Image refinement: a held principal point). The prior's centre is the image centr
 recalibration the point the previous calibration of the same camera estimated from its images
 (pp_centres): a bump or a refocus leaves it where it was, and the fold decision, near its
 threshold, can go either way between runs (measured: docs/design-notes.md, Principal point prior
-in a recalibration). The pixel aspect is always
+in a recalibration). Where three or more cameras of one image size were adjusted, each of f,
+cx, cy, k1 and k2 then gets the rig's own prior instead (core.method.rig_pooling): the cameras'
+estimates, with the folds' sigmas, give a rig mean and a spread between the cameras, and every
+camera is adjusted once more under that Gaussian (a principal point never more loosely than the
+generic prior; one the folds do not determine is held as above, towards the rig mean). Cameras
+of one model are so pulled together as far as their images agree; separately self-calibrated,
+each traded its intrinsics against its pose in its own way (docs/design-notes.md, Image
+refinement: the rig's own spread). The pixel aspect is always
 estimated with its prior (holding a real sensor's aspect at 1 moves the principal points far:
 docs/design-notes.md, Image refinement: folds and the aspect prior); the cameras are written as
 OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
@@ -32,7 +39,7 @@ folds determine it."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -41,9 +48,10 @@ from ..types import Tracks
 from .dense_matches import dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
-                               adjust_with_priors, posterior_covariance)
+                               adjust_with_priors, intrinsics_vector, posterior_covariance)
 from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
                              triangulate_tracks)
+from .rig_pooling import MIN_POOLED_CAMERAS, POOLED_INTRINSICS, random_effects
 from .uncertainty import CameraUncertainty, projection_std_px
 
 log = logging.getLogger(__name__)
@@ -143,13 +151,16 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
-    held = Priors(
-        principal_point_std_px={b: (v if "principal point" in determined[b] else None)
-                                for b, v in priors.principal_point_std_px.items()},
-        principal_point_centre_px=priors.principal_point_centre_px,
-        aspect_std=priors.aspect_std)
+    pooled = _rig_priors(refined, blocks, fold_sigmas, priors, set(centres), say)
+    # The rig's spread replaces the generic principal point prior where it is pooled.
+    in_place = replace(priors, intrinsics=pooled, principal_point_std_px={
+        b: (np.inf if 1 in pooled.get(b, {}) else v)
+        for b, v in priors.principal_point_std_px.items()})
+    held = replace(in_place, principal_point_std_px={
+        b: (v if "principal point" in determined[b] else None)
+        for b, v in in_place.principal_point_std_px.items()})
     if held != priors:
-        _hold_principal_points(refined, blocks, held, priors, fold_sigmas)
+        _hold_principal_points(refined, blocks, held, in_place, fold_sigmas)
         adjustment = adjust_with_priors(refined, blocks, held, noise_px=adjustment.noise_px)
         # The held point moved the rig: an observation it now leaves beyond the gate (a point
         # pushed behind a camera) is not part of the fit, nor of the camera's reported RMS.
@@ -162,7 +173,7 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         scale_std = probed_focal_scale_std(refined, blocks, held, adjustment.noise_px)
     # Sigmas with every prior in place: a held principal point may be off by its prior's spread,
     # and the focal length leans on it.
-    covariance = posterior_covariance(refined, blocks, priors, adjustment.noise_px)
+    covariance = posterior_covariance(refined, blocks, in_place, adjustment.noise_px)
     estimated, sigmas = {}, {}
     for c in refined.registered():
         b = int(refined.camera_block[c])
@@ -199,8 +210,8 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
     folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
     images does not decide it. Also per block the folds' standard deviations of the mean of the
-    principal point (per axis) and of the focal length (px): how far off the images leave
-    them."""
+    principal point (per axis), of the focal length (px) and of each pooled intrinsic
+    (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
     first = np.argmax(tracks.observed(), axis=1)
     xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
     cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
@@ -227,8 +238,13 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
         spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
         std_of_mean = spread / np.sqrt(len(values))
         spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
-                            focal_px=float(std_of_mean[3]))
-        log.debug("block %d: fold estimates of cx, cy, aspect %s, sigma of their mean %s", b,
+                            focal_px=float(std_of_mean[3]),
+                            # by index into INTRINSIC_NAMES: f, cx, cy, k1, k2
+                            intrinsics={0: float(std_of_mean[3]), 1: float(std_of_mean[0]),
+                                        2: float(std_of_mean[1]), 3: float(std_of_mean[4]),
+                                        4: float(std_of_mean[5])})
+        log.debug("block %d: fold estimates of cx, cy, aspect, f, k1, k2 %s, sigma of their "
+                  "mean %s", b,
                   np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
         out[b] = set()
         if max(std_of_mean[0], std_of_mean[1]) < ESTIMATED_FRACTION * \
@@ -239,32 +255,75 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     return out, spread_of
 
 
-def _fold_values(cam) -> tuple[float, float, float, float]:
-    """(cx, cy, aspect, mean focal) of a camera, as the folds compare them."""
+def _rig_priors(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
+                given_centres: set, say: Callable[[str], None]) -> dict:
+    """Per block {index into INTRINSIC_NAMES: (centre, sigma)}: the prior of each of
+    POOLED_INTRINSICS from the rig's cameras of the same image size (core.method.rig_pooling),
+    where at least MIN_POOLED_CAMERAS of them have the folds' sigmas; the estimates are those of
+    `state` (adjusted with `priors`). A principal point is not held more loosely than `priors`
+    hold it (real lenses' spread), and not pooled where a previous calibration of the camera
+    centres its prior (given_centres: blocks)."""
+    out: dict = {}
+    groups: dict = {}
+    for b in blocks:
+        sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
+        if all(np.isfinite(sigmas.get(i, np.nan)) and sigmas[i] > 0 for i in POOLED_INTRINSICS):
+            cam = state.intrinsics[b]
+            groups.setdefault((cam.width, cam.height), []).append(b)
+    for (width, height), members in groups.items():
+        if len(members) < MIN_POOLED_CAMERAS:
+            continue
+        values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
+        spreads = {}
+        for i in POOLED_INTRINSICS:
+            effects = random_effects(values[:, i],
+                                     [fold_sigmas[b]["intrinsics"][i] for b in members])
+            spreads[i] = effects.spread
+            for b in blocks:
+                cam = state.intrinsics[b]
+                if (cam.width, cam.height) != (width, height) or \
+                        (i in (1, 2) and b in given_centres):
+                    continue
+                sigma = effects.sigma if i not in (1, 2) else \
+                    min(effects.sigma, priors.principal_point_std_px[b])
+                out.setdefault(b, {})[i] = (effects.mean, sigma)
+        say(f"intrinsics pooled across the {len(members)} cameras of {width}x{height} "
+            f"(spread between them: focal {spreads[0]:.1f} px, principal point "
+            f"({spreads[1]:.1f}, {spreads[2]:.1f}) px, k1 {spreads[3]:.4f}, k2 {spreads[4]:.4f})")
+    return out
+
+
+def _fold_values(cam) -> tuple[float, ...]:
+    """(cx, cy, aspect, mean focal, k1, k2) of a camera, as the folds compare them."""
     p = np.asarray(cam.params, float)
     if cam.model == "OPENCV":
-        return p[2], p[3], p[1] / p[0] - 1.0, 0.5 * (p[0] + p[1])
-    return p[1], p[2], 0.0, p[0]
+        return p[2], p[3], p[1] / p[0] - 1.0, 0.5 * (p[0] + p[1]), p[4], p[5]
+    return p[1], p[2], 0.0, p[0], p[3], p[4]
 
 
 def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, priors: Priors,
                            fold_sigmas: dict) -> None:
     """The principal point of the blocks whose prior `held` leaves out (None: held by the next
     adjustment) set, per axis, to the precision-weighted mean of its estimate from all the
-    images (in `state`, adjusted with `priors`; its sigma the folds', fold_sigmas) and the
-    prior's centre (its sigma the prior's); at the centre where the folds gave no sigma. In
-    place."""
+    images (in `state`; its sigma the folds', fold_sigmas) and the prior's centre (its sigma
+    the prior's: the rig's, per axis, where `priors` pool it); at the centre where the folds
+    gave no sigma. In place."""
     for b in blocks:
         if held.principal_point_std_px.get(b) is not None:
             continue
         cam = state.intrinsics[b]
         p = np.array(cam.params, float)
         pp = [2, 3] if cam.model == "OPENCV" else [1, 2]
-        centre = np.array(priors.principal_point_centre_px.get(
-            b, (cam.width / 2.0, cam.height / 2.0)), float)
+        pooled = priors.intrinsics.get(b, {})
+        if 1 in pooled:
+            centre = np.array([pooled[1][0], pooled[2][0]])
+            prior_var = np.array([pooled[1][1], pooled[2][1]]) ** 2
+        else:
+            centre = np.array(priors.principal_point_centre_px.get(
+                b, (cam.width / 2.0, cam.height / 2.0)), float)
+            prior_var = priors.principal_point_std_px[b] ** 2
         images_std = np.array(fold_sigmas.get(b, {}).get("principal_point_axes_px",
                                                           (np.inf, np.inf)), float)
-        prior_var = priors.principal_point_std_px[b] ** 2
         weight = prior_var / (prior_var + images_std ** 2)  # 0 where the folds gave no sigma
         p[pp] = centre + weight * (p[pp] - centre)
         state.intrinsics[b] = type(cam)(cam.model, cam.width, cam.height, p)

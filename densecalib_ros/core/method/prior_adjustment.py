@@ -62,6 +62,9 @@ class Priors:
     aspect_std: dict = field(default_factory=dict)  # block -> fraction or None
     tangential_std: dict = field(default_factory=dict)  # block -> p1, p2 sigma or None
     principal_point_centre_px: dict = field(default_factory=dict)  # block -> (cx, cy)
+    # block -> {index into INTRINSIC_NAMES: (centre, sigma)}: priors on any intrinsic (the rig's
+    # own spread: core.method.rig_pooling); a principal point's apply where it is free.
+    intrinsics: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -232,6 +235,9 @@ class _Problem:
             if st is not None and self.intr_cols[b, 6] >= 0:
                 out.append((self.intr_cols[b, 6], self.K[b, 6] / st, 1 / st))
                 out.append((self.intr_cols[b, 7], self.K[b, 7] / st, 1 / st))
+            for i, (centre, sigma) in self.priors.intrinsics.get(b, {}).items():
+                if self.intr_cols[b, i] >= 0:
+                    out.append((self.intr_cols[b, i], (self.K[b, i] - centre) / sigma, 1 / sigma))
         return out
 
     def cost(self, noise_px: float, res: Optional[np.ndarray] = None) -> float:

@@ -1,0 +1,31 @@
+"""core.method.rig_pooling: the rig's own spread of an intrinsic (DerSimonian-Laird), and its
+use as a prior in the adjustment (core.method.prior_adjustment)."""
+import numpy as np
+
+from densecalib_ros.core.method.rig_pooling import SHARED_FRACTION, random_effects
+
+
+def test_cameras_of_one_model_share_the_value():
+    """Estimates that scatter only as far as their own errors: no spread between the cameras,
+    the mean weighted by precision, and a prior tight enough to tie the cameras."""
+    rng = np.random.default_rng(0)
+    stds = np.array([0.5, 1.0, 2.0, 1.0, 0.7, 1.5])
+    values = 500.0 + 0.3 * stds * rng.standard_normal(len(stds))  # tighter than their errors
+    effects = random_effects(values, stds)
+    assert effects.spread == 0.0
+    w = 1 / stds ** 2
+    assert abs(effects.mean - np.sum(w * values) / np.sum(w)) < 1e-9
+    assert abs(effects.mean_std - np.sqrt(1 / np.sum(w))) < 1e-12
+    assert effects.sigma == SHARED_FRACTION * effects.mean_std
+
+
+def test_different_lenses_keep_their_spread():
+    """Cameras 20 px apart with 1 px errors: the spread between them is measured as such, and
+    each camera's prior is about as wide (it barely moves an estimate)."""
+    rng = np.random.default_rng(1)
+    truth = 500.0 + 20.0 * rng.standard_normal(40)
+    stds = np.full(40, 1.0)
+    effects = random_effects(truth + rng.standard_normal(40), stds)
+    assert 15.0 < effects.spread < 25.0
+    assert effects.sigma == effects.spread
+    assert abs(effects.mean - np.mean(truth)) < 3 * effects.mean_std
