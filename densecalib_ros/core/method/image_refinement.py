@@ -151,16 +151,13 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
-    pooled = _rig_priors(refined, blocks, fold_sigmas, priors, set(centres), say)
-    # The rig's spread replaces the generic principal point prior where it is pooled.
-    in_place = replace(priors, intrinsics=pooled, principal_point_std_px={
-        b: (np.inf if 1 in pooled.get(b, {}) else v)
-        for b, v in priors.principal_point_std_px.items()})
+    ties, rig_pp = _rig_ties(refined, blocks, fold_sigmas, set(centres), say)
+    in_place = replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
-        for b, v in in_place.principal_point_std_px.items()})
+        for b, v in priors.principal_point_std_px.items()})
     if held != priors:
-        _hold_principal_points(refined, blocks, held, in_place, fold_sigmas)
+        _hold_principal_points(refined, blocks, held, priors, fold_sigmas, rig_pp)
         adjustment = adjust_with_priors(refined, blocks, held, noise_px=adjustment.noise_px)
         # The held point moved the rig: an observation it now leaves beyond the gate (a point
         # pushed behind a camera) is not part of the fit, nor of the camera's reported RMS.
@@ -255,16 +252,14 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     return out, spread_of
 
 
-def _rig_priors(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
-                given_centres: set, say: Callable[[str], None]) -> dict:
-    """Per block {index into INTRINSIC_NAMES: (centre, sigma)}: the prior of each of
-    POOLED_INTRINSICS from the rig's cameras of the same image size (core.method.rig_pooling),
-    where at least MIN_POOLED_CAMERAS of them have the folds' sigmas; the estimates are those of
-    `state` (adjusted with `priors`). A principal point is not held more loosely than `priors`
-    hold it (real lenses' spread), and not pooled where a previous calibration of the camera
-    centres its prior (given_centres: blocks)."""
-    out: dict = {}
-    groups: dict = {}
+def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, own_centres: set,
+              say: Callable[[str], None]) -> tuple[list, dict]:
+    """The rig's own spread (core.method.rig_pooling) of each of POOLED_INTRINSICS among the
+    blocks of one image size, where at least MIN_POOLED_CAMERAS of them have the folds' sigmas
+    (the estimates: `state`'s): (Priors.ties, and per block of such a size the rig's principal
+    point ((mean, sigma) per axis), towards which a point the folds leave open is held; not for
+    own_centres, blocks whose previous calibration centres their prior)."""
+    ties, rig_pp, groups = [], {}, {}
     for b in blocks:
         sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
         if all(np.isfinite(sigmas.get(i, np.nan)) and sigmas[i] > 0 for i in POOLED_INTRINSICS):
@@ -274,23 +269,19 @@ def _rig_priors(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: P
         if len(members) < MIN_POOLED_CAMERAS:
             continue
         values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
-        spreads = {}
-        for i in POOLED_INTRINSICS:
-            effects = random_effects(values[:, i],
+        same_size = [b for b in blocks
+                     if (state.intrinsics[b].width, state.intrinsics[b].height) == (width, height)]
+        effects = {i: random_effects(values[:, i],
                                      [fold_sigmas[b]["intrinsics"][i] for b in members])
-            spreads[i] = effects.spread
-            for b in blocks:
-                cam = state.intrinsics[b]
-                if (cam.width, cam.height) != (width, height) or \
-                        (i in (1, 2) and b in given_centres):
-                    continue
-                sigma = effects.sigma if i not in (1, 2) else \
-                    min(effects.sigma, priors.principal_point_std_px[b])
-                out.setdefault(b, {})[i] = (effects.mean, sigma)
-        say(f"intrinsics pooled across the {len(members)} cameras of {width}x{height} "
-            f"(spread between them: focal {spreads[0]:.1f} px, principal point "
-            f"({spreads[1]:.1f}, {spreads[2]:.1f}) px, k1 {spreads[3]:.4f}, k2 {spreads[4]:.4f})")
-    return out
+                   for i in POOLED_INTRINSICS}
+        ties += [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
+        rig_pp.update({b: tuple((effects[i].mean, effects[i].sigma) for i in (1, 2))
+                       for b in same_size if b not in own_centres})
+        say(f"intrinsics tied across the {len(members)} cameras of {width}x{height} as far as "
+            f"they agree (spread between them: focal {effects[0].spread:.1f} px, principal point "
+            f"({effects[1].spread:.1f}, {effects[2].spread:.1f}) px, k1 {effects[3].spread:.4f}, "
+            f"k2 {effects[4].spread:.4f})")
+    return ties, rig_pp
 
 
 def _fold_values(cam) -> tuple[float, ...]:
@@ -302,22 +293,22 @@ def _fold_values(cam) -> tuple[float, ...]:
 
 
 def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, priors: Priors,
-                           fold_sigmas: dict) -> None:
+                           fold_sigmas: dict, rig_pp: dict) -> None:
     """The principal point of the blocks whose prior `held` leaves out (None: held by the next
     adjustment) set, per axis, to the precision-weighted mean of its estimate from all the
-    images (in `state`; its sigma the folds', fold_sigmas) and the prior's centre (its sigma
-    the prior's: the rig's, per axis, where `priors` pool it); at the centre where the folds
-    gave no sigma. In place."""
+    images (in `state`, adjusted with `priors`; its sigma the folds', fold_sigmas) and the
+    prior's centre (its sigma the prior's), or where the rig's cameras give one (rig_pp: block
+    -> (mean, sigma) per axis, _rig_ties) the rig's point; at the centre where the folds gave no
+    sigma. In place."""
     for b in blocks:
         if held.principal_point_std_px.get(b) is not None:
             continue
         cam = state.intrinsics[b]
         p = np.array(cam.params, float)
         pp = [2, 3] if cam.model == "OPENCV" else [1, 2]
-        pooled = priors.intrinsics.get(b, {})
-        if 1 in pooled:
-            centre = np.array([pooled[1][0], pooled[2][0]])
-            prior_var = np.array([pooled[1][1], pooled[2][1]]) ** 2
+        if b in rig_pp:
+            centre = np.array([axis[0] for axis in rig_pp[b]])
+            prior_var = np.array([axis[1] for axis in rig_pp[b]]) ** 2
         else:
             centre = np.array(priors.principal_point_centre_px.get(
                 b, (cam.width / 2.0, cam.height / 2.0)), float)

@@ -62,9 +62,10 @@ class Priors:
     aspect_std: dict = field(default_factory=dict)  # block -> fraction or None
     tangential_std: dict = field(default_factory=dict)  # block -> p1, p2 sigma or None
     principal_point_centre_px: dict = field(default_factory=dict)  # block -> (cx, cy)
-    # block -> {index into INTRINSIC_NAMES: (centre, sigma)}: priors on any intrinsic (the rig's
-    # own spread: core.method.rig_pooling); a principal point's apply where it is free.
-    intrinsics: dict = field(default_factory=dict)
+    # [(index into INTRINSIC_NAMES, {block: sigma})]: that intrinsic tied across those blocks, a
+    # Gaussian on each one's difference from their precision-weighted mean, which is left free
+    # (the rig's own spread: core.method.rig_pooling); blocks where it is held are left out.
+    ties: list = field(default_factory=list)
 
 
 @dataclass
@@ -235,9 +236,20 @@ class _Problem:
             if st is not None and self.intr_cols[b, 6] >= 0:
                 out.append((self.intr_cols[b, 6], self.K[b, 6] / st, 1 / st))
                 out.append((self.intr_cols[b, 7], self.K[b, 7] / st, 1 / st))
-            for i, (centre, sigma) in self.priors.intrinsics.get(b, {}).items():
-                if self.intr_cols[b, i] >= 0:
-                    out.append((self.intr_cols[b, i], (self.K[b, i] - centre) / sigma, 1 / sigma))
+        return out
+
+    def tie_terms(self):
+        """[(columns, the values' differences from their weighted mean, weights 1 / sigma^2)]
+        of every tie (Priors.ties) with two or more free blocks."""
+        out = []
+        for i, sigmas in self.priors.ties:
+            free = [b for b in sigmas if self.intr_cols[b, i] >= 0]
+            if len(free) < 2:
+                continue
+            values = self.K[free, i]
+            weights = np.array([sigmas[b] for b in free], float) ** -2.0
+            mean = float(np.sum(weights * values) / np.sum(weights))
+            out.append((self.intr_cols[free, i], values - mean, weights))
         return out
 
     def cost(self, noise_px: float, res: Optional[np.ndarray] = None) -> float:
@@ -245,7 +257,8 @@ class _Problem:
         s2 = np.sum(res * res, axis=1)
         c2 = LOSS_SCALE_PX ** 2
         data = np.sum(c2 * np.log1p(s2 / c2)) / noise_px ** 2
-        return float(data + sum(e * e for _, e, _ in self.prior_terms()))
+        return float(data + sum(e * e for _, e, _ in self.prior_terms())
+                     + sum(np.sum(w * d * d) for _, d, w in self.tie_terms()))
 
     def apply(self, delta_cam: np.ndarray, delta_pts: np.ndarray) -> dict:
         """Apply a step; returns what is needed to undo it."""
@@ -296,6 +309,9 @@ def _normal_equations(problem: _Problem, noise_px: float):
     for col, e, inv_sigma in problem.prior_terms():
         U[col, col] += inv_sigma ** 2
         g_cam[col] += e * inv_sigma
+    for cols, d, w in problem.tie_terms():  # the mean profiled out: no pull on the rig's level
+        U[np.ix_(cols, cols)] += np.diag(w) - np.outer(w, w) / np.sum(w)
+        g_cam[cols] += w * d
     return U, Wm, V, g_cam, g_pt, flat, res
 
 
