@@ -24,14 +24,13 @@ Image refinement: a held principal point). The prior's centre is the image centr
 recalibration the point the previous calibration of the same camera estimated from its images
 (pp_centres): a bump or a refocus leaves it where it was, and the fold decision, near its
 threshold, can go either way between runs (measured: docs/design-notes.md, Principal point prior
-in a recalibration). Where three or more cameras of one image size were adjusted, each of f,
-cx, cy, k1 and k2 then gets the rig's own prior instead (core.method.rig_pooling): the cameras'
-estimates, with the folds' sigmas, give a rig mean and a spread between the cameras, and every
-camera is adjusted once more under that Gaussian (a principal point never more loosely than the
-generic prior; one the folds do not determine is held as above, towards the rig mean). Cameras
-of one model are so pulled together as far as their images agree; separately self-calibrated,
-each traded its intrinsics against its pose in its own way (docs/design-notes.md, Image
-refinement: the rig's own spread). The pixel aspect is always
+in a recalibration). Where three or more cameras of one image size were adjusted, the rig is
+adjusted once more with f, k1 and k2 tied across them (core.method.rig_pooling): the cameras'
+estimates, with the folds' sigmas, give the spread between the cameras, and each camera's
+difference from the rig's mean gets a Gaussian of that spread. Cameras of one model are so
+pulled together as far as their images agree; separately self-calibrated, each traded its
+intrinsics against its pose in its own way (docs/design-notes.md, Image refinement: the rig's
+own spread). The pixel aspect is always
 estimated with its prior (holding a real sensor's aspect at 1 moves the principal points far:
 docs/design-notes.md, Image refinement: folds and the aspect prior); the cameras are written as
 OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
@@ -151,13 +150,13 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
-    ties, rig_pp = _rig_ties(refined, blocks, fold_sigmas, set(centres), say)
+    ties = _rig_ties(refined, blocks, fold_sigmas, say)
     in_place = replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
         for b, v in priors.principal_point_std_px.items()})
     if held != priors:
-        _hold_principal_points(refined, blocks, held, priors, fold_sigmas, rig_pp)
+        _hold_principal_points(refined, blocks, held, priors, fold_sigmas)
         adjustment = adjust_with_priors(refined, blocks, held, noise_px=adjustment.noise_px)
         # The held point moved the rig: an observation it now leaves beyond the gate (a point
         # pushed behind a camera) is not part of the fit, nor of the camera's reported RMS.
@@ -252,14 +251,12 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     return out, spread_of
 
 
-def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, own_centres: set,
-              say: Callable[[str], None]) -> tuple[list, dict]:
-    """The rig's own spread (core.method.rig_pooling) of each of POOLED_INTRINSICS among the
-    blocks of one image size, where at least MIN_POOLED_CAMERAS of them have the folds' sigmas
-    (the estimates: `state`'s): (Priors.ties, and per block of such a size the rig's principal
-    point ((mean, sigma) per axis), towards which a point the folds leave open is held; not for
-    own_centres, blocks whose previous calibration centres their prior)."""
-    ties, rig_pp, groups = [], {}, {}
+def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict,
+              say: Callable[[str], None]) -> list:
+    """Priors.ties: the rig's own spread (core.method.rig_pooling) of each of POOLED_INTRINSICS
+    among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them have the
+    folds' sigmas (the estimates: `state`'s)."""
+    ties, groups = [], {}
     for b in blocks:
         sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
         if all(np.isfinite(sigmas.get(i, np.nan)) and sigmas[i] > 0 for i in POOLED_INTRINSICS):
@@ -275,13 +272,10 @@ def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, own_centres
                                      [fold_sigmas[b]["intrinsics"][i] for b in members])
                    for i in POOLED_INTRINSICS}
         ties += [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
-        rig_pp.update({b: tuple((effects[i].mean, effects[i].sigma) for i in (1, 2))
-                       for b in same_size if b not in own_centres})
-        say(f"intrinsics tied across the {len(members)} cameras of {width}x{height} as far as "
-            f"they agree (spread between them: focal {effects[0].spread:.1f} px, principal point "
-            f"({effects[1].spread:.1f}, {effects[2].spread:.1f}) px, k1 {effects[3].spread:.4f}, "
-            f"k2 {effects[4].spread:.4f})")
-    return ties, rig_pp
+        say(f"focal length and distortion tied across the {len(members)} cameras of "
+            f"{width}x{height} as far as they agree (spread between them: focal "
+            f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 {effects[4].spread:.4f})")
+    return ties
 
 
 def _fold_values(cam) -> tuple[float, ...]:
@@ -293,26 +287,21 @@ def _fold_values(cam) -> tuple[float, ...]:
 
 
 def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, priors: Priors,
-                           fold_sigmas: dict, rig_pp: dict) -> None:
+                           fold_sigmas: dict) -> None:
     """The principal point of the blocks whose prior `held` leaves out (None: held by the next
     adjustment) set, per axis, to the precision-weighted mean of its estimate from all the
     images (in `state`, adjusted with `priors`; its sigma the folds', fold_sigmas) and the
-    prior's centre (its sigma the prior's), or where the rig's cameras give one (rig_pp: block
-    -> (mean, sigma) per axis, _rig_ties) the rig's point; at the centre where the folds gave no
-    sigma. In place."""
+    prior's centre (its sigma the prior's); at the centre where the folds gave no sigma. In
+    place."""
     for b in blocks:
         if held.principal_point_std_px.get(b) is not None:
             continue
         cam = state.intrinsics[b]
         p = np.array(cam.params, float)
         pp = [2, 3] if cam.model == "OPENCV" else [1, 2]
-        if b in rig_pp:
-            centre = np.array([axis[0] for axis in rig_pp[b]])
-            prior_var = np.array([axis[1] for axis in rig_pp[b]]) ** 2
-        else:
-            centre = np.array(priors.principal_point_centre_px.get(
-                b, (cam.width / 2.0, cam.height / 2.0)), float)
-            prior_var = priors.principal_point_std_px[b] ** 2
+        centre = np.array(priors.principal_point_centre_px.get(
+            b, (cam.width / 2.0, cam.height / 2.0)), float)
+        prior_var = priors.principal_point_std_px[b] ** 2
         images_std = np.array(fold_sigmas.get(b, {}).get("principal_point_axes_px",
                                                           (np.inf, np.inf)), float)
         weight = prior_var / (prior_var + images_std ** 2)  # 0 where the folds gave no sigma

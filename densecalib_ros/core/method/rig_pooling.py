@@ -1,17 +1,19 @@
 """The rig's own spread of intrinsics: each camera's estimate borrows strength from the others'
 (empirical Bayes, a random-effects model).
 
-Why: ten separately self-calibrated cameras each trade their focal length, principal point and
-distortion against their pose on what their images cannot tell apart, and each trades
+Why: ten separately self-calibrated cameras each trade their focal length and distortion (and
+principal point) against their pose on what their images cannot tell apart, and each trades
 differently, so their relative rotations inherit independent errors. Rigs are mostly built from
 one camera model (often one camera moved around), whose cameras differ by far less than real
 lenses in general do; where they differ, their images say so. So per intrinsic the cameras'
-estimates y_i, each with its standard deviation s_i, are taken as draws around a rig mean mu
-with a spread tau between cameras: tau estimated from how much the estimates scatter beyond
-their own s_i (DerSimonian-Laird, the standard moment estimator of meta-analysis), mu as their
-mean weighted by 1 / (s_i^2 + tau^2). Each camera then gets the Gaussian prior (mu, tau) in the
-adjustment: a rig of one model is pulled together as far as its cameras agree, a rig of
-different lenses (tau much larger than the s_i) keeps its cameras' own estimates."""
+estimates y_i, each with its standard deviation s_i, are taken as draws around a rig mean with
+a spread tau between cameras: tau estimated from how much the estimates scatter beyond their own
+s_i (DerSimonian-Laird, the standard moment estimator of meta-analysis). The adjustment then ties
+the cameras (prior_adjustment.Priors.ties): a Gaussian of sigma tau on each camera's difference
+from the rig's weighted mean, the mean itself left free, so that the tie moves the cameras
+towards one another but not the rig's level (its common focal scale stays what the images say).
+A rig of one model is pulled together as far as its cameras agree; a rig of different lenses
+(tau much larger than the s_i) keeps its cameras' own estimates."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -19,23 +21,25 @@ from typing import Sequence
 
 import numpy as np
 
-# Intrinsics pooled, as indices into prior_adjustment.INTRINSIC_NAMES: f, cx, cy, k1, k2 (the
-# pixel aspect has a prior of its own; tangential terms are not estimated).
-POOLED_INTRINSICS = (0, 1, 2, 3, 4)
+# Intrinsics tied, as indices into prior_adjustment.INTRINSIC_NAMES: f, k1, k2. Not the principal
+# point: where the images leave it open, the rig's mean of such points is as open, and tied to it
+# the long-lens rigs' points moved further off (docs/design-notes.md, Image refinement: the rig's
+# own spread); it keeps its own prior and hold (core.method.image_refinement).
+POOLED_INTRINSICS = (0, 3, 4)
 # The spread between cameras rests on the scatter of their estimates: with two cameras on one
 # difference, too little to tell one model from two.
 MIN_POOLED_CAMERAS = 3
 # A spread of 0 says the estimates scatter no more than their own errors explain: the cameras are
-# one model and share the value. Their prior's sigma is then this fraction of the rig mean's
-# standard error: tight enough to tie them as one shared parameter would, not zero, which the
-# normal equations could not take.
+# one model and share the value. Their tie's sigma is then this fraction of the rig mean's
+# standard error: tight enough to hold them together as one shared parameter would, not zero,
+# which the normal equations could not take.
 SHARED_FRACTION = 0.01
 
 
 @dataclass
 class RandomEffects:
-    """One intrinsic across the rig: the rig mean, the spread between cameras (tau) and the
-    standard error of the mean; each camera's prior is (mean, sigma)."""
+    """One intrinsic across the rig: the rig mean, the spread between cameras (tau), the standard
+    error of the mean, and the sigma of a camera's tie to the others."""
 
     mean: float
     spread: float
