@@ -19,7 +19,8 @@ a)); poses of every registered camera but the reference (gauge; the scale is lef
 damped, it changes no intrinsics); every point. Residuals: COLMAP-pixel reprojection errors of
 the active observations of reconstruction points, Cauchy loss with COLMAP's scale, weighted by
 1 / sigma_n^2 with sigma_n the pixel noise of the fit (robust, from the residuals); priors
-(value - centre) / sigma. Levenberg-Marquardt on the reduced camera system (Schur complement over
+(value - centre) / sigma; ties (Priors.ties) (value - the tied blocks' weighted mean) / sigma,
+the mean profiled out. Levenberg-Marquardt on the reduced camera system (Schur complement over
 the points: every point is a 3x3 block)."""
 from __future__ import annotations
 
