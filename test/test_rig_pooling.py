@@ -1,5 +1,5 @@
-"""core.method.rig_pooling: the rig's own spread of an intrinsic (DerSimonian-Laird), and its
-use as a prior in the adjustment (core.method.prior_adjustment)."""
+"""core.method.rig_pooling: the rig's own spread of an intrinsic (DerSimonian-Laird); the tie
+itself in the adjustment: test_prior_adjustment."""
 import numpy as np
 
 from densecalib_ros.core.method.rig_pooling import SHARED_FRACTION, random_effects
@@ -7,7 +7,7 @@ from densecalib_ros.core.method.rig_pooling import SHARED_FRACTION, random_effec
 
 def test_cameras_of_one_model_share_the_value():
     """Estimates that scatter only as far as their own errors: no spread between the cameras,
-    the mean weighted by precision, and a prior tight enough to tie the cameras."""
+    the mean weighted by precision, and a tie tight enough to hold the cameras together."""
     rng = np.random.default_rng(0)
     stds = np.array([0.5, 1.0, 2.0, 1.0, 0.7, 1.5])
     values = 500.0 + 0.3 * stds * rng.standard_normal(len(stds))  # tighter than their errors
@@ -21,7 +21,7 @@ def test_cameras_of_one_model_share_the_value():
 
 def test_different_lenses_keep_their_spread():
     """Cameras 20 px apart with 1 px errors: the spread between them is measured as such, and
-    each camera's prior is about as wide (it barely moves an estimate)."""
+    each camera's tie is about as wide (it barely moves an estimate)."""
     rng = np.random.default_rng(1)
     truth = 500.0 + 20.0 * rng.standard_normal(40)
     stds = np.full(40, 1.0)

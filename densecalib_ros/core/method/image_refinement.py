@@ -206,7 +206,7 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
     folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
     images does not decide it. Also per block the folds' standard deviations of the mean of the
-    principal point (per axis), of the focal length (px) and of each pooled intrinsic
+    principal point (per axis), of the focal length (px) and of each tied intrinsic
     (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
     first = np.argmax(tracks.observed(), axis=1)
     xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
@@ -235,9 +235,8 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
         std_of_mean = spread / np.sqrt(len(values))
         spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
                             focal_px=float(std_of_mean[3]),
-                            # by index into INTRINSIC_NAMES: f, cx, cy, k1, k2
-                            intrinsics={0: float(std_of_mean[3]), 1: float(std_of_mean[0]),
-                                        2: float(std_of_mean[1]), 3: float(std_of_mean[4]),
+                            # the tied ones (POOLED_INTRINSICS) by index into INTRINSIC_NAMES
+                            intrinsics={0: float(std_of_mean[3]), 3: float(std_of_mean[4]),
                                         4: float(std_of_mean[5])})
         log.debug("block %d: fold estimates of cx, cy, aspect, f, k1, k2 %s, sigma of their "
                   "mean %s", b,
@@ -301,9 +300,9 @@ def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, pri
         pp = [2, 3] if cam.model == "OPENCV" else [1, 2]
         centre = np.array(priors.principal_point_centre_px.get(
             b, (cam.width / 2.0, cam.height / 2.0)), float)
-        prior_var = priors.principal_point_std_px[b] ** 2
         images_std = np.array(fold_sigmas.get(b, {}).get("principal_point_axes_px",
                                                           (np.inf, np.inf)), float)
+        prior_var = priors.principal_point_std_px[b] ** 2
         weight = prior_var / (prior_var + images_std ** 2)  # 0 where the folds gave no sigma
         p[pp] = centre + weight * (p[pp] - centre)
         state.intrinsics[b] = type(cam)(cam.model, cam.width, cam.height, p)
