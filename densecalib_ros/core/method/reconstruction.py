@@ -232,7 +232,8 @@ def read_reconstruction(state: SfMState, rec: pycolmap.Reconstruction,
 
 @dataclass
 class BAStage:
-    """Which parameters one bundle adjustment refines, and for how many iterations."""
+    """Which parameters one bundle adjustment refines, and for how many iterations (and when
+    its cost has stopped changing)."""
 
     iterations: int = 100
     refine_focal: bool = True
@@ -242,6 +243,7 @@ class BAStage:
     refine_points: bool = True
     fixed_pose_cameras: tuple[int, ...] = ()  # cameras whose pose stays constant
     fixed_intrinsics_cameras: tuple[int, ...] = ()  # cameras whose intrinsics block stays constant
+    function_tolerance: float = FUNCTION_TOLERANCE  # Ceres' relative cost-change stop
 
 
 def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
@@ -265,7 +267,7 @@ def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
     options.ceres.loss_function_scale = 1.0
     options.ceres.solver_options.max_num_iterations = int(stage.iterations)
     options.ceres.solver_options.num_threads = int(num_threads)
-    options.ceres.solver_options.function_tolerance = FUNCTION_TOLERANCE
+    options.ceres.solver_options.function_tolerance = stage.function_tolerance
     config = pycolmap.BundleAdjustmentConfig()
     for c in state.registered():
         config.add_image(c + 1)
