@@ -117,7 +117,8 @@ def local_affine(query: np.ndarray, src: np.ndarray, dst: np.ndarray
 
 
 def _sample(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Bicubic samples of image at OpenCV pixel positions xy (..., 2) -> (...)."""
+    """Bicubic samples of image (H, W) or (H, W, channels) at OpenCV pixel positions xy (..., 2)
+    -> (...) or (..., channels)."""
     shape = xy.shape[:-1]
     flat = xy.reshape(-1, 2).astype(np.float32)
     n = len(flat)
@@ -129,7 +130,8 @@ def _sample(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     # locking), a bias that varies smoothly over the image like a wrong lens would.
     out = cv2.remap(image, m[..., 0], m[..., 1], cv2.INTER_CUBIC,
                     borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1)[:n].reshape(shape)
+    channels = image.shape[2:]
+    return out.reshape((-1,) + channels)[:n].reshape(shape + channels)
 
 
 def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray,
@@ -141,8 +143,10 @@ def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b
     off = np.stack(np.meshgrid(np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1),
                                np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1)), -1
                    ).reshape(-1, 2).astype(np.float32)
-    grad_x = cv2.Sobel(gray_b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
-    grad_y = cv2.Sobel(gray_b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
+    # Image b and its gradients as one 3-channel image: one remap finds the interpolation
+    # weights of a position once for all three (the same values as three remaps).
+    b_and_gradients = np.dstack([gray_b, cv2.Sobel(gray_b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5),
+                                 cv2.Sobel(gray_b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)])
     out_xy, out_ncc = np.full_like(xy_b, np.nan), np.zeros(len(xy_b))
     out_jac = np.zeros((len(xy_b), 2, 2))
     for s in range(0, len(xy_a), _CHUNK):
@@ -153,8 +157,8 @@ def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b
         gain, bias = np.ones(n), np.zeros(n)
         live = np.arange(n)  # the patches still converging
         for _ in range(LK_ITERATIONS):
-            pts = (t[live, None, :] + off[None] @ A[live].transpose(0, 2, 1)).astype(np.float32)
-            Ib, Gx, Gy = _sample(gray_b, pts), _sample(grad_x, pts), _sample(grad_y, pts)
+            sampled = _sample(b_and_gradients, _patch_positions(t[live], A[live], off))
+            Ib, Gx, Gy = sampled[..., 0], sampled[..., 1], sampled[..., 2]
             g32 = gain[live].astype(np.float32)[:, None]
             r = g32 * Ib + bias[live].astype(np.float32)[:, None] - tmpl[live]
             gx, gy = g32 * Gx, g32 * Gy
@@ -173,13 +177,20 @@ def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b
             live = live[moved_px >= CONVERGED_STEP_PX]
             if not len(live):
                 break
-        Ib = _sample(gray_b, (t[:, None, :] + off[None] @ A.transpose(0, 2, 1)).astype(np.float32))
+        Ib = _sample(gray_b, _patch_positions(t, A, off))
         ta = tmpl - tmpl.mean(axis=1, keepdims=True)
         tb = Ib - Ib.mean(axis=1, keepdims=True)
         ncc = (ta * tb).sum(1) / np.sqrt((ta * ta).sum(1) * (tb * tb).sum(1) + 1e-9)
         out_xy[sl], out_ncc[sl] = t + 0.5, np.where(np.isfinite(ncc), ncc, 0.0)
         out_jac[sl] = A
     return out_xy, out_ncc, out_jac
+
+
+def _patch_positions(t: np.ndarray, A: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """float32 (n, p, 2): t + A @ off for each patch (t (n, 2), A (n, 2, 2), off (p, 2)), as one
+    matrix product (a stack of n 2x2 products runs in numpy's slow per-matrix loop)."""
+    per_row = off.astype(np.float64) @ A.reshape(-1, 2).T  # (p, 2n): off . A[k, i]
+    return (per_row.reshape(len(off), -1, 2) + t[None]).astype(np.float32).transpose(1, 0, 2)
 
 
 def epipolar_distance_px(state: SfMState, a: int, b: int, xy_a: np.ndarray,
