@@ -66,10 +66,6 @@ class SfMConfig:
     share_intrinsics: bool = False  # one intrinsics block for identical cameras
     brute_force_first_pair: bool = True
     ba_iterations: int = 100
-    # Ceres' function tolerance for the incremental SfM's adjustments; None: the BA's own
-    # (reconstruction.FUNCTION_TOLERANCE). The focal multi-start's trials run looser
-    # (multistart.TRIAL_FUNCTION_TOLERANCE).
-    ba_function_tolerance: Optional[float] = None
     absolute_pose_refine_iterations: int = 100
     # Global pipeline: staged BA (iterations; 0 disables a stage).
     global_init: str = "rotation_averaging"  # "rotation_averaging" | "previous" | "incremental"

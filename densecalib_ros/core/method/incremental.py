@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import itertools
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
 import cv2
@@ -376,14 +376,14 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     (i, j), pose_j = best[1], best[2]
     state.cam_from_world[i], state.cam_from_world[j] = np.eye(4), pose_j
     _triangulate_new(state, b_err)
-    bundle_adjust(state, camera_names, _stage(config, refine_focal=False,
+    bundle_adjust(state, camera_names, BAStage(config.ba_iterations, refine_focal=False,
                                                refine_extra=False), config.num_threads)
     say(f"initial pair {camera_names[i]} / {camera_names[j]}: "
         f"{int(state.point_mask().sum())} points")
     pending = [c for c in order if c not in (i, j)]
-    stage = _stage(config, refine_focal=True, refine_extra=True,
+    stage = BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
                     refine_principal_point=False)
-    extrinsics_only = _stage(config, refine_focal=False, refine_extra=False)
+    extrinsics_only = BAStage(config.ba_iterations, refine_focal=False, refine_extra=False)
     while pending:
         # The next camera in view order that registers from 3D points; a camera can become
         # registrable once later cameras add points, so every pending camera is tried.
@@ -416,17 +416,9 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                              failed=sorted(failed), registration=registration)
 
 
-def _stage(config: SfMConfig, **refine) -> BAStage:
-    """A BAStage of config's iterations and function tolerance, refining as `refine` says."""
-    stage = BAStage(config.ba_iterations, **refine)
-    if config.ba_function_tolerance is None:
-        return stage
-    return replace(stage, function_tolerance=config.ba_function_tolerance)
-
-
 def final_stage(config: SfMConfig) -> BAStage:
     """The final global BA: everything but the principal point, which the preset decides."""
-    return _stage(config, refine_focal=True, refine_extra=True,
+    return BAStage(config.ba_iterations, refine_focal=True, refine_extra=True,
                    refine_principal_point=config.refine_principal_point)
 
 
@@ -441,9 +433,9 @@ def final_adjustment(state: SfMState, camera_names: Sequence[str], config: SfMCo
     if not (config.refine_principal_point and pinhole):
         bundle_adjust_plausibly(state, camera_names, final_stage(config), config.num_threads)
         return
-    held = _stage(config, refine_principal_point=False)
+    held = BAStage(config.ba_iterations, refine_principal_point=False)
     bundle_adjust_plausibly(state, camera_names, held, config.num_threads)
-    fisheye_pp = _stage(config, refine_principal_point=True,
+    fisheye_pp = BAStage(config.ba_iterations, refine_principal_point=True,
                          fixed_intrinsics_cameras=pinhole)
     bundle_adjust_plausibly(state, camera_names, fisheye_pp, config.num_threads)
 
@@ -459,7 +451,7 @@ def _finish(state: SfMState, camera_names: Sequence[str], config: SfMConfig, see
                              config.outlier_thresholds_px(state.num_cameras))
     if config.refine_to_model:
         convert_camera_models(state, config.refine_to_model)
-        bundle_adjust(state, camera_names, _stage(config, refine_focal=False,
+        bundle_adjust(state, camera_names, BAStage(config.ba_iterations, refine_focal=False,
                                                    refine_extra=True, refine_poses=False),
                       config.num_threads)
 

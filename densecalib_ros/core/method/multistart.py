@@ -26,7 +26,7 @@ from ..parallel import map_jobs
 from ..progress import StageClock, say_progress
 from ..types import CameraIntrinsics, Tracks
 from .incremental import (MIN_PAIR_CORRESPONDENCES, TRUNCATION_FALLBACK_PX, IncrementalResult,
-                          final_adjustment, finish_on, incremental_sfm)
+                          finish_on, incremental_sfm)
 from .plausibility import drop_implausible_cameras, implausible_cameras
 from .reconstruction import SfMState, reprojection_errors, triangulate_tracks
 from .view_graph import pair_track_counts
@@ -54,14 +54,6 @@ PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6, 1.7, 2.4)
 
 
 MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
-
-
-# A trial's adjustments stop once an iteration lowers the cost by less than this fraction: a
-# trial only ranks its start against the others, whose costs differ by percents or more, and
-# the start chosen is finished on all tracks at the BA's own tolerance. A relative change of
-# 1e-4 moves the RMS reprojection error by 0.005 %; Ceres' default 1e-6 spends about half of a
-# trial's iterations below that.
-TRIAL_FUNCTION_TOLERANCE = 1e-4
 
 
 # With every camera's intrinsics given there is no focal to explore; the run's other lottery is
@@ -153,7 +145,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         starts = {n: starts[n] for n in starts if n in only_starts}
     # Trials are independent: they run side by side (core.parallel), each BA on one core, so
     # the outcome does not depend on how many ran at once.
-    trial_config = replace(config, num_threads=1, ba_function_tolerance=TRIAL_FUNCTION_TOLERANCE)
+    trial_config = replace(config, num_threads=1)
     clock = StageClock(len(starts))
 
     def trials_done(k: int) -> None:
@@ -189,8 +181,6 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         if sub is not tracks:
             result = _on_all_tracks(tracks, result, *starts[best], camera_names, config, seed,
                                     say)
-        else:  # the trial was all of it: its last adjustment to the BA's own tolerance
-            final_adjustment(result.state, camera_names, config)
     else:
         start, pair = starts[best]
         result = incremental_sfm(tracks, start, camera_names, config, seed, say, pair)

@@ -232,8 +232,7 @@ def read_reconstruction(state: SfMState, rec: pycolmap.Reconstruction,
 
 @dataclass
 class BAStage:
-    """Which parameters one bundle adjustment refines, and for how many iterations (and when
-    its cost has stopped changing)."""
+    """Which parameters one bundle adjustment refines, and for how many iterations."""
 
     iterations: int = 100
     refine_focal: bool = True
@@ -243,7 +242,6 @@ class BAStage:
     refine_points: bool = True
     fixed_pose_cameras: tuple[int, ...] = ()  # cameras whose pose stays constant
     fixed_intrinsics_cameras: tuple[int, ...] = ()  # cameras whose intrinsics block stays constant
-    function_tolerance: float = FUNCTION_TOLERANCE  # Ceres' relative cost-change stop
 
 
 def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
@@ -267,7 +265,7 @@ def bundle_adjust(state: SfMState, camera_names: Sequence[str], stage: BAStage,
     options.ceres.loss_function_scale = 1.0
     options.ceres.solver_options.max_num_iterations = int(stage.iterations)
     options.ceres.solver_options.num_threads = int(num_threads)
-    options.ceres.solver_options.function_tolerance = stage.function_tolerance
+    options.ceres.solver_options.function_tolerance = FUNCTION_TOLERANCE
     config = pycolmap.BundleAdjustmentConfig()
     for c in state.registered():
         config.add_image(c + 1)
