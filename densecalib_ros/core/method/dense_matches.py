@@ -134,27 +134,19 @@ def _sample(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return out.reshape((-1,) + channels)[:n].reshape(shape + channels)
 
 
-def with_gradients(gray: np.ndarray) -> np.ndarray:
-    """float32 (H, W, 3): the image and its x and y gradients (central differences), as
-    align_patches samples them: one remap of a 3-channel image finds the interpolation weights of
-    a position once for all three (the same values as three remaps)."""
-    return cv2.merge([gray, cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1, scale=0.5),
-                      cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)])
-
-
 def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray,
-                  jac: np.ndarray, b_and_gradients: Optional[np.ndarray] = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  jac: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Affine Lucas-Kanade (Gauss-Newton on translation, the 2x2 map, gain and offset) of the
     patches of image a around xy_a (N, 2) onto image b, starting at xy_b with the map jac.
     COLMAP px in, COLMAP px out: (refined xy_b (N, 2), normalised cross-correlation (N,), the
-    refined map (N, 2, 2)). b_and_gradients: with_gradients(gray_b), where the caller aligns onto
-    image b more than once."""
+    refined map (N, 2, 2))."""
     off = np.stack(np.meshgrid(np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1),
                                np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1)), -1
                    ).reshape(-1, 2).astype(np.float32)
-    if b_and_gradients is None:
-        b_and_gradients = with_gradients(gray_b)
+    # Image b and its gradients as one 3-channel image: one remap finds the interpolation
+    # weights of a position once for all three (the same values as three remaps).
+    b_and_gradients = np.dstack([gray_b, cv2.Sobel(gray_b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5),
+                                 cv2.Sobel(gray_b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)])
     out_xy, out_ncc = np.full_like(xy_b, np.nan), np.zeros(len(xy_b))
     out_jac = np.zeros((len(xy_b), 2, 2))
     for s in range(0, len(xy_a), _CHUNK):
@@ -235,7 +227,6 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     for time in times:
         grays = {c: to_gray(np.asarray(frame_sets[int(time)][c])).astype(np.float32)
                  for c in registered}
-        gradients = {c: with_gradients(grays[c]) for c in registered}  # once, for every pair
         in_set = keypoint_tracks.time_index == time
         per_image = min(GRID_POINTS_PER_IMAGE,
                         MAX_ALIGNMENTS // max(len(registered) * (len(registered) - 1), 1))
@@ -250,9 +241,8 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
             # Pairs are independent; OpenCV's remap and numpy's batched solves release the GIL.
             with ThreadPoolExecutor(available_cores()) as pool:
                 new = dict(zip(seeds, pool.map(
-                    lambda ab: _pair_correspondences(state, grays, gradients, *ab,
-                                                     points[ab[0]], *seeds[ab],
-                                                     skip=found[ab][0]), seeds)))
+                    lambda ab: _pair_correspondences(state, grays, *ab, points[ab[0]],
+                                                     *seeds[ab], skip=found[ab][0]), seeds)))
             seeds = {(a, b): (np.concatenate([seeds[a, b][0], points[a][new[a, b][0]],
                                               new[b, a][1]]),
                               np.concatenate([seeds[a, b][1], new[a, b][1],
@@ -274,12 +264,12 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     return Tracks.concatenate(parts, C)
 
 
-def _pair_correspondences(state: SfMState, grays: dict, gradients: dict, a: int, b: int,
-                          points: np.ndarray, seed_a: np.ndarray, seed_b: np.ndarray,
-                          skip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pair_correspondences(state: SfMState, grays: dict, a: int, b: int, points: np.ndarray,
+                          seed_a: np.ndarray, seed_b: np.ndarray, skip: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """(indices into points, their refined positions in camera b (n, 2)) for the reference
     points of camera a found in camera b, predicted from the seed correspondences; the points
-    `skip` (indices) are not looked for. gradients: with_gradients of each camera's image."""
+    `skip` (indices) are not looked for."""
     none = (np.zeros(0, np.int64), np.zeros((0, 2)))
     if not len(points):
         return none
@@ -292,8 +282,7 @@ def _pair_correspondences(state: SfMState, grays: dict, gradients: dict, a: int,
     idx = np.flatnonzero(inside)
     if not len(idx):
         return none
-    refined, ncc, map_ab = align_patches(grays[a], grays[b], points[idx], pred[idx], jac[idx],
-                                         gradients[b])
+    refined, ncc, map_ab = align_patches(grays[a], grays[b], points[idx], pred[idx], jac[idx])
     shift = np.linalg.norm(refined - pred[idx], axis=1)
     good = np.isfinite(refined).all(1) & (ncc >= MIN_NCC) & (shift <= MAX_SHIFT_PX)
     good &= (refined[:, 0] > border) & (refined[:, 0] < w - border) \
@@ -304,7 +293,7 @@ def _pair_correspondences(state: SfMState, grays: dict, gradients: dict, a: int,
         # Aligned back from b, a right correspondence returns to its reference point; one that
         # slid along an edge or onto another surface at an occlusion does not.
         back, _, _ = align_patches(grays[b], grays[a], refined, points[idx],
-                                   np.linalg.inv(map_ab), gradients[a])
+                                   np.linalg.inv(map_ab))
         returned = np.linalg.norm(back - points[idx], axis=1) <= MAX_ROUND_TRIP_PX
         idx, refined = idx[returned], refined[returned]
     if len(idx):
