@@ -144,9 +144,12 @@ def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b
                                np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1)), -1
                    ).reshape(-1, 2).astype(np.float32)
     # Image b and its gradients as one 3-channel image: one remap finds the interpolation
-    # weights of a position once for all three (the same values as three remaps).
-    b_and_gradients = np.dstack([gray_b, cv2.Sobel(gray_b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5),
-                                 cv2.Sobel(gray_b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)])
+    # weights of a position once for all three (the same values as three remaps). Filled a
+    # channel at a time: one gradient image at a time is held beside it.
+    b_and_gradients = np.empty(gray_b.shape + (3,), np.float32)
+    b_and_gradients[..., 0] = gray_b
+    b_and_gradients[..., 1] = cv2.Sobel(gray_b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
+    b_and_gradients[..., 2] = cv2.Sobel(gray_b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
     out_xy, out_ncc = np.full_like(xy_b, np.nan), np.zeros(len(xy_b))
     out_jac = np.zeros((len(xy_b), 2, 2))
     for s in range(0, len(xy_a), _CHUNK):
