@@ -134,22 +134,31 @@ def _sample(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return out.reshape((-1,) + channels)[:n].reshape(shape + channels)
 
 
+def with_gradients(gray: np.ndarray) -> np.ndarray:
+    """float32 (H, W, 3): the image and its x and y gradients (central differences) as
+    align_patches samples them: one remap of a 3-channel image finds the interpolation weights of
+    a position once for all three (the same values as three remaps). Filled a channel at a time:
+    one gradient image at a time is held beside it."""
+    out = np.empty(gray.shape + (3,), np.float32)
+    out[..., 0] = gray
+    out[..., 1] = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
+    out[..., 2] = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
+    return out
+
+
 def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray,
-                  jac: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  jac: np.ndarray, b_and_gradients: Optional[np.ndarray] = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Affine Lucas-Kanade (Gauss-Newton on translation, the 2x2 map, gain and offset) of the
     patches of image a around xy_a (N, 2) onto image b, starting at xy_b with the map jac.
     COLMAP px in, COLMAP px out: (refined xy_b (N, 2), normalised cross-correlation (N,), the
-    refined map (N, 2, 2))."""
+    refined map (N, 2, 2)). b_and_gradients: with_gradients(gray_b), where the caller aligns
+    onto image b more than once."""
     off = np.stack(np.meshgrid(np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1),
                                np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1)), -1
                    ).reshape(-1, 2).astype(np.float32)
-    # Image b and its gradients as one 3-channel image: one remap finds the interpolation
-    # weights of a position once for all three (the same values as three remaps). Filled a
-    # channel at a time: one gradient image at a time is held beside it.
-    b_and_gradients = np.empty(gray_b.shape + (3,), np.float32)
-    b_and_gradients[..., 0] = gray_b
-    b_and_gradients[..., 1] = cv2.Sobel(gray_b, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
-    b_and_gradients[..., 2] = cv2.Sobel(gray_b, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
+    if b_and_gradients is None:
+        b_and_gradients = with_gradients(gray_b)
     out_xy, out_ncc = np.full_like(xy_b, np.nan), np.zeros(len(xy_b))
     out_jac = np.zeros((len(xy_b), 2, 2))
     for s in range(0, len(xy_a), _CHUNK):
@@ -242,10 +251,20 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
         found = {k: (np.zeros(0, np.int64), np.zeros((0, 2))) for k in seeds}
         for _ in range(2):
             # Pairs are independent; OpenCV's remap and numpy's batched solves release the GIL.
+            # Grouped by the image they align onto, each image's gradients are computed once a
+            # pass and held only while its pairs run (one image per core).
+            def onto(b: int) -> dict:
+                image = with_gradients(grays[b])
+                return {(a, b): _aligned(grays, image, a, b, points[a], *seeds[a, b],
+                                         skip=found[a, b][0]) for a in registered if a != b}
+
+            def back_onto(a: int) -> dict:
+                image = with_gradients(grays[a])
+                return {(a, b): _returned(state, grays, image, a, b, points[a], *forward[a, b])
+                        for b in registered if b != a}
             with ThreadPoolExecutor(available_cores()) as pool:
-                new = dict(zip(seeds, pool.map(
-                    lambda ab: _pair_correspondences(state, grays, *ab, points[ab[0]],
-                                                     *seeds[ab], skip=found[ab][0]), seeds)))
+                forward = {k: v for part in pool.map(onto, registered) for k, v in part.items()}
+                new = {k: v for part in pool.map(back_onto, registered) for k, v in part.items()}
             seeds = {(a, b): (np.concatenate([seeds[a, b][0], points[a][new[a, b][0]],
                                               new[b, a][1]]),
                               np.concatenate([seeds[a, b][1], new[a, b][1],
@@ -267,13 +286,14 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     return Tracks.concatenate(parts, C)
 
 
-def _pair_correspondences(state: SfMState, grays: dict, a: int, b: int, points: np.ndarray,
-                          seed_a: np.ndarray, seed_b: np.ndarray, skip: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """(indices into points, their refined positions in camera b (n, 2)) for the reference
-    points of camera a found in camera b, predicted from the seed correspondences; the points
-    `skip` (indices) are not looked for."""
-    none = (np.zeros(0, np.int64), np.zeros((0, 2)))
+def _aligned(grays: dict, b_and_gradients: np.ndarray, a: int, b: int, points: np.ndarray,
+             seed_a: np.ndarray, seed_b: np.ndarray, skip: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indices into points, their positions in camera b (n, 2), the local maps (n, 2, 2)) of the
+    reference points of camera a aligned onto camera b, predicted from the seed
+    correspondences, that pass the correlation, shift and border checks; the points `skip`
+    (indices) are not looked for. b_and_gradients: with_gradients(grays[b])."""
+    none = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)))
     if not len(points):
         return none
     pred, jac, valid = local_affine(points, seed_a, seed_b)
@@ -285,18 +305,27 @@ def _pair_correspondences(state: SfMState, grays: dict, a: int, b: int, points: 
     idx = np.flatnonzero(inside)
     if not len(idx):
         return none
-    refined, ncc, map_ab = align_patches(grays[a], grays[b], points[idx], pred[idx], jac[idx])
+    refined, ncc, map_ab = align_patches(grays[a], grays[b], points[idx], pred[idx], jac[idx],
+                                         b_and_gradients)
     shift = np.linalg.norm(refined - pred[idx], axis=1)
     good = np.isfinite(refined).all(1) & (ncc >= MIN_NCC) & (shift <= MAX_SHIFT_PX)
     good &= (refined[:, 0] > border) & (refined[:, 0] < w - border) \
         & (refined[:, 1] > border) & (refined[:, 1] < h - border)
     good &= np.abs(np.linalg.det(map_ab)) > 1e-3
-    idx, refined, map_ab = idx[good], refined[good], map_ab[good]
+    return idx[good], refined[good], map_ab[good]
+
+
+def _returned(state: SfMState, grays: dict, a_and_gradients: np.ndarray, a: int, b: int,
+              points: np.ndarray, idx: np.ndarray, refined: np.ndarray, map_ab: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Of _aligned's correspondences (idx, refined, map_ab) of camera a's points in camera b,
+    those that align back onto their reference point and lie on its epipolar line: (indices
+    into points, positions in camera b (n, 2)). a_and_gradients: with_gradients(grays[a])."""
     if len(idx):
         # Aligned back from b, a right correspondence returns to its reference point; one that
         # slid along an edge or onto another surface at an occlusion does not.
         back, _, _ = align_patches(grays[b], grays[a], refined, points[idx],
-                                   np.linalg.inv(map_ab))
+                                   np.linalg.inv(map_ab), a_and_gradients)
         returned = np.linalg.norm(back - points[idx], axis=1) <= MAX_ROUND_TRIP_PX
         idx, refined = idx[returned], refined[returned]
     if len(idx):
