@@ -1,11 +1,13 @@
 """The last stage of a pinhole calibration (core.method.dense_matches, core.method.image_refinement)
 on generated rigs with intrinsics as real lenses have them: principal points off-centre, fy !=
 fx."""
+import cv2
 import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.method.dense_matches import align_patches, local_affine, reference_points
+from densecalib_ros.core.method.patch_alignment import sample_bicubic
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.pipeline import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
@@ -15,6 +17,18 @@ from densecalib_ros.core.synthetic import RigSpec, generate_rig
 def real_rig():
     """5 cameras 30 deg apart, 1024x768, principal points up to 2 % off-centre."""
     return generate_rig(RigSpec(num_cameras=5, gap_deg=30.0, max_arc_deg=360.0, seed=31))
+
+
+def test_the_alignment_samples_images_as_opencv_remap_does():
+    """The compiled alignment's bicubic samples are cv2.remap's (INTER_CUBIC, BORDER_REPLICATE)
+    to float32 rounding, inside the image, at its rim and beyond it."""
+    rng = np.random.default_rng(3)
+    image = cv2.GaussianBlur((rng.random((60, 90, 3)) * 255).astype(np.float32), (5, 5), 1.0)
+    xy = np.stack([rng.uniform(-4, 94, 5000), rng.uniform(-4, 64, 5000)], 1).astype(np.float32)
+    xy[:4] = [[0, 0], [89, 59], [10.5, 20.25], [-3.75, 61.5]]
+    expected = cv2.remap(image, xy[None, :, 0].copy(), xy[None, :, 1].copy(), cv2.INTER_CUBIC,
+                         borderMode=cv2.BORDER_REPLICATE)[0]
+    np.testing.assert_allclose(sample_bicubic(image, xy), expected, rtol=1e-6, atol=1e-4)
 
 
 def test_local_affine_predicts_an_affine_map_exactly():

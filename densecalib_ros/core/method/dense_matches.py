@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 from ..parallel import available_cores
 from ..types import Tracks
 from .matching.utils import to_gray
+from .patch_alignment import align
 from .reconstruction import SfMState
 
 log = logging.getLogger(__name__)
@@ -64,7 +65,6 @@ MAX_NEIGHBOUR_DISTANCE_PX = 60.0
 # fraction of a pixel, so a right correspondence lies within a few px of it.
 MAX_EPIPOLAR_PX = 3.0
 MAX_FRAME_SETS = 4  # frame sets densified (evenly spaced); more repeat the static rig's geometry
-_CHUNK = 3000  # points aligned at once (memory: ~chunk x patch x 8 doubles)
 
 
 def reference_points(gray: np.ndarray, max_points: int = GRID_POINTS_PER_IMAGE,
@@ -116,29 +116,10 @@ def local_affine(query: np.ndarray, src: np.ndarray, dst: np.ndarray
     return pred, jac, valid
 
 
-def _sample(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Bicubic samples of image (H, W) or (H, W, channels) at OpenCV pixel positions xy (..., 2)
-    -> (...) or (..., channels)."""
-    shape = xy.shape[:-1]
-    flat = xy.reshape(-1, 2).astype(np.float32)
-    n = len(flat)
-    width = 1024  # remap's maps must stay below 32767 rows and columns
-    m = np.zeros((-(-n // width) * width, 2), np.float32)
-    m[:n] = flat
-    m = m.reshape(-1, width, 2)
-    # Bicubic: bilinear interpolation pulls sub-pixel alignments towards whole pixels (pixel
-    # locking), a bias that varies smoothly over the image like a wrong lens would.
-    out = cv2.remap(image, m[..., 0], m[..., 1], cv2.INTER_CUBIC,
-                    borderMode=cv2.BORDER_REPLICATE)
-    channels = image.shape[2:]
-    return out.reshape((-1,) + channels)[:n].reshape(shape + channels)
-
-
 def with_gradients(gray: np.ndarray) -> np.ndarray:
     """float32 (H, W, 3): the image and its x and y gradients (central differences) as
-    align_patches samples them: one remap of a 3-channel image finds the interpolation weights of
-    a position once for all three (the same values as three remaps). Filled a channel at a time:
-    one gradient image at a time is held beside it."""
+    align_patches samples them: one position's interpolation weights serve all three. Filled a
+    channel at a time: one gradient image at a time is held beside it."""
     out = np.empty(gray.shape + (3,), np.float32)
     out[..., 0] = gray
     out[..., 1] = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
@@ -150,59 +131,22 @@ def align_patches(gray_a: np.ndarray, gray_b: np.ndarray, xy_a: np.ndarray, xy_b
                   jac: np.ndarray, b_and_gradients: Optional[np.ndarray] = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Affine Lucas-Kanade (Gauss-Newton on translation, the 2x2 map, gain and offset) of the
-    patches of image a around xy_a (N, 2) onto image b, starting at xy_b with the map jac.
-    COLMAP px in, COLMAP px out: (refined xy_b (N, 2), normalised cross-correlation (N,), the
-    refined map (N, 2, 2)). b_and_gradients: with_gradients(gray_b), where the caller aligns
-    onto image b more than once."""
+    patches of image a around xy_a (N, 2) onto image b, starting at xy_b with the map jac
+    (core.method.patch_alignment). COLMAP px in, COLMAP px out: (refined xy_b (N, 2),
+    normalised cross-correlation (N,), the refined map (N, 2, 2)). b_and_gradients:
+    with_gradients(gray_b), where the caller aligns onto image b more than once."""
     off = np.stack(np.meshgrid(np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1),
                                np.arange(-PATCH_HALF_PX, PATCH_HALF_PX + 1)), -1
                    ).reshape(-1, 2).astype(np.float32)
     if b_and_gradients is None:
         b_and_gradients = with_gradients(gray_b)
-    out_xy, out_ncc = np.full_like(xy_b, np.nan), np.zeros(len(xy_b))
-    out_jac = np.zeros((len(xy_b), 2, 2))
-    for s in range(0, len(xy_a), _CHUNK):
-        sl = slice(s, s + _CHUNK)
-        n = len(xy_a[sl])
-        tmpl = _sample(gray_a, (xy_a[sl] - 0.5).astype(np.float32)[:, None, :] + off[None])
-        t, A = xy_b[sl] - 0.5, jac[sl].copy()
-        gain, bias = np.ones(n), np.zeros(n)
-        live = np.arange(n)  # the patches still converging
-        for _ in range(LK_ITERATIONS):
-            sampled = _sample(b_and_gradients, _patch_positions(t[live], A[live], off))
-            Ib, Gx, Gy = sampled[..., 0], sampled[..., 1], sampled[..., 2]
-            g32 = gain[live].astype(np.float32)[:, None]
-            r = g32 * Ib + bias[live].astype(np.float32)[:, None] - tmpl[live]
-            gx, gy = g32 * Gx, g32 * Gy
-            J = np.stack([gx, gy, gx * off[:, 0], gx * off[:, 1], gy * off[:, 0], gy * off[:, 1],
-                          Ib, np.ones_like(Ib)], 1)  # (live, 8, p)
-            J = J.astype(np.float64)
-            H = J @ J.transpose(0, 2, 1) + 1e-6 * np.eye(8)[None]
-            grad = J @ r[:, :, None].astype(np.float64)
-            step = -np.linalg.solve(H, grad)[..., 0]
-            t[live] += step[:, :2]
-            A[live] += step[:, 2:6].reshape(-1, 2, 2)
-            gain[live] += step[:, 6]
-            bias[live] += step[:, 7]
-            # the step's largest pixel movement: translation plus the map's change at the rim
-            moved_px = np.abs(step[:, :2]).max(axis=1) + PATCH_HALF_PX * np.abs(step[:, 2:6]).sum(1)
-            live = live[moved_px >= CONVERGED_STEP_PX]
-            if not len(live):
-                break
-        Ib = _sample(gray_b, _patch_positions(t, A, off))
-        ta = tmpl - tmpl.mean(axis=1, keepdims=True)
-        tb = Ib - Ib.mean(axis=1, keepdims=True)
-        ncc = (ta * tb).sum(1) / np.sqrt((ta * ta).sum(1) * (tb * tb).sum(1) + 1e-9)
-        out_xy[sl], out_ncc[sl] = t + 0.5, np.where(np.isfinite(ncc), ncc, 0.0)
-        out_jac[sl] = A
-    return out_xy, out_ncc, out_jac
-
-
-def _patch_positions(t: np.ndarray, A: np.ndarray, off: np.ndarray) -> np.ndarray:
-    """float32 (n, p, 2): t + A @ off for each patch (t (n, 2), A (n, 2, 2), off (p, 2)), as one
-    matrix product (a stack of n 2x2 products runs in numpy's slow per-matrix loop)."""
-    per_row = off.astype(np.float64) @ A.reshape(-1, 2).T  # (p, 2n): off . A[k, i]
-    return (per_row.reshape(len(off), -1, 2) + t[None]).astype(np.float32).transpose(1, 0, 2)
+    # OpenCV pixel positions (pixel centres at integers) in the kernel.
+    t = np.array(xy_b, np.float64).reshape(-1, 2) - 0.5
+    maps = np.array(jac, np.float64).reshape(-1, 2, 2)
+    ncc = align(np.asarray(gray_a, np.float32)[:, :, None], b_and_gradients,
+                (np.asarray(xy_a, np.float64) - 0.5).astype(np.float32).reshape(-1, 2), t, maps,
+                off, LK_ITERATIONS, CONVERGED_STEP_PX, float(PATCH_HALF_PX))
+    return t + 0.5, ncc, maps
 
 
 def epipolar_distance_px(state: SfMState, a: int, b: int, xy_a: np.ndarray,
@@ -250,7 +194,7 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
                  for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
         found = {k: (np.zeros(0, np.int64), np.zeros((0, 2))) for k in seeds}
         for _ in range(2):
-            # Pairs are independent; OpenCV's remap and numpy's batched solves release the GIL.
+            # Pairs are independent; the alignment kernel (patch_alignment) releases the GIL.
             # Grouped by the image they align onto, each image's gradients are computed once a
             # pass and held only while its pairs run (one image per core).
             def onto(b: int) -> dict:
