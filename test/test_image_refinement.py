@@ -21,7 +21,8 @@ def real_rig():
 
 def test_the_alignment_samples_images_as_opencv_remap_does():
     """The compiled alignment's bicubic samples are cv2.remap's (INTER_CUBIC, BORDER_REPLICATE)
-    to float32 rounding, inside the image, at its rim and beyond it."""
+    to float32 rounding, inside the image, at its rim and beyond it; positions far outside (or
+    NaN) give the edge's samples."""
     rng = np.random.default_rng(3)
     image = cv2.GaussianBlur((rng.random((60, 90, 3)) * 255).astype(np.float32), (5, 5), 1.0)
     xy = np.stack([rng.uniform(-4, 94, 5000), rng.uniform(-4, 64, 5000)], 1).astype(np.float32)
@@ -29,6 +30,10 @@ def test_the_alignment_samples_images_as_opencv_remap_does():
     expected = cv2.remap(image, xy[None, :, 0].copy(), xy[None, :, 1].copy(), cv2.INTER_CUBIC,
                          borderMode=cv2.BORDER_REPLICATE)[0]
     np.testing.assert_allclose(sample_bicubic(image, xy), expected, rtol=1e-6, atol=1e-4)
+    # a diverged patch's positions sample the edge, as remap's border would
+    far = np.array([[np.nan, 5], [1e30, -1e30], [-50, 30]], np.float32)
+    np.testing.assert_allclose(sample_bicubic(image, far),
+                               image[[5, 0, 30], [0, 89, 0]], rtol=1e-6)
 
 
 def test_local_affine_predicts_an_affine_map_exactly():

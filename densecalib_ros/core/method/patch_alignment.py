@@ -45,7 +45,13 @@ def _cubic_weights(x):
 @_compiled(inline="always")
 def _taps(x, size):
     """The four clamped (BORDER_REPLICATE) sample indices around position x along an axis of
-    `size` samples, and their float32 cubic weights."""
+    `size` samples, and their float32 cubic weights. Positions more than a pixel beyond the
+    image (diverged patches, NaN) are brought to it first: all four taps are the edge sample
+    there either way, and the index stays defined."""
+    if not x >= -2.0:
+        x = np.float32(-2.0)
+    elif x > size + 1.0:
+        x = np.float32(size + 1.0)
     fx = np.floor(x)
     w0, w1, w2, w3 = _cubic_weights(np.float32(x - fx))
     i = np.int64(fx) - 1
