@@ -7,9 +7,9 @@ Rooms, each importing only from those before it and from the shared modules here
     monitor   is a calibration still right (check, reference views, change)
     products  scale, floor, stereo, undistortion, triangulation, report, interchange
     synthetic generated rigs and images for tests and the bench
-Shared here: types, errors, config, progress, parallel, metrics (and small helpers). Above the
-rooms, and using any of them: pipeline (run_calibration), recalibration, job (run_job: what the
-command and the node run) and calibration_result (what they return).
+Shared here: types, errors, config, progress, parallel, compiled, metrics (and small helpers).
+Above the rooms, and using any of them: pipeline (run_calibration), recalibration, job (run_job:
+what the command and the node run) and calibration_result (what they return).
 
 Public API (docs/library.md):
     from densecalib_ros.core.config import make_config

@@ -12,25 +12,13 @@ The functions release the GIL: dense_matches runs image pairs on threads."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..compiled import compiled
 
 CUBIC_A = -0.75  # OpenCV's bicubic kernel (Keys' cubic convolution with a = -0.75)
 
 
-def _compiled(**options):
-    """numba.njit without the GIL, with numba's on-disk cache where it finds a writable cache
-    directory (beside this module or the user's cache directory): compiling takes seconds, loading
-    a fraction of one. Where there is none (a read-only install without a home directory) each
-    process compiles for itself."""
-    def decorate(fn):
-        try:
-            return njit(cache=True, nogil=True, **options)(fn)
-        except RuntimeError:  # numba: "cannot cache function ...: no locator available"
-            return njit(nogil=True, **options)(fn)
-    return decorate
-
-
-@_compiled(inline="always")
+@compiled(inline="always")
 def _cubic_weights(x):
     """The cubic kernel's float32 weights of the four samples around a position x (0 <= x < 1)
     past the second."""
@@ -42,7 +30,7 @@ def _cubic_weights(x):
     return w0, w1, w2, 1 - w0 - w1 - w2
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _taps(x, size):
     """The four clamped (BORDER_REPLICATE) sample indices around position x along an axis of
     `size` samples, and their float32 cubic weights. Positions more than a pixel beyond the
@@ -61,7 +49,7 @@ def _taps(x, size):
             min(max(i + 2, 0), size - 1), min(max(i + 3, 0), size - 1), w0, w1, w2, w3)
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _sample(image, x, y, k):
     """The bicubic sample of channel k of image (H, W, channels) float32 at the OpenCV pixel
     position (x, y) (cv2.remap's INTER_CUBIC with BORDER_REPLICATE to float32 rounding: float32
@@ -79,7 +67,7 @@ def _sample(image, x, y, k):
     return total
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _row3(image, row, c0, c1, c2, c3, wx0, wx1, wx2, wx3, wy):
     """One row of _sample3: the three channels' weighted sums along the row, times wy."""
     a0, a1, a2, a3 = image[row, c0], image[row, c1], image[row, c2], image[row, c3]
@@ -88,7 +76,7 @@ def _row3(image, row, c0, c1, c2, c3, wx0, wx1, wx2, wx3, wy):
             wy * (a0[2] * wx0 + a1[2] * wx1 + a2[2] * wx2 + a3[2] * wx3))
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _sample3(image, x, y):
     """_sample of the three channels of image (H, W, 3), the taps found once."""
     c0, c1, c2, c3, wx0, wx1, wx2, wx3 = _taps(x, image.shape[1])
@@ -102,7 +90,7 @@ def _sample3(image, x, y):
     return v0 + u0, v1 + u1, v2 + u2
 
 
-@_compiled()
+@compiled()
 def sample_bicubic(image, xy):
     """(N, channels) float32 bicubic samples (_sample) of image (H, W, channels) float32 at the
     OpenCV pixel positions xy (N, 2) float32."""
@@ -113,7 +101,7 @@ def sample_bicubic(image, xy):
     return out
 
 
-@_compiled()
+@compiled()
 def _solve_in_place(H, g):
     """g <- H^-1 g for a small dense H (Gaussian elimination with partial pivoting; H is
     overwritten). False where H is singular."""
@@ -142,7 +130,7 @@ def _solve_in_place(H, g):
     return True
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _position(off, maps, t_b, k, p):
     """float32 (x, y) of patch k's pixel p: t + map @ offset (float64, then rounded)."""
     ox, oy = np.float64(off[p, 0]), np.float64(off[p, 1])
@@ -150,7 +138,7 @@ def _position(off, maps, t_b, k, p):
             np.float32(ox * maps[k, 1, 0] + oy * maps[k, 1, 1] + t_b[k, 1]))
 
 
-@_compiled()
+@compiled()
 def align(image_a, image_b3, xy_a, t_b, maps, off, iterations, converged_step_px, half_px):
     """Affine Lucas-Kanade of each patch of image_a (H, W, 1) float32 around xy_a (N, 2) float32
     onto image b, given as with_gradients (H, W, 3: image, x and y gradients), from t_b (N, 2)

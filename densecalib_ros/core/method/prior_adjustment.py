@@ -31,6 +31,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from ..compiled import compiled
 from ..types import CameraIntrinsics
 from .reconstruction import SfMState
 
@@ -133,6 +134,8 @@ class _Problem:
         self.point_of_track = np.full(state.tracks.num_tracks, -1)
         self.point_of_track[self.tracks] = np.arange(len(self.tracks))
         self.p_idx = self.point_of_track[t_idx]
+        # Observations are in track order (np.nonzero): each point's are contiguous from here.
+        self.first_obs = np.searchsorted(self.p_idx, np.arange(len(self.tracks) + 1))
         self.X = state.points_xyz[self.tracks].copy()
         C = state.num_cameras
         self.R = np.zeros((C, 3, 3))
@@ -316,36 +319,43 @@ def _normal_equations(problem: _Problem, noise_px: float):
     return U, Wm, V, g_cam, g_pt, flat, res
 
 
-def _camera_pairs(problem: _Problem) -> list:
-    """The Schur complement's sparsity, fixed for a problem: [(a, b, obs_a, obs_b)] for every
-    pair of cameras that see a common point, a == b included, with the two cameras' observations
-    of their common points in point order."""
-    obs_of = np.full((len(problem.R), len(problem.X)), -1)
-    obs_of[problem.c_idx, problem.p_idx] = np.arange(len(problem.c_idx))
-    pairs = []
-    for a in problem.camera_rows:
-        for b in problem.camera_rows:
-            shared = (obs_of[a] >= 0) & (obs_of[b] >= 0)
-            if shared.any():
-                pairs.append((a, b, obs_of[a, shared], obs_of[b, shared]))
-    return pairs
+@compiled()
+def _point_products(Y, W_t, first_obs, c_idx, num_cameras):
+    """(C, C, 14, 14): for every pair of cameras (a, b) the sum over the points both see of
+    Y_a W_b^T (Y: (N, 14, 3), W_t: (N, 3, 14), per observation; first_obs (P + 1,): each
+    point's first observation, its observations being contiguous; c_idx (N,): each
+    observation's camera)."""
+    width = Y.shape[1]
+    out = np.zeros((num_cameras, num_cameras, width, width))
+    for p in range(first_obs.shape[0] - 1):
+        for a in range(first_obs[p], first_obs[p + 1]):
+            for b in range(first_obs[p], first_obs[p + 1]):
+                block = out[c_idx[a], c_idx[b]]
+                w0, w1, w2 = W_t[b, 0], W_t[b, 1], W_t[b, 2]
+                for i in range(width):
+                    y0, y1, y2 = Y[a, i, 0], Y[a, i, 1], Y[a, i, 2]
+                    row = block[i]
+                    for j in range(width):
+                        row[j] += y0 * w0[j] + y1 * w1[j] + y2 * w2[j]
+    return out
 
 
-def _reduced_system(problem: _Problem, U, Wm, V_inv, flat, pairs):
-    """S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and Y = Wm V^-1 (N, 14, 3). Each pair
-    of cameras is one matrix product over the observations of their common points only (a pair
-    shares a fraction of either camera's points)."""
+def _reduced_system(problem: _Problem, U, Wm, V_inv, flat):
+    """S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and Y = Wm V^-1 (N, 14, 3): each
+    point's share computed camera pair by camera pair (_point_products), then added to the
+    cameras' columns (M: held, dropped; cameras of one block share their intrinsics' columns)."""
     M = problem.num_cam_params
     Y = Wm @ V_inv[problem.p_idx]
-    width = _NP + _NI
-    Yt = np.ascontiguousarray(Y.transpose(0, 2, 1))  # (N, 3, 14): a point's 3 rows per obs
-    Wt = np.ascontiguousarray(Wm.transpose(0, 2, 1))
+    C = len(problem.R)
+    products = _point_products(Y, np.ascontiguousarray(Wm.transpose(0, 2, 1)),
+                               problem.first_obs, problem.c_idx, C)
+    cols = np.full((C, _NP + _NI), M)
+    for c, rows in problem.camera_rows.items():
+        cols[c] = flat[rows[0]]
+    index = np.broadcast_to(cols[:, None, :, None], products.shape), \
+        np.broadcast_to(cols[None, :, None, :], products.shape)
     S = np.zeros((M + 1, M + 1))
-    rows = problem.camera_rows
-    for a, b, obs_a, obs_b in pairs:
-        # Every observation of a camera has that camera's columns (M: held, dropped below).
-        S[np.ix_(flat[rows[a][0]], flat[rows[b][0]])] -= \
-            Yt[obs_a].reshape(-1, width).T @ Wt[obs_b].reshape(-1, width)
+    np.add.at(S, index, -products)
     return U + S[:M, :M], Y
 
 
@@ -363,7 +373,6 @@ def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
     problem = _Problem(state, blocks, priors)
     if not len(problem.t_idx):
         raise ValueError("prior adjustment: no observations")
-    pairs = _camera_pairs(problem)
     estimate_noise = noise_px is None
     noise_px = _noise_px(problem) if estimate_noise else noise_px
     start = dict(R=problem.R.copy(), t=problem.t.copy(), K=problem.K.copy(), X=problem.X.copy())
@@ -371,14 +380,14 @@ def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
     # The noise is measured on the residuals; from a start far from the solution they are larger
     # than the noise, so it is measured again at the solution and the solve repeated once.
     for _ in range(2 if estimate_noise else 1):
-        iterations += _levenberg_marquardt(problem, noise_px, pairs, max_iterations)
+        iterations += _levenberg_marquardt(problem, noise_px, max_iterations)
         if not estimate_noise:
             break
         measured = _noise_px(problem)
         if abs(measured - noise_px) <= NOISE_TOLERANCE * noise_px:
             break
         noise_px = measured
-    covariance = _intrinsics_covariance(problem, noise_px, blocks, pairs)
+    covariance = _intrinsics_covariance(problem, noise_px, blocks)
     solution = dict(R=problem.R, t=problem.t, K=problem.K, X=problem.X)
     problem.restore(start)
     cost_before = problem.cost(noise_px)
@@ -397,11 +406,10 @@ def posterior_covariance(state: SfMState, blocks: list[int], priors: Priors,
     covariance with it free under that prior says how far off it may be, and what the others
     inherit from it."""
     problem = _Problem(state, blocks, priors)
-    return _intrinsics_covariance(problem, noise_px, blocks, _camera_pairs(problem))
+    return _intrinsics_covariance(problem, noise_px, blocks)
 
 
-def _levenberg_marquardt(problem: _Problem, noise_px: float, pairs: list,
-                         max_iterations: int) -> int:
+def _levenberg_marquardt(problem: _Problem, noise_px: float, max_iterations: int) -> int:
     """Levenberg-Marquardt on the reduced camera system, in place; returns the iterations."""
     cost = problem.cost(noise_px)
     lam, iterations = 1e-4, 0
@@ -413,7 +421,7 @@ def _levenberg_marquardt(problem: _Problem, noise_px: float, pairs: list,
             Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-9))
             Vd = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)[None]
             V_inv = np.linalg.inv(_regularised(Vd))
-            S, Y = _reduced_system(problem, Ud, Wm, V_inv, flat, pairs)
+            S, Y = _reduced_system(problem, Ud, Wm, V_inv, flat)
             rhs = -g_cam + np.bincount(flat.ravel(), (Y @ g_pt[problem.p_idx][:, :, None]
                                                       ).ravel(), M + 1)[:M]
             try:
@@ -464,14 +472,13 @@ def _noise_px(problem: _Problem) -> float:
     return max(_residual_scale_px(problem) * np.sqrt(2 * n_obs / dof), MIN_NOISE_PX)
 
 
-def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int],
-                           pairs: list) -> dict:
+def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]) -> dict:
     """Per block the posterior covariance of INTRINSIC_NAMES (zeros where held): the inverse of
     the reduced camera system at the solution (the points marginalised). The scale's null
     direction moves no intrinsic, so the pseudo-inverse gives their marginal."""
     U, Wm, V, _, _, flat, _ = _normal_equations(problem, noise_px)
     V_inv = np.linalg.inv(_regularised(V))
-    S, _ = _reduced_system(problem, U, Wm, V_inv, flat, pairs)
+    S, _ = _reduced_system(problem, U, Wm, V_inv, flat)
     cov = np.linalg.pinv(S, rcond=1e-12, hermitian=True)
     out = {}
     for b in blocks:
