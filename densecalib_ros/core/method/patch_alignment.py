@@ -7,7 +7,9 @@ alignment cost ~0.4 ms a patch whatever the batch size (memory-bound); one patch
 compiled code the same arithmetic stays in cache (docs/design-notes.md, Dense correspondences).
 
 The samples are cv2.remap's (INTER_CUBIC, BORDER_REPLICATE) to float32 rounding: the
-correspondences stay what they were when remap sampled them.
+correspondences stay what they were when remap sampled them. Bicubic, not bilinear: bilinear
+interpolation pulls sub-pixel alignments towards whole pixels (pixel locking), a bias that varies
+smoothly over the image as a wrong lens would.
 The functions release the GIL: dense_matches runs image pairs on threads."""
 from __future__ import annotations
 
