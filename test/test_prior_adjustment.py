@@ -5,6 +5,7 @@ import pytest
 from sfm_fixtures import gt_rig, gt_tracks
 
 from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, _Problem,
+                                                         _normal_equations, _reduced_system,
                                                          adjust_with_priors)
 from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
@@ -75,6 +76,32 @@ def test_jacobians_match_finite_differences():
         moved = problem.residuals_and_jacobians(False)[obs]
         problem.restore(saved)
         assert np.allclose((moved - res[obs]) / eps, A[obs, :, k], rtol=1e-3, atol=1e-3)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shared):
+    """The reduced camera system (the compiled per-point products scattered into the cameras'
+    columns) equals U - W V^-1 W^T formed densely, also where cameras share one intrinsics
+    block (their columns coincide)."""
+    true, poses = _rig_with_offset_points(4)
+    state = _state(true, poses, 0.3)
+    if shared:
+        shared_state = SfMState.create(state.tracks, state.intrinsics, share_intrinsics=True)
+        shared_state.cam_from_world, shared_state.points_xyz = state.cam_from_world, \
+            state.points_xyz
+        state = shared_state
+    blocks = list(range(len(state.intrinsics)))
+    priors = Priors({b: 10.0 for b in blocks}, aspect_std={b: 0.01 for b in blocks})
+    problem = _Problem(state, blocks, priors)
+    U, Wm, V, _, _, flat, _ = _normal_equations(problem, 0.5)
+    V_inv = np.linalg.inv(V)
+    S, _ = _reduced_system(problem, U, Wm, V_inv, flat)
+    M, P = problem.num_cam_params, len(problem.X)
+    W = np.zeros((M + 1, P, 3))  # W_p per point; row M: the held parameters
+    for n in range(len(problem.p_idx)):
+        W[flat[n], problem.p_idx[n]] += Wm[n]
+    expected = U - np.einsum("mpi,pij,npj->mn", W, V_inv, W, optimize=True)[:M, :M]
+    assert np.abs(S - expected).max() <= 1e-9 * np.abs(expected).max()
 
 
 def test_exact_tracks_give_the_exact_cameras_without_priors():
