@@ -95,7 +95,7 @@ def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shar
     problem = _Problem(state, blocks, priors)
     U, Wm, V, _, _, flat, _ = _normal_equations(problem, 0.5)
     V_inv = np.linalg.inv(V)
-    S, _ = _reduced_system(problem, U, Wm, V_inv, flat)
+    S, _ = _reduced_system(problem, U, Wm, V_inv)
     M, P = problem.num_cam_params, len(problem.X)
     W = np.zeros((M + 1, P, 3))  # W_p per point; row M: the held parameters
     for n in range(len(problem.p_idx)):

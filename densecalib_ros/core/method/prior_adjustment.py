@@ -169,9 +169,10 @@ class _Problem:
                     self.intr_cols[b, k] = index
                     index += 1
         self.num_cam_params = index
-        # Per observation: the columns of its 6 pose + 8 intrinsic parameters (-1: held).
-        self.cols = np.concatenate([self.pose_cols[c_idx], self.intr_cols[self.block_of[c_idx]]],
-                                   axis=1)
+        # Per camera and per observation: the columns of its 6 pose + 8 intrinsic parameters
+        # (-1: held; cameras of one block share their intrinsics' columns).
+        self.camera_cols = np.concatenate([self.pose_cols, self.intr_cols[self.block_of]], axis=1)
+        self.cols = self.camera_cols[c_idx]
         # {camera: its observations}: they share the camera's columns (a camera's part of the
         # normal equations is one product).
         self.camera_rows = {int(c): np.flatnonzero(c_idx == c) for c in np.unique(c_idx)}
@@ -340,18 +341,15 @@ def _point_products(Y, W_t, first_obs, c_idx, num_cameras):
     return out
 
 
-def _reduced_system(problem: _Problem, U, Wm, V_inv, flat):
+def _reduced_system(problem: _Problem, U, Wm, V_inv):
     """S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and Y = Wm V^-1 (N, 14, 3): each
     point's share computed camera pair by camera pair (_point_products), then added to the
-    cameras' columns (M: held, dropped; cameras of one block share their intrinsics' columns)."""
+    cameras' columns (problem.camera_cols; held ones go to a column M, dropped)."""
     M = problem.num_cam_params
     Y = Wm @ V_inv[problem.p_idx]
-    C = len(problem.R)
     products = _point_products(Y, np.ascontiguousarray(Wm.transpose(0, 2, 1)),
-                               problem.first_obs, problem.c_idx, C)
-    cols = np.full((C, _NP + _NI), M)
-    for c, rows in problem.camera_rows.items():
-        cols[c] = flat[rows[0]]
+                               problem.first_obs, problem.c_idx, len(problem.R))
+    cols = np.where(problem.camera_cols >= 0, problem.camera_cols, M)
     index = np.broadcast_to(cols[:, None, :, None], products.shape), \
         np.broadcast_to(cols[None, :, None, :], products.shape)
     S = np.zeros((M + 1, M + 1))
@@ -421,7 +419,7 @@ def _levenberg_marquardt(problem: _Problem, noise_px: float, max_iterations: int
             Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-9))
             Vd = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)[None]
             V_inv = np.linalg.inv(_regularised(Vd))
-            S, Y = _reduced_system(problem, Ud, Wm, V_inv, flat)
+            S, Y = _reduced_system(problem, Ud, Wm, V_inv)
             rhs = -g_cam + np.bincount(flat.ravel(), (Y @ g_pt[problem.p_idx][:, :, None]
                                                       ).ravel(), M + 1)[:M]
             try:
@@ -478,7 +476,7 @@ def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]
     direction moves no intrinsic, so the pseudo-inverse gives their marginal."""
     U, Wm, V, _, _, flat, _ = _normal_equations(problem, noise_px)
     V_inv = np.linalg.inv(_regularised(V))
-    S, _ = _reduced_system(problem, U, Wm, V_inv, flat)
+    S, _ = _reduced_system(problem, U, Wm, V_inv)
     cov = np.linalg.pinv(S, rcond=1e-12, hermitian=True)
     out = {}
     for b in blocks:
