@@ -167,23 +167,32 @@ def _reference_nearest_sites(desc_r, site_r, n_r, desc_c, site_c, n_c):
     return best, np.sqrt(ordered[:, 0] / ordered[:, 1])
 
 
-@pytest.mark.parametrize("block_sites", [7, 1024])
-def test_sift_site_distances_are_the_smallest_over_each_sites_keypoints(monkeypatch, block_sites):
-    """Sites holding several keypoints (up to four orientations at one location), in shuffled
-    order, across block boundaries: the nearest site and the distance ratio as defined."""
+def _keypoints_at_sites(rng, n_sites, integer_range=None):
+    """Shuffled keypoints of n_sites sites, some sites holding several (up to four orientations
+    at one location): float32 descriptors (random, or integers below integer_range, which makes
+    ties), int64 sites."""
+    site = np.concatenate([np.arange(n_sites), rng.integers(0, n_sites, n_sites // 2),
+                           np.repeat(rng.integers(0, n_sites, 2), 2)])
+    site = rng.permutation(site)
+    desc = (rng.random((len(site), 128)) * 100 if integer_range is None
+            else rng.integers(0, integer_range, (len(site), 128)))
+    return desc.astype(np.float32), site.astype(np.int64)
+
+
+@pytest.mark.parametrize("block_sites, tile_columns", [(7, 5), (7, 4096), (1024, 5),
+                                                       (1024, 4096)])
+def test_sift_site_distances_are_the_smallest_over_each_sites_keypoints(monkeypatch, block_sites,
+                                                                        tile_columns):
+    """Sites holding several keypoints, in shuffled order, across block and tile boundaries (a
+    site's further keypoints sit in other tiles than its first): the nearest site and the
+    distance ratio as defined."""
     import densecalib_ros.core.method.matching.sift as sift
 
     monkeypatch.setattr(sift, "BLOCK_SITES", block_sites)
+    monkeypatch.setattr(sift, "TILE_COLUMNS", tile_columns)
     rng = np.random.default_rng(3)
-
-    def keypoints(n_sites):
-        site = np.concatenate([np.arange(n_sites), rng.integers(0, n_sites, n_sites // 2),
-                               np.repeat(rng.integers(0, n_sites, 2), 2)])
-        site = rng.permutation(site)
-        return rng.random((len(site), 128)).astype(np.float32) * 100, site.astype(np.int64)
-
-    desc_a, site_a = keypoints(40)
-    desc_b, site_b = keypoints(55)
+    desc_a, site_a = _keypoints_at_sites(rng, 40)
+    desc_b, site_b = _keypoints_at_sites(rng, 55)
     assert np.bincount(site_a).max() >= 3 and np.bincount(site_b).max() >= 3
     # Both directions from one matrix: the same definition both ways.
     both = nearest_sites_both_ways(desc_a, site_a, 40, desc_b, site_b, 55)
@@ -193,6 +202,28 @@ def test_sift_site_distances_are_the_smallest_over_each_sites_keypoints(monkeypa
         ref_best, ref_ratio = _reference_nearest_sites(*args)
         np.testing.assert_array_equal(best, ref_best)
         np.testing.assert_allclose(ratio, ref_ratio, rtol=1e-4)
+
+
+def test_sift_nearest_sites_do_not_depend_on_the_tiles_ties_included(monkeypatch):
+    """Integer descriptors from a small range make equal distances common: the running merge
+    over tiles gives the nearest sites and ratios of one whole-matrix pass, ties resolved
+    alike."""
+    import densecalib_ros.core.method.matching.sift as sift
+
+    rng = np.random.default_rng(5)
+    desc_a, site_a = _keypoints_at_sites(rng, 60, integer_range=3)
+    desc_b, site_b = _keypoints_at_sites(rng, 70, integer_range=3)
+    args = (desc_a, site_a, 60, desc_b, site_b, 70)
+    monkeypatch.setattr(sift, "BLOCK_SITES", 1024)
+    monkeypatch.setattr(sift, "TILE_COLUMNS", 4096)
+    whole = nearest_sites_both_ways(*args)
+    ratios = np.concatenate([whole[1], whole[3]])
+    assert np.mean(ratios == 1.0) > 0.05  # ties between sites do occur
+    for block_sites, tile_columns in [(7, 5), (3, 11), (1024, 2)]:
+        monkeypatch.setattr(sift, "BLOCK_SITES", block_sites)
+        monkeypatch.setattr(sift, "TILE_COLUMNS", tile_columns)
+        for got, want in zip(nearest_sites_both_ways(*args), whole):
+            np.testing.assert_array_equal(got, want)
 
 
 def test_resized_matching_maps_back_to_original_pixels(image_pair):

@@ -19,6 +19,7 @@ from typing import Optional
 
 import cv2
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ...errors import InputError
 from ...parallel import available_cores
@@ -27,10 +28,13 @@ from .base import Matcher
 from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
                     resize_for_matching, to_gray)
 
-# Row sites per block of the distance matrix, so that a pair's memory does not grow with the
-# square of the keypoints: with asift's ~40k keypoints per image a block and its working copies
-# take ~300 MB per pair at 512 (~600 MB at 1024, in the same time; 256 is slower).
+# The distance matrix is computed and reduced one tile at a time, BLOCK_SITES row sites (with
+# their further keypoints) by TILE_COLUMNS column keypoints: ~10 MB, so that the tile each core
+# works on stays in the shared last-level cache while numpy reduces it several times over (a
+# whole block row of asift's ~40k columns went out to memory and back for every reduction), and
+# large enough that the per-tile Python calls stay a few percent of the product.
 BLOCK_SITES = 512
+TILE_COLUMNS = 4096
 
 
 def _site_layout(site: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -49,7 +53,7 @@ def _rank_within_site(sorted_site: np.ndarray) -> np.ndarray:
 def _columns(desc_c: np.ndarray, site_c: np.ndarray, n_c: int
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The column side of the distance matrix: (descriptors, first keypoint of every site then
-    the others, each extended by 1 and its squared norm (_site_blocks); each column's site;
+    the others, each extended by 1 and its squared norm (_row_blocks); each column's site;
     every site's columns (n_c, width), padded with its first)."""
     firsts_c, extras_c, extra_site_c = _site_layout(site_c)
     desc_cols = desc_c[np.concatenate([firsts_c, extras_c])]
@@ -64,16 +68,17 @@ def _columns(desc_c: np.ndarray, site_c: np.ndarray, n_c: int
     return cols, col_site, site_cols
 
 
-def _site_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, cols: np.ndarray):
-    """Yield (s0, s1, d2): the squared distances (s1 - s0, columns) of row sites s0..s1 to every
-    column keypoint (cols: _columns), BLOCK_SITES row sites at a time, a site's further keypoints
-    folded into its row (contiguous row operations; the block is the memory peak).
+def _row_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int):
+    """Yield (s0, s1, rows, folds): the row side of the distance matrix for row sites s0..s1,
+    BLOCK_SITES at a time: each site's first keypoint then the block's other keypoints, as
+    (-2 r, |r|^2, 1); folds: (sites, their rows), one further keypoint per site at a time, whose
+    distances a site's row takes the minimum of.
 
-    |r - c|^2 = -2 r.c + |r|^2 + |c|^2 is one matrix product of rows (-2 r, |r|^2, 1) with
-    columns (c, 1, |c|^2): three passes over the block fewer than adding the norms after it
-    (a fifth of a pair's time). OpenCV's SIFT descriptors are integers scaled to a norm of about
-    512, so every partial sum is an integer below 2^21, exact in float32 in any order: the same
-    distances as before (RootSIFT's differ in the last bits)."""
+    |r - c|^2 = -2 r.c + |r|^2 + |c|^2 is one matrix product of these rows with the columns
+    (c, 1, |c|^2) (_columns): three passes over the tile fewer than adding the norms after it.
+    OpenCV's SIFT descriptors are integers scaled to a norm of about 512, so every partial sum
+    is an integer below 2^21, exact in float32 in any order and any tiling: the same distances
+    whatever the blocks (RootSIFT's differ in the last bits)."""
     firsts_r, extras_r, extra_site_r = _site_layout(site_r)
     for s0 in range(0, n_r, BLOCK_SITES):
         s1 = min(n_r, s0 + BLOCK_SITES)
@@ -83,26 +88,76 @@ def _site_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int, cols: np.ndar
         np.multiply(desc_rows, -2.0, out=rows[:, :-2])
         rows[:, -2] = np.einsum("ij,ij->i", desc_rows, desc_rows)
         rows[:, -1] = 1.0
-        d2 = rows @ cols.T
         extra_rows_site = extra_site_r[lo:hi] - s0
         rank = _rank_within_site(extra_rows_site)
-        for r in range(int(rank.max(initial=-1)) + 1):  # one keypoint per site at a time
-            k = np.flatnonzero(rank == r)
-            d2[extra_rows_site[k]] = np.minimum(d2[extra_rows_site[k]], d2[s1 - s0 + k])
-        yield s0, s1, d2[:s1 - s0]
+        folds = [(extra_rows_site[k], s1 - s0 + k) for k in
+                 (np.flatnonzero(rank == r) for r in range(int(rank.max(initial=-1)) + 1))]
+        yield s0, s1, rows, folds
 
 
-def _nearest_column_sites(d2: np.ndarray, col_site: np.ndarray, site_cols: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Per row of a block: the nearest column site and the distance ratio to the next; the
-    nearest site's columns are set to infinity in d2 on the way (numpy reduces fast along rows
-    only, so the columns are not folded)."""
-    rows = np.arange(len(d2))
-    nearest_col = np.argmin(d2, axis=1)
-    nearest_d2 = d2[rows, nearest_col].copy()
-    best = col_site[nearest_col]
-    d2[rows[:, None], site_cols[best]] = np.inf
-    return best, np.sqrt(np.maximum(nearest_d2, 0.0) / np.maximum(d2.min(axis=1), 1e-12))
+class _NearestSites:
+    """Running nearest and second-nearest sites, in both directions, over the tiles of one
+    distance matrix (nearest_sites_both_ways). Ties go to the lower index, as numpy's argmin
+    over the whole matrix would give them.
+
+    Rows (sites of a): nearest[i] the nearest b site so far, d1[i] its distance, d2[i] the
+    distance to the nearest other b site so far. Columns (keypoints of b): col_d1[k] the
+    distance to the nearest a site so far, col_best[k] that site, col_d2[k] the distance to the
+    next a site."""
+
+    def __init__(self, n_rows: int, n_cols: int):
+        self.d1 = np.full(n_rows, np.inf, np.float32)
+        self.d2 = np.full(n_rows, np.inf, np.float32)
+        self.nearest = np.full(n_rows, -1, np.int64)
+        self.col_d1 = np.full(n_cols, np.inf, np.float32)
+        self.col_d2 = np.full(n_cols, np.inf, np.float32)
+        self.col_best = np.zeros(n_cols, np.int64)
+
+    def add_columns(self, d2: np.ndarray, s0: int, c0: int) -> None:
+        """b -> a: the tile d2 (row sites s0.., columns c0..) merged in per column: where it holds
+        a nearer a site, that site and the next (taken on those columns only: numpy finds
+        indices along rows fast only); elsewhere its nearest is a candidate for the second."""
+        c1 = c0 + d2.shape[1]
+        col_d1, col_d2, col_best = (self.col_d1[c0:c1], self.col_d2[c0:c1],
+                                    self.col_best[c0:c1])
+        near = d2.min(axis=0)
+        closer = np.flatnonzero(near < col_d1)
+        np.minimum(col_d2, near, out=col_d2)
+        if len(closer):
+            sub = np.ascontiguousarray(d2[:, closer].T)
+            first = np.argmin(sub, axis=1)
+            sub[np.arange(len(closer)), first] = np.inf
+            col_d2[closer] = np.minimum(col_d1[closer], sub.min(axis=1))
+            col_best[closer] = s0 + first
+            col_d1[closer] = near[closer]
+
+    def add_rows(self, d2: np.ndarray, s0: int, c0: int, col_site: np.ndarray,
+                 site_cols: np.ndarray) -> None:
+        """a -> b: the tile's nearest column per row gives its nearest site there, whose columns
+        in the tile are set to infinity in d2 before the tile's nearest other site is taken; then
+        merged with the rows' running sites. Where the tile's nearest site is the running one,
+        both distances can only shrink; where it is nearer than the running one, it takes over
+        and the running one is the second candidate (the running second is no nearer than it);
+        else the tile's nearest is a candidate for the second (its own second no nearer)."""
+        rows = np.arange(len(d2))
+        nearest_col = np.argmin(d2, axis=1)
+        d_near = d2[rows, nearest_col]
+        site = col_site[c0 + nearest_col]
+        local = site_cols[site] - c0
+        inside = (local >= 0) & (local < d2.shape[1])
+        d2[np.broadcast_to(rows[:, None], local.shape)[inside], local[inside]] = np.inf
+        d_other = d2.min(axis=1)
+        s1 = s0 + len(d2)
+        d1, d2_run, nearest = self.d1[s0:s1], self.d2[s0:s1], self.nearest[s0:s1]
+        same = site == nearest
+        takes_over = ~same & (d_near < d1)
+        second = ~same & ~takes_over
+        d2_run[same] = np.minimum(d2_run[same], d_other[same])
+        d1[same] = np.minimum(d1[same], d_near[same])
+        d2_run[takes_over] = np.minimum(d1[takes_over], d_other[takes_over])
+        d1[takes_over] = d_near[takes_over]
+        nearest[takes_over] = site[takes_over]
+        d2_run[second] = np.minimum(d2_run[second], d_near[second])
 
 
 def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
@@ -114,38 +169,31 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     keypoints (module docstring). desc_*: float32 (K, 128) keypoint descriptors; site_*: int64
     (K,) each keypoint's site.
 
-    One distance matrix, in blocks of BLOCK_SITES sites of a (_site_blocks), serves both
-    directions: a -> b reduces the block's rows (the nearest column keypoint gives the nearest
-    site, whose columns are set to infinity before the second-nearest is taken); b -> a keeps,
-    per keypoint of b, its nearest a site and its distance to the second-nearest (numpy reduces
-    along columns fast where no index is needed), and b's keypoints are folded into their sites
-    at the end. Half the arithmetic of one matrix per direction, and both directions see the
-    same distances."""
+    One distance matrix serves both directions, computed a tile at a time (BLOCK_SITES row sites
+    of a, a site's further keypoints folded into its row, by TILE_COLUMNS keypoints of b) and
+    reduced into running nearest sites both ways while in cache (_NearestSites); b's keypoints
+    are folded into their sites at the end. Half the arithmetic of one matrix per direction, and
+    both directions see the same distances."""
     cols, col_site, site_cols = _columns(desc_b, site_b, n_b)
-    best_ab = np.empty(n_a, np.int64)
-    ratio_ab = np.empty(n_a, np.float32)
-    # per column keypoint of b: nearest a site, its distance, the distance to the next a site
-    col_d1 = np.full(len(cols), np.inf, np.float32)
-    col_d2 = np.full(len(cols), np.inf, np.float32)
-    col_best = np.zeros(len(cols), np.int64)
-    for s0, s1, d2 in _site_blocks(desc_a, site_a, n_a, cols):
-        # b -> a, merged in per column: where this block holds a nearer a site, that site and
-        # the next (taken on those columns only: numpy finds indices along rows fast only);
-        # elsewhere its nearest is a candidate for the second
-        near = d2.min(axis=0)
-        closer = np.flatnonzero(near < col_d1)
-        col_d2 = np.minimum(col_d2, near)
-        if len(closer):
-            sub = np.ascontiguousarray(d2[:, closer].T)
-            first = np.argmin(sub, axis=1)
-            sub[np.arange(len(closer)), first] = np.inf
-            col_d2[closer] = np.minimum(col_d1[closer], sub.min(axis=1))
-            col_best[closer] = s0 + first
-            col_d1[closer] = near[closer]
-        best_ab[s0:s1], ratio_ab[s0:s1] = _nearest_column_sites(d2, col_site, site_cols)
+    running = _NearestSites(n_a, len(cols))
+    tile = np.empty((0, TILE_COLUMNS), np.float32)
+    for s0, s1, rows, folds in _row_blocks(desc_a, site_a, n_a):
+        if len(rows) > len(tile):
+            tile = np.empty((len(rows), TILE_COLUMNS), np.float32)
+        for c0 in range(0, len(cols), TILE_COLUMNS):
+            c1 = min(len(cols), c0 + TILE_COLUMNS)
+            d2 = tile[:len(rows), :c1 - c0]
+            np.matmul(rows, cols[c0:c1].T, out=d2)
+            for sites, extra_rows in folds:
+                d2[sites] = np.minimum(d2[sites], d2[extra_rows])
+            running.add_columns(d2[:s1 - s0], s0, c0)  # before add_rows writes infinities
+            running.add_rows(d2[:s1 - s0], s0, c0, col_site, site_cols)
+    best_ab = running.nearest
+    ratio_ab = np.sqrt(np.maximum(running.d1, 0.0) / np.maximum(running.d2, 1e-12))
     # fold b's keypoints into their sites: the nearest a site over a site's keypoints, and the
     # nearest other a site: a keypoint's own second where its nearest is that site, else its
     # nearest
+    col_d1, col_d2, col_best = running.col_d1, running.col_d2, running.col_best
     which = np.argmin(col_d1[site_cols], axis=1)
     chosen_col = site_cols[np.arange(n_b), which]
     best_ba = col_best[chosen_col]
@@ -231,8 +279,14 @@ class SiftMatcher(Matcher):
         regions = regions or [None] * len(images)
         with ThreadPoolExecutor(min(len(images), cores)) as pool:
             feats = list(pool.map(self._features, images, regions))
-        return match_unordered_pairs(images, [f[0] for f in feats],
-                                     lambda i, j: self._match_pair(feats[i], feats[j]), cores)
+        # One pair per core, and each pair's products on its own core: a BLAS that spreads every
+        # product over all the cores as well runs twice as many threads as cores, and its idle
+        # threads spin while numpy reduces a tile. With fewer pairs than cores, BLAS takes the rest.
+        pairs_at_once = max(1, min(cores, len(images) * (len(images) - 1) // 2))
+        with threadpool_limits(max(1, cores // pairs_at_once), user_api="blas"):
+            return match_unordered_pairs(images, [f[0] for f in feats],
+                                         lambda i, j: self._match_pair(feats[i], feats[j]),
+                                         pairs_at_once)
 
 
 class AsiftMatcher(SiftMatcher):
