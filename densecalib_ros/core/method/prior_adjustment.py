@@ -173,9 +173,7 @@ class _Problem:
         # (-1: held; cameras of one block share their intrinsics' columns).
         self.camera_cols = np.concatenate([self.pose_cols, self.intr_cols[self.block_of]], axis=1)
         self.cols = self.camera_cols[c_idx]
-        # {camera: its observations}: they share the camera's columns (a camera's part of the
-        # normal equations is one product).
-        self.camera_rows = {int(c): np.flatnonzero(c_idx == c) for c in np.unique(c_idx)}
+        self.observing_cameras = [int(c) for c in np.unique(c_idx)]
 
     def residuals_and_jacobians(self, with_jacobians: bool = True):
         """r (N, 2) px and, if asked, A (N, 2, 6 + 8) camera-side and B (N, 2, 3) point
@@ -287,37 +285,63 @@ class _Problem:
 
 def _normal_equations(problem: _Problem, noise_px: float):
     """Robust-weighted normal equations: U (M, M), Wm (N, 14, 3), V (P, 3, 3), g_cam (M,),
-    g_pt (P, 3), and the residuals."""
+    g_pt (P, 3), each observation's camera columns (N, 14; M where held) and the residuals.
+    Held columns' parts go to a column M, dropped (Wm keeps them: every use of it adds them
+    to column M or multiplies them by a zero step)."""
     res, A, B = problem.residuals_and_jacobians()
     s2 = np.sum(res * res, axis=1)
     w = 1.0 / (1.0 + s2 / LOSS_SCALE_PX ** 2) / noise_px ** 2  # Cauchy IRLS weight
-    cols = problem.cols
-    A = A * (cols >= 0)[:, None, :]
     M, P = problem.num_cam_params, len(problem.X)
-    Aw = A * w[:, None, None]
-    AwT = Aw.transpose(0, 2, 1)
-    flat = np.where(cols >= 0, cols, M)
+    U_cam, g_of_cam, V, g_pt, Wm = _observation_products(res, A, B, w, problem.c_idx,
+                                                        problem.p_idx, len(problem.R), P)
+    camera_cols = np.where(problem.camera_cols >= 0, problem.camera_cols, M)
     U, g_cam = np.zeros((M + 1, M + 1)), np.zeros(M + 1)
-    width = A.shape[2]
-    for rows in problem.camera_rows.values():  # held columns go to M, dropped below
-        own, Ac, Awc = flat[rows[0]], A[rows].reshape(-1, width), Aw[rows].reshape(-1, width)
-        U[np.ix_(own, own)] += Awc.T @ Ac
-        g_cam[own] += Awc.T @ res[rows].reshape(-1)
+    for c in problem.observing_cameras:
+        U[np.ix_(camera_cols[c], camera_cols[c])] += U_cam[c]
+        g_cam[camera_cols[c]] += g_of_cam[c]
     U, g_cam = U[:M, :M], g_cam[:M]
-    BwT = (B * w[:, None, None]).transpose(0, 2, 1)
-    V_obs = BwT @ B
-    V = np.stack([np.bincount(problem.p_idx, V_obs[:, i, j], P)
-                  for i in range(3) for j in range(3)], 1).reshape(P, 3, 3)
-    g_obs = (BwT @ res[:, :, None])[:, :, 0]
-    g_pt = np.stack([np.bincount(problem.p_idx, g_obs[:, i], P) for i in range(3)], 1)
-    Wm = AwT @ B
     for col, e, inv_sigma in problem.prior_terms():
         U[col, col] += inv_sigma ** 2
         g_cam[col] += e * inv_sigma
     for cols, d, w in problem.tie_terms():  # the mean profiled out: no pull on the rig's level
         U[np.ix_(cols, cols)] += np.diag(w) - np.outer(w, w) / np.sum(w)
         g_cam[cols] += w * d
-    return U, Wm, V, g_cam, g_pt, flat, res
+    return U, Wm, V, g_cam, g_pt, camera_cols[problem.c_idx], res
+
+
+@compiled()
+def _observation_products(res, A, B, w, c_idx, p_idx, num_cameras, num_points):
+    """The weighted products of every observation's Jacobians (A (N, 2, 14) camera side,
+    B (N, 2, 3) point side; w (N,) weights; res (N, 2)), summed per camera (A^T w A
+    (C, 14, 14), A^T w r (C, 14)) and per point (B^T w B (P, 3, 3), B^T w r (P, 3)), and
+    per observation A^T w B (N, 14, 3): one pass, each observation's rows in registers."""
+    N, _, width = A.shape
+    U_cam = np.zeros((num_cameras, width, width))
+    g_cam = np.zeros((num_cameras, width))
+    V = np.zeros((num_points, 3, 3))
+    g_pt = np.zeros((num_points, 3))
+    Wm = np.empty((N, width, 3))
+    for n in range(N):
+        c, p, wn = c_idx[n], p_idx[n], w[n]
+        r0, r1 = res[n, 0], res[n, 1]
+        b00, b01, b02 = B[n, 0, 0], B[n, 0, 1], B[n, 0, 2]
+        b10, b11, b12 = B[n, 1, 0], B[n, 1, 1], B[n, 1, 2]
+        for i in range(width):
+            a0, a1 = A[n, 0, i] * wn, A[n, 1, i] * wn
+            g_cam[c, i] += a0 * r0 + a1 * r1
+            row = U_cam[c, i]
+            for j in range(width):
+                row[j] += a0 * A[n, 0, j] + a1 * A[n, 1, j]
+            Wm[n, i, 0] = a0 * b00 + a1 * b10
+            Wm[n, i, 1] = a0 * b01 + a1 * b11
+            Wm[n, i, 2] = a0 * b02 + a1 * b12
+        for k in range(3):
+            e0, e1 = B[n, 0, k] * wn, B[n, 1, k] * wn
+            g_pt[p, k] += e0 * r0 + e1 * r1
+            V[p, k, 0] += e0 * b00 + e1 * b10
+            V[p, k, 1] += e0 * b01 + e1 * b11
+            V[p, k, 2] += e0 * b02 + e1 * b12
+    return U_cam, g_cam, V, g_pt, Wm
 
 
 @compiled()
