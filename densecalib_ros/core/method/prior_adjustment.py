@@ -110,14 +110,6 @@ def intrinsics_vector(cam: CameraIntrinsics) -> np.ndarray:
                      f"{', '.join(SUPPORTED_MODELS)}")
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(N, 3) -> (N, 3, 3) cross-product matrices."""
-    z = np.zeros(len(v))
-    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], 1),
-                     np.stack([v[:, 2], z, -v[:, 0]], 1),
-                     np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
-
-
 class _Problem:
     """Observations, parameter layout and the current estimate."""
 
@@ -177,52 +169,14 @@ class _Problem:
 
     def residuals_and_jacobians(self, with_jacobians: bool = True):
         """r (N, 2) px and, if asked, A (N, 2, 6 + 8) camera-side and B (N, 2, 3) point
-        Jacobians."""
-        R, t = self.R[self.c_idx], self.t[self.c_idx]
-        Xw = self.X[self.p_idx]
-        Xc = np.einsum("nij,nj->ni", R, Xw) + t
-        z = Xc[:, 2]
-        z_safe = np.where(np.abs(z) > 1e-12, z, 1e-12)
-        u, v = Xc[:, 0] / z_safe, Xc[:, 1] / z_safe
-        K = self.K[self.block_of[self.c_idx]]
-        f, cx, cy, k1, k2, a, p1, p2 = K.T
-        r2 = u * u + v * v
-        d = 1 + k1 * r2 + k2 * r2 * r2
-        fy = f * (1 + a)
-        uv = u * v
-        xd = d * u + 2 * p1 * uv + p2 * (r2 + 2 * u * u)
-        yd = d * v + p1 * (r2 + 2 * v * v) + 2 * p2 * uv
-        proj = np.stack([f * xd + cx, fy * yd + cy], 1)
-        res = proj - self.xy
-        res[z <= 0] = 1e3  # behind the camera: a large, constant residual
-        if not with_jacobians:
-            return res
-        N = len(z)
-        dd_dr2 = k1 + 2 * k2 * r2
-        # d(xd, yd)/d(u, v)
-        dxd_du = d + 2 * u * u * dd_dr2 + 2 * p1 * v + 6 * p2 * u
-        dxd_dv = 2 * uv * dd_dr2 + 2 * p1 * u + 2 * p2 * v
-        dyd_du = 2 * uv * dd_dr2 + 2 * p1 * u + 2 * p2 * v
-        dyd_dv = d + 2 * v * v * dd_dr2 + 6 * p1 * v + 2 * p2 * u
-        J_uv = np.zeros((N, 2, 2))
-        J_uv[:, 0, 0], J_uv[:, 0, 1] = f * dxd_du, f * dxd_dv
-        J_uv[:, 1, 0], J_uv[:, 1, 1] = fy * dyd_du, fy * dyd_dv
-        J_xc = np.zeros((N, 2, 3))
-        J_xc[:, 0, 0], J_xc[:, 0, 2] = 1 / z_safe, -u / z_safe
-        J_xc[:, 1, 1], J_xc[:, 1, 2] = 1 / z_safe, -v / z_safe
-        J_p = J_uv @ J_xc  # d proj / d Xc (N, 2, 3)
-        B = J_p @ R
-        A = np.zeros((N, 2, _NP + _NI))
-        A[:, :, :3] = -J_p @ _skew(Xc)
-        A[:, :, 3:6] = J_p
-        A[:, 0, 6], A[:, 1, 6] = xd, (1 + a) * yd
-        A[:, 0, 7], A[:, 1, 8] = 1.0, 1.0
-        A[:, 0, 9], A[:, 1, 9] = f * u * r2, fy * v * r2
-        A[:, 0, 10], A[:, 1, 10] = f * u * r2 * r2, fy * v * r2 * r2
-        A[:, 1, 11] = f * yd
-        A[:, 0, 12], A[:, 1, 12] = f * 2 * uv, fy * (r2 + 2 * v * v)
-        A[:, 0, 13], A[:, 1, 13] = f * (r2 + 2 * u * u), fy * 2 * uv
-        return res, A, B
+        Jacobians (_project)."""
+        N = len(self.c_idx)
+        res = np.empty((N, 2))
+        A = np.zeros((N if with_jacobians else 0, 2, _NP + _NI))
+        B = np.empty((N if with_jacobians else 0, 2, 3))
+        _project(self.R, self.t, self.X, self.K, self.block_of, self.c_idx, self.p_idx, self.xy,
+                 res, A, B)
+        return (res, A, B) if with_jacobians else res
 
     def prior_terms(self):
         """[(column, residual in sigmas, 1 / sigma)] of every prior on a free parameter."""
@@ -307,6 +261,59 @@ def _normal_equations(problem: _Problem, noise_px: float):
         U[np.ix_(cols, cols)] += np.diag(w) - np.outer(w, w) / np.sum(w)
         g_cam[cols] += w * d
     return U, Wm, V, g_cam, g_pt, camera_cols[problem.c_idx], res
+
+
+@compiled()
+def _project(R, t, X, K, block_of, c_idx, p_idx, xy, res, A, B):
+    """Every observation's residual (projection - xy, px) into res (N, 2), and where A and B
+    have rows (N, 2, 14) and (N, 2, 3) (zeros in A on entry) its Jacobians with respect to
+    the camera's rotation (a left increment), translation and intrinsics (f, cx, cy, k1, k2,
+    aspect, p1, p2: fy = f (1 + aspect)) and to the point. A point behind the camera gets a
+    large, constant residual."""
+    jacobians = A.shape[0] > 0
+    for n in range(c_idx.shape[0]):
+        c, p = c_idx[n], p_idx[n]
+        x = R[c, 0, 0] * X[p, 0] + R[c, 0, 1] * X[p, 1] + R[c, 0, 2] * X[p, 2] + t[c, 0]
+        y = R[c, 1, 0] * X[p, 0] + R[c, 1, 1] * X[p, 1] + R[c, 1, 2] * X[p, 2] + t[c, 1]
+        z = R[c, 2, 0] * X[p, 0] + R[c, 2, 1] * X[p, 1] + R[c, 2, 2] * X[p, 2] + t[c, 2]
+        z_safe = z if abs(z) > 1e-12 else 1e-12
+        u, v = x / z_safe, y / z_safe
+        b = block_of[c]
+        f, cx, cy, k1, k2 = K[b, 0], K[b, 1], K[b, 2], K[b, 3], K[b, 4]
+        a, p1, p2 = K[b, 5], K[b, 6], K[b, 7]
+        r2 = u * u + v * v
+        d = 1 + k1 * r2 + k2 * r2 * r2
+        fy = f * (1 + a)
+        uv = u * v
+        xd = d * u + 2 * p1 * uv + p2 * (r2 + 2 * u * u)
+        yd = d * v + p1 * (r2 + 2 * v * v) + 2 * p2 * uv
+        if z <= 0:
+            res[n, 0], res[n, 1] = 1e3, 1e3
+        else:
+            res[n, 0], res[n, 1] = f * xd + cx - xy[n, 0], fy * yd + cy - xy[n, 1]
+        if not jacobians:
+            continue
+        dd_dr2 = k1 + 2 * k2 * r2
+        # d(proj)/d(u, v), then d(proj)/d(camera point) through u = x / z, v = y / z
+        j00 = f * (d + 2 * u * u * dd_dr2 + 2 * p1 * v + 6 * p2 * u)
+        j01 = f * (2 * uv * dd_dr2 + 2 * p1 * u + 2 * p2 * v)
+        j10 = fy * (2 * uv * dd_dr2 + 2 * p1 * u + 2 * p2 * v)
+        j11 = fy * (d + 2 * v * v * dd_dr2 + 6 * p1 * v + 2 * p2 * u)
+        for k, (ju, jv) in enumerate(((j00, j01), (j10, j11))):
+            d0, d1, d2 = ju / z_safe, jv / z_safe, -(ju * u + jv * v) / z_safe
+            for m in range(3):
+                B[n, k, m] = d0 * R[c, 0, m] + d1 * R[c, 1, m] + d2 * R[c, 2, m]
+            A[n, k, 0] = d2 * y - d1 * z  # rotation: -d(proj)/d(camera point) [camera point]x
+            A[n, k, 1] = d0 * z - d2 * x
+            A[n, k, 2] = d1 * x - d0 * y
+            A[n, k, 3], A[n, k, 4], A[n, k, 5] = d0, d1, d2
+        A[n, 0, 6], A[n, 1, 6] = xd, (1 + a) * yd
+        A[n, 0, 7], A[n, 1, 8] = 1.0, 1.0
+        A[n, 0, 9], A[n, 1, 9] = f * u * r2, fy * v * r2
+        A[n, 0, 10], A[n, 1, 10] = f * u * r2 * r2, fy * v * r2 * r2
+        A[n, 1, 11] = f * yd
+        A[n, 0, 12], A[n, 1, 12] = f * 2 * uv, fy * (r2 + 2 * v * v)
+        A[n, 0, 13], A[n, 1, 13] = f * (r2 + 2 * u * u), fy * 2 * uv
 
 
 @compiled()
