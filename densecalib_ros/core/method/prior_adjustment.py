@@ -355,13 +355,14 @@ def _observation_products(res, A, B, w, c_idx, p_idx, num_cameras, num_points):
 def _point_products(Y, W_t, first_obs, c_idx, num_cameras):
     """(C, C, 14, 14): for every pair of cameras (a, b) the sum over the points both see of
     Y_a W_b^T (Y: (N, 14, 3), W_t: (N, 3, 14), per observation; first_obs (P + 1,): each
-    point's first observation, its observations being contiguous; c_idx (N,): each
-    observation's camera)."""
+    point's first observation, its observations being contiguous and in camera order; c_idx
+    (N,): each observation's camera). Y = W V^-1 with V symmetric, so the (b, a) block is the
+    (a, b) block transposed: only a <= b is summed, the rest mirrored."""
     width = Y.shape[1]
     out = np.zeros((num_cameras, num_cameras, width, width))
     for p in range(first_obs.shape[0] - 1):
         for a in range(first_obs[p], first_obs[p + 1]):
-            for b in range(first_obs[p], first_obs[p + 1]):
+            for b in range(a, first_obs[p + 1]):
                 block = out[c_idx[a], c_idx[b]]
                 w0, w1, w2 = W_t[b, 0], W_t[b, 1], W_t[b, 2]
                 for i in range(width):
@@ -369,6 +370,9 @@ def _point_products(Y, W_t, first_obs, c_idx, num_cameras):
                     row = block[i]
                     for j in range(width):
                         row[j] += y0 * w0[j] + y1 * w1[j] + y2 * w2[j]
+    for a in range(num_cameras):
+        for b in range(a + 1, num_cameras):
+            out[b, a] = out[a, b].T
     return out
 
 
