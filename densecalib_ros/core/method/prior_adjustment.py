@@ -162,9 +162,11 @@ class _Problem:
                     index += 1
         self.num_cam_params = index
         # Per camera and per observation: the columns of its 6 pose + 8 intrinsic parameters
-        # (-1: held; cameras of one block share their intrinsics' columns).
-        self.camera_cols = np.concatenate([self.pose_cols, self.intr_cols[self.block_of]], axis=1)
-        self.cols = self.camera_cols[c_idx]
+        # (cameras of one block share their intrinsics' columns); a held one's is
+        # num_cam_params, a column the sums collect and then drop.
+        cols = np.concatenate([self.pose_cols, self.intr_cols[self.block_of]], axis=1)
+        self.camera_cols = np.where(cols >= 0, cols, self.num_cam_params)
+        self.obs_cols = self.camera_cols[c_idx]
         self.observing_cameras = [int(c) for c in np.unique(c_idx)]
 
     def residuals_and_jacobians(self, with_jacobians: bool = True):
@@ -248,11 +250,11 @@ def _normal_equations(problem: _Problem, noise_px: float):
     M, P = problem.num_cam_params, len(problem.X)
     U_cam, g_of_cam, V, g_pt, Wm = _observation_products(res, A, B, w, problem.c_idx,
                                                         problem.p_idx, len(problem.R), P)
-    camera_cols = np.where(problem.camera_cols >= 0, problem.camera_cols, M)
+    cols = problem.camera_cols
     U, g_cam = np.zeros((M + 1, M + 1)), np.zeros(M + 1)
     for c in problem.observing_cameras:
-        U[np.ix_(camera_cols[c], camera_cols[c])] += U_cam[c]
-        g_cam[camera_cols[c]] += g_of_cam[c]
+        U[np.ix_(cols[c], cols[c])] += U_cam[c]
+        g_cam[cols[c]] += g_of_cam[c]
     U, g_cam = U[:M, :M], g_cam[:M]
     for col, e, inv_sigma in problem.prior_terms():
         U[col, col] += inv_sigma ** 2
@@ -260,7 +262,7 @@ def _normal_equations(problem: _Problem, noise_px: float):
     for cols, d, w in problem.tie_terms():  # the mean profiled out: no pull on the rig's level
         U[np.ix_(cols, cols)] += np.diag(w) - np.outer(w, w) / np.sum(w)
         g_cam[cols] += w * d
-    return U, Wm, V, g_cam, g_pt, camera_cols[problem.c_idx], res
+    return U, Wm, V, g_cam, g_pt, problem.obs_cols, res
 
 
 @compiled()
@@ -384,7 +386,7 @@ def _reduced_system(problem: _Problem, U, Wm, V_inv):
     Y = Wm @ V_inv[problem.p_idx]
     products = _point_products(Y, np.ascontiguousarray(Wm.transpose(0, 2, 1)),
                                problem.first_obs, problem.c_idx, len(problem.R))
-    cols = np.where(problem.camera_cols >= 0, problem.camera_cols, M)
+    cols = problem.camera_cols
     index = np.broadcast_to(cols[:, None, :, None], products.shape), \
         np.broadcast_to(cols[None, :, None, :], products.shape)
     S = np.zeros((M + 1, M + 1))
