@@ -53,7 +53,14 @@ EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
 PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6, 1.7, 2.4)
 
 
-MULTISTART_MAX_TRACKS = 3000  # tracks the multi-start runs on (a seeded subsample)
+# Tracks each multi-start trial is built from (a seeded subsample). A trial only has to land in
+# the right rig: the winner is judged on matches no trial was built from and finished on every
+# track, and a trial's time grows with its tracks. 1500 still give a 10-camera rig ~150 tracks a
+# camera, hundreds of observations for each camera's few parameters.
+TRIAL_MAX_TRACKS = 1500
+# Keypoint-match tracks the starts are judged on (a seeded sample): the judging is cheap next to
+# the trials, so it keeps more of the matches the trials never saw.
+MULTISTART_MAX_TRACKS = 3000
 
 
 # With every camera's intrinsics given there is no focal to explore; the run's other lottery is
@@ -115,7 +122,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     (docs/design-notes.md, Focal starts and multi-start costs), from which incremental SfM converges
     to a wrong reconstruction. So the SfM is run from the initial focals scaled by each of
     FOCAL_SCALE_STARTS (and, for perspective models, EQ2_EXTRA_FOCAL_SCALE_STARTS and the generic
-    priors PRIOR_FOCAL_IMAGE_RATIOS), on a seeded subsample of at most MULTISTART_MAX_TRACKS tracks,
+    priors PRIOR_FOCAL_IMAGE_RATIOS), on a seeded subsample of at most TRIAL_MAX_TRACKS tracks,
     and the start with the lowest truncated reprojection cost gives the result: that trial itself
     when it ran on all tracks, else its cameras finished on all tracks (`_on_all_tracks`). The cost
     is taken on validation_tracks (other tracks of the same cameras, e.g. all keypoint matches,
@@ -134,7 +141,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     starts = {name: (start, None) for name, start in
               {**focal_starts(intrinsics, config.fixed_intrinsics_cameras),
                **(extra_starts or {})}.items()}
-    sub = tracks.sample(MULTISTART_MAX_TRACKS, seed)
+    sub = tracks.sample(TRIAL_MAX_TRACKS, seed)
     if len(config.fixed_intrinsics_cameras) == tracks.num_cameras and \
             config.brute_force_first_pair:
         budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
