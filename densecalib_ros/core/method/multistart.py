@@ -55,11 +55,11 @@ PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6, 1.7, 2.4)
 
 # Tracks each multi-start trial is built from (a seeded subsample). A trial only has to land in
 # the right rig: the winner is judged on matches no trial was built from and finished on every
-# track, and a trial's time grows with its tracks. 1500 still give a 10-camera rig ~150 tracks a
-# camera, hundreds of observations for each camera's few parameters.
+# track, and a trial's time grows with its tracks. 1500 tracks of 2-4 views still give each camera
+# of a 10-camera rig hundreds of observations for its few parameters.
 TRIAL_MAX_TRACKS = 1500
-# Keypoint-match tracks the starts are judged on (a seeded sample): the judging is cheap next to
-# the trials, so it keeps more of the matches the trials never saw.
+# Keypoint-match tracks the starts are judged on (a seeded sample; focal hops judge on it too): the
+# judging is cheap next to the trials, so it keeps more of the matches the trials never saw.
 MULTISTART_MAX_TRACKS = 3000
 
 
