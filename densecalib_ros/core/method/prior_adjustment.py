@@ -126,7 +126,8 @@ class _Problem:
         self.point_of_track = np.full(state.tracks.num_tracks, -1)
         self.point_of_track[self.tracks] = np.arange(len(self.tracks))
         self.p_idx = self.point_of_track[t_idx]
-        # Observations are in track order (np.nonzero): each point's are contiguous from here.
+        # Observations are in track order, then camera order (np.nonzero, row-major): each
+        # point's are contiguous from here, and _point_products' mirroring relies on the order.
         self.first_obs = np.searchsorted(self.p_idx, np.arange(len(self.tracks) + 1))
         self.X = state.points_xyz[self.tracks].copy()
         C = state.num_cameras
