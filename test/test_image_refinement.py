@@ -115,3 +115,41 @@ def test_real_lenses_calibrate_to_a_tenth_of_a_degree(real_rig):
     before = evaluate_calibration(run_calibration(real_rig.images, real_rig.names, held).rig,
                                   real_rig.ground_truth())
     assert before["median_rot_err_deg"] > 2 * metrics["median_rot_err_deg"]
+
+
+def _same_tracks(a, b):
+    return a.num_tracks == b.num_tracks and np.array_equal(a.xy_px, b.xy_px, equal_nan=True) \
+        and np.array_equal(a.time_index, b.time_index)
+
+
+def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
+    """A calibration finds the dense correspondences while it still searches the rig
+    (DenseAhead): for the rig it was told to expect they are dense_tracks' bit for bit, and for
+    any other rig (moved, or with a camera left out) they are found for that rig, not taken from
+    the expected one."""
+    from densecalib_ros.core.method.all_matches import keypoint_tracks
+    from densecalib_ros.core.method.dense_matches import DenseAhead, dense_tracks
+    from densecalib_ros.core.method.reconstruction import SfMState
+    from densecalib_ros.core.pipeline import match_frame_sets
+
+    images, C = real_rig.images, len(real_rig.names)
+    seeds = keypoint_tracks(match_frame_sets(images, make_config("regular")), C)
+    truth = real_rig.ground_truth()
+    state = SfMState.create(seeds, [truth.cameras[n].intrinsics for n in real_rig.names])
+    state.cam_from_world = [truth.cameras[n].cam_from_rig.copy() for n in real_rig.names]
+    moved = state.copy()  # camera 1 turned by 0.5 deg: another rig, other epipolar lines
+    moved.cam_from_world[1][:3, :3] = cv2.Rodrigues(np.array([0.0, np.radians(0.5), 0.0]))[0] \
+        @ moved.cam_from_world[1][:3, :3]
+    fewer = state.copy()
+    fewer.cam_from_world[4] = None
+
+    ahead = DenseAhead(images, C, seeds)
+    ahead.expect(state)
+    found = ahead.tracks(state)
+    assert found.num_tracks > 1000
+    assert _same_tracks(found, dense_tracks(images, state, seeds))
+    for other in (moved, fewer):
+        after = dense_tracks(images, other, seeds)
+        assert not _same_tracks(after, found)
+        assert _same_tracks(ahead.tracks(other), after)
+    ahead.cancel()

@@ -142,3 +142,45 @@ def test_map_jobs_says_how_many_results_are_in_and_the_stage_clock_its_time_left
     assert int(left.split()[2]) >= 1  # 0.6 s at least, said to the second
     assert not clock.due(60.0)  # just said
     assert clock.left(4) == ""  # the stage is over: nothing left to say
+
+
+def test_work_run_ahead_takes_the_lowest_priority_and_stops_when_cancelled():
+    """RunAhead's thread, and the threads its work starts, run at the lowest priority (Linux:
+    a nice value per thread) while the caller's stays as it was; cancel() stops it and result()
+    then gives None; work that fails gives None (the stage needing it does the work itself)."""
+    import threading
+
+    from densecalib_ros.core.parallel import AHEAD_NICE, RunAhead
+
+    def priority():
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    def work(cancelled, thread_start):
+        while not cancelled.wait(0.01):
+            pass
+        return "never used"
+
+    caller = priority()
+    ahead = RunAhead(work)
+    time.sleep(0.2)
+    assert ahead._thread.is_alive()  # waits to be cancelled
+    ahead.cancel()
+    assert ahead.result() is None and not ahead._thread.is_alive()
+    assert priority() == caller
+
+    def quick(x, cancelled, thread_start):
+        seen = {"own": priority(), "x": x}
+
+        def inner():
+            thread_start()
+            seen["inner"] = priority()
+        t = threading.Thread(target=inner)
+        t.start()
+        t.join()
+        return seen
+    lowest = max(caller, AHEAD_NICE)
+    assert RunAhead(quick, 7).result() == {"own": lowest, "inner": lowest, "x": 7}
+
+    def fails(cancelled, thread_start):
+        raise ValueError("no")
+    assert RunAhead(fails).result() is None

@@ -74,6 +74,53 @@ def job_count(jobs: int) -> int:
     return available_cores() if jobs <= 0 else int(jobs)
 
 
+
+# The nice value of work run ahead (RunAhead): the lowest, so that it takes only the CPU time
+# nothing else in the calibration (or on the machine) wants.
+AHEAD_NICE = 19
+
+
+def lower_this_thread() -> None:
+    """Give the calling thread alone the lowest CPU priority (AHEAD_NICE; on Linux a nice value
+    belongs to a thread). Without privileges a thread cannot raise it again: call it only in
+    threads that end with their work. A no-op where the system does not allow it."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), AHEAD_NICE)
+    except (AttributeError, OSError):
+        pass
+
+
+class RunAhead:
+    """fn(*args, cancelled=<threading.Event>, thread_start=lower_this_thread) started at once on a
+    thread of the lowest priority (lower_this_thread; fn runs thread_start first in any thread
+    it starts): work a later stage needs that does not depend on what is computed before it, done
+    on cores the calibration leaves idle (a multi-start's last trial, a single-threaded
+    adjustment) instead of after it. result() waits for it and gives its value, or None where it
+    failed (the stage then does the work itself, and meets the error itself); cancel() asks fn
+    to stop (fn raises to stop, and is not waited for)."""
+
+    def __init__(self, fn: Callable, *args: Any, name: str = "densecalib-ahead") -> None:
+        self._cancelled = threading.Event()
+        self._value: Any = None
+        self._thread = threading.Thread(target=self._run, args=(fn, args), name=name,
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, fn: Callable, args: tuple) -> None:
+        lower_this_thread()
+        try:
+            self._value = fn(*args, cancelled=self._cancelled, thread_start=lower_this_thread)
+        except Exception as exc:  # noqa: BLE001 - the stage that needs it does the work itself
+            if not self._cancelled.is_set():
+                log.debug("work run ahead failed (%r); it is done when needed", exc)
+
+    def result(self) -> Any:
+        self._thread.join()
+        return None if self._cancelled.is_set() else self._value
+
+    def cancel(self) -> None:
+        self._cancelled.set()
+
 # How often a worker looks whether the process that started it is still there (seconds).
 PARENT_CHECK_S = 1.0
 

@@ -17,6 +17,7 @@ from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughOverlapError,
                      TooFewCamerasGivenError)
 from .method.all_matches import keypoint_tracks, refine_on_tracks
+from .method.dense_matches import DenseAhead
 from .method.focal_determination import weak_focal_warning
 from .method.focal_start import (eq2_start, initial_focals, start_focals,
                                  with_known_intrinsics)
@@ -251,16 +252,24 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     match_tracks = None
     if config.refine_on_all_matches:
         match_tracks = keypoint_tracks(match_sets, len(camera_names), seed=config.sampling.seed)
-    if previous is None and config.consensus_runs > 1:
-        result = _consensus_calibration(match_sets, image_sizes, camera_names, config,
-                                        match_tracks, progress)
-    else:
-        result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
-                                 match_tracks, progress)
-    sigmas = {}
-    if frame_sets is not None and config.refine_on_images and result.state is not None:
-        result, sigmas = _refined_on_images(result, frame_sets, camera_names, config,
-                                            match_tracks, ignored, progress, previous)
+    refines_on_images = frame_sets is not None and config.refine_on_images
+    ahead = _dense_ahead(frame_sets, camera_names, config, match_tracks, ignored) \
+        if refines_on_images else None
+    try:
+        if previous is None and config.consensus_runs > 1:
+            result = _consensus_calibration(match_sets, image_sizes, camera_names, config,
+                                            match_tracks, progress, ahead)
+        else:
+            result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
+                                     match_tracks, progress)
+        sigmas = {}
+        if refines_on_images and result.state is not None:
+            result, sigmas = _refined_on_images(result, frame_sets, camera_names, config,
+                                                match_tracks, ignored, progress, previous,
+                                                ahead)
+    finally:
+        if ahead is not None:
+            ahead.cancel()
     add_uncertainty(result.rig, result.reconstruction, camera_names, config, sigmas)
     if config.cameras.known_intrinsics:
         result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
@@ -272,21 +281,38 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     return result
 
 
+def _dense_ahead(frame_sets, camera_names: Sequence[str], config: PipelineConfig,
+                 match_tracks: Optional[Tracks], ignored: Sequence) -> Optional[DenseAhead]:
+    """The image refinement's dense correspondences, which need only the images and the keypoint
+    matches until their last checks, started on cores the rig's search leaves idle
+    (dense_matches.DenseAhead). None where the refinement will not start from the keypoint
+    matches or cannot apply (a fisheye lens)."""
+    from .method.prior_adjustment import SUPPORTED_MODELS
+
+    if match_tracks is None or not match_tracks.num_tracks or any(
+            m not in SUPPORTED_MODELS for m in config.sfm.models(len(camera_names))):
+        return None
+    return DenseAhead(frame_sets, len(camera_names), match_tracks, ignored or None)
+
+
 def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequence[str],
                        config: PipelineConfig, match_tracks: Optional[Tracks],
                        ignored: Sequence, progress: Progress,
-                       previous: Optional[RigCalibration] = None
+                       previous: Optional[RigCalibration] = None,
+                       ahead: Optional[DenseAhead] = None
                        ) -> tuple[CalibrationResult, dict]:
     """(result refined by core.method.image_refinement, its sigmas per camera name); the result as
     it was and no sigmas where the stage does not apply. A previous calibration's principal points
-    that its images determined centre this one's priors."""
+    that its images determined centre this one's priors. ahead: the dense correspondences on
+    match_tracks as far as they were found ahead (_dense_ahead), or None."""
     from .method.image_refinement import PP_PRIOR_STD_FRACTION, refine_on_images
 
     seeds = match_tracks if match_tracks is not None and match_tracks.num_tracks \
         else result.tracks
     refinement = refine_on_images(result.state, frame_sets, seeds, camera_names, ignored or None,
                                   config.sampling.seed, lambda m: say_progress(progress, m),
-                                  estimated_principal_points(previous))
+                                  estimated_principal_points(previous),
+                                  ahead if seeds is match_tracks else None)
     if refinement is None:
         return result, {}
     # Whether given intrinsics fit the scene was judged on the keypoint matches; the dense
@@ -307,8 +333,10 @@ def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequ
 
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                            camera_names: Sequence[str], config: PipelineConfig,
-                           match_tracks: Optional[Tracks], progress: Progress
-                           ) -> CalibrationResult:
+                           match_tracks: Optional[Tracks], progress: Progress,
+                           dense_ahead: Optional[DenseAhead] = None) -> CalibrationResult:
+    """_consensus_runs' kept run (core.robust.consensus). dense_ahead: where given, told to
+    expect the first run's rig, which the runs keep where they agree."""
     from .method.multistart import cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
@@ -316,7 +344,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .robust.second_matcher import perspective_on_sift
 
     results, seeds, failed, settled = _consensus_runs(match_sets, image_sizes, camera_names,
-                                                      config, match_tracks, progress)
+                                                      config, match_tracks, progress,
+                                                      dense_ahead)
     agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
                         cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed,
@@ -367,7 +396,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
 
 def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                     camera_names: Sequence[str], config: PipelineConfig,
-                    match_tracks: Optional[Tracks], progress: Progress
+                    match_tracks: Optional[Tracks], progress: Progress,
+                    dense_ahead: Optional[DenseAhead] = None
                     ) -> tuple[list[CalibrationResult], list[int], int, Optional[list[str]]]:
     """Sampling + SfM with consecutive seeds, up to config.consensus_runs times: (the results,
     their seeds, how many runs failed, the first run's settled starts or None). The first run's
@@ -408,6 +438,8 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
             log.info("consensus run %d (seed %d) failed: %s", k + 1, seed, exc)
             failed += 1
             first_error = first_error or exc
+        if k == 0 and results and results[0].state is not None and dense_ahead is not None:
+            dense_ahead.expect(results[0].state)  # agreeing runs keep the first (medoid)
         if k == 0 and results and results[0].settled_starts:
             settled = results[0].settled_starts
             run_s = None  # the later runs try fewer starts: the first run's time says nothing

@@ -20,14 +20,16 @@ where it was found."""
 from __future__ import annotations
 
 import logging
+import threading
 from concurrent.futures import ThreadPoolExecutor
-from typing import Optional, Sequence
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence
 
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..parallel import available_cores
+from ..parallel import RunAhead, available_cores
 from ..types import Tracks
 from .matching.utils import to_gray
 from .patch_alignment import align
@@ -165,50 +167,97 @@ def epipolar_distance_px(state: SfMState, a: int, b: int, xy_a: np.ndarray,
     return focal_b * np.abs(np.sum(normal * ray_b, axis=1))
 
 
+@dataclass
+class FirstPass:
+    """dense_tracks' first pass, which needs the images and the keypoint matches but not the rig:
+    for each densified frame set (times), the reference points of each camera (points: camera ->
+    (n, 2) COLMAP px) and, per pair (a, b) of `cameras`, a's points aligned onto b and back to
+    where they started (returned: (a, b) -> (indices into points[a], positions in b (n, 2))),
+    not yet checked against the rig's epipolar geometry."""
+
+    cameras: tuple
+    times: np.ndarray
+    points: list
+    returned: list
+
+
+class Cancelled(Exception):
+    """A first pass run ahead (first_pass's `cancelled`) was called off."""
+
+
+def densified_times(keypoint_tracks: Tracks) -> np.ndarray:
+    """The frame sets dense_tracks densifies: at most MAX_FRAME_SETS, evenly spaced."""
+    times = np.unique(keypoint_tracks.time_index)
+    if len(times) > MAX_FRAME_SETS:
+        times = times[np.round(np.linspace(0, len(times) - 1, MAX_FRAME_SETS)).astype(int)]
+    return times
+
+
+def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int],
+               keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
+               cancelled: Optional[threading.Event] = None,
+               thread_start: Optional[Callable[[], None]] = None) -> FirstPass:
+    """dense_tracks' first pass among `cameras` (FirstPass). It does not depend on the rig, so a
+    calibration runs it ahead, while the rig is still being found (core.pipeline): cancelled,
+    set, stops it between pairs (Cancelled); thread_start runs first in each of its threads."""
+    times = densified_times(keypoint_tracks)
+    cameras = tuple(int(c) for c in cameras)
+    observed = keypoint_tracks.observed()
+    all_points, all_returned = [], []
+    for time in times:
+        grays = _grays(frame_sets, int(time), cameras)
+        in_set = keypoint_tracks.time_index == time
+        per_image = min(GRID_POINTS_PER_IMAGE,
+                        MAX_ALIGNMENTS // max(len(cameras) * (len(cameras) - 1), 1))
+        points = {a: reference_points(grays[a], per_image,
+                                      mask=None if masks is None else masks[a])
+                  for a in cameras}
+        seeds = {(a, b): (keypoint_tracks.xy_px[rows, a], keypoint_tracks.xy_px[rows, b])
+                 for a in cameras for b in cameras if a != b
+                 for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
+        none = np.zeros(0, np.int64)
+        all_points.append(points)
+        all_returned.append(_aligned_both_ways(grays, cameras, points, seeds,
+                                               {k: none for k in seeds}, cancelled,
+                                               thread_start))
+    return FirstPass(cameras, times, all_points, all_returned)
+
+
 def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
-                 keypoint_tracks: Tracks, masks: Optional[Sequence] = None) -> Tracks:
+                 keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
+                 ahead: Optional[FirstPass] = None,
+                 cancelled: Optional[threading.Event] = None,
+                 thread_start: Optional[Callable[[], None]] = None) -> Tracks:
     """Guided dense tracks (module docstring) of the registered cameras of `state`, predicted from
     keypoint_tracks (the keypoint matches as tracks, with their frame set index).
 
     Two passes: the first predicts from the keypoint matches alone, the second, for the points
     not yet found, also from the dense correspondences the first found, which reach the parts of
-    the images between sparse keypoints (a wider baseline's pairs share few of them)."""
+    the images between sparse keypoints (a wider baseline's pairs share few of them). ahead: the
+    first pass as first_pass gave it on the same frame sets, matches and masks, used where it
+    was run among the registered cameras (else it runs here); cancelled, thread_start: as
+    first_pass's."""
     C = state.num_cameras
-    registered = state.registered()
-    times = np.unique(keypoint_tracks.time_index)
-    if len(times) > MAX_FRAME_SETS:
-        times = times[np.round(np.linspace(0, len(times) - 1, MAX_FRAME_SETS)).astype(int)]
+    registered = tuple(int(c) for c in state.registered())
+    if ahead is None or ahead.cameras != registered:
+        ahead = first_pass(frame_sets, registered, keypoint_tracks, masks, cancelled,
+                           thread_start)
     observed = keypoint_tracks.observed()
     parts = []
-    for time in times:
-        grays = {c: to_gray(np.asarray(frame_sets[int(time)][c])).astype(np.float32)
-                 for c in registered}
+    for time, points, returned in zip(ahead.times, ahead.points, ahead.returned):
+        grays = _grays(frame_sets, int(time), registered)
         in_set = keypoint_tracks.time_index == time
-        per_image = min(GRID_POINTS_PER_IMAGE,
-                        MAX_ALIGNMENTS // max(len(registered) * (len(registered) - 1), 1))
-        points = {a: reference_points(grays[a], per_image,
-                                      mask=None if masks is None else masks[a])
-                  for a in registered}
         seeds = {(a, b): (keypoint_tracks.xy_px[rows, a], keypoint_tracks.xy_px[rows, b])
                  for a in registered for b in registered if a != b
                  for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
         found = {k: (np.zeros(0, np.int64), np.zeros((0, 2))) for k in seeds}
-        for _ in range(2):
-            # Pairs are independent; the alignment kernel (patch_alignment) releases the GIL.
-            # Grouped by the image they align onto, each image's gradients are computed once a
-            # pass and held only while its pairs run (one image per core).
-            def onto(b: int) -> dict:
-                image = with_gradients(grays[b])
-                return {(a, b): _aligned(grays, image, a, b, points[a], *seeds[a, b],
-                                         skip=found[a, b][0]) for a in registered if a != b}
-
-            def back_onto(a: int) -> dict:
-                image = with_gradients(grays[a])
-                return {(a, b): _returned(state, grays, image, a, b, points[a], *forward[a, b])
-                        for b in registered if b != a}
-            with ThreadPoolExecutor(available_cores()) as pool:
-                forward = {k: v for part in pool.map(onto, registered) for k, v in part.items()}
-                new = {k: v for part in pool.map(back_onto, registered) for k, v in part.items()}
+        for second in (False, True):
+            if second:
+                returned = _aligned_both_ways(grays, registered, points, seeds,
+                                              {k: v[0] for k, v in found.items()}, cancelled,
+                                              thread_start)
+            new = {(a, b): _on_epipolar_lines(state, a, b, points[a], *returned[a, b])
+                   for (a, b) in seeds}
             seeds = {(a, b): (np.concatenate([seeds[a, b][0], points[a][new[a, b][0]],
                                               new[b, a][1]]),
                               np.concatenate([seeds[a, b][1], new[a, b][1],
@@ -228,6 +277,95 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
             parts.append(Tracks(xy[seen], np.full(n, 2, np.int32), np.zeros(n),
                                 np.full(n, int(time), np.int32)))
     return Tracks.concatenate(parts, C)
+
+
+class DenseAhead:
+    """dense_tracks' work on a calibration's frame sets, keypoint-match tracks and masks, done on
+    cores the calibration leaves idle before the tracks are asked for (parallel.RunAhead): the
+    first pass among all cameras as soon as the matches are known, and the rest for a rig
+    expected to be the final one (expect) as soon as it is found. tracks(state) gives what
+    dense_tracks would, from the work done ahead where it fits that state."""
+
+    def __init__(self, frame_sets: Sequence[Sequence[np.ndarray]], num_cameras: int,
+                 keypoint_tracks: Tracks, masks: Optional[Sequence] = None) -> None:
+        self._inputs = (frame_sets, keypoint_tracks, masks)
+        self._first = RunAhead(first_pass, frame_sets, range(num_cameras), keypoint_tracks,
+                               masks, name="densecalib-dense-ahead")
+        self._expected: Optional[tuple] = None  # (_rig_key, RunAhead of dense_tracks)
+
+    def expect(self, state: SfMState) -> None:
+        """Start the rest of dense_tracks for this rig (replacing an earlier expectation)."""
+        if self._expected is not None:
+            self._expected[1].cancel()
+        state = state.copy()
+        self._expected = (_rig_key(state), RunAhead(self._rest, state,
+                                                    name="densecalib-dense-ahead"))
+
+    def _rest(self, state: SfMState, cancelled: threading.Event,
+              thread_start: Callable[[], None]) -> Tracks:
+        frame_sets, keypoint_tracks, masks = self._inputs
+        return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result(),
+                            cancelled, thread_start)
+
+    def tracks(self, state: SfMState) -> Tracks:
+        if self._expected is not None and self._expected[0] == _rig_key(state):
+            tracks = self._expected[1].result()
+            if tracks is not None:
+                return tracks
+        frame_sets, keypoint_tracks, masks = self._inputs
+        return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result())
+
+    def cancel(self) -> None:
+        """Stop what still runs (a calibration that ends without the tracks)."""
+        self._first.cancel()
+        if self._expected is not None:
+            self._expected[1].cancel()
+
+
+def _rig_key(state: SfMState) -> tuple:
+    """What of a state dense_tracks depends on: the registered cameras' poses and intrinsics."""
+    return tuple((c, state.cam_from_world[c].tobytes(), state.camera(c).model,
+                  np.asarray(state.camera(c).params, np.float64).tobytes())
+                 for c in state.registered())
+
+
+def _grays(frame_sets: Sequence[Sequence[np.ndarray]], time: int, cameras: Sequence[int]
+           ) -> dict:
+    return {c: to_gray(np.asarray(frame_sets[time][c])).astype(np.float32) for c in cameras}
+
+
+def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds: dict,
+                       skip: dict, cancelled: Optional[threading.Event] = None,
+                       thread_start: Optional[Callable[[], None]] = None) -> dict:
+    """(a, b) -> (indices into points[a], positions in b (n, 2)): camera a's points, but those
+    in skip[a, b], predicted from seeds[a, b] and aligned onto b (_aligned), that align back
+    onto where they started (_returned)."""
+    def check() -> None:
+        if cancelled is not None and cancelled.is_set():
+            raise Cancelled()
+
+    # Pairs are independent; the alignment kernel (patch_alignment) releases the GIL. Grouped
+    # by the image they align onto, each image's gradients are computed once a pass and held
+    # only while its pairs run (one image per core).
+    def onto(b: int) -> dict:
+        image, out = with_gradients(grays[b]), {}
+        for a in cameras:
+            if a != b:
+                check()
+                out[a, b] = _aligned(grays, image, a, b, points[a], *seeds[a, b],
+                                     skip=skip[a, b])
+        return out
+
+    def back_onto(a: int) -> dict:
+        image, out = with_gradients(grays[a]), {}
+        for b in cameras:
+            if b != a:
+                check()
+                out[a, b] = _returned(grays, image, a, b, points[a], *forward[a, b])
+        return out
+    with ThreadPoolExecutor(available_cores(), initializer=thread_start) as pool:
+        forward = {k: v for part in pool.map(onto, cameras) for k, v in part.items()}
+        return {k: v for part in pool.map(back_onto, cameras) for k, v in part.items()}
 
 
 def _aligned(grays: dict, b_and_gradients: np.ndarray, a: int, b: int, points: np.ndarray,
@@ -259,12 +397,12 @@ def _aligned(grays: dict, b_and_gradients: np.ndarray, a: int, b: int, points: n
     return idx[good], refined[good], map_ab[good]
 
 
-def _returned(state: SfMState, grays: dict, a_and_gradients: np.ndarray, a: int, b: int,
-              points: np.ndarray, idx: np.ndarray, refined: np.ndarray, map_ab: np.ndarray
+def _returned(grays: dict, a_and_gradients: np.ndarray, a: int, b: int, points: np.ndarray,
+              idx: np.ndarray, refined: np.ndarray, map_ab: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
     """Of _aligned's correspondences (idx, refined, map_ab) of camera a's points in camera b,
-    those that align back onto their reference point and lie on its epipolar line: (indices
-    into points, positions in camera b (n, 2)). a_and_gradients: with_gradients(grays[a])."""
+    those that align back onto their reference point: (indices into points, positions in
+    camera b (n, 2)). a_and_gradients: with_gradients(grays[a])."""
     if len(idx):
         # Aligned back from b, a right correspondence returns to its reference point; one that
         # slid along an edge or onto another surface at an occlusion does not.
@@ -272,6 +410,13 @@ def _returned(state: SfMState, grays: dict, a_and_gradients: np.ndarray, a: int,
                                    np.linalg.inv(map_ab), a_and_gradients)
         returned = np.linalg.norm(back - points[idx], axis=1) <= MAX_ROUND_TRIP_PX
         idx, refined = idx[returned], refined[returned]
+    return idx, refined
+
+
+def _on_epipolar_lines(state: SfMState, a: int, b: int, points: np.ndarray, idx: np.ndarray,
+                       refined: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Of camera a's points[idx] found at `refined` in camera b, those on their epipolar line in b
+    under the state's cameras (MAX_EPIPOLAR_PX)."""
     if len(idx):
         keep = epipolar_distance_px(state, a, b, points[idx], refined) <= MAX_EPIPOLAR_PX
         idx, refined = idx[keep], refined[keep]

@@ -44,7 +44,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from ..types import Tracks
-from .dense_matches import dense_tracks
+from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, intrinsics_vector, posterior_covariance)
@@ -101,27 +101,30 @@ def refine_on_images(state: SfMState, frame_sets: Sequence[Sequence[np.ndarray]]
                      seeds: Tracks, camera_names: Sequence[str],
                      masks: Optional[Sequence] = None, seed: int = 0,
                      say: Callable[[str], None] = lambda m: None,
-                     pp_centres: Optional[dict] = None) -> Optional[ImageRefinement]:
+                     pp_centres: Optional[dict] = None,
+                     ahead: Optional[DenseAhead] = None) -> Optional[ImageRefinement]:
     """The refined state (module docstring), or None where the stage does not apply or the dense
     correspondences leave a registered camera with too few observations. `state` is not
     modified. seeds: correspondences (tracks with their frame set) the dense ones are predicted
     from; masks: per camera bool (H, W) regions to ignore, or None; pp_centres: camera name ->
     (cx, cy, width, height) px, the principal point prior's centre where not the image centre
-    (used where the camera's images still have that size)."""
+    (used where the camera's images still have that size); ahead: the dense correspondences on
+    these frame sets, seeds and masks as far as they were found ahead (DenseAhead), or None."""
     if not applies(state):
         return None
     try:
         return _refine(state, frame_sets, seeds, camera_names, masks, seed, say,
-                       pp_centres or {})
+                       pp_centres or {}, ahead)
     except (ValueError, np.linalg.LinAlgError) as exc:  # a degenerate problem: keep the rig
         log.warning("image refinement skipped: %s", exc)
         say("the dense refinement did not apply; the rig is kept as found")
         return None
 
 
-def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
+def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres, ahead
             ) -> Optional[ImageRefinement]:
-    tracks = dense_tracks(frame_sets, state, seeds, masks)
+    tracks = ahead.tracks(state) if ahead is not None \
+        else dense_tracks(frame_sets, state, seeds, masks)
     refined = state.on_tracks(tracks)
     triangulate_tracks(refined, TRIANGULATION_GATE_PX, seed=seed)
     remove_outlier_observations(refined, TRIANGULATION_GATE_PX)
