@@ -182,7 +182,7 @@ class FirstPass:
 
 
 class Cancelled(Exception):
-    """A first pass run ahead (first_pass's `cancelled`) was called off."""
+    """Dense alignments run ahead were called off (first_pass's or dense_tracks' `cancelled`)."""
 
 
 def densified_times(keypoint_tracks: Tracks) -> np.ndarray:
