@@ -241,7 +241,9 @@ def stop_workers() -> None:
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         if process.is_alive():
-            process.terminate()
+            # SIGKILL, not SIGTERM: a worker has nothing to clean up, and glog's failure handler
+            # (pycolmap installs it) answers a SIGTERM with a crash report and stack trace.
+            process.kill()
     for process in processes:
         process.join(timeout=5)
 
