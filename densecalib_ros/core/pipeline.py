@@ -311,8 +311,7 @@ def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequ
         else result.tracks
     refinement = refine_on_images(result.state, frame_sets, seeds, camera_names, ignored or None,
                                   config.sampling.seed, lambda m: say_progress(progress, m),
-                                  estimated_principal_points(previous),
-                                  ahead if seeds is match_tracks else None)
+                                  estimated_principal_points(previous), ahead)
     if refinement is None:
         return result, {}
     # Whether given intrinsics fit the scene was judged on the keypoint matches; the dense

@@ -212,9 +212,7 @@ def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int
         points = {a: reference_points(grays[a], per_image,
                                       mask=None if masks is None else masks[a])
                   for a in cameras}
-        seeds = {(a, b): (keypoint_tracks.xy_px[rows, a], keypoint_tracks.xy_px[rows, b])
-                 for a in cameras for b in cameras if a != b
-                 for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
+        seeds = _pair_seeds(keypoint_tracks, observed, in_set, cameras)
         none = np.zeros(0, np.int64)
         all_points.append(points)
         all_returned.append(_aligned_both_ways(grays, cameras, points, seeds,
@@ -247,9 +245,7 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     for time, points, returned in zip(ahead.times, ahead.points, ahead.returned):
         grays = _grays(frame_sets, int(time), registered)
         in_set = keypoint_tracks.time_index == time
-        seeds = {(a, b): (keypoint_tracks.xy_px[rows, a], keypoint_tracks.xy_px[rows, b])
-                 for a in registered for b in registered if a != b
-                 for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
+        seeds = _pair_seeds(keypoint_tracks, observed, in_set, registered)
         found = {k: (np.zeros(0, np.int64), np.zeros((0, 2))) for k in seeds}
         for second in (False, True):
             if second:
@@ -327,6 +323,15 @@ def _rig_key(state: SfMState) -> tuple:
     return tuple((c, state.cam_from_world[c].tobytes(), state.camera(c).model,
                   np.asarray(state.camera(c).params, np.float64).tobytes())
                  for c in state.registered())
+
+
+def _pair_seeds(keypoint_tracks: Tracks, observed: np.ndarray, in_set: np.ndarray,
+                cameras: Sequence[int]) -> dict:
+    """(a, b) -> (a's pixels (n, 2), b's pixels (n, 2)) of the keypoint matches of the pair in
+    the frame set in_set selects: what the local affine predictions start from."""
+    return {(a, b): (keypoint_tracks.xy_px[rows, a], keypoint_tracks.xy_px[rows, b])
+            for a in cameras for b in cameras if a != b
+            for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
 
 
 def _grays(frame_sets: Sequence[Sequence[np.ndarray]], time: int, cameras: Sequence[int]
