@@ -153,3 +153,47 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
         assert not _same_tracks(after, found)
         assert _same_tracks(ahead.tracks(other), after)
     ahead.cancel()
+
+
+def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_images(real_rig):
+    """Where the consensus runs disagree, the runner-up is refined on the dense correspondences as
+    the kept rig was (pipeline._refine_runner_up): a runner-up in the same valley of the keypoint
+    matches' fit (here: the rig adjusted on them with every focal held 4 % long) comes out at the
+    kept rig, so the disagreement no longer stands; one the images do not support (two cameras'
+    poses exchanged) leaves it standing."""
+    from densecalib_ros.core import pipeline
+    from densecalib_ros.core.calibration_result import result_with_state
+    from densecalib_ros.core.method.all_matches import keypoint_tracks
+    from densecalib_ros.core.method.reconstruction import BAStage, bundle_adjust
+    from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG, rig_disagreement_deg
+
+    images, names = real_rig.images, real_rig.names
+    config = make_config("regular", "incremental", consensus_runs=1, refine_on_images=False)
+    config.sfm.num_threads = 1
+    sizes, _, _, match_sets = pipeline.checked_and_matched(images, names, config)
+    found = pipeline.calibrate_from_matches(match_sets, sizes, names, config)
+    match_tracks = keypoint_tracks(match_sets, len(names), seed=config.sampling.seed)
+    kept, _ = pipeline._refined_on_images(found, images, names, config, match_tracks, (), None)
+    assert kept.rig.quality.image_refinement_tracks is not None
+
+    long = found.state.copy()
+    for camera in long.intrinsics:
+        camera.params[:2 if camera.model.startswith(("OPENCV", "PINHOLE")) else 1] *= 1.04
+    bundle_adjust(long, names, BAStage(refine_focal=False, refine_extra=False), 1)
+    swapped = found.state.copy()
+    swapped.cam_from_world[1], swapped.cam_from_world[3] = \
+        swapped.cam_from_world[3], swapped.cam_from_world[1]
+    for other, meets in ((long, True), (swapped, False)):
+        runner_up = result_with_state(found, other, names, config)
+        apart = rig_disagreement_deg(kept.rig, runner_up.rig, names)
+        rig = kept.rig
+        rig.quality.consensus_disagreement_deg = WARN_DISAGREEMENT_DEG + 1.0  # as runs apart say
+        rig.quality.consensus_refined_disagreement_deg = None
+        pipeline._refine_runner_up(kept, pipeline.Consensus(found, runner_up, 1, "apart"),
+                                   images, names, config, match_tracks, (), None, None)
+        refined = rig.quality.consensus_refined_disagreement_deg
+        if meets:
+            assert apart > 0.3 and refined < 0.05, (apart, refined)
+        else:
+            assert refined is None or refined > 3.0, (apart, refined)
+        assert pipeline._runs_agree(rig) == meets

@@ -74,3 +74,17 @@ def test_the_second_matcher_applies_to_fresh_calibrations_of_perspective_cameras
     assert not rematch_applies(make_config("regular", matcher="asift"), three)
     assert not rematch_applies(make_config("regular", matcher="sift", second_matcher=None),
                                three)
+
+
+def test_runs_apart_that_meet_refined_on_the_images_leave_the_rig_determined():
+    """The disagreement that counts is the one that stands after the image refinement
+    (consensus.standing_disagreement_deg): runs apart on the keypoint matches whose runner-up,
+    refined as the kept rig was, comes out where it does need no second matcher."""
+    met = _rig(disagreement=WARN_DISAGREEMENT_DEG + 2.0)
+    met.quality.consensus_refined_disagreement_deg = 0.02
+    assert undetermined(met) is None
+    apart = _rig(disagreement=WARN_DISAGREEMENT_DEG + 2.0)
+    apart.quality.consensus_refined_disagreement_deg = WARN_DISAGREEMENT_DEG + 1.0
+    assert undetermined(apart) == \
+        f"the calibration runs disagree by {WARN_DISAGREEMENT_DEG + 1.0:.1f} deg"
+    assert better_determined(met, apart) and not better_determined(apart, met)

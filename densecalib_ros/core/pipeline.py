@@ -7,7 +7,7 @@ import copy
 import logging
 import time
 from dataclasses import replace
-from typing import Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -255,10 +255,12 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     refines_on_images = frame_sets is not None and config.refine_on_images
     ahead = _dense_ahead(frame_sets, camera_names, config, match_tracks, ignored) \
         if refines_on_images else None
+    consensus = None
     try:
         if previous is None and config.consensus_runs > 1:
-            result = _consensus_calibration(match_sets, image_sizes, camera_names, config,
-                                            match_tracks, progress, ahead)
+            consensus = _consensus_calibration(match_sets, image_sizes, camera_names, config,
+                                               match_tracks, progress, ahead)
+            result = consensus.result
         else:
             result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
                                      match_tracks, progress)
@@ -267,9 +269,15 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
             result, sigmas = _refined_on_images(result, frame_sets, camera_names, config,
                                                 match_tracks, ignored, progress, previous,
                                                 ahead)
+            if consensus is not None and consensus.runner_up is not None and \
+                    result.rig.quality.image_refinement_tracks is not None:
+                _refine_runner_up(result, consensus, frame_sets, camera_names, config,
+                                  match_tracks, ignored, progress, ahead)
     finally:
         if ahead is not None:
             ahead.cancel()
+    if consensus is not None and consensus.warning and not _runs_agree(result.rig):
+        warn_user(result.rig, consensus.warning, progress)
     add_uncertainty(result.rig, result.reconstruction, camera_names, config, sigmas)
     if config.cameras.known_intrinsics:
         result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
@@ -307,10 +315,9 @@ def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequ
     match_tracks as far as they were found ahead (_dense_ahead), or None."""
     from .method.image_refinement import PP_PRIOR_STD_FRACTION, refine_on_images
 
-    seeds = match_tracks if match_tracks is not None and match_tracks.num_tracks \
-        else result.tracks
-    refinement = refine_on_images(result.state, frame_sets, seeds, camera_names, ignored or None,
-                                  config.sampling.seed, lambda m: say_progress(progress, m),
+    refinement = refine_on_images(result.state, frame_sets, _refinement_seeds(result, match_tracks),
+                                  camera_names, ignored or None, config.sampling.seed,
+                                  lambda m: say_progress(progress, m),
                                   estimated_principal_points(previous), ahead)
     if refinement is None:
         return result, {}
@@ -330,12 +337,69 @@ def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequ
     return result, refinement.uncertainty
 
 
+def _refinement_seeds(result: CalibrationResult, match_tracks: Optional[Tracks]) -> Tracks:
+    """What the image refinement predicts its dense correspondences from: the keypoint-match
+    tracks where there are any, else the tracks the rig was found on."""
+    return match_tracks if match_tracks is not None and match_tracks.num_tracks \
+        else result.tracks
+
+
+def _refine_runner_up(result: CalibrationResult, consensus: Consensus, frame_sets,
+                      camera_names: Sequence[str], config: PipelineConfig,
+                      match_tracks: Optional[Tracks], ignored: Sequence, progress: Progress,
+                      ahead: Optional[DenseAhead]) -> None:
+    """Refine the runner-up run (Consensus) on the dense image correspondences as the kept rig
+    (`result`, refined) was, and record in its quality how far apart the two come out
+    (consensus_refined_disagreement_deg). Runs that disagree on the keypoint matches' flat
+    valley can meet in the dense correspondences' sharper minimum: then the images determine
+    the rig after all, and neither a warning nor a second matcher is called for."""
+    from .method.image_refinement import refine_on_images
+    from .robust.consensus import rig_disagreement_deg
+
+    other = consensus.runner_up
+    if other.state is None:
+        return
+    refinement = refine_on_images(other.state, frame_sets, _refinement_seeds(other, match_tracks),
+                                  camera_names, ignored or None, config.sampling.seed,
+                                  ahead=ahead)
+    if refinement is None:
+        return
+    failed = [camera_names.index(n) for n in other.rig.failed_cameras]
+    rig = rig_from_state(refinement.state, camera_names, failed, other.rig.quality.copy())
+    deg = rig_disagreement_deg(result.rig, rig, camera_names)
+    result.rig.quality.consensus_refined_disagreement_deg = deg
+    say_progress(progress, f"consensus: refined on the dense image correspondences as well, the "
+                           f"run with seed {consensus.runner_up_seed} comes out {deg:.2f} deg "
+                           "from the kept rig")
+
+
+def _runs_agree(rig: RigCalibration) -> bool:
+    """Whether the consensus runs agree as the calibration stands
+    (consensus.standing_disagreement_deg)."""
+    from .robust.consensus import WARN_DISAGREEMENT_DEG, standing_disagreement_deg
+
+    deg = standing_disagreement_deg(rig.quality)
+    return deg is None or deg <= WARN_DISAGREEMENT_DEG
+
+
+class Consensus(NamedTuple):
+    """_consensus_calibration's outcome: the kept run; where the runs disagree beyond
+    WARN_DISAGREEMENT_DEG, the other run at the median disagreement from it (runner_up, with its
+    seed), and the warning for the user, which stands unless the runner-up refined on the dense
+    image correspondences comes out where the kept rig does (_refine_runner_up)."""
+    result: CalibrationResult
+    runner_up: Optional[CalibrationResult] = None
+    runner_up_seed: Optional[int] = None
+    warning: Optional[str] = None
+
+
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                            camera_names: Sequence[str], config: PipelineConfig,
                            match_tracks: Optional[Tracks], progress: Progress,
-                           dense_ahead: Optional[DenseAhead] = None) -> CalibrationResult:
-    """_consensus_runs' kept run (core.robust.consensus). dense_ahead: where given, told to
-    expect the first run's rig, which the runs keep where they agree."""
+                           dense_ahead: Optional[DenseAhead] = None) -> Consensus:
+    """_consensus_runs' kept run (core.robust.consensus), with the runner-up and the warning
+    where the runs disagree (Consensus). dense_ahead: where given, told to expect the first run's
+    rig, which the runs keep where they agree."""
     from .method.multistart import cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
@@ -388,9 +452,13 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     warning = disagreement_warning(result.rig.quality.consensus_disagreement_deg, len(results),
                                    on_sift, pairs, _shared_matches(match_tracks, camera_names),
                                    len(result.rig.cameras))
-    if warning:
-        warn_user(result.rig, warning, progress)
-    return result
+    if not warning:
+        return Consensus(result)
+    # The other run at the median disagreement (the upper one of an even count): the one the
+    # reported disagreement is measured to.
+    other_runs = [k for k in range(len(results)) if k != best]
+    k = other_runs[int(np.argsort(others)[len(others) // 2])]
+    return Consensus(result, results[k], seeds[k], warning)
 
 
 def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],

@@ -218,6 +218,9 @@ class RigQuality:
     consensus_worse_fit_runs: Optional[int] = None
     consensus_kept_by_fit: Optional[bool] = None
     consensus_disagreement_deg: Optional[float] = None
+    # Where the runs disagreed: the runner-up and the kept rig both refined on the dense image
+    # correspondences, how far apart they came out (pipeline._refine_runner_up).
+    consensus_refined_disagreement_deg: Optional[float] = None
     consensus_least_determined_pairs_deg: Optional[dict] = None  # "a/b" -> deg
     # Sift left a rig of perspective cameras undetermined, so it was matched again
     # (core.robust.second_matcher): {first, first_result (why it was undetermined), second,

@@ -196,7 +196,10 @@ def overall_lines(rig: RigCalibration) -> list[str]:
     if q.num_points is not None:
         fit.append(f"{q.num_points} points")
     if q.consensus_disagreement_deg is not None:
-        fit.append(f"runs disagree by {float(q.consensus_disagreement_deg):.2f} deg")
+        refined = q.consensus_refined_disagreement_deg
+        fit.append(f"runs disagree by {float(q.consensus_disagreement_deg):.2f} deg" + (
+            f" ({float(refined):.2f} deg refined on dense correspondences)"
+            if refined is not None else ""))
     if fit:
         lines.append(", ".join(fit))
     if rig.failed_cameras:

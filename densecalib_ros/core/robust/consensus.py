@@ -28,6 +28,11 @@ registered the most cameras among those fitting about as well as the best compet
 not win by leaving a camera out. Without such tracks (a dense matcher), runs that fit about
 equally well, the near-ambiguous case of converging cameras with free focals, are left to the
 vote.
+
+Runs that disagree on the keypoint matches may still meet once refined on the images' dense
+correspondences (core.method.image_refinement), whose minimum is far sharper than the keypoint
+matches' flat valley: the pipeline then refines the runner-up run too, and the disagreement that
+stands (standing_disagreement_deg) is that of the two refined rigs.
 """
 from __future__ import annotations
 
@@ -185,6 +190,15 @@ def least_determined_pairs(kept: RigCalibration, others: Sequence[RigCalibration
         if deg > WARN_DISAGREEMENT_DEG:
             pairs.append((a, b, deg))
     return sorted(pairs, key=lambda p: -p[2])
+
+
+def standing_disagreement_deg(quality) -> Optional[float]:
+    """The runs' disagreement (deg) as the calibration stands (a RigQuality's): that of the kept
+    and the runner-up rigs refined on the dense image correspondences where both were
+    (consensus_refined_disagreement_deg), else the runs' own; None without consensus runs."""
+    if quality.consensus_refined_disagreement_deg is not None:
+        return quality.consensus_refined_disagreement_deg
+    return quality.consensus_disagreement_deg
 
 
 def disagreement_warning(disagreement_deg: float, num_runs: int,

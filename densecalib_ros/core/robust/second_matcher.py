@@ -20,7 +20,7 @@ from ..config import PipelineConfig, resolve_camera_lenses
 from ..method.focal_determination import (FORWARD_SPREAD_DEG, median_focal_std_fraction,
                                           optical_axes_spread_deg)
 from ..types import RigCalibration
-from .consensus import WARN_DISAGREEMENT_DEG
+from .consensus import WARN_DISAGREEMENT_DEG, standing_disagreement_deg
 
 # The calibration aims at focal lengths right to 1 % (3D lengths and angles as right): a rig whose
 # cameras' focal sigma is above that at the median is not determined to the aim by its matches,
@@ -46,14 +46,15 @@ def rematch_applies(config: PipelineConfig, camera_names: Sequence[str],
 
 def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     """Why a calibration leaves the rig undetermined (no calibration, a camera not registered,
-    consensus runs that put the cameras beyond AUC@3's threshold from each other:
-    consensus.WARN_DISAGREEMENT_DEG, or focal lengths looser than AIMED_FOCAL_STD_FRACTION on a
-    rig whose optical axes spread FORWARD_SPREAD_DEG or more), or None where it does not."""
+    consensus runs that put the cameras beyond AUC@3's threshold from each other as the
+    calibration stands (consensus.standing_disagreement_deg, WARN_DISAGREEMENT_DEG), or focal
+    lengths looser than AIMED_FOCAL_STD_FRACTION on a rig whose optical axes spread
+    FORWARD_SPREAD_DEG or more), or None where it does not."""
     if rig is None:
         return "no calibration came out"
     if rig.failed_cameras:
         return f"{', '.join(rig.failed_cameras)} not registered"
-    disagreement = rig.quality.consensus_disagreement_deg
+    disagreement = standing_disagreement_deg(rig.quality)
     if disagreement is not None and disagreement > WARN_DISAGREEMENT_DEG:
         return f"the calibration runs disagree by {disagreement:.1f} deg"
     focal_fraction = median_focal_std_fraction(rig)
@@ -76,7 +77,7 @@ def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) 
         return b is None and a is not None
 
     def rank(rig: RigCalibration) -> tuple[int, float, float]:
-        disagreement = rig.quality.consensus_disagreement_deg or 0.0
+        disagreement = standing_disagreement_deg(rig.quality) or 0.0
         return (len(rig.cameras), -(disagreement if disagreement > WARN_DISAGREEMENT_DEG else 0.0),
                 -median_focal_std_fraction(rig))
     return rank(a) > rank(b)
