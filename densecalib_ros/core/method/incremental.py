@@ -7,8 +7,8 @@
    the poses (two views do not constrain two focal lengths well, so intrinsics wait for the 3rd).
 3. Each next camera: absolute pose (pycolmap.estimate_and_refine_absolute_pose, focal and
    distortion refined) from points seen by >= 2 registered cameras, BA, triangulation of the
-   tracks that now have two registered views (the 2-cycle points; the next camera's BAs and the
-   final ones adjust them), removal of observations above B_err. A camera that shares only 2-cycle tracks with the registered ones is placed from
+   tracks that now have two registered views (the 2-cycle points), BA, removal of observations
+   above B_err. A camera that shares only 2-cycle tracks with the registered ones is placed from
    its relative poses instead, trying several focal candidates (`_register_from_pairs`).
 4. A final global BA (principal point refined per preset), every track re-triangulated from the
    final cameras, B_err, the final BA again and, for fisheye, a distortion-only refinement into
@@ -402,10 +402,8 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         # near-planar scenes (docs/design-notes.md, Incremental SfM).
         bundle_adjust(state, camera_names, extrinsics_only, config.num_threads)
         bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
-        # No adjustment after: the new points passed the B_err gate against these cameras, and
-        # the next registration's adjustments and the final ones adjust them; a third one per
-        # camera cost a trial a third of its time (docs/design-notes.md, Incremental SfM).
         _triangulate_new(state, b_err)
+        bundle_adjust_plausibly(state, camera_names, stage, config.num_threads)
         removed = remove_outlier_observations(state, config.outlier_thresholds_px(C))
         say(f"registered {camera_names[c]} from {how} ({len(state.registered())}/{C}): "
             f"{int(state.point_mask().sum())} points, {removed} observations above B_err removed")
