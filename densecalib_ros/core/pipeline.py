@@ -245,7 +245,9 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     With config.refine_on_all_matches and a keypoint matcher, every run's rig is refined last on
     all the matches (core.method.all_matches). With the images (frame_sets, as matched) and
     config.refine_on_images, the kept rig is refined once more on dense correspondences measured
-    in them (core.method.image_refinement), away from the `ignored` regions (ignored_regions)."""
+    in them (core.method.image_refinement), away from the `ignored` regions (ignored_regions);
+    where the consensus runs disagreed, so is the runner-up, and their warning stands only if it
+    still disagrees (_refine_runner_up)."""
     config = resolve_camera_lenses(config, camera_names)
     known = check_known_intrinsics(config.cameras.known_intrinsics or {}, camera_names, image_sizes)
     config = replace(config, cameras=replace(config.cameras, known_intrinsics=known))
