@@ -93,10 +93,10 @@ def test_incremental_recovers_ground_truth(model, preset):
 
 
 def test_multistart_on_a_subsample_is_finished_on_every_track(monkeypatch):
-    """Rigs with more tracks than TRIAL_MAX_TRACKS run the focal multi-start on a subsample;
+    """Rigs with more tracks than trial_max_tracks run the focal multi-start on a subsample;
     the winning trial's cameras are then finished on all tracks (not re-run from scratch)."""
     import densecalib_ros.core.method.multistart as multistart
-    monkeypatch.setattr(multistart, "TRIAL_MAX_TRACKS", 800)
+    monkeypatch.setattr(multistart, "TRIAL_TRACKS_PER_CAMERA", 160)
     names = ["a", "b", "c", "d", "e"]
     cams, poses = gt_rig(5, seed=7)
     tracks = gt_tracks(cams, poses, seed=7)

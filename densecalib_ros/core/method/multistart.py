@@ -53,11 +53,13 @@ EQ2_EXTRA_FOCAL_SCALE_STARTS = (1.69,)
 PRIOR_FOCAL_IMAGE_RATIOS = (1.2, 0.85, 0.6, 1.7, 2.4)
 
 
-# Tracks each multi-start trial is built from (a seeded subsample). A trial only has to land in
-# the right rig: the winner is judged on matches no trial was built from and finished on every
-# track, and a trial's time grows with its tracks. 1500 tracks of 2-4 views still give each camera
-# of a 10-camera rig hundreds of observations for its few parameters.
-TRIAL_MAX_TRACKS = 1500
+# Tracks each multi-start trial is built from, per camera of the rig (a seeded subsample of at
+# most this many times the cameras). A trial only has to land in the right rig: the winner is
+# judged on matches no trial was built from and finished on every track, and a trial's time
+# grows with its tracks. What a trial has to determine grows with the cameras (a pose, a focal
+# length and distortion each), so the sample does too: at 2-4 views a track, 100 tracks a camera
+# give each camera about 250 observations, some 25 for each of its parameters.
+TRIAL_TRACKS_PER_CAMERA = 100
 # Keypoint-match tracks the starts are judged on (a seeded sample; focal hops judge on it too): the
 # judging is cheap next to the trials, so it keeps more of the matches the trials never saw.
 MULTISTART_MAX_TRACKS = 3000
@@ -122,7 +124,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     (docs/design-notes.md, Focal starts and multi-start costs), from which incremental SfM converges
     to a wrong reconstruction. So the SfM is run from the initial focals scaled by each of
     FOCAL_SCALE_STARTS (and, for perspective models, EQ2_EXTRA_FOCAL_SCALE_STARTS and the generic
-    priors PRIOR_FOCAL_IMAGE_RATIOS), on a seeded subsample of at most TRIAL_MAX_TRACKS tracks,
+    priors PRIOR_FOCAL_IMAGE_RATIOS), on a seeded subsample of trial_max_tracks tracks,
     and the start with the lowest truncated reprojection cost gives the result: that trial itself
     when it ran on all tracks, else its cameras finished on all tracks (`_on_all_tracks`). The cost
     is taken on validation_tracks (other tracks of the same cameras, e.g. all keypoint matches,
@@ -141,7 +143,7 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     starts = {name: (start, None) for name, start in
               {**focal_starts(intrinsics, config.fixed_intrinsics_cameras),
                **(extra_starts or {})}.items()}
-    sub = tracks.sample(TRIAL_MAX_TRACKS, seed)
+    sub = tracks.sample(trial_max_tracks(tracks.num_cameras), seed)
     if len(config.fixed_intrinsics_cameras) == tracks.num_cameras and \
             config.brute_force_first_pair:
         budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
@@ -198,6 +200,12 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                                config) if best in states else AGREEMENT_DEG)
         result.settled_starts = settled_starts(costs, states, agree)
     return result
+
+
+def trial_max_tracks(num_cameras: int) -> int:
+    """The most tracks a multi-start trial of a rig of num_cameras cameras is built from
+    (TRIAL_TRACKS_PER_CAMERA)."""
+    return TRIAL_TRACKS_PER_CAMERA * num_cameras
 
 
 def agreement_deg(intrinsics: Sequence[Optional[CameraIntrinsics]], config: SfMConfig) -> float:
