@@ -158,13 +158,15 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
 def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_images(real_rig):
     """Where the consensus runs disagree, the runner-up is refined on the dense correspondences as
     the kept rig was (pipeline._refine_runner_up): a runner-up in the same valley of the keypoint
-    matches' fit (here: the rig adjusted on them with every focal held 4 % long) comes out at the
-    kept rig, so the disagreement no longer stands; one the images do not support (two cameras'
-    poses exchanged) leaves it standing."""
+    matches' fit (here: the rig adjusted on them with every focal held 8 % long, 2.3 deg from the
+    kept one, more than the runs' early stop allows) comes out at the kept rig, so the
+    disagreement no longer stands and no more runs are needed (pipeline._no_more_runs); one the
+    images do not support (two cameras' poses exchanged) leaves both standing."""
     from densecalib_ros.core import pipeline
     from densecalib_ros.core.calibration_result import result_with_state
     from densecalib_ros.core.method.all_matches import keypoint_tracks
     from densecalib_ros.core.method.reconstruction import BAStage, bundle_adjust
+    from densecalib_ros.core.method.multistart import AGREEMENT_DEG
     from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG, rig_disagreement_deg
 
     images, names = real_rig.images, real_rig.names
@@ -173,12 +175,13 @@ def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_imag
     sizes, _, _, match_sets = pipeline.checked_and_matched(images, names, config)
     found = pipeline.calibrate_from_matches(match_sets, sizes, names, config)
     match_tracks = keypoint_tracks(match_sets, len(names), seed=config.sampling.seed)
-    kept, _ = pipeline._refined_on_images(found, images, names, config, match_tracks, (), None)
+    refined_runs = pipeline._RefinedRuns(images, names, config, match_tracks, (), None, None)
+    kept, _ = pipeline._refined_on_images(found, refined_runs, names, config, None)
     assert kept.rig.quality.image_refinement_tracks is not None
 
     long = found.state.copy()
     for camera in long.intrinsics:
-        camera.params[:2 if camera.model.startswith(("OPENCV", "PINHOLE")) else 1] *= 1.04
+        camera.params[:2 if camera.model.startswith(("OPENCV", "PINHOLE")) else 1] *= 1.08
     bundle_adjust(long, names, BAStage(refine_focal=False, refine_extra=False), 1)
     swapped = found.state.copy()
     swapped.cam_from_world[1], swapped.cam_from_world[3] = \
@@ -190,10 +193,19 @@ def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_imag
         rig.quality.consensus_disagreement_deg = WARN_DISAGREEMENT_DEG + 1.0  # as runs apart say
         rig.quality.consensus_refined_disagreement_deg = None
         pipeline._refine_runner_up(kept, pipeline.Consensus(found, runner_up, 1, "apart"),
-                                   images, names, config, match_tracks, (), None, None)
+                                   refined_runs, names, None)
         refined = rig.quality.consensus_refined_disagreement_deg
         if meets:
             assert apart > 0.3 and refined < 0.05, (apart, refined)
         else:
             assert refined is None or refined > 3.0, (apart, refined)
         assert pipeline._runs_agree(rig) == meets
+        # The consensus's early stop judges runs apart the same way (pipeline._no_more_runs):
+        # where they meet refined, no more runs, with their disagreement refined; each run is
+        # refined once (the kept run's refinement is the one the calibration used).
+        stop, both = pipeline._no_more_runs([found, runner_up], names, config, refined_runs)
+        assert stop == meets and (both is not None) == meets, both
+        if meets:
+            assert both.max() < AGREEMENT_DEG
+        assert not pipeline._no_more_runs([found, runner_up], names, config)[0]
+        assert refined_runs.refinement(found) is refined_runs.refinement(found)

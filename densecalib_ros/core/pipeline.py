@@ -7,7 +7,7 @@ import copy
 import logging
 import time
 from dataclasses import replace
-from typing import NamedTuple, Optional, Sequence
+from typing import Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -257,24 +257,23 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     refines_on_images = frame_sets is not None and config.refine_on_images
     ahead = _dense_ahead(frame_sets, camera_names, config, match_tracks, ignored) \
         if refines_on_images else None
+    refined = _RefinedRuns(frame_sets, camera_names, config, match_tracks, ignored, previous,
+                           ahead) if refines_on_images else None
     consensus = None
     try:
         if previous is None and config.consensus_runs > 1:
             consensus = _consensus_calibration(match_sets, image_sizes, camera_names, config,
-                                               match_tracks, progress, ahead)
+                                               match_tracks, progress, ahead, refined)
             result = consensus.result
         else:
             result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
                                      match_tracks, progress)
         sigmas = {}
-        if refines_on_images and result.state is not None:
-            result, sigmas = _refined_on_images(result, frame_sets, camera_names, config,
-                                                match_tracks, ignored, progress, previous,
-                                                ahead)
+        if refined is not None and result.state is not None:
+            result, sigmas = _refined_on_images(result, refined, camera_names, config, progress)
             if consensus is not None and consensus.runner_up is not None and \
                     result.rig.quality.image_refinement_tracks is not None:
-                _refine_runner_up(result, consensus, frame_sets, camera_names, config,
-                                  match_tracks, ignored, progress, ahead)
+                _refine_runner_up(result, consensus, refined, camera_names, progress)
     finally:
         if ahead is not None:
             ahead.cancel()
@@ -305,22 +304,71 @@ def _dense_ahead(frame_sets, camera_names: Sequence[str], config: PipelineConfig
     return DenseAhead(frame_sets, len(camera_names), match_tracks, ignored or None)
 
 
-def _refined_on_images(result: CalibrationResult, frame_sets, camera_names: Sequence[str],
-                       config: PipelineConfig, match_tracks: Optional[Tracks],
-                       ignored: Sequence, progress: Progress,
-                       previous: Optional[RigCalibration] = None,
-                       ahead: Optional[DenseAhead] = None
+class _RefinedRuns:
+    """Calibrations (their SfM states) refined on the dense image correspondences
+    (core.method.image_refinement), each once: the kept run's refinement is the calibration's
+    (_refined_on_images), and where consensus runs disagree on the keypoint matches, whether they
+    still do refined decides the early stop (_consensus_runs), the focal hops and the warning
+    (_refine_runner_up). A previous calibration's principal points that its images determined
+    centre the priors; ahead: the dense correspondences as far as they were found ahead
+    (_dense_ahead), or None."""
+
+    def __init__(self, frame_sets, camera_names: Sequence[str], config: PipelineConfig,
+                 match_tracks: Optional[Tracks], ignored: Sequence,
+                 previous: Optional[RigCalibration], ahead: Optional[DenseAhead]):
+        self.frame_sets, self.camera_names, self.config = frame_sets, camera_names, config
+        self.match_tracks, self.ignored, self.ahead = match_tracks, ignored or None, ahead
+        self.pp_centres = estimated_principal_points(previous)
+        self._done: dict[int, tuple] = {}  # id(state) -> (state, refinement, its messages)
+
+    def refinement(self, result: CalibrationResult, say: Optional[Callable[[str], None]] = None):
+        """The ImageRefinement of result.state (None where the stage does not apply); its progress
+        messages go to `say` (where given) each time it is asked for."""
+        from .method.image_refinement import refine_on_images
+
+        state = result.state
+        if self._done.get(id(state), (None,))[0] is not state:
+            messages: list[str] = []
+            refinement = refine_on_images(state, self.frame_sets,
+                                          _refinement_seeds(result, self.match_tracks),
+                                          self.camera_names, self.ignored,
+                                          self.config.sampling.seed, messages.append,
+                                          self.pp_centres, self.ahead)
+            self._done[id(state)] = (state, refinement, messages)
+        _, refinement, messages = self._done[id(state)]
+        for message in messages if say is not None else ():
+            say(message)
+        return refinement
+
+    def rig(self, result: CalibrationResult) -> Optional[RigCalibration]:
+        """result's rig refined (its cameras as `refinement` places them), None where the stage
+        does not apply."""
+        refinement = self.refinement(result)
+        if refinement is None:
+            return None
+        names = self.camera_names
+        failed = [names.index(n) for n in result.rig.failed_cameras]
+        return rig_from_state(refinement.state, names, failed, result.rig.quality.copy())
+
+    def disagreement_deg(self, results: Sequence[CalibrationResult]) -> Optional[np.ndarray]:
+        """The (R, R) disagreement matrix (consensus.medoid's) of the results refined; None where
+        one of them could not be."""
+        from .robust.consensus import medoid
+
+        rigs = [self.rig(r) if r.state is not None else None for r in results]
+        if any(r is None for r in rigs):
+            return None
+        return medoid(rigs, self.camera_names)[1]
+
+
+def _refined_on_images(result: CalibrationResult, refined: _RefinedRuns,
+                       camera_names: Sequence[str], config: PipelineConfig, progress: Progress
                        ) -> tuple[CalibrationResult, dict]:
     """(result refined by core.method.image_refinement, its sigmas per camera name); the result as
-    it was and no sigmas where the stage does not apply. A previous calibration's principal points
-    that its images determined centre this one's priors. ahead: the dense correspondences on
-    match_tracks as far as they were found ahead (_dense_ahead), or None."""
-    from .method.image_refinement import PP_PRIOR_STD_FRACTION, refine_on_images
+    it was and no sigmas where the stage does not apply."""
+    from .method.image_refinement import PP_PRIOR_STD_FRACTION
 
-    refinement = refine_on_images(result.state, frame_sets, _refinement_seeds(result, match_tracks),
-                                  camera_names, ignored or None, config.sampling.seed,
-                                  lambda m: say_progress(progress, m),
-                                  estimated_principal_points(previous), ahead)
+    refinement = refined.refinement(result, lambda m: say_progress(progress, m))
     if refinement is None:
         return result, {}
     # Whether given intrinsics fit the scene was judged on the keypoint matches; the dense
@@ -346,28 +394,20 @@ def _refinement_seeds(result: CalibrationResult, match_tracks: Optional[Tracks])
         else result.tracks
 
 
-def _refine_runner_up(result: CalibrationResult, consensus: Consensus, frame_sets,
-                      camera_names: Sequence[str], config: PipelineConfig,
-                      match_tracks: Optional[Tracks], ignored: Sequence, progress: Progress,
-                      ahead: Optional[DenseAhead]) -> None:
+def _refine_runner_up(result: CalibrationResult, consensus: Consensus, refined: _RefinedRuns,
+                      camera_names: Sequence[str], progress: Progress) -> None:
     """Refine the runner-up run (Consensus) on the dense image correspondences as the kept rig
     (`result`, refined) was, and record in its quality how far apart the two come out
     (consensus_refined_disagreement_deg). Runs that disagree on the keypoint matches' flat
     valley can meet in the dense correspondences' sharper minimum: then the images determine
     the rig after all, and neither a warning nor a second matcher is called for."""
-    from .method.image_refinement import refine_on_images
     from .robust.consensus import rig_disagreement_deg
 
-    other = consensus.runner_up
-    if other.state is None:
+    if consensus.runner_up.state is None:
         return
-    refinement = refine_on_images(other.state, frame_sets, _refinement_seeds(other, match_tracks),
-                                  camera_names, ignored or None, config.sampling.seed,
-                                  ahead=ahead)
-    if refinement is None:
+    rig = refined.rig(consensus.runner_up)
+    if rig is None:
         return
-    failed = [camera_names.index(n) for n in other.rig.failed_cameras]
-    rig = rig_from_state(refinement.state, camera_names, failed, other.rig.quality.copy())
     deg = rig_disagreement_deg(result.rig, rig, camera_names)
     result.rig.quality.consensus_refined_disagreement_deg = deg
     say_progress(progress, f"consensus: refined on the dense image correspondences as well, the "
@@ -398,19 +438,22 @@ class Consensus(NamedTuple):
 def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                            camera_names: Sequence[str], config: PipelineConfig,
                            match_tracks: Optional[Tracks], progress: Progress,
-                           dense_ahead: Optional[DenseAhead] = None) -> Consensus:
+                           dense_ahead: Optional[DenseAhead] = None,
+                           refined: Optional[_RefinedRuns] = None) -> Consensus:
     """_consensus_runs' kept run (core.robust.consensus), with the runner-up and the warning
     where the runs disagree (Consensus). dense_ahead: where given, told to expect the first run's
-    rig, which the runs keep where they agree."""
+    rig, which the runs keep where they agree. refined: where given, runs that disagree on the
+    keypoint matches are judged again refined on the images (_consensus_runs); where they agree
+    refined, no focal hops are searched."""
     from .method.multistart import cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
     from .robust.focal_hops import hop_focals
     from .robust.second_matcher import perspective_on_sift
 
-    results, seeds, failed, settled = _consensus_runs(match_sets, image_sizes, camera_names,
-                                                      config, match_tracks, progress,
-                                                      dense_ahead)
+    results, seeds, failed, settled, refined_deg = _consensus_runs(
+        match_sets, image_sizes, camera_names, config, match_tracks, progress, dense_ahead,
+        refined)
     agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
                         cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed,
@@ -426,9 +469,10 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
            if choice.by_fit else "agrees best with the others")
     say_progress(progress, f"consensus: kept the run with seed {seeds[best]}, which {why}")
     others = np.delete(D[best], best)
-    if D.max() >= agree_deg and match_tracks is not None and match_tracks.num_tracks \
-            and result.state is not None:
-        # The runs found different minima: search around the kept one (core.robust.focal_hops).
+    if D.max() >= agree_deg and refined_deg is None and match_tracks is not None \
+            and match_tracks.num_tracks and result.state is not None:
+        # The runs found different minima, which the images do not make one: search around the
+        # kept one (core.robust.focal_hops).
         state, hops = hop_focals(result.state, match_tracks, camera_names, config.sfm,
                                  config.sampling.seed, lambda m: say_progress(progress, m))
         if hops:
@@ -441,9 +485,15 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
         consensus_settled_starts=settled,
         consensus_worse_fit_runs=len(choice.worse_fit), consensus_kept_by_fit=choice.by_fit,
         consensus_disagreement_deg=float(np.median(others)) if len(others) else 0.0)
+    refined_said = ""
+    if refined_deg is not None and len(results) > 1:
+        result.rig.quality.consensus_refined_disagreement_deg = float(
+            np.median(np.delete(refined_deg[best], best)))
+        refined_said = (f" ({result.rig.quality.consensus_refined_disagreement_deg:.2f} deg "
+                        "refined on the dense image correspondences)")
     say_progress(progress, f"consensus: median disagreement of the result with the other "
                            f"{len(results) - 1} runs "
-                           f"{result.rig.quality.consensus_disagreement_deg:.2f} deg")
+                           f"{result.rig.quality.consensus_disagreement_deg:.2f} deg{refined_said}")
     # Perspective cameras on sift's matches: suggest asift, unless it is tried anyway.
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
@@ -466,28 +516,33 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
 def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                     camera_names: Sequence[str], config: PipelineConfig,
                     match_tracks: Optional[Tracks], progress: Progress,
-                    dense_ahead: Optional[DenseAhead] = None
-                    ) -> tuple[list[CalibrationResult], list[int], int, Optional[list[str]]]:
+                    dense_ahead: Optional[DenseAhead] = None,
+                    refined: Optional[_RefinedRuns] = None
+                    ) -> tuple[list[CalibrationResult], list[int], int, Optional[list[str]],
+                               Optional[np.ndarray]]:
     """Sampling + SfM with consecutive seeds, up to config.consensus_runs times: (the results,
-    their seeds, how many runs failed, the first run's settled starts or None). The first run's
-    error is raised if every run fails.
+    their seeds, how many runs failed, the first run's settled starts or None, and where the runs
+    stopped for agreeing refined on the images, their disagreement matrix refined, else None).
+    The first run's error is raised if every run fails.
 
     Stops early where further runs could only repeat the answer: after EARLY_STOP_RUNS runs that
     agree (multistart.agreement_deg), or SETTLED_EARLY_STOP_RUNS where the first run's focal
     multi-start settled (every start that fit about as well ended in one rig:
     multistart.settled_starts); later runs then try only its best starts, as the focal lengths
-    are not what is in doubt, only the sampling's draw."""
-    from .robust.consensus import EARLY_STOP_RUNS, SETTLED_EARLY_STOP_RUNS, medoid
+    are not what is in doubt, only the sampling's draw. Runs that disagree on the keypoint
+    matches are, where `refined` is given, refined on the dense image correspondences and stop
+    as well where they agree refined within AGREEMENT_DEG: the keypoint matches' valley is
+    flat where the images' minimum is sharp, and there more runs would be refined to the same
+    rig (docs/design-notes.md, Consensus: runs apart, refined)."""
+    from .robust.consensus import EARLY_STOP_RUNS, SETTLED_EARLY_STOP_RUNS
 
     results, seeds, failed, first_error, run_s, settled = [], [], 0, None, None, None
     for k in range(config.consensus_runs):
         checks = (SETTLED_EARLY_STOP_RUNS, EARLY_STOP_RUNS) if settled else (EARLY_STOP_RUNS,)
         if k in checks and len(results) == k:
-            agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
-            if medoid([r.rig for r in results], camera_names)[1].max() < agree_deg:
-                log.info("consensus: the %d runs agree within %.1f deg; no more runs", k,
-                         agree_deg)
-                break  # more runs could not make the rig more accurate
+            stop, refined_deg = _no_more_runs(results, camera_names, config, refined)
+            if stop:  # more runs could not make the rig more accurate
+                return results, seeds, failed, settled, refined_deg
         seed = config.sampling.seed + k
         run_config = copy.deepcopy(config)
         run_config.sampling.seed = seed
@@ -514,7 +569,32 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
             run_s = None  # the later runs try fewer starts: the first run's time says nothing
     if not results:
         raise first_error
-    return results, seeds, failed, settled
+    return results, seeds, failed, settled, None
+
+
+def _no_more_runs(results: Sequence[CalibrationResult], camera_names: Sequence[str],
+                  config: PipelineConfig, refined: Optional[_RefinedRuns] = None
+                  ) -> tuple[bool, Optional[np.ndarray]]:
+    """Whether the consensus runs so far answer alike, so that more runs could only repeat them
+    (_consensus_runs): they agree within multistart.agreement_deg, or, where `refined` is given,
+    refined on the dense image correspondences within AGREEMENT_DEG; with, in that case, their
+    disagreement matrix refined (else None)."""
+    from .method.multistart import AGREEMENT_DEG
+    from .robust.consensus import medoid
+
+    agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
+    apart_deg = medoid([r.rig for r in results], camera_names)[1].max()
+    if apart_deg < agree_deg:
+        log.info("consensus: the %d runs agree within %.1f deg; no more runs", len(results),
+                 agree_deg)
+        return True, None
+    refined_deg = refined.disagreement_deg(results) if refined is not None else None
+    if refined_deg is not None and refined_deg.max() < AGREEMENT_DEG:
+        log.info("consensus: the %d runs, %.1f deg apart on the keypoint matches, agree within "
+                 "%.2f deg refined on the dense image correspondences; no more runs",
+                 len(results), apart_deg, refined_deg.max())
+        return True, refined_deg
+    return False, None
 
 
 def _runs_agreement_deg(rig: RigCalibration, camera_names: Sequence[str],
