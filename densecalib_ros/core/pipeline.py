@@ -271,8 +271,10 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
         sigmas = {}
         if refined is not None and result.state is not None:
             result, sigmas = _refined_on_images(result, refined, camera_names, config, progress)
+            # Runs that stopped for meeting refined (_no_more_runs) were all judged so already.
             if consensus is not None and consensus.runner_up is not None and \
-                    result.rig.quality.image_refinement_tracks is not None:
+                    result.rig.quality.image_refinement_tracks is not None and \
+                    result.rig.quality.consensus_refined_disagreement_deg is None:
                 _refine_runner_up(result, consensus, refined, camera_names, progress)
     finally:
         if ahead is not None:

@@ -219,7 +219,8 @@ class RigQuality:
     consensus_kept_by_fit: Optional[bool] = None
     consensus_disagreement_deg: Optional[float] = None
     # Where the runs disagreed: the runner-up and the kept rig both refined on the dense image
-    # correspondences, how far apart they came out (pipeline._refine_runner_up).
+    # correspondences, how far apart they came out (pipeline._refine_runner_up), or where the
+    # runs stopped for meeting refined, the median over the others (pipeline._no_more_runs).
     consensus_refined_disagreement_deg: Optional[float] = None
     consensus_least_determined_pairs_deg: Optional[dict] = None  # "a/b" -> deg
     # Sift left a rig of perspective cameras undetermined, so it was matched again
