@@ -344,8 +344,8 @@ class _RefinedRuns:
 
     def rig(self, result: CalibrationResult) -> Optional[RigCalibration]:
         """result's rig refined (its cameras as `refinement` places them), None where the stage
-        does not apply."""
-        refinement = self.refinement(result)
+        does not apply or there is no state to refine."""
+        refinement = self.refinement(result) if result.state is not None else None
         if refinement is None:
             return None
         names = self.camera_names
@@ -357,7 +357,7 @@ class _RefinedRuns:
         one of them could not be."""
         from .robust.consensus import medoid
 
-        rigs = [self.rig(r) if r.state is not None else None for r in results]
+        rigs = [self.rig(r) for r in results]
         if any(r is None for r in rigs):
             return None
         return medoid(rigs, self.camera_names)[1]
@@ -405,8 +405,6 @@ def _refine_runner_up(result: CalibrationResult, consensus: Consensus, refined: 
     the rig after all, and neither a warning nor a second matcher is called for."""
     from .robust.consensus import rig_disagreement_deg
 
-    if consensus.runner_up.state is None:
-        return
     rig = refined.rig(consensus.runner_up)
     if rig is None:
         return
