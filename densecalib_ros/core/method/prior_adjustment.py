@@ -510,12 +510,28 @@ def _noise_px(problem: _Problem) -> float:
 
 def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]) -> dict:
     """Per block the posterior covariance of INTRINSIC_NAMES (zeros where held): the inverse of
-    the reduced camera system at the solution (the points marginalised). The scale's null
-    direction moves no intrinsic, so the pseudo-inverse gives their marginal."""
+    the reduced camera system at the solution (the points marginalised) with the gauge's free
+    direction (_scale_direction) fixed by holding the translation coordinate it moves most; the
+    intrinsics' marginal does not depend on which. The system is inverted scaled to a unit
+    diagonal: its curvatures span ~13 orders of magnitude (per radian of rotation against per
+    pixel of a weakly held principal point), and a pseudo-inverse's relative cut-off on the raw
+    system gave the directions a few cameras leave weak no variance at all (docs/design-notes.md,
+    Intrinsics' standard deviations: the gauge held, not cut off)."""
     U, Wm, V, _, _, flat, _ = _normal_equations(problem, noise_px)
     V_inv = np.linalg.inv(_regularised(V))
     S, _ = _reduced_system(problem, U, Wm, V_inv)
-    cov = np.linalg.pinv(S, rcond=1e-12, hermitian=True)
+    d = 1.0 / np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
+    keep = np.ones(len(S), bool)
+    gauge = np.abs(_scale_direction(problem)) / d  # in the unit-diagonal system's coordinates
+    if gauge.any():
+        keep[np.argmax(gauge)] = False
+    d_kept = d[keep]
+    w, Q = np.linalg.eigh(S[np.ix_(keep, keep)] * d_kept[:, None] * d_kept[None, :])
+    # A direction the images leave open (below numerical rank, numpy's matrix_rank tolerance)
+    # gets the largest variance double precision can state, not an infinite one.
+    w = np.maximum(w, w[-1] * len(w) * np.finfo(float).eps)
+    cov = np.zeros_like(S)
+    cov[np.ix_(keep, keep)] = (Q / w) @ Q.T * d_kept[:, None] * d_kept[None, :]
     out = {}
     for b in blocks:
         cols = problem.intr_cols[b]
@@ -523,6 +539,23 @@ def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]
         free = np.flatnonzero(cols >= 0)
         block[np.ix_(free, free)] = cov[np.ix_(cols[free], cols[free])]
         out[b] = block
+    return out
+
+
+def _scale_direction(problem: _Problem) -> np.ndarray:
+    """The gauge left free (the reference camera's pose is held): the whole scene scaled about
+    the reference camera's centre C, which moves each other camera's translation by R C + t
+    (that camera's t is additive, _Problem.apply) and each point by X - C, reprojecting every
+    point as before; in the camera columns (the points are marginalised). Only nearly free: the
+    points' ridge (_regularised) resists it a little, as much as the weakest real directions of
+    a 3-camera rig, so it is held rather than projected out."""
+    out = np.zeros(problem.num_cam_params)
+    ref = problem.reference
+    centre = -problem.R[ref].T @ problem.t[ref]
+    for c in range(len(problem.R)):
+        cols = problem.pose_cols[c]
+        if cols[0] >= 0:
+            out[cols[3:]] = problem.R[c] @ centre + problem.t[c]
     return out
 
 
