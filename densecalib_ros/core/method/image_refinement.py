@@ -152,13 +152,7 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     adjustment = _adjust_and_gate(refined, blocks, priors)
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
-    # What the images alone say at the solution, as independent pixel noise would leave it: the
-    # folds below crawl from one start and do not see a direction the images leave open.
-    images_only = posterior_covariance(refined, blocks, Priors(
-        principal_point_std_px={b: np.inf for b in blocks},
-        aspect_std={b: np.inf for b in blocks},
-        principal_point_centre_px=priors.principal_point_centre_px), adjustment.noise_px)
-    determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors, images_only)
+    determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
     ties = _rig_ties(refined, blocks, fold_sigmas, say)
     in_place = replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
@@ -207,25 +201,16 @@ def _adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> Prio
     return adjustment
 
 
-def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors,
-                          images_only: dict) -> tuple[dict, dict]:
+def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors
+                          ) -> tuple[dict, dict]:
     """Per block, which of "principal point" and "aspect" the images determine (module
     docstring): the folds' estimates, adjusted without priors from `state` (the found rig: the
     principal point at the image centre, square pixels), scatter by less than
-    ESTIMATED_FRACTION of the prior's sigma once averaged over the folds, and so does the
-    adjustment's own covariance of them without priors (images_only: block -> covariance of
-    INTRINSIC_NAMES). The scatter is the folds' median absolute deviation (as a sigma): one fold
-    that ran off on a weak part of the images does not decide it. The folds see what the
-    covariance assumes away (correlated errors, what the model cannot express); the covariance
-    sees what the folds cannot: each fold's adjustment starts from the same rig and stops in a
-    nearly flat valley wherever it is, so on three cameras, whose images leave the principal
-    points and focal lengths a two-dimensional family of equally good fits (zero skew and square
-    pixels give two of the eight conditions a metric rig needs per camera), the folds agreed to
-    2 px where their estimates were 5-21 px off (docs/design-notes.md, Intrinsics' standard
-    deviations: the gauge held, not cut off). Also per block the larger of the two standard
-    deviations of the principal point (per axis; the folds' of their mean), and the folds' of
-    the focal length (px) and of each tied intrinsic (rig_pooling.POOLED_INTRINSICS): how far
-    off the images leave them."""
+    ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
+    folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
+    images does not decide it. Also per block the folds' standard deviations of the mean of the
+    principal point (per axis), of the focal length (px) and of each tied intrinsic
+    (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
     first = np.argmax(tracks.observed(), axis=1)
     xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
     cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
@@ -251,21 +236,19 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
             continue
         spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
         std_of_mean = spread / np.sqrt(len(values))
-        own = np.sqrt(np.maximum(np.diag(images_only[b])[[1, 2, 5]], 0.0))  # cx, cy, aspect
-        pp_axes = np.maximum(std_of_mean[:2], own[:2])
-        spread_of[b] = dict(principal_point_axes_px=(float(pp_axes[0]), float(pp_axes[1])),
+        spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
                             focal_px=float(std_of_mean[3]),
                             # the tied ones (POOLED_INTRINSICS) by index into INTRINSIC_NAMES
                             intrinsics={0: float(std_of_mean[3]), 3: float(std_of_mean[4]),
                                         4: float(std_of_mean[5])})
         log.debug("block %d: fold estimates of cx, cy, aspect, f, k1, k2 %s, sigma of their "
-                  "mean %s; the covariance's sigmas of cx, cy, aspect %s", b,
-                  np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist(),
-                  np.round(own, 4).tolist())
+                  "mean %s", b,
+                  np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
         out[b] = set()
-        if pp_axes.max() < ESTIMATED_FRACTION * priors.principal_point_std_px[b]:
+        if max(std_of_mean[0], std_of_mean[1]) < ESTIMATED_FRACTION * \
+                priors.principal_point_std_px[b]:
             out[b].add("principal point")
-        if max(std_of_mean[2], own[2]) < ESTIMATED_FRACTION * priors.aspect_std[b]:
+        if std_of_mean[2] < ESTIMATED_FRACTION * priors.aspect_std[b]:
             out[b].add("aspect")
     return out, spread_of
 
