@@ -6,8 +6,7 @@ from sfm_fixtures import gt_rig, gt_tracks
 
 from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, _Problem,
                                                          _normal_equations, _reduced_system,
-                                                         _regularised, adjust_with_priors,
-                                                         posterior_covariance)
+                                                         adjust_with_priors, posterior_covariance)
 from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
 
@@ -108,11 +107,14 @@ def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shar
 @pytest.mark.parametrize("num_cameras, pp_std_px", [(3, 10.0), (3, 1e4), (5, 1e4)])
 def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_cameras,
                                                                           pp_std_px):
-    """The intrinsics' posterior covariance equals the inverse of the reduced system with
-    another camera's translation coordinate held (another gauge: the intrinsics' marginal does
-    not depend on it), on rigs whose system spans 12-13 orders of magnitude: three cameras with
-    their principal points weakly held or free, five with them free. A pseudo-inverse of the
-    raw system put these focal sigmas 4-70x too small."""
+    """The intrinsics' posterior covariance matches the exact marginal: the inverse of the
+    reduced system with each point's block pseudo-inverted (no ridge, so the scale is exactly
+    free and any coordinate may hold it; here one of the first or the last non-reference
+    camera), on rigs whose system spans 12-13 orders of magnitude: three cameras with their
+    principal points weakly held or free, five with them free. Within 10 %: the points' ridge
+    the covariance keeps resists the scale and takes up to 8 % off a weak direction's sigma
+    (cy, three cameras). A pseudo-inverse of the raw system put these focal sigmas 4-74x too
+    small."""
     true, poses = _rig_with_offset_points(num_cameras)
     state = _state(true, poses, 0.3)
     blocks = list(range(num_cameras))
@@ -120,21 +122,22 @@ def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_ca
     adjust_with_priors(state, blocks, priors, noise_px=0.3)
     problem = _Problem(state, blocks, priors)
     U, Wm, V, _, _, _, _ = _normal_equations(problem, 0.3)
-    S, _ = _reduced_system(problem, U, Wm, np.linalg.inv(_regularised(V)))
-    keep = np.ones(len(S), bool)
-    other = [c for c in state.registered() if c != problem.reference][-1]
-    keep[problem.pose_cols[other][3 + np.argmax(np.abs(problem.t[other]))]] = False
-    held = S[np.ix_(keep, keep)]
-    d = 1.0 / np.sqrt(np.diag(held))
-    expected = np.zeros_like(S)
-    expected[np.ix_(keep, keep)] = np.linalg.inv(held * d[:, None] * d[None, :]) * \
-        d[:, None] * d[None, :]
+    S, _ = _reduced_system(problem, U, Wm, np.linalg.pinv(V, hermitian=True))
     covariance = posterior_covariance(state, blocks, priors, 0.3)
-    for b in blocks:
-        free = np.flatnonzero(problem.intr_cols[b] >= 0)
-        cols = problem.intr_cols[b][free]
-        assert np.allclose(np.sqrt(np.diag(covariance[b])[free]),
-                           np.sqrt(np.diag(expected)[cols]), rtol=0.01), b
+    others = [c for c in state.registered() if c != problem.reference]
+    for other in (others[0], others[-1]):  # one of the two is not the coordinate it holds
+        keep = np.ones(len(S), bool)
+        keep[problem.pose_cols[other][3 + np.argmax(np.abs(problem.t[other]))]] = False
+        held = S[np.ix_(keep, keep)]
+        d = 1.0 / np.sqrt(np.diag(held))
+        expected = np.zeros_like(S)
+        expected[np.ix_(keep, keep)] = np.linalg.inv(held * d[:, None] * d[None, :]) * \
+            d[:, None] * d[None, :]
+        for b in blocks:
+            free = np.flatnonzero(problem.intr_cols[b] >= 0)
+            cols = problem.intr_cols[b][free]
+            assert np.allclose(np.sqrt(np.diag(covariance[b])[free]),
+                               np.sqrt(np.diag(expected)[cols]), rtol=0.1), (other, b)
 
 
 def test_exact_tracks_give_the_exact_cameras_without_priors():

@@ -517,7 +517,7 @@ def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]
     pixel of a weakly held principal point), and a pseudo-inverse's relative cut-off on the raw
     system gave the directions a few cameras leave weak no variance at all (docs/design-notes.md,
     Intrinsics' standard deviations: the gauge held, not cut off)."""
-    U, Wm, V, _, _, flat, _ = _normal_equations(problem, noise_px)
+    U, Wm, V, _, _, _, _ = _normal_equations(problem, noise_px)
     V_inv = np.linalg.inv(_regularised(V))
     S, _ = _reduced_system(problem, U, Wm, V_inv)
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
@@ -548,7 +548,8 @@ def _scale_direction(problem: _Problem) -> np.ndarray:
     (that camera's t is additive, _Problem.apply) and each point by X - C, reprojecting every
     point as before; in the camera columns (the points are marginalised). Only nearly free: the
     points' ridge (_regularised) resists it a little, as much as the weakest real directions of
-    a 3-camera rig, so it is held rather than projected out."""
+    a 3-camera rig, so it is held rather than projected out, and which coordinate holds it moves
+    those directions' sigmas by a few percent (test_prior_adjustment)."""
     out = np.zeros(problem.num_cam_params)
     ref = problem.reference
     centre = -problem.R[ref].T @ problem.t[ref]
