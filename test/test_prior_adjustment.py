@@ -107,14 +107,13 @@ def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shar
 @pytest.mark.parametrize("num_cameras, pp_std_px", [(3, 10.0), (3, 1e4), (5, 1e4)])
 def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_cameras,
                                                                           pp_std_px):
-    """The intrinsics' posterior covariance matches the exact marginal: the inverse of the
-    reduced system with each point's block pseudo-inverted (no ridge, so the scale is exactly
-    free and any coordinate may hold it; here one of the first or the last non-reference
-    camera), on rigs whose system spans 12-13 orders of magnitude: three cameras with their
-    principal points weakly held or free, five with them free. Within 10 %: the points' ridge
-    the covariance keeps resists the scale and takes up to 8 % off a weak direction's sigma
-    (cy, three cameras). A pseudo-inverse of the raw system put these focal sigmas 4-74x too
-    small."""
+    """The intrinsics' posterior covariance is the exact marginal whichever coordinate holds
+    the gauge: the inverse of the reduced system with each point's block pseudo-inverted (so
+    the scale is exactly free), held here on each non-reference camera in turn, on rigs whose
+    system spans 12-13 orders of magnitude: three cameras with their principal points weakly
+    held or free, five with them free. The points' blocks ridged as in the solve resisted the
+    scale and moved a weak direction's sigma by up to 8 % with the choice (cy, three cameras);
+    a pseudo-inverse of the raw system put these focal sigmas 4-74x too small."""
     true, poses = _rig_with_offset_points(num_cameras)
     state = _state(true, poses, 0.3)
     blocks = list(range(num_cameras))
@@ -125,7 +124,7 @@ def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_ca
     S, _ = _reduced_system(problem, U, Wm, np.linalg.pinv(V, hermitian=True))
     covariance = posterior_covariance(state, blocks, priors, 0.3)
     others = [c for c in state.registered() if c != problem.reference]
-    for other in (others[0], others[-1]):  # one of the two is not the coordinate it holds
+    for other in others:
         keep = np.ones(len(S), bool)
         keep[problem.pose_cols[other][3 + np.argmax(np.abs(problem.t[other]))]] = False
         held = S[np.ix_(keep, keep)]
@@ -137,7 +136,7 @@ def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_ca
             free = np.flatnonzero(problem.intr_cols[b] >= 0)
             cols = problem.intr_cols[b][free]
             assert np.allclose(np.sqrt(np.diag(covariance[b])[free]),
-                               np.sqrt(np.diag(expected)[cols]), rtol=0.1), (other, b)
+                               np.sqrt(np.diag(expected)[cols]), rtol=1e-6), (other, b)
 
 
 def test_exact_tracks_give_the_exact_cameras_without_priors():

@@ -512,13 +512,16 @@ def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]
     """Per block the posterior covariance of INTRINSIC_NAMES (zeros where held): the inverse of
     the reduced camera system at the solution (the points marginalised) with the gauge's free
     direction (_scale_direction) fixed by holding the translation coordinate it moves most; the
-    intrinsics' marginal does not depend on which. The system is inverted scaled to a unit
-    diagonal: its curvatures span ~13 orders of magnitude (per radian of rotation against per
-    pixel of a weakly held principal point), and a pseudo-inverse's relative cut-off on the raw
-    system gave the directions a few cameras leave weak no variance at all (docs/design-notes.md,
-    Intrinsics' standard deviations: the gauge held, not cut off)."""
+    intrinsics' marginal does not depend on which. The points' blocks are pseudo-inverted, not
+    ridged as in the solve (_regularised): the ridge resists the scale about as much as a
+    3-camera rig's weakest directions, and the held coordinate's choice then moved their sigmas
+    by up to 8 %. The system is inverted scaled to a unit diagonal: its curvatures span ~13
+    orders of magnitude (per radian of rotation against per pixel of a weakly held principal
+    point), and a pseudo-inverse's relative cut-off on the raw system gave the directions a few
+    cameras leave weak no variance at all (docs/design-notes.md, Intrinsics' standard
+    deviations: the gauge held, not cut off)."""
     U, Wm, V, _, _, _, _ = _normal_equations(problem, noise_px)
-    V_inv = np.linalg.inv(_regularised(V))
+    V_inv = np.linalg.pinv(V, hermitian=True)  # a point its rays do not fix moves by nothing
     S, _ = _reduced_system(problem, U, Wm, V_inv)
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
     keep = np.ones(len(S), bool)
@@ -546,10 +549,9 @@ def _scale_direction(problem: _Problem) -> np.ndarray:
     """The gauge left free (the reference camera's pose is held): the whole scene scaled about
     the reference camera's centre C, which moves each other camera's translation by R C + t
     (that camera's t is additive, _Problem.apply) and each point by X - C, reprojecting every
-    point as before; in the camera columns (the points are marginalised). Only nearly free: the
-    points' ridge (_regularised) resists it a little, as much as the weakest real directions of
-    a 3-camera rig, so it is held rather than projected out, and which coordinate holds it moves
-    those directions' sigmas by a few percent (test_prior_adjustment)."""
+    point as before; in the camera columns (the points are marginalised). Free in the
+    covariance's system, whose points' blocks are pseudo-inverted; the solve's ridge
+    (_regularised) resists it a little."""
     out = np.zeros(problem.num_cam_params)
     ref = problem.reference
     centre = -problem.R[ref].T @ problem.t[ref]
