@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.method.focal_determination import (WEAK_FOCAL_PREFIX,
+                                                            loose_focal_warning,
                                                             optical_axes_spread_deg,
                                                             weak_focal_fractions,
                                                             weak_focal_warning)
@@ -58,6 +59,23 @@ def test_a_weak_rig_around_the_scene_is_told_the_matches_not_the_layout_are_the_
     assert "up to 60 deg apart, so the matches leave them open" in around
     assert "look nearly the same way" not in around and "add frame sets" in around
     assert "--intrinsics" in around
+
+
+def test_a_rig_around_the_scene_looser_than_1_percent_is_told_so_below_the_weak_warning():
+    """Between the 1 % aim and the 5 % weak warning, a rig whose axes spread 20 deg or more is
+    told its focal lengths are short of the aim, once: above 5 % the weak warning says it."""
+    loose = loose_focal_warning(_rig(_camera("a", 0, 12.0), _camera("b", 30, 9.6),
+                                     _camera("c", 60, 4.0)), "asift's matches (kept over sift's)")
+    assert loose.startswith("focal lengths looser than the calibration aims at: on asift's "
+                            "matches (kept over sift's) f_std is a 1.5 %, b 1.2 %, c 0.5 %")
+    assert "add frame sets" in loose and "--intrinsics" in loose
+    assert weak_focal_warning(_rig(_camera("a", 0, 12.0), _camera("b", 30, 9.6))) is None
+    # at the aim, or above the weak warning's bound: not this warning
+    assert loose_focal_warning(_rig(_camera("a", 0, 8.0), _camera("b", 30, 8.0)), "x") is None
+    assert loose_focal_warning(_rig(_camera("a", 0, 48.0), _camera("b", 30, 48.0)), "x") is None
+    # cameras that look the same way: the layout leaves the focal open, which the probe's sigma
+    # and the weak warning cover
+    assert loose_focal_warning(_rig(_camera("a", 0, 12.0), _camera("b", 10, 12.0)), "x") is None
 
 
 def test_fisheye_given_and_unestimated_cameras_are_left_out():

@@ -6,8 +6,8 @@ from scipy.spatial.transform import Rotation
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG
-from densecalib_ros.core.robust.second_matcher import (AIMED_FOCAL_STD_FRACTION,
-                                                    better_determined, rematch_applies,
+from densecalib_ros.core.method.focal_determination import AIMED_FOCAL_STD_FRACTION
+from densecalib_ros.core.robust.second_matcher import (better_determined, rematch_applies,
                                                     undetermined)
 from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
 

@@ -18,7 +18,7 @@ from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughOver
                      TooFewCamerasGivenError)
 from .method.all_matches import keypoint_tracks, refine_on_tracks
 from .method.dense_matches import DenseAhead
-from .method.focal_determination import weak_focal_warning
+from .method.focal_determination import loose_focal_warning, weak_focal_warning
 from .method.focal_start import (eq2_start, initial_focals, start_focals,
                                  with_known_intrinsics)
 from .method.frame_checks import check_frame_sets
@@ -232,7 +232,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
                            previous: Optional[RigCalibration] = None,
                            frame_sets: Optional[Sequence[Sequence[np.ndarray]]] = None,
                            ignored: Sequence = (),
-                           progress: Progress = None) -> CalibrationResult:
+                           progress: Progress = None,
+                           warn_short_of_aim: bool = True) -> CalibrationResult:
     """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
     the previous calibration's poses and intrinsics also give the triangulation angles that score
     the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused.
@@ -247,7 +248,9 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     config.refine_on_images, the kept rig is refined once more on dense correspondences measured
     in them (core.method.image_refinement), away from the `ignored` regions (ignored_regions);
     where the consensus runs disagreed, so is the runner-up, and their warning stands only if it
-    still disagrees (_refine_runner_up)."""
+    still disagrees (_refine_runner_up). warn_short_of_aim: warn where the focal lengths come out
+    looser than the calibration aims at (focal_determination.loose_focal_warning); off where
+    another matcher may be tried for that (_calibrated), which then warns for the rig it keeps."""
     config = resolve_camera_lenses(config, camera_names)
     known = check_known_intrinsics(config.cameras.known_intrinsics or {}, camera_names, image_sizes)
     config = replace(config, cameras=replace(config.cameras, known_intrinsics=known))
@@ -286,7 +289,9 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
         result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
         for warning in given_intrinsics_warnings(result.rig.quality.given_intrinsics_fit or {}):
             warn_user(result.rig, warning, progress)
-    for warning in (unlike_lens_warning(result.rig), weak_focal_warning(result.rig)):
+    for warning in (unlike_lens_warning(result.rig), weak_focal_warning(result.rig),
+                    loose_focal_warning(result.rig, f"{config.matcher}'s matches")
+                    if warn_short_of_aim else None):
         if warning:
             warn_user(result.rig, warning, progress)
     return result
@@ -705,11 +710,13 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     it. Raises the first calibration's error where neither gives one."""
     from .robust.second_matcher import better_determined, rematch_applies, undetermined
 
-    def calibrate(cfg: PipelineConfig, sets: list) -> CalibrationResult:
+    def calibrate(cfg: PipelineConfig, sets: list, warn_short_of_aim: bool = False
+                  ) -> CalibrationResult:
         return calibrate_from_matches(sets, image_sizes, camera_names, cfg, previous=previous,
-                                      frame_sets=frame_sets, ignored=ignored, progress=progress)
+                                      frame_sets=frame_sets, ignored=ignored, progress=progress,
+                                      warn_short_of_aim=warn_short_of_aim)
     if not rematch_applies(config, camera_names, fresh=previous is None):
-        return calibrate(config, match_sets), config
+        return calibrate(config, match_sets, warn_short_of_aim=True), config
     first, error = None, None
     try:
         first = calibrate(config, match_sets)
@@ -743,6 +750,11 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     if not keep_second:
         warn_user(kept.rig, f"{wide.matcher}'s matches were tried as well and gave no better "
                             f"determined rig ({second_came}).", progress)
+    else:
+        warning = loose_focal_warning(kept.rig, f"{wide.matcher}'s matches (kept over "
+                                                f"{config.matcher}'s)")
+        if warning:
+            warn_user(kept.rig, warning, progress)
     return kept, kept_config
 
 

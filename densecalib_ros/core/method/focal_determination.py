@@ -21,7 +21,10 @@ Fisheye cameras are left out: their focal trades against the distortion terms ov
 seen field with the projection still well determined (read their proj_std). The same figure
 flags cameras well apart whose matches leave the focal open (3-camera rigs with few or bunched
 matches; on the held-out bench it fired on such rigs whose result was off): the message then
-names the matches, not the layout, as the cause (FORWARD_SPREAD_DEG).
+names the matches, not the layout, as the cause (FORWARD_SPREAD_DEG). Between the 1 % the
+calibration aims at (AIMED_FOCAL_STD_FRACTION) and that bound, such a rig is told its focal lengths
+are short of the aim (loose_focal_warning): after the second matcher where sift's matches left it
+so (core.robust.second_matcher), for the rig kept.
 
 On a rig whose optical axes spread under FORWARD_SPREAD_DEG the covariance does not see it: the
 cost over the focal lengths there is a long, curved, nearly flat valley, the adjustment stops
@@ -46,6 +49,10 @@ from .reconstruction import SfMState
 
 log = logging.getLogger(__name__)
 
+# The calibration aims at focal lengths right to 1 % (3D lengths and angles as right): a rig whose
+# cameras' focal sigma is above that at the median is short of the aim, and its cameras err
+# together.
+AIMED_FOCAL_STD_FRACTION = 0.01
 # A focal whose 1-sigma is 5 % of it may well be 10 % off: 3D lengths and angles off by as much,
 # ten times the 1 % the calibration aims at.
 WEAK_FOCAL_STD_FRACTION = 0.05
@@ -152,29 +159,58 @@ def median_focal_std_fraction(rig: RigCalibration) -> float:
     return float(np.median(fractions)) if fractions else 0.0
 
 
+def short_of_aim(rig: RigCalibration) -> bool:
+    """Whether the rig's focal lengths are looser than the calibration aims at
+    (median_focal_std_fraction above AIMED_FOCAL_STD_FRACTION) on a rig whose optical axes spread
+    FORWARD_SPREAD_DEG or more, where more or other matches can determine them (on a bar the
+    layout leaves them open and the probe's sigma says so)."""
+    return (median_focal_std_fraction(rig) > AIMED_FOCAL_STD_FRACTION
+            and optical_axes_spread_deg(rig) >= FORWARD_SPREAD_DEG)
+
+
+def loose_focal_warning(rig: RigCalibration, matched: str) -> Optional[str]:
+    """The message for a user whose rig is short_of_aim but within WEAK_FOCAL_STD_FRACTION (above
+    it weak_focal_warning says more), else None; `matched` says which matches the calibration
+    rests on ("sift's matches", ...)."""
+    if not short_of_aim(rig) or median_focal_std_fraction(rig) > WEAK_FOCAL_STD_FRACTION:
+        return None
+    return (f"focal lengths looser than the calibration aims at: on {matched} f_std is "
+            f"{_listed(rig)} of the focal length (1 sigma; a rig's cameras err together) where "
+            f"it aims at {100 * AIMED_FOCAL_STD_FRACTION:.0f} %, so 3D lengths and angles may be "
+            f"off by twice that. {_focal_fix(optical_axes_spread_deg(rig))}")
+
+
+def _listed(rig: RigCalibration) -> str:
+    return ", ".join(f"{n} {100 * v:.1f} %" for n, v in
+                     sorted(weak_focal_fractions(rig).items(), key=lambda item: -item[1]))
+
+
 def weak_focal_warning(rig: RigCalibration) -> Optional[str]:
     """The message for a user whose images leave the rig's focal lengths open
     (median_focal_std_fraction above WEAK_FOCAL_STD_FRACTION), else None."""
     if median_focal_std_fraction(rig) <= WEAK_FOCAL_STD_FRACTION:
         return None
-    fractions = weak_focal_fractions(rig)
-    listed = ", ".join(f"{n} {100 * v:.1f} %" for n, v in
-                       sorted(fractions.items(), key=lambda item: -item[1]))
     spread_deg = optical_axes_spread_deg(rig)
     if spread_deg < FORWARD_SPREAD_DEG:
         why = (f"The optical axes are at most {spread_deg:.0f} deg apart: images fix focal "
                "lengths through the angles between cameras, and cameras that look nearly the "
                "same way leave them open.")
-        other_fix = "or place cameras around the scene, 20 deg or more apart"
     else:
         why = (f"The optical axes are up to {spread_deg:.0f} deg apart, so the matches leave them "
                "open: few of them, or bunched in a part of the images (small overlap, a flat or "
                "repetitive scene).")
-        other_fix = ("or add frame sets (time-aligned images of a changing scene) or a camera "
-                     "between the others")
-    return (f"{WEAK_FOCAL_PREFIX}: f_std is {listed} of the focal length (1 sigma; a rig's "
-            f"cameras err together). {why} Give one camera's intrinsics from a lab calibration "
-            "(--intrinsics NAME=PATH; node: intrinsics_files; library: "
-            "PipelineConfig.cameras.known_intrinsics) "
-            f"and the others follow from it, {other_fix}. A known focal given as a start "
-            "(--focal-px) does not help: it is refined like any other.")
+    return (f"{WEAK_FOCAL_PREFIX}: f_std is {_listed(rig)} of the focal length (1 sigma; a rig's "
+            f"cameras err together). {why} {_focal_fix(spread_deg)}")
+
+
+def _focal_fix(spread_deg: float) -> str:
+    """What a user can do about focal lengths the images leave open, on a rig whose optical axes
+    spread this much (deg)."""
+    other_fix = ("or place cameras around the scene, 20 deg or more apart"
+                 if spread_deg < FORWARD_SPREAD_DEG else
+                 "or add frame sets (time-aligned images of a changing scene) or a camera "
+                 "between the others")
+    return ("Give one camera's intrinsics from a lab calibration (--intrinsics NAME=PATH; node: "
+            "intrinsics_files; library: PipelineConfig.cameras.known_intrinsics) and the others "
+            f"follow from it, {other_fix}. A known focal given as a start (--focal-px) does not "
+            "help: it is refined like any other.")

@@ -17,15 +17,9 @@ from __future__ import annotations
 from typing import Optional, Sequence
 
 from ..config import PipelineConfig, resolve_camera_lenses
-from ..method.focal_determination import (FORWARD_SPREAD_DEG, median_focal_std_fraction,
-                                          optical_axes_spread_deg)
+from ..method.focal_determination import median_focal_std_fraction, short_of_aim
 from ..types import RigCalibration
 from .consensus import WARN_DISAGREEMENT_DEG, standing_disagreement_deg
-
-# The calibration aims at focal lengths right to 1 % (3D lengths and angles as right): a rig whose
-# cameras' focal sigma is above that at the median is not determined to the aim by its matches,
-# and its cameras err together, so a tenfold set of matches is worth its time.
-AIMED_FOCAL_STD_FRACTION = 0.01
 
 
 def perspective_on_sift(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
@@ -48,8 +42,8 @@ def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     """Why a calibration leaves the rig undetermined (no calibration, a camera not registered,
     consensus runs that put the cameras beyond AUC@3's threshold from each other as the
     calibration stands (consensus.standing_disagreement_deg, WARN_DISAGREEMENT_DEG), or focal
-    lengths looser than AIMED_FOCAL_STD_FRACTION on a rig whose optical axes spread
-    FORWARD_SPREAD_DEG or more), or None where it does not."""
+    lengths short of the aim (focal_determination.short_of_aim): a tenfold set of matches is
+    worth its time there), or None where it does not."""
     if rig is None:
         return "no calibration came out"
     if rig.failed_cameras:
@@ -57,13 +51,11 @@ def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     disagreement = standing_disagreement_deg(rig.quality)
     if disagreement is not None and disagreement > WARN_DISAGREEMENT_DEG:
         return f"the calibration runs disagree by {disagreement:.1f} deg"
-    focal_fraction = median_focal_std_fraction(rig)
     # Where the cameras look the same way the focal lengths rest on the few degrees between
     # their axes, which no matcher adds to (docs/design-notes.md, the focal-scale probe).
-    if focal_fraction > AIMED_FOCAL_STD_FRACTION and \
-            optical_axes_spread_deg(rig) >= FORWARD_SPREAD_DEG:
-        return (f"the focal lengths are determined to {100 * focal_fraction:.1f} % only (1 sigma, "
-                "median over the cameras)")
+    if short_of_aim(rig):
+        return (f"the focal lengths are determined to {100 * median_focal_std_fraction(rig):.1f} "
+                "% only (1 sigma, median over the cameras)")
     return None
 
 
