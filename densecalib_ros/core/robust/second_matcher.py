@@ -51,8 +51,9 @@ def undetermined(rig: Optional[RigCalibration]) -> Optional[str]:
     disagreement = standing_disagreement_deg(rig.quality)
     if disagreement is not None and disagreement > WARN_DISAGREEMENT_DEG:
         return f"the calibration runs disagree by {disagreement:.1f} deg"
-    # Where the cameras look the same way the focal lengths rest on the few degrees between
-    # their axes, which no matcher adds to (docs/design-notes.md, the focal-scale probe).
+    # short_of_aim leaves out cameras that look the same way: their focal lengths rest on the
+    # few degrees between their axes, which no matcher adds to (docs/design-notes.md, the
+    # focal-scale probe).
     if short_of_aim(rig):
         return (f"the focal lengths are determined to {100 * median_focal_std_fraction(rig):.1f} "
                 "% only (1 sigma, median over the cameras)")
