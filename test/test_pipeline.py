@@ -237,19 +237,25 @@ def test_bad_names_and_images_are_refused_before_any_work(rig, tmp_path):
         read_calibration(tmp_path / "calib")
 
 
-def test_pipeline_stops_after_two_agreeing_runs_of_a_settled_multistart_and_single_run_has_no_consensus(rig):
-    """An easy rig: every focal start ends in one rig (settled), so the second run tries only the
-    first run's two best starts, and the two runs agree: no third."""
+def test_a_settled_first_run_that_registered_every_camera_is_the_only_one_and_single_run_has_no_consensus(rig):
+    """An easy rig: every focal start that fits about as well ends in one rig (settled) and every
+    camera is registered, so another sample could only repeat the first run: no second run. A
+    settled run that left a camera out, or one that did not settle, is checked by more runs."""
+    from densecalib_ros.core.pipeline import _settled_whole
+    from densecalib_ros.core.products.report import overall_lines
+
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     assert config.consensus_runs == 5
     lines = []
     result = run_calibration([rig.images[0]], rig.names, config, progress=lines.append)
     q = result.rig.quality
-    assert q.consensus_runs == 2 and q.consensus_failed_runs == 0
-    assert q.consensus_seed in (0, 1) and 0.0 <= q.consensus_disagreement_deg < 1.0
+    assert q.consensus_runs == 1 and q.consensus_failed_runs == 0 and q.consensus_seed == 0
     assert len(q.consensus_settled_starts) == 2
-    second = next(m for m in lines if m.startswith("consensus run 2 of up to 5"))
-    assert " and ".join(q.consensus_settled_starts) + " only" in second
+    assert not any(m.startswith("consensus run 2") for m in lines)
+    assert any("one run: every focal start" in line for line in overall_lines(result.rig))
+    assert _settled_whole([result], q.consensus_settled_starts, rig.names)
+    assert not _settled_whole([result], q.consensus_settled_starts, rig.names + ["cam_left_out"])
+    assert not _settled_whole([result], None, rig.names)
     single = run_calibration([rig.images[0]], rig.names,
                              make_config("regular", matcher="sift", sfm__num_threads=1,
                                          consensus_runs=1))

@@ -472,7 +472,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     result = results[best]
     why = (f"fits the keypoint-match tracks best ({costs[best]:.3f} px on a common sample)"
            if choice.by_fit else "agrees best with the others")
-    say_progress(progress, f"consensus: kept the run with seed {seeds[best]}, which {why}")
+    if len(results) > 1:
+        say_progress(progress, f"consensus: kept the run with seed {seeds[best]}, which {why}")
     others = np.delete(D[best], best)
     if D.max() >= agree_deg and refined_deg is None and match_tracks is not None \
             and match_tracks.num_tracks and result.state is not None:
@@ -496,9 +497,11 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
             np.median(np.delete(refined_deg[best], best)))
         refined_said = (f" ({result.rig.quality.consensus_refined_disagreement_deg:.2f} deg "
                         "refined on the dense image correspondences)")
-    say_progress(progress, f"consensus: median disagreement of the result with the other "
-                           f"{len(results) - 1} runs "
-                           f"{result.rig.quality.consensus_disagreement_deg:.2f} deg{refined_said}")
+    if len(results) > 1:
+        say_progress(progress, f"consensus: median disagreement of the result with the other "
+                               f"{len(results) - 1} runs "
+                               f"{result.rig.quality.consensus_disagreement_deg:.2f} deg"
+                               f"{refined_said}")
     # Perspective cameras on sift's matches: suggest asift, unless it is tried anyway.
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
@@ -534,7 +537,8 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     agree (multistart.agreement_deg), or SETTLED_EARLY_STOP_RUNS where the first run's focal
     multi-start settled (every start that fit about as well ended in one rig:
     multistart.settled_starts); later runs then try only its best starts, as the focal lengths
-    are not what is in doubt, only the sampling's draw. Runs that disagree on the keypoint
+    are not what is in doubt, only the sampling's draw. A settled first run that registered every
+    camera is the answer alone (_settled_whole). Runs that disagree on the keypoint
     matches are, where `refined` is given, refined on the dense image correspondences and stop
     as well where they agree refined within AGREEMENT_DEG: the keypoint matches' valley is
     flat where the images' minimum is sharp, and there more runs would be refined to the same
@@ -543,6 +547,10 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
 
     results, seeds, failed, first_error, run_s, settled = [], [], 0, None, None, None
     for k in range(config.consensus_runs):
+        if k == 1 and _settled_whole(results, settled, camera_names):
+            log.info("consensus: the first run's focal multi-start settled and it registered "
+                     "every camera; no more runs")
+            return results, seeds, failed, settled, None
         checks = (SETTLED_EARLY_STOP_RUNS, EARLY_STOP_RUNS) if settled else (EARLY_STOP_RUNS,)
         if k in checks and len(results) == k:
             stop, refined_deg = _no_more_runs(results, camera_names, config, refined)
@@ -575,6 +583,18 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     if not results:
         raise first_error
     return results, seeds, failed, settled, None
+
+
+def _settled_whole(results: Sequence[CalibrationResult], settled: Optional[list[str]],
+                   camera_names: Sequence[str]) -> bool:
+    """Whether the one run so far settled (multistart.settled_starts) and registered every camera:
+    then another sample could only repeat it. Every start that fit about as well ended in its rig,
+    so the focal lengths are not in doubt, and with every camera placed no pair is left to the
+    sampling's draw; a camera left out is (a second run's disagreement counts it as a pair 180 deg
+    off: consensus.UNREGISTERED_PAIR_DEG), so such a run is checked by more (docs/design-notes.md,
+    Consensus: one settled run)."""
+    return bool(settled) and len(results) == 1 and \
+        len(results[0].rig.cameras) == len(camera_names)
 
 
 def _no_more_runs(results: Sequence[CalibrationResult], camera_names: Sequence[str],

@@ -195,7 +195,9 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         fit.append(f"reprojection RMS {float(q.reprojection_rms_px):.2f} px")
     if q.num_points is not None:
         fit.append(f"{q.num_points} points")
-    if q.consensus_disagreement_deg is not None:
+    if q.consensus_runs == 1 and q.consensus_settled_starts and not q.consensus_failed_runs:
+        fit.append("one run: every focal start that fit as well ended in its rig")
+    elif q.consensus_disagreement_deg is not None:
         refined = q.consensus_refined_disagreement_deg
         fit.append(f"runs disagree by {float(q.consensus_disagreement_deg):.2f} deg" + (
             f" ({float(refined):.2f} deg refined on dense correspondences)"

@@ -54,7 +54,8 @@ UNREGISTERED_PAIR_DEG = 180.0
 # Well-connected rigs agree to a fraction of it, weak ones disagree by several times it
 # (docs/design-notes.md, Consensus: best fit vs vote). Where the first run's focal multi-start
 # settled (multistart.settled_starts), the focal lengths are not in doubt and two agreeing runs
-# answer the sampling's lottery: SETTLED_EARLY_STOP_RUNS.
+# answer the sampling's lottery: SETTLED_EARLY_STOP_RUNS; where it also registered every camera,
+# it alone does (pipeline._settled_whole).
 EARLY_STOP_RUNS = 3
 SETTLED_EARLY_STOP_RUNS = 2
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
