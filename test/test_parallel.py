@@ -188,3 +188,49 @@ def test_work_run_ahead_takes_the_lowest_priority_and_stops_when_cancelled():
     def fails(cancelled, thread_start):
         raise ValueError("no")
     assert RunAhead(fails).result() is None
+
+
+def test_map_threads_gives_the_loops_results_in_its_order_with_seeded_ransacs():
+    """map_threads: the pieces side by side give what the loop gives, bit for bit, in the loop's
+    order: OpenCV's seeded RANSAC (the two-view geometry of the sampling) and pycolmap's (the
+    placement repair's absolute poses) do not depend on the thread that ran them."""
+    import pycolmap
+
+    from densecalib_ros.core.method.incremental import absolute_pose
+    from densecalib_ros.core.method.twoview import estimate_fundamental
+    from densecalib_ros.core.parallel import map_threads
+
+    rng = np.random.default_rng(3)
+    camera = pycolmap.Camera(model="SIMPLE_RADIAL", width=800, height=600,
+                             params=[700.0, 400.0, 300.0, 0.0])
+
+    def views(k):
+        X = rng.uniform(-2.0, 2.0, (600, 3)) + [0.0, 0.0, 6.0]
+        shift = np.array([0.4 + 0.1 * k, 0.0, 0.1])
+        xy_a = np.array(camera.img_from_cam(X)) + rng.normal(scale=0.5, size=(600, 2))
+        xy_b = np.array(camera.img_from_cam(X + shift)) + rng.normal(scale=0.5, size=(600, 2))
+        xy_b[:150] = rng.uniform(0.0, 600.0, (150, 2))  # outliers: the RANSAC has to draw
+        return X, xy_a, xy_b
+    pieces = [views(k) for k in range(8)]
+
+    def geometry(p):
+        return estimate_fundamental(p[1], p[2], 2.0, seed=0)
+
+    def pose(p):
+        start = pycolmap.Camera(model="SIMPLE_RADIAL", width=800, height=600,
+                                params=[650.0, 400.0, 300.0, 0.0])
+        return absolute_pose(p[2], p[0], start, refine_intrinsics=True), np.array(start.params)
+
+    assert map_threads(geometry, []) == []
+    for fn in (geometry, pose):
+        loop = [fn(p) for p in pieces]
+        for workers in (2, 4):
+            side_by_side = map_threads(fn, pieces, workers)
+            assert len(side_by_side) == len(loop)
+            for a, b in zip(loop, side_by_side):
+                if fn is geometry:
+                    assert np.array_equal(a.F_ji, b.F_ji)
+                    assert np.array_equal(a.inlier_mask, b.inlier_mask)
+                else:
+                    assert a[0] is not None
+                    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])

@@ -21,7 +21,7 @@ import os
 import signal
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import popen_forkserver, spawn
 from typing import Any, Callable, Optional, Sequence
@@ -67,6 +67,19 @@ def descendant_pids(pid: int) -> list[int]:
     for child in found:  # grows while it is walked
         found.extend(children.get(child, ()))
     return found
+
+
+def map_threads(fn: Callable, items: Sequence, workers: Optional[int] = None) -> list:
+    """[fn(item) for item in items], the items side by side in threads (at most `workers`, default
+    every available core). For pieces of work that release the GIL (OpenCV's and pycolmap's
+    estimators) and whose result does not depend on the thread that ran them (each seeds its own
+    RANSAC): the results are those of the loop, in its order."""
+    items = list(items)
+    workers = min(workers or available_cores(), len(items))
+    if workers <= 1:
+        return [fn(item) for item in items]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(fn, items))
 
 
 def job_count(jobs: int) -> int:

@@ -48,6 +48,7 @@ import numpy as np
 
 from ..config import PipelineConfig
 from ..errors import FocalInitError, InputError, NotEnoughOverlapError
+from ..parallel import map_threads
 from ..types import CameraIntrinsics, SiteMatchSet, Tracks
 from .cycles import CycleSet, close_cycles
 from .focal import calibration_matrix, estimate_initial_focals
@@ -233,9 +234,9 @@ def _pair_geometry(pair_xy: dict, lenses: _Lenses, rng: np.random.Generator
     paired with a fisheye one (a rig mixing lenses) needs its focal for the rays: such pairs
     wait for the focals the pinhole pairs give (or the user's). pair_xy is thinned in place to
     MAX_F_POINTS per pair."""
-    two_view: dict = {}
     counts: dict = {}
     deferred = []
+    now = []
     fisheye = lenses.fisheye
     for (i, j), (xy_i, xy_j) in pair_xy.items():
         if len(xy_i) > MAX_F_POINTS:
@@ -245,10 +246,16 @@ def _pair_geometry(pair_xy: dict, lenses: _Lenses, rng: np.random.Generator
         counts[(i, j)] = len(xy_i)
         if fisheye[i] != fisheye[j] and lenses.intrinsics is None:
             deferred.append((i, j))
-        elif fisheye[i] or fisheye[j]:
-            two_view[(i, j)] = lenses.essential(i, j, xy_i, xy_j, None)
         else:
-            two_view[(i, j)] = estimate_fundamental(xy_i, xy_j, F_THRESHOLD_PX, seed=lenses.seed)
+            now.append((i, j))
+
+    def geometry(ij: tuple[int, int]) -> TwoViewGeometry:
+        (i, j), (xy_i, xy_j) = ij, pair_xy[ij]
+        if fisheye[i] or fisheye[j]:
+            return lenses.essential(i, j, xy_i, xy_j, None)
+        return estimate_fundamental(xy_i, xy_j, F_THRESHOLD_PX, seed=lenses.seed)
+    # Each pair's RANSAC is seeded and releases the GIL: the pairs run side by side.
+    two_view = dict(zip(now, map_threads(geometry, now)))
     return two_view, counts, deferred
 
 

@@ -45,6 +45,7 @@ from ..method.incremental import MIN_REGISTRATION_POINTS, absolute_pose
 from ..method.plausibility import intrinsics_problem
 from ..method.reconstruction import (MIN_TRIANGULATION_ANGLE_DEG, SfMState, midpoint_triangulation)
 from ..metrics import mean_focal_px, rotation_angle_deg
+from ..parallel import map_threads
 from ..types import CameraIntrinsics
 
 log = logging.getLogger(__name__)
@@ -253,8 +254,11 @@ def repair_placements(state: SfMState, camera_names: Sequence[str],
     for _ in range(state.num_cameras):
         best = None  # (support ratio, group, trial, support now, support after)
         tie = None  # (group, trial, support now, support after): the focal tie-break
-        for group in _groups(state):
-            alternatives = _alternatives(state, group)
+        groups = _groups(state)
+        # Each group's hypotheses are found on `state` alone (absolute poses, seeded, outside
+        # the GIL): side by side.
+        for group, alternatives in zip(groups, map_threads(
+                lambda g: _alternatives(state, g), groups)):
             if not alternatives:
                 continue
             trial, after = max(alternatives, key=lambda a: a[1])
