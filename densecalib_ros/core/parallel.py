@@ -3,7 +3,9 @@
 Bundle adjustments of a few cameras keep Ceres on one core (the problems are too small for its
 threads), so the parallel work is coarser: whole SfM trials (the focal multi-start) run in worker
 processes, each single-threaded. A trial's result does not depend on where it ran, so a
-calibration gives the same rig with one job or many.
+calibration gives the same rig with one job or many. Smaller seeded pieces that release the GIL
+(the sampling's two-view RANSACs, the placement repair's absolute poses) run on threads instead
+(map_threads), with the loop's results.
 
 The workers come from one pool per calibrating process, started once (forkserver: forked from a
 clean server process, never from a process running ROS or Ceres threads) and reused by every
