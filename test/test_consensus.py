@@ -46,6 +46,27 @@ def test_disagreement_measures_rotation_and_translation_direction():
         UNREGISTERED_PAIR_DEG
 
 
+def test_runs_that_leave_the_same_camera_out_disagree_only_on_the_cameras_they_placed():
+    """Two runs without camera c say the same about it: the pairs with c are left out of their
+    disagreement, which is that of (a, b), not a mean with 180 deg for each pair with c."""
+    without_c = ["a", "b"]
+    assert pair_disagreement_deg(_rig(names=without_c), _rig(names=without_c), "a", "c") is None
+    assert rig_disagreement_deg(_rig(names=without_c), _rig(names=without_c), NAMES) == \
+        pytest.approx(0.0, abs=1e-6)
+    turned = _rig(names=without_c)
+    turned.cameras["b"].cam_from_rig[:3, :3] = _rotation_z(2.0)
+    assert rig_disagreement_deg(_rig(names=without_c), turned, NAMES) == pytest.approx(2.0)
+    # A run that placed c still disagrees with one that did not on c's two pairs ...
+    assert rig_disagreement_deg(_rig(), _rig(names=without_c), NAMES) == \
+        pytest.approx(2 * UNREGISTERED_PAIR_DEG / 3)
+    # ... and runs that left out different cameras on every pair either placed ((b, c): neither).
+    assert rig_disagreement_deg(_rig(names=without_c), _rig(names=["a", "c"]), NAMES) == \
+        pytest.approx(UNREGISTERED_PAIR_DEG)
+    rigs = [_rig(names=without_c), _rig(names=without_c), _rig(names=without_c)]
+    best, D = medoid(rigs, NAMES)
+    assert D.max() == pytest.approx(0.0, abs=1e-6)
+
+
 def test_medoid_is_the_majority_answer():
     rigs = [_rig(30.0), _rig(0.2), _rig(0.0), _rig(-0.1), _rig(names=["a", "b"])]
     best, D = medoid(rigs, NAMES)

@@ -262,6 +262,32 @@ def test_a_settled_first_run_that_registered_every_camera_is_the_only_one_and_si
     assert single.rig.quality.consensus_runs is None
 
 
+def test_runs_that_leave_the_same_camera_out_agree_and_the_user_is_told_what_would_place_it(rig):
+    """A fifth camera filming another scene is registered by no run. The runs agree on the four
+    others, so the consensus stops at its early stop (the pairs with the stray camera, placed by
+    neither run, say nothing about their agreement: they used to count 180 deg and every run was
+    made, with a warning that the runs disagree); the warning names the camera, its best partner
+    and what would place it."""
+    other = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                                 height=480, seed=7))
+    names = list(rig.names) + ["stray"]
+    lines = []
+    result = run_calibration([list(rig.images[0]) + [other.images[0][0]]], names,
+                             make_config("regular", matcher="sift", second_matcher=None,
+                                         sfm__num_threads=1), progress=lines.append)
+    q = result.rig.quality
+    assert result.rig.failed_cameras == ["stray"] and len(result.rig.cameras) == 4
+    assert q.consensus_runs == 2 and q.consensus_disagreement_deg < 1.0
+    partner, count = q.unregistered_best_partner["stray"]
+    assert partner in rig.names and 0 <= count < 50
+    assert len(q.warnings) == 1 and not any("disagree" in w for w in q.warnings)
+    assert q.warnings[0].startswith(f"stray could not be registered: it shares at most {count} "
+                                    f"keypoint matches with another camera ({partner}). The "
+                                    "other 4 cameras are calibrated without it.")
+    assert "--matcher asift" in q.warnings[0]
+    assert sum(q.warnings[0] in line for line in lines) == 1  # said once
+
+
 def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):
     """initial_focal_px (CLI --focal-px, node initial_focal_px) replaces the eq. 2 estimate in
     the sampling and as the SfM's start; the SfM still refines it."""

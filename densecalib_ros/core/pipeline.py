@@ -12,7 +12,7 @@ from typing import Callable, NamedTuple, Optional, Sequence
 import numpy as np
 
 from .calibration_result import (CalibrationResult, result_with_state, rig_from_state,
-                                 saved_model, warn_user)
+                                 saved_model, unregistered_warning, warn_user)
 from .config import PipelineConfig, resolve_camera_lenses
 from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughOverlapError,
                      TooFewCamerasGivenError)
@@ -233,7 +233,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
                            frame_sets: Optional[Sequence[Sequence[np.ndarray]]] = None,
                            ignored: Sequence = (),
                            progress: Progress = None,
-                           warn_short_of_aim: bool = True) -> CalibrationResult:
+                           warn_undetermined: bool = True) -> CalibrationResult:
     """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
     the previous calibration's poses and intrinsics also give the triangulation angles that score
     the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused.
@@ -248,9 +248,10 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     config.refine_on_images, the kept rig is refined once more on dense correspondences measured
     in them (core.method.image_refinement), away from the `ignored` regions (ignored_regions);
     where the consensus runs disagreed, so is the runner-up, and their warning stands only if it
-    still disagrees (_refine_runner_up). warn_short_of_aim: warn where the focal lengths come out
-    looser than the calibration aims at (focal_determination.loose_focal_warning); off where
-    another matcher may be tried for that (_calibrated), which then warns for the rig it keeps."""
+    still disagrees (_refine_runner_up). warn_undetermined: warn where a camera was not
+    registered (calibration_result.unregistered_warning) or the focal lengths come out looser
+    than the calibration aims at (focal_determination.loose_focal_warning); off where another
+    matcher may be tried for that (_calibrated), which then warns for the rig it keeps."""
     config = resolve_camera_lenses(config, camera_names)
     known = check_known_intrinsics(config.cameras.known_intrinsics or {}, camera_names, image_sizes)
     config = replace(config, cameras=replace(config.cameras, known_intrinsics=known))
@@ -284,6 +285,13 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
             ahead.cancel()
     if consensus is not None and consensus.warning and not _runs_agree(result.rig):
         warn_user(result.rig, consensus.warning, progress)
+    if result.rig.failed_cameras:
+        result.rig.quality.unregistered_best_partner = _best_partners(
+            result.rig.failed_cameras, match_tracks, camera_names)
+    if warn_undetermined:
+        warning = unregistered_warning(result.rig, _suggests_asift(config, camera_names))
+        if warning:
+            warn_user(result.rig, warning, progress)
     add_uncertainty(result.rig, result.reconstruction, camera_names, config, sigmas)
     if config.cameras.known_intrinsics:
         result.rig.quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
@@ -291,7 +299,7 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
             warn_user(result.rig, warning, progress)
     for warning in (unlike_lens_warning(result.rig), weak_focal_warning(result.rig),
                     loose_focal_warning(result.rig, f"{config.matcher}'s matches")
-                    if warn_short_of_aim else None):
+                    if warn_undetermined else None):
         if warning:
             warn_user(result.rig, warning, progress)
     return result
@@ -454,8 +462,6 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
     from .robust.focal_hops import hop_focals
-    from .robust.second_matcher import perspective_on_sift
-
     results, seeds, failed, settled, refined_deg = _consensus_runs(
         match_sets, image_sizes, camera_names, config, match_tracks, progress, dense_ahead,
         refined)
@@ -502,8 +508,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                                f"{len(results) - 1} runs "
                                f"{result.rig.quality.consensus_disagreement_deg:.2f} deg"
                                f"{refined_said}")
-    # Perspective cameras on sift's matches: suggest asift, unless it is tried anyway.
-    on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
+    on_sift = _suggests_asift(config, camera_names)
     pairs = least_determined_pairs(result.rig, [r.rig for k, r in enumerate(results)
                                                 if k != best], camera_names)
     if pairs:
@@ -590,9 +595,9 @@ def _settled_whole(results: Sequence[CalibrationResult], settled: Optional[list[
     """Whether the one run so far settled (multistart.settled_starts) and registered every camera:
     then another sample could only repeat it. Every start that fit about as well ended in its rig,
     so the focal lengths are not in doubt, and with every camera placed no pair is left to the
-    sampling's draw; a camera left out is (a second run's disagreement counts it as a pair 180 deg
-    off: consensus.UNREGISTERED_PAIR_DEG), so such a run is checked by more (docs/design-notes.md,
-    Consensus: one settled run)."""
+    sampling's draw; a camera left out is (another sample may register it: a run that does
+    disagrees with this one by consensus.UNREGISTERED_PAIR_DEG on its pairs), so such a run is
+    checked by more (docs/design-notes.md, Consensus: one settled run)."""
     return bool(settled) and len(results) == 1 and \
         len(results[0].rig.cameras) == len(camera_names)
 
@@ -629,6 +634,29 @@ def _runs_agreement_deg(rig: RigCalibration, camera_names: Sequence[str],
 
     return agreement_deg([rig.cameras[n].intrinsics if n in rig.cameras else None
                           for n in camera_names], config.sfm)
+
+
+def _best_partners(cameras: Sequence[str], tracks: Optional[Tracks],
+                   camera_names: Sequence[str]) -> Optional[dict]:
+    """{camera: [the camera it shares the most keypoint-match tracks with, how many]} for
+    `cameras`; None without keypoint-match tracks (a dense matcher)."""
+    if tracks is None or not tracks.num_tracks:
+        return None
+    shared = pair_track_counts(tracks)
+    out = {}
+    for name in cameras:
+        c = camera_names.index(name)
+        partner = int(np.argmax(shared[c]))
+        out[name] = [camera_names[partner], int(shared[c, partner])]
+    return out
+
+
+def _suggests_asift(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
+    """Whether a warning about the rig suggests asift: perspective cameras on sift's matches
+    that no second matcher is tried on (second_matcher.perspective_on_sift)."""
+    from .robust.second_matcher import perspective_on_sift
+
+    return perspective_on_sift(config, camera_names) and not config.second_matcher
 
 
 def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> dict:
@@ -730,13 +758,13 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     it. Raises the first calibration's error where neither gives one."""
     from .robust.second_matcher import better_determined, rematch_applies, undetermined
 
-    def calibrate(cfg: PipelineConfig, sets: list, warn_short_of_aim: bool = False
+    def calibrate(cfg: PipelineConfig, sets: list, warn_undetermined: bool = False
                   ) -> CalibrationResult:
         return calibrate_from_matches(sets, image_sizes, camera_names, cfg, previous=previous,
                                       frame_sets=frame_sets, ignored=ignored, progress=progress,
-                                      warn_short_of_aim=warn_short_of_aim)
+                                      warn_undetermined=warn_undetermined)
     if not rematch_applies(config, camera_names, fresh=previous is None):
-        return calibrate(config, match_sets, warn_short_of_aim=True), config
+        return calibrate(config, match_sets, warn_undetermined=True), config
     first, error = None, None
     try:
         first = calibrate(config, match_sets)
@@ -767,6 +795,9 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
         "second_result": second_came, "kept": kept_config.matcher}
     say_progress(progress, f"{wide.matcher}: {second_came}; kept the calibration on "
                            f"{kept_config.matcher}'s matches")
+    warning = unregistered_warning(kept.rig)
+    if warning:
+        warn_user(kept.rig, warning, progress)
     if not keep_second:
         warn_user(kept.rig, f"{wide.matcher}'s matches were tried as well and gave no better "
                             f"determined rig ({second_came}).", progress)

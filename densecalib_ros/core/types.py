@@ -223,6 +223,9 @@ class RigQuality:
     # runs stopped for meeting refined, the median over the others (pipeline._no_more_runs).
     consensus_refined_disagreement_deg: Optional[float] = None
     consensus_least_determined_pairs_deg: Optional[dict] = None  # "a/b" -> deg
+    # Each camera not registered -> [the camera it shares the most keypoint matches with, how
+    # many] (pipeline.calibrate_from_matches; calibration_result.unregistered_warning).
+    unregistered_best_partner: Optional[dict] = None
     # Sift left a rig of perspective cameras undetermined, so it was matched again
     # (core.robust.second_matcher): {first, first_result (why it was undetermined), second,
     # second_result, kept (the matcher whose calibration was kept)}.

@@ -47,7 +47,9 @@ from ..method.multistart import (AGREEMENT_DEG, HELD_OUT_TRUNCATION_PX, MAX_AGRE
 from ..method.reconstruction import SfMState, triangulate_tracks
 from ..types import RigCalibration, Tracks
 
-# A camera pair that one of two runs did not register counts as this far apart.
+# A camera pair that one of two runs placed and the other did not (a camera of it not registered)
+# counts as this far apart. A pair that neither run placed is left out of their disagreement:
+# two runs that leave the same camera out say the same about it.
 UNREGISTERED_PAIR_DEG = 180.0
 # After this many successful runs, stop if every two of them agree (multistart.agreement_deg: mean
 # over camera pairs): further runs could not make the rig more accurate.
@@ -72,10 +74,16 @@ def _angle_deg(cos: float) -> float:
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
-def pair_disagreement_deg(a: RigCalibration, b: RigCalibration, cam_i: str, cam_j: str) -> float:
+def pair_disagreement_deg(a: RigCalibration, b: RigCalibration, cam_i: str, cam_j: str
+                          ) -> Optional[float]:
     """max(angle between the relative rotations cam_j_from_cam_i of a and b, angle between their
-    relative translation directions) in degrees: the pose error AUC@3 thresholds, between runs."""
-    if not all(c in r.cameras for c in (cam_i, cam_j) for r in (a, b)):
+    relative translation directions) in degrees: the pose error AUC@3 thresholds, between runs.
+    UNREGISTERED_PAIR_DEG where only one of the runs registered both cameras; None where
+    neither did."""
+    placed = [cam_i in r.cameras and cam_j in r.cameras for r in (a, b)]
+    if not any(placed):
+        return None
+    if not all(placed):
         return UNREGISTERED_PAIR_DEG
     rel = [r.cameras[cam_j].cam_from_rig @ np.linalg.inv(r.cameras[cam_i].cam_from_rig)
            for r in (a, b)]
@@ -88,9 +96,11 @@ def pair_disagreement_deg(a: RigCalibration, b: RigCalibration, cam_i: str, cam_
 
 def rig_disagreement_deg(a: RigCalibration, b: RigCalibration,
                          camera_names: Sequence[str]) -> float:
-    """Mean pair_disagreement_deg over all pairs of camera_names."""
-    pairs = list(combinations(camera_names, 2))
-    return float(np.mean([pair_disagreement_deg(a, b, i, j) for i, j in pairs])) if pairs else 0.0
+    """Mean pair_disagreement_deg over the pairs of camera_names that either run placed; 0 where
+    neither placed any."""
+    degs = [d for d in (pair_disagreement_deg(a, b, i, j)
+                        for i, j in combinations(camera_names, 2)) if d is not None]
+    return float(np.mean(degs)) if degs else 0.0
 
 
 def medoid(rigs: Sequence[RigCalibration], camera_names: Sequence[str],
