@@ -19,6 +19,25 @@ def test_heldout_scenes_share_no_scene_or_generator_seed_with_the_bench():
     assert all(s.num_cameras not in bench_views for s in heldout if s.kind == "nerf")
 
 
+def test_the_real_captures_of_one_camera_are_benched_as_one_camera_as_well():
+    """Strecha's DSLR and the fox's phone: each scene also as one camera (shared intrinsics, what
+    they are), and build_scene hands that on whatever the scene's kind."""
+    import dataclasses
+    from pathlib import Path
+
+    from densecalib_ros.eval.bench import build_scene
+
+    for specs in (full_scenes(), heldout_scenes()):
+        one = {s.name for s in specs if s.share_intrinsics}
+        two_ways = {s.name for s in specs if s.kind in ("strecha", "nerf")} - one
+        assert one == {f"{n}-one-camera" for n in two_ways}
+    tiny = dataclasses.replace(quick_scenes()[0], num_cameras=3, width=160, height=120)
+    assert tiny.kind == "synthetic"
+    for share in (False, True):
+        scene = build_scene(dataclasses.replace(tiny, share_intrinsics=share), Path("/absent"))
+        assert scene.share_intrinsics is share
+
+
 def test_forward_rigs_are_bar_rigs_of_seeds_no_other_set_uses():
     forward = forward_scenes()
     assert forward and all(s.layout == "bar" and s.kind == "synthetic" for s in forward)

@@ -136,8 +136,9 @@ def full_scenes() -> list[SceneSpec]:
     """Pinhole rigs of 5-10 cameras 20-45 deg apart (PINHOLE_RIGS), long-lens rigs
     (LONG_LENS_RIGS), 3-4 cameras 45-60 deg apart (FEW_CAMERA_RIGS), fisheye rigs of 4, 6 and 8
     cameras (150-190 deg, 2 seeds each), all 1024x768 with the intrinsics of real lenses, Strecha
-    entry-P10 at 1024 px, 6 frames of instant-ngp's fox (a phone walked around an object), and
-    the real rigs (rig_scenes)."""
+    entry-P10 at 1024 px, 6 frames of instant-ngp's fox (a phone walked around an object), each
+    of the two also as one camera (share_intrinsics: what they are), and the real rigs
+    (rig_scenes)."""
     scenes = [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0)
               for n, gap, seed in PINHOLE_RIGS]
     scenes += [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0,
@@ -149,8 +150,9 @@ def full_scenes() -> list[SceneSpec]:
                             max_side_px=1024))
     scenes.append(SceneSpec("strecha-entry-p10-1024-one-camera", "strecha",
                             folder="strecha_entry_p10", max_side_px=1024, share_intrinsics=True))
-    scenes.append(SceneSpec("ngp-fox-6view-1024", "nerf", num_cameras=6, folder="ngp_fox",
-                            max_side_px=1024))
+    scenes += [SceneSpec("ngp-fox-6view-1024" + ("-one-camera" if one else ""), "nerf",
+                         num_cameras=6, folder="ngp_fox", max_side_px=1024,
+                         share_intrinsics=one) for one in (False, True)]
     return scenes + rig_scenes()
 
 
@@ -168,8 +170,8 @@ def rig_scenes() -> list[SceneSpec]:
 
 
 def real_scenes() -> list[SceneSpec]:
-    """Every real scene of the full set: Strecha (ten cameras and one camera), the fox, and the
-    real rigs (rig_scenes)."""
+    """Every real scene of the full set: Strecha and the fox (each as separate cameras and as one
+    camera), and the real rigs (rig_scenes)."""
     return [s for s in full_scenes() if s.kind != "synthetic"]
 
 
@@ -188,12 +190,15 @@ HELDOUT_FOX_VIEWS = (5, 8, 10)
 
 
 def heldout_scenes() -> list[SceneSpec]:
-    """The held-out scenes (HELDOUT_* above), pinhole rigs on arcs up to 360 deg."""
+    """The held-out scenes (HELDOUT_* above), pinhole rigs on arcs up to 360 deg; the fox's frame
+    subsets as separate cameras and as one camera."""
     scenes = [_synthetic(n, "RADIAL", seed, gap_deg=float(gap), max_arc_deg=360.0)
               for n, gap, seed in HELDOUT_PINHOLE]
     scenes += [_synthetic(n, "OPENCV_FISHEYE", seed) for n, seed in HELDOUT_FISHEYE]
-    scenes += [SceneSpec(f"ngp-fox-{n}view-1024", "nerf", num_cameras=n, folder="ngp_fox",
-                         max_side_px=1024) for n in HELDOUT_FOX_VIEWS]
+    scenes += [SceneSpec(f"ngp-fox-{n}view-1024" + ("-one-camera" if one else ""), "nerf",
+                         num_cameras=n, folder="ngp_fox", max_side_px=1024,
+                         share_intrinsics=one)
+               for n in HELDOUT_FOX_VIEWS for one in (False, True)]
     return scenes
 
 
@@ -214,8 +219,14 @@ def forward_scenes() -> list[SceneSpec]:
 
 
 def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
-    """The scene's images and reference cameras. Raises FileNotFoundError when real data is
-    absent."""
+    """The scene's images and reference cameras, calibrated as one camera where the spec says so
+    (share_intrinsics). Raises FileNotFoundError when real data is absent."""
+    scene = _loaded_scene(spec, data_dir)
+    scene.share_intrinsics = spec.share_intrinsics
+    return scene
+
+
+def _loaded_scene(spec: SceneSpec, data_dir: Path) -> Scene:
     if spec.kind == "synthetic":
         from ..core.synthetic import RigSpec, generate_rig
 
@@ -232,9 +243,7 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
         folder = Path(data_dir) / spec.folder
         if not (folder / "gt_dense_cameras").is_dir():
             raise FileNotFoundError(f"{folder} not found (set --data-dir or $DENSECALIB_DATA)")
-        scene = load_strecha(folder, max_side_px=spec.max_side_px, name=spec.name)
-        scene.share_intrinsics = spec.share_intrinsics
-        return scene
+        return load_strecha(folder, max_side_px=spec.max_side_px, name=spec.name)
     if spec.kind == "nerf":
         folder = Path(data_dir) / spec.folder
         if not (folder / "transforms.json").is_file():
