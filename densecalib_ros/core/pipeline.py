@@ -462,6 +462,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
     from .robust.focal_hops import hop_focals
+
     results, seeds, failed, settled, refined_deg = _consensus_runs(
         match_sets, image_sizes, camera_names, config, match_tracks, progress, dense_ahead,
         refined)
