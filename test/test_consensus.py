@@ -67,6 +67,25 @@ def test_runs_that_leave_the_same_camera_out_disagree_only_on_the_cameras_they_p
     assert D.max() == pytest.approx(0.0, abs=1e-6)
 
 
+def test_cameras_not_registered_are_named_with_their_best_partner_and_what_would_place_them():
+    from densecalib_ros.core.calibration_result import unregistered_warning
+    from densecalib_ros.core.types import RigQuality
+
+    assert unregistered_warning(_rig()) is None
+    rig = _rig(names=["a", "b"])
+    rig.failed_cameras = ["c", "d"]
+    rig.quality = RigQuality(unregistered_best_partner={"c": ["b", 23], "d": ["a", 4]})
+    message = unregistered_warning(rig)
+    assert message.startswith("c and d could not be registered: they share at most 23 (c, with "
+                              "b) and 4 (d, with a) keypoint matches with another camera. The "
+                              "other 2 cameras are calibrated without them.")
+    assert "--intrinsics NAME=FILE" in message and "asift" not in message
+    rig.quality = RigQuality()  # a dense matcher: no keypoint matches to count
+    assert unregistered_warning(rig, perspective_on_sift=True).startswith(
+        "c and d could not be registered. The other 2")
+    assert "--matcher asift" in unregistered_warning(rig, perspective_on_sift=True)
+
+
 def test_medoid_is_the_majority_answer():
     rigs = [_rig(30.0), _rig(0.2), _rig(0.0), _rig(-0.1), _rig(names=["a", "b"])]
     best, D = medoid(rigs, NAMES)

@@ -108,27 +108,31 @@ def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False
                          ) -> Optional[str]:
     """The message for a user whose rig came out without some of its cameras: which, the camera
     each shares the most keypoint matches with (quality.unregistered_best_partner), and what
-    would place them; None where every camera was registered. perspective_on_sift: as
+    would place them (more overlap, or given intrinsics where the camera was left out for
+    implausible ones: plausibility.drop_implausible_cameras); None where every camera was
+    registered. perspective_on_sift: as
     consensus.disagreement_warning's (the message suggests asift)."""
     failed = rig.failed_cameras
     if not failed:
         return None
     partners = rig.quality.unregistered_best_partner or {}
     one = len(failed) == 1
+    it, its, subject = ("it", "its", failed[0]) if one else ("them", "their", "they")
     shared = ""
     if all(c in partners for c in failed):
         counts = (f"{partners[failed[0]][1]}" if one else " and ".join(
             f"{partners[c][1]} ({c}, with {partners[c][0]})" for c in failed))
         shared = (f": {'it shares' if one else 'they share'} at most {counts} keypoint matches "
                   "with another camera" + (f" ({partners[failed[0]][0]})" if one else ""))
+    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
+             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
     return (f"{' and '.join(failed)} could not be registered{shared}. The other "
-            f"{len(rig.cameras)} cameras are calibrated without " + ("it" if one else "them")
-            + ". Add frame sets in which " + (failed[0] if one else "they") + " and the "
-            "neighbouring cameras see the same textured things, or turn "
-            + ("it" if one else "them") + " to overlap more with them."
-            + (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) "
-               "finds the matches a wide viewpoint change leaves sift." if perspective_on_sift
-               else ""))
+            f"{len(rig.cameras)} cameras are calibrated without {it}. Add frame sets in which "
+            f"{subject} and the neighbouring cameras see the same textured things, or turn {it} "
+            f"to overlap more with them. If {'it does' if one else 'they do'} overlap, {its} "
+            f"intrinsics from a lab calibration (--intrinsics {failed[0] if one else 'NAME'}"
+            f"=FILE) would place {it}: a camera whose self-calibrated intrinsics come out "
+            "implausible is left out as well." + asift)
 
 
 def warn_user(rig: RigCalibration, warning: str, progress: Progress) -> None:
