@@ -639,16 +639,16 @@ def _runs_agreement_deg(rig: RigCalibration, camera_names: Sequence[str],
 
 def _best_partners(cameras: Sequence[str], tracks: Optional[Tracks],
                    camera_names: Sequence[str]) -> Optional[dict]:
-    """{camera: [the camera it shares the most keypoint-match tracks with, how many]} for
-    `cameras`; None without keypoint-match tracks (a dense matcher)."""
-    if tracks is None or not tracks.num_tracks:
+    """{camera: [the other camera it shares the most keypoint-match tracks with, how many]} for
+    `cameras` (_shared_matches); None without keypoint-match tracks (a dense matcher)."""
+    shared = _shared_matches(tracks, camera_names)
+    if not shared:
         return None
-    shared = pair_track_counts(tracks)
     out = {}
     for name in cameras:
-        c = camera_names.index(name)
-        partner = int(np.argmax(shared[c]))
-        out[name] = [camera_names[partner], int(shared[c, partner])]
+        counts = {(b if a == name else a): n for (a, b), n in shared.items() if name in (a, b)}
+        partner = max(counts, key=counts.get)
+        out[name] = [partner, counts[partner]]
     return out
 
 
