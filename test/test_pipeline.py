@@ -262,6 +262,27 @@ def test_a_settled_first_run_that_registered_every_camera_is_the_only_one_and_si
     assert single.rig.quality.consensus_runs is None
 
 
+def test_two_agreeing_runs_end_the_consensus_where_the_multi_start_did_not_settle(rig):
+    """Every camera's intrinsics given and one start (no first-pair starts): the multi-start has
+    no second trial to settle with. The second run, on another track sample, lands in the first
+    one's rig: they have answered the sampling's lottery, so no third run is made (it used to
+    take three where the first run had not settled)."""
+    gt = rig.ground_truth()
+    known = {n: gt.cameras[n].intrinsics for n in rig.names}
+    lines = []
+    result = run_calibration([rig.images[0]], rig.names,
+                             make_config("regular", matcher="sift", sfm__num_threads=1,
+                                         sfm__brute_force_first_pair=False,
+                                         cameras__known_intrinsics=known),
+                             progress=lines.append)
+    q = result.rig.quality
+    assert q.consensus_settled_starts is None
+    assert q.consensus_runs == 2 and q.consensus_disagreement_deg < 1.0
+    assert any(m.startswith("consensus run 2") for m in lines)
+    assert not any(m.startswith("consensus run 3") for m in lines)
+    assert evaluate_calibration(result.rig, gt)["auc3"] >= 80.0
+
+
 def test_runs_that_leave_the_same_camera_out_agree_and_the_user_is_told_what_would_place_it(rig):
     """A fifth camera filming another scene is registered by no run. The runs agree on the four
     others, so the consensus stops at its early stop (the pairs with the stray camera, placed by

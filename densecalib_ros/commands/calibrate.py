@@ -73,9 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "when the images were cropped, or taken with digital zoom)")
     parser.add_argument("--consensus-runs", type=positive(integer=True), default=5, metavar="N",
                         help="sample + SfM up to N times with different seeds and keep the run "
-                             "that fits all keypoint matches best (default 5; it stops after 3 runs "
-                             "that agree, 2 where the first run's focal starts all agree; 1 = a "
-                             "single run)")
+                             "that fits all keypoint matches best (default 5; it stops after 2 runs "
+                             "that agree, 1 where its focal starts all agree and it registered "
+                             "every camera; 1 = a single run)")
     parser.add_argument("--previous", metavar="PATH", default=None,
                         help="a previous calibration of these cameras (folder, a node output_dir, "
                              "or calibration.json): start from it, report what changed, and "

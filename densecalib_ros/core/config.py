@@ -163,8 +163,9 @@ class PipelineConfig:
     max_image_side_px: int = 1024  # images are matched at most at this size (coordinates rescaled)
     # Fresh calibrations run the sampling + SfM up to this many times (seeds seed, seed+1, ...) and
     # keep the medoid run (consensus.py): on weakly connected rigs one sample's outcome is a
-    # lottery. They stop after 3 runs that agree (multistart.agreement_deg), 2 where the first
-    # run's focal multi-start settled (pipeline._consensus_runs). 1 = a single run.
+    # lottery. They stop after 2 runs that agree (multistart.agreement_deg), after 1 where its
+    # focal multi-start settled and it registered every camera (pipeline._consensus_runs).
+    # 1 = a single run.
     consensus_runs: int = 5
     # With these matchers, frame sets after the first are matched only where a camera's image
     # shows what its earlier frame sets did not (core/method/new_content.py): asift costs tens of

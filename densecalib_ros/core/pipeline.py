@@ -539,26 +539,27 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     stopped for agreeing refined on the images, their disagreement matrix refined, else None).
     The first run's error is raised if every run fails.
 
-    Stops early where further runs could only repeat the answer: after EARLY_STOP_RUNS runs that
-    agree (multistart.agreement_deg), or SETTLED_EARLY_STOP_RUNS where the first run's focal
-    multi-start settled (every start that fit about as well ended in one rig:
-    multistart.settled_starts); later runs then try only its best starts, as the focal lengths
-    are not what is in doubt, only the sampling's draw. A settled first run that registered every
-    camera is the answer alone (_settled_whole). Runs that disagree on the keypoint
+    Stops early where further runs could only repeat the answer: once EARLY_STOP_RUNS runs have
+    succeeded and agree (multistart.agreement_deg). Where the first run's focal multi-start
+    settled (every start that fit about as well ended in one rig: multistart.settled_starts),
+    later runs try only its best starts, as the focal lengths are not what is in doubt, only the
+    sampling's draw; a settled first run that registered every camera is the answer alone
+    (_settled_whole). Runs that disagree on the keypoint
     matches are, where `refined` is given, refined on the dense image correspondences and stop
     as well where they agree refined within AGREEMENT_DEG: the keypoint matches' valley is
     flat where the images' minimum is sharp, and there more runs would be refined to the same
     rig (docs/design-notes.md, Consensus: runs apart, refined)."""
-    from .robust.consensus import EARLY_STOP_RUNS, SETTLED_EARLY_STOP_RUNS
+    from .robust.consensus import EARLY_STOP_RUNS
 
     results, seeds, failed, first_error, run_s, settled = [], [], 0, None, None, None
+    judged = False  # whether the early stop has judged the first EARLY_STOP_RUNS runs
     for k in range(config.consensus_runs):
         if k == 1 and _settled_whole(results, settled, camera_names):
             log.info("consensus: the first run's focal multi-start settled and it registered "
                      "every camera; no more runs")
             return results, seeds, failed, settled, None
-        checks = (SETTLED_EARLY_STOP_RUNS, EARLY_STOP_RUNS) if settled else (EARLY_STOP_RUNS,)
-        if k in checks and len(results) == k:
+        if len(results) == EARLY_STOP_RUNS and not judged:
+            judged = True
             stop, refined_deg = _no_more_runs(results, camera_names, config, refined)
             if stop:  # more runs could not make the rig more accurate
                 return results, seeds, failed, settled, refined_deg

@@ -51,15 +51,15 @@ from ..types import RigCalibration, Tracks
 # counts as this far apart. A pair that neither run placed is left out of their disagreement:
 # two runs that leave the same camera out say the same about it.
 UNREGISTERED_PAIR_DEG = 180.0
-# After this many successful runs, stop if every two of them agree (multistart.agreement_deg: mean
-# over camera pairs): further runs could not make the rig more accurate.
-# Well-connected rigs agree to a fraction of it, weak ones disagree by several times it
-# (docs/design-notes.md, Consensus: best fit vs vote). Where the first run's focal multi-start
-# settled (multistart.settled_starts), the focal lengths are not in doubt and two agreeing runs
-# answer the sampling's lottery: SETTLED_EARLY_STOP_RUNS; where it also registered every camera,
-# it alone does (pipeline._settled_whole).
-EARLY_STOP_RUNS = 3
-SETTLED_EARLY_STOP_RUNS = 2
+# Once this many runs have succeeded, stop if they agree (multistart.agreement_deg: mean over
+# camera pairs): further runs could not make the rig more accurate. Well-connected rigs agree to a
+# fraction of it, weak ones disagree by several times it (docs/design-notes.md, Consensus: best
+# fit vs vote). Two runs on different track samples that land in one rig have answered the
+# sampling's lottery, whether or not the first run's focal multi-start settled (Consensus: two
+# agreeing runs). Judged once: runs that disagree stay apart however many more are made (their
+# disagreement is the largest between any two). Where the first run settled and registered every
+# camera, it alone answers (pipeline._settled_whole).
+EARLY_STOP_RUNS = 2
 # The kept run's median disagreement above which the user is warned: AUC@3's threshold, i.e. the
 # other runs put the cameras where the kept one would count as wrong; runs closer than it can
 # still count as one answer (multistart.agreement_deg), so both are that one threshold.
