@@ -231,6 +231,30 @@ def test_runs_refined_on_the_same_tracks_are_judged_by_their_fit_to_them_not_by_
     assert with_partial.best in (0, 2) and with_partial.by_fit
 
 
+def test_two_agreeing_runs_keep_the_better_fit_unless_the_first_searched_more():
+    """Two runs that agree are a tie for the medoid. Where both searched every focal start, the
+    one that fits the keypoint-match tracks better is kept (agreeing runs still differ by up to
+    the agreement, which the image refinement need not close); where the first run's multi-start
+    settled and the second tried only its best starts, the first is kept."""
+    import sfm_fixtures
+    from densecalib_ros.core.robust.consensus import choose_run
+
+    names = ["a", "b", "c", "d"]
+    cams, poses = sfm_fixtures.gt_rig(4, seed=5)
+    right = sfm_fixtures.gt_calibration(names, cams, poses)
+    nearly = _turned(right, "c", 0.5)  # within the 1 deg agreement
+    matches = sfm_fixtures.gt_tracks(cams, poses, num_points=1500, seed=11)
+    runs_tracks = [sfm_fixtures.gt_tracks(cams, poses, num_points=300, seed=s) for s in range(2)]
+    fit = choose_run([nearly, right], runs_tracks, names, truncation_px=20.0, refined_on=matches)
+    assert fit.best == 1 and fit.by_fit and fit.worse_fit == []
+    assert fit.costs_px[1] < fit.costs_px[0]
+    first = choose_run([nearly, right], runs_tracks, names, truncation_px=20.0,
+                       refined_on=matches, first_searched_more=True)
+    assert first.best == 0 and not first.by_fit and np.isnan(first.costs_px).all()
+    # Without tracks every run was refined on (a dense matcher) the first is kept as before.
+    assert choose_run([nearly, right], runs_tracks, names, truncation_px=20.0).best == 0
+
+
 def _turned(rig, name, deg):
     """rig with camera `name` turned by deg about its z axis (intrinsics kept)."""
     cam = rig.cameras[name]

@@ -469,7 +469,8 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
     agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
                         cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed,
-                        refined_on=match_tracks, agree_deg=agree_deg)
+                        refined_on=match_tracks, agree_deg=agree_deg,
+                        first_searched_more=settled is not None)
     best, D, costs = choice.best, choice.disagreement_deg, choice.costs_px
     if choice.worse_fit:
         say_progress(progress, "consensus: the runs with seeds " + ", ".join(

@@ -160,22 +160,32 @@ class Choice:
 
 def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
                camera_names: Sequence[str], truncation_px, seed: int = 0,
-               refined_on: Optional[Tracks] = None, agree_deg: float = AGREEMENT_DEG) -> Choice:
+               refined_on: Optional[Tracks] = None, agree_deg: float = AGREEMENT_DEG,
+               first_searched_more: bool = False) -> Choice:
     """The run to keep (module docstring). When all runs agree within agree_deg
-    (multistart.agreement_deg), simply the medoid. Otherwise, among the runs that fit about as
-    well as the best one (well_fitting_runs) and registered the most cameras among those: with
-    refined_on (tracks every run was refined on last, e.g. all keypoint matches), the one that
-    fits them best, its cost truncated at most at HELD_OUT_TRUNCATION_PX as they are raw
-    matches; without, the medoid of the costs on a sample of all runs' own tracks (runs_tracks)."""
+    (multistart.agreement_deg), simply the medoid; two runs are a tie, kept by the first where it
+    searched more focal starts than the second (`first_searched_more`: the later runs of a settled
+    multi-start try only its best starts), else by the fit to refined_on as below: runs that
+    agree still differ by up to agree_deg, which the image refinement need not close.
+    Otherwise, among the runs that fit about as well as the best one (well_fitting_runs) and
+    registered the most cameras among those: with refined_on (tracks every run was refined on
+    last, e.g. all keypoint matches), the one that fits them best, its cost truncated at most at
+    HELD_OUT_TRUNCATION_PX as they are raw matches; without, the medoid of the costs on a sample
+    of all runs' own tracks (runs_tracks)."""
     best, D = medoid(rigs, camera_names)
-    if len(rigs) < 2 or D.max() < agree_deg:
-        return Choice(best, D, np.full(len(rigs), np.nan), [])
     judge = refined_on is not None and refined_on.num_tracks > 0
+    agree = len(rigs) < 2 or D.max() < agree_deg
+    if agree and not (len(rigs) == 2 and judge and not first_searched_more):
+        return Choice(best, D, np.full(len(rigs), np.nan), [])
     if judge:
         costs = common_track_costs(rigs, [refined_on], camera_names,
                                    np.minimum(truncation_px, HELD_OUT_TRUNCATION_PX), seed)
     else:
         costs = common_track_costs(rigs, runs_tracks, camera_names, truncation_px, seed)
+    if agree:  # two agreeing runs: the better fit, where both could be judged
+        if np.isfinite(costs).all():
+            best = int(np.argmin(costs))
+        return Choice(best, D, costs, [], bool(np.isfinite(costs).all()))
     fitting = well_fitting_runs(costs)
     most = max(len(rigs[k].cameras) for k in fitting)
     complete = [k for k in fitting if len(rigs[k].cameras) == most]
