@@ -175,17 +175,17 @@ def choose_run(rigs: Sequence[RigCalibration], runs_tracks: Sequence[Tracks],
     best, D = medoid(rigs, camera_names)
     judge = refined_on is not None and refined_on.num_tracks > 0
     agree = len(rigs) < 2 or D.max() < agree_deg
-    if agree and not (len(rigs) == 2 and judge and not first_searched_more):
+    tie = agree and len(rigs) == 2 and judge and not first_searched_more
+    if agree and not tie:
         return Choice(best, D, np.full(len(rigs), np.nan), [])
     if judge:
         costs = common_track_costs(rigs, [refined_on], camera_names,
                                    np.minimum(truncation_px, HELD_OUT_TRUNCATION_PX), seed)
     else:
         costs = common_track_costs(rigs, runs_tracks, camera_names, truncation_px, seed)
-    if agree:  # two agreeing runs: the better fit, where both could be judged
-        if np.isfinite(costs).all():
-            best = int(np.argmin(costs))
-        return Choice(best, D, costs, [], bool(np.isfinite(costs).all()))
+    if tie:  # the better fit, where both runs could be judged
+        by_fit = bool(np.isfinite(costs).all())
+        return Choice(int(np.argmin(costs)) if by_fit else best, D, costs, [], by_fit)
     fitting = well_fitting_runs(costs)
     most = max(len(rigs[k].cameras) for k in fitting)
     complete = [k for k in fitting if len(rigs[k].cameras) == most]
