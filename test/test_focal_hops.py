@@ -5,7 +5,7 @@ import sfm_fixtures
 from densecalib_ros.core.calibration_result import rig_from_state
 from densecalib_ros.core.config import SfMConfig, make_config
 from densecalib_ros.core.method.all_matches import keypoint_tracks, refine_on_tracks
-from densecalib_ros.core.method.multistart import held_out_cost
+from densecalib_ros.core.method.multistart import HELD_OUT_TRUNCATION_PX, held_out_cost
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.pipeline import match_frame_sets
 from densecalib_ros.core.robust.focal_hops import _hop_cameras, _kicked, _points_without, hop_focals
@@ -85,7 +85,7 @@ def test_an_end_camera_left_in_a_wrong_minimum_hops_back_to_the_true_rig():
         return evaluate_calibration(rig_from_state(state, names, []), truth)["auc3"]
 
     def cost(state):
-        return held_out_cost(state, tracks, 4.0, 0)
+        return held_out_cost(state, tracks, HELD_OUT_TRUNCATION_PX, 0)  # as the hops judge
     assert float(wrong.camera(0).params[0]) < 0.95 * focal  # it stayed short
     assert auc3(wrong) < 60.0 and cost(wrong) > 1.05 * cost(right)
     hopped, hops = hop_focals(wrong, tracks, names, config)
