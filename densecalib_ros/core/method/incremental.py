@@ -34,8 +34,8 @@ from ..metrics import rotation_angle_deg
 from ..types import CameraIntrinsics, Tracks
 from .plausibility import bundle_adjust_plausibly
 from .reconstruction import (TRIANGULATION_MAX_ERROR_PX, BAStage, SfMState, bundle_adjust,
-                             convert_camera_models, midpoint_triangulation,
-                             remove_outlier_observations, reprojection_errors, triangulate,
+                             camera_reprojection_errors, convert_camera_models,
+                             midpoint_triangulation, remove_outlier_observations, triangulate,
                              triangulate_tracks)
 from .twoview import relative_pose_from_rays
 from .view_order import view_order
@@ -224,7 +224,7 @@ def _camera_truncated_cost(state: SfMState, c: int, truncation_px: float) -> flo
     rows = state.active[:, c] & (state.registered_active().sum(axis=1) >= 2)
     if not rows.any():
         return np.inf
-    err = reprojection_errors(state)[rows, c]
+    err = camera_reprojection_errors(state, c)[rows]
     truncation_px = min(truncation_px, TRUNCATION_FALLBACK_PX)
     return float(np.where(np.isfinite(err), np.minimum(err, truncation_px), truncation_px).mean())
 

@@ -298,15 +298,26 @@ def reprojection_errors(state: SfMState) -> np.ndarray:
     """float64 (T, C): pixel reprojection error of every active observation of a reconstruction
     point in a registered camera; NaN elsewhere; inf where the point is behind the camera."""
     err = np.full(state.active.shape, np.nan)
-    points = state.point_mask()
-    obs = state.registered_active() & points[:, None]
+    obs = state.registered_active() & state.point_mask()[:, None]
     for c in state.registered():
-        rows = np.flatnonzero(obs[:, c])
-        if len(rows):
-            xy = project(state, c, state.points_xyz[rows])
-            e = np.linalg.norm(xy - state.tracks.xy_px[rows, c], axis=1)
-            err[rows, c] = np.where(np.isnan(e), np.inf, e)
+        _camera_errors_into(state, c, np.flatnonzero(obs[:, c]), err[:, c])
     return err
+
+
+def camera_reprojection_errors(state: SfMState, c: int) -> np.ndarray:
+    """float64 (T,): reprojection_errors(state)[:, c], without the other cameras' projections."""
+    err = np.full(len(state.active), np.nan)
+    obs = state.registered_active()[:, c] & state.point_mask()
+    _camera_errors_into(state, c, np.flatnonzero(obs), err)
+    return err
+
+
+def _camera_errors_into(state: SfMState, c: int, rows: np.ndarray, err_c: np.ndarray) -> None:
+    """Camera c's reprojection errors of tracks `rows` written into err_c (T,) (inf behind it)."""
+    if len(rows):
+        xy = project(state, c, state.points_xyz[rows])
+        e = np.linalg.norm(xy - state.tracks.xy_px[rows, c], axis=1)
+        err_c[rows] = np.where(np.isnan(e), np.inf, e)
 
 
 def remove_outlier_observations(state: SfMState, max_error_px) -> int:
