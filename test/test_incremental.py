@@ -15,8 +15,9 @@ from densecalib_ros.core.method.multistart import run_incremental
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.calibration_result import rig_from_state
 from densecalib_ros.core.method.reconstruction import (BAStage, SfMState, bundle_adjust,
-                                                       build_reconstruction, reprojection_errors,
-                                                       triangulate)
+                                                       build_reconstruction,
+                                                       camera_reprojection_errors,
+                                                       reprojection_errors, triangulate)
 from densecalib_ros.core.types import CameraIntrinsics, Tracks
 from densecalib_ros.core.method.view_order import view_order
 
@@ -63,6 +64,24 @@ def test_bundle_adjust_recovers_focal_from_perturbed_start():
     assert np.nanmedian(err) < 0.5
     rec, _ = build_reconstruction(state, list("abcd"))
     assert rec.num_reg_images() == 4 and rec.num_points3D() == int(state.point_mask().sum())
+
+
+def test_one_cameras_reprojection_errors_are_the_column_of_every_cameras():
+    """camera_reprojection_errors (what a pair registration judges its candidates on) gives
+    reprojection_errors' column bit for bit: NaN for observations switched off, points not
+    triangulated and a camera not registered, inf behind a camera."""
+    cams, poses = gt_rig(4, seed=5)
+    tracks = gt_tracks(cams, poses, num_points=400, outlier_frac=0.1, seed=5)
+    state = SfMState.create(tracks, cams)
+    for c, pose in enumerate(poses[:3]):  # camera 3 not registered
+        state.cam_from_world[c] = pose
+    triangulate(state, np.arange(tracks.num_tracks), max_error_px=50.0)
+    state.active[::7, 1] = False
+    state.points_xyz[5] = -2.0 * state.points_xyz[5]  # behind some camera: inf there
+    err = reprojection_errors(state)
+    assert np.isinf(err).any() and np.isnan(err[:, 3]).all()
+    for c in range(4):
+        np.testing.assert_array_equal(camera_reprojection_errors(state, c), err[:, c])
 
 
 @pytest.mark.parametrize("model,preset", [("RADIAL", "regular"), ("OPENCV_FISHEYE", "fisheye")])
