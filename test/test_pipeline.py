@@ -12,7 +12,7 @@ from densecalib_ros.core.errors import (CalibrationError, InputError, NotEnoughC
 from densecalib_ros.core.method.matching import create_matcher
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.method.focal_start import start_focals
-from densecalib_ros.core.pipeline import calibrate_rig, run_calibration
+from densecalib_ros.core.pipeline import _calibrated, calibrate_rig, match_frame_sets, run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
@@ -307,6 +307,63 @@ def test_runs_that_leave_the_same_camera_out_agree_and_the_user_is_told_what_wou
                                     "other 4 cameras are calibrated without it.")
     assert "--matcher asift" in q.warnings[0]
     assert sum(q.warnings[0] in line for line in lines) == 1  # said once
+
+
+def test_a_camera_the_first_sift_run_leaves_out_goes_to_asift_after_that_one_run(rig):
+    """The stray camera of the test above with the second matcher on: sift's first consensus run
+    leaves it out, so asift is tried right after that run instead of after sift's further runs.
+    Where asift does no better, sift's runs are completed and the rig is the one the consensus
+    without a second matcher gives (the test above: two runs that agree)."""
+    other = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                                 height=480, seed=7))
+    names = list(rig.names) + ["stray"]
+    lines = []
+    result = run_calibration([list(rig.images[0]) + [other.images[0][0]]], names,
+                             make_config("regular", matcher="sift", sfm__num_threads=1),
+                             progress=lines.append)
+    q = result.rig.quality
+    rematch = [k for k, m in enumerate(lines)
+               if m.startswith("sift: stray not registered; matching again with asift")]
+    assert len(rematch) == 1
+    before = lines[:rematch[0]]
+    assert sum(m.startswith("consensus run 1 of up to 5") for m in before) == 1
+    assert not any(m.startswith("consensus run 2") for m in before)
+    assert result.rig.failed_cameras == ["stray"] and len(result.rig.cameras) == 4
+    assert q.rematch["first_result"] == "stray not registered"
+    completed = [m for m in lines if m == "asift: no better determined; completing sift's "
+                                          "consensus runs"]
+    if q.rematch["kept"] == "sift":
+        assert len(completed) == 1
+        assert q.consensus_runs == 2 and q.consensus_disagreement_deg < 1.0
+    else:
+        assert not completed and q.matcher == "asift"
+    assert evaluate_calibration(result.rig, rig.ground_truth())["auc3"] >= 80.0
+
+
+def test_where_asift_does_no_better_sifts_runs_are_completed_as_without_it(rig):
+    """The same sift matches, and images in which asift finds nothing (uniform grey): asift's
+    leg gives no calibration, so sift's consensus runs are completed after its one run, and the
+    kept rig is the consensus's of the test above (two runs that agree; the grey images leave
+    the dense refinement nothing, so the rig is kept as the matches found it)."""
+    other = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                                 height=480, seed=7))
+    names = list(rig.names) + ["stray"]
+    frames = [list(rig.images[0]) + [other.images[0][0]]]
+    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    match_sets = match_frame_sets(frames, config, camera_names=names)
+    grey = [[np.full_like(image, 128) for image in frames[0]]]
+    lines = []
+    result, kept_config = _calibrated(grey, names, config, [(640, 480)] * 5, [], match_sets,
+                                      None, lines.append)
+    q = result.rig.quality
+    assert kept_config.matcher == "sift" and q.rematch == {
+        "first": "sift", "first_result": "stray not registered", "second": "asift",
+        "second_result": "no calibration came out", "kept": "sift"}
+    done = lines.index("asift: no better determined; completing sift's consensus runs")
+    assert sum(m.startswith("consensus run 1 of up to 5") for m in lines[done:]) == 1
+    assert q.consensus_runs == 2 and q.consensus_disagreement_deg < 1.0
+    assert result.rig.failed_cameras == ["stray"] and len(result.rig.cameras) == 4
+    assert evaluate_calibration(result.rig, rig.ground_truth())["auc3"] >= 80.0
 
 
 def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):

@@ -233,7 +233,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
                            frame_sets: Optional[Sequence[Sequence[np.ndarray]]] = None,
                            ignored: Sequence = (),
                            progress: Progress = None,
-                           warn_undetermined: bool = True) -> CalibrationResult:
+                           warn_undetermined: bool = True,
+                           stop_if_incomplete: bool = False) -> CalibrationResult:
     """Sample tracks from the matches and calibrate. With config.sfm.global_init == "previous",
     the previous calibration's poses and intrinsics also give the triangulation angles that score
     the samples (paper Sec. 3.2, refinement case); otherwise only its focals are reused.
@@ -251,7 +252,9 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     still disagrees (_refine_runner_up). warn_undetermined: warn where a camera was not
     registered (calibration_result.unregistered_warning) or the focal lengths come out looser
     than the calibration aims at (focal_determination.loose_focal_warning); off where another
-    matcher may be tried for that (_calibrated), which then warns for the rig it keeps."""
+    matcher may be tried for that (_calibrated), which then warns for the rig it keeps.
+    stop_if_incomplete: end the consensus at the first run that comes out where it leaves a camera
+    unregistered (_consensus_runs; for _calibrated, which tries another matcher then)."""
     config = resolve_camera_lenses(config, camera_names)
     known = check_known_intrinsics(config.cameras.known_intrinsics or {}, camera_names, image_sizes)
     config = replace(config, cameras=replace(config.cameras, known_intrinsics=known))
@@ -267,7 +270,8 @@ def calibrate_from_matches(match_sets: list, image_sizes: Sequence[tuple[int, in
     try:
         if previous is None and config.consensus_runs > 1:
             consensus = _consensus_calibration(match_sets, image_sizes, camera_names, config,
-                                               match_tracks, progress, ahead, refined)
+                                               match_tracks, progress, ahead, refined,
+                                               stop_if_incomplete)
             result = consensus.result
         else:
             result = _calibrate_once(match_sets, image_sizes, camera_names, config, previous,
@@ -452,12 +456,13 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
                            camera_names: Sequence[str], config: PipelineConfig,
                            match_tracks: Optional[Tracks], progress: Progress,
                            dense_ahead: Optional[DenseAhead] = None,
-                           refined: Optional[_RefinedRuns] = None) -> Consensus:
+                           refined: Optional[_RefinedRuns] = None,
+                           stop_if_incomplete: bool = False) -> Consensus:
     """_consensus_runs' kept run (core.robust.consensus), with the runner-up and the warning
     where the runs disagree (Consensus). dense_ahead: where given, told to expect the first run's
     rig, which the runs keep where they agree. refined: where given, runs that disagree on the
     keypoint matches are judged again refined on the images (_consensus_runs); where they agree
-    refined, no focal hops are searched."""
+    refined, no focal hops are searched. stop_if_incomplete: as _consensus_runs'."""
     from .method.multistart import cost_truncation_px
     from .robust.consensus import (choose_run, disagreement_warning, least_determined_pairs,
                                    rig_disagreement_deg)
@@ -465,7 +470,7 @@ def _consensus_calibration(match_sets: list, image_sizes: Sequence[tuple[int, in
 
     results, seeds, failed, settled, refined_deg = _consensus_runs(
         match_sets, image_sizes, camera_names, config, match_tracks, progress, dense_ahead,
-        refined)
+        refined, stop_if_incomplete)
     agree_deg = _runs_agreement_deg(results[0].rig, camera_names, config)
     choice = choose_run([r.rig for r in results], [r.tracks for r in results], camera_names,
                         cost_truncation_px(config.sfm, len(camera_names)), config.sampling.seed,
@@ -532,7 +537,8 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
                     camera_names: Sequence[str], config: PipelineConfig,
                     match_tracks: Optional[Tracks], progress: Progress,
                     dense_ahead: Optional[DenseAhead] = None,
-                    refined: Optional[_RefinedRuns] = None
+                    refined: Optional[_RefinedRuns] = None,
+                    stop_if_incomplete: bool = False
                     ) -> tuple[list[CalibrationResult], list[int], int, Optional[list[str]],
                                Optional[np.ndarray]]:
     """Sampling + SfM with consecutive seeds, up to config.consensus_runs times: (the results,
@@ -549,7 +555,13 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
     matches are, where `refined` is given, refined on the dense image correspondences and stop
     as well where they agree refined within AGREEMENT_DEG: the keypoint matches' valley is
     flat where the images' minimum is sharp, and there more runs would be refined to the same
-    rig (docs/design-notes.md, Consensus: runs apart, refined)."""
+    rig (docs/design-notes.md, Consensus: runs apart, refined).
+
+    stop_if_incomplete: stop after the first run that comes out where it leaves a camera
+    unregistered: where another matcher is to be tried for such a camera (_calibrated), more
+    runs on these matches would only delay it, as a later sample rarely registers a camera the
+    first run left out (docs/design-notes.md, A second matcher: sooner), and the runs are
+    completed where the other matcher does no better."""
     from .robust.consensus import EARLY_STOP_RUNS
 
     results, seeds, failed, first_error, run_s, settled = [], [], 0, None, None, None
@@ -558,6 +570,10 @@ def _consensus_runs(match_sets: list, image_sizes: Sequence[tuple[int, int]],
         if k == 1 and _settled_whole(results, settled, camera_names):
             log.info("consensus: the first run's focal multi-start settled and it registered "
                      "every camera; no more runs")
+            return results, seeds, failed, settled, None
+        if stop_if_incomplete and len(results) == 1 and results[0].rig.failed_cameras:
+            log.info("consensus: the first run left %s unregistered; no more runs before another "
+                     "matcher is tried", ", ".join(results[0].rig.failed_cameras))
             return results, seeds, failed, settled, None
         if len(results) == EARLY_STOP_RUNS and not judged:
             judged = True
@@ -761,20 +777,25 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     it. Raises the first calibration's error where neither gives one."""
     from .robust.second_matcher import better_determined, rematch_applies, undetermined
 
-    def calibrate(cfg: PipelineConfig, sets: list, warn_undetermined: bool = False
-                  ) -> CalibrationResult:
+    def calibrate(cfg: PipelineConfig, sets: list, warn_undetermined: bool = False,
+                  stop_if_incomplete: bool = False) -> CalibrationResult:
         return calibrate_from_matches(sets, image_sizes, camera_names, cfg, previous=previous,
                                       frame_sets=frame_sets, ignored=ignored, progress=progress,
-                                      warn_undetermined=warn_undetermined)
+                                      warn_undetermined=warn_undetermined,
+                                      stop_if_incomplete=stop_if_incomplete)
     if not rematch_applies(config, camera_names, fresh=previous is None):
         return calibrate(config, match_sets, warn_undetermined=True), config
     first, error = None, None
     try:
-        first = calibrate(config, match_sets)
+        # A camera the first run leaves out is the second matcher's case: its consensus runs are
+        # completed only where the second matcher does no better (below).
+        first = calibrate(config, match_sets, stop_if_incomplete=True)
     except InputError:
         raise  # the user's input, not sift's matches: another matcher would be refused too
     except CalibrationError as exc:
         error = exc
+    cut_short = first is not None and bool(first.rig.failed_cameras) and \
+        config.consensus_runs > 1
     why = undetermined(first.rig if first else None)
     if why is None:
         return first, config
@@ -787,6 +808,16 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
                                                   camera_names=camera_names, ignored=ignored))
     except CalibrationError as exc:
         log.info("the calibration on %s's matches failed too: %s", wide.matcher, exc)
+    if cut_short and not better_determined(second.rig if second else None, first.rig):
+        say_progress(progress, f"{wide.matcher}: no better determined; completing "
+                               f"{config.matcher}'s consensus runs")
+        try:
+            first = calibrate(config, match_sets)  # its first run as before: the same seed
+        except CalibrationError as exc:  # not expected (the same first run): keep the one run
+            log.info("completing %s's consensus runs failed: %s", config.matcher, exc)
+        why = undetermined(first.rig)
+        if why is None:  # a later run registered the camera: no second matcher was needed
+            return first, config
     if first is None and second is None:
         raise error
     second_came = undetermined(second.rig if second else None) or "determined"
