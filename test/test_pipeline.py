@@ -22,6 +22,14 @@ def rig():
                                 seed=0))
 
 
+@pytest.fixture(scope="module")
+def with_stray(rig):
+    """(one frame set, names): `rig`'s four cameras and a fifth, "stray", filming another scene."""
+    other = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
+                                 height=480, seed=7))
+    return [list(rig.images[0]) + [other.images[0][0]]], list(rig.names) + ["stray"]
+
+
 def test_generated_rig_recovers_ground_truth(rig):
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     result = run_calibration([rig.images[0]], rig.names, config)
@@ -283,17 +291,15 @@ def test_two_agreeing_runs_end_the_consensus_where_the_multi_start_did_not_settl
     assert evaluate_calibration(result.rig, gt)["auc3"] >= 80.0
 
 
-def test_runs_that_leave_the_same_camera_out_agree_and_the_user_is_told_what_would_place_it(rig):
+def test_runs_that_leave_the_same_camera_out_agree_and_the_user_is_told_what_would_place_it(rig, with_stray):
     """A fifth camera filming another scene is registered by no run. The runs agree on the four
     others, so the consensus stops at its early stop (the pairs with the stray camera, placed by
     neither run, say nothing about their agreement: they used to count 180 deg and every run was
     made, with a warning that the runs disagree); the warning names the camera, its best partner
     and what would place it."""
-    other = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
-                                 height=480, seed=7))
-    names = list(rig.names) + ["stray"]
+    frames, names = with_stray
     lines = []
-    result = run_calibration([list(rig.images[0]) + [other.images[0][0]]], names,
+    result = run_calibration(frames, names,
                              make_config("regular", matcher="sift", second_matcher=None,
                                          sfm__num_threads=1), progress=lines.append)
     q = result.rig.quality
@@ -309,16 +315,15 @@ def test_runs_that_leave_the_same_camera_out_agree_and_the_user_is_told_what_wou
     assert sum(q.warnings[0] in line for line in lines) == 1  # said once
 
 
-def test_a_camera_the_first_sift_run_leaves_out_goes_to_asift_after_that_one_run(rig):
+def test_a_camera_the_first_sift_run_leaves_out_goes_to_asift_after_that_one_run(rig, with_stray):
     """The stray camera of the test above with the second matcher on: sift's first consensus run
     leaves it out, so asift is tried right after that run instead of after sift's further runs.
     Where asift does no better, sift's runs are completed and the rig is the one the consensus
-    without a second matcher gives (the test above: two runs that agree)."""
-    other = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
-                                 height=480, seed=7))
-    names = list(rig.names) + ["stray"]
+    without a second matcher gives (the test above: two runs that agree; the test below makes
+    asift give nothing)."""
+    frames, names = with_stray
     lines = []
-    result = run_calibration([list(rig.images[0]) + [other.images[0][0]]], names,
+    result = run_calibration(frames, names,
                              make_config("regular", matcher="sift", sfm__num_threads=1),
                              progress=lines.append)
     q = result.rig.quality
@@ -340,15 +345,12 @@ def test_a_camera_the_first_sift_run_leaves_out_goes_to_asift_after_that_one_run
     assert evaluate_calibration(result.rig, rig.ground_truth())["auc3"] >= 80.0
 
 
-def test_where_asift_does_no_better_sifts_runs_are_completed_as_without_it(rig):
+def test_where_asift_does_no_better_sifts_runs_are_completed_as_without_it(rig, with_stray):
     """The same sift matches, and images in which asift finds nothing (uniform grey): asift's
     leg gives no calibration, so sift's consensus runs are completed after its one run, and the
     kept rig is the consensus's of the test above (two runs that agree; the grey images leave
     the dense refinement nothing, so the rig is kept as the matches found it)."""
-    other = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=640,
-                                 height=480, seed=7))
-    names = list(rig.names) + ["stray"]
-    frames = [list(rig.images[0]) + [other.images[0][0]]]
+    frames, names = with_stray
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
     match_sets = match_frame_sets(frames, config, camera_names=names)
     grey = [[np.full_like(image, 128) for image in frames[0]]]
