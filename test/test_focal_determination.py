@@ -78,6 +78,36 @@ def test_a_rig_around_the_scene_looser_than_1_percent_is_told_so_below_the_weak_
     assert loose_focal_warning(_rig(_camera("a", 0, 12.0), _camera("b", 10, 12.0)), "x") is None
 
 
+def _with_focal(camera: RigCamera, focal_px: float) -> RigCamera:
+    params = np.array(camera.intrinsics.params, float)
+    params[0] = focal_px
+    camera.intrinsics = CameraIntrinsics(camera.intrinsics.model, 640, 480, params)
+    return camera
+
+
+def test_images_that_could_come_from_one_camera_are_told_to_share_intrinsics():
+    """A rig short of the focal aim whose cameras could be one (one image size and model, not
+    one set of intrinsics already) is told that --share-intrinsics estimates one set from every
+    image; a rig at the aim, one set already, or cameras of another size are not."""
+    from densecalib_ros.core.method.focal_determination import one_camera_hint
+
+    def rig(focals, f_std_px=12.0):  # 1.5 % of 800 px: short of the aim, below the weak bound
+        return _rig(*(_with_focal(_camera(n, yaw, f_std_px), f)
+                      for n, yaw, f in zip("abc", (0, 30, 60), focals)))
+    # one phone's frames calibrated apart: focal lengths several of their sigmas apart
+    alike = rig([800.0, 740.0, 860.0])
+    loose = loose_focal_warning(alike, "sift's matches")
+    assert "--share-intrinsics" in loose and loose.endswith(one_camera_hint(alike))
+    assert weak_focal_warning(rig([800.0, 740.0, 860.0], 48.0)).endswith(one_camera_hint(alike))
+    assert one_camera_hint(rig([800.0, 812.0, 790.0], 4.0)) == ""  # at the aim
+    assert one_camera_hint(rig([800.0, 800.0, 800.0])) == ""  # one set of intrinsics already
+    other_size = rig([800.0, 812.0, 790.0])
+    c = other_size.cameras["c"]
+    c.intrinsics = CameraIntrinsics("RADIAL", 1280, 960, np.array(c.intrinsics.params))
+    assert one_camera_hint(other_size) == "" and "--share-intrinsics" not in \
+        loose_focal_warning(other_size, "sift's matches")
+
+
 def test_fisheye_given_and_unestimated_cameras_are_left_out():
     rig = _rig(_camera("a", 0, 80.0), _camera("fish", 10, 200.0, "OPENCV_FISHEYE"),
                _camera("lab", 5, 400.0), _camera("b", 3, 4.0), given=["lab"])

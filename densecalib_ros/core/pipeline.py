@@ -18,7 +18,8 @@ from .errors import (CalibrationError, FocalInitError, InputError, NotEnoughOver
                      TooFewCamerasGivenError)
 from .method.all_matches import keypoint_tracks, refine_on_tracks
 from .method.dense_matches import DenseAhead
-from .method.focal_determination import loose_focal_warning, weak_focal_warning
+from .method.focal_determination import (loose_focal_warning, one_camera_hint,
+                                         weak_focal_warning)
 from .method.focal_start import (eq2_start, initial_focals, start_focals,
                                  with_known_intrinsics)
 from .method.frame_checks import check_frame_sets
@@ -833,8 +834,10 @@ def _calibrated(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequen
     if warning:
         warn_user(kept.rig, warning, progress)
     if not keep_second:
+        # Above the weak bound the weak warning has given the hint already.
+        hint = "" if weak_focal_warning(kept.rig) else one_camera_hint(kept.rig)
         warn_user(kept.rig, f"{wide.matcher}'s matches were tried as well and gave no better "
-                            f"determined rig ({second_came}).", progress)
+                            f"determined rig ({second_came}).{hint}", progress)
     else:
         warning = loose_focal_warning(kept.rig, f"{wide.matcher}'s matches (kept over "
                                                 f"{config.matcher}'s)")

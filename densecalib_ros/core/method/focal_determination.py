@@ -177,7 +177,7 @@ def loose_focal_warning(rig: RigCalibration, matched: str) -> Optional[str]:
     return (f"focal lengths looser than the calibration aims at: on {matched} f_std is "
             f"{_listed(rig)} of the focal length (1 sigma; a rig's cameras err together) where "
             f"it aims at {100 * AIMED_FOCAL_STD_FRACTION:.0f} %, so 3D lengths and angles may be "
-            f"off by twice that. {_focal_fix(optical_axes_spread_deg(rig))}")
+            f"off by twice that. {_focal_fix(rig, optical_axes_spread_deg(rig))}")
 
 
 def _listed(rig: RigCalibration) -> str:
@@ -200,10 +200,10 @@ def weak_focal_warning(rig: RigCalibration) -> Optional[str]:
                "open: few of them, or bunched in a part of the images (small overlap, a flat or "
                "repetitive scene).")
     return (f"{WEAK_FOCAL_PREFIX}: f_std is {_listed(rig)} of the focal length (1 sigma; a rig's "
-            f"cameras err together). {why} {_focal_fix(spread_deg)}")
+            f"cameras err together). {why} {_focal_fix(rig, spread_deg)}")
 
 
-def _focal_fix(spread_deg: float) -> str:
+def _focal_fix(rig: RigCalibration, spread_deg: float) -> str:
     """What a user can do about focal lengths the images leave open, on a rig whose optical axes
     spread this much (deg)."""
     other_fix = ("or place cameras around the scene, 20 deg or more apart"
@@ -213,4 +213,27 @@ def _focal_fix(spread_deg: float) -> str:
     return ("Give one camera's intrinsics from a lab calibration (--intrinsics NAME=PATH; node: "
             "intrinsics_files; library: PipelineConfig.cameras.known_intrinsics) and the others "
             f"follow from it, {other_fix}. A known focal given as a start (--focal-px) does not "
-            "help: it is refined like any other.")
+            "help: it is refined like any other." + one_camera_hint(rig))
+
+
+def one_camera_hint(rig: RigCalibration) -> str:
+    """" If these images come from one camera, --share-intrinsics ..." for a rig short of the
+    focal aim (median_focal_std_fraction above AIMED_FOCAL_STD_FRACTION) whose cameras could be
+    one: every camera calibrated with a sigma (weak_focal_fractions), of one image size and lens
+    model, and the intrinsics not one set already (not all equal). One set estimated from every
+    image is determined where one per image is left open; "" otherwise. Whether they are one
+    camera only the user knows: separately calibrated, one phone's frames come out with focal
+    lengths several of their sigmas apart (docs/design-notes.md, Images of one camera)."""
+    cams = list(rig.cameras.values())
+    if len(cams) < 2 or len(weak_focal_fractions(rig)) < len(cams) or \
+            median_focal_std_fraction(rig) <= AIMED_FOCAL_STD_FRACTION:
+        return ""
+    if len({(c.intrinsics.model, c.intrinsics.width, c.intrinsics.height) for c in cams}) > 1:
+        return ""
+    params = [np.asarray(c.intrinsics.params, float) for c in cams]
+    if all(np.array_equal(p, params[0]) for p in params[1:]):
+        return ""  # one set already
+    return (" If these images come from one camera (moved between shots, or frames of one "
+            "video), --share-intrinsics (node: share_intrinsics; library: "
+            "SfMConfig.share_intrinsics) estimates one set of intrinsics from all of them, which "
+            "the images determine where one set per image is left open.")
