@@ -209,3 +209,52 @@ def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_imag
             assert both.max() < AGREEMENT_DEG
         assert not pipeline._no_more_runs([found, runner_up], names, config)[0]
         assert refined_runs.refinement(found) is refined_runs.refinement(found)
+
+
+def _refinement_ties(cams, seed):
+    """The ties the refinement chooses for a rig of these intrinsics, found from its true poses on
+    exact correspondences with 0.1 px noise (what dense correspondences measure), and what it
+    said."""
+    from dataclasses import replace
+
+    from sfm_fixtures import gt_rig, gt_tracks
+
+    from densecalib_ros.core.method import image_refinement as ir
+    from densecalib_ros.core.method.prior_adjustment import Priors
+    from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+
+    _, poses = gt_rig(len(cams), seed=seed)
+    tracks = gt_tracks(cams, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0, seed=seed)
+    state = SfMState.create(tracks, cams)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state)
+    blocks = list(range(len(cams)))
+    priors = Priors(principal_point_std_px={b: 0.01 * cams[b].width for b in blocks},
+                    aspect_std={b: ir.ASPECT_PRIOR_STD for b in blocks})
+    start = state.copy()
+    adjustment = ir._adjust_and_gate(state, blocks, priors)
+    start.active &= state.active
+    _, fold_sigmas = ir._determined_by_images(start, tracks, blocks, priors)
+    said = []
+    ties = ir._rig_ties(state, tracks, blocks, fold_sigmas, priors, adjustment.noise_px,
+                        [f"cam{c}" for c in blocks], said.append)
+    return dict(ties), said
+
+
+def test_images_of_one_camera_are_adjusted_as_one_and_different_lenses_apart():
+    """A rig's cameras are tied as one camera where that fits correspondences held out of the
+    adjustment as well as separate cameras do (one camera moved around: Strecha's DSLR), and
+    only as far as they agree where it does not (lenses a few percent apart in focal length,
+    principal points a few pixels apart, as units of one camera model differ)."""
+    from sfm_fixtures import gt_rig
+
+    from densecalib_ros.core.types import CameraIntrinsics
+
+    cams, _ = gt_rig(6, seed=11, pp_jitter_px=6.0)
+    one = [CameraIntrinsics(c.model, c.width, c.height, cams[0].params.copy()) for c in cams]
+    ties, said = _refinement_ties(one, seed=11)
+    assert "as one" in said[0], said
+    assert {0, 1, 2, 3, 4} <= set(ties)  # f, cx, cy, k1, k2
+    ties, said = _refinement_ties(cams, seed=11)
+    assert "as far as they agree" in said[0], said
+    assert set(ties) == {0, 3, 4}  # f, k1, k2 within the rig's spread; each its own point

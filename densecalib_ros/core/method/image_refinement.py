@@ -48,9 +48,9 @@ from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, intrinsics_vector, posterior_covariance)
-from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
-                             triangulate_tracks)
-from .rig_pooling import MIN_POOLED_CAMERAS, POOLED_INTRINSICS, random_effects
+from .reconstruction import (BAStage, SfMState, bundle_adjust, remove_outlier_observations,
+                             reprojection_errors, triangulate, triangulate_tracks)
+from .rig_pooling import MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, random_effects
 from .uncertainty import CameraUncertainty, projection_std_px
 
 log = logging.getLogger(__name__)
@@ -71,6 +71,10 @@ HOLDOUT_CELL_FRACTION = 0.1  # fold cells: this fraction of the image's long sid
 GATE_SIGMAS = 4.0
 GATE_ROUNDS = 3
 TRIANGULATION_GATE_PX = 4.0  # the found rig fits right correspondences to well under this
+# Held-out correspondences' points are adjusted from their midpoints with the cameras held: each
+# point alone converges in a few steps; the cap only bounds a stray one.
+HELD_OUT_POINT_ITERATIONS = 50
+PRINCIPAL_POINT_INTRINSICS = (1, 2)  # cx, cy as indices into INTRINSIC_NAMES
 # A camera left with fewer dense observations than this is not refined here (nor the rig).
 MIN_CAMERA_OBSERVATIONS = 50
 
@@ -153,7 +157,8 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
-    ties = _rig_ties(refined, blocks, fold_sigmas, say)
+    ties = _rig_ties(refined, tracks, blocks, fold_sigmas, priors, adjustment.noise_px,
+                     camera_names, say)
     in_place = replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
@@ -211,11 +216,7 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     images does not decide it. Also per block the folds' standard deviations of the mean of the
     principal point (per axis), of the focal length (px) and of each tied intrinsic
     (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
-    first = np.argmax(tracks.observed(), axis=1)
-    xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
-    cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
-    cell = np.floor(xy / cell_px).astype(np.int64)
-    fold = (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
+    fold = _folds(state, tracks)
     free = Priors(principal_point_std_px={b: np.inf for b in blocks},
                   aspect_std={b: np.inf for b in blocks})
     estimates = []  # per fold: block -> (cx, cy, aspect)
@@ -253,11 +254,24 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     return out, spread_of
 
 
-def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict,
+def _folds(state: SfMState, tracks: Tracks) -> np.ndarray:
+    """int (T,): each track's spatial fold (HOLDOUT_FOLDS of them): cells of
+    HOLDOUT_CELL_FRACTION of the long side around its first observation, dealt out in turn, so
+    that every fold covers the whole of every image."""
+    first = np.argmax(tracks.observed(), axis=1)
+    xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
+    cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
+    cell = np.floor(xy / cell_px).astype(np.int64)
+    return (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
+
+
+def _rig_ties(state: SfMState, tracks: Tracks, blocks: list[int], fold_sigmas: dict,
+              priors: Priors, noise_px: float, camera_names: Sequence[str],
               say: Callable[[str], None]) -> list:
-    """Priors.ties: the rig's own spread (core.method.rig_pooling) of each of POOLED_INTRINSICS
-    among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them have the
-    folds' sigmas (the estimates: `state`'s)."""
+    """Priors.ties among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them
+    have the folds' sigmas (the estimates: `state`'s, adjusted under `priors`): as one camera
+    where the images do not tell them apart (`_one_camera`), else each of POOLED_INTRINSICS as
+    far as they agree (core.method.rig_pooling: the rig's own spread)."""
     ties, groups = [], {}
     for b in blocks:
         sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
@@ -273,11 +287,79 @@ def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict,
         effects = {i: random_effects(values[:, i],
                                      [fold_sigmas[b]["intrinsics"][i] for b in members])
                    for i in POOLED_INTRINSICS}
-        ties += [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
-        say(f"focal length and distortion tied across the {len(members)} cameras of "
-            f"{width}x{height} as far as they agree (spread between them: focal "
-            f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 {effects[4].spread:.4f})")
+        spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
+        one_ties = _one_camera_ties(state, members, fold_sigmas)
+        held_out = {name: _held_out_errors(state, tracks, blocks, replace(priors, ties=group_ties),
+                                           noise_px, camera_names)
+                    for name, group_ties in (("apart", spread_ties), ("one", one_ties))}
+        # Relative excess of one camera's held-out error over the cameras' own, per fold.
+        excess = held_out["one"] / held_out["apart"] - 1.0
+        standard_error = float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
+        log.debug("held-out errors of the %d cameras of %dx%d apart %s and as one %s px^2",
+                  len(members), width, height, np.round(held_out["apart"], 6).tolist(),
+                  np.round(held_out["one"], 6).tolist())
+        if float(np.mean(excess)) <= standard_error:
+            ties += one_ties
+            say(f"the {len(members)} cameras of {width}x{height} fit the correspondences held "
+                f"out of their adjustment as well as one camera does ({100 * np.mean(excess):+.2f}"
+                f" %, folds' standard error {100 * standard_error:.2f} %): their focal length, "
+                f"principal point and distortion are estimated as one")
+        else:
+            ties += spread_ties
+            say(f"focal length and distortion tied across the {len(members)} cameras of "
+                f"{width}x{height} as far as they agree (spread between them: focal "
+                f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 "
+                f"{effects[4].spread:.4f}; as one camera they fit held-out correspondences "
+                f"{100 * np.mean(excess):.1f} % worse)")
     return ties
+
+
+def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> list:
+    """Priors.ties that hold f, k1, k2 and the principal point of `members` together as one
+    camera would (rig_pooling.one_value); the principal point where the folds gave it a sigma
+    (the adjustment leaves a held one out of its tie)."""
+    ties = []
+    for i in POOLED_INTRINSICS:
+        stds = [fold_sigmas[b]["intrinsics"][i] for b in members]
+        values = [intrinsics_vector(state.intrinsics[b])[i] for b in members]
+        ties.append((i, {b: one_value(values, stds).sigma for b in members}))
+    for axis, i in enumerate(PRINCIPAL_POINT_INTRINSICS):
+        stds = [fold_sigmas[b]["principal_point_axes_px"][axis] for b in members]
+        if all(np.isfinite(stds)) and min(stds) > 0:
+            values = [intrinsics_vector(state.intrinsics[b])[i] for b in members]
+            ties.append((i, {b: one_value(values, stds).sigma for b in members}))
+    return ties
+
+
+def _held_out_errors(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors,
+                     noise_px: float, camera_names: Sequence[str]) -> np.ndarray:
+    """Per fold (`_folds`) the mean squared reprojection error (px^2) of its correspondences,
+    triangulated anew with the rig adjusted under `priors` on the other folds; each error is
+    truncated at the gate (GATE_SIGMAS noise sigmas), and an observation whose point cannot be
+    triangulated counts the gate."""
+    fold = _folds(state, tracks)
+    gate_px = GATE_SIGMAS * noise_px
+    out = []
+    for k in range(HOLDOUT_FOLDS):
+        train = state.copy()
+        train.active[fold == k] = False
+        train.drop_weak_points()
+        adjust_with_priors(train, blocks, priors, noise_px=noise_px)
+        test = train.copy()
+        test.active = state.active & (fold == k)[:, None]
+        rows = np.flatnonzero(fold == k)
+        test.points_xyz[:] = np.nan
+        triangulate(test, rows, max_error_px=np.inf, min_angle_deg=0.0)
+        observed = test.registered_active()[rows] & (test.registered_active()[rows].sum(axis=1)
+                                                     >= 2)[:, None]
+        if test.point_mask()[rows].any():
+            bundle_adjust(test, camera_names, BAStage(HELD_OUT_POINT_ITERATIONS,
+                                                      refine_focal=False, refine_extra=False,
+                                                      refine_poses=False), num_threads=1)
+        err = reprojection_errors(test)[rows][observed]
+        out.append(float(np.mean(np.minimum(np.nan_to_num(err, nan=gate_px), gate_px) ** 2))
+                   if err.size else np.nan)
+    return np.array(out)
 
 
 def _fold_values(cam) -> tuple[float, ...]:

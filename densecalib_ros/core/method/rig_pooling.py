@@ -61,3 +61,10 @@ def random_effects(values: Sequence[float], stds: Sequence[float]) -> RandomEffe
     w_random = 1.0 / (s2 + tau2)
     return RandomEffects(float(np.sum(w_random * y) / np.sum(w_random)), float(np.sqrt(tau2)),
                          float(np.sqrt(1.0 / np.sum(w_random))))
+
+
+def one_value(values: Sequence[float], stds: Sequence[float]) -> RandomEffects:
+    """The cameras taken as one (spread 0): the precision-weighted mean of their estimates, its
+    standard error, and the tie SHARED_FRACTION of that (what a shared parameter would do)."""
+    y, w = np.asarray(values, float), np.asarray(stds, float) ** -2.0
+    return RandomEffects(float(np.sum(w * y) / np.sum(w)), 0.0, float(np.sqrt(1.0 / np.sum(w))))
