@@ -25,12 +25,18 @@ recalibration the point the previous calibration of the same camera estimated fr
 (pp_centres): a bump or a refocus leaves it where it was, and the fold decision, near its
 threshold, can go either way between runs (measured: docs/design-notes.md, Principal point prior
 in a recalibration). Where three or more cameras of one image size were adjusted, the rig is
-adjusted once more with f, k1 and k2 tied across them (core.method.rig_pooling): the cameras'
-estimates, with the folds' sigmas, give the spread between the cameras, and each camera's
-difference from the rig's mean gets a Gaussian of that spread. Cameras of one model are so
-pulled together as far as their images agree; separately self-calibrated, each traded its
+adjusted once more with their intrinsics tied (core.method.rig_pooling). First, whether they
+are one camera (one camera moved around, frames of one video): the rig is adjusted on three of
+the folds and scored on the fourth (its correspondences triangulated anew, mean squared
+reprojection error), once as one camera (f, k1, k2 and the principal point tied tight) and once
+as separate cameras; where one camera fits the held-out correspondences no worse than separate
+cameras by more than the folds' standard error of that difference (cross-validation's
+one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted
+as one. Otherwise f, k1 and k2 are tied as far as they agree: the cameras' estimates, with the
+folds' sigmas, give the spread between the cameras, and each camera's difference from the rig's
+mean gets a Gaussian of that spread. Separately self-calibrated, each camera traded its
 intrinsics against its pose in its own way (docs/design-notes.md, Image refinement: the rig's
-own spread). The pixel aspect is always
+own spread; one camera or several). The pixel aspect is always
 estimated with its prior (holding a real sensor's aspect at 1 moves the principal points far:
 docs/design-notes.md, Image refinement: folds and the aspect prior); the cameras are written as
 OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
@@ -74,6 +80,11 @@ TRIANGULATION_GATE_PX = 4.0  # the found rig fits right correspondences to well 
 # Held-out correspondences' points are adjusted from their midpoints with the cameras held: each
 # point alone converges in a few steps; the cap only bounds a stray one.
 HELD_OUT_POINT_ITERATIONS = 50
+ADJUSTMENT_ITERATIONS = 50  # prior_adjustment.adjust_with_priors' own cap
+# Cameras that are one camera reach it from their separate estimates in a few steps (Strecha's
+# ten: 8-9); a rig of different lenses would take all 50 to fit as one badly. Cut short, such a
+# fit only fits worse, which is the verdict anyway; the cap bounds what reaching it costs.
+ONE_CAMERA_ITERATIONS = 15
 PRINCIPAL_POINT_INTRINSICS = (1, 2)  # cx, cy as indices into INTRINSIC_NAMES
 # A camera left with fewer dense observations than this is not refined here (nor the rig).
 MIN_CAMERA_OBSERVATIONS = 50
@@ -290,8 +301,10 @@ def _rig_ties(state: SfMState, tracks: Tracks, blocks: list[int], fold_sigmas: d
         spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
         one_ties = _one_camera_ties(state, members, fold_sigmas)
         held_out = {name: _held_out_errors(state, tracks, blocks, replace(priors, ties=group_ties),
-                                           noise_px, camera_names)
-                    for name, group_ties in (("apart", spread_ties), ("one", one_ties))}
+                                           noise_px, camera_names, iterations)
+                    for name, group_ties, iterations in (
+                        ("apart", spread_ties, ADJUSTMENT_ITERATIONS),
+                        ("one", one_ties, ONE_CAMERA_ITERATIONS))}
         # Relative excess of one camera's held-out error over the cameras' own, per fold.
         excess = held_out["one"] / held_out["apart"] - 1.0
         standard_error = float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
@@ -332,11 +345,12 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
 
 
 def _held_out_errors(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors,
-                     noise_px: float, camera_names: Sequence[str]) -> np.ndarray:
+                     noise_px: float, camera_names: Sequence[str], iterations: int
+                     ) -> np.ndarray:
     """Per fold (`_folds`) the mean squared reprojection error (px^2) of its correspondences,
     triangulated anew with the rig adjusted under `priors` on the other folds; each error is
     truncated at the gate (GATE_SIGMAS noise sigmas), and an observation whose point cannot be
-    triangulated counts the gate."""
+    triangulated counts the gate. iterations: the adjustments' cap."""
     fold = _folds(state, tracks)
     gate_px = GATE_SIGMAS * noise_px
     out = []
@@ -344,7 +358,7 @@ def _held_out_errors(state: SfMState, tracks: Tracks, blocks: list[int], priors:
         train = state.copy()
         train.active[fold == k] = False
         train.drop_weak_points()
-        adjust_with_priors(train, blocks, priors, noise_px=noise_px)
+        adjust_with_priors(train, blocks, priors, max_iterations=iterations, noise_px=noise_px)
         test = train.copy()
         test.active = state.active & (fold == k)[:, None]
         rows = np.flatnonzero(fold == k)
