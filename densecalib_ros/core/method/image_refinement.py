@@ -82,9 +82,10 @@ TRIANGULATION_GATE_PX = 4.0  # the found rig fits right correspondences to well 
 HELD_OUT_POINT_ITERATIONS = 50
 ADJUSTMENT_ITERATIONS = 50  # prior_adjustment.adjust_with_priors' own cap
 # Cameras that are one camera reach it from their separate estimates in a few steps (Strecha's
-# ten: 8-9); a rig of different lenses would take all 50 to fit as one badly. Cut short, such a
-# fit only fits worse, which is the verdict anyway; the cap bounds what reaching it costs.
-ONE_CAMERA_ITERATIONS = 15
+# ten: 8-9, the fox's six frames 11-14); a rig of different lenses would take all 50 to fit as one
+# badly. Cut short, such a fit only fits worse, which is the verdict anyway; the cap bounds what
+# reaching it costs.
+ONE_CAMERA_ITERATIONS = 20
 PRINCIPAL_POINT_INTRINSICS = (1, 2)  # cx, cy as indices into INTRINSIC_NAMES
 # A camera left with fewer dense observations than this is not refined here (nor the rig).
 MIN_CAMERA_OBSERVATIONS = 50
