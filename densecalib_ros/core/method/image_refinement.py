@@ -282,8 +282,9 @@ def _rig_ties(state: SfMState, tracks: Tracks, blocks: list[int], fold_sigmas: d
               say: Callable[[str], None]) -> list:
     """Priors.ties among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them
     have the folds' sigmas (the estimates: `state`'s, adjusted under `priors`): as one camera
-    where the images do not tell them apart (`_one_camera`), else each of POOLED_INTRINSICS as
-    far as they agree (core.method.rig_pooling: the rig's own spread)."""
+    where correspondences held out of the adjustment do not tell them apart (`_held_out_errors`,
+    module docstring), else each of POOLED_INTRINSICS as far as they agree
+    (core.method.rig_pooling: the rig's own spread)."""
     ties, groups = [], {}
     for b in blocks:
         sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
@@ -301,12 +302,18 @@ def _rig_ties(state: SfMState, tracks: Tracks, blocks: list[int], fold_sigmas: d
                    for i in POOLED_INTRINSICS}
         spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
         one_ties = _one_camera_ties(state, members, fold_sigmas)
-        held_out = {name: _held_out_errors(state, tracks, blocks, replace(priors, ties=group_ties),
-                                           noise_px, camera_names, iterations)
-                    for name, group_ties, iterations in (
-                        ("apart", spread_ties, ADJUSTMENT_ITERATIONS),
-                        ("one", one_ties, ONE_CAMERA_ITERATIONS))}
-        # Relative excess of one camera's held-out error over the cameras' own, per fold.
+        try:
+            held_out = {name: _held_out_errors(state, tracks, blocks,
+                                               replace(priors, ties=group_ties), noise_px,
+                                               camera_names, iterations)
+                        for name, group_ties, iterations in (
+                            ("apart", spread_ties, ADJUSTMENT_ITERATIONS),
+                            ("one", one_ties, ONE_CAMERA_ITERATIONS))}
+        except (ValueError, np.linalg.LinAlgError) as exc:  # a fold left a camera without data
+            log.debug("no one-camera test for %dx%d: %s", width, height, exc)
+            held_out = {"apart": np.ones(HOLDOUT_FOLDS), "one": np.full(HOLDOUT_FOLDS, np.nan)}
+        # Relative excess of one camera's held-out error over the cameras' own, per fold (NaN,
+        # where a test could not be made, keeps them apart).
         excess = held_out["one"] / held_out["apart"] - 1.0
         standard_error = float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
         log.debug("held-out errors of the %d cameras of %dx%d apart %s and as one %s px^2",
@@ -320,11 +327,12 @@ def _rig_ties(state: SfMState, tracks: Tracks, blocks: list[int], fold_sigmas: d
                 f"principal point and distortion are estimated as one")
         else:
             ties += spread_ties
+            tested = (f"; as one camera they fit held-out correspondences "
+                      f"{100 * np.mean(excess):.1f} % worse" if np.isfinite(excess).all() else "")
             say(f"focal length and distortion tied across the {len(members)} cameras of "
                 f"{width}x{height} as far as they agree (spread between them: focal "
                 f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 "
-                f"{effects[4].spread:.4f}; as one camera they fit held-out correspondences "
-                f"{100 * np.mean(excess):.1f} % worse)")
+                f"{effects[4].spread:.4f}{tested})")
     return ties
 
 
