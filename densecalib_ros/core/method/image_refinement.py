@@ -80,7 +80,6 @@ TRIANGULATION_GATE_PX = 4.0  # the found rig fits right correspondences to well 
 # Held-out correspondences' points are adjusted from their midpoints with the cameras held: each
 # point alone converges in a few steps; the cap only bounds a stray one.
 HELD_OUT_POINT_ITERATIONS = 50
-ADJUSTMENT_ITERATIONS = 50  # prior_adjustment.adjust_with_priors' own cap
 # Cameras that are one camera reach it from their separate estimates in a few steps (Strecha's
 # ten: 8-9, the fox's six frames 11-14); a rig of different lenses would take all 50 to fit as one
 # badly. Cut short, such a fit only fits worse, which is the verdict anyway; the cap bounds what
@@ -169,8 +168,8 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
-    ties = _rig_ties(refined, tracks, blocks, fold_sigmas, priors, adjustment.noise_px,
-                     camera_names, say)
+    ties = _rig_ties(refined, blocks, fold_sigmas, priors, adjustment.noise_px, camera_names,
+                     say)
     in_place = replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
@@ -228,7 +227,7 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     images does not decide it. Also per block the folds' standard deviations of the mean of the
     principal point (per axis), of the focal length (px) and of each tied intrinsic
     (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
-    fold = _folds(state, tracks)
+    fold = _folds(state)
     free = Priors(principal_point_std_px={b: np.inf for b in blocks},
                   aspect_std={b: np.inf for b in blocks})
     estimates = []  # per fold: block -> (cx, cy, aspect)
@@ -266,10 +265,11 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     return out, spread_of
 
 
-def _folds(state: SfMState, tracks: Tracks) -> np.ndarray:
-    """int (T,): each track's spatial fold (HOLDOUT_FOLDS of them): cells of
+def _folds(state: SfMState) -> np.ndarray:
+    """int (T,): each of state's tracks' spatial fold (HOLDOUT_FOLDS of them): cells of
     HOLDOUT_CELL_FRACTION of the long side around its first observation, dealt out in turn, so
     that every fold covers the whole of every image."""
+    tracks = state.tracks
     first = np.argmax(tracks.observed(), axis=1)
     xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
     cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
@@ -277,8 +277,7 @@ def _folds(state: SfMState, tracks: Tracks) -> np.ndarray:
     return (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
 
 
-def _rig_ties(state: SfMState, tracks: Tracks, blocks: list[int], fold_sigmas: dict,
-              priors: Priors, noise_px: float, camera_names: Sequence[str],
+def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors, noise_px: float, camera_names: Sequence[str],
               say: Callable[[str], None]) -> list:
     """Priors.ties among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them
     have the folds' sigmas (the estimates: `state`'s, adjusted under `priors`): as one camera
@@ -303,12 +302,10 @@ def _rig_ties(state: SfMState, tracks: Tracks, blocks: list[int], fold_sigmas: d
         spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
         one_ties = _one_camera_ties(state, members, fold_sigmas)
         try:
-            held_out = {name: _held_out_errors(state, tracks, blocks,
-                                               replace(priors, ties=group_ties), noise_px,
-                                               camera_names, iterations)
+            held_out = {name: _held_out_errors(state, blocks, replace(priors, ties=group_ties),
+                                               noise_px, camera_names, iterations)
                         for name, group_ties, iterations in (
-                            ("apart", spread_ties, ADJUSTMENT_ITERATIONS),
-                            ("one", one_ties, ONE_CAMERA_ITERATIONS))}
+                            ("apart", spread_ties, None), ("one", one_ties, ONE_CAMERA_ITERATIONS))}
         except (ValueError, np.linalg.LinAlgError) as exc:  # a fold left a camera without data
             log.debug("no one-camera test for %dx%d: %s", width, height, exc)
             held_out = {"apart": np.ones(HOLDOUT_FOLDS), "one": np.full(HOLDOUT_FOLDS, np.nan)}
@@ -341,40 +338,40 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
     camera would (rig_pooling.one_value); the principal point where the folds gave it a sigma
     (the adjustment leaves a held one out of its tie)."""
     ties = []
-    for i in POOLED_INTRINSICS:
-        stds = [fold_sigmas[b]["intrinsics"][i] for b in members]
-        values = [intrinsics_vector(state.intrinsics[b])[i] for b in members]
-        ties.append((i, {b: one_value(values, stds).sigma for b in members}))
+    values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
+    stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
     for axis, i in enumerate(PRINCIPAL_POINT_INTRINSICS):
-        stds = [fold_sigmas[b]["principal_point_axes_px"][axis] for b in members]
-        if all(np.isfinite(stds)) and min(stds) > 0:
-            values = [intrinsics_vector(state.intrinsics[b])[i] for b in members]
-            ties.append((i, {b: one_value(values, stds).sigma for b in members}))
+        pp_stds = [fold_sigmas[b]["principal_point_axes_px"][axis] for b in members]
+        if all(np.isfinite(pp_stds)) and min(pp_stds) > 0:
+            stds[i] = pp_stds
+    for i, i_stds in stds.items():
+        sigma = one_value(values[:, i], i_stds).sigma
+        ties.append((i, {b: sigma for b in members}))
     return ties
 
 
-def _held_out_errors(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors,
-                     noise_px: float, camera_names: Sequence[str], iterations: int
-                     ) -> np.ndarray:
+def _held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
+                     camera_names: Sequence[str], iterations: Optional[int]) -> np.ndarray:
     """Per fold (`_folds`) the mean squared reprojection error (px^2) of its correspondences,
     triangulated anew with the rig adjusted under `priors` on the other folds; each error is
     truncated at the gate (GATE_SIGMAS noise sigmas), and an observation whose point cannot be
-    triangulated counts the gate. iterations: the adjustments' cap."""
-    fold = _folds(state, tracks)
+    triangulated counts the gate. iterations: the adjustments' cap (None: the adjustment's own)."""
+    fold = _folds(state)
+    cap = {} if iterations is None else {"max_iterations": iterations}
     gate_px = GATE_SIGMAS * noise_px
     out = []
     for k in range(HOLDOUT_FOLDS):
         train = state.copy()
         train.active[fold == k] = False
         train.drop_weak_points()
-        adjust_with_priors(train, blocks, priors, max_iterations=iterations, noise_px=noise_px)
+        adjust_with_priors(train, blocks, priors, noise_px=noise_px, **cap)
         test = train.copy()
         test.active = state.active & (fold == k)[:, None]
         rows = np.flatnonzero(fold == k)
         test.points_xyz[:] = np.nan
         triangulate(test, rows, max_error_px=np.inf, min_angle_deg=0.0)
-        observed = test.registered_active()[rows] & (test.registered_active()[rows].sum(axis=1)
-                                                     >= 2)[:, None]
+        views = test.registered_active()[rows]
+        observed = views & (views.sum(axis=1) >= 2)[:, None]
         if test.point_mask()[rows].any():
             bundle_adjust(test, camera_names, BAStage(HELD_OUT_POINT_ITERATIONS,
                                                       refine_focal=False, refine_extra=False,
