@@ -236,8 +236,8 @@ def _refinement_ties(cams, seed):
     start.active &= state.active
     _, fold_sigmas = ir._determined_by_images(start, tracks, blocks, priors)
     said = []
-    ties = ir._rig_ties(state, blocks, fold_sigmas, priors, adjustment.noise_px,
-                        [f"cam{c}" for c in blocks], said.append)
+    ties, _ = ir._rig_ties(state, blocks, fold_sigmas, priors, adjustment.noise_px,
+                           [f"cam{c}" for c in blocks], said.append)
     return dict(ties), said
 
 
@@ -258,3 +258,55 @@ def test_images_of_one_camera_are_adjusted_as_one_and_different_lenses_apart():
     ties, said = _refinement_ties(cams, seed=11)
     assert "as far as they agree" in said[0], said
     assert set(ties) == {0, 3, 4}  # f, k1, k2 within the rig's spread; each its own point
+
+
+class _GivenCorrespondences:
+    """Dense correspondences already measured (what DenseAhead hands the stage): here the exact
+    ones of a generated rig, so that the stage is judged against known intrinsics."""
+
+    def __init__(self, tracks):
+        self._tracks = tracks
+
+    def tracks(self, state):
+        return self._tracks
+
+
+def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
+    """Six images of one camera (principal point 6 px off the centre of a 640x480 image),
+    refined as one camera: its principal point estimated or held for all of them alike, focal sigmas
+    the one camera's (from the images of all six: below what any one image's folds give it
+    alone; they differ only through each image's own aspect), and the focal length within three
+    of them of the truth."""
+    from sfm_fixtures import gt_rig, gt_tracks
+
+    from densecalib_ros.core.method import image_refinement as ir
+    from densecalib_ros.core.method.prior_adjustment import Priors
+    from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+    from densecalib_ros.core.types import CameraIntrinsics
+
+    cams, poses = gt_rig(6, seed=11, pp_jitter_px=6.0)
+    truth = cams[0]
+    tracks = gt_tracks([truth] * 6, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0,
+                       seed=11)
+    start = truth.params.copy()
+    start[0] *= 1.01
+    start[1:3] = truth.width / 2.0, truth.height / 2.0  # as the SfM holds it
+    state = SfMState.create(tracks, [CameraIntrinsics(truth.model, truth.width, truth.height,
+                                                      start.copy()) for _ in cams])
+    state.cam_from_world = [T.copy() for T in poses]
+    names = [f"cam{c}" for c in range(6)]
+    said = []
+    refinement = ir._refine(state, None, None, names, None, 0, said.append, {},
+                            _GivenCorrespondences(tracks))
+    assert any("as one" in s for s in said), said
+    assert len({tuple(refinement.estimated[n]) for n in names}) == 1
+    focal_std = [refinement.uncertainty[n].focal_std_px for n in names]
+    # each image's own folds' sigma of its focal length, as the stage measures it per camera
+    priors = Priors(principal_point_std_px={c: 0.01 * truth.width for c in range(6)},
+                    aspect_std={c: ir.ASPECT_PRIOR_STD for c in range(6)})
+    triangulate_tracks(state)
+    _, fold_sigmas = ir._determined_by_images(state, tracks, list(range(6)), priors)
+    assert max(focal_std) < min(fold_sigmas[c]["focal_px"] for c in range(6)), fold_sigmas
+    for c in range(6):
+        f = refinement.state.intrinsics[c].params[0]
+        assert abs(f - truth.params[0]) <= 3 * focal_std[c], (f, truth.params[0], focal_std)

@@ -32,7 +32,9 @@ reprojection error), once as one camera (f, k1, k2 and the principal point tied 
 as separate cameras; where one camera fits the held-out correspondences no worse than separate
 cameras by more than the folds' standard error of that difference (cross-validation's
 one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted
-as one. Otherwise f, k1 and k2 are tied as far as they agree: the cameras' estimates, with the
+as one, and judged as one: the sigmas that decide and report a parameter are those of the
+estimate from all their images, and the principal point is estimated or held for all of them
+alike, under one camera's prior (`_as_one_camera`). Otherwise f, k1 and k2 are tied as far as they agree: the cameras' estimates, with the
 folds' sigmas, give the spread between the cameras, and each camera's difference from the rig's
 mean gets a Gaussian of that spread. Separately self-calibrated, each camera traded its
 intrinsics against its pose in its own way (docs/design-notes.md, Image refinement: the rig's
@@ -168,8 +170,10 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
-    ties = _rig_ties(refined, blocks, fold_sigmas, priors, adjustment.noise_px, camera_names,
-                     say)
+    ties, one_cameras = _rig_ties(refined, blocks, fold_sigmas, priors, adjustment.noise_px,
+                                  camera_names, say)
+    for members in one_cameras:
+        priors = _as_one_camera(refined, members, determined, fold_sigmas, priors)
     in_place = replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
@@ -257,12 +261,56 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
                   "mean %s", b,
                   np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
         out[b] = set()
-        if max(std_of_mean[0], std_of_mean[1]) < ESTIMATED_FRACTION * \
-                priors.principal_point_std_px[b]:
+        if _point_determined(std_of_mean[:2], priors.principal_point_std_px[b]):
             out[b].add("principal point")
         if std_of_mean[2] < ESTIMATED_FRACTION * priors.aspect_std[b]:
             out[b].add("aspect")
     return out, spread_of
+
+
+def _point_determined(axes_std_px, prior_std_px: float) -> bool:
+    """Whether the images determine a principal point whose estimate has these standard
+    deviations per axis (the folds'), against a prior of prior_std_px (ESTIMATED_FRACTION)."""
+    return max(axes_std_px) < ESTIMATED_FRACTION * prior_std_px
+
+
+def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_sigmas: dict,
+                   priors: Priors) -> Priors:
+    """What `_determined_by_images` says of the blocks `members`, made what it says of one camera
+    where `_rig_ties` adjusts them as one: its estimate rests on all their images, so each sigma
+    of the folds becomes that of the members' precision-weighted mean (rig_pooling.one_value),
+    and the principal point is determined, for all of them or none, by that sigma (where the tie
+    holds it: every member's folds gave it one). One camera has one prior: determined, the
+    members' principal point priors, which the tie makes act together, widen by
+    sqrt(len(members)); held, each member starts from their precision-weighted mean (in
+    `state`), which `_hold_principal_points` weighs against one prior. `state`, `determined` and
+    `fold_sigmas` in place; returns the priors."""
+    def pooled_std(stds) -> float:  # of the mean: the values do not enter it
+        return one_value(np.zeros(len(stds)), stds).mean_std
+
+    point = [[fold_sigmas[b]["principal_point_axes_px"][axis] for b in members]
+             for axis in range(2)]
+    point_tied = all(np.isfinite(s) and s > 0 for axis in point for s in axis)
+    one = dict(focal_px=pooled_std([fold_sigmas[b]["focal_px"] for b in members]),
+               intrinsics={i: pooled_std([fold_sigmas[b]["intrinsics"][i] for b in members])
+                           for i in POOLED_INTRINSICS})
+    point_std = dict(priors.principal_point_std_px)
+    if point_tied:
+        pp = np.array([_principal_point(state.intrinsics[b]) for b in members])
+        means = [one_value(pp[:, axis], point[axis]) for axis in range(2)]
+        one["principal_point_axes_px"] = tuple(m.mean_std for m in means)
+        estimated = _point_determined(one["principal_point_axes_px"], point_std[members[0]])
+    for b in members:
+        fold_sigmas[b] = {**fold_sigmas[b], **one}
+        if not point_tied:
+            continue
+        determined[b].discard("principal point")
+        if estimated:
+            determined[b].add("principal point")
+            point_std[b] *= np.sqrt(len(members))
+        else:
+            _set_principal_point(state, b, [m.mean for m in means])
+    return replace(priors, principal_point_std_px=point_std)
 
 
 def _folds(state: SfMState) -> np.ndarray:
@@ -277,14 +325,15 @@ def _folds(state: SfMState) -> np.ndarray:
     return (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
 
 
-def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors, noise_px: float, camera_names: Sequence[str],
-              say: Callable[[str], None]) -> list:
+def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
+              noise_px: float, camera_names: Sequence[str], say: Callable[[str], None]
+              ) -> tuple[list, list[list[int]]]:
     """Priors.ties among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them
     have the folds' sigmas (the estimates: `state`'s, adjusted under `priors`): as one camera
     where correspondences held out of the adjustment do not tell them apart (`_held_out_errors`,
     module docstring), else each of POOLED_INTRINSICS as far as they agree
-    (core.method.rig_pooling: the rig's own spread)."""
-    ties, groups = [], {}
+    (core.method.rig_pooling: the rig's own spread). Also the groups of blocks tied as one."""
+    ties, groups, one_cameras = [], {}, []
     for b in blocks:
         sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
         if all(np.isfinite(sigmas.get(i, np.nan)) and sigmas[i] > 0 for i in POOLED_INTRINSICS):
@@ -318,6 +367,7 @@ def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Pri
                   np.round(held_out["one"], 6).tolist())
         if float(np.mean(excess)) <= standard_error:
             ties += one_ties
+            one_cameras.append(members)
             say(f"the {len(members)} cameras of {width}x{height} fit the correspondences held "
                 f"out of their adjustment as well as one camera does ({100 * np.mean(excess):+.2f}"
                 f" %, folds' standard error {100 * standard_error:.2f} %): their focal length, "
@@ -330,7 +380,7 @@ def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Pri
                 f"{width}x{height} as far as they agree (spread between them: focal "
                 f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 "
                 f"{effects[4].spread:.4f}{tested})")
-    return ties
+    return ties, one_cameras
 
 
 def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> list:
@@ -401,16 +451,26 @@ def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, pri
         if held.principal_point_std_px.get(b) is not None:
             continue
         cam = state.intrinsics[b]
-        p = np.array(cam.params, float)
-        pp = [2, 3] if cam.model == "OPENCV" else [1, 2]
         centre = np.array(priors.principal_point_centre_px.get(
             b, (cam.width / 2.0, cam.height / 2.0)), float)
         images_std = np.array(fold_sigmas.get(b, {}).get("principal_point_axes_px",
                                                           (np.inf, np.inf)), float)
         prior_var = priors.principal_point_std_px[b] ** 2
         weight = prior_var / (prior_var + images_std ** 2)  # 0 where the folds gave no sigma
-        p[pp] = centre + weight * (p[pp] - centre)
-        state.intrinsics[b] = type(cam)(cam.model, cam.width, cam.height, p)
+        _set_principal_point(state, b, centre + weight * (_principal_point(cam) - centre))
+
+
+def _principal_point(cam) -> np.ndarray:
+    """(cx, cy) px of a RADIAL or OPENCV camera."""
+    return np.asarray(cam.params, float)[[2, 3] if cam.model == "OPENCV" else [1, 2]]
+
+
+def _set_principal_point(state: SfMState, block: int, xy_px) -> None:
+    """Block's principal point set to xy_px (cx, cy); in place."""
+    cam = state.intrinsics[block]
+    p = np.array(cam.params, float)
+    p[[2, 3] if cam.model == "OPENCV" else [1, 2]] = xy_px
+    state.intrinsics[block] = type(cam)(cam.model, cam.width, cam.height, p)
 
 
 def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigmas: dict,
