@@ -273,10 +273,10 @@ class _GivenCorrespondences:
 
 def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
     """Six images of one camera (principal point 6 px off the centre of a 640x480 image),
-    refined as one camera: its principal point estimated or held for all of them alike, focal sigmas
-    the one camera's (from the images of all six: below what any one image's folds give it
-    alone; they differ only through each image's own aspect), and the focal length within three
-    of them of the truth."""
+    refined as one camera: its principal point estimated or held for all of them alike, focal
+    sigmas the one camera's (from the images of all six: below what any one image's folds give
+    it alone; they differ only through each image's own aspect), and the focal length within
+    three of them of the truth."""
     from sfm_fixtures import gt_rig, gt_tracks
 
     from densecalib_ros.core.method import image_refinement as ir

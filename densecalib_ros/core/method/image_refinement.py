@@ -34,15 +34,15 @@ cameras by more than the folds' standard error of that difference (cross-validat
 one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted
 as one, and judged as one: the sigmas that decide and report a parameter are those of the
 estimate from all their images, and the principal point is estimated or held for all of them
-alike, under one camera's prior (`_as_one_camera`). Otherwise f, k1 and k2 are tied as far as they agree: the cameras' estimates, with the
-folds' sigmas, give the spread between the cameras, and each camera's difference from the rig's
-mean gets a Gaussian of that spread. Separately self-calibrated, each camera traded its
-intrinsics against its pose in its own way (docs/design-notes.md, Image refinement: the rig's
-own spread; one camera or several). The pixel aspect is always
-estimated with its prior (holding a real sensor's aspect at 1 moves the principal points far:
-docs/design-notes.md, Image refinement: folds and the aspect prior); the cameras are written as
-OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as estimated where the
-folds determine it."""
+alike, under one camera's prior (`_as_one_camera`). Otherwise f, k1 and k2 are tied as far as
+they agree: the cameras' estimates, with the folds' sigmas, give the spread between the
+cameras, and each camera's difference from the rig's mean gets a Gaussian of that spread.
+Separately self-calibrated, each camera traded its intrinsics against its pose in its own way
+(docs/design-notes.md, Image refinement: the rig's own spread; one camera or several). The
+pixel aspect is always estimated with its prior (holding a real sensor's aspect at 1 moves the
+principal points far: docs/design-notes.md, Image refinement: folds and the aspect prior); the
+cameras are written as OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as
+estimated where the folds determine it."""
 from __future__ import annotations
 
 import logging
@@ -461,15 +461,15 @@ def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, pri
 
 
 def _principal_point(cam) -> np.ndarray:
-    """(cx, cy) px of a RADIAL or OPENCV camera."""
-    return np.asarray(cam.params, float)[[2, 3] if cam.model == "OPENCV" else [1, 2]]
+    """(cx, cy) px of a camera of SUPPORTED_MODELS."""
+    return intrinsics_vector(cam)[list(PRINCIPAL_POINT_INTRINSICS)]
 
 
 def _set_principal_point(state: SfMState, block: int, xy_px) -> None:
-    """Block's principal point set to xy_px (cx, cy); in place."""
+    """Block's principal point set to xy_px (cx, cy), where its model keeps it; in place."""
     cam = state.intrinsics[block]
     p = np.array(cam.params, float)
-    p[[2, 3] if cam.model == "OPENCV" else [1, 2]] = xy_px
+    p[list(cam.to_pycolmap().principal_point_idxs())] = xy_px
     state.intrinsics[block] = type(cam)(cam.model, cam.width, cam.height, p)
 
 
