@@ -310,3 +310,37 @@ def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
     for c in range(6):
         f = refinement.state.intrinsics[c].params[0]
         assert abs(f - truth.params[0]) <= 3 * focal_std[c], (f, truth.params[0], focal_std)
+
+
+def test_the_folds_side_by_side_give_the_loops_numbers(monkeypatch):
+    """The folds' adjustments run on threads (parallel.map_threads); each works on its own copy
+    of the rig, so the folds' sigmas and held-out errors are those of one fold after another,
+    to the last bit (a fold that wrote to the shared rig would change the others')."""
+    from sfm_fixtures import gt_rig, gt_tracks
+
+    from densecalib_ros.core.method import image_refinement as ir
+    from densecalib_ros.core.method.prior_adjustment import Priors
+    from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+
+    cams, poses = gt_rig(4, seed=5, pp_jitter_px=6.0)
+    tracks = gt_tracks(cams, poses, num_points=1500, noise_px=0.1, outlier_frac=0.0, seed=5)
+    state = SfMState.create(tracks, cams)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state)
+    blocks = list(range(len(cams)))
+    priors = Priors(principal_point_std_px={b: 0.01 * cams[b].width for b in blocks},
+                    aspect_std={b: ir.ASPECT_PRIOR_STD for b in blocks})
+
+    def folds():
+        before = state.copy()
+        determined, sigmas = ir._determined_by_images(state, tracks, blocks, priors)
+        held_out = ir._held_out_errors(state, blocks, priors, 0.1,
+                                       [f"cam{c}" for c in blocks], None)
+        assert np.array_equal(state.points_xyz, before.points_xyz, equal_nan=True)
+        return determined, sigmas, held_out
+
+    side_by_side = folds()
+    monkeypatch.setattr(ir, "map_threads", lambda fn, items, workers=None: [fn(i) for i in items])
+    one_after_another = folds()
+    assert side_by_side[:2] == one_after_another[:2]
+    assert np.array_equal(side_by_side[2], one_after_another[2], equal_nan=True)

@@ -51,6 +51,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from ..parallel import map_threads
 from ..types import Tracks
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
@@ -234,16 +235,18 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
     fold = _folds(state)
     free = Priors(principal_point_std_px={b: np.inf for b in blocks},
                   aspect_std={b: np.inf for b in blocks})
-    estimates = []  # per fold: block -> (cx, cy, aspect)
-    for k in range(HOLDOUT_FOLDS):
+
+    def fold_estimate(k: int) -> Optional[dict]:
         part = state.copy()
         part.active[fold != k] = False
         part.drop_weak_points()
         try:
             adjust_with_priors(part, blocks, free)
         except (ValueError, np.linalg.LinAlgError):
-            continue
-        estimates.append({b: _fold_values(part.intrinsics[b]) for b in blocks})
+            return None
+        return {b: _fold_values(part.intrinsics[b]) for b in blocks}
+    # per fold: block -> _fold_values; the folds are independent adjustments, side by side
+    estimates = [e for e in map_threads(fold_estimate, range(HOLDOUT_FOLDS)) if e is not None]
     out, spread_of = {}, {}
     for b in blocks:
         values = np.array([e[b] for e in estimates])
@@ -409,8 +412,8 @@ def _held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_p
     fold = _folds(state)
     cap = {} if iterations is None else {"max_iterations": iterations}
     gate_px = GATE_SIGMAS * noise_px
-    out = []
-    for k in range(HOLDOUT_FOLDS):
+
+    def fold_error(k: int) -> float:
         train = state.copy()
         train.active[fold == k] = False
         train.drop_weak_points()
@@ -427,9 +430,9 @@ def _held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_p
                                                       refine_focal=False, refine_extra=False,
                                                       refine_poses=False), num_threads=1)
         err = reprojection_errors(test)[rows][observed]
-        out.append(float(np.mean(np.minimum(np.nan_to_num(err, nan=gate_px), gate_px) ** 2))
-                   if err.size else np.nan)
-    return np.array(out)
+        return (float(np.mean(np.minimum(np.nan_to_num(err, nan=gate_px), gate_px) ** 2))
+                if err.size else np.nan)
+    return np.array(map_threads(fold_error, range(HOLDOUT_FOLDS)))
 
 
 def _fold_values(cam) -> tuple[float, ...]:
