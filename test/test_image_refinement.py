@@ -211,26 +211,37 @@ def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_imag
         assert refined_runs.refinement(found) is refined_runs.refinement(found)
 
 
-def _refinement_ties(cams, seed):
-    """The ties the refinement chooses for a rig of these intrinsics, found from its true poses on
-    exact correspondences with 0.1 px noise (what dense correspondences measure), and what it
-    said."""
-    from dataclasses import replace
-
-    from sfm_fixtures import gt_rig, gt_tracks
+def _rig_at_its_truth(cams, poses, num_points, seed):
+    """A rig of these intrinsics at its true poses on exact correspondences with 0.1 px noise
+    (what dense correspondences measure), its points triangulated, and the refinement's priors
+    for its cameras: (tracks, state, blocks, priors)."""
+    from sfm_fixtures import gt_tracks
 
     from densecalib_ros.core.method import image_refinement as ir
     from densecalib_ros.core.method.prior_adjustment import Priors
     from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 
-    _, poses = gt_rig(len(cams), seed=seed)
-    tracks = gt_tracks(cams, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0, seed=seed)
+    tracks = gt_tracks(cams, poses, num_points=num_points, noise_px=0.1, outlier_frac=0.0,
+                       seed=seed)
     state = SfMState.create(tracks, cams)
     state.cam_from_world = [T.copy() for T in poses]
     triangulate_tracks(state)
     blocks = list(range(len(cams)))
     priors = Priors(principal_point_std_px={b: 0.01 * cams[b].width for b in blocks},
                     aspect_std={b: ir.ASPECT_PRIOR_STD for b in blocks})
+    return tracks, state, blocks, priors
+
+
+def _refinement_ties(cams, seed):
+    """The ties the refinement chooses for a rig of these intrinsics, found from its true poses on
+    exact correspondences with 0.1 px noise (what dense correspondences measure), and what it
+    said."""
+    from sfm_fixtures import gt_rig
+
+    from densecalib_ros.core.method import image_refinement as ir
+
+    _, poses = gt_rig(len(cams), seed=seed)
+    tracks, state, blocks, priors = _rig_at_its_truth(cams, poses, 3000, seed)
     start = state.copy()
     adjustment = ir._adjust_and_gate(state, blocks, priors)
     start.active &= state.active
@@ -316,20 +327,12 @@ def test_the_folds_side_by_side_give_the_loops_numbers(monkeypatch):
     """The folds' adjustments run on threads (parallel.map_threads); each works on its own copy
     of the rig, so the folds' sigmas and held-out errors are those of one fold after another,
     to the last bit (a fold that wrote to the shared rig would change the others')."""
-    from sfm_fixtures import gt_rig, gt_tracks
+    from sfm_fixtures import gt_rig
 
     from densecalib_ros.core.method import image_refinement as ir
-    from densecalib_ros.core.method.prior_adjustment import Priors
-    from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 
     cams, poses = gt_rig(4, seed=5, pp_jitter_px=6.0)
-    tracks = gt_tracks(cams, poses, num_points=1500, noise_px=0.1, outlier_frac=0.0, seed=5)
-    state = SfMState.create(tracks, cams)
-    state.cam_from_world = [T.copy() for T in poses]
-    triangulate_tracks(state)
-    blocks = list(range(len(cams)))
-    priors = Priors(principal_point_std_px={b: 0.01 * cams[b].width for b in blocks},
-                    aspect_std={b: ir.ASPECT_PRIOR_STD for b in blocks})
+    tracks, state, blocks, priors = _rig_at_its_truth(cams, poses, 1500, seed=5)
 
     def folds():
         before = state.copy()
