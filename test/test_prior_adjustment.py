@@ -81,8 +81,8 @@ def test_jacobians_match_finite_differences():
 @pytest.mark.parametrize("shared", [False, True])
 def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shared):
     """The reduced camera system (the compiled per-point products scattered into the cameras'
-    columns) equals U - W V^-1 W^T formed densely, also where cameras share one intrinsics
-    block (their columns coincide)."""
+    columns) equals U - W V^-1 W^T formed densely, and its right-hand side -g_cam + W V^-1 g_pt,
+    also where cameras share one intrinsics block (their columns coincide)."""
     true, poses = _rig_with_offset_points(4)
     state = _state(true, poses, 0.3)
     if shared:
@@ -93,15 +93,17 @@ def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shar
     blocks = list(range(len(state.intrinsics)))
     priors = Priors({b: 10.0 for b in blocks}, aspect_std={b: 0.01 for b in blocks})
     problem = _Problem(state, blocks, priors)
-    U, Wm, V, _, _, flat, _ = _normal_equations(problem, 0.5)
+    U, Wt, V, g_cam, g_pt, flat, _ = _normal_equations(problem, 0.5)
     V_inv = np.linalg.inv(V)
-    S, _ = _reduced_system(problem, U, Wm, V_inv)
+    S, rhs = _reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
     M, P = problem.num_cam_params, len(problem.X)
     W = np.zeros((M + 1, P, 3))  # W_p per point; row M: the held parameters
     for n in range(len(problem.p_idx)):
-        W[flat[n], problem.p_idx[n]] += Wm[n]
+        W[flat[n], problem.p_idx[n]] += Wt[n].T
     expected = U - np.einsum("mpi,pij,npj->mn", W, V_inv, W, optimize=True)[:M, :M]
     assert np.abs(S - expected).max() <= 1e-9 * np.abs(expected).max()
+    expected_rhs = -g_cam + np.einsum("mpi,pij,pj->m", W, V_inv, g_pt, optimize=True)[:M]
+    assert np.abs(rhs - expected_rhs).max() <= 1e-9 * np.abs(expected_rhs).max()
 
 
 @pytest.mark.parametrize("num_cameras, pp_std_px", [(3, 10.0), (3, 1e4), (5, 1e4)])
@@ -120,8 +122,8 @@ def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_ca
     priors = Priors({b: pp_std_px for b in blocks}, aspect_std={b: 0.003 for b in blocks})
     adjust_with_priors(state, blocks, priors, noise_px=0.3)
     problem = _Problem(state, blocks, priors)
-    U, Wm, V, _, _, _, _ = _normal_equations(problem, 0.3)
-    S, _ = _reduced_system(problem, U, Wm, np.linalg.pinv(V, hermitian=True))
+    U, Wt, V, g_cam, g_pt, _, _ = _normal_equations(problem, 0.3)
+    S, _ = _reduced_system(problem, U, Wt, np.linalg.pinv(V, hermitian=True), g_cam, g_pt)
     covariance = posterior_covariance(state, blocks, priors, 0.3)
     others = [c for c in state.registered() if c != problem.reference]
     for other in others:

@@ -241,15 +241,15 @@ class _Problem:
 
 
 def _normal_equations(problem: _Problem, noise_px: float):
-    """Robust-weighted normal equations: U (M, M), Wm (N, 14, 3), V (P, 3, 3), g_cam (M,),
+    """Robust-weighted normal equations: U (M, M), Wt (N, 3, 14), V (P, 3, 3), g_cam (M,),
     g_pt (P, 3), each observation's camera columns (N, 14; M where held) and the residuals.
-    Held columns' parts go to a column M, dropped (Wm keeps them: every use of it adds them
+    Held columns' parts go to a column M, dropped (Wt keeps them: every use of it adds them
     to column M or multiplies them by a zero step)."""
     res, A, B = problem.residuals_and_jacobians()
     s2 = np.sum(res * res, axis=1)
     w = 1.0 / (1.0 + s2 / LOSS_SCALE_PX ** 2) / noise_px ** 2  # Cauchy IRLS weight
     M, P = problem.num_cam_params, len(problem.X)
-    U_cam, g_of_cam, V, g_pt, Wm = _observation_products(res, A, B, w, problem.c_idx,
+    U_cam, g_of_cam, V, g_pt, Wt = _observation_products(res, A, B, w, problem.c_idx,
                                                         problem.p_idx, len(problem.R), P)
     cols = problem.camera_cols
     U, g_cam = np.zeros((M + 1, M + 1)), np.zeros(M + 1)
@@ -263,7 +263,7 @@ def _normal_equations(problem: _Problem, noise_px: float):
     for cols, d, w in problem.tie_terms():  # the mean profiled out: no pull on the rig's level
         U[np.ix_(cols, cols)] += np.diag(w) - np.outer(w, w) / np.sum(w)
         g_cam[cols] += w * d
-    return U, Wm, V, g_cam, g_pt, problem.obs_cols, res
+    return U, Wt, V, g_cam, g_pt, problem.obs_cols, res
 
 
 @compiled()
@@ -330,7 +330,7 @@ def _observation_products(res, A, B, w, c_idx, p_idx, num_cameras, num_points):
     g_cam = np.zeros((num_cameras, width))
     V = np.zeros((num_points, 3, 3))
     g_pt = np.zeros((num_points, 3))
-    Wm = np.empty((N, width, 3))
+    Wt = np.empty((N, 3, width))
     for n in range(N):
         c, p, wn = c_idx[n], p_idx[n], w[n]
         r0, r1 = res[n, 0], res[n, 1]
@@ -342,57 +342,125 @@ def _observation_products(res, A, B, w, c_idx, p_idx, num_cameras, num_points):
             row = U_cam[c, i]
             for j in range(width):
                 row[j] += a0 * A[n, 0, j] + a1 * A[n, 1, j]
-            Wm[n, i, 0] = a0 * b00 + a1 * b10
-            Wm[n, i, 1] = a0 * b01 + a1 * b11
-            Wm[n, i, 2] = a0 * b02 + a1 * b12
+            Wt[n, 0, i] = a0 * b00 + a1 * b10
+            Wt[n, 1, i] = a0 * b01 + a1 * b11
+            Wt[n, 2, i] = a0 * b02 + a1 * b12
         for k in range(3):
             e0, e1 = B[n, 0, k] * wn, B[n, 1, k] * wn
             g_pt[p, k] += e0 * r0 + e1 * r1
             V[p, k, 0] += e0 * b00 + e1 * b10
             V[p, k, 1] += e0 * b01 + e1 * b11
             V[p, k, 2] += e0 * b02 + e1 * b12
-    return U_cam, g_cam, V, g_pt, Wm
+    return U_cam, g_cam, V, g_pt, Wt
 
 
 @compiled()
-def _point_products(Y, W_t, first_obs, c_idx, num_cameras):
-    """(C, C, 14, 14): for every pair of cameras (a, b) the sum over the points both see of
-    Y_a W_b^T (Y: (N, 14, 3), W_t: (N, 3, 14), per observation; first_obs (P + 1,): each
-    point's first observation, its observations being contiguous and in camera order; c_idx
-    (N,): each observation's camera). Y = W V^-1 with V symmetric, so the (b, a) block is the
-    (a, b) block transposed: only a <= b is summed, the rest mirrored."""
-    width = Y.shape[1]
+def _point_products(Wt, V_inv, g_pt, first_obs, c_idx, num_cameras):
+    """For every pair of cameras (a, b) the sum over the points both see of W_a V^-1 W_b^T
+    (C, C, 14, 14), and per observation W V^-1 g_pt (N, 14): Wt (N, 3, 14) per observation,
+    V_inv (P, 3, 3) and g_pt (P, 3) per point; first_obs (P + 1,): each point's first
+    observation, its observations being contiguous and in camera order; c_idx (N,): each
+    observation's camera. Each observation's W V^-1 is formed once, in a small array the
+    pairs then read; V^-1 is symmetric, so the (b, a) block is the (a, b) block transposed:
+    only a <= b is summed, the rest mirrored."""
+    width = Wt.shape[2]
     out = np.zeros((num_cameras, num_cameras, width, width))
+    yg = np.empty((Wt.shape[0], width))
+    Y = np.empty((width, 3))
     for p in range(first_obs.shape[0] - 1):
+        g0, g1, g2 = g_pt[p, 0], g_pt[p, 1], g_pt[p, 2]
         for a in range(first_obs[p], first_obs[p + 1]):
+            for i in range(width):
+                w0, w1, w2 = Wt[a, 0, i], Wt[a, 1, i], Wt[a, 2, i]
+                for k in range(3):
+                    Y[i, k] = w0 * V_inv[p, 0, k] + w1 * V_inv[p, 1, k] + w2 * V_inv[p, 2, k]
+                yg[a, i] = Y[i, 0] * g0 + Y[i, 1] * g1 + Y[i, 2] * g2
             for b in range(a, first_obs[p + 1]):
                 block = out[c_idx[a], c_idx[b]]
-                w0, w1, w2 = W_t[b, 0], W_t[b, 1], W_t[b, 2]
+                w0, w1, w2 = Wt[b, 0], Wt[b, 1], Wt[b, 2]
                 for i in range(width):
-                    y0, y1, y2 = Y[a, i, 0], Y[a, i, 1], Y[a, i, 2]
+                    y0, y1, y2 = Y[i, 0], Y[i, 1], Y[i, 2]
                     row = block[i]
                     for j in range(width):
                         row[j] += y0 * w0[j] + y1 * w1[j] + y2 * w2[j]
     for a in range(num_cameras):
         for b in range(a + 1, num_cameras):
             out[b, a] = out[a, b].T
+    return out, yg
+
+
+@compiled()
+def _to_columns(products, yg, camera_cols, obs_cols, size):
+    """The camera pairs' blocks (C, C, 14, 14) and the observations' rows (N, 14) summed into
+    the columns of the cameras' parameters (camera_cols (C, 14), obs_cols (N, 14); a held one's
+    is size - 1): (size, size) and (size,)."""
+    S = np.zeros((size, size))
+    r = np.zeros(size)
+    C, width = camera_cols.shape
+    for a in range(C):
+        for b in range(C):
+            for i in range(width):
+                row = S[camera_cols[a, i]]
+                for j in range(width):
+                    row[camera_cols[b, j]] += products[a, b, i, j]
+    for n in range(obs_cols.shape[0]):
+        for i in range(width):
+            r[obs_cols[n, i]] += yg[n, i]
+    return S, r
+
+
+@compiled()
+def _damped_point_inverses(V, lam):
+    """Each point's 3x3 block with its diagonal scaled by 1 + lam (Levenberg-Marquardt's
+    damping) and a ridge of 1e-9 of its trace (at least 1e-18) on the diagonal, inverted: a
+    point whose observations do not fix it (all behind a camera, rays parallel) then moves by
+    nothing instead of breaking the solve. The blocks are symmetric: the adjugate over the
+    determinant."""
+    out = np.empty_like(V)
+    for p in range(V.shape[0]):
+        a, b, c = V[p, 0, 0] * (1 + lam), V[p, 1, 1] * (1 + lam), V[p, 2, 2] * (1 + lam)
+        ridge = 1e-9 * max(a + b + c, 1e-9)
+        a, b, c = a + ridge, b + ridge, c + ridge
+        d, e, f = V[p, 0, 1], V[p, 0, 2], V[p, 1, 2]
+        c00, c01, c02 = b * c - f * f, e * f - d * c, d * f - e * b
+        c11, c12, c22 = a * c - e * e, d * e - a * f, a * b - d * d
+        inv_det = 1.0 / (a * c00 + d * c01 + e * c02)
+        out[p, 0, 0], out[p, 0, 1], out[p, 0, 2] = c00 * inv_det, c01 * inv_det, c02 * inv_det
+        out[p, 1, 0], out[p, 1, 1], out[p, 1, 2] = c01 * inv_det, c11 * inv_det, c12 * inv_det
+        out[p, 2, 0], out[p, 2, 1], out[p, 2, 2] = c02 * inv_det, c12 * inv_det, c22 * inv_det
     return out
 
 
-def _reduced_system(problem: _Problem, U, Wm, V_inv):
-    """S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and Y = Wm V^-1 (N, 14, 3): each
-    point's share computed camera pair by camera pair (_point_products), then added to the
-    cameras' columns (problem.camera_cols; held ones go to a column M, dropped)."""
+@compiled()
+def _point_steps(Wt, V_inv, g_pt, delta_cols, obs_cols, first_obs):
+    """The points' step given the cameras' (back-substitution): per point
+    V^-1 (-g_pt - sum over its observations of W^T delta), delta_cols (M + 1,) the cameras'
+    step by column with a zero for the held ones' column M."""
+    out = np.empty_like(g_pt)
+    width = Wt.shape[2]
+    for p in range(first_obs.shape[0] - 1):
+        r0, r1, r2 = -g_pt[p, 0], -g_pt[p, 1], -g_pt[p, 2]
+        for n in range(first_obs[p], first_obs[p + 1]):
+            for i in range(width):
+                d = delta_cols[obs_cols[n, i]]
+                r0 -= Wt[n, 0, i] * d
+                r1 -= Wt[n, 1, i] * d
+                r2 -= Wt[n, 2, i] * d
+        for k in range(3):
+            out[p, k] = V_inv[p, k, 0] * r0 + V_inv[p, k, 1] * r1 + V_inv[p, k, 2] * r2
+    return out
+
+
+def _reduced_system(problem: _Problem, U, Wt, V_inv, g_cam, g_pt):
+    """The reduced camera system S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and its
+    right-hand side -g_cam + sum over points of W_p V_p^-1 g_p (M,): each point's share
+    computed camera pair by camera pair (_point_products), then added to the cameras' columns
+    (problem.camera_cols; held ones go to a column M, dropped)."""
     M = problem.num_cam_params
-    Y = Wm @ V_inv[problem.p_idx]
-    products = _point_products(Y, np.ascontiguousarray(Wm.transpose(0, 2, 1)),
-                               problem.first_obs, problem.c_idx, len(problem.R))
-    cols = problem.camera_cols
-    index = np.broadcast_to(cols[:, None, :, None], products.shape), \
-        np.broadcast_to(cols[None, :, None, :], products.shape)
-    S = np.zeros((M + 1, M + 1))
-    np.add.at(S, index, -products)
-    return U + S[:M, :M], Y
+    products, yg = _point_products(Wt, V_inv, g_pt, problem.first_obs, problem.c_idx,
+                                   len(problem.R))
+    S, r = _to_columns(products, yg, problem.camera_cols, problem.obs_cols, M + 1)
+    return U - S[:M, :M], r[:M] - g_cam
 
 
 def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
@@ -449,26 +517,19 @@ def _levenberg_marquardt(problem: _Problem, noise_px: float, max_iterations: int
     """Levenberg-Marquardt on the reduced camera system, in place; returns the iterations."""
     cost = problem.cost(noise_px)
     lam, iterations = 1e-4, 0
-    M = problem.num_cam_params
     for iterations in range(1, max_iterations + 1):
-        U, Wm, V, g_cam, g_pt, flat, _ = _normal_equations(problem, noise_px)
+        U, Wt, V, g_cam, g_pt, flat, _ = _normal_equations(problem, noise_px)
         improved = False
         for _ in range(10):
             Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-9))
-            Vd = V + lam * np.einsum("pii->pi", V)[:, :, None] * np.eye(3)[None]
-            V_inv = np.linalg.inv(_regularised(Vd))
-            S, Y = _reduced_system(problem, Ud, Wm, V_inv)
-            rhs = -g_cam + np.bincount(flat.ravel(), (Y @ g_pt[problem.p_idx][:, :, None]
-                                                      ).ravel(), M + 1)[:M]
+            V_inv = _damped_point_inverses(V, lam)
+            S, rhs = _reduced_system(problem, Ud, Wt, V_inv, g_cam, g_pt)
             try:
                 delta_cam = np.linalg.solve(S, rhs)
             except np.linalg.LinAlgError:
                 delta_cam = np.linalg.lstsq(S, rhs, rcond=None)[0]
-            dc_obs = np.where(flat < M, np.r_[delta_cam, 0.0][flat], 0.0)
-            wt_dc = (Wm.transpose(0, 2, 1) @ dc_obs[:, :, None])[:, :, 0]
-            rhs_pt = -g_pt - np.stack([np.bincount(problem.p_idx, wt_dc[:, i], len(problem.X))
-                                       for i in range(3)], 1)
-            delta_pts = (V_inv @ rhs_pt[:, :, None])[:, :, 0]
+            delta_pts = _point_steps(Wt, V_inv, g_pt, np.r_[delta_cam, 0.0], flat,
+                                     problem.first_obs)
             saved = problem.apply(delta_cam, delta_pts)
             new_cost = problem.cost(noise_px)
             if np.isfinite(new_cost) and new_cost < cost:
@@ -483,14 +544,6 @@ def _levenberg_marquardt(problem: _Problem, noise_px: float, max_iterations: int
         if decrease < RELATIVE_DECREASE * cost:
             break
     return iterations
-
-
-def _regularised(V: np.ndarray) -> np.ndarray:
-    """Points' 3x3 blocks made invertible: a point whose observations do not fix it (all behind a
-    camera, rays parallel) gets a tiny ridge, so it moves by nothing instead of breaking the
-    solve."""
-    ridge = 1e-9 * np.maximum(np.trace(V, axis1=1, axis2=2), 1e-9)
-    return V + ridge[:, None, None] * np.eye(3)[None]
 
 
 def _residual_scale_px(problem: _Problem) -> float:
@@ -513,16 +566,16 @@ def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]
     the reduced camera system at the solution (the points marginalised) with the gauge's free
     direction (_scale_direction) fixed by holding the translation coordinate it moves most; the
     intrinsics' marginal does not depend on which. The points' blocks are pseudo-inverted, not
-    ridged as in the solve (_regularised): the ridge resists the scale about as much as a
+    ridged as in the solve (_damped_point_inverses): the ridge resists the scale about as much as a
     3-camera rig's weakest directions, and the held coordinate's choice then moved their sigmas
     by up to 8 %. The system is inverted scaled to a unit diagonal: its curvatures span ~13
     orders of magnitude (per radian of rotation against per pixel of a weakly held principal
     point), and a pseudo-inverse's relative cut-off on the raw system gave the directions a few
     cameras leave weak no variance at all (docs/design-notes.md, Intrinsics' standard
     deviations: the gauge held, not cut off)."""
-    U, Wm, V, _, _, _, _ = _normal_equations(problem, noise_px)
+    U, Wt, V, g_cam, g_pt, _, _ = _normal_equations(problem, noise_px)
     V_inv = np.linalg.pinv(V, hermitian=True)  # a point its rays do not fix moves by nothing
-    S, _ = _reduced_system(problem, U, Wm, V_inv)
+    S, _ = _reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
     keep = np.ones(len(S), bool)
     gauge = np.abs(_scale_direction(problem)) / d  # in the unit-diagonal system's coordinates
@@ -551,7 +604,7 @@ def _scale_direction(problem: _Problem) -> np.ndarray:
     (that camera's t is additive, _Problem.apply) and each point by X - C, reprojecting every
     point as before; in the camera columns (the points are marginalised). Free in the
     covariance's system, whose points' blocks are pseudo-inverted; the solve's ridge
-    (_regularised) resists it a little."""
+    (_damped_point_inverses) resists it a little."""
     out = np.zeros(problem.num_cam_params)
     ref = problem.reference
     centre = -problem.R[ref].T @ problem.t[ref]
