@@ -164,9 +164,12 @@ class _Problem:
         self.num_cam_params = index
         # Per camera and per observation: the columns of its 6 pose + 8 intrinsic parameters
         # (cameras of one block share their intrinsics' columns); a held one's is
-        # num_cam_params, a column the sums collect and then drop.
+        # num_cam_params, a column the sums collect and then drop. Only the parameters some
+        # camera frees (`used`, indices into the 14) enter the sums: the tangential ones are
+        # mostly held, and the point products cost the square of their number.
         cols = np.concatenate([self.pose_cols, self.intr_cols[self.block_of]], axis=1)
-        self.camera_cols = np.where(cols >= 0, cols, self.num_cam_params)
+        self.used = np.flatnonzero((cols >= 0).any(axis=0))
+        self.camera_cols = np.where(cols >= 0, cols, self.num_cam_params)[:, self.used]
         self.obs_cols = self.camera_cols[c_idx]
         self.observing_cameras = [int(c) for c in np.unique(c_idx)]
 
@@ -241,16 +244,18 @@ class _Problem:
 
 
 def _normal_equations(problem: _Problem, noise_px: float):
-    """Robust-weighted normal equations: U (M, M), Wt (N, 3, 14), V (P, 3, 3), g_cam (M,),
-    g_pt (P, 3), each observation's camera columns (N, 14; M where held) and the residuals.
+    """Robust-weighted normal equations: U (M, M), Wt (N, 3, K), V (P, 3, 3), g_cam (M,),
+    g_pt (P, 3), each observation's camera columns (N, K; M where held) and the residuals; K
+    columns of each camera: those of its parameters that some camera frees (_Problem.used).
     Held columns' parts go to a column M, dropped (Wt keeps them: every use of it adds them
     to column M or multiplies them by a zero step)."""
     res, A, B = problem.residuals_and_jacobians()
     s2 = np.sum(res * res, axis=1)
     w = 1.0 / (1.0 + s2 / LOSS_SCALE_PX ** 2) / noise_px ** 2  # Cauchy IRLS weight
     M, P = problem.num_cam_params, len(problem.X)
-    U_cam, g_of_cam, V, g_pt, Wt = _observation_products(res, A, B, w, problem.c_idx,
-                                                        problem.p_idx, len(problem.R), P)
+    U_cam, g_of_cam, V, g_pt, Wt = _observation_products(res, A, B, w, problem.used,
+                                                        problem.c_idx, problem.p_idx,
+                                                        len(problem.R), P)
     cols = problem.camera_cols
     U, g_cam = np.zeros((M + 1, M + 1)), np.zeros(M + 1)
     for c in problem.observing_cameras:
@@ -320,12 +325,14 @@ def _project(R, t, X, K, block_of, c_idx, p_idx, xy, res, A, B):
 
 
 @compiled()
-def _observation_products(res, A, B, w, c_idx, p_idx, num_cameras, num_points):
-    """The weighted products of every observation's Jacobians (A (N, 2, 14) camera side,
-    B (N, 2, 3) point side; w (N,) weights; res (N, 2)), summed per camera (A^T w A
-    (C, 14, 14), A^T w r (C, 14)) and per point (B^T w B (P, 3, 3), B^T w r (P, 3)), and
-    per observation A^T w B (N, 14, 3): one pass, each observation's rows in registers."""
-    N, _, width = A.shape
+def _observation_products(res, A, B, w, used, c_idx, p_idx, num_cameras, num_points):
+    """The weighted products of every observation's Jacobians (A (N, 2, 14) camera side, of
+    which the columns `used` (K,); B (N, 2, 3) point side; w (N,) weights; res (N, 2)), summed
+    per camera (A^T w A (C, K, K), A^T w r (C, K)) and per point (B^T w B (P, 3, 3), B^T w r
+    (P, 3)), and per observation (A^T w B)^T (N, 3, K): one pass, each observation's rows in
+    registers."""
+    N, width = A.shape[0], used.shape[0]
+    a_rows = np.empty((2, width))
     U_cam = np.zeros((num_cameras, width, width))
     g_cam = np.zeros((num_cameras, width))
     V = np.zeros((num_points, 3, 3))
@@ -337,11 +344,13 @@ def _observation_products(res, A, B, w, c_idx, p_idx, num_cameras, num_points):
         b00, b01, b02 = B[n, 0, 0], B[n, 0, 1], B[n, 0, 2]
         b10, b11, b12 = B[n, 1, 0], B[n, 1, 1], B[n, 1, 2]
         for i in range(width):
-            a0, a1 = A[n, 0, i] * wn, A[n, 1, i] * wn
+            a_rows[0, i], a_rows[1, i] = A[n, 0, used[i]], A[n, 1, used[i]]
+        for i in range(width):
+            a0, a1 = a_rows[0, i] * wn, a_rows[1, i] * wn
             g_cam[c, i] += a0 * r0 + a1 * r1
             row = U_cam[c, i]
             for j in range(width):
-                row[j] += a0 * A[n, 0, j] + a1 * A[n, 1, j]
+                row[j] += a0 * a_rows[0, j] + a1 * a_rows[1, j]
             Wt[n, 0, i] = a0 * b00 + a1 * b10
             Wt[n, 1, i] = a0 * b01 + a1 * b11
             Wt[n, 2, i] = a0 * b02 + a1 * b12
@@ -357,7 +366,7 @@ def _observation_products(res, A, B, w, c_idx, p_idx, num_cameras, num_points):
 @compiled()
 def _point_products(Wt, V_inv, g_pt, first_obs, c_idx, num_cameras):
     """For every pair of cameras (a, b) the sum over the points both see of W_a V^-1 W_b^T
-    (C, C, 14, 14), and per observation W V^-1 g_pt (N, 14): Wt (N, 3, 14) per observation,
+    (C, C, K, K), and per observation W V^-1 g_pt (N, K): Wt (N, 3, K) per observation,
     V_inv (P, 3, 3) and g_pt (P, 3) per point; first_obs (P + 1,): each point's first
     observation, its observations being contiguous and in camera order; c_idx (N,): each
     observation's camera. Each observation's W V^-1 is formed once, in a small array the
@@ -391,8 +400,8 @@ def _point_products(Wt, V_inv, g_pt, first_obs, c_idx, num_cameras):
 
 @compiled()
 def _to_columns(products, yg, camera_cols, obs_cols, size):
-    """The camera pairs' blocks (C, C, 14, 14) and the observations' rows (N, 14) summed into
-    the columns of the cameras' parameters (camera_cols (C, 14), obs_cols (N, 14); a held one's
+    """The camera pairs' blocks (C, C, K, K) and the observations' rows (N, K) summed into
+    the columns of the cameras' parameters (camera_cols (C, K), obs_cols (N, K); a held one's
     is size - 1): (size, size) and (size,)."""
     S = np.zeros((size, size))
     r = np.zeros(size)
