@@ -5,8 +5,10 @@ import pytest
 from sfm_fixtures import gt_rig, gt_tracks
 
 from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, _Problem,
-                                                         _normal_equations, _reduced_system,
-                                                         adjust_with_priors, posterior_covariance)
+                                                         _damped_point_inverses,
+                                                         _normal_equations, _point_steps,
+                                                         _reduced_system, adjust_with_priors,
+                                                         posterior_covariance)
 from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
 
@@ -25,10 +27,10 @@ def _rig_with_offset_points(num_cameras=5, seed=3):
     return true, poses
 
 
-def _state(true, poses, noise_px, seed=0):
+def _state(true, poses, noise_px, seed=0, num_points=3000):
     """The truth's poses with the principal points at the image centre and square pixels (what
     the pipeline hands this stage), points triangulated."""
-    tracks = gt_tracks(true, poses, num_points=3000, noise_px=noise_px, outlier_frac=0.0,
+    tracks = gt_tracks(true, poses, num_points=num_points, noise_px=noise_px, outlier_frac=0.0,
                        seed=seed)
     start = [CameraIntrinsics("RADIAL", c.width, c.height,
                               np.array([c.params[0], c.width / 2, c.height / 2, c.params[4],
@@ -104,6 +106,45 @@ def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shar
     assert np.abs(S - expected).max() <= 1e-9 * np.abs(expected).max()
     expected_rhs = -g_cam + np.einsum("mpi,pij,pj->m", W, V_inv, g_pt, optimize=True)[:M]
     assert np.abs(rhs - expected_rhs).max() <= 1e-9 * np.abs(expected_rhs).max()
+
+
+def test_a_step_solves_the_damped_normal_equations():
+    """One Levenberg-Marquardt step through the compiled kernels (the points' damped and ridged
+    inverses, the reduced system and its right-hand side, the points' back-substitution) equals
+    the dense solve of the whole damped system, cameras and points together; one camera's
+    principal point held and the tangential parameters held, so that held columns and the
+    columns no camera frees are both dropped."""
+    true, poses = _rig_with_offset_points(4)
+    state = _state(true, poses, 0.3, num_points=150)
+    blocks = list(range(4))
+    priors = Priors({0: None, 1: 10.0, 2: 10.0, 3: 10.0}, aspect_std={b: 0.01 for b in blocks})
+    problem = _Problem(state, blocks, priors)
+    assert len(problem.used) == 12  # p1, p2 held for every camera
+    U, Wt, V, g_cam, g_pt, flat, _ = _normal_equations(problem, 0.3)
+    lam = 1e-2
+    Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-9))
+    V_inv = _damped_point_inverses(V, lam)
+    S, rhs = _reduced_system(problem, Ud, Wt, V_inv, g_cam, g_pt)
+    delta_cam = np.linalg.solve(S, rhs)
+    delta_pts = _point_steps(Wt, V_inv, g_pt, np.r_[delta_cam, 0.0], flat, problem.first_obs)
+
+    M, P = problem.num_cam_params, len(problem.X)
+    H = np.zeros((M + 1 + 3 * P, M + 1 + 3 * P))  # row and column M: the held parameters
+    H[:M, :M] = Ud
+    for n in range(len(problem.p_idx)):
+        rows, p = flat[n], problem.p_idx[n]
+        for k, row in enumerate(rows):
+            H[row, M + 1 + 3 * p:M + 4 + 3 * p] += Wt[n, :, k]
+    for p in range(P):
+        Vd = V[p] + lam * np.diag(np.diag(V[p]))
+        Vd += 1e-9 * np.trace(Vd) * np.eye(3)
+        H[M + 1 + 3 * p:M + 4 + 3 * p, M + 1 + 3 * p:M + 4 + 3 * p] = Vd
+    H[M + 1:, :M + 1] = H[:M + 1, M + 1:].T
+    keep = np.r_[np.arange(M), np.arange(M + 1, len(H))]
+    expected = np.linalg.solve(H[np.ix_(keep, keep)], -np.r_[g_cam, g_pt.ravel()])
+    assert np.allclose(delta_cam, expected[:M], rtol=1e-7, atol=1e-9 * np.abs(expected[:M]).max())
+    assert np.allclose(delta_pts.ravel(), expected[M:], rtol=1e-7,
+                       atol=1e-9 * np.abs(expected[M:]).max())
 
 
 @pytest.mark.parametrize("num_cameras, pp_std_px", [(3, 10.0), (3, 1e4), (5, 1e4)])
