@@ -165,8 +165,9 @@ class _Problem:
         # Per camera and per observation: the columns of its 6 pose + 8 intrinsic parameters
         # (cameras of one block share their intrinsics' columns); a held one's is
         # num_cam_params, a column the sums collect and then drop. Only the parameters some
-        # camera frees (`used`, indices into the 14) enter the sums: the tangential ones are
-        # mostly held, and the point products cost the square of their number.
+        # camera frees (`used`, indices into the 14) enter the sums: the pipeline holds the
+        # tangential ones in every adjustment, and the point products cost the square of their
+        # number.
         cols = np.concatenate([self.pose_cols, self.intr_cols[self.block_of]], axis=1)
         self.used = np.flatnonzero((cols >= 0).any(axis=0))
         self.camera_cols = np.where(cols >= 0, cols, self.num_cam_params)[:, self.used]
