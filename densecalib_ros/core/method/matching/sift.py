@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from ...compiled import compiled
 from ...errors import InputError
 from ...parallel import available_cores
 from ...types import SiteMatchSet
@@ -124,10 +125,8 @@ class _NearestSites:
         closer = np.flatnonzero(near < col_d1)
         np.minimum(col_d2, near, out=col_d2)
         if len(closer):
-            sub = np.ascontiguousarray(d2[:, closer].T)
-            first = np.argmin(sub, axis=1)
-            sub[np.arange(len(closer)), first] = np.inf
-            col_d2[closer] = np.minimum(col_d1[closer], sub.min(axis=1))
+            first, second = _nearest_two_rows(d2, closer)
+            col_d2[closer] = np.minimum(col_d1[closer], second)
             col_best[closer] = s0 + first
             col_d1[closer] = near[closer]
 
@@ -158,6 +157,30 @@ class _NearestSites:
         d1[takes_over] = d_near[takes_over]
         nearest[takes_over] = site[takes_over]
         d2_run[second] = np.minimum(d2_run[second], d_near[second])
+
+
+@compiled()
+def _nearest_two_rows(tile: np.ndarray, columns: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """For each of `columns` of `tile`: its nearest row (the first on ties) and the smallest
+    value in its other rows. Row by row, so that the tile is read in memory order: numpy's
+    argmin down axis 0, like a transposed copy of the columns, reads it column by column, many
+    times slower than a pass along its rows."""
+    n = len(columns)
+    first = np.zeros(n, np.int64)
+    best = np.full(n, np.inf, np.float32)
+    second = np.full(n, np.inf, np.float32)
+    for i in range(tile.shape[0]):
+        row = tile[i]
+        for j in range(n):
+            v = row[columns[j]]
+            if v < best[j]:
+                second[j] = best[j]
+                best[j] = v
+                first[j] = i
+            elif v < second[j]:
+                second[j] = v
+    return first, second
 
 
 def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
