@@ -29,8 +29,9 @@ adjusted once more with their intrinsics tied (core.method.rig_pooling). First, 
 are one camera (one camera moved around, frames of one video): the rig is adjusted on three of
 the folds and scored on the fourth (its correspondences triangulated anew, mean squared
 reprojection error), once as one camera (f, k1, k2 and the principal point tied tight) and once
-as separate cameras; where one camera fits the held-out correspondences no worse than separate
-cameras by more than the folds' standard error of that difference (cross-validation's
+as separate cameras (not where their estimates of f, k1 or k2 already scatter far beyond their
+sigmas: ONE_CAMERA_MAX_SCATTER); where one camera fits the held-out correspondences no worse
+than separate cameras by more than the folds' standard error of that difference (cross-validation's
 one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted
 as one, and judged as one: the sigmas that decide and report a parameter are those of the
 estimate from all their images, and the principal point is estimated or held for all of them
@@ -59,7 +60,8 @@ from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustmen
                                adjust_with_priors, intrinsics_vector, posterior_covariance)
 from .reconstruction import (BAStage, SfMState, bundle_adjust, remove_outlier_observations,
                              reprojection_errors, triangulate, triangulate_tracks)
-from .rig_pooling import MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, random_effects
+from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, random_effects,
+                          scatter_per_dof)
 from .uncertainty import CameraUncertainty, projection_std_px
 
 log = logging.getLogger(__name__)
@@ -88,6 +90,13 @@ HELD_OUT_POINT_ITERATIONS = 50
 # badly. Cut short, such a fit only fits worse, which is the verdict anyway; the cap bounds what
 # reaching it costs.
 ONE_CAMERA_ITERATIONS = 20
+# The one-camera test is not run where its verdict is certain: where the cameras' estimates of
+# f, k1 or k2 scatter beyond their folds' sigmas by this much (Cochran's Q per degree of freedom,
+# rig_pooling.scatter_per_dof: ~30x the sigmas), one value cannot fit them all. Four folds'
+# sigmas are rough and a phone's autofocus moves its focal between frames, so frames of one
+# camera scatter beyond them several times over, not thirty (docs/design-notes.md, One camera
+# or several: the test's cost).
+ONE_CAMERA_MAX_SCATTER = 1000.0
 PRINCIPAL_POINT_INTRINSICS = (1, 2)  # cx, cy as indices into INTRINSIC_NAMES
 # A camera left with fewer dense observations than this is not refined here (nor the rig).
 MIN_CAMERA_OBSERVATIONS = 50
@@ -333,8 +342,9 @@ def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Pri
               ) -> tuple[list, list[list[int]]]:
     """Priors.ties among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them
     have the folds' sigmas (the estimates: `state`'s, adjusted under `priors`): as one camera
-    where correspondences held out of the adjustment do not tell them apart (`_held_out_errors`,
-    module docstring), else each of POOLED_INTRINSICS as far as they agree
+    where correspondences held out of the adjustment do not tell them apart (`_one_camera_excess`,
+    module docstring; not tested where an estimate scatters beyond ONE_CAMERA_MAX_SCATTER), else
+    each of POOLED_INTRINSICS as far as they agree
     (core.method.rig_pooling: the rig's own spread). Also the groups of blocks tied as one."""
     ties, groups, one_cameras = [], {}, []
     for b in blocks:
@@ -348,27 +358,22 @@ def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Pri
         values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
         same_size = [b for b in blocks
                      if (state.intrinsics[b].width, state.intrinsics[b].height) == (width, height)]
-        effects = {i: random_effects(values[:, i],
-                                     [fold_sigmas[b]["intrinsics"][i] for b in members])
-                   for i in POOLED_INTRINSICS}
+        stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
+        effects = {i: random_effects(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
         spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
         one_ties = _one_camera_ties(state, members, fold_sigmas)
-        try:
-            held_out = {name: _held_out_errors(state, blocks, replace(priors, ties=group_ties),
-                                               noise_px, camera_names, iterations)
-                        for name, group_ties, iterations in (
-                            ("apart", spread_ties, None), ("one", one_ties, ONE_CAMERA_ITERATIONS))}
-        except (ValueError, np.linalg.LinAlgError) as exc:  # a fold left a camera without data
-            log.debug("no one-camera test for %dx%d: %s", width, height, exc)
-            held_out = {"apart": np.ones(HOLDOUT_FOLDS), "one": np.full(HOLDOUT_FOLDS, np.nan)}
-        # Relative excess of one camera's held-out error over the cameras' own, per fold (NaN,
-        # where a test could not be made, keeps them apart).
-        excess = held_out["one"] / held_out["apart"] - 1.0
-        standard_error = float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
-        log.debug("held-out errors of the %d cameras of %dx%d apart %s and as one %s px^2",
-                  len(members), width, height, np.round(held_out["apart"], 6).tolist(),
-                  np.round(held_out["one"], 6).tolist())
-        if float(np.mean(excess)) <= standard_error:
+        scatter = {i: scatter_per_dof(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
+        widest = max(scatter, key=scatter.get)
+        if scatter[widest] >= ONE_CAMERA_MAX_SCATTER:
+            excess = standard_error = None
+            tested = (f"; their {INTRINSIC_NAMES[widest]} estimates scatter "
+                      f"{np.sqrt(scatter[widest]):.0f}x their own sigmas, not one camera's")
+        else:
+            excess, standard_error = _one_camera_excess(state, blocks, priors, spread_ties,
+                                                        one_ties, noise_px, camera_names)
+            tested = (f"; as one camera they fit held-out correspondences "
+                      f"{100 * np.mean(excess):.1f} % worse" if np.isfinite(excess).all() else "")
+        if excess is not None and float(np.mean(excess)) <= standard_error:
             ties += one_ties
             one_cameras.append(members)
             say(f"the {len(members)} cameras of {width}x{height} fit the correspondences held "
@@ -377,13 +382,32 @@ def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Pri
                 f"principal point and distortion are estimated as one")
         else:
             ties += spread_ties
-            tested = (f"; as one camera they fit held-out correspondences "
-                      f"{100 * np.mean(excess):.1f} % worse" if np.isfinite(excess).all() else "")
             say(f"focal length and distortion tied across the {len(members)} cameras of "
                 f"{width}x{height} as far as they agree (spread between them: focal "
                 f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 "
                 f"{effects[4].spread:.4f}{tested})")
     return ties, one_cameras
+
+
+def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, spread_ties: list,
+                       one_ties: list, noise_px: float, camera_names: Sequence[str]
+                       ) -> tuple[np.ndarray, float]:
+    """The one-camera test (module docstring): per fold, the relative excess of the held-out
+    error with the cameras tied as one (one_ties) over theirs tied as far as they agree
+    (spread_ties), NaN where a fold left a camera without data (which keeps them apart); and
+    the folds' standard error of its mean."""
+    try:
+        held_out = {name: _held_out_errors(state, blocks, replace(priors, ties=group_ties),
+                                           noise_px, camera_names, iterations)
+                    for name, group_ties, iterations in (
+                        ("apart", spread_ties, None), ("one", one_ties, ONE_CAMERA_ITERATIONS))}
+    except (ValueError, np.linalg.LinAlgError) as exc:  # a fold left a camera without data
+        log.debug("no one-camera test: %s", exc)
+        held_out = {"apart": np.ones(HOLDOUT_FOLDS), "one": np.full(HOLDOUT_FOLDS, np.nan)}
+    log.debug("held-out errors apart %s and as one %s px^2",
+              np.round(held_out["apart"], 6).tolist(), np.round(held_out["one"], 6).tolist())
+    excess = held_out["one"] / held_out["apart"] - 1.0
+    return excess, float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
 
 
 def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> list:

@@ -50,13 +50,26 @@ class RandomEffects:
         return max(self.spread, SHARED_FRACTION * self.mean_std)
 
 
+def _cochran_q(values: Sequence[float], stds: Sequence[float]) -> tuple[float, np.ndarray]:
+    """(Cochran's Q: the estimates' squared deviations from their precision-weighted mean, each
+    over its own variance; the weights 1 / std^2). Q is about len(values) - 1 where the
+    estimates are one value."""
+    y, w = np.asarray(values, float), 1.0 / np.asarray(stds, float) ** 2
+    fixed_mean = float(np.sum(w * y) / np.sum(w))
+    return float(np.sum(w * (y - fixed_mean) ** 2)), w
+
+
+def scatter_per_dof(values: Sequence[float], stds: Sequence[float]) -> float:
+    """How far the estimates scatter beyond what their standard deviations allow: Cochran's Q per
+    degree of freedom (about 1 for one value; 100 for a scatter ten times their sigmas)."""
+    return _cochran_q(values, stds)[0] / (len(values) - 1)
+
+
 def random_effects(values: Sequence[float], stds: Sequence[float]) -> RandomEffects:
     """DerSimonian-Laird estimate (module docstring) from per-camera estimates and their
     standard deviations (finite, positive)."""
     y, s2 = np.asarray(values, float), np.asarray(stds, float) ** 2
-    w = 1.0 / s2
-    fixed_mean = float(np.sum(w * y) / np.sum(w))
-    q = float(np.sum(w * (y - fixed_mean) ** 2))
+    q, w = _cochran_q(y, stds)  # w = 1 / s2
     tau2 = max(0.0, (q - (len(y) - 1)) / (np.sum(w) - np.sum(w * w) / np.sum(w)))
     w_random = 1.0 / (s2 + tau2)
     return RandomEffects(float(np.sum(w_random * y) / np.sum(w_random)), float(np.sqrt(tau2)),
