@@ -190,6 +190,33 @@ def test_work_run_ahead_takes_the_lowest_priority_and_stops_when_cancelled():
     assert RunAhead(fails).result() is None
 
 
+def test_a_process_ending_while_work_runs_ahead_in_opencv_keeps_its_exit_code(tmp_path):
+    """A calibration that fails or is interrupted while the dense correspondences are found
+    ahead exits with its own code: the work still inside OpenCV when the script ends is
+    cancelled and waited for, not unwound through C++ by the interpreter's finalization
+    (SIGABRT, 134). The script's work is one OpenCV call that outlasts the exit (0.6 s here)."""
+    command = _script(tmp_path, """
+        import sys, threading
+        import cv2
+        import numpy as np
+        from densecalib_ros.core.parallel import RunAhead
+        image = np.random.default_rng(0).random((5000, 5000), dtype=np.float32)
+        started = threading.Event()
+
+        def work(cancelled, thread_start):
+            started.set()
+            cv2.matchTemplate(image, image[:300, :300], cv2.TM_SQDIFF)
+
+        ahead = RunAhead(work)
+        started.wait()
+        ahead.cancel()
+        sys.exit(3)
+        """)
+    for _ in range(2):
+        done = subprocess.run(command, capture_output=True, text=True, env=_env(), timeout=120)
+        assert done.returncode == 3, done.stderr
+
+
 def test_map_threads_gives_the_loops_results_in_its_order_with_seeded_ransacs():
     """map_threads: the pieces side by side give what the loop gives, bit for bit, in the loop's
     order: OpenCV's seeded RANSAC (the two-view geometry of the sampling) and pycolmap's (the

@@ -17,6 +17,7 @@ out of memory) is replaced, and the pieces it lost run here.
 """
 from __future__ import annotations
 
+import atexit
 import logging
 import multiprocessing
 import os
@@ -112,13 +113,16 @@ class RunAhead:
     on cores the calibration leaves idle (a multi-start's last trial, a single-threaded
     adjustment) instead of after it. result() waits for it and gives its value, or None where it
     failed (the stage then does the work itself, and meets the error itself); cancel() asks fn
-    to stop (fn raises to stop, and is not waited for)."""
+    to stop (fn raises to stop, and is not waited for: a failed calibration returns at once).
+    What still runs when the interpreter ends is cancelled and waited for then
+    (_stop_work_ahead)."""
 
     def __init__(self, fn: Callable, *args: Any, name: str = "densecalib-ahead") -> None:
         self._cancelled = threading.Event()
         self._value: Any = None
         self._thread = threading.Thread(target=self._run, args=(fn, args), name=name,
                                         daemon=True)
+        _running_ahead.add(self)
         self._thread.start()
 
     def _run(self, fn: Callable, args: tuple) -> None:
@@ -128,6 +132,8 @@ class RunAhead:
         except Exception as exc:  # noqa: BLE001 - the stage that needs it does the work itself
             if not self._cancelled.is_set():
                 log.debug("work run ahead failed (%r); it is done when needed", exc)
+        finally:
+            _running_ahead.discard(self)
 
     def result(self) -> Any:
         self._thread.join()
@@ -135,6 +141,23 @@ class RunAhead:
 
     def cancel(self) -> None:
         self._cancelled.set()
+
+
+_running_ahead: set = set()  # RunAheads whose work has not returned
+
+
+@atexit.register
+def _stop_work_ahead() -> None:
+    """Cancel the work still run ahead and wait for it before the interpreter ends: Python
+    ends a daemon thread that comes back from C++ (OpenCV) after finalization began by unwinding
+    it through that C++, which aborts the process (SIGABRT, exit code 134, instead of the
+    command's own: a calibration that failed or was interrupted while dense correspondences
+    were being found ahead). Cancelled work stops at its next check, within one image pair."""
+    for ahead in list(_running_ahead):
+        ahead.cancel()
+    for ahead in list(_running_ahead):
+        ahead._thread.join()
+
 
 # How often a worker looks whether the process that started it is still there (seconds).
 PARENT_CHECK_S = 1.0
