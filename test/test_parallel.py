@@ -194,7 +194,7 @@ def test_a_process_ending_while_work_runs_ahead_in_opencv_keeps_its_exit_code(tm
     """A calibration that fails or is interrupted while the dense correspondences are found
     ahead exits with its own code: the work still inside OpenCV when the script ends is
     cancelled and waited for, not unwound through C++ by the interpreter's finalization
-    (SIGABRT, 134). The script's work is one OpenCV call that outlasts the exit (0.6 s here)."""
+    (SIGABRT, 134). The script's work is one OpenCV call that outlasts the exit (0.4-0.7 s here)."""
     command = _script(tmp_path, """
         import sys, threading
         import cv2
