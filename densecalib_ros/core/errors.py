@@ -57,3 +57,10 @@ class FocalInitError(CalibrationError):
 
 class ModelWeightsError(CalibrationError):
     """A learned matcher's weights are missing or unreadable at the configured path."""
+
+
+class CalibrationCancelled(BaseException):
+    """The calibration was stopped (a cancelled goal, Ctrl-C, SIGTERM) at one of its checks
+    (core.progress.StopToken). Not a CalibrationError, and like KeyboardInterrupt not an
+    Exception: the handlers that let a consensus run or a matcher fail and go on must not
+    swallow it. Nothing was written."""

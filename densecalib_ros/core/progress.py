@@ -1,21 +1,223 @@
-"""One progress channel for the calibration's stages: each event is said once, by `say_progress`,
-which logs it (INFO, under the stage's logger) and passes it to the caller's callback. Front ends
-show one of the two: the commands the log, the node its ~/status topic (the log reaches /rosout
-through ros.core_logs). A stage of many like steps (frame sets matched, SfM trials) says its
-estimated time left with them (StageClock)."""
+"""How a calibration is watched and stopped: one Progress object goes down the stages.
+
+Each event is said once, by `Progress.say`, which logs it (INFO, under the stage's logger) and
+passes it to the front end's message callback: the commands show the log (`-v`, or output
+piped) or one updating line per stage, the node its ~/status topic and its action's feedback.
+
+Beside the messages, the stages report where they are (`begin` a stage, `advance` within it):
+the fraction of the whole run done and the seconds left, which `state()` gives any thread at
+any time (the node's feedback timer, the terminal line's clock). The run's stages and their
+shares of its time are planned first (`plan`); a second matcher adds its own (`extend`).
+
+A StopToken set from another thread (a ROS cancel, Ctrl-C) stops the calibration at its next
+check: `advance` and `check` raise CalibrationCancelled, between stages, consensus runs,
+multi-start trials and matched image pairs. A cancelled calibration writes nothing.
+"""
 from __future__ import annotations
 
 import logging
+import threading
 import time
-from typing import Callable, Optional
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence, Union
 
-Progress = Optional[Callable[[str], None]]
+from .errors import CalibrationCancelled
+
+# The stages of a calibration and their shares of its time, from the stage tables of the bench
+# (docs/benchmarks.md): on Strecha's ten views and an 8-camera generated rig, matching took
+# 0.16-0.21 of the time, sampling, the SfM runs and their refinement on the keypoint matches
+# 0.55, the image refinement 0.24-0.29. Shares only set how the fraction done moves; the seconds
+# left come from the time the run has taken so far.
+STAGE_SHARES = {"match": 0.20, "calibrate": 0.55, "refine": 0.25}
+# A stage begun that no plan named (a front end's own) counts this much of a planned run.
+UNPLANNED_SHARE = 0.02
+# Before the first step of a run is done, its length is estimated from the matching it has to
+# do: this many seconds per image pair and megapixel (SIFT at up to 1024 px on one core of the
+# 2-core development machine, detection included), scaled by the matching's share.
+MATCH_S_PER_PAIR_MPIX = 0.5
+# Fractions below this say too little about the whole run to extrapolate its time from.
+MIN_FRACTION_FOR_ESTIMATE = 0.01
+
+Listener = Callable[[str], None]
 
 
-def say_progress(progress: Progress, msg: str, logger: Optional[logging.Logger] = None) -> None:
-    (logger or logging.getLogger(__name__)).info(msg)
-    if progress is not None:
-        progress(msg)
+class StopToken:
+    """Set from any thread (a ROS cancel, a signal handler); the calibration checks it between
+    its steps (Progress.check) and stops with CalibrationCancelled."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self.reason = "cancelled"
+
+    def stop(self, reason: str = "cancelled") -> None:
+        self.reason = reason
+        self._event.set()
+
+    @property
+    def stopped(self) -> bool:
+        return self._event.is_set()
+
+    def check(self) -> None:
+        if self._event.is_set():
+            raise CalibrationCancelled(self.reason)
+
+
+@dataclass(frozen=True)
+class ProgressState:
+    """Where a calibration is: its stage, the steps of the stage (0 of 0 where it has none to
+    count), the fraction of the whole run done and the seconds left (None until estimable)."""
+
+    stage: str
+    label: str
+    stage_done: int
+    stage_total: int
+    fraction: float
+    seconds_left: Optional[float]
+    elapsed_s: float
+
+
+class Progress:
+    """The channel a calibration reports through and is stopped through (module docstring).
+
+    on_message(text): each event said (say), once; on_stage(state): each stage begun, and each
+    step (advance): what a front end draws. Both are called in the calibrating thread."""
+
+    def __init__(self, on_message: Optional[Listener] = None,
+                 on_stage: Optional[Callable[[ProgressState], None]] = None,
+                 stop: Optional[StopToken] = None) -> None:
+        self.on_message, self.on_stage = on_message, on_stage
+        self.stop = stop or StopToken()
+        self._lock = threading.Lock()
+        self._start = time.perf_counter()
+        self._shares: dict[str, float] = {}
+        self._done_share = 0.0  # shares of the stages ended
+        self._ended: set[str] = set()
+        self._stage, self._label = "start", "starting"
+        self._done, self._total = 0, 0
+        self._prior_s: Optional[float] = None
+
+    @classmethod
+    def of(cls, progress: Union["Progress", Listener, None]) -> "Progress":
+        """A Progress from what a caller gave: itself, a message callback, or None (silent)."""
+        if isinstance(progress, Progress):
+            return progress
+        return cls(on_message=progress)
+
+    # -- the plan
+    def plan(self, stages: Sequence[str], prior_s: Optional[float] = None) -> None:
+        """The run's stages (keys of STAGE_SHARES, in order); prior_s: the run's length as
+        estimated before any step is done (estimated_run_s), used until steps tell better."""
+        with self._lock:
+            self._shares = {s: STAGE_SHARES.get(s, UNPLANNED_SHARE) for s in stages}
+            self._prior_s = prior_s
+
+    def extend(self, stages: Sequence[str]) -> None:
+        """Stages added to the run once it is under way (the second matcher's matching and
+        calibration): the fraction done falls to what it is of the longer run."""
+        with self._lock:
+            for s in stages:
+                key = s
+                while key in self._shares:
+                    key += "+"
+                self._shares[key] = STAGE_SHARES.get(s, UNPLANNED_SHARE)
+
+    # -- the stages
+    def begin(self, stage: str, label: str, total: int = 0) -> None:
+        """Enter `stage` (ending the one before) with `total` steps to count; checks the stop."""
+        self.check()
+        with self._lock:
+            self._end_stage()
+            key = next((k for k in self._shares if k.rstrip("+") == stage and
+                        k not in self._ended), None)
+            if key is None:
+                key = stage
+                while key in self._shares:
+                    key += "+"
+                self._shares[key] = UNPLANNED_SHARE
+            self._stage, self._label, self._done, self._total = key, label, 0, total
+        self._tell()
+
+    def advance(self, done: int, total: Optional[int] = None, label: Optional[str] = None
+                ) -> None:
+        """`done` steps of the stage are done (of `total`, where it changed); checks the stop."""
+        self.check()
+        with self._lock:
+            self._done = done
+            if total is not None:
+                self._total = total
+            if label is not None:
+                self._label = label
+        self._tell()
+
+    def relabel(self, label: str) -> None:
+        """The stage's label changed (a consensus run begun) without a step done."""
+        with self._lock:
+            self._label = label
+        self._tell()
+
+    def check(self) -> None:
+        """CalibrationCancelled where the stop token was set."""
+        self.stop.check()
+
+    def say(self, msg: str, logger: Optional[logging.Logger] = None) -> None:
+        """Log `msg` (INFO) and pass it to on_message: an event, said once."""
+        (logger or logging.getLogger(__name__)).info(msg)
+        if self.on_message is not None:
+            self.on_message(msg)
+
+    # -- reading it
+    def state(self) -> ProgressState:
+        """Where the run is now (any thread)."""
+        with self._lock:
+            elapsed = time.perf_counter() - self._start
+            fraction = self._fraction()
+            if fraction >= MIN_FRACTION_FOR_ESTIMATE:
+                left = elapsed * (1.0 - fraction) / fraction
+            elif self._prior_s is not None:
+                left = max(self._prior_s - elapsed, 0.0)
+            else:
+                left = None
+            return ProgressState(self._stage.rstrip("+"), self._label, self._done, self._total,
+                                 fraction, left, elapsed)
+
+    # -- internals
+    def _end_stage(self) -> None:
+        if self._stage in self._shares and self._stage not in self._ended:
+            self._ended.add(self._stage)
+            self._done_share += self._shares[self._stage]
+
+    def _fraction(self) -> float:
+        total = sum(self._shares.values())
+        if total <= 0:
+            return 0.0
+        current = 0.0
+        if self._stage in self._shares and self._stage not in self._ended and self._total > 0:
+            current = self._shares[self._stage] * min(self._done / self._total, 1.0)
+        return min((self._done_share + current) / total, 1.0)
+
+    def _tell(self) -> None:
+        if self.on_stage is not None:
+            self.on_stage(self.state())
+
+
+def estimated_run_s(image_sizes: Sequence[tuple[int, int]], num_frame_sets: int,
+                    max_image_side_px: int) -> float:
+    """A run's length before any of it is done: its matching (MATCH_S_PER_PAIR_MPIX per image
+    pair and megapixel matched) over the matching's share of a run."""
+    C = len(image_sizes)
+    mpix = 0.0
+    for w, h in image_sizes:
+        scale = min(1.0, max_image_side_px / max(w, h)) if max_image_side_px else 1.0
+        mpix += w * h * scale * scale / 1e6
+    pairs = C * (C - 1) / 2
+    match_s = num_frame_sets * pairs * MATCH_S_PER_PAIR_MPIX * (mpix / max(C, 1))
+    return match_s / STAGE_SHARES["match"]
+
+
+def say_progress(progress: Union[Progress, Listener, None], msg: str,
+                 logger: Optional[logging.Logger] = None) -> None:
+    """Progress.of(progress).say(msg): for stages that take a Progress or a message callback."""
+    Progress.of(progress).say(msg, logger)
 
 
 class StageClock:
