@@ -140,41 +140,13 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     an earlier run's settled multi-start (the result's settled_starts) leaves to try.
     """
     say = functools.partial(say_progress, progress)
-    starts = {name: (start, None) for name, start in
-              {**focal_starts(intrinsics, config.fixed_intrinsics_cameras),
-               **(extra_starts or {})}.items()}
     sub = tracks.sample(trial_max_tracks(tracks.num_cameras), seed)
-    if len(config.fixed_intrinsics_cameras) == tracks.num_cameras and \
-            config.brute_force_first_pair:
-        budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
-        starts.update({f"given, first pair {camera_names[i]}/{camera_names[j]}":
-                       (list(intrinsics), (i, j)) for i, j in first_pair_starts(sub, budget)})
+    starts = _named_starts(intrinsics, camera_names, config, sub, extra_starts)
     restricted = only_starts is not None and any(n in starts for n in only_starts)
     if restricted:
         starts = {n: starts[n] for n in starts if n in only_starts}
-    # Trials are independent: they run side by side (core.parallel), each BA on one core, so
-    # the outcome does not depend on how many ran at once.
-    trial_config = replace(config, num_threads=1)
-    clock = StageClock(len(starts))
-
-    def trials_done(k: int) -> None:
-        if clock.due(TRIALS_PROGRESS_EVERY_S) and k < len(starts):
-            say(f"focal multi-start: {k} of {len(starts)} trials done{clock.left(k)}")
-    outcomes = map_jobs(_trial, [(sub, start, camera_names, trial_config, seed, pair,
-                                  validation_tracks) for start, pair in starts.values()],
-                        config.num_threads, on_done=trials_done)
-    costs, trials = {}, {}
-    for name, (trial, messages, cost) in zip(starts, outcomes):
-        if trial is None:
-            continue
-        trials[name] = (trial, messages)
-        if cost is None:
-            log.debug("focal start %s: implausible intrinsics %s", name,
-                      implausible_cameras(trial.state))
-            continue
-        costs[name] = (-len(trial.state.registered()), cost)
-        log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
-                  -costs[name][0], costs[name][1])
+    trials, costs = _judged_trials(sub, starts, camera_names, config, seed, validation_tracks,
+                                   say)
     best = min(costs, key=costs.get) if costs else next(iter(starts))
     if costs:
         judged_on = (f"{validation_tracks.num_tracks} keypoint-match tracks"
@@ -200,6 +172,58 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                                config) if best in states else AGREEMENT_DEG)
         result.settled_starts = settled_starts(costs, states, agree)
     return result
+
+
+def _named_starts(intrinsics: Sequence[CameraIntrinsics], camera_names: Sequence[str],
+                  config: SfMConfig, trial_tracks: Tracks,
+                  extra_starts: Optional[dict[str, list[CameraIntrinsics]]]
+                  ) -> dict[str, tuple[list[CameraIntrinsics], Optional[tuple[int, int]]]]:
+    """The multi-start's starts by name (run_incremental): start name -> (starting intrinsics,
+    first pair or None where the view order picks it). The focal starts and extra_starts; where
+    every camera's intrinsics are given, also first pairs of trial_tracks, as many as
+    self-calibrating would have run focal starts."""
+    starts = {name: (start, None) for name, start in
+              {**focal_starts(intrinsics, config.fixed_intrinsics_cameras),
+               **(extra_starts or {})}.items()}
+    if len(config.fixed_intrinsics_cameras) == trial_tracks.num_cameras and \
+            config.brute_force_first_pair:
+        budget = len(focal_starts(intrinsics))  # what self-calibrating would have run
+        starts.update({f"given, first pair {camera_names[i]}/{camera_names[j]}":
+                       (list(intrinsics), (i, j))
+                       for i, j in first_pair_starts(trial_tracks, budget)})
+    return starts
+
+
+def _judged_trials(trial_tracks: Tracks, starts: dict, camera_names: Sequence[str],
+                   config: SfMConfig, seed: int, validation_tracks: Optional[Tracks],
+                   say: Callable[[str], None]) -> tuple[dict, dict]:
+    """Every start's trial on trial_tracks (_trial), side by side: (start name -> (trial,
+    its progress messages) for the trials that started; start name -> (-registered cameras,
+    truncated cost) for those with plausible intrinsics), in the order of `starts`."""
+    # Trials are independent: they run side by side (core.parallel), each BA on one core, so
+    # the outcome does not depend on how many ran at once.
+    trial_config = replace(config, num_threads=1)
+    clock = StageClock(len(starts))
+
+    def trials_done(k: int) -> None:
+        if clock.due(TRIALS_PROGRESS_EVERY_S) and k < len(starts):
+            say(f"focal multi-start: {k} of {len(starts)} trials done{clock.left(k)}")
+    outcomes = map_jobs(_trial, [(trial_tracks, start, camera_names, trial_config, seed, pair,
+                                  validation_tracks) for start, pair in starts.values()],
+                        config.num_threads, on_done=trials_done)
+    trials, costs = {}, {}
+    for name, (trial, messages, cost) in zip(starts, outcomes):
+        if trial is None:
+            continue
+        trials[name] = (trial, messages)
+        if cost is None:
+            log.debug("focal start %s: implausible intrinsics %s", name,
+                      implausible_cameras(trial.state))
+            continue
+        costs[name] = (-len(trial.state.registered()), cost)
+        log.debug("focal start %s: %d registered, truncated cost %.3f px", name,
+                  -costs[name][0], costs[name][1])
+    return trials, costs
 
 
 def trial_max_tracks(num_cameras: int) -> int:
