@@ -491,8 +491,3 @@ class DenseCalibNode(Node):
             self._intake.destroy()
         return super().destroy_node()
 
-
-def main(args=None) -> int:
-    """ros.main.main, for `densecalib_node` scripts installed before it moved there."""
-    from .main import main as run_node
-    return run_node(args)
