@@ -4,7 +4,9 @@
 #   - installs the pinned dependencies when requirements*.txt or setup.py changed (stamp file;
 #     requirements-nodeps.txt with --no-deps),
 #   - installs this package in editable mode (console scripts densecalib, densecalib_node),
-#   - generates tf2_msgs into .venv when it cannot be imported (PyPI has no tf2_msgs wheel).
+#   - generates the ROS interface packages into .venv when they cannot be imported or their sources
+#     changed (scripts/build_interfaces.sh: tf2_msgs, which PyPI lacks, and densecalib_interfaces,
+#     the node's Calibrate action).
 # A second run only checks the stamp and an import: it takes a few seconds.
 # Only package registries are contacted; nothing is downloaded at run time afterwards.
 set -euo pipefail
@@ -37,8 +39,5 @@ else
   log "dependencies up to date"
 fi
 
-if ! "$vpy" -c "import tf2_msgs.msg" >/dev/null 2>&1; then
-  log "tf2_msgs not importable: generating it into $venv"
-  bash "$repo/scripts/build_tf2_msgs.sh" "$venv"
-fi
+bash "$repo/scripts/build_interfaces.sh" "$venv"
 log "environment ready: $venv"
