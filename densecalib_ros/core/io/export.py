@@ -17,6 +17,7 @@ from ..json_text import json_text, jsonable
 from ..types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera, RigQuality,
                      check_camera_names)
 from .camera_info import camera_info_yaml
+from .colmap_files import model_problem
 from .safe_write import disk_hint, write_text_atomic
 
 log = logging.getLogger(__name__)
@@ -197,7 +198,7 @@ def read_saved_model(folder: str | os.PathLike):
     model = Path(folder) / "colmap"
     if not any((model / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
         return None
-    problem = _binary_model_problem(model)
+    problem = model_problem(model)  # before pycolmap allocates for what the files claim
     if problem is None:
         try:
             return pycolmap.Reconstruction(str(model))
@@ -205,29 +206,6 @@ def read_saved_model(folder: str | os.PathLike):
             problem = str(exc).strip().splitlines()[-1] if str(exc).strip() else repr(exc)
     raise InputError(f"The COLMAP model in {model} is damaged ({problem}): calibrate again, or "
                      "restore the folder.")
-
-
-# The least bytes one record of each COLMAP binary file takes: a file that claims more records
-# than its size holds is damaged, and pycolmap would allocate for the claim (a zero-byte
-# points3D.bin took 17 GB and 106 s before failing).
-_MIN_RECORD_BYTES = {"cameras.bin": 24, "images.bin": 73, "points3D.bin": 51, "rigs.bin": 1,
-                     "frames.bin": 1}
-
-
-def _binary_model_problem(model: Path) -> Optional[str]:
-    for name, record_bytes in _MIN_RECORD_BYTES.items():
-        path = model / name
-        if not path.is_file():
-            continue
-        size = path.stat().st_size
-        with open(path, "rb") as f:
-            head = f.read(8)
-        if len(head) < 8:
-            return f"{name} holds {size} bytes"
-        count = int.from_bytes(head, "little")
-        if count * record_bytes > size - 8:
-            return f"{name} claims {count} records in {size} bytes"
-    return None
 
 
 def write_calibration_files(rig: RigCalibration, directory: str | os.PathLike,
@@ -258,7 +236,10 @@ def write_colmap_model(reconstruction, directory: Path) -> None:
 
     written = (reconstruction.num_cameras(), reconstruction.num_images(),
                reconstruction.num_points3D())
+    problem = model_problem(directory)  # a file cut short: pycolmap would read garbage counts
     try:
+        if problem:
+            raise InputError(problem)
         back = pycolmap.Reconstruction(str(directory))
         read = (back.num_cameras(), back.num_images(), back.num_points3D())
     except Exception as exc:  # pycolmap raises its own types for a damaged model
