@@ -241,7 +241,8 @@ def test_bad_names_and_images_are_refused_before_any_work(rig, tmp_path):
     text = (tmp_path / "calib" / "calibration.json").read_text()
     (tmp_path / "calib" / "calibration.json").write_text(text.replace(f'"{names[1]}"',
                                                                       '"../../x"'))
-    with pytest.raises(InputError, match="damaged calibration file: Camera name '../../x'"):
+    with pytest.raises(InputError, match="damaged calibration file .*calibration.json: Camera "
+                                         "name '../../x'"):
         read_calibration(tmp_path / "calib")
 
 

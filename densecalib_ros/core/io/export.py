@@ -16,6 +16,7 @@ from ..errors import InputError
 from ..json_text import json_text, jsonable
 from ..types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera, RigQuality,
                      check_camera_names)
+from .calibration_values import entry_problem, params_problem
 from .camera_info import camera_info_yaml
 from .colmap_files import model_problem
 from .safe_write import disk_hint, write_text_atomic
@@ -61,10 +62,17 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
             "quality": jsonable(rig.quality.to_dict()), "conventions": FILE_CONVENTIONS}
 
 
-def calibration_from_dict(data: dict) -> RigCalibration:
+def calibration_from_dict(data: dict, source: str = "") -> RigCalibration:
+    """The calibration of a calibration.json's content; InputError naming `source` (the file)
+    and what in it is of the wrong kind or no camera's (core.io.calibration_values)."""
+    where = f" {source}" if source else ""
     try:
         cams = {}
         for name, c in data["cameras"].items():
+            wrong = entry_problem(name, c)
+            if wrong:
+                raise InputError(f"A damaged calibration file{where}: {wrong}. Correct it, "
+                                 "restore the file or calibrate again.")
             q = c.get("quality")
             cams[name] = RigCamera(
                 name=name,
@@ -78,13 +86,13 @@ def calibration_from_dict(data: dict) -> RigCalibration:
                              quality=RigQuality.from_dict(data.get("quality", {})),
                              metric_scale=bool(data.get("metric_scale", False)))
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise InputError(f"Not a densecalib calibration file ({exc!r}): expected keys "
+        raise InputError(f"Not a densecalib calibration file{where} ({exc!r}): expected keys "
                          "reference_camera and cameras{name: model, params, width, height, "
                          "cam_from_rig}.") from exc
     problem = calibration_problem(rig)
     if problem:
-        raise InputError(f"A damaged calibration file: {problem}. Restore it or calibrate "
-                         "again.")
+        raise InputError(f"A damaged calibration file{where}: {problem}. Correct it, restore "
+                         "the file or calibrate again.")
     return rig
 
 
@@ -118,6 +126,9 @@ def calibration_problem(rig: RigCalibration) -> Optional[str]:
         focal = [k.params[i] for i, n in enumerate(k.parameter_names) if n in ("f", "fx", "fy")]
         if min(focal) <= 0:
             return f"camera {name} has focal length {min(focal):g} px"
+        absurd = params_problem(name, k.width, k.height, k.parameter_names, k.params.tolist())
+        if absurd:
+            return absurd
         pose = cam.cam_from_rig
         rotation = pose[:3, :3]
         if (not np.isfinite(pose).all() or not np.allclose(pose[3], [0, 0, 0, 1])
@@ -168,7 +179,7 @@ def read_calibration(path: str | os.PathLike) -> RigCalibration:
         raise InputError(f"Cannot read calibration file {path} ({type(exc).__name__}: {exc}): "
                          "it is not a calibration.json densecalib wrote, or it was damaged; "
                          "restore it or calibrate again.") from exc
-    return calibration_from_dict(data)
+    return calibration_from_dict(data, str(path))
 
 
 def record_provenance(rig: RigCalibration, source: dict) -> None:
