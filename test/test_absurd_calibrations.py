@@ -1,12 +1,14 @@
 """A calibration.json with values no camera has (hand edits, damage) is refused where it is read,
 naming the file, the camera and the field, with exit code 2 and nothing written: a width `true`,
 `"640"` or 640.5 (exported as `image_width: true`), a focal of 1e308, a principal point 1e9 px
-off, k1 = 1e6, and a width of 10^12 that made `undistort` allocate 7 TiB (issue 85 items 7, 8)."""
+off, k1 = 1e6, and a width of 10^12 that made `undistort` allocate 7 TiB (issue 85 items 7, 8).
+`undistort` makes its maps only once the images are known to be of the calibrated size."""
 import json
 import os
 import subprocess
 import sys
 
+import cv2
 import pytest
 
 from densecalib_ros.core.io.export import calibration_to_dict, read_calibration
@@ -84,3 +86,31 @@ def test_a_calibration_as_written_reads_back(rig, tmp_path):
         path = _calibration(r, tmp_path / r.cameras[0].model)
         assert read_calibration(path).cameras["cam0"].intrinsics.width == 320
 
+
+def test_undistort_of_an_absurd_size_is_refused_before_it_allocates(rig, tmp_path):
+    """width 10^12 is refused on reading; a size within bounds that the images do not have is
+    refused at the first image, before the maps of that size are made (60000x40000 maps are
+    19 GB)."""
+    images = tmp_path / "images"
+    images.mkdir()
+    for name, image in zip(rig.names, rig.images[0]):
+        cv2.imwrite(str(images / f"{name}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    rc, plain_rss, output = _densecalib("undistort", _calibration(rig, tmp_path / "good"),
+                                        "--images", images, "--out", tmp_path / "und")
+    assert rc == 0, output
+    huge = _calibration(rig, tmp_path / "huge", _set("width", 10 ** 12, "cam0"))
+    rc, rss, output = _densecalib("undistort", huge, "--images", images, "--out",
+                                  tmp_path / "und2")
+    assert rc == 2 and "camera cam0's width is 1000000000000" in output, output
+    assert rss <= plain_rss + 64 * 2 ** 20 and not (tmp_path / "und2").exists()
+
+    def large(cameras):
+        cameras["cam0"].update(width=60000, height=40000)
+        cameras["cam0"]["params"][:3] = [50000.0, 30000.0, 20000.0]
+    rc, rss, output = _densecalib("undistort", _calibration(rig, tmp_path / "large", large),
+                                  "--images", images, "--out", tmp_path / "und3")
+    assert rc == 2, output
+    assert (f"{images / 'cam0.png'} is 320x240, but camera cam0 was calibrated at 60000x40000"
+            in output), output
+    assert "Traceback" not in output and not (tmp_path / "und3").exists()
+    assert rss <= plain_rss + 64 * 2 ** 20, (rss, plain_rss)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import functools
 import logging
 from pathlib import Path
 
@@ -17,7 +18,6 @@ from ..core.io.video_io import VIDEO_CODECS
 from ..core.products.undistort import DEFAULT_MAX_FOV_DEG
 
 log = logging.getLogger("densecalib.undistort")
-
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -91,18 +91,21 @@ def run(args: argparse.Namespace) -> int:
                     continue
                 source = rig.cameras[name].intrinsics
                 target, target_from_source = targets[name]
-                map_x, map_y = undistortion_maps(source, target, target_from_source)
+                # made once the first image or video is known to be of the calibrated size:
+                # maps for a size other than the images' could be of any size
+                maps = functools.cache(lambda s=source, t=target, r=target_from_source:
+                                       undistortion_maps(s, t, r))
                 out_rig.cameras[name].intrinsics = target
                 if args.videos:
                     dest = tmp / f"{name}{VIDEO_CODECS[args.codec]}"
-                    frames[name] = _remap_video(files[0], dest, (map_x, map_y), source, target,
+                    frames[name] = _remap_video(files[0], dest, maps, source, target,
                                                 args.codec)
                     log.info("%s: %d frames, focal %.1f px", name, frames[name],
                              target.params[0])
                     continue
                 for path in files:
                     _remap_image(path, tmp / f"{name}.png" if flat
-                                 else tmp / name / f"{path.stem}.png", (map_x, map_y), source, name)
+                                 else tmp / name / f"{path.stem}.png", maps, source, name)
                 log.info("%s: %d image(s), focal %.1f px, principal point (%.1f, %.1f)", name,
                          len(files), target.params[0], target.params[2] - 0.5,
                          target.params[3] - 0.5)
@@ -147,14 +150,16 @@ def _targets(rig, args: argparse.Namespace) -> tuple[dict, object]:
 
 
 def _remap_image(path: Path, dest: Path, maps, source, name: str) -> None:
-    """Write image `path` of camera `name`, resampled by maps (map_x, map_y), as PNG to dest."""
+    """Write image `path` of camera `name`, resampled by maps() (map_x, map_y), as PNG to
+    dest."""
     from ..core.io.image_io import read_image
 
     image = read_image(path)
     if (image.shape[1], image.shape[0]) != (source.width, source.height):
         raise InputError(f"{path} is {image.shape[1]}x{image.shape[0]}, but camera {name} was "
-                         f"calibrated at {source.width}x{source.height}.")
-    undistorted = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+                         f"calibrated at {source.width}x{source.height}: give the images it "
+                         "was calibrated on, or the calibration of these.")
+    undistorted = cv2.remap(image, *maps(), cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     dest.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(dest), cv2.cvtColor(undistorted, cv2.COLOR_RGB2BGR)):
         raise InputError(f"Cannot write {dest}: check the disk and permissions.")
@@ -169,7 +174,7 @@ def _camera_video(directory: str, name: str) -> list[Path]:
 
 
 def _remap_video(path: Path, dest: Path, maps, source, target, codec: str) -> int:
-    """Write every frame of video `path` resampled by maps (map_x, map_y) to dest at the same
+    """Write every frame of video `path` resampled by maps() (map_x, map_y) to dest at the same
     frame rate; returns the number of frames."""
     from ..core.io.video_io import probe_video, transcode_video
 
@@ -177,8 +182,10 @@ def _remap_video(path: Path, dest: Path, maps, source, target, codec: str) -> in
     if (info.width, info.height) != (source.width, source.height):
         raise InputError(f"{path} is {info.width}x{info.height}, but its camera was calibrated "
                          f"at {source.width}x{source.height}.")
+    map_x, map_y = maps()
     return transcode_video(info, dest, codec, size=(target.width, target.height),
-                           transform=lambda frame: cv2.remap(frame, *maps, cv2.INTER_LINEAR,
+                           transform=lambda frame: cv2.remap(frame, map_x, map_y,
+                                                             cv2.INTER_LINEAR,
                                                              borderMode=cv2.BORDER_CONSTANT))
 
 
