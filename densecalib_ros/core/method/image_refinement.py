@@ -56,6 +56,8 @@ from ..parallel import map_threads
 from ..types import Tracks
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
+from .image_folds import (HOLDOUT_FOLDS, determined_by_folds, fold_values,
+                          principal_point_determined, track_folds)
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, intrinsics_vector, posterior_covariance)
 from .reconstruction import (BAStage, SfMState, bundle_adjust, remove_outlier_observations,
@@ -72,11 +74,6 @@ PP_PRIOR_STD_FRACTION = 0.01
 # Square pixels to within a few tenths of a percent (docs/design-notes.md, Real cameras'
 # principal points).
 ASPECT_PRIOR_STD = 0.003
-MAD_TO_SIGMA = 1.4826  # median absolute deviation -> standard deviation of a normal
-# A parameter the images hold to less than this fraction of its prior's sigma is "estimated".
-ESTIMATED_FRACTION = 0.5
-HOLDOUT_FOLDS = 4  # spatial folds of the held-out check (module docstring)
-HOLDOUT_CELL_FRACTION = 0.1  # fold cells: this fraction of the image's long side
 # Observations farther than this many noise sigmas (per coordinate, robust) are dropped between
 # adjustments: a Gaussian 2-D residual lies beyond 4 sigma once in ~3000.
 GATE_SIGMAS = 4.0
@@ -234,14 +231,11 @@ def _adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> Prio
 def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors
                           ) -> tuple[dict, dict]:
     """Per block, which of "principal point" and "aspect" the images determine (module
-    docstring): the folds' estimates, adjusted without priors from `state` (the found rig: the
-    principal point at the image centre, square pixels), scatter by less than
-    ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
-    folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
-    images does not decide it. Also per block the folds' standard deviations of the mean of the
-    principal point (per axis), of the focal length (px) and of each tied intrinsic
-    (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
-    fold = _folds(state)
+    docstring), and the folds' standard deviations of the mean of the principal point (per axis),
+    of the focal length (px) and of each tied intrinsic (image_folds.determined_by_folds): from
+    the folds' estimates, adjusted without priors from `state` (the found rig: the principal
+    point at the image centre, square pixels)."""
+    fold = track_folds(state)
     free = Priors(principal_point_std_px={b: np.inf for b in blocks},
                   aspect_std={b: np.inf for b in blocks})
 
@@ -253,37 +247,10 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
             adjust_with_priors(part, blocks, free)
         except (ValueError, np.linalg.LinAlgError):
             return None
-        return {b: _fold_values(part.intrinsics[b]) for b in blocks}
-    # per fold: block -> _fold_values; the folds are independent adjustments, side by side
+        return {b: fold_values(part.intrinsics[b]) for b in blocks}
+    # per fold: block -> fold_values; the folds are independent adjustments, side by side
     estimates = [e for e in map_threads(fold_estimate, range(HOLDOUT_FOLDS)) if e is not None]
-    out, spread_of = {}, {}
-    for b in blocks:
-        values = np.array([e[b] for e in estimates])
-        if len(values) < 2 or not np.isfinite(values).all():
-            out[b] = set()
-            continue
-        spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
-        std_of_mean = spread / np.sqrt(len(values))
-        spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
-                            focal_px=float(std_of_mean[3]),
-                            # the tied ones (POOLED_INTRINSICS) by index into INTRINSIC_NAMES
-                            intrinsics={0: float(std_of_mean[3]), 3: float(std_of_mean[4]),
-                                        4: float(std_of_mean[5])})
-        log.debug("block %d: fold estimates of cx, cy, aspect, f, k1, k2 %s, sigma of their "
-                  "mean %s", b,
-                  np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
-        out[b] = set()
-        if _point_determined(std_of_mean[:2], priors.principal_point_std_px[b]):
-            out[b].add("principal point")
-        if std_of_mean[2] < ESTIMATED_FRACTION * priors.aspect_std[b]:
-            out[b].add("aspect")
-    return out, spread_of
-
-
-def _point_determined(axes_std_px, prior_std_px: float) -> bool:
-    """Whether the images determine a principal point whose estimate has these standard
-    deviations per axis (the folds'), against a prior of prior_std_px (ESTIMATED_FRACTION)."""
-    return max(axes_std_px) < ESTIMATED_FRACTION * prior_std_px
+    return determined_by_folds(estimates, blocks, priors)
 
 
 def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_sigmas: dict,
@@ -311,7 +278,8 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
         pp = np.array([_principal_point(state.intrinsics[b]) for b in members])
         means = [one_value(pp[:, axis], point[axis]) for axis in range(2)]
         one["principal_point_axes_px"] = tuple(m.mean_std for m in means)
-        estimated = _point_determined(one["principal_point_axes_px"], point_std[members[0]])
+        estimated = principal_point_determined(one["principal_point_axes_px"],
+                                               point_std[members[0]])
     for b in members:
         fold_sigmas[b] = {**fold_sigmas[b], **one}
         if not point_tied:
@@ -323,18 +291,6 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
         else:
             _set_principal_point(state, b, [m.mean for m in means])
     return replace(priors, principal_point_std_px=point_std)
-
-
-def _folds(state: SfMState) -> np.ndarray:
-    """int (T,): each of state's tracks' spatial fold (HOLDOUT_FOLDS of them): cells of
-    HOLDOUT_CELL_FRACTION of the long side around its first observation, dealt out in turn, so
-    that every fold covers the whole of every image."""
-    tracks = state.tracks
-    first = np.argmax(tracks.observed(), axis=1)
-    xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
-    cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
-    cell = np.floor(xy / cell_px).astype(np.int64)
-    return (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
 
 
 def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
@@ -429,11 +385,11 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
 
 def _held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
                      camera_names: Sequence[str], iterations: Optional[int]) -> np.ndarray:
-    """Per fold (`_folds`) the mean squared reprojection error (px^2) of its correspondences,
+    """Per fold (`track_folds`) the mean squared reprojection error (px^2) of its correspondences,
     triangulated anew with the rig adjusted under `priors` on the other folds; each error is
     truncated at the gate (GATE_SIGMAS noise sigmas), and an observation whose point cannot be
     triangulated counts the gate. iterations: the adjustments' cap (None: the adjustment's own)."""
-    fold = _folds(state)
+    fold = track_folds(state)
     cap = {} if iterations is None else {"max_iterations": iterations}
     gate_px = GATE_SIGMAS * noise_px
 
@@ -457,14 +413,6 @@ def _held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_p
         return (float(np.mean(np.minimum(np.nan_to_num(err, nan=gate_px), gate_px) ** 2))
                 if err.size else np.nan)
     return np.array(map_threads(fold_error, range(HOLDOUT_FOLDS)))
-
-
-def _fold_values(cam) -> tuple[float, ...]:
-    """(cx, cy, aspect, mean focal, k1, k2) of a camera, as the folds compare them."""
-    p = np.asarray(cam.params, float)
-    if cam.model == "OPENCV":
-        return p[2], p[3], p[1] / p[0] - 1.0, 0.5 * (p[0] + p[1]), p[4], p[5]
-    return p[1], p[2], 0.0, p[0], p[3], p[4]
 
 
 def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, priors: Priors,

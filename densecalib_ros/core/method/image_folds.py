@@ -1,0 +1,79 @@
+"""The image refinement's spatial folds (core.method.image_refinement, module docstring): its dense
+tracks dealt out into HOLDOUT_FOLDS folds that each cover the whole of every image, and what the
+folds' separate estimates say the images determine: a parameter whose uncertainty, the spread
+of the folds' estimates, is below ESTIMATED_FRACTION of its prior's spread."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from .prior_adjustment import Priors
+from .reconstruction import SfMState
+
+log = logging.getLogger(__name__)
+
+MAD_TO_SIGMA = 1.4826  # median absolute deviation -> standard deviation of a normal
+# A parameter the images hold to less than this fraction of its prior's sigma is "estimated".
+ESTIMATED_FRACTION = 0.5
+HOLDOUT_FOLDS = 4  # spatial folds of the held-out check (image_refinement's docstring)
+HOLDOUT_CELL_FRACTION = 0.1  # fold cells: this fraction of the image's long side
+
+
+def track_folds(state: SfMState) -> np.ndarray:
+    """int (T,): each of state's tracks' spatial fold (HOLDOUT_FOLDS of them): cells of
+    HOLDOUT_CELL_FRACTION of the long side around its first observation, dealt out in turn, so
+    that every fold covers the whole of every image."""
+    tracks = state.tracks
+    first = np.argmax(tracks.observed(), axis=1)
+    xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
+    cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
+    cell = np.floor(xy / cell_px).astype(np.int64)
+    return (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
+
+
+def fold_values(cam) -> tuple[float, ...]:
+    """(cx, cy, aspect, mean focal, k1, k2) of a camera, as the folds compare them."""
+    p = np.asarray(cam.params, float)
+    if cam.model == "OPENCV":
+        return p[2], p[3], p[1] / p[0] - 1.0, 0.5 * (p[0] + p[1]), p[4], p[5]
+    return p[1], p[2], 0.0, p[0], p[3], p[4]
+
+
+def determined_by_folds(estimates: list[dict], blocks: list[int], priors: Priors
+                        ) -> tuple[dict, dict]:
+    """Per block, which of "principal point" and "aspect" the images determine, from the folds'
+    estimates (per fold: block -> fold_values): those whose estimates scatter by less than
+    ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
+    folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
+    images does not decide it. Also per block the folds' standard deviations of the mean of the
+    principal point (per axis), of the focal length (px) and of each tied intrinsic
+    (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
+    out, spread_of = {}, {}
+    for b in blocks:
+        values = np.array([e[b] for e in estimates])
+        if len(values) < 2 or not np.isfinite(values).all():
+            out[b] = set()
+            continue
+        spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
+        std_of_mean = spread / np.sqrt(len(values))
+        spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
+                            focal_px=float(std_of_mean[3]),
+                            # the tied ones (POOLED_INTRINSICS) by index into INTRINSIC_NAMES
+                            intrinsics={0: float(std_of_mean[3]), 3: float(std_of_mean[4]),
+                                        4: float(std_of_mean[5])})
+        log.debug("block %d: fold estimates of cx, cy, aspect, f, k1, k2 %s, sigma of their "
+                  "mean %s", b,
+                  np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
+        out[b] = set()
+        if principal_point_determined(std_of_mean[:2], priors.principal_point_std_px[b]):
+            out[b].add("principal point")
+        if std_of_mean[2] < ESTIMATED_FRACTION * priors.aspect_std[b]:
+            out[b].add("aspect")
+    return out, spread_of
+
+
+def principal_point_determined(axes_std_px, prior_std_px: float) -> bool:
+    """Whether the images determine a principal point whose estimate has these standard
+    deviations per axis (the folds'), against a prior of prior_std_px (ESTIMATED_FRACTION)."""
+    return max(axes_std_px) < ESTIMATED_FRACTION * prior_std_px
