@@ -118,19 +118,9 @@ def _reconstruct(method: str, frames: Sequence[Sequence[np.ndarray]], camera_nam
     image_dir, model_dir, database = root / "images", root / "models", root / "database.db"
     image_dir.mkdir(parents=True, exist_ok=True)
     model_dir.mkdir(parents=True, exist_ok=True)
-    # File names by index: camera names need not be valid file names. BMP, not PNG: once pycolmap
-    # is imported before cv2, cv2's PNG encoder aborts the process (the two disagree on zlib:
-    # "free(): invalid pointer" in deflateEnd, pycolmap 4.2.1 + opencv 5.0.0); BMP needs no zlib.
     per_folder = len(frames) > 1
-    file_to_name, lens_of_file = {}, {}
-    for t, frame in enumerate(frames):
-        for k, (image, name) in enumerate(zip(frame, camera_names)):
-            file_name = f"{k:03d}/{t:03d}.bmp" if per_folder else f"{k:03d}.bmp"
-            (image_dir / file_name).parent.mkdir(exist_ok=True)
-            if not cv2.imwrite(str(image_dir / file_name),
-                               cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-                raise InputError(f"Cannot write image of camera {name!r} to {image_dir}.")
-            file_to_name[file_name], lens_of_file[file_name] = name, lenses[k]
+    file_to_name, lens_of_file = _write_images(frames, camera_names, lenses, image_dir,
+                                               per_folder)
     mode = (pycolmap.CameraMode.SINGLE if single_camera else
             pycolmap.CameraMode.PER_FOLDER if per_folder else pycolmap.CameraMode.PER_IMAGE)
 
@@ -193,3 +183,24 @@ def _reconstruct(method: str, frames: Sequence[Sequence[np.ndarray]], camera_nam
         result.cam_from_world[name] = np.vstack([result.cam_from_world[name], [0, 0, 0, 1]])
     result.unregistered = [n for n in camera_names if n not in result.cam_from_world]
     return result
+
+
+def _write_images(frames: Sequence[Sequence[np.ndarray]], camera_names: list[str],
+                  lenses: list[str], image_dir: Path, per_folder: bool
+                  ) -> tuple[dict[str, str], dict[str, str]]:
+    """frames[t][c] written under image_dir for COLMAP's image reader: one file per camera, or
+    where per_folder (camera mode PER_FOLDER) one folder per camera with a file per frame set.
+    Returns file name -> camera name and file name -> lens."""
+    # File names by index: camera names need not be valid file names. BMP, not PNG: once pycolmap
+    # is imported before cv2, cv2's PNG encoder aborts the process (the two disagree on zlib:
+    # "free(): invalid pointer" in deflateEnd, pycolmap 4.2.1 + opencv 5.0.0); BMP needs no zlib.
+    file_to_name, lens_of_file = {}, {}
+    for t, frame in enumerate(frames):
+        for k, (image, name) in enumerate(zip(frame, camera_names)):
+            file_name = f"{k:03d}/{t:03d}.bmp" if per_folder else f"{k:03d}.bmp"
+            (image_dir / file_name).parent.mkdir(exist_ok=True)
+            if not cv2.imwrite(str(image_dir / file_name),
+                               cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+                raise InputError(f"Cannot write image of camera {name!r} to {image_dir}.")
+            file_to_name[file_name], lens_of_file[file_name] = name, lenses[k]
+    return file_to_name, lens_of_file
