@@ -51,6 +51,44 @@ def test_camera_info_yaml_parses_back():
     assert len(data["distortion_coefficients"]["data"]) == 4
 
 
+# camera_calibration_parsers' camera_info keys, in the order it writes them, and their shapes
+CAMERA_INFO_KEYS = ["image_width", "image_height", "camera_name", "camera_matrix",
+                    "distortion_model", "distortion_coefficients", "rectification_matrix",
+                    "projection_matrix"]
+MATRIX_SHAPES = {"camera_matrix": (3, 3), "rectification_matrix": (3, 3),
+                 "projection_matrix": (3, 4)}
+
+
+def test_camera_info_yaml_reads_back_as_ros_and_opencv_read_it(tmp_path):
+    """Written by PyYAML: the keys and types camera_calibration_parsers reads, in its order; a
+    coefficient as small as 1e-05 is a number to PyYAML (as text "-1e-05" it was a string: YAML
+    1.1 floats need a dot) and to OpenCV's own YAML reader; a camera named 0003 keeps its name."""
+    import cv2
+
+    lens = CameraIntrinsics("OPENCV_FISHEYE", 800, 600,
+                            np.array([300.25, 301.5, 400.5, 299.5, 0.01, -0.02, 1.5e-05, -1e-05]))
+    path = tmp_path / "0003.yaml"
+    path.write_text(camera_info_yaml("0003", lens))
+    data = yaml.safe_load(path.read_text())
+    assert list(data) == CAMERA_INFO_KEYS
+    assert data["image_width"] == 800 and data["image_height"] == 600
+    assert data["camera_name"] == "0003" and data["distortion_model"] == "equidistant"
+    for key, value in data.items():
+        if isinstance(value, dict):
+            assert list(value) == ["rows", "cols", "data"]
+            assert len(value["data"]) == value["rows"] * value["cols"]
+            assert all(type(v) is float for v in value["data"]), key
+            assert (value["rows"], value["cols"]) == MATRIX_SHAPES.get(key, (1, 4))
+    assert data["distortion_coefficients"]["data"] == [0.01, -0.02, 1.5e-05, -1e-05]
+    assert data["camera_matrix"]["data"] == [300.25, 0.0, 400.0, 0.0, 301.5, 299.0, 0.0, 0.0, 1.0]
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    node = fs.getNode("distortion_coefficients").getNode("data")
+    assert [node.at(i).real() for i in range(node.size())] == [0.01, -0.02, 1.5e-05, -1e-05]
+    assert fs.getNode("camera_name").string() == "0003"
+    assert int(fs.getNode("image_width").real()) == 800
+    fs.release()
+
+
 def test_unsupported_model_is_refused_with_choices():
     with pytest.raises(InputError, match="RADIAL"):
         ros_camera_info("x", CameraIntrinsics("FOV", 10, 10, np.array([1.0, 1, 5, 5, 0.1])))

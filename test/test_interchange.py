@@ -95,6 +95,26 @@ def test_kalibr_camchain_chains_back_to_the_rig(rig):
         assert np.abs(got - _colmap_pixels(cam, pts)).max() < 1e-6
 
 
+def test_kalibr_camchain_keeps_kalibrs_keys_and_numbers(rig):
+    """Written by PyYAML: Kalibr's keys and value types (it reads the file with PyYAML), a
+    coefficient as small as 1e-05 a number, not the string "1e-05"; T_cn_cnm1 a 4x4 list; the
+    header comment names the camera of each camN."""
+    rig.cameras["top"].intrinsics.params[6:8] = [1e-05, -2e-06]
+    text = kalibr_camchain_yaml(rig)
+    assert text.splitlines()[0].endswith("cam0 = left, cam1 = top, cam2 = right")
+    data = yaml.safe_load(text)
+    for n, entry in enumerate(data.values()):
+        assert list(entry) == ["camera_model", "intrinsics", "distortion_model",
+                               "distortion_coeffs", "resolution", "rostopic"] + \
+            (["T_cn_cnm1"] if n else [])
+        assert entry["camera_model"] == "pinhole" and isinstance(entry["rostopic"], str)
+        assert all(type(v) is float for v in entry["intrinsics"] + entry["distortion_coeffs"])
+        assert all(type(v) is int for v in entry["resolution"])
+        if n:
+            assert np.array(entry["T_cn_cnm1"], dtype=float).shape == (4, 4)
+    assert data["cam1"]["distortion_coeffs"][2:] == [1e-05, -2e-06]
+
+
 def test_kalibr_topics_must_be_ros_names(rig):
     """Cameras named by numbers (Strecha's 0003) or with spaces would give Kalibr topics no ROS
     bag can have: refused with the way out."""

@@ -71,27 +71,21 @@ def opencv_intrinsics(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndar
             info["distortion_model"] == "equidistant")
 
 
-def _yaml_scalar(key: str, value: str) -> str:
-    """`key: value` quoted where YAML would read the plain text as something else (a camera
-    named 0003 would load as the integer 3, and no longer name its camera)."""
+def yaml_text(data: dict) -> str:
+    """`data` as YAML by PyYAML (safe_dump), keys in their given order, lists of numbers in flow
+    style ([1.0, 2.0]) as camera_calibration writes them; strings YAML would read as something
+    else are quoted (a camera named 0003 would load as the integer 3, and no longer name its
+    camera). PyYAML is imported here only: the core imports without it."""
     import yaml
 
-    return yaml.safe_dump({key: value}, default_flow_style=False, allow_unicode=True)
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, allow_unicode=True,
+                          width=1000)  # one line per matrix, as camera_calibration's files
 
 
 def camera_info_yaml(name: str, intrinsics: CameraIntrinsics,
                      rectification: Optional[np.ndarray] = None,
                      projection: Optional[np.ndarray] = None) -> str:
     """camera_info YAML text as written by camera_calibration / read by camera_info_manager
-    (rectification, projection: see ros_camera_info)."""
-    info = ros_camera_info(name, intrinsics, rectification, projection)
-
-    def mat(key):
-        m = info[key]
-        data = ", ".join(repr(float(v)) for v in m["data"])
-        return f"{key}:\n  rows: {m['rows']}\n  cols: {m['cols']}\n  data: [{data}]\n"
-
-    return (f"image_width: {info['image_width']}\nimage_height: {info['image_height']}\n"
-            + _yaml_scalar("camera_name", name) + mat("camera_matrix")
-            + f"distortion_model: {info['distortion_model']}\n" + mat("distortion_coefficients")
-            + mat("rectification_matrix") + mat("projection_matrix"))
+    (camera_calibration_parsers' keys, in its order; rectification, projection: see
+    ros_camera_info)."""
+    return yaml_text(ros_camera_info(name, intrinsics, rectification, projection))

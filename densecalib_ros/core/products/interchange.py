@@ -46,7 +46,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..io.camera_info import camera_info_yaml, ros_camera_info
+from ..io.camera_info import camera_info_yaml, ros_camera_info, yaml_text
 from ..types import RigCalibration
 from .floor import world_from_rig
 from .scale import HOW_TO_SCALE
@@ -122,10 +122,6 @@ def anipose_toml(rig: RigCalibration) -> str:
     return "\n".join(lines)
 
 
-def _yaml_list(values) -> str:
-    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
-
-
 def recorded_image_topics(rig: RigCalibration) -> dict[str, str]:
     """{camera: the image topic it was calibrated from}, for calibrations made from a bag or by
     the node (their provenance, core.io.export.record_provenance); {} for images and videos."""
@@ -159,24 +155,24 @@ def kalibr_camchain_yaml(rig: RigCalibration,
             "(each part a letter or _ then letters, digits, _): " + ", ".join(
                 f"{n}: {t!r}" for n, t in invalid.items()) + ". Give --topic-pattern with the "
             "topics the bag has, e.g. '/cam_{name}/image_raw' for cameras named by numbers.")
-    lines = [f"# densecalib rig calibration; translations in {_units(rig)}"]
-    previous = None
+    chain, previous = {}, None
     for n, name in enumerate(names):
         info, dist, fisheye = _lens(name, rig, "kalibr")
         k = info["camera_matrix"]["data"]
         cam_from_rig = np.asarray(rig.cameras[name].cam_from_rig, float)
-        lines += [f"cam{n}:  # {name}", "  camera_model: pinhole",
-                  f"  intrinsics: {_yaml_list([k[0], k[4], k[2], k[5]])}",
-                  f"  distortion_model: {'equidistant' if fisheye else 'radtan'}",
-                  f"  distortion_coeffs: {_yaml_list(dist)}",
-                  f"  resolution: [{info['image_width']}, {info['image_height']}]",
-                  f"  rostopic: {topics[name]}"]
+        entry = {"camera_model": "pinhole",
+                 "intrinsics": [float(v) for v in (k[0], k[4], k[2], k[5])],
+                 "distortion_model": "equidistant" if fisheye else "radtan",
+                 "distortion_coeffs": [float(v) for v in dist],
+                 "resolution": [int(info["image_width"]), int(info["image_height"])],
+                 "rostopic": topics[name]}
         if previous is not None:
-            cn_from_cnm1 = cam_from_rig @ np.linalg.inv(previous)
-            lines.append("  T_cn_cnm1:")
-            lines += [f"  - {_yaml_list(row)}" for row in cn_from_cnm1]
+            entry["T_cn_cnm1"] = (cam_from_rig @ np.linalg.inv(previous)).tolist()
+        chain[f"cam{n}"] = entry
         previous = cam_from_rig
-    return "\n".join(lines) + "\n"
+    cameras = ", ".join(f"cam{n} = {name}" for n, name in enumerate(names))
+    return f"# densecalib rig calibration; translations in {_units(rig)}; {cameras}\n" + \
+        yaml_text(chain)
 
 
 def opencv_files(rig: RigCalibration) -> dict[str, str]:
