@@ -259,10 +259,14 @@ def test_calibrate_command_keeps_the_lab_intrinsics_it_is_given(tmp_path, capsys
                                    atol=1e-9)
     assert calib.cameras["cam1"].intrinsics.model == "OPENCV"  # fx, fy of the image refinement
     assert evaluate_calibration(calib, gt)["auc3"] >= 80.0
-    table = capsys.readouterr().out.splitlines()
-    rows = {line.split()[0]: line for line in table}
-    assert "given" in rows["cam0"] and "given" in rows["cam2"] and "given" not in rows["cam1"]
-    rms = {n: float(rows[n].split()[9]) for n in ("cam0", "cam1", "cam2")}
+    rows = {}  # camera -> its lines: the camera table's intrinsics row, then its fit row
+    for line in capsys.readouterr().out.splitlines():
+        rows.setdefault(line.split()[0] if line.strip() else "", []).append(line.split())
+    intrinsics = {n: dict(zip(rows["camera"][-2], rows[n][-2])) for n in ("cam0", "cam1", "cam2")}
+    fit = {n: dict(zip(rows["camera"][-1], rows[n][-1])) for n in ("cam0", "cam1", "cam2")}
+    assert intrinsics["cam0"]["f_std"] == intrinsics["cam2"]["pp_from"] == "given"
+    assert "given" not in intrinsics["cam1"].values()
+    rms = {n: float(fit[n]["rms_px"]) for n in ("cam0", "cam1", "cam2")}
     assert rms == {n: round(calib.cameras[n].quality.reprojection_rms_px, 2) for n in rms}
     # Intrinsics of another resolution: refused before matching, nothing written.
     small = gt.cameras["cam0"].intrinsics

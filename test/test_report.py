@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.monitor.change import calibration_change, pose_agreement
-from densecalib_ros.core.products.report import (camera_centres_in_rig, camera_table,
-                                                 distortion_text, intrinsics_note, layout_table,
-                                                 overall_lines, rig_report)
+from densecalib_ros.core.products.report import (TABLE_COLUMNS, PrincipalPoint,
+                                                 camera_centres_in_rig, camera_table,
+                                                 intrinsics_note, layout_table, overall_lines,
+                                                 principal_point_case, rig_report, short_names,
+                                                 shortened_line)
 from densecalib_ros.core.products.scale import apply_known_baseline
-from densecalib_ros.core.types import CameraQuality, RigQuality
+from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigQuality
 
 from sfm_fixtures import gt_calibration, gt_rig
 
@@ -29,31 +31,152 @@ def rig():
     return out
 
 
+def _blocks(table):
+    """The camera table's blocks (intrinsics, fit), each {camera: {column: value}}; the
+    distortion column (several words) whole, its wrapped lines joined."""
+    blocks, rows, header = [], None, None
+    for line in table.splitlines():
+        if line.startswith("camera "):
+            header, rows = line.split(), {}
+            blocks.append(rows)
+        elif rows is not None and line.strip() and not line.startswith(" ") and \
+                not line.startswith("names shortened"):
+            words = line.split()
+            if len(blocks) == 2:  # the fit block: distortion after the fit's four numbers
+                words = words[:5] + [" ".join(words[5:])]
+            rows[words[0]] = dict(zip(header, words))
+            last = words[0]
+        elif rows is not None and line.startswith(" ") and header[-1] == "distortion":
+            rows[last]["distortion"] += " " + line.strip()
+        else:
+            rows = None if not line.strip() else rows
+    return blocks
+
+
 def test_camera_table_names_each_models_parameters(rig):
     rig.cameras["cam0"].quality.focal_std_px = 3.14
     rig.cameras["cam3"].quality.focal_std_px = 0.52
     rig.cameras["cam3"].quality.principal_point_std_px = 0.71
     rig.cameras["cam3"].quality.projection_std_px = 0.333
-    table = camera_table(rig)
-    lines = {line.split()[0]: line for line in table.splitlines()[1:]}
-    header = table.splitlines()[0].split()
-    columns = {name: dict(zip(header, line.split())) for name, line in lines.items()}
-    assert columns["cam0"]["f_std"] == "3.1" and columns["cam0"]["pp_std"] == "-"
-    assert columns["cam3"]["f_std"] == "0.5" and columns["cam3"]["pp_std"] == "0.7"
-    assert columns["cam3"]["proj_std"] == "0.33" and columns["cam0"]["proj_std"] == "-"
-    assert columns["cam1"]["f_std"] == "-"
-    assert set(lines) == set(rig.cameras)
-    assert "k1=" in lines["cam0"] and "k2=" in lines["cam0"] and "k3=" not in lines["cam0"]
-    assert all(f"k{i}=" in lines["cam3"] for i in range(1, 5)) and "OPENCV_FISHEYE" in lines["cam3"]
+    intrinsics, fit = _blocks(camera_table(rig))
+    assert set(intrinsics) == set(fit) == set(rig.cameras)
+    assert intrinsics["cam0"]["f_std"] == "3.1" and intrinsics["cam0"]["pp_std"] == "-"
+    assert intrinsics["cam3"]["f_std"] == "0.5" and intrinsics["cam3"]["pp_std"] == "0.7"
+    assert intrinsics["cam3"]["proj_std"] == "0.33" and intrinsics["cam0"]["proj_std"] == "-"
+    assert intrinsics["cam1"]["f_std"] == "-"
+    assert intrinsics["cam3"]["pp_from"] == "images"  # refined in a final adjustment
+    assert intrinsics["cam0"]["pp_from"] == "held"  # sigmas, none for the point: held
+    assert intrinsics["cam1"]["pp_from"] == "-"  # off the centre, no sigmas: the file won't say
+    k = rig.cameras["cam0"].intrinsics
+    assert fit["cam0"]["distortion"] == f"k1={k.params[3]:.4g} k2={k.params[4]:.4g}"
+    assert all(f"k{i}=" in fit["cam3"]["distortion"] for i in range(1, 5))
+    assert intrinsics["cam3"]["model"] == "OPENCV_FISHEYE"
+    assert intrinsics["cam0"]["focal_px"] == f"{k.params[0]:.1f}"
+    # OpenCV pixels, as the written files: COLMAP's cx less 0.5
+    assert intrinsics["cam0"]["cx"] == f"{k.params[1] - 0.5:.1f}"
+    assert fit["cam0"]["rms_px"] == "0.50" and fit["cam0"]["obs3+"] == "400"
     # the sigmas of a held principal point say what they include (files written before: nothing)
-    assert intrinsics_note(rig) == ""
+    rig.cameras["cam0"].intrinsics.params[1:3] = [320.0, 240.0]  # held at the image centre
+    assert "include where a real principal point" not in intrinsics_note(rig)
     rig.quality.held_pp_std_fraction = 0.01
     note = intrinsics_note(rig)
-    assert note.startswith("f_std and proj_std of cam0 include") and "1 % of the long side" in note
+    assert "f_std and proj_std of cam0 include" in note and "1 % of the long side" in note
+    assert "principal point held exactly at the image centre: cam0" in note
     assert note in rig_report(rig)
-    k = rig.cameras["cam0"].intrinsics
-    assert distortion_text(k) == f"k1={k.params[3]:.4g} k2={k.params[4]:.4g}"
-    assert f"{k.params[0]:.1f}" in lines["cam0"]
+
+
+def _named_rig(names, model="OPENCV_FISHEYE"):
+    """Cameras of one lens model at poses of gt_rig, with the fit and sigmas a calibration
+    records."""
+    cams, poses = gt_rig(len(names), model=model, seed=2)
+    out = gt_calibration(names, cams, poses)
+    for cam in out.cameras.values():
+        cam.quality = CameraQuality(0.43, 12345, 0.91, 4321, focal_std_px=1.23,
+                                    principal_point_std_px=2.5, projection_std_px=0.456)
+    return out
+
+
+def test_camera_table_fits_100_columns_with_ten_long_named_fisheye_cameras():
+    """Ten fisheye cameras (fx/fy apart, four coefficients) named as an arena names them: every
+    line of the table and its notes within 100 columns, each camera on its own row under a
+    shortened name that still tells it apart, the full names listed; eight coefficients
+    (FULL_OPENCV) wrap under their column."""
+    names = [f"arena_north_east_ceiling_cam_{i:02d}" for i in range(10)]
+    rig = _named_rig(names)
+    for cam in rig.cameras.values():
+        cam.intrinsics.params[1] = cam.intrinsics.params[0] * 1.003  # fy: not fx
+        cam.intrinsics.params[4:8] = [-0.0123456, 0.00123456, -1.23456e-05, 2.3456e-06]
+    table = camera_table(rig) + "\n" + intrinsics_note(rig)
+    assert max(len(line) for line in table.splitlines()) <= TABLE_COLUMNS == 100
+    intrinsics, fit = _blocks(camera_table(rig))
+    assert len(intrinsics) == len(fit) == 10  # ten distinct short names
+    assert all(name.endswith(f"cam_{i:02d}") for i, name in enumerate(intrinsics))
+    assert all("/" in row["focal_px"] for row in intrinsics.values())
+    assert all(f"k{i}=" in row["distortion"] for row in fit.values() for i in range(1, 5))
+    middle = table.split("names shortened: ~ stands for '")[1].split("'")[0]  # all lost one
+    assert {short.replace("~", middle) for short in intrinsics} == set(names)
+    assert max(len(line) for line in rig_report(rig).splitlines()
+               if not line.startswith(("from ", "warning"))) <= 100
+    wide = _named_rig(["a_rather_long_camera_name_0", "a_rather_long_camera_name_1",
+                       "a_rather_long_camera_name_2"], model="RADIAL")
+    for cam in wide.cameras.values():
+        cam.intrinsics = CameraIntrinsics("FULL_OPENCV", 4000, 3000, np.r_[
+            3012.3, 3015.6, 2001.2, 1498.7, np.linspace(-0.0123456, 0.0123456, 8)])
+    table = camera_table(wide)
+    assert max(len(line) for line in table.splitlines()) <= 100
+    fit = _blocks(table)[1]
+    assert all(f"k{i}=" in row["distortion"] for row in fit.values() for i in range(1, 7))
+    assert all("p1=" in row["distortion"] for row in fit.values())
+    # names alike at their head and tail: the split moves until they read apart
+    short = short_names([f"same_prefix_{c}_and_the_same_long_suffix" for c in "ab"], 12)
+    assert len(set(short.values())) == 2 and all(len(v) <= 12 for v in short.values())
+    assert short_names(["cam0", "a_name_of_twenty_chars"], 12)["cam0"] == "cam0"
+    names = ["left_front_camera_0001", "right_rear_camera_0002", "top"]  # each loses another
+    listed = " ".join(shortened_line(short_names(names, 12)))
+    assert all(f"= {name}" in listed for name in names[:2]) and "top" not in listed
+
+
+def test_principal_point_wording_says_what_was_done_to_each(rig):
+    """One camera per case, as a calibration records it: estimated by the images' folds; resting
+    on its prior off the centre (cx 324.0, cy 231.1 OpenCV on 640x480: not "held at the image
+    centre"); held exactly at the centre by a final adjustment; given by the user; a ground
+    truth's camera (no quality: not said)."""
+    names = ["folds", "prior", "centre", "given", "truth"]
+    rig = _named_rig(names, model="RADIAL")
+    lens = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320.0, 240.0, -0.05, 0.01]))
+    for name in names:
+        rig.cameras[name].intrinsics = copy.deepcopy(lens)
+    rig.cameras["folds"].quality.estimated_intrinsics = ["f", "k1", "k2", "cx", "cy"]
+    rig.cameras["folds"].intrinsics.params[1:3] = [327.25, 236.5]
+    rig.cameras["prior"].quality.estimated_intrinsics = ["f", "k1", "k2", "aspect"]
+    rig.cameras["prior"].intrinsics.params[1:3] = [324.5, 231.6]  # COLMAP: OpenCV + 0.5
+    rig.cameras["centre"].quality.principal_point_std_px = None  # held: no sigma of its own
+    rig.quality.given_intrinsics = {"given": "RADIAL"}
+    rig.cameras["truth"].quality = None
+    rig.cameras["truth"].intrinsics.params[1:3] = [330.0, 250.0]
+    rig.quality.update(principal_point_prior_std_fraction=0.01, held_pp_std_fraction=0.01)
+    assert {n: principal_point_case(rig, n) for n in names} == {
+        "folds": PrincipalPoint.ESTIMATED, "prior": PrincipalPoint.PRIOR,
+        "centre": PrincipalPoint.CENTRE, "given": PrincipalPoint.GIVEN,
+        "truth": PrincipalPoint.UNKNOWN}
+    intrinsics = _blocks(camera_table(rig))[0]
+    assert {n: intrinsics[n]["pp_from"] for n in names} == {
+        "folds": "images", "prior": "prior", "centre": "centre", "given": "given", "truth": "-"}
+    assert (intrinsics["prior"]["cx"], intrinsics["prior"]["cy"]) == ("324.0", "231.1")
+    assert (intrinsics["centre"]["cx"], intrinsics["centre"]["cy"]) == ("319.5", "239.5")
+    note = intrinsics_note(rig).replace("\n  ", " ")
+    lines = {line.split(":")[0]: line for line in note.splitlines()}
+    assert lines["principal point estimated from the images"].endswith(": folds")
+    prior = next(line for line in lines.values() if "resting on its prior" in line)
+    assert "1 % of the long side around the image centre" in prior
+    assert prior.endswith("prior (+4.5, -8.4 px from the centre)") and "centre:" not in prior
+    assert lines["principal point held exactly at the image centre"].endswith(": centre")
+    assert lines["principal point given (--intrinsics) and kept"].endswith(": given")
+    assert "truth (+10.0, +10.0 px from the centre)" in note
+    assert "pixel aspect estimated (fx/fy): prior" in note
+    assert "f_std and proj_std of centre include" in note  # its sigmas carry the offset
+    rig.quality.change_summary = "focal up to +0.1 %"  # a recalibration: the prior may be moved
+    assert "or a previous calibration's estimate" in intrinsics_note(rig).replace("\n  ", " ")
 
 
 def test_layout_gives_centres_and_axis_angles_in_the_rig_frame(rig):
@@ -120,7 +243,7 @@ def test_overall_lines_give_the_time_offsets_and_how_they_were_found(rig):
     assert "cam1 +3607.500 (11 shots paired)" in line and "from the capture times" in line
 
 
-def _upright_rig(with_floor: bool):
+def upright_rig(with_floor: bool):
     """Three upright cameras at floor-frame (x, y, height) (0, 0, 1), (1, 0, 2), (2, 0.5, 1.5),
     all looking along the floor's +y at a textured wall at y = 3."""
     from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
@@ -146,60 +269,6 @@ def _upright_rig(with_floor: bool):
     return rig, wall_rig
 
 
-def _dots(panel):
-    """Pixel centre (x, y) of each camera's dot in a layout panel."""
-    import cv2
-
-    from densecalib_ros.core.products.layout_plot import camera_colours
-
-    out = []
-    for colour in camera_colours(3):
-        mask = np.all(panel == colour, axis=2).astype(np.uint8)
-        core = cv2.erode(mask, np.ones((5, 5), np.uint8))  # the filled dot, not lines or text
-        ys, xs = np.nonzero(core)
-        assert len(xs), colour
-        out.append((xs.mean(), ys.mean()))
-    return np.array(out)
-
-
-def test_layout_plot_shows_the_cameras_from_above_and_the_side():
-    from densecalib_ros.core.products.layout_plot import PANEL_PX, draw_layout, half_fov_rad
-
-    rig, wall = _upright_rig(with_floor=True)
-    assert half_fov_rad(rig.cameras["cam0"].intrinsics, 0) == pytest.approx(np.arctan(320 / 500))
-    image = draw_layout(rig, wall)
-    assert image.shape == (PANEL_PX, 2 * PANEL_PX, 3)
-    top, side = image[:, :PANEL_PX], image[:, PANEL_PX:]
-    dots = _dots(top)
-    assert dots[0, 0] < dots[1, 0] < dots[2, 0]  # floor x to the right
-    assert dots[2, 1] < dots[0, 1] - 30 and abs(dots[0, 1] - dots[1, 1]) < 3  # cam2: further y
-    rows = np.nonzero(np.all(top[40:-60] == (150, 150, 150), axis=2))[0] + 40  # no title, bar
-    assert len(rows) > 50 and rows.max() < dots[:, 1].min()  # the wall seen edge-on, beyond
-    heights = _dots(side)[:, 1]  # image y: smaller is higher
-    assert heights[1] < heights[2] < heights[0]
-    # no floor: "up" from the upright cameras' image-up, x along cam0's view: the same heights
-    rig, wall = _upright_rig(with_floor=False)
-    side = draw_layout(rig, wall)[:, PANEL_PX:]
-    heights = _dots(side)[:, 1]
-    assert heights[1] < heights[2] < heights[0]
-    assert abs((heights[0] - heights[1]) - 2 * (heights[0] - heights[2])) < 4  # 1 m vs 0.5 m
-
-
-def test_report_plot_command(tmp_path, caplog):
-    import cv2
-
-    from densecalib_ros.cli import main
-    from densecalib_ros.core.io.export import write_calibration_files
-
-    rig, _ = _upright_rig(with_floor=True)
-    write_calibration_files(rig, tmp_path / "calib")
-    assert main(["report", str(tmp_path / "calib"), "--plot", str(tmp_path / "rig.png")]) == 0
-    assert cv2.imread(str(tmp_path / "rig.png")).shape == (640, 1280, 3)
-    assert "without scene points" in caplog.text  # no COLMAP model saved with this one
-    assert main(["report", str(tmp_path / "calib"), "--plot", str(tmp_path / "rig.jpg")]) == 2
-    assert "give a .png file name" in caplog.text
-
-
 def _read_ascii_ply(path):
     """(vertex table (N, 6): x y z r g b, faces (F, 3), comments) of an ASCII PLY file."""
     lines = path.read_text().splitlines()
@@ -222,7 +291,7 @@ def test_scene_ply_has_the_cameras_as_pyramids_and_the_points(tmp_path, caplog):
     from densecalib_ros.core.io.export import write_calibration_files
     from densecalib_ros.core.products.scene_ply import PYRAMID_FRACTION, scene_ply
 
-    rig, wall = _upright_rig(with_floor=True)
+    rig, wall = upright_rig(with_floor=True)
     path = tmp_path / "scene.ply"
     path.write_text(scene_ply(rig, wall))
     vertices, faces, comments = _read_ascii_ply(path)
@@ -262,42 +331,6 @@ def test_corner_rays_of_a_fisheye_keep_their_angle():
 
     np.testing.assert_allclose(angles(400.0), np.degrees(400 / 400.0))  # equidistant: r / f
     np.testing.assert_allclose(angles(200.0), 80.0)  # past 80 deg: held at 80
-
-
-def test_layout_plot_against_another_calibration_rings_where_a_camera_was():
-    """--against: the other calibration's cameras as grey rings joined to the cameras now; cam2,
-    0.3 m further along the floor's x now, has its ring 0.3 m to the left of its dot."""
-    import cv2
-
-    from densecalib_ros.core.errors import InputError
-    from densecalib_ros.core.products.layout_plot import (PANEL_PX, _BEFORE, centres_as_in,
-                                                          draw_layout)
-
-    rig, wall = _upright_rig(with_floor=True)
-    before = copy.deepcopy(rig)
-    floor_from_rig = np.asarray(rig.quality.floor["floor_from_rig"]).reshape(4, 4)
-    shift_rig = np.linalg.inv(floor_from_rig)[:3, :3] @ [-0.3, 0.0, 0.0]  # 0.3 m back in floor x
-    before.cameras["cam2"].cam_from_rig[:3, 3] -= before.cameras["cam2"].cam_from_rig[:3, :3] @ \
-        shift_rig
-    moved = centres_as_in(rig, before) - centres_as_in(rig, rig)
-    np.testing.assert_allclose(np.linalg.norm(moved, axis=1), [0, 0, 0.3], atol=1e-9)
-    top = draw_layout(rig, wall, against=before)[:, :PANEL_PX]
-    dots = _dots(top)
-    px_per_m = dots[1, 0] - dots[0, 0]  # cam0 and cam1 are 1 m apart in x
-    ring = np.nonzero(cv2.inRange(top, np.array(_BEFORE) - 40, np.array(_BEFORE) + 40))
-    was = dots[2] - [0.3 * px_per_m, 0.0]
-    near = np.hypot(ring[1] - was[0], ring[0] - was[1]) < 10
-    assert near.sum() > 20  # the ring around where cam2 was
-    # an up-to-scale calibration is brought to this one's unit (by the median of the cameras'
-    # distance ratios: with a moved camera among only two, that is a compromise)
-    scaled = copy.deepcopy(rig)
-    scaled.metric_scale = False
-    for cam in scaled.cameras.values():
-        cam.cam_from_rig[:3, 3] *= 3.0
-    np.testing.assert_allclose(centres_as_in(rig, scaled), centres_as_in(rig, rig), atol=1e-9)
-    before.reference_camera = "cam1"  # rig frames of different cameras: refused
-    with pytest.raises(InputError, match="different reference cameras"):
-        draw_layout(rig, wall, against=before)
 
 
 def test_report_json_is_strict_json_and_against_needs_common_cameras(rig, tmp_path, caplog,
