@@ -32,9 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the report as JSON on stdout instead of text")
     parser.add_argument("--plot", metavar="PNG",
                         help="also draw the rig seen from above and from the side (cameras, "
-                             "their fields of view, the scene points of the saved COLMAP model, "
-                             "a scale bar; with --against, where its cameras were, as grey "
-                             "rings) into this PNG file")
+                             "their optical axes and fields of view, the scene points of the "
+                             "saved COLMAP model; axes in metres or rig units, a legend; with "
+                             "--against, where its cameras were, as grey rings) into this PNG "
+                             "file")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,7 +92,7 @@ def _write_plot(calibration, rig, path, against=None) -> None:
     from ..core.io.export import calibration_folder
     from ..core.io.safe_write import write_text_atomic
     from ..core.products.floor import saved_scene_points
-    from ..core.products.layout_plot import draw_layout
+    from ..core.products.layout_plot import draw_layout, render
 
     if not str(path).lower().endswith(".png"):
         raise InputError(f"--plot {path}: give a .png file name.")
@@ -100,9 +101,18 @@ def _write_plot(calibration, rig, path, against=None) -> None:
     if scene is None:
         log.warning("no saved COLMAP model beside the calibration: the plot shows the cameras "
                     "without scene points")
-    ok, png = cv2.imencode(".png", draw_layout(rig, points, against=against))
+    try:
+        plot = draw_layout(rig, points, against=against)
+    except ModuleNotFoundError as exc:
+        if not (exc.name or "").startswith("matplotlib"):
+            raise
+        raise InputError("--plot draws with matplotlib, which is not installed: pip install "
+                         "the version requirements.txt pins (bash scripts/setup_env.sh).") from None
+    ok, png = cv2.imencode(".png", render(plot))
     if not ok:
         raise InputError(f"Could not encode the plot for {path}.")
     write_text_atomic(path, png.tobytes())
-    log.info("wrote %s: %d cameras, %d scene points", path, len(rig.cameras),
-             0 if points is None else len(points))
+    log.info("wrote %s: %d cameras, %d scene points%s", path, len(rig.cameras),
+             0 if points is None else len(points),
+             f" ({plot.num_stray_points} stray ones drawn at the edge of the view)"
+             if plot.num_stray_points else "")

@@ -16,6 +16,9 @@ from ..errors import InputError
 
 # Residual colour bands [px] (RGB): within 1 px green, within 3 px yellow, beyond red.
 BANDS_PX = ((1.0, (40, 200, 40)), (3.0, (240, 200, 0)), (np.inf, (230, 30, 30)))
+LEGEND_MIN_FONT = 0.3  # cv2 font scale: about 7 px letters, the smallest still legible
+LEGEND_PAD_PX = 4  # around and between the legend's lines and swatches
+LEGEND_SHADE = 0.35  # the image under the legend, darkened to this: white letters stand out
 
 
 def camera_residuals(rec: pycolmap.Reconstruction, camera_name: str
@@ -39,8 +42,10 @@ def camera_residuals(rec: pycolmap.Reconstruction, camera_name: str
 
 def draw_residuals(image_rgb: np.ndarray, observed: np.ndarray, reprojected: np.ndarray,
                    scale: float = 10.0, title: str = "") -> np.ndarray:
-    """A copy of image_rgb with each observation as a dot coloured by its residual band and a line
-    toward its reprojection, `scale` times the residual; a legend line at the top."""
+    """A copy of image_rgb (RGB, or grey; same size) with each observation as a dot coloured by
+    its residual band and a line toward its reprojection, `scale` times the residual, and a
+    legend (legend_lines, wrapped to the image's width: legend_band) across the top or the
+    bottom, whichever covers fewer observations, over the image darkened beneath it."""
     out = np.ascontiguousarray(image_rgb.copy() if image_rgb.ndim == 3 else
                                np.repeat(image_rgb[..., None], 3, axis=2))
     err = np.linalg.norm(reprojected - observed, axis=1)
@@ -51,15 +56,57 @@ def draw_residuals(image_rgb: np.ndarray, observed: np.ndarray, reprojected: np.
         end = (int(round((x + scale * (px - x)) * 16)), int(round((y + scale * (py - y)) * 16)))
         cv2.line(out, start, end, colour, 1, cv2.LINE_AA, shift)
         cv2.circle(out, start, 2 * 16, colour, -1, cv2.LINE_AA, shift)
+    band = legend_band(legend_lines(err, scale, title), out.shape[1])[:out.shape[0]]
+    height = len(band)
+    at_top = (observed[:, 1] < height).sum() <= (observed[:, 1] >= out.shape[0] - height).sum()
+    rows = slice(0, height) if at_top else slice(out.shape[0] - height, out.shape[0])
+    ink = band.any(axis=2)
+    out[rows] = np.where(ink[..., None], band, (LEGEND_SHADE * out[rows]).astype(np.uint8))
+    return out
+
+
+def legend_lines(err: np.ndarray, scale: float, title: str = "") -> list[list[tuple]]:
+    """The legend's words, as lines of (text, swatch colour or None) pieces: the numbers, then
+    the colour key."""
     if len(err):
         stats = (f"{len(err)} points, residual median {np.median(err):.2f} px, 90% "
-                 f"{np.percentile(err, 90):.2f} px; lines x{scale:g}; green <1 px, yellow <3, red")
+                 f"{np.percentile(err, 90):.2f} px, lines x{scale:g}")
     else:
         stats = "no points"
-    text = f"{title}: {stats}" if title else stats
-    font_scale = max(0.4, out.shape[1] / 2400)
-    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, font_scale, 1)
-    cv2.rectangle(out, (0, 0), (w + 8, h + base + 8), (0, 0, 0), -1)
-    cv2.putText(out, text, (4, h + 4), cv2.FONT_HERSHEY_SIMPLEX, font_scale, (255, 255, 255), 1,
-                cv2.LINE_AA)
-    return out
+    key = [("dots:", None)]
+    for (_, colour), text in zip(BANDS_PX, ("< 1 px,", "< 3 px,", "beyond")):
+        key.append((text, colour))
+    return [[(f"{title}: {stats}" if title else stats, None)], key]
+
+
+def legend_band(lines: list[list[tuple]], width: int) -> np.ndarray:
+    """A black RGB band `width` wide holding the legend lines in white, each piece with its
+    colour swatch before it, words wrapped to the width (never cut off: the font shrinks, down
+    to LEGEND_MIN_FONT, until the longest word fits)."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    words = [[(w, colour if i == 0 else None) for text, colour in line
+              for i, w in enumerate(text.split())] for line in lines]
+    longest = max((w for line in words for w, _ in line), key=len, default="")
+    font_scale = max(LEGEND_MIN_FONT, width / 2400)
+    while font_scale > LEGEND_MIN_FONT and \
+            cv2.getTextSize(longest, font, font_scale, 1)[0][0] + 3 * LEGEND_PAD_PX > width:
+        font_scale = max(LEGEND_MIN_FONT, 0.9 * font_scale)
+    (_, text_h), base = cv2.getTextSize("Ag", font, font_scale, 1)
+    line_h = text_h + base + LEGEND_PAD_PX
+    placed, x, y = [], LEGEND_PAD_PX, LEGEND_PAD_PX + text_h
+    for line in words:
+        for word, colour in line:
+            word_w = cv2.getTextSize(word, font, font_scale, 1)[0][0] + \
+                (text_h + LEGEND_PAD_PX if colour is not None else 0)
+            if x > LEGEND_PAD_PX and x + word_w > width - LEGEND_PAD_PX:
+                x, y = LEGEND_PAD_PX, y + line_h
+            placed.append((word, colour, x, y))
+            x += word_w + cv2.getTextSize(" ", font, font_scale, 1)[0][0]
+        x, y = LEGEND_PAD_PX, y + line_h
+    band = np.zeros((y - text_h, width, 3), np.uint8)
+    for word, colour, x, y in placed:
+        if colour is not None:
+            cv2.rectangle(band, (x, y - text_h), (x + text_h, y), colour, -1)
+            x += text_h + LEGEND_PAD_PX
+        cv2.putText(band, word, (x, y), font, font_scale, (255, 255, 255), 1, cv2.LINE_AA)
+    return band
