@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..core.errors import InputError
 from ..core.io.export import calibration_folder, check_output_files, read_calibration
-from ..core.io.safe_write import write_text_atomic
+from ..core.io.safe_write import write_files_atomic
 from ..core.products.interchange import (DEFAULT_TOPIC_PATTERN, FOLDER_FORMATS, FORMATS,
                                          STEREO_FORMATS, dannce_files, export_text, jarvis_files,
                                          opencv_files, opencv_stereo_yaml, ros_stereo_files)
@@ -92,11 +92,13 @@ def run(args: argparse.Namespace) -> int:
         check_output_files([args.out if name is None else Path(args.out) / name
                             for name in files], calibration_dir=calibration_folder(
                                 args.calibration))
+        # name None: the one file of a single-file format; the files of a folder format are
+        # written whole before any replaces an earlier export's (all or nothing)
+        write_files_atomic({args.out if name is None else Path(args.out) / name: text
+                            for name, text in files.items()})
     except InputError as exc:
         log.error("%s", exc)
         return 2
-    for name, text in files.items():  # name None: the one file of a single-file format
-        write_text_atomic(args.out if name is None else Path(args.out) / name, text)
     if args.format in FOLDER_FORMATS:
         _warn_about_stale_files(Path(args.out), files)
     listed = ", ".join(name for name in files if name)

@@ -1,6 +1,8 @@
 """Writes that never leave a half-written file or folder, and never replace what they must not.
 
-A file is written to a temporary sibling and renamed into place (write_text_atomic). A folder of
+A file is written to a temporary sibling and renamed into place (write_text_atomic); a set of
+files (one per camera) is written whole to temporaries before any is renamed
+(write_files_atomic), so that a failed write replaces none of them. A folder of
 outputs is built beside its target and exchanged with it in one step (replace_directory_atomic:
 renameat2 RENAME_EXCHANGE, else two renames whose gap the next run repairs). What a killed write
 leaves (`.<name>.tmp.<pid>.*`, `.<name>.old.<pid>`) is removed, or put back, once its process is
@@ -48,7 +50,59 @@ def _usual_mode(path: Path, directory: bool = False) -> int:
 def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
     """Write `text` (or bytes) to a temporary sibling of path, then rename it into place: a
     reader never sees a half-written file."""
-    path = Path(path)
+    path, tmp = Path(path), None
+    try:
+        tmp = _write_temporary(path, text)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise InputError(f"Cannot write {path}: {exc.strerror or exc}. "
+                             + disk_hint(path.parent)) from exc
+        raise
+
+
+def write_files_atomic(files: dict) -> None:
+    """Write several files ({path: text or bytes}) as one set: every file is written whole to
+    a temporary sibling first, and only then are they renamed into place, so that a write that
+    fails (a full disk) replaces none of them and a reader never finds old and new files mixed.
+    A rename that fails after others were done (the folder's permissions changed under us)
+    raises an InputError naming the files replaced and those left as they were."""
+    written: list[tuple[Path, str]] = []
+    try:
+        for path, text in files.items():
+            path = Path(path)
+            written.append((path, _write_temporary(path, text)))
+    except BaseException as exc:
+        for _, tmp in written:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise InputError(f"Cannot write {path}: {exc.strerror or exc}. "
+                             + disk_hint(path.parent) + " Nothing was replaced.") from exc
+        raise
+    replaced: list[Path] = []
+    try:
+        for path, tmp in written:
+            os.replace(tmp, path)
+            replaced.append(path)
+    except BaseException as exc:
+        for _, tmp in written[len(replaced):]:
+            Path(tmp).unlink(missing_ok=True)
+        kept = [str(p) for p, _ in written[len(replaced):]]
+        said = (f"replaced: {', '.join(map(str, replaced)) or 'none'}; as they were: "
+                f"{', '.join(kept)}")
+        if isinstance(exc, OSError):
+            raise InputError(f"Cannot replace {kept[0]}: {exc.strerror or exc}; {said}. "
+                             "Write them again.") from exc
+        if replaced:
+            log.error("stopped while replacing files: %s", said)
+        raise
+
+
+def _write_temporary(path: Path, text: str | bytes) -> str:
+    """Write `text` (or bytes) whole to a new temporary sibling of path, with the mode an
+    ordinary write would give path; returns its name. Nothing is left behind on failure."""
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -59,13 +113,10 @@ def write_text_atomic(path: str | os.PathLike, text: str | bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, _usual_mode(path))
-        os.replace(tmp, path)
-    except BaseException as exc:
+        return tmp
+    except BaseException:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise InputError(f"Cannot write {path}: {exc.strerror or exc}. "
-                             + disk_hint(path.parent)) from exc
         raise
 
 
