@@ -1,16 +1,18 @@
 """`densecalib_node`: calibrates a rigid camera rig from synchronised image topics (or a replayed
 bag) on a service call and publishes CameraInfo per camera and the extrinsics on /tf_static.
 
-Its interface (topics, the services ~/calibrate ~/check ~/sync ~/reload ~/clear, the watch, the
-files under output_dir) is docs/ros.md's; its parameters are ros/settings.py's table. The parts:
-intake (ros.intake, ros.sync), the job slot and its shutdown hand-over (ros.job_slot), the
-calibration as a core.job request (ros.calibrating), the check (ros.checking), the files
-(ros.calibration_files), what is published (ros.publishing, ros.diagnostics).
+Its interface (the ~/calibrate action, the services ~/calibrate ~/cancel ~/check ~/sync ~/reload
+~/clear, the watch, the topics, the files under output_dir) is docs/ros.md's; its parameters are
+ros/settings.py's table. The parts: intake (ros.intake, ros.sync), the action (ros.calibrate_action)
+and the Trigger services (ros.services), the job slot, its cancel and its shutdown hand-over
+(ros.job_slot), the calibration as a core.job request (ros.calibrating), the check (ros.checking),
+the files (ros.calibration_files), what is published (ros.publishing, ros.diagnostics).
 
 Threads: image callbacks (the intake's executor) only append to the synchroniser; a calibration
-runs in the job slot's worker thread while its ~/calibrate caller waits (multi-threaded executor);
-a check (~/check, or the watch's own timer) runs in its caller's thread; a calibration, a check
-and a reload hold the slot in turn.
+runs in the job slot's worker thread while its caller (service or action goal) waits
+(multi-threaded executor), and stops at the core's next check when cancelled; a check (~/check,
+or the watch's own timer) runs in its caller's thread; a calibration, a check and a reload hold
+the slot in turn.
 """
 from __future__ import annotations
 
@@ -21,18 +23,19 @@ from typing import Callable, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
-from std_srvs.srv import Trigger
 
-from ..core.errors import CalibrationError, InputError
+from ..core.errors import CalibrationCancelled, CalibrationError, InputError
 from ..core.io.calibration_store import prune_calibrations
 from ..core.io.sync import evenly_spaced
+from ..core.progress import Progress, StopToken
 from ..core.types import RigCalibration
+from .calibrate_action import CalibrateAction
 from .calibrating import calibrated_message, calibration_request
 from .calibration_files import (check_output_dir, latest_calibration, save_found_floor,
                                 write_calibration)
@@ -41,14 +44,14 @@ from .core_logs import forward_core_logs, stop_forwarding
 from .diagnostics import rig_diagnostic_status
 from .frame_loss import LOSS_HINT
 from .intake import CameraSubscriptions, ImageIntake
-from .job_slot import CHECK_JOB, RELOAD_JOB, Job, JobSlot, Outcome
+from .job_slot import ABANDONED, CHECK_JOB, RELOAD_JOB, Job, JobSlot, Outcome
 from .parameters import declare_parameters, parameter_values
-from .publishing import CalibrationPublisher, floor_parent
+from .publishing import LATCHED_QOS, CalibrationPublisher, floor_parent
 from .replay import BagReplayer
+from .services import TriggerServices
 from .settings import PARAMETERS, Settings, parse_settings
 from .sync import MessageSynchronizer, malformed_note, offsets_line
 from .watch import WATCH_CONFIRM_SETS, Watch
-
 
 
 def _ends_with_the_node(callback: Callable[[], None]) -> Callable[[], None]:
@@ -72,6 +75,7 @@ class DenseCalibNode(Node):
         self._core_logs = forward_core_logs(self.get_logger().get_child("core"))
         self._replayer: Optional[BagReplayer] = None
         self._intake: Optional[ImageIntake] = None
+        self._calibrate_action: Optional[CalibrateAction] = None
         self.jobs = JobSlot()
         declare_parameters(self)
         try:
@@ -98,15 +102,13 @@ class DenseCalibNode(Node):
         # the image subscriptions: on a single-threaded executor of their own (ros.intake)
         self._intake = ImageIntake(self)
         self._timer_group = MutuallyExclusiveCallbackGroup()
-        self._service_group = ReentrantCallbackGroup()
 
-        self._status_pub = self.create_publisher(String, "~/status", 20)
+        # latched: a subscriber arriving late (a dashboard, ros2 topic echo) sees the state now
+        self._status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
         self.publisher = CalibrationPublisher(self)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        for name, callback in (("~/calibrate", self._on_calibrate), ("~/check", self._on_check),
-                               ("~/sync", self._on_sync), ("~/reload", self._on_reload),
-                               ("~/clear", self._on_clear)):
-            self.create_service(Trigger, name, callback, callback_group=self._service_group)
+        self._trigger_services = TriggerServices(self)
+        self._calibrate_action = CalibrateAction(self)
 
         self.camera_subscriptions = CameraSubscriptions(self, self._intake, s, self.sync)
         if not self.camera_subscriptions.complete:
@@ -119,7 +121,7 @@ class DenseCalibNode(Node):
         self.create_timer(1.0, _ends_with_the_node(self._watch),
                           callback_group=MutuallyExclusiveCallbackGroup())
 
-        loaded, message = self._load_last_calibration(fall_back=True)
+        loaded, message = self.load_last_calibration(fall_back=True)
         (self.get_logger().info if loaded or "no calibration" in message else
          self.get_logger().error)(f"start-up: {message}")
         if s.replay_bag:
@@ -129,8 +131,8 @@ class DenseCalibNode(Node):
             self._replayer.start()
         self.get_logger().info(
             f"ready: {len(s.image_topics)} cameras ({', '.join(s.camera_names)}), preset "
-            f"{s.preset}, pipeline {s.pipeline}, matcher {s.matcher}; call "
-            f"{self.resolve_service_name('~/calibrate')} to calibrate")
+            f"{s.preset}, pipeline {s.pipeline}, matcher {s.matcher}; send a goal to the action "
+            f"(or call the service) {self.resolve_service_name('~/calibrate')} to calibrate")
 
     # ----------------------------------------------------------------- parameters
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -166,9 +168,9 @@ class DenseCalibNode(Node):
         try:
             floor = find_floor_of_saved_calibration(self.calibration_dir, self.calibration, view)
         except InputError as exc:
-            self._set_status(f"floor: not found in {self.calibration_dir.name}: {exc}", "warning")
+            self.set_status(f"floor: not found in {self.calibration_dir.name}: {exc}", "warning")
             return
-        self._set_status(save_found_floor(self.calibration_dir, self.calibration, floor))
+        self.set_status(save_found_floor(self.calibration_dir, self.calibration, floor))
 
     # ----------------------------------------------------------------- intake
     def _subscribe_discovered_topics(self) -> None:
@@ -179,9 +181,9 @@ class DenseCalibNode(Node):
 
     def _on_replay_done(self, num_messages: int, error: Optional[str]) -> None:
         if error:
-            self._set_status(f"replay failed: {error}", "error")
+            self.set_status(f"replay failed: {error}", "error")
             return
-        self._set_status(f"replay done: {num_messages} messages, {len(self.sync)} frame sets "
+        self.set_status(f"replay done: {num_messages} messages, {len(self.sync)} frame sets "
                          "buffered")
         if self.settings.calibrate_after_replay:
             if self.start_calibration("after replay") is None:
@@ -189,24 +191,32 @@ class DenseCalibNode(Node):
                                           "already running")
 
     # ----------------------------------------------------------------- calibration
-    def start_calibration(self, reason: str) -> Optional[Job]:
-        """Start a calibration in the worker thread; None when a job is running."""
-        return self.jobs.start_worker(reason, self._run_job)
+    def start_calibration(self, reason: str, settings: Optional[Settings] = None,
+                          from_scratch: bool = False) -> Optional[Job]:
+        """Start a calibration in the worker thread, with `settings` (default: the node's at its
+        start), from the published calibration unless from_scratch; None when a job is
+        running. The job's Progress says where it is and stops it (jobs.cancel)."""
+        progress = Progress(on_message=lambda msg: self.set_status(f"calibrating: {msg}", None),
+                            stop=StopToken())
+        return self.jobs.start_worker(reason, self._run_job, settings=settings,
+                                      from_scratch=from_scratch, progress=progress)
 
-    def _on_calibrate(self, request, response):
-        job = self.start_calibration("service call")
-        if job is None:
-            response.success = False
-            response.message = "busy: a calibration is already running; call again when it ends"
-            return response
-        outcome = self.jobs.wait_for(job)
-        response.success, response.message = outcome.success, outcome.message
-        return response
+    def busy_line(self) -> str:
+        """What holds the job slot, in words."""
+        reason = self.jobs.reason
+        return ("a check is running" if reason == CHECK_JOB else
+                "a reload is running" if reason == RELOAD_JOB else
+                f"a calibration is already running ({reason})" if reason else
+                "the node is shutting down" if self.jobs.stopping.is_set() else "idle")
 
     def _run_job(self, job: Job) -> None:
         start = time.perf_counter()
         try:
-            job.outcome = self._calibrate(start)
+            job.outcome = self._calibrate(job, start)
+        except CalibrationCancelled as exc:  # jobs.cancel() or shutdown: nothing written
+            job.outcome = Outcome(False, ABANDONED if self.jobs.stopping.is_set() else
+                                  f"cancelled after {time.perf_counter() - start:.1f} s "
+                                  f"({exc}): nothing written", cancelled=True)
         except CalibrationError as exc:
             job.outcome = Outcome(False, f"calibration failed after "
                                          f"{time.perf_counter() - start:.1f} s: {exc}")
@@ -219,31 +229,27 @@ class DenseCalibNode(Node):
                 detail = str(exc) if isinstance(exc, OSError) else repr(exc)  # str names the file
                 job.outcome = Outcome(False, f"calibration crashed after "
                                              f"{time.perf_counter() - start:.1f} s: {detail}")
-        if not job.outcome.success:
-            kept = (f"; still publishing the calibration of {self.calibration_dir.name}"
-                    if self.calibration_dir is not None and not self.jobs.stopping.is_set()
-                    else "")
-            job.outcome.message += kept
-            self._last_failure = job.outcome.message
-            self.get_logger().error(job.outcome.message)
-        else:
+        job.outcome.elapsed_s = time.perf_counter() - start
+        self._said_outcome(job.outcome)
+
+    def _said_outcome(self, outcome: Outcome) -> None:
+        """A calibration's outcome on ~/status and in the log (a failure at ERROR, and on
+        /diagnostics until the next success; a cancel is no failure)."""
+        if not outcome.success and self.calibration_dir is not None \
+                and not self.jobs.stopping.is_set():
+            outcome.message += f"; still publishing the calibration of {self.calibration_dir.name}"
+        if outcome.success:
             self._last_failure = None
-            self.get_logger().info(job.outcome.message)
-        self._set_status(("done: " if job.outcome.success else "failed: ") + job.outcome.message,
-                         level=None)
+            self.get_logger().info(outcome.message)
+        elif outcome.cancelled:
+            self.get_logger().warning(outcome.message)
+        else:
+            self._last_failure = outcome.message
+            self.get_logger().error(outcome.message)
+        self.set_status(("done: " if outcome.success else "cancelled: " if outcome.cancelled
+                         else "failed: ") + outcome.message, level=None)
 
-    def _on_check(self, request, response):
-        """~/check: the buffer against the current calibration, in this service thread (matching
-        only: seconds)."""
-        outcome = self._run_check()
-        response.success = bool(outcome and outcome.fits)
-        response.message = (outcome.message if outcome else
-                            "busy: a calibration or check is running")
-        self._set_status(f"check: {response.message}",
-                         "info" if response.success or outcome is None else "warning")
-        return response
-
-    def _run_check(self, sets: Optional[list] = None) -> Optional[CheckOutcome]:
+    def run_check(self, sets: Optional[list] = None) -> Optional[CheckOutcome]:
         """A check of `sets` (default: the buffer, as ~/check does); None when a job is running.
         It holds the job slot, so that no calibration swaps the matcher meanwhile."""
         with self.jobs.held(CHECK_JOB) as held:
@@ -268,57 +274,18 @@ class DenseCalibNode(Node):
                 if self.calibration is not None else None)
         if sets is None:
             return
-        outcome = self._run_check(sets)
+        outcome = self.run_check(sets)
         if outcome is None:
             return  # busy: try again at the next tick
         self._watch_sets.checked(sets)
-        self._set_status(f"watch: {outcome.message}",
+        self.set_status(f"watch: {outcome.message}",
                          "warning" if outcome.fits is False else "info")
         if outcome.fits is False and self.settings.recalibrate_on_change:
             if outcome.misfit_sets < WATCH_CONFIRM_SETS:
-                self._set_status(f"watch: {outcome.misfit_sets} frame set does not fit; "
+                self.set_status(f"watch: {outcome.misfit_sets} frame set does not fit; "
                                  "recalibrating when the next one confirms it")
             elif self.start_calibration("watch: the calibration no longer fits") is not None:
-                self._set_status("watch: recalibrating, the calibration no longer fits")
-
-    def _on_sync(self, request, response):
-        """~/sync: measure the cameras' stamp offsets from the motion in their latest
-        sync_window_s seconds (core.io.motion_sync) and set stamp_offsets_s to them; on failure
-        the offsets stay as they were."""
-        s = self.settings
-        try:
-            estimates = self.sync.measure_offsets(s.camera_names)
-        except InputError as exc:
-            response.success, response.message = False, f"sync failed: {exc}"
-        except Exception as exc:  # a bug must still answer the call (and not end the spin)
-            self.get_logger().error(f"sync crashed: {exc!r}")
-            response.success, response.message = False, f"sync crashed: {exc!r}"
-        else:
-            offsets = [estimates[n].offset_s for n in s.camera_names]
-            changed, dropped = offsets != list(s.stamp_offsets_s), len(self.sync)
-            result = self.set_parameters([Parameter("stamp_offsets_s", value=offsets)])[0]
-            response.success = result.successful
-            response.message = offsets_line(
-                s.camera_names, offsets, [None] + [estimates[n].correlation
-                                                   for n in s.camera_names[1:]]) + (
-                f"; not set: {result.reason}" if not result.successful else
-                f"; stamp_offsets_s set, {dropped} buffered frame sets dropped (paired by the "
-                "old offsets)" if changed else "; the offsets already set")
-        # new offsets were logged as the parameter changed: then ~/status only
-        self._set_status(f"sync: {response.message}",
-                         "error" if not response.success else None if changed else "info")
-        return response
-
-    def _on_clear(self, request, response):
-        """~/clear: drop the buffered frame sets, so that the next ~/calibrate or ~/check uses
-        only images received from now on (after the rig was moved or a lens refocused). A
-        running calibration keeps the frame sets it took."""
-        dropped = self.sync.clear()
-        response.success = True
-        response.message = (f"dropped {dropped} buffered frame sets; "
-                            f"{self.settings.min_frame_sets} needed to calibrate")
-        self._set_status(f"clear: {response.message}")
-        return response
+                self.set_status("watch: recalibrating, the calibration no longer fits")
 
     def _check(self, sets: Optional[list] = None) -> CheckOutcome:
         s, rig = self.settings, self.calibration
@@ -345,37 +312,39 @@ class DenseCalibNode(Node):
                              f"{note or 'none buffered'}.")
         return sets, images
 
-    def _calibrate(self, start: float) -> Outcome:
+    def _calibrate(self, job: Job, start: float) -> Outcome:
         from ..core.job import run_job  # heavy (pycolmap, matchers): import on use
 
-        s = self.settings
+        s = job.settings or self.settings
         sets = self.sync.snapshot()
         if len(sets) < s.min_frame_sets:
             raise InputError(f"{len(sets)} synchronised frame set(s) buffered, {s.min_frame_sets} "
                              f"needed: {self.sync.why_few_sets(s.camera_names, s.image_topics)}")
         sets = evenly_spaced(sets, s.max_frame_sets)
-        self._set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
-                         f"{s.matcher})")
+        previous = None if job.from_scratch else self.calibration
+        self.set_status(f"calibrating {len(sets)} frame sets ({s.preset}, {s.pipeline}, "
+                        f"{s.matcher}{', from scratch' if job.from_scratch else ''})")
         sets, images = self._decoded(sets, s.min_frame_sets)
-        request = calibration_request(s, sets, images, self.calibration, self.calibration_dir,
+        request = calibration_request(s, sets, images, previous, self.calibration_dir,
                                       self._matcher_for(s))
-        # on ~/status only: the core logged the event, and core_logs forwards it to /rosout
-        job = run_job(request, progress=lambda msg: self._set_status(f"calibrating: {msg}", None))
-        rig, reconstruction = job.rig, job.calibration.reconstruction
+        # the core's events on ~/status only: it logged them, and core_logs forwards to /rosout
+        result = run_job(request, progress=job.progress)
+        rig, reconstruction = result.rig, result.calibration.reconstruction
         before_change = rig.quality.frame_sets_before_change or 0
         if before_change:  # the provenance (core.io.export) names the frame sets calibrated
             rig.quality.input["frame_set_stamps_ns"] = \
                 request.source["frame_set_stamps_ns"][before_change:]
         sets = sets[before_change:]
         elapsed = time.perf_counter() - start
-        with self.jobs.writing_files():
-            out = self._write_files(rig, reconstruction, job.reference_views)
+        with self.jobs.writing_files(job):
+            out = self._write_files(rig, reconstruction, result.reference_views)
             self._publish(rig, out)
         removed = prune_calibrations(s.output_dir, s.keep_calibrations, [out])
         set_info = (self.publisher.call_set_camera_info(rig) if s.call_set_camera_info
                     else None)
         return Outcome(True, calibrated_message(s, rig, len(sets), elapsed, out, removed,
-                                                self.publisher.stereo_problem, set_info))
+                                                self.publisher.stereo_problem, set_info),
+                       folder=out, rig=rig, frame_sets=len(sets))
 
     def _matcher_for(self, s: Settings):
         """The loaded matcher of the current settings, kept across calibrations (loading learned
@@ -398,7 +367,7 @@ class DenseCalibNode(Node):
         return write_calibration(self.settings.output_dir, rig, rectified, reconstruction,
                                  reference_views)
 
-    def _load_last_calibration(self, fall_back: bool = False) -> tuple[bool, str]:
+    def load_last_calibration(self, fall_back: bool = False) -> tuple[bool, str]:
         """Publish the calibration under output_dir/latest (ros.calibration_files); (published?,
         what happened). Anything wrong with it leaves the current calibration published."""
         s = self.settings
@@ -411,27 +380,6 @@ class DenseCalibNode(Node):
         self._publish(stored.rig, stored.folder, stored.made_at)
         return True, stored.published_line(floor_on=floor_parent(s) is not None)
 
-    def _on_reload(self, request, response):
-        """~/reload: publish the calibration under output_dir/latest again, after it was changed
-        on disk (`densecalib scale` or `floor` on output_dir) or pointed at another one (a
-        calibration made offline). Holds the job slot: a calibration ending meanwhile would
-        publish over it."""
-        with self.jobs.held(RELOAD_JOB) as held:
-            if not held:
-                response.success = False
-                response.message = ("busy: a calibration or check is running; call ~/reload "
-                                    "when it has ended")
-                return response
-            try:
-                response.success, response.message = self._load_last_calibration()
-            except Exception as exc:  # a bug or an OS error must still answer the call
-                self.get_logger().error(f"reload crashed: {exc!r}")
-                response.success, response.message = False, f"reload crashed: {exc!r}"
-        if not response.success and self.calibration_dir is not None:
-            response.message += f"; still publishing the calibration of {self.calibration_dir}"
-        self._set_status(f"reload: {response.message}", "info" if response.success else "error")
-        return response
-
     def _publish(self, rig: RigCalibration, directory: Path,
                  calibrated_at: Optional[float] = None) -> None:
         """Publish CameraInfo per calibrated camera and all extrinsics in one /tf_static message;
@@ -442,7 +390,7 @@ class DenseCalibNode(Node):
         self._publish_diagnostics()
 
     # ----------------------------------------------------------------- status
-    def _set_status(self, text: str, level: Optional[str] = "info") -> None:
+    def set_status(self, text: str, level: Optional[str] = "info") -> None:
         """Publish the status and log it at `level` ("info", "warning", "error"; None: not at
         all, the caller logged it): a failure must be found among /rosout's errors."""
         self._status = text
@@ -489,5 +437,7 @@ class DenseCalibNode(Node):
             self._replayer.stop()
         if self._intake is not None:
             self._intake.destroy()
+        if self._calibrate_action is not None:
+            self._calibrate_action.destroy()
         return super().destroy_node()
 

@@ -1,6 +1,6 @@
 """The other ends of the calibration node, for the demo and the node tests: camera publisher
 nodes (one rclpy node per camera, as a real camera driver would be), a listener of the node's
-outputs, and a non-blocking Trigger call helper."""
+outputs, and non-blocking clients of its Trigger services and of its Calibrate action."""
 from __future__ import annotations
 
 import threading
@@ -8,9 +8,11 @@ import time
 from typing import Callable, Optional
 
 import numpy as np
+from densecalib_interfaces.action import Calibrate
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.action import ActionClient
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -22,6 +24,10 @@ from .publishing import LATCHED_QOS
 
 # Reliable (a best-effort subscriber still matches) and deep enough for a burst of frame sets.
 CAMERA_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE)
+# The node's latched ~/status: a listener arriving late gets the current line, and keeps the lines
+# that follow in bursts.
+STATUS_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class CameraPublisherNode(Node):
@@ -50,8 +56,8 @@ class CameraPublisherNode(Node):
 class CalibrationListener(Node):
     """Subscribes to what the calibration node publishes: CameraInfo per camera and /tf_static
     (transient local, so a listener started later still gets the last calibration), the node's
-    status, /diagnostics and (points_topic) its scene points. Thread-safe accessors for the
-    latest messages."""
+    status (latched too: the current line), /diagnostics and (points_topic) its scene points.
+    Thread-safe accessors for the latest messages."""
 
     def __init__(self, camera_info_topics: dict[str, str], status_topic: str,
                  name: str = "densecalib_listener", points_topic: Optional[str] = None,
@@ -72,7 +78,8 @@ class CalibrationListener(Node):
                                      LATCHED_QOS)
         self.create_subscription(TFMessage, "/tf_static", lambda m: self._store("tf", m),
                                  LATCHED_QOS)
-        self.create_subscription(String, status_topic, lambda m: self._store("status", m), 20)
+        self.create_subscription(String, status_topic, lambda m: self._store("status", m),
+                                 STATUS_QOS)
         self.create_subscription(DiagnosticArray, "/diagnostics",
                                  lambda m: self._store("diag", m), 10)
 
@@ -133,3 +140,49 @@ class TriggerCaller(Node):
             self.client.remove_pending_request(future)
             raise TimeoutError(f"no answer from {self.client.srv_name} within {timeout_s} s")
         return future.result()
+
+
+class CalibrateGoalClient(Node):
+    """Sends goals to a Calibrate action (`action`: e.g. /densecalib_node/calibrate) without
+    blocking the executor that spins this node, and keeps each feedback with its arrival time
+    (time.monotonic())."""
+
+    def __init__(self, action: str, name: str = "densecalib_goal_client", **node_kwargs):
+        super().__init__(name, **node_kwargs)
+        self.action = action
+        self.client = ActionClient(self, Calibrate, action)
+        self._lock = threading.Lock()
+        self._feedback: list[tuple[float, Calibrate.Feedback]] = []
+        self.on_feedback: Optional[Callable[[Calibrate.Feedback], None]] = None
+
+    def _store(self, msg) -> None:
+        with self._lock:
+            self._feedback.append((time.monotonic(), msg.feedback))
+        if self.on_feedback is not None:
+            self.on_feedback(msg.feedback)
+
+    def feedback(self) -> list[tuple[float, Calibrate.Feedback]]:
+        with self._lock:
+            return list(self._feedback)
+
+    def send(self, goal: Optional[Calibrate.Goal] = None, timeout_s: float = 10.0,
+             wait_for_server_s: float = 10.0):
+        """Send `goal` (default: all options from the node's parameters); the goal handle once
+        the server answered (`.accepted` says whether it took the goal)."""
+        if not self.client.wait_for_server(timeout_sec=wait_for_server_s):
+            raise TimeoutError(f"action {self.action} not available after "
+                               f"{wait_for_server_s} s")
+        future = self.client.send_goal_async(goal or Calibrate.Goal(),
+                                             feedback_callback=self._store)
+        if not wait_until(future.done, timeout_s):
+            raise TimeoutError(f"the goal was not answered within {timeout_s} s")
+        return future.result()
+
+    @staticmethod
+    def result(goal_handle, timeout_s: float):
+        """(status, result) of an accepted goal once it ended (status: action_msgs GoalStatus's
+        STATUS_SUCCEEDED, STATUS_CANCELED or STATUS_ABORTED)."""
+        future = goal_handle.get_result_async()
+        if not wait_until(future.done, timeout_s, 0.01):
+            raise TimeoutError(f"the goal did not end within {timeout_s} s")
+        return future.result().status, future.result().result
