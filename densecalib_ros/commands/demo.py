@@ -1,8 +1,9 @@
 """`densecalib demo`: the README's main job, on an embedded default with no outside data.
 
 Generates a rig (deterministic from --seed), starts densecalib_node in this process, publishes the
-rig's images from one rclpy camera-driver node per camera, calls ~/calibrate from an rclpy client,
-and prints what the node published (CameraInfo focal lengths, /tf_static poses) against the ground
+rig's images from one rclpy camera-driver node per camera, sends a goal to the node's ~/calibrate
+action from an rclpy action client (its feedback printed as the stages go by), and prints what the
+node published (CameraInfo focal lengths, /tf_static poses) against the ground
 truth. Leaves OUT/rig/ (images + ground_truth.json) and the node's files OUT/<UTC time>/ +
 OUT/latest. With --offline, no ROS: calibrate_rig on the same images, files in OUT/offline/.
 Exit status: 0 calibrated, 1 calibration failed, 2 bad options.
@@ -43,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see docs/method.md)")
     parser.add_argument("--timeout", type=float, default=600.0, metavar="S",
-                        help="seconds to wait for the calibration service")
+                        help="seconds to wait for the calibration (the ~/calibrate action)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -101,7 +102,7 @@ def _run_ros(rig, args, out: Path) -> int:
     from rclpy.parameter import Parameter
 
     from ..ros.node import DenseCalibNode
-    from ..ros.rig_nodes import (CalibrationListener, CameraPublisherNode, TriggerCaller,
+    from ..ros.rig_nodes import (CalibrateGoalClient, CalibrationListener, CameraPublisherNode,
                                  wait_until)
 
     # Keep the demo's graph on this machine and off a user's default domain unless asked.
@@ -128,8 +129,9 @@ def _run_ros(rig, args, out: Path) -> int:
         info_topics = {n: node.resolve_topic_name(t)
                        for n, t in zip(rig.names, node.settings.camera_info_topics)}
         listener = CalibrationListener(info_topics, "/densecalib_node/status", context=context)
-        caller = TriggerCaller("/densecalib_node/calibrate", context=context)
-        nodes = [node, *drivers, listener, caller]
+        client = CalibrateGoalClient("/densecalib_node/calibrate", context=context)
+        client.on_feedback = _FeedbackLines()
+        nodes = [node, *drivers, listener, client]
         for n in nodes:
             executor.add_node(n)
         spinner.start()
@@ -144,10 +146,14 @@ def _run_ros(rig, args, out: Path) -> int:
                 if wait_until(lambda: len(node.sync) >= t + 1, 5.0):
                     break
             print(f"published frame set {t + 1}/{len(rig.images)} on {len(topics)} topics")
-        print("calling /densecalib_node/calibrate ...")
-        response = caller.call(args.timeout)
-        print(f"response: success={response.success}: {response.message}")
-        if not response.success:
+        print("sending a goal to the action /densecalib_node/calibrate ...")
+        goal = client.send()
+        if not goal.accepted:
+            log.error("the node rejected the goal (see its status above)")
+            return 1
+        _, result = client.result(goal, args.timeout)
+        print(f"result: success={result.success}: {result.message}")
+        if not result.success:
             return 1
         if not wait_until(lambda: len(listener.snapshot()["camera_info"]) == len(rig.names)
                           and listener.rig_from_optical(), 10.0):
@@ -172,6 +178,24 @@ def _run_ros(rig, args, out: Path) -> int:
             n.destroy_node()
         rclpy.try_shutdown(context=context)
         core_log.propagate = True
+
+
+class _FeedbackLines:
+    """The action's feedback as one printed line per stage label: where the run is, how much is
+    done and the seconds left (feedback comes twice a second; the lines only when it moves on)."""
+
+    def __init__(self):
+        self._last = None
+
+    def __call__(self, feedback) -> None:
+        if (feedback.stage, feedback.label) == self._last:
+            return
+        self._last = (feedback.stage, feedback.label)
+        left = (f", about {feedback.seconds_left:.0f} s left" if feedback.seconds_left >= 0
+                else "")
+        done = 100 * feedback.fraction_done
+        print(f"  [{feedback.elapsed_s:5.1f} s] {feedback.label} ({done:.0f} % done{left})",
+              flush=True)
 
 
 def _print_comparison(rig, focal_px: dict, rig_from_cam: dict, reference: str, title: str):
