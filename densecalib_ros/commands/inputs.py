@@ -48,6 +48,10 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-time-gap", type=float, default=None,
                         metavar="S", help="with --align time: the most a frame set's capture "
                                           f"times may differ (default {DEFAULT_MAX_TIME_GAP_S:g})")
+    parser.add_argument("--without", nargs="+", default=(), metavar="CAMERA",
+                        help="with --images: leave these cameras out (their subfolders or "
+                             "files are not read). A camera subfolder without images is "
+                             "refused unless named here: the rig would lose that camera")
     parser.add_argument("--time-offset", nargs="+", default=None, metavar="NAME=S|auto",
                         help="how far this camera's time runs ahead of the others' (s): with "
                              "--videos, a camera that started recording 0.4 s early is NAME=0.4; "
@@ -146,7 +150,7 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
                              "from the file or folder names.")
         from ..core.io.image_io import list_image_folder, read_image_files
         alignment, record = _alignment(args)
-        paths, names = list_image_folder(args.images, **alignment)
+        paths, names = list_image_folder(args.images, **alignment, without=args.without)
         paths = evenly_spaced(paths, _frame_sets(args, DEFAULT_MAX_FRAME_SETS))
         root = Path(args.images)  # the listed paths are under it (symlinks not followed)
         if alignment["time_offsets_s"]:
@@ -195,6 +199,9 @@ def _check_input_options(args) -> None:
                          "NAME=S values, not both.")
     if args.align != "auto" and not args.images:
         raise InputError("--align belongs to --images (camera subfolders).")
+    if args.without and not args.images:
+        raise InputError("--without belongs to --images; with --bag list only the topics to "
+                         "use, with --videos move the video out of the folder.")
     if args.slop is not None and not args.bag:
         raise InputError("--slop belongs to --bag (how far apart the stamps of a frame set may "
                          "be); with --images use --align time --max-time-gap.")

@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 import os
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence
 
 import cv2
 import numpy as np
@@ -138,13 +138,15 @@ def _warn_about_skipped(directory: Path, subdirs: list[Path]) -> None:
 
 def list_image_folder(directory: str | os.PathLike, align: str = "auto",
                       time_offsets_s: Optional[dict[str, float]] = None,
-                      max_time_gap_s: float = DEFAULT_MAX_TIME_GAP_S
-                      ) -> tuple[list[list[Path]], list[str]]:
-    """The image files of DIR per frame set and camera (layouts and `align`: module docstring).
+                      max_time_gap_s: float = DEFAULT_MAX_TIME_GAP_S,
+                      without: Sequence[str] = ()) -> tuple[list[list[Path]], list[str]]:
+    """The image files of DIR per frame set and camera (layouts and `align`: module docstring);
+    the cameras named in `without` (subfolders or file stems) are left out.
 
     Returns (paths, camera_names) with paths[t][c] the file of camera c at time t. Raises
-    InputError for a missing/ambiguous/misaligned folder, TooFewCamerasGivenError (an InputError)
-    for < 2 cameras.
+    InputError for a missing/ambiguous/misaligned folder, a camera subfolder without images
+    (unless `without` names it: a rig that silently lost a camera is not what was asked for),
+    and TooFewCamerasGivenError (an InputError) for < 2 cameras.
     """
     if align not in ALIGNMENTS:
         raise InputError(f"Unknown image alignment {align!r}: use one of {', '.join(ALIGNMENTS)}.")
@@ -153,6 +155,8 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
         raise InputError(f"Image folder {directory} does not exist or is not a folder.")
     files = _images_in(directory)
     subdirs = sorted(p for p in directory.iterdir() if p.is_dir() and not p.name.startswith("."))
+    files, subdirs = _leave_out(directory, files, subdirs, without)
+    _refuse_empty_camera_folders(directory, files, subdirs)
     _warn_about_skipped(directory, subdirs)
     subdirs = [d for d in subdirs if _images_in(d)]
     if files and subdirs:
@@ -180,6 +184,44 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
             f"Found only one camera ({names[0]}) in {directory}: a rig calibration needs images "
             "of at least two cameras (one file per camera, or one subfolder per camera).")
     return paths, names
+
+
+def _leave_out(directory: Path, files: list[Path], subdirs: list[Path], without: Sequence[str]
+               ) -> tuple[list[Path], list[Path]]:
+    """files and subdirs less the cameras named in `without`; InputError for a name that is
+    no camera of DIR (a typo would otherwise leave out nothing)."""
+    known = {d.name for d in subdirs} | {p.stem for p in files}
+    unknown = [n for n in without if n not in known]
+    if unknown:
+        raise InputError(f"--without {' '.join(unknown)}: {directory} has no camera "
+                         f"{', '.join(unknown)} (its cameras: {', '.join(sorted(known))}).")
+    if without:
+        log.info("left out as asked (--without): %s", ", ".join(without))
+    return ([p for p in files if p.stem not in without],
+            [d for d in subdirs if d.name not in without])
+
+
+def _refuse_empty_camera_folders(directory: Path, files: list[Path], subdirs: list[Path]) -> None:
+    """InputError naming the camera subfolders without images among others with images: that
+    camera would be left out of the rig, and a calibration written over an earlier one would
+    drop its files (a copy that failed, a card not yet read)."""
+    empty = [d for d in subdirs if not _images_in(d)]
+    if not empty or files or len(empty) == len(subdirs):
+        return
+    held = [f"{d}/ ({_what_it_holds(d)})" for d in empty]
+    raise InputError(
+        f"Camera folder{'s' if len(empty) > 1 else ''} {'; '.join(held)} without images: the rig "
+        f"would be calibrated without {', '.join(d.name for d in empty)}. Put the camera's "
+        f"images there, or say to calibrate without it: --without "
+        f"{' '.join(d.name for d in empty)}.")
+
+
+def _what_it_holds(folder: Path) -> str:
+    others = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+    if not others:
+        return "empty"
+    return (f"no image files ({', '.join(IMAGE_EXTENSIONS)}); it holds {len(others)} other "
+            f"entr{'y' if len(others) == 1 else 'ies'}, e.g. {others[0]}")
 
 
 def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: str,

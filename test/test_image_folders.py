@@ -1,0 +1,64 @@
+"""What a rig's image folder can hold that is not what its owner meant (issue 85): a camera folder
+left empty (the rig calibrated without it and its files dropped from OUT: now exit 2 naming the
+folder, unless --without names it)."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from densecalib_ros.core.io.export import write_calibration_files
+from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _densecalib(*args, timeout_s=300):
+    """(exit code, output) of `densecalib args` in a child process."""
+    env = {**os.environ, "PYTHONPATH": REPO + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    done = subprocess.run([sys.executable, "-m", "densecalib_ros.cli", *map(str, args)],
+                          capture_output=True, text=True, env=env, timeout=timeout_s)
+    return done.returncode, done.stdout + done.stderr
+
+
+def _tree(folder):
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def rig_dir(tmp_path_factory):
+    """rig/cam0..cam3/0000.png..0002.png and rig/out, an earlier calibration of the 4 cameras."""
+    rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_model="RADIAL", width=320,
+                               height=240, num_time_steps=3, seed=1))
+    root = tmp_path_factory.mktemp("rig")
+    write_rig(rig, root / "rig")
+    write_calibration_files(rig.ground_truth(), root / "out")
+    return root
+
+
+def test_an_empty_camera_folder_is_refused_unless_left_out_by_name(rig_dir, tmp_path):
+    images = tmp_path / "rig"
+    shutil.copytree(rig_dir / "rig", images)
+    shutil.rmtree(images / "cam3")
+    (images / "cam3").mkdir()  # the card not yet copied
+    out = tmp_path / "out"
+    shutil.copytree(rig_dir / "out", out)
+    before = _tree(out)
+    rc, said = _densecalib("calibrate", "--images", images, "--out", out, timeout_s=120)
+    assert rc == 2, said
+    assert (f"Camera folder {images / 'cam3'}/ (empty) without images: the rig would be "
+            "calibrated without cam3") in said
+    assert "--without cam3" in said and "Traceback" not in said
+    assert _tree(out) == before  # cam3.yaml and the 4-camera calibration stay
+    rc, said = _densecalib("calibrate", "--images", images, "--out", out, "--without", "cam4",
+                           timeout_s=120)
+    assert rc == 2 and "--without cam4: " in said and "has no camera cam4" in said, said
+    rc, said = _densecalib("calibrate", "--images", images, "--out", out, "--without", "cam3",
+                           "--consensus-runs", "1")
+    assert rc == 0, said
+    assert sorted(json.loads((out / "calibration.json").read_text())["cameras"]) == [
+        "cam0", "cam1", "cam2"]
+
