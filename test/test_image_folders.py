@@ -1,6 +1,7 @@
 """What a rig's image folder can hold that is not what its owner meant (issue 85): a camera folder
 left empty (the rig calibrated without it and its files dropped from OUT: now exit 2 naming the
-folder, unless --without names it)."""
+folder, unless --without names it), one camera's folder given as the rig's (its numbered frames
+calibrated as cameras, for minutes: now exit 2 suggesting the parent folder)."""
 import json
 import os
 import shutil
@@ -10,6 +11,7 @@ import sys
 import pytest
 
 from densecalib_ros.core.io.export import write_calibration_files
+from densecalib_ros.core.io.image_io import list_image_folder
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -61,4 +63,20 @@ def test_an_empty_camera_folder_is_refused_unless_left_out_by_name(rig_dir, tmp_
     assert rc == 0, said
     assert sorted(json.loads((out / "calibration.json").read_text())["cameras"]) == [
         "cam0", "cam1", "cam2"]
+
+
+def test_one_cameras_folder_given_as_the_rigs_is_refused_with_the_parent(rig_dir, tmp_path):
+    camera = rig_dir / "rig" / "cam0"
+    rc, said = _densecalib("calibrate", "--images", camera, "--out", tmp_path / "out",
+                           timeout_s=60)
+    assert rc == 2, said
+    assert (f"{camera} holds numbered images (0000.png, 0001.png, ...) and cam1, cam2, cam3 "
+            "beside it hold the same numbers: these are the frames of one camera") in said
+    assert f"--images {rig_dir / 'rig'}" in said and not (tmp_path / "out").exists()
+    flat = tmp_path / "flat"  # one image per camera, named like cameras: as before
+    flat.mkdir()
+    for name in ("cam0", "cam1", "cam2", "cam3"):
+        shutil.copy(rig_dir / "rig" / name / "0000.png", flat / f"{name}.png")
+    shutil.copytree(flat, tmp_path / "flat_day2")  # a second session beside it
+    assert list_image_folder(flat)[1] == ["cam0", "cam1", "cam2", "cam3"]
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -146,7 +147,8 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
     Returns (paths, camera_names) with paths[t][c] the file of camera c at time t. Raises
     InputError for a missing/ambiguous/misaligned folder, a camera subfolder without images
     (unless `without` names it: a rig that silently lost a camera is not what was asked for),
-    and TooFewCamerasGivenError (an InputError) for < 2 cameras.
+    the numbered frames of one camera given as the rig's folder, and TooFewCamerasGivenError (an
+    InputError) for < 2 cameras.
     """
     if align not in ALIGNMENTS:
         raise InputError(f"Unknown image alignment {align!r}: use one of {', '.join(ALIGNMENTS)}.")
@@ -164,6 +166,7 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
             f"{directory} mixes image files ({files[0].name}, ...) and camera subfolders "
             f"({subdirs[0].name}, ...): use one image per camera OR one subfolder per camera.")
     if files:
+        _refuse_frames_of_one_camera(directory, files)
         names = [p.stem for p in files]
         duplicate = sorted({n for n in names if names.count(n) > 1})
         if duplicate:
@@ -222,6 +225,44 @@ def _what_it_holds(folder: Path) -> str:
         return "empty"
     return (f"no image files ({', '.join(IMAGE_EXTENSIONS)}); it holds {len(others)} other "
             f"entr{'y' if len(others) == 1 else 'ies'}, e.g. {others[0]}")
+
+
+# A run of this many digits at the end of a file stem is a frame counter or a time stamp (0000,
+# IMG_1234, frame_000123), not a camera's name (cam0 .. cam12).
+_FRAME_NUMBER_DIGITS = 3
+_NUMBERED = re.compile(
+    rf"^(?P<head>.*?)(?P<number>\d{{{_FRAME_NUMBER_DIGITS},}})(?P<tail>\D*)$")
+
+
+def _refuse_frames_of_one_camera(directory: Path, files: list[Path]) -> None:
+    """InputError when DIR's images are numbered alike (the same name around a run of at least
+    _FRAME_NUMBER_DIGITS digits) and a folder beside DIR holds images with the same numbers: DIR
+    is one camera's folder of a rig whose cameras are DIR's parent's subfolders (`--images
+    rig/cam0` calibrated its frames as cameras, for minutes)."""
+    numbers = _frame_numbers(files)
+    if numbers is None or directory.resolve().parent == directory.resolve():
+        return
+    parent = directory.resolve().parent
+    siblings = [d for d in sorted(parent.iterdir()) if d.is_dir() and not d.name.startswith(".")
+                and d.resolve() != directory.resolve()]
+    alike = [d for d in siblings
+             if len(numbers & (_frame_numbers(_images_in(d)) or set())) >= len(numbers) / 2]
+    if alike:
+        raise InputError(
+            f"{directory} holds numbered images ({files[0].name}, {files[1].name}, ...) and "
+            f"{', '.join(d.name for d in alike[:3])} beside it hold the same numbers: these are "
+            f"the frames of one camera, not one image per camera. Give the folder that holds "
+            f"the camera folders: --images {parent}")
+
+
+def _frame_numbers(files: list[Path]) -> Optional[set[int]]:
+    """The frame numbers of files named alike around a run of digits (0000.png, 0001.png), or
+    None when they are not (fewer than two files, names that differ otherwise)."""
+    matches = [_NUMBERED.match(p.stem) for p in files]
+    if len(files) < 2 or not all(matches) or \
+            len({(m["head"], m["tail"]) for m in matches}) > 1:
+        return None
+    return {int(m["number"]) for m in matches}
 
 
 def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: str,
