@@ -1,13 +1,15 @@
 """What a rig's image folder can hold that is not what its owner meant (issue 85): a camera folder
 left empty (the rig calibrated without it and its files dropped from OUT: now exit 2 naming the
 folder, unless --without names it), one camera's folder given as the rig's (its numbered frames
-calibrated as cameras, for minutes: now exit 2 suggesting the parent folder)."""
+calibrated as cameras, for minutes: now exit 2 suggesting the parent folder), and a camera whose
+images differ in size (named by file, W x H)."""
 import json
 import os
 import shutil
 import subprocess
 import sys
 
+import cv2
 import pytest
 
 from densecalib_ros.core.io.export import write_calibration_files
@@ -80,3 +82,34 @@ def test_one_cameras_folder_given_as_the_rigs_is_refused_with_the_parent(rig_dir
     shutil.copytree(flat, tmp_path / "flat_day2")  # a second session beside it
     assert list_image_folder(flat)[1] == ["cam0", "cam1", "cam2", "cam3"]
 
+
+def test_images_of_different_sizes_name_the_file_and_give_width_x_height(rig_dir, tmp_path):
+    images = tmp_path / "rig"
+    shutil.copytree(rig_dir / "rig", images)
+    other = images / "cam1" / "0002.png"
+    cv2.imwrite(str(other), cv2.resize(cv2.imread(str(other)), (400, 300)))
+    rc, said = _densecalib("calibrate", "--images", images, "--out", tmp_path / "out",
+                           timeout_s=120)
+    assert rc == 2, said
+    assert (f"Images of camera cam1 differ in size: {other} is 400x300, "
+            f"{images / 'cam1' / '0000.png'} 320x240") in said, said
+
+
+def test_a_bag_camera_that_changes_resolution_is_named_with_width_x_height(tmp_path):
+    """Frame sets from a bag (or videos, or the library) are checked together: the camera and
+    the sets are named, sizes as W x H (they were lists of (w, h) of every camera)."""
+    import numpy as np
+
+    from densecalib_ros.core.io.bag import write_image_bag
+
+    rng = np.random.default_rng(0)
+    frames = [[rng.integers(0, 256, (240, 320, 3), np.uint8) for _ in range(2)]
+              for _ in range(3)]
+    frames[2][1] = rng.integers(0, 256, (300, 400, 3), np.uint8)
+    topics = ["/cam0/image_raw", "/cam1/image_raw"]
+    write_image_bag(tmp_path / "bag", frames, topics, [t * 10 ** 8 for t in range(3)])
+    rc, said = _densecalib("calibrate", "--bag", tmp_path / "bag", "--topics", *topics,
+                           "--out", tmp_path / "out", timeout_s=120)
+    assert rc == 2, said
+    assert ("Camera cam1's images change size between frame sets: 320x240 in set 0, 400x300 "
+            "in set 2") in said, said

@@ -386,8 +386,12 @@ def read_image_files(paths: list[list[Path]], names: list[str]) -> list[list[np.
     images differ in size (the cameras are calibrated at one resolution)."""
     frame_sets = [[read_image(p) for p in row] for row in paths]
     for c, name in enumerate(names):
-        sizes = {frame_sets[t][c].shape[:2] for t in range(len(frame_sets))}
-        if len(sizes) > 1:
-            raise InputError(f"Images of camera {name} have different sizes "
-                             f"{sorted(sizes)}: use one resolution per camera.")
+        first = frame_sets[0][c].shape[:2]
+        for t in range(1, len(frame_sets)):
+            if frame_sets[t][c].shape[:2] != first:
+                h, w = frame_sets[t][c].shape[:2]
+                raise InputError(
+                    f"Images of camera {name} differ in size: {paths[t][c]} is {w}x{h}, "
+                    f"{paths[0][c]} {first[1]}x{first[0]}. A camera is calibrated at one "
+                    "resolution: remove or resize the images of the other size.")
     return frame_sets

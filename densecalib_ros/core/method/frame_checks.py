@@ -32,8 +32,11 @@ def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
             _check_image(image, t, name)
         shape = [(int(im.shape[1]), int(im.shape[0])) for im in frames]
         if sizes is not None and shape != sizes:
-            raise InputError(f"Image sizes change between frame sets (set 0: {sizes}, set {t}: "
-                             f"{shape}): every camera must keep one resolution.")
+            c = next(c for c in range(C) if shape[c] != sizes[c])
+            raise InputError(f"Camera {camera_names[c]}'s images change size between frame "
+                             f"sets: {sizes[c][0]}x{sizes[c][1]} in set 0, {shape[c][0]}x"
+                             f"{shape[c][1]} in set {t}. A camera is calibrated at one "
+                             "resolution: leave out the frame sets of the other size.")
         sizes = shape
         _check_distinct(frames, t, camera_names)
     return sizes
