@@ -111,9 +111,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                        "with this one and keep the better-determined calibration (none: keep "
                        "sift's)", False, {}),
     "consensus_runs": (5, "sample + SfM up to this many times with different seeds and keep the "
-                       "run that fits all keypoint matches best (stops after 3 that agree, 2 "
-                       "where the first run's focal starts all agree; 1 = one run, no focal "
-                       "hops)", False, _range(1, 20, True)),
+                       "run that fits all keypoint matches best (stops after 2 runs that agree, "
+                       "1 where its focal starts all agree and it registered every camera; 1 = "
+                       "one run, no focal hops)", False, _range(1, 20, True)),
     "share_intrinsics": (False, "one set of intrinsics for cameras of the same image size "
                          "(identical cameras: same model, lens and zoom)", False, {}),
     "initial_focal_px": (Parameter.Type.DOUBLE_ARRAY,
