@@ -136,24 +136,7 @@ def _run_ros(rig, args, out: Path) -> int:
             executor.add_node(n)
         spinner.start()
         print(f"ROS domain {domain_id}: densecalib_node + {len(drivers)} camera driver nodes")
-        if not wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 20.0):
-            log.error("the node did not subscribe to the camera topics within 20 s")
-            return 1
-        for t, images in enumerate(rig.images):
-            for _attempt in range(3):
-                for driver, image in zip(drivers, images):
-                    driver.publish_image(image, int((1 + t) * 1e9))
-                if wait_until(lambda: len(node.sync) >= t + 1, 5.0):
-                    break
-            print(f"published frame set {t + 1}/{len(rig.images)} on {len(topics)} topics")
-        print("sending a goal to the action /densecalib_node/calibrate ...")
-        goal = client.send()
-        if not goal.accepted:
-            log.error("the node rejected the goal (see its status above)")
-            return 1
-        _, result = client.result(goal, args.timeout)
-        print(f"result: success={result.success}: {result.message}")
-        if not result.success:
+        if not _calibrate_through_the_node(node, drivers, client, rig, args.timeout):
             return 1
         if not wait_until(lambda: len(listener.snapshot()["camera_info"]) == len(rig.names)
                           and listener.rig_from_optical(), 10.0):
@@ -178,6 +161,31 @@ def _run_ros(rig, args, out: Path) -> int:
             n.destroy_node()
         rclpy.try_shutdown(context=context)
         core_log.propagate = True
+
+
+def _calibrate_through_the_node(node, drivers, client, rig, timeout_s: float) -> bool:
+    """Publish the rig's frame sets from the driver nodes until the node buffered each, send a
+    goal to its ~/calibrate action and print the result; whether it calibrated."""
+    from ..ros.rig_nodes import wait_until
+
+    if not wait_until(lambda: all(d.num_subscribers() > 0 for d in drivers), 20.0):
+        log.error("the node did not subscribe to the camera topics within 20 s")
+        return False
+    for t, images in enumerate(rig.images):
+        for _attempt in range(3):
+            for driver, image in zip(drivers, images):
+                driver.publish_image(image, int((1 + t) * 1e9))
+            if wait_until(lambda: len(node.sync) >= t + 1, 5.0):
+                break
+        print(f"published frame set {t + 1}/{len(rig.images)} on {len(drivers)} topics")
+    print("sending a goal to the action /densecalib_node/calibrate ...")
+    goal = client.send()
+    if not goal.accepted:
+        log.error("the node rejected the goal (see its status above)")
+        return False
+    _, result = client.result(goal, timeout_s)
+    print(f"result: success={result.success}: {result.message}")
+    return result.success
 
 
 class _FeedbackLines:
