@@ -19,6 +19,7 @@ from typing import Iterator, Optional
 import numpy as np
 
 from ..errors import DamagedBagError, InputError
+from .bag_storage import StorageDamage, storage_files, storage_messages
 from .image_encoding import decode_compressed, decode_raw
 from .sync import ApproximateTimeSynchronizer, evenly_spaced
 
@@ -27,6 +28,10 @@ log = logging.getLogger(__name__)
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
+REPAIR_HINT = ("If the bag is whole where it was recorded, copy it again; for other tools, "
+               "`mcap recover BAG.mcap -o whole.mcap` (mcap's CLI) or `sqlite3 BAG.db3 .recover "
+               "| sqlite3 whole.db3` keeps its readable part, and `ros2 bag reindex` writes its "
+               "metadata.yaml.")
 # Trailing topic components that name the image stream rather than the camera.
 _STREAM_SUFFIXES = {"image_raw", "image_rect", "image_rect_color", "image_color", "image_mono",
                     "image", "compressed", "raw"}
@@ -107,30 +112,59 @@ def _image_connections(reader, topics: list[str]):
 def iter_image_messages(bag_path: str | os.PathLike, topics: list[str]
                         ) -> Iterator[tuple[int, int, int, str, object]]:
     """Yield (topic index, header stamp ns, bag log time ns, msgtype, deserialised message) for the
-    image messages of `topics`, in bag order (used by the node's replay)."""
+    image messages of `topics`, in bag order (used by the node's replay). mcap files, and a bag
+    rosbags cannot open (cut short: no footer, a page count past its end), are read record by
+    record (core.io.bag_storage); damage raises DamagedBagError after the messages before it."""
     if not topics:
         raise InputError("No image topics given: list the bag's image topics, one per camera.")
     store = _typestore()
-    reader = _open(bag_path)
+    files = storage_files(bag_path)
+    reader = None
     try:
-        conns = _image_connections(reader, topics)
-        index = {t: i for i, t in enumerate(topics)}
-        messages, read = reader.messages(connections=conns), 0
-        while True:
-            try:
-                conn, log_time_ns, raw = next(messages)
-                msg = store.deserialize_cdr(raw, conn.msgtype)
-                stamp = stamp_ns(msg.header)
-            except StopIteration:
-                return
-            except Exception as exc:  # storage (apsw, mcap) and CDR raise types of their own
-                raise DamagedBagError(
-                    f"Bag {bag_path} is damaged: after {read} readable image messages, "
-                    f"{type(exc).__name__}: {exc}", read) from exc
-            read += 1
-            yield index[conn.topic], stamp, int(log_time_ns), conn.msgtype, msg
+        reader = _open(bag_path)
+    except InputError as exc:
+        if files is None:
+            raise
+        log.info("%s; reading its storage files record by record", exc)
+    try:
+        if reader is not None and not (files and any(p.suffix == ".mcap" for p in files)):
+            conns = _image_connections(reader, topics)
+            source = ((c.topic, c.msgtype, t, raw)
+                      for c, t, raw in reader.messages(connections=conns))
+        else:
+            if reader is not None:
+                _image_connections(reader, topics)
+            source = (m for path in files for m in storage_messages(path))
+        yield from _deserialised(source, bag_path, topics, store)
     finally:
-        reader.close()
+        if reader is not None:
+            reader.close()
+
+
+def _deserialised(source, bag_path, topics: list[str], store):
+    """iter_image_messages' messages of the (topic, msgtype, log time, raw) in `source`."""
+    index = {t: i for i, t in enumerate(topics)}
+    read = 0
+    while True:
+        try:
+            topic, msgtype, log_time_ns, raw = next(source)
+            if topic not in index:
+                continue
+            if msgtype not in IMAGE_TYPES:
+                raise InputError(f"Topic {topic} in bag {bag_path} has type {msgtype}, not an "
+                                 "image.")
+            msg = store.deserialize_cdr(raw, msgtype)
+            stamp = stamp_ns(msg.header)
+        except (StopIteration, InputError) as exc:
+            if isinstance(exc, InputError):
+                raise
+            return
+        except Exception as exc:  # storage (apsw, mcap, ours) and CDR raise types of their own
+            why = str(exc) if isinstance(exc, StorageDamage) else f"{type(exc).__name__}: {exc}"
+            raise DamagedBagError(f"Bag {bag_path} is damaged ({why}); {read} image messages "
+                                  "of the topics were read before it", read) from exc
+        read += 1
+        yield index[topic], stamp, int(log_time_ns), msgtype, msg
 
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
@@ -218,7 +252,8 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
             raise InputError(f"{damage}; no whole frame set before it. Record the rig again, "
                              "or copy the bag from where it was recorded.") from damage
         readable = damage.messages_read
-        log.warning("%s. Calibrating from the %d frame sets before it.", damage, len(sets))
+        log.warning("%s. Calibrating from the %d frame sets before it. %s", damage, len(sets),
+                    REPAIR_HINT)
     if not sets:
         raise InputError(f"No synchronised frame sets in {bag_path} for topics {topics} with "
                          f"slop {slop_s} s (messages per topic: {counts}); check the topics' "
