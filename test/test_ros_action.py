@@ -71,6 +71,7 @@ def stored_state(listener, folder):
 def test_a_goal_reports_feedback_and_its_cameras_and_one_runs_at_a_time(ros, rig, tmp_path):
     node = ros.densecalib(tmp_path / "calib")
     client, other, caller = ros.goal_client(), ros.goal_client(), ros.caller()
+    listener = ros.listener(node)
     try:
         publish_frame_sets(ros, node, rig.images)
         goal = Calibrate.Goal(consensus_runs=2, max_frame_sets=2)
@@ -78,8 +79,10 @@ def test_a_goal_reports_feedback_and_its_cameras_and_one_runs_at_a_time(ros, rig
         start = time.monotonic()
         assert handle.accepted
         assert wait_until(lambda: node.busy, 5.0)
-        # one goal at a time: a second goal is rejected, and the Trigger says busy
+        # one goal at a time: a second goal is rejected (why: on ~/status), the Trigger says busy
         assert not other.send(Calibrate.Goal()).accepted
+        assert wait_until(lambda: "calibrate goal rejected: a calibration is already running "
+                          "(action goal)" in listener.snapshot()["status"], 5.0)
         busy = caller.call(10.0)
         assert not busy.success and busy.message.startswith(
             "busy: a calibration is already running (action goal)"), busy.message
@@ -121,7 +124,7 @@ def test_a_goal_reports_feedback_and_its_cameras_and_one_runs_at_a_time(ros, rig
         assert late.snapshot()["status"][0].startswith("done: calibrated 4/4 cameras")
         ros.remove(late)
     finally:
-        for n in (client, other, caller, node):
+        for n in (client, other, caller, listener, node):
             ros.remove(n)
 
 
