@@ -91,10 +91,8 @@ def run(args: argparse.Namespace) -> int:
                     continue
                 source = rig.cameras[name].intrinsics
                 target, target_from_source = targets[name]
-                # made once the first image or video is known to be of the calibrated size:
-                # maps for a size other than the images' could be of any size
                 maps = functools.cache(lambda s=source, t=target, r=target_from_source:
-                                       undistortion_maps(s, t, r))
+                                       undistortion_maps(s, t, r))  # once the size is checked
                 out_rig.cameras[name].intrinsics = target
                 if args.videos:
                     dest = tmp / f"{name}{VIDEO_CODECS[args.codec]}"
