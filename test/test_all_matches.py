@@ -8,7 +8,7 @@ from densecalib_ros.core.method.all_matches import (RAW_MATCH_MAX_GATE_PX, keypo
                                                     refine_on_tracks)
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.pipeline import calibrate_from_tracks
+from densecalib_ros.core import calibrate_from_tracks
 from densecalib_ros.core.method.reconstruction import SfMState, reprojection_errors
 from densecalib_ros.core.types import SiteMatches, SiteMatchSet
 
@@ -77,8 +77,7 @@ def test_refinement_on_all_matches_ties_in_a_camera_the_sampled_tracks_leave_loo
     matches = gt_tracks(cams, poses, num_points=1000, noise_px=0.3, outlier_frac=0.15, seed=22)
     sizes = [(c.width, c.height) for c in cams]
     focal = np.array([c.params[0] for c in cams])
-    config = make_config("regular", "incremental")
-    config.sfm.num_threads = 1
+    config = make_config("regular", "incremental", sfm__num_threads=1)
 
     loose = calibrate_from_tracks(sampled, sizes, names, config, focal_px=focal)
     refined = calibrate_from_tracks(sampled, sizes, names, config, focal_px=focal,
@@ -107,8 +106,7 @@ def test_raw_matches_are_gated_tighter_than_the_fisheye_b_err():
     matches.xy_px[bad, cam_of_bad] += 40.0 * np.stack([np.cos(angle), np.sin(angle)], axis=1)
     state = SfMState.create(matches, cams)
     state.cam_from_world = [T.copy() for T in poses]
-    config = make_config("fisheye", "incremental").sfm
-    config.num_threads = 1
+    config = make_config("fisheye", "incremental", sfm__num_threads=1).sfm
     assert config.b_err_px > 40.0 > RAW_MATCH_MAX_GATE_PX
 
     refined = refine_on_tracks(state, matches, ["a", "b", "c", "d"], config)

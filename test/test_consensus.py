@@ -68,7 +68,7 @@ def test_runs_that_leave_the_same_camera_out_disagree_only_on_the_cameras_they_p
 
 
 def test_cameras_not_registered_are_named_with_their_best_partner_and_what_would_place_them():
-    from densecalib_ros.core.calibration_result import unregistered_warning
+    from densecalib_ros.core.stages.record import unregistered_warning
     from densecalib_ros.core.types import RigQuality
 
     assert unregistered_warning(_rig()) is None

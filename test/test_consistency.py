@@ -15,7 +15,7 @@ from densecalib_ros.cli import main
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.monitor.consistency import best_transfer_per_camera, check_calibration
 from densecalib_ros.core.io.export import calibration_to_dict
-from densecalib_ros.core.pipeline import match_frame_sets
+from densecalib_ros.core import match_frame_sets
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
 TOL = 2.0

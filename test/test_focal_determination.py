@@ -16,7 +16,7 @@ from densecalib_ros.core.method.focal_determination import (WEAK_FOCAL_PREFIX,
                                                             weak_focal_fractions,
                                                             weak_focal_warning)
 from densecalib_ros.core.metrics import mean_focal_px
-from densecalib_ros.core.pipeline import run_calibration
+from densecalib_ros.core import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from densecalib_ros.core.types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera,
                                        RigQuality)

@@ -7,7 +7,7 @@ from densecalib_ros.core.config import SfMConfig, make_config
 from densecalib_ros.core.method.all_matches import keypoint_tracks, refine_on_tracks
 from densecalib_ros.core.method.multistart import HELD_OUT_TRUNCATION_PX, held_out_cost
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.pipeline import match_frame_sets
+from densecalib_ros.core import match_frame_sets
 from densecalib_ros.core.robust.focal_hops import _hop_cameras, _kicked, _points_without, hop_focals
 from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.synthetic import RigSpec, generate_rig

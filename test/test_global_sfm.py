@@ -1,6 +1,7 @@
 """Global SfM (core/method/global_sfm.py) on tracks made from ground truth (exact projections +
 noise + outliers): real pycolmap rotation averaging, global positioning, triangulation and BA."""
 import os
+from dataclasses import replace
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -16,7 +17,7 @@ from densecalib_ros.core.method.global_sfm import (CENTRE_GRID, gauge_scores,
 from densecalib_ros.core.method.incremental import initial_intrinsics
 from densecalib_ros.core.metrics import evaluate_calibration, relative_pose_errors
 from densecalib_ros.core.calibration_result import rig_from_state
-from densecalib_ros.core.pipeline import calibrate_from_tracks
+from densecalib_ros.core import calibrate_from_tracks
 from densecalib_ros.core.method.reconstruction import SfMState, reprojection_errors
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
@@ -60,10 +61,8 @@ def perturbed(cams, poses, rot_deg=2.0, move_frac=0.05, focal_frac=0.05, seed=1)
 
 
 def sfm_config(preset, **stages):
-    cfg = make_config(preset, "global").sfm
-    cfg.num_threads = 1
-    cfg.global_stage_iterations.update(stages)
-    return cfg
+    cfg = make_config(preset, "global", sfm__num_threads=1).sfm
+    return replace(cfg, global_stage_iterations={**cfg.global_stage_iterations, **stages})
 
 
 def test_rotation_averaging_recovers_truth_from_exact_tracks():
@@ -157,7 +156,7 @@ def test_global_from_rotation_averaging_recovers_truth(model, preset):
     tracks = gt_tracks(cams, poses, seed=7)
     focal = np.array([c.params[0] for c in cams]) * np.array([1.04, 0.97, 1.05, 0.96, 1.02])
     cfg = sfm_config(preset, distortion=200)
-    cfg.global_multistart = False  # the rotation-averaging start on its own
+    cfg = replace(cfg, global_multistart=False)  # the rotation-averaging start on its own
     init = initial_intrinsics([(c.width, c.height) for c in cams], focal, cfg.camera_model)
     result = run_global(tracks, init, NAMES, cfg)
     assert result.failed == []
@@ -181,12 +180,12 @@ def test_recalibration_from_previous_matches_from_scratch():
     gt = gt_calibration(NAMES, cams, poses)
     previous = gt_calibration(NAMES, *perturbed(cams, poses, seed=2))
     cfg = sfm_config("regular", distortion=200)
-    cfg.global_init = "previous"
+    cfg = replace(cfg, global_init="previous")
     init = initial_intrinsics([(c.width, c.height) for c in cams],
                               [c.params[0] * 1.05 for c in cams], cfg.camera_model)
     recal = run_global(tracks, init, NAMES, cfg, previous=previous)
     assert recal.quality.global_init == "previous"
-    cfg.global_init = "rotation_averaging"
+    cfg = replace(cfg, global_init="rotation_averaging")
     scratch = run_global(tracks, init, NAMES, cfg)
     m_recal = evaluate_calibration(rig_from_state(recal.state, NAMES, []), gt)
     m_scratch = evaluate_calibration(rig_from_state(scratch.state, NAMES, []), gt)
@@ -194,7 +193,7 @@ def test_recalibration_from_previous_matches_from_scratch():
     assert m_recal["auc3"] >= m_scratch["auc3"] - 1.0
     # The previous calibration must cover every camera.
     del previous.cameras["top"]
-    cfg.global_init = "previous"
+    cfg = replace(cfg, global_init="previous")
     with pytest.raises(InputError, match="top"):
         run_global(tracks, init, NAMES, cfg, previous=previous)
     with pytest.raises(InputError, match="no previous calibration"):
@@ -216,8 +215,7 @@ def test_pipeline_global_dispatch_reports_stages():
     cams, poses = gt_rig(4, seed=17)
     names = NAMES[:4]
     tracks = gt_tracks(cams, poses, num_points=1500, seed=17)
-    config = make_config("regular", "global")
-    config.sfm.num_threads = 1
+    config = make_config("regular", "global", sfm__num_threads=1)
     result = calibrate_from_tracks(tracks, [(c.width, c.height) for c in cams], names, config,
                                    focal_px=np.array([c.params[0] * 1.03 for c in cams]))
     quality = result.rig.quality
@@ -243,8 +241,8 @@ def test_multistart_keeps_the_start_with_the_lower_truncated_cost():
     assert both.quality.global_init in ("rotation_averaging", "incremental")
     costs = {}
     for start in ("rotation_averaging", "incremental"):
-        single = sfm_config("regular", distortion=200)
-        single.global_init, single.global_multistart = start, False
+        single = replace(sfm_config("regular", distortion=200), global_init=start,
+                         global_multistart=False)
         run = run_global(tracks, init, NAMES, single)
         costs[start] = truncated_cost(run.state, cost_truncation_px(single, tracks.num_cameras))
     kept = both.quality.global_init

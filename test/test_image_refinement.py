@@ -9,7 +9,7 @@ from densecalib_ros.core.config import make_config
 from densecalib_ros.core.method.dense_matches import align_patches, local_affine, reference_points
 from densecalib_ros.core.method.patch_alignment import sample_bicubic
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.pipeline import run_calibration
+from densecalib_ros.core import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
@@ -98,8 +98,7 @@ def test_patch_alignment_is_subpixel_against_the_truth(real_rig):
 def test_real_lenses_calibrate_to_a_tenth_of_a_degree(real_rig):
     """End to end: off-centre principal points estimated, the rig within 0.15 deg (holding the
     point at the image centre, as the calibration did before this stage, it was ~1 deg)."""
-    config = make_config("regular", "incremental", consensus_runs=1)
-    config.sfm.num_threads = 1
+    config = make_config("regular", "incremental", consensus_runs=1, sfm__num_threads=1)
     result = run_calibration(real_rig.images, real_rig.names, config)
     metrics = evaluate_calibration(result.rig, real_rig.ground_truth())
     assert metrics["num_registered"] == 5
@@ -130,7 +129,7 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
     from densecalib_ros.core.method.all_matches import keypoint_tracks
     from densecalib_ros.core.method.dense_matches import DenseAhead, dense_tracks
     from densecalib_ros.core.method.reconstruction import SfMState
-    from densecalib_ros.core.pipeline import match_frame_sets
+    from densecalib_ros.core import match_frame_sets
 
     images, C = real_rig.images, len(real_rig.names)
     seeds = keypoint_tracks(match_frame_sets(images, make_config("regular")), C)
@@ -157,27 +156,34 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
 
 def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_images(real_rig):
     """Where the consensus runs disagree, the runner-up is refined on the dense correspondences as
-    the kept rig was (pipeline._refine_runner_up): a runner-up in the same valley of the keypoint
-    matches' fit (here: the rig adjusted on them with every focal held 8 % long, 2.3 deg from the
-    kept one, more than the runs' early stop allows) comes out at the kept rig, so the
-    disagreement no longer stands and no more runs are needed (pipeline._no_more_runs); one the
-    images do not support (two cameras' poses exchanged) leaves both standing."""
-    from densecalib_ros.core import pipeline
-    from densecalib_ros.core.calibration_result import result_with_state
-    from densecalib_ros.core.method.all_matches import keypoint_tracks
-    from densecalib_ros.core.method.reconstruction import BAStage, bundle_adjust
-    from densecalib_ros.core.method.multistart import AGREEMENT_DEG
-    from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG, rig_disagreement_deg
+    the kept rig was (stages.refinement.RefinedRuns): a runner-up in the same valley of the
+    keypoint matches' fit (here: the rig adjusted on them with every focal held 8 % long, 2.3 deg
+    from the kept one, more than the runs' early stop allows) comes out at the kept rig, so the
+    disagreement no longer stands and no more runs are needed (ConsensusRuns' early stop); one
+    the images do not support (two cameras' poses exchanged) leaves both standing."""
+    from dataclasses import replace
 
-    images, names = real_rig.images, real_rig.names
-    config = make_config("regular", "incremental", consensus_runs=1, refine_on_images=False)
-    config.sfm.num_threads = 1
-    sizes, _, _, match_sets = pipeline.checked_and_matched(images, names, config)
-    found = pipeline.calibrate_from_matches(match_sets, sizes, names, config)
-    match_tracks = keypoint_tracks(match_sets, len(names), seed=config.sampling.seed)
-    refined_runs = pipeline._RefinedRuns(images, names, config, match_tracks, (), None, None)
-    kept, _ = pipeline._refined_on_images(found, refined_runs, names, config, None)
-    assert kept.rig.quality.image_refinement_tracks is not None
+    from densecalib_ros.core.calibration_result import result_with_state
+    from densecalib_ros.core.method.multistart import AGREEMENT_DEG
+    from densecalib_ros.core.method.reconstruction import BAStage, bundle_adjust
+    from densecalib_ros.core.progress import Progress
+    from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG, rig_disagreement_deg
+    from densecalib_ros.core.robust.consensus_runs import ConsensusRuns
+    from densecalib_ros.core.stages.attempt import Calibrator
+    from densecalib_ros.core.stages.inputs import prepare
+    from densecalib_ros.core.stages.matching import match_rig
+    from densecalib_ros.core.stages.refinement import RefinedRuns
+
+    names = real_rig.names
+    config = make_config("regular", "incremental", consensus_runs=1, refine_on_images=False,
+                         sfm__num_threads=1)
+    images = prepare(real_rig.images, names, config)
+    matched = match_rig(images, images.config, Progress())
+    found = Calibrator(images, matched, images.config, Progress()).calibrate().result
+    found = replace(found, settled_starts=None)  # the runs below are judged on their rigs alone
+    refined_runs = RefinedRuns(images, matched, images.config, None, None)
+    kept, record = refined_runs.refine(found, Progress())
+    assert record is not None and record.num_tracks > 0
 
     long = found.state.copy()
     for camera in long.intrinsics:
@@ -186,28 +192,28 @@ def test_runs_apart_on_the_keypoint_matches_are_judged_again_refined_on_the_imag
     swapped = found.state.copy()
     swapped.cam_from_world[1], swapped.cam_from_world[3] = \
         swapped.cam_from_world[3], swapped.cam_from_world[1]
+    five = images.config.with_options(consensus_runs=5)
     for other, meets in ((long, True), (swapped, False)):
-        runner_up = result_with_state(found, other, names, config)
+        runner_up = result_with_state(found, other, names)
         apart = rig_disagreement_deg(kept.rig, runner_up.rig, names)
-        rig = kept.rig
-        rig.quality.consensus_disagreement_deg = WARN_DISAGREEMENT_DEG + 1.0  # as runs apart say
-        rig.quality.consensus_refined_disagreement_deg = None
-        pipeline._refine_runner_up(kept, pipeline.Consensus(found, runner_up, 1, "apart"),
-                                   refined_runs, names, None)
-        refined = rig.quality.consensus_refined_disagreement_deg
+        refined = rig_disagreement_deg(kept.rig, refined_runs.rig(runner_up), names) \
+            if refined_runs.rig(runner_up) is not None else None
         if meets:
             assert apart > 0.3 and refined < 0.05, (apart, refined)
         else:
-            assert refined is None or refined > 3.0, (apart, refined)
-        assert pipeline._runs_agree(rig) == meets
-        # The consensus's early stop judges runs apart the same way (pipeline._no_more_runs):
-        # where they meet refined, no more runs, with their disagreement refined; each run is
-        # refined once (the kept run's refinement is the one the calibration used).
-        stop, both = pipeline._no_more_runs([found, runner_up], names, config, refined_runs)
-        assert stop == meets and (both is not None) == meets, both
+            assert refined is None or refined > WARN_DISAGREEMENT_DEG, (apart, refined)
+        # The consensus's early stop judges runs apart the same way: where they meet refined,
+        # no more runs, with their disagreement refined; where they do not, all five are made.
+        runs = ConsensusRuns(lambda seed, starts, progress: (found, runner_up)[seed % 2], five,
+                             names, Progress(), refined_runs.disagreement_deg).run()
+        assert len(runs.results) == (2 if meets else 5)
+        assert (runs.refined_deg is not None) == meets, runs.refined_deg
         if meets:
-            assert both.max() < AGREEMENT_DEG
-        assert not pipeline._no_more_runs([found, runner_up], names, config)[0]
+            assert runs.refined_deg.max() < AGREEMENT_DEG
+        unrefined = ConsensusRuns(lambda seed, starts, progress: (found, runner_up)[seed % 2],
+                                  five, names, Progress()).run()
+        assert len(unrefined.results) == 5
+        # each run is refined once (the kept run's refinement is the one the calibration used)
         assert refined_runs.refinement(found) is refined_runs.refinement(found)
 
 

@@ -89,8 +89,7 @@ def test_incremental_recovers_ground_truth(model, preset):
     names = ["cam_a", "cam_b", "cam_c", "cam_d", "cam_e"]
     cams, poses = gt_rig(5, model=model, seed=7)
     tracks = gt_tracks(cams, poses, seed=7)
-    cfg = make_config(preset).sfm
-    cfg.num_threads = 1
+    cfg = make_config(preset, sfm__num_threads=1).sfm
     init = initial_intrinsics([(c.width, c.height) for c in cams], noisy_focals(cams),
                               cfg.camera_model)
     result = run_incremental(tracks, init, names, cfg)
@@ -259,8 +258,7 @@ def test_camera_without_overlap_is_named_as_failed():
     keep = (~np.isnan(obs[..., 0])).sum(axis=1) >= 2
     tracks = Tracks(obs[keep], tracks.cycle_order[keep], tracks.score[keep],
                     tracks.time_index[keep])
-    cfg = make_config("regular").sfm
-    cfg.num_threads = 1
+    cfg = make_config("regular", sfm__num_threads=1).sfm
     init = initial_intrinsics([(c.width, c.height) for c in cams], noisy_focals(cams), "RADIAL")
     result = run_incremental(tracks, init, names, cfg)
     rig = rig_from_state(result.state, names, result.failed)

@@ -16,8 +16,7 @@ def rig():
 
 
 def _request(rig, **kwargs):
-    config = make_config("regular", consensus_runs=1)
-    config.sfm.num_threads = 1
+    config = make_config("regular", consensus_runs=1, sfm__num_threads=1)
     names = [f"cam{c}" for c in range(len(rig.images[0]))]
     return CalibrationRequest(rig.images, names, config, {"source": "test"}, **kwargs)
 

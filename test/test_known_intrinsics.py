@@ -21,7 +21,7 @@ from densecalib_ros.core.method.known_intrinsics import (check_known_intrinsics,
                                                          read_known_intrinsics)
 from densecalib_ros.core.method.plausibility import UNLIKE_LENS_PREFIX
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.pipeline import run_calibration
+from densecalib_ros.core import run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 from densecalib_ros.core.types import CameraIntrinsics
 

@@ -6,7 +6,7 @@ from densecalib_ros.core.config import make_config
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.method.matching import create_matcher
 from densecalib_ros.core.method.new_content import new_content_regions
-from densecalib_ros.core.pipeline import calibrate_rig, match_frame_sets
+from densecalib_ros.core import calibrate_rig, match_frame_sets
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 

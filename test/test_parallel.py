@@ -32,8 +32,7 @@ def test_the_multistart_gives_the_same_rig_and_log_on_one_core_and_on_several(ca
     focals = np.array([c.params[0] * 0.8 for c in cams])  # a start the multi-start must leave
     results = []
     for jobs in (1, 2):
-        cfg = make_config("regular").sfm
-        cfg.num_threads = jobs
+        cfg = make_config("regular", sfm__num_threads=jobs).sfm
         init = initial_intrinsics([(c.width, c.height) for c in cams], focals, cfg.camera_model)
         messages = []
         caplog.clear()

@@ -12,7 +12,7 @@ from densecalib_ros.core.errors import (CalibrationError, InputError, NotEnoughC
 from densecalib_ros.core.method.matching import create_matcher
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.method.focal_start import start_focals
-from densecalib_ros.core.pipeline import _calibrated, calibrate_rig, match_frame_sets, run_calibration
+from densecalib_ros.core import calibrate_rig, match_frame_sets, run_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
 
@@ -96,19 +96,20 @@ def test_rig_mixing_lenses_gets_each_cameras_lens_model():
 
 
 def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
-    from densecalib_ros.core.config import resolve_camera_lenses
-
+    """A configuration resolved for its cameras (PipelineConfig.for_cameras) gives each camera its
+    lens's model, and a rig with a fisheye camera the fisheye preset's SfM options."""
     names = ["a", "b", "c"]
-    plain = make_config("regular")
-    assert resolve_camera_lenses(plain, names) is plain and plain.sfm.models(3) == ["RADIAL"] * 3
-    mixed = resolve_camera_lenses(make_config("regular", cameras__lens={"c": "fisheye"}), names)
+    plain = make_config("regular").for_cameras(names)
+    assert plain.camera_names == tuple(names) and plain.sfm.models(3) == ["RADIAL"] * 3
+    mixed = make_config("regular", cameras__lens={"c": "fisheye"}).for_cameras(names)
     assert mixed.sfm.models(3) == ["RADIAL", "RADIAL", "RADIAL_FISHEYE"]
     fisheye = make_config("fisheye")
     for name in ("f_err_px", "b_err_px", "refine_to_model", "refine_principal_point"):
         assert getattr(mixed.sfm, name) == getattr(fisheye.sfm, name), name
-    assert resolve_camera_lenses(mixed, names) is mixed  # idempotent
-    inverse = resolve_camera_lenses(
-        make_config("fisheye", "global", cameras__lens={"a": "pinhole"}), names)
+    assert mixed.for_cameras(names) is mixed  # resolved once
+    with pytest.raises(InputError, match="resolved for the cameras a, b, c"):
+        mixed.for_cameras(["a", "b"])
+    inverse = make_config("fisheye", "global", cameras__lens={"a": "pinhole"}).for_cameras(names)
     assert inverse.sfm.models(3) == ["RADIAL", "RADIAL_FISHEYE", "RADIAL_FISHEYE"]
     assert inverse.sfm.b_err_px is None  # the global preset's
     # Whose principal point the final adjustment refines (and whose sigma core.method.uncertainty
@@ -122,9 +123,30 @@ def test_camera_lens_gives_per_camera_models_and_the_fisheye_sfm_options():
     assert mixed.sfm.pair_f_err_px(0, 1) == 10.0 and mixed.sfm.pair_f_err_px(0, 2) is None
     assert inverse.sfm.pair_f_err_px(0, 1) is None and inverse.sfm.pair_f_err_px(1, 2) is None
     with pytest.raises(InputError, match="Unknown lens"):
-        resolve_camera_lenses(make_config(cameras__lens={"a": "tele"}), names)
+        make_config(cameras__lens={"a": "tele"}).for_cameras(names)
     with pytest.raises(InputError, match="unknown camera"):
-        resolve_camera_lenses(make_config(cameras__lens={"z": "fisheye"}), names)
+        make_config(cameras__lens={"z": "fisheye"}).for_cameras(names)
+
+
+def test_a_configuration_is_frozen_and_checked_where_a_calibration_starts():
+    """Options are set when a configuration is made (make_config, with_options), never on one;
+    values no stage can run with are refused where the calibration starts, naming the option."""
+    import dataclasses
+
+    config = make_config("regular")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        config.sampling.seed = 3
+    seeded = config.with_options(sampling__seed=3, matcher="asift")
+    assert (seeded.sampling.seed, seeded.matcher) == (3, "asift") and config.sampling.seed == 0
+    with pytest.raises(InputError, match="Unknown option 'sampling__sed'"):
+        config.with_options(sampling__sed=3)
+    for option, value in (("consensus_runs", 0), ("sampling__max_cycle_order", 5),
+                          ("sfm__f_err_px", -1.0), ("max_image_side_px", 10.5),
+                          ("sfm__global_init", "nowhere")):
+        with pytest.raises(InputError, match=f"Option {option} = "):
+            config.with_options(**{option: value}).for_cameras(["a", "b"])
+    with pytest.raises(InputError, match="Unknown camera model 'RADIAL_X'"):
+        config.with_options(sfm__camera_model="RADIAL_X").check()
 
 
 def test_loaded_matcher_is_reused_and_result_is_deterministic(rig):
@@ -250,7 +272,10 @@ def test_a_settled_first_run_that_registered_every_camera_is_the_only_one_and_si
     """An easy rig: every focal start that fits about as well ends in one rig (settled) and every
     camera is registered, so another sample could only repeat the first run: no second run. A
     settled run that left a camera out, or one that did not settle, is checked by more runs."""
-    from densecalib_ros.core.pipeline import _settled_whole
+    from dataclasses import replace
+
+    from densecalib_ros.core.progress import Progress
+    from densecalib_ros.core.robust.consensus_runs import ConsensusRuns
     from densecalib_ros.core.products.report import overall_lines
 
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
@@ -262,9 +287,15 @@ def test_a_settled_first_run_that_registered_every_camera_is_the_only_one_and_si
     assert len(q.consensus_settled_starts) == 2
     assert not any(m.startswith("consensus run 2") for m in lines)
     assert any("one run: every focal start" in line for line in overall_lines(result.rig))
-    assert _settled_whole([result], q.consensus_settled_starts, rig.names)
-    assert not _settled_whole([result], q.consensus_settled_starts, rig.names + ["cam_left_out"])
-    assert not _settled_whole([result], None, rig.names)
+    # The consensus policy on that run (each run gives the same result): settled and whole, it
+    # alone answers; a camera left out, or a multi-start that did not settle, takes a second run
+    # (which agrees, so no third).
+    unsettled = replace(result, settled_starts=None)
+    for run, names, runs_made in ((result, rig.names, 1),
+                                  (result, rig.names + ["cam_left_out"], 2),
+                                  (unsettled, rig.names, 2)):
+        runs = ConsensusRuns(lambda seed, starts, progress: run, config, names, Progress())
+        assert len(runs.run().results) == runs_made, names
     single = run_calibration([rig.images[0]], rig.names,
                              make_config("regular", matcher="sift", sfm__num_threads=1,
                                          consensus_runs=1))
@@ -348,25 +379,41 @@ def test_a_camera_the_first_sift_run_leaves_out_goes_to_asift_after_that_one_run
 
 def test_where_asift_does_no_better_sifts_runs_are_completed_as_without_it(rig, with_stray):
     """The same sift matches, and images in which asift finds nothing (uniform grey): asift's
-    leg gives no calibration, so sift's consensus runs are completed after its one run, and the
-    kept rig is the consensus's of the test above (two runs that agree; the grey images leave
-    the dense refinement nothing, so the rig is kept as the matches found it)."""
+    leg gives no calibration, so sift's consensus runs go on after its one run (not made again),
+    and the kept rig is the consensus's of the test above (two runs that agree; the grey images
+    leave the dense refinement nothing, so the rig is kept as the matches found it)."""
+    from densecalib_ros.core.progress import Progress
+    from densecalib_ros.core.robust.second_matcher import with_second_matcher
+    from densecalib_ros.core.stages.attempt import Calibrator
+    from densecalib_ros.core.stages.inputs import prepare
+    from densecalib_ros.core.stages.matching import match_rig
+
     frames, names = with_stray
     config = make_config("regular", matcher="sift", sfm__num_threads=1)
-    match_sets = match_frame_sets(frames, config, camera_names=names)
-    grey = [[np.full_like(image, 128) for image in frames[0]]]
+    grey = prepare([[np.full_like(image, 128) for image in frames[0]]], names, config)
     lines = []
-    result, kept_config = _calibrated(grey, names, config, [(640, 480)] * 5, [], match_sets,
-                                      None, lines.append)
-    q = result.rig.quality
-    assert kept_config.matcher == "sift" and q.rematch == {
+    progress = Progress(on_message=lines.append)
+    calibrators = {"sift": Calibrator(grey, match_rig(prepare(frames, names, config),
+                                                      grey.config, progress),
+                                      grey.config, progress)}
+
+    def calibrate(name, until):
+        if name not in calibrators:
+            other = grey.config.with_options(matcher=name)
+            calibrators[name] = Calibrator(grey, match_rig(grey, other, progress), other,
+                                           progress)
+        return calibrators[name].calibrate(until)
+    kept, rematch = with_second_matcher(calibrate, grey.config, names, True, progress.say)
+    q = kept.rig.quality
+    assert kept.config.matcher == "sift" and rematch.record() == {
         "first": "sift", "first_result": "stray not registered", "second": "asift",
         "second_result": "no calibration came out", "kept": "sift"}
     done = lines.index("asift: no better determined; completing sift's consensus runs")
-    assert sum(m.startswith("consensus run 1 of up to 5") for m in lines[done:]) == 1
+    assert not any(m.startswith("consensus run 1 of up to 5") for m in lines[done:])
+    assert sum(m.startswith("consensus run 2 of up to 5") for m in lines[done:]) == 1
     assert q.consensus_runs == 2 and q.consensus_disagreement_deg < 1.0
-    assert result.rig.failed_cameras == ["stray"] and len(result.rig.cameras) == 4
-    assert evaluate_calibration(result.rig, rig.ground_truth())["auc3"] >= 80.0
+    assert kept.rig.failed_cameras == ["stray"] and len(kept.rig.cameras) == 4
+    assert evaluate_calibration(kept.rig, rig.ground_truth())["auc3"] >= 80.0
 
 
 def test_known_focal_lengths_are_the_start_and_bad_ones_are_refused(rig):

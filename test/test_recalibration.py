@@ -10,7 +10,7 @@ import pytest
 from densecalib_ros.core.monitor.change import calibration_change
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.metrics import evaluate_calibration
-from densecalib_ros.core.pipeline import run_calibration
+from densecalib_ros.core import run_calibration
 from densecalib_ros.core.recalibration import CalibrationRejectedError, recalibrate
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 from densecalib_ros.core.types import CameraIntrinsics, RigCamera

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.monitor.consistency import (check_calibration, fits_per_frame_set,
                                                      sets_since_change)
-from densecalib_ros.core.pipeline import match_frame_sets
+from densecalib_ros.core import match_frame_sets
 from densecalib_ros.core.io.reference_view_files import (REFERENCE_MAX_SIDE_PX, latest_views,
                                                          read_reference_views,
                                                          write_reference_views)

@@ -31,7 +31,7 @@ from densecalib_ros.core.io.camera_info import camera_info_yaml
 from densecalib_ros.core.io.export import read_calibration, read_saved_model
 from densecalib_ros.core.products.floor import reconstruction_points_in_rig  # noqa: E402
 from densecalib_ros.core.metrics import relative_pose_errors  # noqa: E402
-from densecalib_ros.core.pipeline import calibrate_rig  # noqa: E402
+from densecalib_ros.core import calibrate_rig  # noqa: E402
 from densecalib_ros.core.products.scale import camera_distance  # noqa: E402
 from densecalib_ros.core.synthetic import RigSpec, generate_rig  # noqa: E402
 from densecalib_ros.core.types import CameraIntrinsics  # noqa: E402

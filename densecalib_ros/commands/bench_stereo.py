@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import make_config
     from ..eval.datasets import default_data_dir
     from ..core.io.export import read_calibration
-    from ..core.pipeline import run_calibration
+    from ..core import run_calibration
     from ..core.products.scale import with_known_baseline
     from ..core.products.stereo_checkerboard import evaluate, target_calibration
 

@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import make_config
     from ..core.io.export import read_calibration, reference_views_of
     from ..core.monitor.reference_views import check_verdict, compare_with_reference_views
-    from ..core.pipeline import match_frame_sets
+    from ..core import match_frame_sets
 
     try:
         rig = read_calibration(args.calibration)

@@ -75,7 +75,7 @@ def _run_offline(rig, config, out: Path) -> int:
     from ..core.io.export import write_calibration_files
     from ..core.io.safe_write import replace_directory_atomic
     from ..core.io.reference_view_files import latest_views
-    from ..core.pipeline import run_calibration
+    from ..core import run_calibration
 
     try:
         result = run_calibration(rig.images, rig.names, config)

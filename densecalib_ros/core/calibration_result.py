@@ -1,5 +1,6 @@
-"""What a calibration returns (CalibrationResult) and how an SfM state becomes one: the rig in its
-frame and units (rig_from_state), the COLMAP model saved with it, the warnings kept in it.
+"""What a calibration returns (CalibrationResult, with what its run's SfM did: SfMRecord) and how
+an SfM state becomes one: the rig in its frame and units (rig_from_state), the COLMAP model
+saved with it.
 
 Rig frame: the reference camera is the first camera of `camera_names` that was registered, so the
 rig frame stays the same camera across recalibrations (unless that camera fails). Translations
@@ -15,16 +16,31 @@ from typing import Optional, Sequence
 import numpy as np
 import pycolmap
 
-from .config import PipelineConfig
 from .errors import NotEnoughCamerasError
-from .method.known_intrinsics import given_intrinsics_fit
 from .method.reconstruction import (SfMState, build_reconstruction, camera_quality,
                                     reprojection_errors)
 from .products.scale import move_model_to_rig_frame
-from .progress import Progress
 from .types import RigCalibration, RigCamera, RigQuality, Tracks
 
 log = logging.getLogger(__name__)
+
+
+@dataclass
+class SfMRecord:
+    """What one run's SfM did, for the quality record (core.stages.record): the pipeline and
+    preset, its time, the cameras in the order it registered them, the keypoint-match tracks it
+    was refined on and the cameras that refinement moved (core.robust.placement), the global
+    pipeline's start, gauge camera, outliers and residuals per stage (else {}), and how given
+    intrinsics fit the scene (core.method.known_intrinsics; None without any)."""
+
+    pipeline: str
+    preset: str
+    sfm_runtime_s: float
+    view_order: list
+    match_tracks: int = 0
+    moved_cameras: list = field(default_factory=list)
+    global_sfm: dict = field(default_factory=dict)
+    given_intrinsics_fit: Optional[dict] = None
 
 
 @dataclass
@@ -39,6 +55,7 @@ class CalibrationResult:
     reconstruction: pycolmap.Reconstruction
     tracks: Tracks  # the tracks SfM ran on (after the F_err filter)
     focal_init_px: np.ndarray  # (C,) initial focal lengths
+    sfm: Optional[SfMRecord] = None
     stats: dict = field(default_factory=dict)
     # The final SfM state (on the keypoint-match tracks when the rig was refined on them): what
     # a later search (core.robust.focal_hops) continues from.
@@ -82,16 +99,12 @@ def rig_from_state(state: SfMState, camera_names: Sequence[str], failed: Sequenc
                           quality=overall)
 
 
-def result_with_state(result: CalibrationResult, state: SfMState, camera_names: Sequence[str],
-                config: PipelineConfig) -> CalibrationResult:
+def result_with_state(result: CalibrationResult, state: SfMState,
+                      camera_names: Sequence[str]) -> CalibrationResult:
     """`result` with its rig and reconstruction rebuilt from another state of the same cameras
-    (the quality's per-run records kept, the fit figures recomputed)."""
+    (the fit figures recomputed; what the run recorded kept)."""
     failed = [camera_names.index(n) for n in result.rig.failed_cameras]
-    quality = result.rig.quality.copy()
-    rig = rig_from_state(state, camera_names, failed, quality)
-    if quality.given_intrinsics_fit is not None:
-        rig.quality.given_intrinsics_fit = given_intrinsics_fit(state, camera_names,
-                                                                   config.sfm.num_threads)
+    rig = rig_from_state(state, camera_names, failed, result.rig.quality)
     return replace(result, rig=rig, reconstruction=saved_model(state, camera_names, rig),
                    state=state)
 
@@ -102,43 +115,3 @@ def saved_model(state: SfMState, camera_names: Sequence[str], rig: RigCalibratio
     reconstruction, _ = build_reconstruction(state, camera_names)
     move_model_to_rig_frame(reconstruction, rig)
     return reconstruction
-
-
-def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False
-                         ) -> Optional[str]:
-    """The message for a user whose rig came out without some of its cameras: which, the camera
-    each shares the most keypoint matches with (quality.unregistered_best_partner), and what
-    would place them (more overlap, or given intrinsics where the camera was left out for
-    implausible ones: plausibility.drop_implausible_cameras); None where every camera was
-    registered. perspective_on_sift: as
-    consensus.disagreement_warning's (the message suggests asift)."""
-    failed = rig.failed_cameras
-    if not failed:
-        return None
-    partners = rig.quality.unregistered_best_partner or {}
-    one = len(failed) == 1
-    it, its, subject = ("it", "its", failed[0]) if one else ("them", "their", "they")
-    shared = ""
-    if all(c in partners for c in failed):
-        counts = (f"{partners[failed[0]][1]}" if one else " and ".join(
-            f"{partners[c][1]} ({c}, with {partners[c][0]})" for c in failed))
-        shared = (f": {'it shares' if one else 'they share'} at most {counts} keypoint matches "
-                  "with another camera" + (f" ({partners[failed[0]][0]})" if one else ""))
-    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
-             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
-    return (f"{' and '.join(failed)} could not be registered{shared}. The other "
-            f"{len(rig.cameras)} cameras are calibrated without {it}. Add frame sets in which "
-            f"{subject} and the neighbouring cameras see the same textured things, or turn {it} "
-            f"to overlap more with them. If {'it does' if one else 'they do'} overlap, {its} "
-            f"intrinsics from a lab calibration (--intrinsics {failed[0] if one else 'NAME'}"
-            f"=FILE) would place {it}: a camera whose self-calibrated intrinsics come out "
-            "implausible is left out as well." + asift)
-
-
-def warn_user(rig: RigCalibration, warning: str, progress: Progress) -> None:
-    """Log a warning, pass it to progress and keep it in rig.quality.warnings: the node's
-    service reply and `densecalib report` show it to whoever looks at the calibration later."""
-    log.warning("%s", warning)
-    if progress is not None:
-        progress(warning)
-    rig.quality.warnings.append(warning)

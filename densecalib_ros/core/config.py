@@ -1,4 +1,9 @@
-"""Pipeline configuration: dataclasses with the paper's defaults and named presets.
+"""Pipeline configuration: frozen dataclasses with the paper's defaults and named presets.
+
+A configuration is built once (make_config, or `with_options` on one), resolved for the rig's
+cameras and checked where a calibration starts (PipelineConfig.for_cameras: COLMAP's options and
+their Check()), and read-only from then on: a stage that needs other options (a consensus run's
+seed, the second matcher) derives a configuration with `with_options`, never changes one.
 
 Presets follow the paper (Sec. 4 implementation details, ablation best rows):
 - "regular": RADIAL per camera, F_err 10 px, B_err 20 px, cell 80 (incremental) / 40 (global),
@@ -9,7 +14,9 @@ Presets follow the paper (Sec. 4 implementation details, ablation best rows):
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field, fields, is_dataclass
+import math
+import numbers
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -21,7 +28,7 @@ from .errors import InputError
 B_ERR_PX = {"regular": 20.0, "fisheye": 100.0}
 
 
-@dataclass
+@dataclass(frozen=True)
 class SamplingConfig:
     max_cycle_order: int = 4  # N: cycles of order 2..N are closed
     fine_cell_px: int = 5  # stage-1 grid, random pick per cell
@@ -43,7 +50,7 @@ class SamplingConfig:
     seed: int = 0
 
 
-@dataclass
+@dataclass(frozen=True)
 class SfMConfig:
     camera_model: str = "RADIAL"  # initial COLMAP model per camera
     # Per camera (the calibration's camera order), a model that replaces camera_model for that
@@ -119,7 +126,7 @@ class SfMConfig:
                          for m in self.models(num_cameras)])
 
 
-@dataclass
+@dataclass(frozen=True)
 class CameraData:
     """What the user knows about the cameras (camera name -> ...; empty: nothing known), kept
     apart from the options of how to calibrate them."""
@@ -128,7 +135,7 @@ class CameraData:
     # (width / 2) / tan(horizontal FOV / 2)): camera name -> px, "*" for every camera not named.
     # They replace the estimate from the fundamental matrices (eq. 2; fisheye: the equidistant
     # assumption) in the sampling and as the base of the SfM's focal multi-start; for perspective
-    # models eq. 2's focals stay one more start (pipeline.calibrate_from_tracks). The SfM still
+    # models eq. 2's focals stay one more start (stages.runs.sfm_run). The SfM still
     # refines them. Empty: estimated.
     initial_focal_px: dict = field(default_factory=dict)
     # Focal lengths from the images' EXIF [px] (core/io/exif.py; the offline command fills it for
@@ -150,7 +157,7 @@ class CameraData:
     known_intrinsics: dict = field(default_factory=dict)
 
 
-@dataclass
+@dataclass(frozen=True)
 class PipelineConfig:
     preset: str = "regular"
     pipeline: str = "incremental"  # "incremental" | "global"
@@ -187,12 +194,43 @@ class PipelineConfig:
     cameras: CameraData = field(default_factory=CameraData)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
+    # The cameras the configuration was resolved for (for_cameras); () before: then the per-camera
+    # options (sfm.camera_models, sfm.fixed_intrinsics_cameras) are not filled in yet.
+    camera_names: tuple = ()
+
+    def with_options(self, **options) -> "PipelineConfig":
+        """A copy with `options` set: `section__field=value` (sampling__seed=1) or top-level
+        fields (matcher="asift"); InputError naming an unknown option."""
+        return _with_options(self, options)
+
+    def for_cameras(self, camera_names: Sequence[str]) -> "PipelineConfig":
+        """This configuration resolved for these cameras (resolve_camera_lenses: each camera's
+        model, the cameras with given intrinsics) and checked (check): what a calibration reads
+        from its start on. A configuration resolved for these cameras already is returned as it
+        is. InputError on unknown cameras, lenses or invalid values."""
+        names = tuple(camera_names)
+        if self.camera_names == names:
+            return self
+        if self.camera_names:
+            raise InputError(f"This configuration was resolved for the cameras "
+                             f"{', '.join(self.camera_names)}, not {', '.join(names)}: resolve "
+                             "the one made by make_config for these cameras instead.")
+        resolved = resolve_camera_lenses(self, names)
+        resolved = replace(resolved, camera_names=names)
+        resolved.check()
+        return resolved
+
+    def check(self) -> None:
+        """InputError naming the first option whose value no calibration can run with (COLMAP's
+        options' Check())."""
+        _check_config(self)
 
 
 PRESETS = ("regular", "fisheye")
 # Lens -> the initial COLMAP model of a camera with it (the presets' models).
 LENS_MODELS = {"pinhole": "RADIAL", "fisheye": "RADIAL_FISHEYE"}
 PIPELINES = ("incremental", "global")
+GLOBAL_INITS = ("rotation_averaging", "previous", "incremental")
 # The pipeline the CLI, node and demo use unless told otherwise: the incremental one measured more
 # accurate on pinhole rigs and repeatable run to run (docs/design-notes.md, Default pipeline).
 DEFAULT_PIPELINE = "incremental"
@@ -233,20 +271,39 @@ def make_config(preset: str = "regular", pipeline: str = "incremental",
         raise InputError(f"Unknown pipeline {pipeline!r}: choose one of {', '.join(PIPELINES)}.")
     cfg = PipelineConfig(preset=preset, pipeline=pipeline)
     if matcher is not None:
-        cfg.matcher = matcher
-    _apply_options(cfg, {**PIPELINE_OPTIONS[pipeline], **preset_options(preset, pipeline)})
-    for key, value in overrides.items():
-        _apply_override(cfg, key, value)
-    return cfg
+        cfg = replace(cfg, matcher=matcher)
+    cfg = _with_options(cfg, _merged_dicts(cfg, {**PIPELINE_OPTIONS[pipeline],
+                                                 **preset_options(preset, pipeline)}))
+    return _with_options(cfg, overrides)
 
 
-def _apply_options(cfg: PipelineConfig, options: dict) -> None:
-    """Set a preset's or pipeline's options; a dict option updates the dict it names."""
+def _merged_dicts(cfg: PipelineConfig, options: dict) -> dict:
+    """A preset's or pipeline's options, a dict option merged into the dict it names."""
+    out = {}
     for key, value in options.items():
         if isinstance(value, dict):
             section, name = key.split("__", 1)
             value = {**getattr(getattr(cfg, section), name), **value}
-        _apply_override(cfg, key, value)
+        out[key] = value
+    return out
+
+
+def _with_options(cfg: PipelineConfig, options: dict) -> PipelineConfig:
+    """cfg with `options` (section__field or top-level names) set, each value a deep copy."""
+    top, sections = {}, {}
+    for key, value in options.items():
+        section, _, name = key.rpartition("__")
+        target = getattr(cfg, section, None) if section else cfg
+        if section and not is_dataclass(target):
+            raise InputError(f"Unknown configuration section {section!r} in {key!r}.")
+        valid = {f.name for f in fields(target)}
+        if name not in valid:
+            raise InputError(f"Unknown option {key!r}: valid options are "
+                             f"{', '.join(sorted(valid))}.")
+        (sections.setdefault(section, {}) if section else top)[name] = copy.deepcopy(value)
+    for section, values in sections.items():
+        top[section] = replace(top.get(section, getattr(cfg, section)), **values)
+    return replace(cfg, **top) if top else cfg
 
 
 def lens_of_model(model: str) -> str:
@@ -254,15 +311,14 @@ def lens_of_model(model: str) -> str:
 
 
 def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -> PipelineConfig:
-    """`config` for these cameras: without config.cameras.lens, itself. Otherwise a copy whose
-    sfm.camera_models gives every camera its lens's model (cameras not named keep the preset's
-    lens) and which, when any camera is fisheye, runs with the fisheye preset's SfM options:
-    F_err off (a fisheye pair breaks the pinhole epipolar constraint), B_err 100 px while the
-    fisheye distortion is still rough, the principal point refined and the fisheye cameras
-    refined to OPENCV_FISHEYE; pinhole cameras stay RADIAL, their observations judged by the
-    regular preset's B_err, and a pair of two pinhole cameras by its F_err
-    (SfMConfig.pinhole_b_err_px, pinhole_f_err_px). Idempotent: a resolved config is returned
-    as it is. InputError on unknown cameras or lenses.
+    """`config` for these cameras (for_cameras' first step): without config.cameras.lens or given
+    intrinsics, itself. Otherwise a copy whose sfm.camera_models gives every camera its lens's
+    model (cameras not named keep the preset's lens) and which, when any camera is fisheye, runs
+    with the fisheye preset's SfM options: F_err off (a fisheye pair breaks the pinhole epipolar
+    constraint), B_err 100 px while the fisheye distortion is still rough, the principal point
+    refined and the fisheye cameras refined to OPENCV_FISHEYE; pinhole cameras stay RADIAL, their
+    observations judged by the regular preset's B_err, and a pair of two pinhole cameras by its
+    F_err (SfMConfig.pinhole_b_err_px, pinhole_f_err_px). InputError on unknown cameras or lenses.
 
     Cameras of config.cameras.known_intrinsics get their model (a lens differing from the preset's
     makes a rig mixing lenses) and are listed in sfm.fixed_intrinsics_cameras."""
@@ -284,36 +340,80 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
     if bad:
         raise InputError(f"Unknown lens {bad}: use {' or '.join(LENS_MODELS)} "
                          "(e.g. --lens cam3=fisheye).")
-    out = copy.deepcopy(config)
+    out = config
     preset_lens = lens_of_model(config.sfm.camera_model)
     per_camera = [lenses.get(n, preset_lens) for n in camera_names]
     if "fisheye" in per_camera and preset_lens == "pinhole":
-        _apply_options(out, preset_options("fisheye", config.pipeline))
+        out = _with_options(out, _merged_dicts(out, preset_options("fisheye", config.pipeline)))
+    mixed = {}
     if len(set(per_camera)) > 1:
         # The fisheye B_err (100 px) leaves room for the rough early fisheye models; a pinhole
         # camera's outliers are judged as in the regular preset. (B_err 20 px for every camera
         # also removed the focal drift incremental.final_adjustment describes on a 4-camera rig,
         # but would cut the fisheye cameras' early observations; this alone did not.)
         regular = make_config("regular", config.pipeline).sfm
-        out.sfm.pinhole_b_err_px = regular.b_err_px
-        out.sfm.pinhole_f_err_px = regular.f_err_px
+        mixed = {"sfm__pinhole_b_err_px": regular.b_err_px,
+                 "sfm__pinhole_f_err_px": regular.f_err_px}
     # Cameras of the preset's lens keep its (possibly user-set) model; given intrinsics, theirs.
-    out.sfm.camera_models = tuple(
+    return _with_options(out, {**mixed, "sfm__camera_models": tuple(
         known[n].model if n in known else
         config.sfm.camera_model if lens == preset_lens else LENS_MODELS[lens]
-        for n, lens in zip(camera_names, per_camera))
-    out.sfm.fixed_intrinsics_cameras = tuple(c for c, n in enumerate(camera_names) if n in known)
-    return out
+        for n, lens in zip(camera_names, per_camera)),
+        "sfm__fixed_intrinsics_cameras": tuple(c for c, n in enumerate(camera_names)
+                                               if n in known)})
 
 
-def _apply_override(cfg: PipelineConfig, key: str, value) -> None:
-    target, name = cfg, key
-    if "__" in key:
-        section, name = key.split("__", 1)
-        target = getattr(cfg, section, None)
-        if not is_dataclass(target):
-            raise InputError(f"Unknown configuration section {section!r} in {key!r}.")
-    valid = {f.name for f in fields(target)}
-    if name not in valid:
-        raise InputError(f"Unknown option {key!r}: valid options are {', '.join(sorted(valid))}.")
-    setattr(target, name, copy.deepcopy(value))
+def _check_config(cfg: PipelineConfig) -> None:
+    """PipelineConfig.check: each option within what the stages can run with."""
+    from .types import colmap_model_id  # pycolmap's model names, on use only
+
+    s, m = cfg.sampling, cfg.sfm
+    rules = [
+        ("preset", cfg.preset in PRESETS, f"one of {', '.join(PRESETS)}"),
+        ("pipeline", cfg.pipeline in PIPELINES, f"one of {', '.join(PIPELINES)}"),
+        ("max_image_side_px", _int(cfg.max_image_side_px) and cfg.max_image_side_px >= 64,
+         "an integer of at least 64 px"),
+        ("consensus_runs", _int(cfg.consensus_runs) and cfg.consensus_runs >= 1,
+         "an integer of at least 1"),
+        ("sampling__max_cycle_order", s.max_cycle_order in (2, 3, 4), "2, 3 or 4"),
+        ("sampling__fine_cell_px", _int(s.fine_cell_px) and s.fine_cell_px >= 1, "an integer >= 1"),
+        ("sampling__cell_size_px", _int(s.cell_size_px) and s.cell_size_px >= s.fine_cell_px,
+         "an integer no smaller than fine_cell_px"),
+        ("sampling__c_min", _number(s.c_min) and 0 < s.c_min <= 1, "in (0, 1]"),
+        ("sampling__samples_per_order", set(s.samples_per_order) <= {2, 3, 4} and all(
+            _int(v) and v >= 0 for v in s.samples_per_order.values()),
+         "{order: count} with orders 2-4 and counts >= 0"),
+        ("sampling__top_k", _int(s.top_k) and s.top_k >= 0, "an integer >= 0"),
+        ("sampling__seed", _int(s.seed) and s.seed >= 0, "an integer >= 0"),
+        ("sfm__f_err_px", _positive_or_none(m.f_err_px), "a positive number or None (off)"),
+        ("sfm__b_err_px", _positive_or_none(m.b_err_px), "a positive number or None (off)"),
+        ("sfm__ba_iterations", _int(m.ba_iterations) and m.ba_iterations >= 1, "an integer >= 1"),
+        ("sfm__global_init", m.global_init in GLOBAL_INITS, f"one of {', '.join(GLOBAL_INITS)}"),
+        ("sfm__num_threads", _int(m.num_threads) and m.num_threads >= -1,
+         "-1 (every core) or a number of cores"),
+    ]
+    for name, ok, expected in rules:
+        if not ok:
+            value = _option_value(cfg, name)
+            raise InputError(f"Option {name} = {value!r}: expected {expected}.")
+    for model in (m.camera_model, *m.camera_models, *([m.refine_to_model] if m.refine_to_model
+                                                       else [])):
+        colmap_model_id(model)
+
+
+def _int(value) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and \
+        math.isfinite(value)
+
+
+def _positive_or_none(value) -> bool:
+    return value is None or (_number(value) and value > 0)
+
+
+def _option_value(cfg: PipelineConfig, name: str):
+    section, _, field_name = name.rpartition("__")
+    return getattr(getattr(cfg, section) if section else cfg, field_name)

@@ -62,9 +62,11 @@ class JobResult:
         return self.calibration.rig
 
 
-def run_job(request: CalibrationRequest, progress: Progress = None) -> JobResult:
-    """Calibrate as `request` says (module docstring). Raises CalibrationError subclasses
-    (CalibrationRejectedError: a recalibration worse than the previous calibration)."""
+def run_job(request: CalibrationRequest, progress=None) -> JobResult:
+    """Calibrate as `request` says (module docstring). progress: a core.progress.Progress (the
+    stages and time left; its stop token stops the job) or a callback for its messages. Raises
+    CalibrationError subclasses (CalibrationRejectedError: a recalibration worse than the
+    previous calibration), and CalibrationCancelled where the stop token was set."""
     from .io.export import record_provenance
     from .products.floor import record_floor, warn_if_floor_lost
     from .pipeline import run_calibration
@@ -72,7 +74,7 @@ def run_job(request: CalibrationRequest, progress: Progress = None) -> JobResult
     from .io.reference_view_files import latest_views
     from .products.scale import warn_if_scale_lost, with_known_baseline
 
-    r = request
+    r, progress = request, Progress.of(progress)
     if r.previous is not None:
         result = recalibrate(r.frame_sets, r.camera_names, r.config, r.previous,
                              matcher=r.matcher, progress=progress,
@@ -88,6 +90,7 @@ def run_job(request: CalibrationRequest, progress: Progress = None) -> JobResult
         record_floor(result, r.floor)
     warn_if_floor_lost(result.rig, r.previous, r.floor_hint)
     record_provenance(result.rig, r.source)
+    progress.check()  # the last moment a stop leaves nothing to undo: the front end writes next
     return JobResult(result, latest_views(r.frame_sets, r.camera_names, result.rig))
 
 

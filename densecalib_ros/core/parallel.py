@@ -18,6 +18,7 @@ out of memory) is replaced, and the pieces it lost run here.
 from __future__ import annotations
 
 import atexit
+import contextvars
 import logging
 import multiprocessing
 import os
@@ -25,15 +26,23 @@ import signal
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FuturesTimeout
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import popen_forkserver, spawn
 from typing import Any, Callable, Optional, Sequence
+
+from .progress import check_stop
 
 log = logging.getLogger(__name__)
 
 PACKAGE_LOGGER = "densecalib_ros"
 # What the workers import before the first task, so that a task starts without import time.
 PRELOAD_MODULES = ["densecalib_ros.core.method.incremental"]
+
+# While workers or work run ahead run, the calibrating thread looks this often whether it was stopped (a
+# cancelled goal must end within a couple of seconds; a trial can take tens of them).
+STOP_CHECK_S = 0.2
+
 
 _lock = threading.Lock()
 _lock_start = threading.Lock()  # spawn.get_preparation_data is swapped while a worker starts
@@ -72,17 +81,35 @@ def descendant_pids(pid: int) -> list[int]:
     return found
 
 
-def map_threads(fn: Callable, items: Sequence, workers: Optional[int] = None) -> list:
+def map_threads(fn: Callable, items: Sequence, workers: Optional[int] = None,
+                on_done: Optional[Callable[[], None]] = None) -> list:
     """[fn(item) for item in items], the items side by side in threads (at most `workers`, default
     every available core). For pieces of work that release the GIL (OpenCV's and pycolmap's
     estimators) and whose result does not depend on the thread that ran them (each seeds its own
-    RANSAC): the results are those of the loop, in its order."""
+    RANSAC): the results are those of the loop, in its order. on_done() hears of each result in
+    turn, in the calling thread; what it raises (a cancelled calibration) cancels the items not
+    yet started and is raised once the running ones returned."""
     items = list(items)
     workers = min(workers or available_cores(), len(items))
     if workers <= 1:
-        return [fn(item) for item in items]
-    with ThreadPoolExecutor(workers) as pool:
-        return list(pool.map(fn, items))
+        results = []
+        for item in items:
+            results.append(fn(item))
+            if on_done is not None:
+                on_done()
+        return results
+    pool = ThreadPoolExecutor(workers)
+    try:
+        # each item in a copy of the caller's context (what core.progress.check_stop reads)
+        futures = [pool.submit(contextvars.copy_context().run, fn, item) for item in items]
+        results = []
+        for future in futures:
+            results.append(future.result())
+            if on_done is not None:
+                on_done()
+        return results
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def job_count(jobs: int) -> int:
@@ -136,7 +163,11 @@ class RunAhead:
             _running_ahead.discard(self)
 
     def result(self) -> Any:
-        self._thread.join()
+        """Its value once it returned (the calibration's stop checked while it is waited for:
+        core.progress.check_stop)."""
+        while self._thread.is_alive():
+            check_stop()
+            self._thread.join(STOP_CHECK_S)
         return None if self._cancelled.is_set() else self._value
 
     def cancel(self) -> None:
@@ -164,11 +195,14 @@ PARENT_CHECK_S = 1.0
 
 
 def _worker_start(calibrating_pid: int) -> None:
-    """Ctrl-C reaches the whole process group: the calibrating process decides what stops. A
-    worker whose calibrating process was killed outright (SIGKILL, the OOM killer) would wait
-    for tasks for ever, and keep the fork server alive (each worker holds the server's
-    keep-alive pipe so that it could start processes itself); it ends instead."""
+    """Ctrl-C and a SIGTERM sent to the process group (timeout, systemd) reach the workers too:
+    the calibrating process decides what stops, and stops them (glog's handler, which pycolmap
+    installs, would answer a SIGTERM with a crash report and stack trace). A worker whose
+    calibrating process was killed outright (SIGKILL, the OOM killer) would wait for tasks for
+    ever, and keep the fork server alive (each worker holds the server's keep-alive pipe so that
+    it could start processes itself); it ends instead."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
     def watch() -> None:
         while is_running(calibrating_pid):
@@ -287,17 +321,20 @@ def stop_workers() -> None:
 
 
 def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int,
-             on_done: Optional[Callable[[int], None]] = None) -> list:
+             on_done: Optional[Callable[[int], None]] = None,
+             check: Optional[Callable[[], None]] = None) -> list:
     """[fn(*args) for args in arg_tuples], spread over job_count(jobs) worker processes when
     that is more than one and there is more than one task. fn and its arguments and results must
     pickle (fn a module-level function). What the tasks log under this package reaches this
-    process's handlers, task by task in order; on_done(k) hears that the first k results are in."""
+    process's handlers, task by task in order; on_done(k) hears that the first k results are in.
+    check() is called every STOP_CHECK_S while the workers run (between tasks where they run
+    here): what it raises (a cancelled calibration) stops the workers and is raised."""
     import pycolmap
 
     global _no_workers
     workers = min(job_count(jobs), len(arg_tuples))
     if workers <= 1 or _no_workers:
-        return _in_this_process(fn, arg_tuples, on_done)
+        return _in_this_process(fn, arg_tuples, on_done, check)
     levels = (pycolmap.logging.minloglevel,
               logging.getLogger(PACKAGE_LOGGER).getEffectiveLevel())
     results: list = [None] * len(arg_tuples)
@@ -310,20 +347,24 @@ def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int,
                     "core", exc)
         _no_workers = True  # said once; not tried again
         stop_workers()
-        return _in_this_process(fn, arg_tuples, on_done)
+        return _in_this_process(fn, arg_tuples, on_done, check)
     try:
         for k in list(pending):
-            results[k], records = futures[k].result()
+            results[k], records = _result(futures[k], check)
             for record in records:  # reported here, once, as if the task had run here
                 logging.getLogger(record.name).handle(record)
             pending.remove(k)
             if on_done is not None:
                 on_done(k + 1)
     except BrokenProcessPool as exc:
+        if check is not None:
+            check()  # stopped: the workers' end is no news
         log.warning("a worker process ended unexpectedly (%s); running the %d remaining "
                     "piece(s) of work in this process", exc, len(pending))
         stop_workers()
         for k in pending:
+            if check is not None:
+                check()
             results[k] = fn(*arg_tuples[k])
             if on_done is not None:
                 on_done(k + 1)
@@ -337,10 +378,24 @@ def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int,
     return results
 
 
+def _result(future, check: Optional[Callable[[], None]]):
+    """The future's result, check() called every STOP_CHECK_S while it is not in."""
+    while True:
+        if check is not None:
+            check()
+        try:
+            return future.result(timeout=STOP_CHECK_S if check is not None else None)
+        except FuturesTimeout:
+            continue
+
+
 def _in_this_process(fn: Callable, arg_tuples: Sequence[tuple],
-                     on_done: Optional[Callable[[int], None]]) -> list:
+                     on_done: Optional[Callable[[int], None]],
+                     check: Optional[Callable[[], None]] = None) -> list:
     results = []
     for args in arg_tuples:
+        if check is not None:
+            check()
         results.append(fn(*args))
         if on_done is not None:
             on_done(len(results))

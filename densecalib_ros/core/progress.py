@@ -15,11 +15,13 @@ multi-start trials and matched image pairs. A cancelled calibration writes nothi
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import logging
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence, Union
+from typing import Callable, Iterator, Optional, Sequence, Union
 
 from .errors import CalibrationCancelled
 
@@ -71,6 +73,7 @@ class ProgressState:
     label: str
     stage_done: int
     stage_total: int
+    stage_fraction: float  # of the stage's steps, the next one's part done included
     fraction: float
     seconds_left: Optional[float]
     elapsed_s: float
@@ -79,22 +82,14 @@ class ProgressState:
 class Progress:
     """The channel a calibration reports through and is stopped through (module docstring).
 
-    on_message(text): each event said (say), once; on_stage(state): each stage begun, and each
+    on_message(text): each event said (say), once; on_stage(state): each stage begun and each
     step (advance): what a front end draws. Both are called in the calibrating thread."""
 
     def __init__(self, on_message: Optional[Listener] = None,
                  on_stage: Optional[Callable[[ProgressState], None]] = None,
                  stop: Optional[StopToken] = None) -> None:
-        self.on_message, self.on_stage = on_message, on_stage
-        self.stop = stop or StopToken()
-        self._lock = threading.Lock()
-        self._start = time.perf_counter()
-        self._shares: dict[str, float] = {}
-        self._done_share = 0.0  # shares of the stages ended
-        self._ended: set[str] = set()
-        self._stage, self._label = "start", "starting"
-        self._done, self._total = 0, 0
-        self._prior_s: Optional[float] = None
+        self.on_message = on_message
+        self._run = _RunState(stop or StopToken(), on_stage)
 
     @classmethod
     def of(cls, progress: Union["Progress", Listener, None]) -> "Progress":
@@ -103,61 +98,16 @@ class Progress:
             return progress
         return cls(on_message=progress)
 
-    # -- the plan
-    def plan(self, stages: Sequence[str], prior_s: Optional[float] = None) -> None:
-        """The run's stages (keys of STAGE_SHARES, in order); prior_s: the run's length as
-        estimated before any step is done (estimated_run_s), used until steps tell better."""
-        with self._lock:
-            self._shares = {s: STAGE_SHARES.get(s, UNPLANNED_SHARE) for s in stages}
-            self._prior_s = prior_s
+    @property
+    def stop(self) -> StopToken:
+        return self._run.stop
 
-    def extend(self, stages: Sequence[str]) -> None:
-        """Stages added to the run once it is under way (the second matcher's matching and
-        calibration): the fraction done falls to what it is of the longer run."""
-        with self._lock:
-            for s in stages:
-                key = s
-                while key in self._shares:
-                    key += "+"
-                self._shares[key] = STAGE_SHARES.get(s, UNPLANNED_SHARE)
-
-    # -- the stages
-    def begin(self, stage: str, label: str, total: int = 0) -> None:
-        """Enter `stage` (ending the one before) with `total` steps to count; checks the stop."""
-        self.check()
-        with self._lock:
-            self._end_stage()
-            key = next((k for k in self._shares if k.rstrip("+") == stage and
-                        k not in self._ended), None)
-            if key is None:
-                key = stage
-                while key in self._shares:
-                    key += "+"
-                self._shares[key] = UNPLANNED_SHARE
-            self._stage, self._label, self._done, self._total = key, label, 0, total
-        self._tell()
-
-    def advance(self, done: int, total: Optional[int] = None, label: Optional[str] = None
-                ) -> None:
-        """`done` steps of the stage are done (of `total`, where it changed); checks the stop."""
-        self.check()
-        with self._lock:
-            self._done = done
-            if total is not None:
-                self._total = total
-            if label is not None:
-                self._label = label
-        self._tell()
-
-    def relabel(self, label: str) -> None:
-        """The stage's label changed (a consensus run begun) without a step done."""
-        with self._lock:
-            self._label = label
-        self._tell()
-
-    def check(self) -> None:
-        """CalibrationCancelled where the stop token was set."""
-        self.stop.check()
+    def muted(self) -> "Progress":
+        """This progress for work whose messages only the log needs (a consensus run after the
+        first repeats its lines): its stages, steps and stop are this one's."""
+        muted = Progress()
+        muted._run = self._run
+        return muted
 
     def say(self, msg: str, logger: Optional[logging.Logger] = None) -> None:
         """Log `msg` (INFO) and pass it to on_message: an event, said once."""
@@ -165,9 +115,107 @@ class Progress:
         if self.on_message is not None:
             self.on_message(msg)
 
-    # -- reading it
+    def check(self) -> None:
+        """CalibrationCancelled where the stop token was set."""
+        self._run.stop.check()
+
+    def plan(self, stages: Sequence[str], prior_s: Optional[float] = None) -> None:
+        """The run's stages (keys of STAGE_SHARES, in order); prior_s: the run's length as
+        estimated before any step is done (estimated_run_s), used until steps tell better."""
+        self._run.plan(stages, prior_s)
+
+    def extend(self, stages: Sequence[str]) -> None:
+        """Stages added to the run once it is under way (the second matcher's matching and
+        calibration): the fraction done falls to what it is of the longer run."""
+        self._run.extend(stages)
+
+    def begin(self, stage: str, label: str, total: int = 0) -> None:
+        """Enter `stage` (ending the one before) with `total` steps to count; checks the stop."""
+        self.check()
+        self._run.begin(stage, label, total)
+
+    def advance(self, done: int, total: Optional[int] = None, label: Optional[str] = None
+                ) -> None:
+        """`done` steps of the stage are done (of `total`, where it changed); checks the stop."""
+        self.check()
+        self._run.advance(done, total, label)
+
+    def substep(self, fraction: float) -> None:
+        """`fraction` (0-1) of the stage's next step is done (a frame set's image pairs, a
+        run's trials); checks the stop."""
+        self.check()
+        self._run.substep(fraction)
+
+    def finish(self) -> None:
+        """The run is done: every stage ended, the fraction done 1."""
+        self._run.finish()
+
     def state(self) -> ProgressState:
         """Where the run is now (any thread)."""
+        return self._run.state()
+
+
+class _RunState:
+    """The run's stages and steps behind a Progress and its muted views, under one lock."""
+
+    def __init__(self, stop: StopToken, on_stage: Optional[Callable[[ProgressState], None]]):
+        self.stop, self._on_stage = stop, on_stage
+        self._lock = threading.Lock()
+        self._start = time.perf_counter()
+        self._shares: dict[str, float] = {}  # stage key -> share; a repeated stage's key has "+"
+        self._ended: set[str] = set()
+        self._done_share = 0.0  # shares of the stages ended
+        self._stage, self._label = "start", "starting"
+        self._done, self._total, self._sub = 0, 0, 0.0
+        self._prior_s: Optional[float] = None
+
+    def plan(self, stages: Sequence[str], prior_s: Optional[float]) -> None:
+        with self._lock:
+            self._shares = {}
+            self._add(stages)
+            self._prior_s = prior_s
+
+    def extend(self, stages: Sequence[str]) -> None:
+        with self._lock:
+            self._add(stages)
+
+    def begin(self, stage: str, label: str, total: int) -> None:
+        with self._lock:
+            self._end_stage()
+            key = next((k for k in self._shares if k.rstrip("+") == stage and
+                        k not in self._ended), None)
+            if key is None:
+                key = self._add([stage], UNPLANNED_SHARE)[0]
+            self._stage, self._label = key, label
+            self._done, self._total, self._sub = 0, total, 0.0
+        self._tell()
+
+    def advance(self, done: int, total: Optional[int], label: Optional[str]) -> None:
+        with self._lock:
+            self._done, self._sub = done, 0.0
+            if total is not None:
+                self._total = total
+            if label is not None:
+                self._label = label
+        self._tell()
+
+    def substep(self, fraction: float) -> None:
+        with self._lock:
+            self._sub = min(max(float(fraction), 0.0), 1.0)
+
+    def finish(self) -> None:
+        with self._lock:
+            self._end_stage()
+            self._done_share = sum(self._shares.values())
+            self._stage, self._label, self._done, self._total = "done", "done", 0, 0
+        self._tell()
+
+    def _end_stage(self) -> None:
+        if self._stage in self._shares and self._stage not in self._ended:
+            self._ended.add(self._stage)
+            self._done_share += self._shares[self._stage]
+
+    def state(self) -> ProgressState:
         with self._lock:
             elapsed = time.perf_counter() - self._start
             fraction = self._fraction()
@@ -177,27 +225,61 @@ class Progress:
                 left = max(self._prior_s - elapsed, 0.0)
             else:
                 left = None
+            stage_fraction = min((self._done + self._sub) / self._total, 1.0) \
+                if self._total > 0 else 0.0
             return ProgressState(self._stage.rstrip("+"), self._label, self._done, self._total,
-                                 fraction, left, elapsed)
+                                 stage_fraction, fraction, left, elapsed)
 
-    # -- internals
-    def _end_stage(self) -> None:
-        if self._stage in self._shares and self._stage not in self._ended:
-            self._ended.add(self._stage)
-            self._done_share += self._shares[self._stage]
+    def _add(self, stages: Sequence[str], share: Optional[float] = None) -> list[str]:
+        keys = []
+        for stage in stages:
+            key = stage
+            while key in self._shares:
+                key += "+"
+            self._shares[key] = share if share is not None else \
+                STAGE_SHARES.get(stage, UNPLANNED_SHARE)
+            keys.append(key)
+        return keys
 
     def _fraction(self) -> float:
         total = sum(self._shares.values())
         if total <= 0:
-            return 0.0
+            return 1.0 if self._stage == "done" else 0.0
         current = 0.0
         if self._stage in self._shares and self._stage not in self._ended and self._total > 0:
-            current = self._shares[self._stage] * min(self._done / self._total, 1.0)
+            current = self._shares[self._stage] * min((self._done + self._sub) / self._total,
+                                                      1.0)
         return min((self._done_share + current) / total, 1.0)
 
     def _tell(self) -> None:
-        if self.on_stage is not None:
-            self.on_stage(self.state())
+        if self._on_stage is not None:
+            self._on_stage(self.state())
+
+
+# The stop token of the calibration running in this context (stoppable): what the loops deep
+# inside a stage check (check_stop) without being handed its Progress. parallel.map_threads runs
+# its items in the caller's context, so they see it too; work run ahead on its own threads does
+# not (it is cancelled by its owner).
+_running: contextvars.ContextVar[Optional[StopToken]] = contextvars.ContextVar(
+    "densecalib_stop", default=None)
+
+
+@contextlib.contextmanager
+def stoppable(progress: Progress) -> Iterator[Progress]:
+    """The block in which progress's stop token is the one check_stop checks."""
+    reset = _running.set(progress.stop)
+    try:
+        yield progress
+    finally:
+        _running.reset(reset)
+
+
+def check_stop() -> None:
+    """CalibrationCancelled where the calibration running in this context was stopped; nothing
+    outside one. For loops inside a stage (an adjustment's iterations, the dense alignments)."""
+    token = _running.get()
+    if token is not None:
+        token.check()
 
 
 def estimated_run_s(image_sizes: Sequence[tuple[int, int]], num_frame_sets: int,
@@ -212,12 +294,6 @@ def estimated_run_s(image_sizes: Sequence[tuple[int, int]], num_frame_sets: int,
     pairs = C * (C - 1) / 2
     match_s = num_frame_sets * pairs * MATCH_S_PER_PAIR_MPIX * (mpix / max(C, 1))
     return match_s / STAGE_SHARES["match"]
-
-
-def say_progress(progress: Union[Progress, Listener, None], msg: str,
-                 logger: Optional[logging.Logger] = None) -> None:
-    """Progress.of(progress).say(msg): for stages that take a Progress or a message callback."""
-    Progress.of(progress).say(msg, logger)
 
 
 class StageClock:

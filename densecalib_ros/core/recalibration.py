@@ -17,8 +17,8 @@ calibrated (quality.frame_sets_before_change counts the ones left out).
 """
 from __future__ import annotations
 
-import copy
 import logging
+import time
 from typing import Optional, Sequence
 
 import numpy as np
@@ -29,9 +29,12 @@ from .errors import CalibrationError
 from .monitor.change import calibration_change, change_summary
 from .monitor.consistency import DEFAULT_TOLERANCE_PX, sets_since_change
 from .monitor.reference_views import fits_per_frame_set_and_view
-from .pipeline import (calibrate_from_matches, checked_and_matched, record_info_strips,
-                       with_point_colours)
-from .progress import Progress, say_progress
+from .pipeline import planned_stages
+from .progress import Progress, estimated_run_s, stoppable
+from .stages.attempt import Attempt, Calibrator
+from .stages.inputs import RigImages, prepare
+from .stages.matching import Matched, match_rig
+from .stages.record import finish
 from .types import RigCalibration
 
 log = logging.getLogger(__name__)
@@ -60,64 +63,99 @@ def worse_than(new: RigCalibration, previous: RigCalibration) -> Optional[str]:
 
 def recalibrate(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
                 config: PipelineConfig, previous: RigCalibration, *, matcher=None,
-                progress: Progress = None,
-                previous_views: Optional[dict] = None) -> CalibrationResult:
+                progress=None, previous_views: Optional[dict] = None) -> CalibrationResult:
     """Calibrate a rig that has a previous calibration (see the module doc); `previous_views`:
     its reference views (core.monitor.reference_views), which also tell a frame set taken since a
     change (a turn along the epipolar lines, a refocus of a camera of two). The result's
     rig.quality gains "init" (what the accepted run started from), "change_vs_previous" (per
     camera) and "change_summary". Raises CalibrationRejectedError when the best new result is worse
-    than `previous`, and the pipeline's CalibrationError subclasses when calibration fails."""
-    camera_names = list(camera_names)
-    # Every frame set matched whole: each is judged against the previous calibration on its own.
-    image_sizes, strips, ignored, match_sets = checked_and_matched(
-        frame_sets, camera_names, config, matcher, progress, each_on_its_own=True)
-    before_change = sets_since_change(fits_per_frame_set_and_view(
-        previous, camera_names, match_sets, frame_sets, previous_views or {},
-        DEFAULT_TOLERANCE_PX))
-    if before_change:
-        say_progress(progress, f"the first {before_change} of {len(match_sets)} frame sets fit "
-                               "the previous calibration and the later ones do not: the rig "
-                               f"changed in between; calibrating from the "
-                               f"{len(match_sets) - before_change} since")
-        frame_sets, match_sets = frame_sets[before_change:], match_sets[before_change:]
+    than `previous`, the pipeline's CalibrationError subclasses when calibration fails, and
+    CalibrationCancelled where the progress's stop token was set."""
+    started = time.perf_counter()
+    progress = Progress.of(progress)
+    with stoppable(progress):
+        attempt, images, init, before_change = _recalibrated(frame_sets, camera_names, config,
+                                                              previous, matcher, progress,
+                                                              previous_views)
+    result = attempt.result
+    change = calibration_change(previous, result.rig)
+    result.rig.quality.update(init=init, change_vs_previous={n: vars(c) for n, c in
+                                                             change.items()},
+                              change_summary=change_summary(change),
+                              frame_sets_before_change=before_change or None)
+    progress.say(result.rig.quality.change_summary)
+    finish(result, images, attempt.config, attempt.consensus, None,
+           attempt.matched.keypoint_tracks, time.perf_counter() - started, progress)
+    progress.finish()
+    return result
 
-    result, why_not_previous = None, None
-    if all(n in previous.cameras for n in camera_names):
-        warm = copy.deepcopy(config)
-        warm.pipeline, warm.sfm.global_init, warm.sfm.b_err_px = "global", "previous", None
-        try:
-            result = calibrate_from_matches(match_sets, image_sizes, camera_names, warm,
-                                            previous=previous, frame_sets=frame_sets,
-                                            ignored=ignored, progress=progress)
-            why_not_previous = worse_than(result.rig, previous)
-        except CalibrationError as exc:
-            why_not_previous = str(exc)
-        if why_not_previous is None:
-            result.rig.quality.init = "previous calibration"
-        else:
-            result = None
-            say_progress(progress, f"starting from the previous calibration did not work "
-                           f"({why_not_previous}); calibrating from scratch")
-    else:
-        why_not_previous = "the previous calibration lacks some of the cameras"
-    if result is None:
-        result = calibrate_from_matches(match_sets, image_sizes, camera_names, config,
-                                        previous=None, frame_sets=frame_sets, ignored=ignored,
-                                        progress=progress)
-        result.rig.quality.init = f"from scratch ({why_not_previous})"
-        worse = worse_than(result.rig, previous)
+
+def _recalibrated(frame_sets, camera_names, config: PipelineConfig, previous: RigCalibration,
+                  matcher, progress: Progress, previous_views: Optional[dict]
+                  ) -> tuple[Attempt, RigImages, str, int]:
+    """(the calibration kept, the images it was made from, what it started from, how many frame
+    sets before a change were left out): recalibrate's stages."""
+    images = prepare(frame_sets, camera_names, config)
+    progress.plan(planned_stages(images.config, len(images.camera_names)),
+                  estimated_run_s(images.image_sizes, len(frame_sets),
+                                  images.config.max_image_side_px))
+    # Every frame set matched whole: each is judged against the previous calibration on its own.
+    matched = match_rig(images, images.config, progress, matcher, each_on_its_own=True)
+    images, matched, before_change = _since_change(images, matched, previous, previous_views,
+                                                   progress)
+    attempt, why_not_previous = None, "the previous calibration lacks some of the cameras"
+    if all(n in previous.cameras for n in images.camera_names):
+        attempt, why_not_previous = _from_previous(images, matched, previous, progress)
+    init = "previous calibration"
+    if attempt is None:
+        attempt = _calibrated(Calibrator(images, matched, images.config, progress))
+        init = f"from scratch ({why_not_previous})"
+        worse = worse_than(attempt.rig, previous)
         if worse is not None:
             raise CalibrationRejectedError(
                 f"The new calibration is worse than the previous one ({worse}); the previous "
-                "calibration is kept. Check that every camera sees the shared scene (lens covered, "
-                "out of focus, moved away?) and calibrate again.")
-    change = calibration_change(previous, result.rig)
-    result.rig.quality.change_vs_previous = {n: vars(c) for n, c in change.items()}
-    result.rig.quality.change_summary = change_summary(change)
-    say_progress(progress, result.rig.quality.change_summary)
-    if before_change:
-        result.rig.quality.frame_sets_before_change = before_change
-    with_point_colours(result, frame_sets)
-    record_info_strips(result, strips)
-    return result
+                "calibration is kept. Check that every camera sees the shared scene (lens "
+                "covered, out of focus, moved away?) and calibrate again.")
+    return attempt, images, init, before_change
+
+
+def _since_change(images: RigImages, matched: Matched, previous: RigCalibration,
+                  previous_views: Optional[dict], progress: Progress
+                  ) -> tuple[RigImages, Matched, int]:
+    """The frame sets (and their matches) since the rig changed, where earlier ones still fit
+    the previous calibration and later ones do not; and how many were left out (module doc)."""
+    before_change = sets_since_change(fits_per_frame_set_and_view(
+        previous, list(images.camera_names), matched.match_sets, images.frame_sets,
+        previous_views or {}, DEFAULT_TOLERANCE_PX))
+    if not before_change:
+        return images, matched, 0
+    progress.say(f"the first {before_change} of {len(matched.match_sets)} frame sets fit the "
+                 "previous calibration and the later ones do not: the rig changed in between; "
+                 f"calibrating from the {len(matched.match_sets) - before_change} since")
+    return images.since(before_change), matched.since(before_change), before_change
+
+
+def _from_previous(images: RigImages, matched: Matched, previous: RigCalibration,
+                   progress: Progress) -> tuple[Optional[Attempt], Optional[str]]:
+    """(the calibration started from the previous one's poses and intrinsics, None) where it
+    is acceptable (worse_than), else (None, why not)."""
+    warm = images.config.with_options(pipeline="global", sfm__global_init="previous",
+                                      sfm__b_err_px=None)
+    try:
+        attempt = _calibrated(Calibrator(images, matched, warm, progress, previous))
+        why_not = worse_than(attempt.rig, previous)
+    except CalibrationError as exc:
+        attempt, why_not = None, str(exc)
+    if why_not is None:
+        return attempt, None
+    progress.say(f"starting from the previous calibration did not work ({why_not}); "
+                 "calibrating from scratch")
+    return None, why_not
+
+
+def _calibrated(calibrator: Calibrator) -> Attempt:
+    """calibrator's calibration, its work run ahead stopped whatever came of it."""
+    try:
+        return calibrator.calibrate()
+    finally:
+        calibrator.close()

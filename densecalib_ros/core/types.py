@@ -50,7 +50,7 @@ def colmap_parameter_names(camera) -> list[str]:
 
 
 @functools.lru_cache(maxsize=None)
-def _colmap_model_id(model: str):
+def colmap_model_id(model: str):
     """pycolmap's CameraModelId of a COLMAP model name; InputError for a name COLMAP lacks."""
     import pycolmap
 
@@ -76,7 +76,7 @@ class CameraIntrinsics:
 
         camera = pycolmap.Camera()
         camera.camera_id = camera_id
-        camera.model = _colmap_model_id(self.model)
+        camera.model = colmap_model_id(self.model)
         camera.width, camera.height = int(self.width), int(self.height)
         camera.params = np.asarray(self.params, dtype=np.float64)
         return camera

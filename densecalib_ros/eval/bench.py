@@ -311,8 +311,7 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             calib = peer.to_rig_calibration(scene.camera_names)
             record["message"] = peer.message
         elif method in OUR_METHODS or method == GIVEN_INTRINSICS_METHOD:
-            from ..core.config import make_config
-            from ..core.pipeline import calibrate_rig
+            from ..core import calibrate_rig, make_config
 
             given = {}
             if method == GIVEN_INTRINSICS_METHOD:
@@ -320,19 +319,17 @@ def run_method(method: str, scene: Scene, num_threads: int = -1) -> dict:
             config = make_config("fisheye" if scene.lens == "fisheye" else "regular",
                                  OUR_METHODS.get(method, "incremental"),
                                  cameras__lens={} if given else dict(scene.camera_lens),
-                                 cameras__known_intrinsics=given)
-            config.sfm.share_intrinsics = share
-            config.sfm.num_threads = num_threads
+                                 cameras__known_intrinsics=given,
+                                 sfm__share_intrinsics=share, sfm__num_threads=num_threads)
             # Ceres/COLMAP warnings (e.g. failed LM steps) would bury the tables; errors still show.
             with quiet_colmap(min_level=2):
                 calib = calibrate_rig(scene.frame_sets, scene.camera_names, config)
         elif method == RECAL_METHOD:
-            from ..core.config import make_config
-            from ..core.recalibration import recalibrate
+            from ..core import make_config, recalibrate
 
             config = make_config("fisheye" if scene.lens == "fisheye" else "regular", "global",
-                                 cameras__lens=dict(scene.camera_lens))
-            config.sfm.num_threads = num_threads
+                                 cameras__lens=dict(scene.camera_lens),
+                                 sfm__num_threads=num_threads)
             previous = perturbed_calibration(scene.gt, RECAL_ROTATION_DEG, RECAL_MOVE_FRACTION)
             start = time.perf_counter()  # the perturbation is set-up, not recalibration time
             with quiet_colmap(min_level=2):

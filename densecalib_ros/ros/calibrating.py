@@ -21,8 +21,8 @@ def calibration_request(s: Settings, sets: list, images: list,
 
     config = pipeline_config(s)
     if s.keep_intrinsics and previous is not None:
-        config.cameras.known_intrinsics = with_previous_intrinsics(
-            config.cameras.known_intrinsics, previous, s.camera_names)
+        config = config.with_options(cameras__known_intrinsics=with_previous_intrinsics(
+            config.cameras.known_intrinsics, previous, s.camera_names))
     previous_views = (read_reference_views(previous_dir, s.camera_names)
                       if previous is not None and previous_dir is not None else {})
     offsets = ({"stamp_offsets_s": dict(zip(s.camera_names, s.stamp_offsets_s))}

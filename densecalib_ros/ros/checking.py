@@ -30,7 +30,7 @@ def check_frame_sets(rig: RigCalibration, calibration_dir: Optional[Path], s: Se
     from ..core.io.reference_view_files import read_reference_views
     from ..core.monitor.consistency import best_transfer_per_camera, check_latest
     from ..core.monitor.reference_views import check_verdict, compare_with_reference_views
-    from ..core.pipeline import match_frame_sets
+    from ..core import match_frame_sets
 
     match_sets = match_frame_sets(images, pipeline_config(s), matcher=matcher,
                                   camera_names=s.camera_names, each_on_its_own=True)

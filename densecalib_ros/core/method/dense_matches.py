@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..parallel import RunAhead, available_cores
+from ..progress import check_stop
 from ..types import Tracks
 from .matching.utils import to_gray
 from .patch_alignment import align
@@ -348,6 +349,7 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
     def check() -> None:
         if cancelled is not None and cancelled.is_set():
             raise Cancelled()
+        check_stop()  # a stopped calibration (not work run ahead: its own thread has none)
 
     # Pairs are independent; the alignment kernel (patch_alignment) releases the GIL. Grouped
     # by the image they align onto, each image's gradients are computed once a pass and held

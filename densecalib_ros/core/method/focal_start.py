@@ -11,7 +11,7 @@ import numpy as np
 
 from ..config import PipelineConfig
 from ..errors import FocalInitError, InputError
-from ..progress import Progress, say_progress
+from ..progress import Progress
 from ..types import CameraIntrinsics, RigCalibration, Tracks
 from .focal import estimate_initial_focals
 from .incremental import initial_intrinsics
@@ -131,7 +131,7 @@ def eq2_start(tracks: Tracks, two_view: dict, image_sizes: Sequence[tuple[int, i
     try:
         focal = initial_focals(tracks, two_view, image_sizes)
     except FocalInitError as exc:
-        say_progress(progress, f"no eq. 2 start beside the known focals: {exc}")
+        Progress.of(progress).say(f"no eq. 2 start beside the known focals: {exc}")
         return None
     return {"eq. 2": with_known_intrinsics(initial_intrinsics(image_sizes, focal, models),
                                            config, camera_names)}

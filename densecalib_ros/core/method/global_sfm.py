@@ -31,10 +31,8 @@ implementation details), initialised without VGGT.
 """
 from __future__ import annotations
 
-import copy
-import functools
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -43,7 +41,7 @@ import pycolmap
 from ..config import B_ERR_PX, SfMConfig
 from ..errors import (DisconnectedViewGraphError, FocalInitError, InputError, NotEnoughCamerasError,
                       NotEnoughOverlapError)
-from ..progress import Progress, say_progress
+from ..progress import Progress
 from ..types import CameraIntrinsics, RigCalibration, RigQuality, Tracks
 from .incremental import ESSENTIAL_THRESHOLD_PX, MIN_PAIR_CORRESPONDENCES
 from .multistart import cost_truncation_px, held_out_cost, run_incremental, truncated_cost
@@ -258,7 +256,7 @@ def staged_bundle_adjustment(state: SfMState, camera_names: Sequence[str], confi
     """The staged BA of the module docstring, in place; before every stage but the first the
     tracks are re-triangulated from the current cameras (triangulate_tracks). Returns {stage:
     residual_stats after it} for the stages that ran."""
-    say = functools.partial(say_progress, progress)
+    say = Progress.of(progress).say
     iterations = dict(config.global_stage_iterations)
     stats: dict[str, dict] = {}
     # A rig mixing lenses refines the principal point of its fisheye cameras only
@@ -308,7 +306,7 @@ def run_global(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     start's focal multi-start (run_incremental). Raises DisconnectedViewGraphError, InputError
     (unknown init, missing/unusable previous calibration), NotEnoughCamerasError.
     """
-    say = functools.partial(say_progress, progress)
+    say = Progress.of(progress).say
     C = tracks.num_cameras
     init = config.global_init
     if init not in GLOBAL_INITS:
@@ -407,7 +405,7 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
                        extra_starts: Optional[dict] = None):
     """Initial poses from `init`, multi-view triangulation, gauge, staged BA.
     Returns (state, residual stats per stage, gauge camera, cameras by gauge score)."""
-    say = functools.partial(say_progress, progress)
+    say = Progress.of(progress).say
     C = tracks.num_cameras
     if init == "previous":
         start, poses = poses_from_previous(previous, camera_names,
@@ -420,12 +418,12 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
     elif init == "incremental":
         # The incremental pipeline needs its outlier threshold (B_err) to stay on track even
         # when the global preset has none.
-        inc_config = copy.copy(config)
-        if inc_config.b_err_px is None:
-            inc_config.b_err_px = B_ERR_PX["fisheye" if "FISHEYE" in config.camera_model
-                                           else "regular"]
+        inc_config = config
+        if config.b_err_px is None:
+            inc_config = replace(config, b_err_px=B_ERR_PX[
+                "fisheye" if "FISHEYE" in config.camera_model else "regular"])
             if config.mixed_rig_pinhole_cameras(C):
-                inc_config.pinhole_b_err_px = B_ERR_PX["regular"]
+                inc_config = replace(inc_config, pinhole_b_err_px=B_ERR_PX["regular"])
         state = run_incremental(tracks, intrinsics, camera_names, inc_config, seed=seed,
                                 progress=progress, validation_tracks=validation_tracks,
                                 extra_starts=extra_starts).state

@@ -53,6 +53,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from ..parallel import map_threads
+from ..progress import check_stop
 from ..types import Tracks
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
@@ -149,6 +150,7 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
             ) -> Optional[ImageRefinement]:
     tracks = ahead.tracks(state) if ahead is not None \
         else dense_tracks(frame_sets, state, seeds, masks)
+    check_stop()
     refined = state.on_tracks(tracks)
     triangulate_tracks(refined, TRIANGULATION_GATE_PX, seed=seed)
     remove_outlier_observations(refined, TRIANGULATION_GATE_PX)
@@ -176,11 +178,13 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     adjustment = _adjust_and_gate(refined, blocks, priors)
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
+    check_stop()
     determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
     ties, one_cameras = _rig_ties(refined, blocks, fold_sigmas, priors, adjustment.noise_px,
                                   camera_names, say)
     for members in one_cameras:
         priors = _as_one_camera(refined, members, determined, fold_sigmas, priors)
+    check_stop()
     in_place = replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
@@ -193,6 +197,7 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         remove_outlier_observations(refined, GATE_SIGMAS * adjustment.residual_scale_px)
     say(f"refined on {int(refined.point_mask().sum())} dense image correspondences "
         f"(noise {adjustment.noise_px:.2f} px)")
+    check_stop()
     scale_std = 0.0  # of the focal lengths' common scale, where the layout leaves it open
     if axes_spread_deg([refined.cam_from_world[c][:3, :3] for c in refined.registered()]) \
             < FORWARD_SPREAD_DEG:

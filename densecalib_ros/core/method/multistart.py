@@ -10,7 +10,6 @@ lowest truncated reprojection cost, judged on matches it was not built from wher
 """
 from __future__ import annotations
 
-import functools
 import itertools
 import logging
 from dataclasses import replace
@@ -23,7 +22,7 @@ from ..config import SfMConfig
 from ..errors import NotEnoughOverlapError
 from ..metrics import mean_focal_px, relative_pose_errors
 from ..parallel import map_jobs
-from ..progress import StageClock, say_progress
+from ..progress import Progress, StageClock
 from ..types import CameraIntrinsics, Tracks
 from .incremental import (MIN_PAIR_CORRESPONDENCES, TRUNCATION_FALLBACK_PX, IncrementalResult,
                           finish_on, incremental_sfm)
@@ -108,7 +107,7 @@ TRIALS_PROGRESS_EVERY_S = 15.0
 
 def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                     camera_names: Sequence[str], config: SfMConfig, seed: int = 0,
-                    progress: Optional[Callable[[str], None]] = None,
+                    progress=None,
                     validation_tracks: Optional[Tracks] = None,
                     extra_starts: Optional[dict[str, list[CameraIntrinsics]]] = None,
                     only_starts: Optional[Sequence[str]] = None) -> IncrementalResult:
@@ -133,20 +132,21 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     rig does and still fit the matches it never saw worse (same section), so the left-out matches
     judge more fairly.
     extra_starts: more named starting intrinsics for the multi-start (the eq. 2 estimate where
-    `intrinsics` hold known focals: pipeline.calibrate_from_tracks). Where every camera's
+    `intrinsics` hold known focals: stages.runs.sfm_run). Where every camera's
     intrinsics are given (config.fixed_intrinsics_cameras) there is one focal start, and the
     multi-start runs from first pairs instead (first_pair_starts, MAX_FIRST_PAIR_STARTS).
     only_starts: run only the starts of these names (those present; all where none is): what
     an earlier run's settled multi-start (the result's settled_starts) leaves to try.
     """
-    say = functools.partial(say_progress, progress)
+    progress = Progress.of(progress)
+    say = progress.say
     sub = tracks.sample(trial_max_tracks(tracks.num_cameras), seed)
     starts = _named_starts(intrinsics, camera_names, config, sub, extra_starts)
     restricted = only_starts is not None and any(n in starts for n in only_starts)
     if restricted:
         starts = {n: starts[n] for n in starts if n in only_starts}
     trials, costs = _judged_trials(sub, starts, camera_names, config, seed, validation_tracks,
-                                   say)
+                                   progress)
     best = min(costs, key=costs.get) if costs else next(iter(starts))
     if costs:
         judged_on = (f"{validation_tracks.num_tracks} keypoint-match tracks"
@@ -196,21 +196,23 @@ def _named_starts(intrinsics: Sequence[CameraIntrinsics], camera_names: Sequence
 
 def _judged_trials(trial_tracks: Tracks, starts: dict, camera_names: Sequence[str],
                    config: SfMConfig, seed: int, validation_tracks: Optional[Tracks],
-                   say: Callable[[str], None]) -> tuple[dict, dict]:
+                   progress: Progress) -> tuple[dict, dict]:
     """Every start's trial on trial_tracks (_trial), side by side: (start name -> (trial,
     its progress messages) for the trials that started; start name -> (-registered cameras,
-    truncated cost) for those with plausible intrinsics), in the order of `starts`."""
+    truncated cost) for those with plausible intrinsics), in the order of `starts`. The trials
+    are the progress's substeps, and its stop ends them."""
     # Trials are independent: they run side by side (core.parallel), each BA on one core, so
     # the outcome does not depend on how many ran at once.
     trial_config = replace(config, num_threads=1)
     clock = StageClock(len(starts))
 
     def trials_done(k: int) -> None:
+        progress.substep(k / len(starts))
         if clock.due(TRIALS_PROGRESS_EVERY_S) and k < len(starts):
-            say(f"focal multi-start: {k} of {len(starts)} trials done{clock.left(k)}")
+            progress.say(f"focal multi-start: {k} of {len(starts)} trials done{clock.left(k)}")
     outcomes = map_jobs(_trial, [(trial_tracks, start, camera_names, trial_config, seed, pair,
                                   validation_tracks) for start, pair in starts.values()],
-                        config.num_threads, on_done=trials_done)
+                        config.num_threads, on_done=trials_done, check=progress.check)
     trials, costs = {}, {}
     for name, (trial, messages, cost) in zip(starts, outcomes):
         if trial is None:

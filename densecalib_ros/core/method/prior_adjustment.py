@@ -31,6 +31,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from ..progress import check_stop
 from ..types import CameraIntrinsics
 from .prior_adjustment_kernels import (_damped_point_inverses, _observation_products,
                                        _point_products, _point_steps, _project, _to_columns)
@@ -340,6 +341,7 @@ def _levenberg_marquardt(problem: _Problem, noise_px: float, max_iterations: int
     cost = problem.cost(noise_px)
     lam, iterations = 1e-4, 0
     for iterations in range(1, max_iterations + 1):
+        check_stop()  # a stopped calibration ends between iterations
         U, Wt, V, g_cam, g_pt, flat, _ = _normal_equations(problem, noise_px)
         improved = False
         for _ in range(10):

@@ -246,32 +246,23 @@ def estimated_principal_points(rig: Optional[RigCalibration]) -> dict:
     return out
 
 
-def add_uncertainty(rig: RigCalibration, reconstruction, camera_names: Sequence[str],
-                    config: PipelineConfig, sigmas: Optional[dict] = None) -> None:
-    """Record each camera's standard deviations in its quality, in place: `sigmas` (camera name
-    -> core.method.uncertainty.CameraUncertainty, from the image refinement) where given, else
-    core.method.uncertainty's."""
+def camera_sigmas(rig: RigCalibration, reconstruction, camera_names: Sequence[str],
+                  config: PipelineConfig, sigmas: Optional[dict] = None
+                  ) -> tuple[dict, Optional[float]]:
+    """(camera name -> CameraUncertainty, the held principal points' sigma as a fraction of the
+    long side where it entered them, else None): `sigmas` (the image refinement's) where they
+    cover every camera, else core.method.uncertainty's for the others; ({}, None) where those
+    cannot be computed (a diagnostic: never a reason to lose the result)."""
     sigmas = dict(sigmas or {})
     if set(sigmas) >= set(rig.cameras):
-        _record_sigmas(rig, sigmas)
-        return
+        return sigmas, None
     pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
     given = sorted(config.cameras.known_intrinsics or {})
     # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
     noise_px = float(rig.quality.reprojection_rms_px) / np.sqrt(2.0)
     try:
-        sigmas = {**calibration_uncertainty(reconstruction, rig.reference_camera,
-                                            noise_px, pp_refined, given), **sigmas}
-    except (RuntimeError, ValueError) as exc:  # a diagnostic: never a reason to lose the result
+        return {**calibration_uncertainty(reconstruction, rig.reference_camera, noise_px,
+                                          pp_refined, given), **sigmas}, HELD_PP_STD_FRACTION
+    except (RuntimeError, ValueError) as exc:
         log.warning("no standard deviations for this calibration: %s", exc)
-        return
-    rig.quality.held_pp_std_fraction = HELD_PP_STD_FRACTION  # in the held points' sigmas
-    _record_sigmas(rig, sigmas)
-
-
-def _record_sigmas(rig: RigCalibration, sigmas: dict) -> None:
-    for name, cam in rig.cameras.items():
-        if name in sigmas and cam.quality is not None:
-            cam.quality.focal_std_px = sigmas[name].focal_std_px
-            cam.quality.principal_point_std_px = sigmas[name].principal_point_std_px
-            cam.quality.projection_std_px = sigmas[name].projection_std_px
+        return {}, None

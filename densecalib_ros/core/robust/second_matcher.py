@@ -1,6 +1,6 @@
 """A second matcher where sift's matches leave a perspective rig undetermined: the pipeline
 matches again with an affine-invariant matcher (asift) and keeps the better-determined calibration
-(core.pipeline._calibrated).
+(with_second_matcher, the policy core.pipeline runs around a matcher's calibration).
 
 A wide viewpoint change between neighbours (45-65 deg), or a long lens (25-35 deg field of view)
 whose views share little, leaves sift a few dozen correct matches per pair: a camera fails to
@@ -14,18 +14,23 @@ rigs (same section).
 """
 from __future__ import annotations
 
-from typing import Optional, Sequence
+import logging
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence
 
-from ..config import PipelineConfig, resolve_camera_lenses
+from ..config import PipelineConfig
+from ..errors import CalibrationError, InputError
 from ..method.focal_determination import median_focal_std_fraction, short_of_aim
 from ..types import RigCalibration
 from .consensus import WARN_DISAGREEMENT_DEG, standing_disagreement_deg
+
+log = logging.getLogger(__name__)
 
 
 def perspective_on_sift(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
     """Whether `config` matches cameras all of perspective lenses with sift: the rigs whose wide
     steps or narrow views thin sift's matches out."""
-    models = resolve_camera_lenses(config, camera_names).sfm.models(len(camera_names))
+    models = config.for_cameras(camera_names).sfm.models(len(camera_names))
     return config.matcher == "sift" and not any("FISHEYE" in m for m in models)
 
 
@@ -74,3 +79,83 @@ def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) 
         return (len(rig.cameras), -(disagreement if disagreement > WARN_DISAGREEMENT_DEG else 0.0),
                 -median_focal_std_fraction(rig))
     return rank(a) > rank(b)
+
+
+@dataclass(frozen=True)
+class Rematch:
+    """What the second matcher did: the first matcher and why its calibration was undetermined,
+    the second and how its calibration came out, and whether the second's was kept."""
+
+    first: str
+    first_result: str
+    second: str
+    second_result: str
+    kept_second: bool
+
+    def record(self) -> dict:
+        """The quality record's `rematch`."""
+        return {"first": self.first, "first_result": self.first_result, "second": self.second,
+                "second_result": self.second_result,
+                "kept": self.second if self.kept_second else self.first}
+
+
+def first_run_incomplete(results: list) -> bool:
+    """The consensus runs' rule on the first matcher's matches: end after a first run that left
+    a camera unregistered. That is the second matcher's case; more runs on these matches would
+    only delay it, as a later sample rarely registers a camera the first run left out
+    (docs/design-notes.md, A second matcher: sooner); they are completed where the other matcher
+    does no better."""
+    return len(results) == 1 and bool(results[0].rig.failed_cameras)
+
+
+def with_second_matcher(calibrate: Callable[[str, Optional[Callable]], object],
+                        config: PipelineConfig, camera_names: Sequence[str], fresh: bool,
+                        say: Callable[[str], None]) -> tuple[object, Optional[Rematch]]:
+    """(the calibration to keep, what the second matcher did or None where it did not run).
+
+    calibrate(matcher, until) calibrates on that matcher's matches, its consensus runs ended by
+    `until` (ConsensusRuns.run); called again for a matcher it continues the runs it ended. Its
+    result has `.rig` and `.cut_short` (whether `until` ended the runs). Where rematch_applies,
+    the first matcher's calibration is matched again with config.second_matcher where it is
+    undetermined, and the better determined is kept. Raises the first calibration's error where
+    neither gives one."""
+    if not rematch_applies(config, camera_names, fresh=fresh):
+        return calibrate(config.matcher, None), None
+    first, error = None, None
+    try:
+        first = calibrate(config.matcher, first_run_incomplete)
+    except InputError:
+        raise  # the user's input, not sift's matches: another matcher would be refused too
+    except CalibrationError as exc:
+        error = exc
+    why = undetermined(first.rig if first else None)
+    if why is None:
+        return first, None
+    second_matcher = config.second_matcher
+    say(f"{config.matcher}: {why}; matching again with {second_matcher}, which keeps matches "
+        "across wide viewpoint changes (several times slower)")
+    second = None
+    try:
+        second = calibrate(second_matcher, None)
+    except CalibrationError as exc:
+        log.info("the calibration on %s's matches failed too: %s", second_matcher, exc)
+    if first is not None and first.cut_short and \
+            not better_determined(second.rig if second else None, first.rig):
+        say(f"{second_matcher}: no better determined; completing {config.matcher}'s consensus "
+            "runs")
+        try:
+            first = calibrate(config.matcher, None)
+        except CalibrationError as exc:  # not expected (the runs go on from the first): keep it
+            log.info("completing %s's consensus runs failed: %s", config.matcher, exc)
+        why = undetermined(first.rig)
+        if why is None:  # a later run registered the camera: no second matcher was needed
+            return first, None
+    if first is None and second is None:
+        raise error
+    second_came = undetermined(second.rig if second else None) or "determined"
+    keep_second = better_determined(second.rig if second else None,
+                                    first.rig if first else None)
+    say(f"{second_matcher}: {second_came}; kept the calibration on "
+        f"{second_matcher if keep_second else config.matcher}'s matches")
+    return (second if keep_second else first), Rematch(config.matcher, why, second_matcher,
+                                                        second_came, keep_second)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ...errors import InputError, ModelWeightsError
 from ...types import SiteMatches, SiteMatchSet
-from .base import Matcher
+from .base import Matcher, Steps
 from .utils import resize_for_matching, resolve_device, to_rgb
 
 WEIGHTS_ENV = "DENSECALIB_ROMA_WEIGHTS"
@@ -131,7 +131,7 @@ class RomaMatcher(Matcher):
         res = self.upsample_res or self.coarse_res
         return res, res
 
-    def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
+    def _match(self, images: list[np.ndarray], steps: Steps) -> SiteMatchSet:
         from PIL import Image
 
         grid_h, grid_w = self._grid_shape()
@@ -150,5 +150,6 @@ class RomaMatcher(Matcher):
                                                      self.min_certainty, sizes[j])
                 pairs[(j, i)] = warp_to_site_matches(warp[:, grid_w:, :2], certainty[:, grid_w:],
                                                      self.min_certainty, sizes[i])
+                steps.done()
         return SiteMatchSet(sites=[grid_sites(w, h, grid_w, grid_h) for w, h in sizes],
                             pairs=pairs, image_sizes=sizes)

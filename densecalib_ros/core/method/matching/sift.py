@@ -14,7 +14,6 @@ so orientation duplicates do not reject each other. (j, i) is the exact inverse 
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from typing import Optional
 
 import cv2
@@ -23,9 +22,9 @@ from threadpoolctl import threadpool_limits
 
 from ...compiled import compiled
 from ...errors import InputError
-from ...parallel import available_cores
+from ...parallel import available_cores, map_threads
 from ...types import SiteMatchSet
-from .base import Matcher
+from .base import Matcher, Steps
 from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
                     resize_for_matching, to_gray)
 
@@ -293,15 +292,15 @@ class SiftMatcher(Matcher):
 
     detects_in_regions = True
 
-    def _match(self, images: list[np.ndarray],
+    def _match(self, images: list[np.ndarray], steps: Steps,
                regions: Optional[list[Optional[np.ndarray]]] = None) -> SiteMatchSet:
         # OpenCV's SIFT leaves most of its work on one core and releases the GIL: one image per
         # core (the same features as one after another); the pairs' distance matrices likewise
         # (numpy's reductions run on one core, outside the GIL).
         cores = available_cores()
         regions = regions or [None] * len(images)
-        with ThreadPoolExecutor(min(len(images), cores)) as pool:
-            feats = list(pool.map(self._features, images, regions))
+        feats = map_threads(lambda k: self._features(images[k], regions[k]), range(len(images)),
+                            min(len(images), cores), steps.done)
         # One pair per core, and each pair's products on its own core: a BLAS that spreads every
         # product over all the cores as well runs twice as many threads as cores, and its idle
         # threads spin while numpy reduces a tile. With fewer pairs than cores, BLAS takes the rest.
@@ -309,7 +308,7 @@ class SiftMatcher(Matcher):
         with threadpool_limits(max(1, cores // pairs_at_once), user_api="blas"):
             return match_unordered_pairs(images, [f[0] for f in feats],
                                          lambda i, j: self._match_pair(feats[i], feats[j]),
-                                         pairs_at_once)
+                                         pairs_at_once, steps)
 
 
 class AsiftMatcher(SiftMatcher):

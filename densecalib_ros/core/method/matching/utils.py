@@ -8,13 +8,13 @@ so the map is a pure scale. OpenCV/XFeat keypoints (pixel centre at 0) get +0.5 
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from typing import Optional, Sequence
 
 import cv2
 import numpy as np
 
 from ...errors import InputError
+from ...parallel import map_threads
 from ...types import SiteMatches, SiteMatchSet
 
 
@@ -103,17 +103,15 @@ def mutual_pair_maps(src: np.ndarray, dst: np.ndarray, certainty: np.ndarray, nu
 
 
 def match_unordered_pairs(images: Sequence[np.ndarray], sites: Sequence[np.ndarray], match_pair,
-                          workers: int = 1) -> SiteMatchSet:
+                          workers: int = 1, steps=None) -> SiteMatchSet:
     """SiteMatchSet of a detector-based matcher: `match_pair(a, b)` is called once per unordered
     camera pair (a < b) and returns the (a -> b, b -> a) SiteMatches; sites[c] is camera c's site
     table (COLMAP px in the original image). workers > 1: that many pairs at a time in threads
-    (for a match_pair whose work releases the GIL, numpy's; each pair's result is its own)."""
+    (for a match_pair whose work releases the GIL, numpy's; each pair's result is its own).
+    steps: the frame set's base.Steps, told of each pair done."""
     keys = [(i, j) for i in range(len(images)) for j in range(i + 1, len(images))]
-    if workers > 1 and len(keys) > 1:
-        with ThreadPoolExecutor(min(workers, len(keys))) as pool:
-            results = list(pool.map(lambda ij: match_pair(*ij), keys))
-    else:
-        results = [match_pair(i, j) for i, j in keys]
+    results = map_threads(lambda ij: match_pair(*ij), keys, max(1, workers),
+                          steps.done if steps is not None else None)
     pairs = {}
     for (i, j), (ab, ba) in zip(keys, results):
         pairs[(i, j)], pairs[(j, i)] = ab, ba

@@ -15,7 +15,7 @@ import numpy as np
 
 from ...errors import ModelWeightsError
 from ...types import SiteMatchSet
-from .base import Matcher
+from .base import Matcher, Steps
 from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
                     resize_for_matching, resolve_device, to_rgb)
 
@@ -123,7 +123,11 @@ class XFeatLighterGlueMatcher(Matcher):
         src = np.nonzero(matches0 >= 0)[0]
         return mutual_pair_maps(src, matches0[src], scores0[src], na, nb)
 
-    def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
-        feats = [self._features(im) for im in images]
+    def _match(self, images: list[np.ndarray], steps: Steps) -> SiteMatchSet:
+        feats = []
+        for im in images:
+            feats.append(self._features(im))
+            steps.done()
         return match_unordered_pairs(images, [f["sites"] for f in feats],
-                                     lambda i, j: self._match_pair(feats[i], feats[j]))
+                                     lambda i, j: self._match_pair(feats[i], feats[j]),
+                                     steps=steps)

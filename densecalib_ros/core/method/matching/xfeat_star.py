@@ -34,7 +34,7 @@ from typing import Optional
 import numpy as np
 
 from ...types import SiteMatchSet
-from .base import Matcher
+from .base import Matcher, Steps
 from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
                     resize_for_matching, resolve_device)
 from .xfeat_lighterglue import build_xfeat, image_tensor
@@ -119,7 +119,11 @@ class XFeatStarMatcher(Matcher):
                 m.target_xy_px[src[ok]] = xy[ok]
         return fwd, bwd
 
-    def _match(self, images: list[np.ndarray]) -> SiteMatchSet:
-        feats = [self._features(im) for im in images]
+    def _match(self, images: list[np.ndarray], steps: Steps) -> SiteMatchSet:
+        feats = []
+        for im in images:
+            feats.append(self._features(im))
+            steps.done()
         return match_unordered_pairs(images, [f["sites"] for f in feats],
-                                     lambda i, j: self._match_pair(feats[i], feats[j]))
+                                     lambda i, j: self._match_pair(feats[i], feats[j]),
+                                     steps=steps)

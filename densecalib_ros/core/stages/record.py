@@ -1,0 +1,209 @@
+"""The quality record and the warnings of a calibration, each made once from the finished rig and
+the stages' outcomes: `assemble` when a matcher's calibration is finished (what the second
+matcher's policy compares), `finish` once the calibration is kept (the run's inputs, the second
+matcher, the warnings, the scene's colours)."""
+from __future__ import annotations
+
+import logging
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..calibration_result import CalibrationResult
+from ..config import PipelineConfig
+from ..method.focal_determination import (loose_focal_warning, one_camera_hint,
+                                          weak_focal_warning)
+from ..method.known_intrinsics import describe as describe_known
+from ..method.known_intrinsics import given_intrinsics_warnings
+from ..method.plausibility import unlike_lens_warning
+from ..method.reconstruction import colour_points
+from ..method.uncertainty import camera_sigmas
+from ..method.view_graph import pair_track_counts
+from ..progress import Progress
+from ..robust.consensus import (WARN_DISAGREEMENT_DEG, disagreement_warning,
+                                standing_disagreement_deg)
+from ..robust.consensus_runs import ConsensusRecord
+from ..robust.second_matcher import Rematch, perspective_on_sift
+from ..types import RigCalibration, Tracks
+from .inputs import RigImages
+
+log = logging.getLogger(__name__)
+
+
+def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Sequence[str],
+             match_tracks: Optional[Tracks], consensus: Optional[ConsensusRecord],
+             focal_hops: Sequence[str], refinement) -> None:
+    """Write result.rig's quality record (beyond the fit, which rig_from_state gave it) from the
+    run that made it (result.sfm), the consensus, the focal hops and the image refinement
+    (stages.refinement.RefinementRecord or None), and each camera's standard deviations."""
+    rig, quality = result.rig, result.rig.quality
+    sfm = result.sfm
+    quality.update(pipeline=sfm.pipeline, preset=sfm.preset, sfm_runtime_s=sfm.sfm_runtime_s,
+                   view_order=sfm.view_order, match_tracks=sfm.match_tracks,
+                   moved_cameras=sfm.moved_cameras, **sfm.global_sfm)
+    if consensus is not None:
+        quality.update(
+            consensus_runs=consensus.num_runs, consensus_failed_runs=consensus.failed_runs,
+            consensus_seed=consensus.seed, consensus_settled_starts=consensus.settled_starts,
+            consensus_worse_fit_runs=consensus.worse_fit_runs,
+            consensus_kept_by_fit=consensus.kept_by_fit,
+            consensus_disagreement_deg=consensus.disagreement_deg,
+            consensus_refined_disagreement_deg=consensus.refined_disagreement_deg)
+        if consensus.least_determined_pairs:
+            quality.consensus_least_determined_pairs_deg = {
+                f"{a}/{b}": round(deg, 1) for a, b, deg in consensus.least_determined_pairs}
+    if focal_hops:
+        quality.focal_hops = list(focal_hops)
+    if refinement is not None:
+        quality.update(image_refinement_tracks=refinement.num_tracks,
+                       image_refinement_noise_px=refinement.noise_px,
+                       principal_point_prior_std_fraction=refinement.pp_prior_std_fraction)
+        for name, cam in rig.cameras.items():
+            if name in refinement.estimated and cam.quality is not None:
+                cam.quality.estimated_intrinsics = refinement.estimated[name]
+    if rig.failed_cameras:
+        quality.unregistered_best_partner = _best_partners(rig.failed_cameras, match_tracks,
+                                                           camera_names)
+    sigmas, held_fraction = camera_sigmas(rig, result.reconstruction, camera_names, config,
+                                          refinement.sigmas if refinement is not None else None)
+    if held_fraction is not None:
+        quality.held_pp_std_fraction = held_fraction
+    for name, cam in rig.cameras.items():
+        if name in sigmas and cam.quality is not None:
+            cam.quality.focal_std_px = sigmas[name].focal_std_px
+            cam.quality.principal_point_std_px = sigmas[name].principal_point_std_px
+            cam.quality.projection_std_px = sigmas[name].projection_std_px
+    if config.cameras.known_intrinsics:
+        quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
+    if sfm.given_intrinsics_fit:
+        quality.given_intrinsics_fit = sfm.given_intrinsics_fit
+
+
+def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
+           consensus: Optional[ConsensusRecord], rematch: Optional[Rematch],
+           match_tracks: Optional[Tracks], runtime_s: float, progress: Progress) -> None:
+    """The kept calibration made whole: what it was made from (the matcher of `config`, the
+    frame sets, the lenses, masks, info strips and EXIF focals), the second matcher's record,
+    the warnings (warnings) and the scene points' colours."""
+    quality = result.rig.quality
+    quality.update(matcher=config.matcher, num_frame_sets=len(images.frame_sets),
+                   runtime_s=runtime_s)
+    cameras = config.cameras
+    if cameras.lens:
+        quality.camera_lens = dict(cameras.lens)
+    if cameras.masks:
+        quality.masked_cameras = sorted(cameras.masks)
+    if images.strips:
+        quality.info_strips = {n: ", ".join(s.describe() for s in found)
+                               for n, found in images.strips.items()}
+    if cameras.exif_focal_px:
+        quality.exif_focal_px = {n: round(float(f), 1) for n, f in cameras.exif_focal_px.items()}
+    if rematch is not None:
+        quality.rematch = rematch.record()
+    for warning in warnings(result.rig, config, images.camera_names, consensus, rematch,
+                            match_tracks):
+        log.warning("%s", warning)
+        if progress.on_message is not None:
+            progress.on_message(warning)
+        quality.warnings.append(warning)
+    with_point_colours(result, images.frame_sets)
+
+
+def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[str],
+             consensus: Optional[ConsensusRecord], rematch: Optional[Rematch],
+             match_tracks: Optional[Tracks]) -> list[str]:
+    """What the user is warned of about the finished rig: runs that still disagree as it stands,
+    a camera not registered, given intrinsics that do not fit, lenses unlike a real one, focal
+    lengths the images leave open or looser than the aim; after a second matcher, what it gave."""
+    on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
+    out = []
+    if consensus is not None:
+        standing = standing_disagreement_deg(rig.quality)
+        if standing is not None and standing > WARN_DISAGREEMENT_DEG:
+            out.append(disagreement_warning(
+                consensus.disagreement_deg, consensus.num_runs, on_sift,
+                consensus.least_determined_pairs, _shared_matches(match_tracks, camera_names),
+                len(rig.cameras)))
+    if rematch is None:
+        out.append(unregistered_warning(rig, on_sift))
+    out += given_intrinsics_warnings(rig.quality.given_intrinsics_fit or {})
+    out += [unlike_lens_warning(rig), weak_focal_warning(rig)]
+    if rematch is None:
+        out.append(loose_focal_warning(rig, f"{config.matcher}'s matches"))
+    else:
+        out.append(unregistered_warning(rig))
+        if not rematch.kept_second:
+            # Above the weak bound the weak warning has given the hint already.
+            hint = "" if weak_focal_warning(rig) else one_camera_hint(rig)
+            out.append(f"{rematch.second}'s matches were tried as well and gave no better "
+                       f"determined rig ({rematch.second_result}).{hint}")
+        else:
+            out.append(loose_focal_warning(rig, f"{rematch.second}'s matches (kept over "
+                                                f"{rematch.first}'s)"))
+    return [w for w in out if w]
+
+
+def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False
+                         ) -> Optional[str]:
+    """The message for a user whose rig came out without some of its cameras: which, the camera
+    each shares the most keypoint matches with (quality.unregistered_best_partner), and what
+    would place them (more overlap, or given intrinsics where the camera was left out for
+    implausible ones: plausibility.drop_implausible_cameras); None where every camera was
+    registered. perspective_on_sift: as consensus.disagreement_warning's (the message suggests
+    asift)."""
+    failed = rig.failed_cameras
+    if not failed:
+        return None
+    partners = rig.quality.unregistered_best_partner or {}
+    one = len(failed) == 1
+    it, its, subject = ("it", "its", failed[0]) if one else ("them", "their", "they")
+    shared = ""
+    if all(c in partners for c in failed):
+        counts = (f"{partners[failed[0]][1]}" if one else " and ".join(
+            f"{partners[c][1]} ({c}, with {partners[c][0]})" for c in failed))
+        shared = (f": {'it shares' if one else 'they share'} at most {counts} keypoint matches "
+                  "with another camera" + (f" ({partners[failed[0]][0]})" if one else ""))
+    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
+             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
+    return (f"{' and '.join(failed)} could not be registered{shared}. The other "
+            f"{len(rig.cameras)} cameras are calibrated without {it}. Add frame sets in which "
+            f"{subject} and the neighbouring cameras see the same textured things, or turn {it} "
+            f"to overlap more with them. If {'it does' if one else 'they do'} overlap, {its} "
+            f"intrinsics from a lab calibration (--intrinsics {failed[0] if one else 'NAME'}"
+            f"=FILE) would place {it}: a camera whose self-calibrated intrinsics come out "
+            "implausible is left out as well." + asift)
+
+
+def with_point_colours(result: CalibrationResult,
+                       frame_sets: Sequence[Sequence[np.ndarray]]) -> None:
+    """Colour the result's reconstruction points from the images (reconstruction.colour_points)."""
+    if result.reconstruction is None or result.state is None:
+        return
+    try:
+        colour_points(result.reconstruction, result.state, frame_sets)
+    except Exception as exc:  # colours are for viewing: they never cost a calibration
+        log.warning("scene points left uncoloured: %r", exc)
+
+
+def _best_partners(cameras: Sequence[str], tracks: Optional[Tracks],
+                   camera_names: Sequence[str]) -> Optional[dict]:
+    """{camera: [the other camera it shares the most keypoint-match tracks with, how many]} for
+    `cameras` (_shared_matches); None without keypoint-match tracks (a dense matcher)."""
+    shared = _shared_matches(tracks, camera_names)
+    if not shared:
+        return None
+    out = {}
+    for name in cameras:
+        counts = {(b if a == name else a): n for (a, b), n in shared.items() if name in (a, b)}
+        partner = max(counts, key=counts.get)
+        out[name] = [partner, counts[partner]]
+    return out
+
+
+def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> dict:
+    """{(a, b): keypoint-match tracks seen by both cameras}; {} without tracks."""
+    if tracks is None or not tracks.num_tracks:
+        return {}
+    shared = pair_track_counts(tracks)
+    return {(a, b): int(shared[i, j]) for i, a in enumerate(camera_names)
+            for j, b in enumerate(camera_names) if i < j}

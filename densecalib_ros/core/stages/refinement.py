@@ -1,0 +1,126 @@
+"""The image refinement stage: the kept run refined on dense correspondences measured in the images
+(core.method.image_refinement), found ahead on idle cores while the rig is still being searched
+(DenseAhead). Runs that disagree on the keypoint matches may meet refined: the consensus policy
+asks for their refinements too (RefinedRuns.disagreement_deg), and the kept run's is then not
+computed again."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..calibration_result import CalibrationResult, result_with_state, rig_from_state
+from ..config import PipelineConfig
+from ..method.dense_matches import DenseAhead
+from ..method.image_refinement import PP_PRIOR_STD_FRACTION, ImageRefinement, refine_on_images
+from ..method.prior_adjustment import SUPPORTED_MODELS
+from ..method.uncertainty import estimated_principal_points
+from ..progress import Progress
+from ..robust.consensus import medoid
+from ..types import RigCalibration, Tracks
+from .inputs import RigImages
+from .matching import Matched
+
+
+@dataclass(frozen=True)
+class RefinementRecord:
+    """What the stage did to the kept rig, for the quality record: the dense tracks it adjusted
+    on, their noise (px), the principal point prior's sigma (fraction of the long side), per
+    camera the intrinsics the images determined, and per camera its CameraUncertainty."""
+
+    num_tracks: int
+    noise_px: float
+    pp_prior_std_fraction: float
+    estimated: dict
+    sigmas: dict
+
+
+def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig
+                ) -> Optional[DenseAhead]:
+    """The image refinement's dense correspondences, which need only the images and the keypoint
+    matches until their last checks, started on cores the rig's search leaves idle
+    (dense_matches.DenseAhead). None where the refinement will not run, or will not start from
+    the keypoint matches, or cannot apply (a fisheye lens)."""
+    tracks = matched.keypoint_tracks
+    if not config.refine_on_images or tracks is None or not tracks.num_tracks or any(
+            m not in SUPPORTED_MODELS for m in config.sfm.models(len(images.camera_names))):
+        return None
+    return DenseAhead(images.frame_sets, len(images.camera_names), tracks,
+                      images.ignored or None)
+
+
+class RefinedRuns:
+    """Calibrations (their SfM states) refined on the dense image correspondences, each state
+    once (a result rebuilt from another state, e.g. after focal hops, is refined anew).
+    previous: a previous calibration, whose principal points its images determined centre the
+    priors; ahead: the dense correspondences as far as they were found ahead, or None."""
+
+    def __init__(self, images: RigImages, matched: Matched, config: PipelineConfig,
+                 previous: Optional[RigCalibration], ahead: Optional[DenseAhead]):
+        self.images, self.matched, self.config, self.ahead = images, matched, config, ahead
+        self.pp_centres = estimated_principal_points(previous)
+        self._done: list[tuple] = []  # (state, its refinement or None, its messages)
+
+    def refinement(self, result: CalibrationResult, progress: Optional[Progress] = None
+                   ) -> Optional[ImageRefinement]:
+        """The ImageRefinement of result.state (None where the stage does not apply); its
+        messages are said to `progress` (where given) each time it is asked for."""
+        state = result.state
+        found = next((done for done in self._done if done[0] is state), None)
+        if found is None:
+            messages: list[str] = []
+            refinement = refine_on_images(state, self.images.frame_sets,
+                                          _seeds(result, self.matched.keypoint_tracks),
+                                          self.images.camera_names, self.images.ignored or None,
+                                          self.config.sampling.seed, messages.append,
+                                          self.pp_centres, self.ahead)
+            found = (state, refinement, messages)
+            self._done.append(found)
+        for message in found[2] if progress is not None else ():
+            progress.say(message)
+        return found[1]
+
+    def rig(self, result: CalibrationResult) -> Optional[RigCalibration]:
+        """result's rig refined, None where the stage does not apply or there is no state."""
+        refinement = self.refinement(result) if result.state is not None else None
+        if refinement is None:
+            return None
+        names = list(self.images.camera_names)
+        failed = [names.index(n) for n in result.rig.failed_cameras]
+        return rig_from_state(refinement.state, names, failed, result.rig.quality)
+
+    def disagreement_deg(self, results: Sequence[CalibrationResult]) -> Optional[np.ndarray]:
+        """The (R, R) disagreement matrix (consensus.medoid's) of the results refined; None where
+        one of them could not be."""
+        rigs = [self.rig(r) for r in results]
+        if any(r is None for r in rigs):
+            return None
+        return medoid(rigs, self.images.camera_names)[1]
+
+    def refine(self, result: CalibrationResult, progress: Progress
+               ) -> tuple[CalibrationResult, Optional[RefinementRecord]]:
+        """(result refined, what the stage did); the result as it was and None where the stage
+        does not apply."""
+        if result.state is None:
+            return result, None
+        refinement = self.refinement(result, progress)
+        if refinement is None:
+            return result, None
+        refined = result_with_state(result, refinement.state, list(self.images.camera_names))
+        return refined, RefinementRecord(refinement.num_tracks,
+                                         round(refinement.adjustment.noise_px, 4),
+                                         PP_PRIOR_STD_FRACTION, dict(refinement.estimated),
+                                         dict(refinement.uncertainty))
+
+    def close(self) -> None:
+        """Stop the work still run ahead (a calibration that ends without it)."""
+        if self.ahead is not None:
+            self.ahead.cancel()
+
+
+def _seeds(result: CalibrationResult, match_tracks: Optional[Tracks]) -> Tracks:
+    """What the image refinement predicts its dense correspondences from: the keypoint-match
+    tracks where there are any, else the tracks the rig was found on."""
+    return match_tracks if match_tracks is not None and match_tracks.num_tracks \
+        else result.tracks
