@@ -6,10 +6,9 @@ import argparse
 import importlib
 import logging
 import os
-import signal
 import sys
-import threading
 
+from .commands import interrupts
 from .core.colmap_logging import show_colmap_log
 from .core.errors import CalibrationError
 
@@ -79,37 +78,30 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="[%(asctime)s %(levelname)s %(name)s] %(message)s",
                         datefmt="%H:%M:%S", stream=sys.stderr)
-    previous = None
+    previous = []
     try:
         show_colmap_log(args.verbose)  # imports pycolmap, whose glog takes SIGTERM: take it back
-        if threading.current_thread() is threading.main_thread():
-            previous = signal.signal(signal.SIGTERM, _terminated)
+        previous = interrupts.install()
         return int(importlib.import_module(SUBCOMMANDS[args.command][0]).run(args) or 0)
     except CalibrationError as exc:  # one a command did not expect: its message, not a traceback
         logging.getLogger("densecalib").error("%s", exc)
         return 2
-    except Terminated:  # timeout, systemd, kill: files half written are removed on the way out
-        logging.getLogger("densecalib").error("terminated (SIGTERM): what was written before "
-                                              "stays as it was")
-        return 143
-    except KeyboardInterrupt:  # Ctrl-C: a message, not a traceback
+    except interrupts.WrittenThenInterrupted as exc:
+        logging.getLogger("densecalib").error("%s after the calibration was written: the output "
+                                              "holds the new calibration", exc)
+        return exc.exit_code
+    except interrupts.Interrupted as exc:  # files half written are removed on the way out
+        logging.getLogger("densecalib").error("%s: what was written before stays as it was",
+                                              exc)
+        return exc.exit_code
+    except KeyboardInterrupt:  # Ctrl-C before the handler was in place
         logging.getLogger("densecalib").error("interrupted")
         return 130
     except BrokenPipeError:  # `densecalib report ... | head`: the reader had enough
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
         return 141
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread as Ctrl-C is, so that the same clean-up runs (glog's
-    handler printed a stack dump and left temporary folders behind)."""
-
-
-def _terminated(signum, frame):
-    raise Terminated()
+        interrupts.restore(previous)
 
 
 if __name__ == "__main__":

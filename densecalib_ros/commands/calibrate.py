@@ -11,8 +11,7 @@ import argparse
 import logging
 from typing import Optional
 
-from ..core.config import (DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config,
-                           resolve_camera_lenses)
+from ..core.config import DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, make_config
 from ..core.errors import CalibrationError, InputError
 from ..core.method.matching import available_matchers
 from ..core.products.report import camera_table, intrinsics_note
@@ -165,77 +164,88 @@ def _bag_intrinsics(args: argparse.Namespace, names: list[str], given: dict) -> 
 def run(args: argparse.Namespace) -> int:
     from ..core.io.export import CALIBRATION_MARKERS, calibration_entries, write_calibration_files
     from ..core.io.safe_write import check_output_folder, replace_directory_atomic
-    from ..core.job import CalibrationRequest, run_job
-    from ..core.method.known_intrinsics import (check_known_intrinsics, read_known_intrinsics,
-                                                with_previous_intrinsics)
-    from ..core.method.frame_checks import check_frame_sets
-    from ..core.io.export import reference_views_of
+    from ..core.job import run_job
+    from .interrupts import finishing_write, stopping_calibration
+    from .progress_line import terminal_progress
 
+    inputs = [p for p in (args.images, args.videos, args.bag) if p]
     try:
-        inputs = [p for p in (args.images, args.videos, args.bag) if p]
         check_output_folder(args.out, CALIBRATION_MARKERS, inputs)  # before minutes of work
-        overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.jobs,
-                     "sfm__share_intrinsics": args.share_intrinsics,
-                     "consensus_runs": args.consensus_runs,
-                     "second_matcher": None if args.second_matcher == "none"
-                     else args.second_matcher,
-                     "cameras__initial_focal_px": parse_focal_px(args.focal_px),
-                     "cameras__lens": parse_camera_lens(args.lens)}
-        if args.max_side is not None:
-            overrides["max_image_side_px"] = args.max_side
-        config = make_config(args.preset, args.pipeline, args.matcher, **overrides)
-        if args.keep_intrinsics and not args.previous:
-            raise InputError("--keep-intrinsics keeps the intrinsics of the --previous "
-                             "calibration: give --previous OLD_OUT, or the files with "
-                             "--intrinsics.")
-        if args.bag_camera_info and not args.bag:
-            raise InputError("--bag-camera-info reads the CameraInfo topics of a bag: use it "
-                             "with --bag, or give camera_info YAML files with --intrinsics.")
-        frame_sets, names, source, paths = read_input(args)
-        config.cameras.known_intrinsics = read_known_intrinsics(args.intrinsics or [], names)
-        previous = None
-        if args.previous:
-            from ..core.io.export import read_calibration
-            previous = read_calibration(args.previous)
-        if args.keep_intrinsics:
-            config.cameras.known_intrinsics = with_previous_intrinsics(
-                config.cameras.known_intrinsics, previous, names)
-        if args.bag_camera_info:
-            config.cameras.known_intrinsics = _bag_intrinsics(args, names,
-                                                              config.cameras.known_intrinsics)
-        config = resolve_camera_lenses(config, names)  # unknown cameras: an error before matching
-        config.cameras.known_intrinsics = check_known_intrinsics(
-            config.cameras.known_intrinsics, names, check_frame_sets(frame_sets, names))
-        config.cameras.masks = parse_masks(args.mask, names)
-        config.detect_info_strips = not args.keep_info_strips
-        if args.match_whole_frames:
-            config.new_content_matchers = ()
-        if config.cameras.known_intrinsics:
-            log.info("intrinsics given and kept for %s",
-                     ", ".join(sorted(config.cameras.known_intrinsics)))
-        if args.images and not args.ignore_exif:
-            config.cameras.exif_focal_px = _exif_focals(paths, frame_sets, names)
-        log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",
-                 len(names), ", ".join(names), len(frame_sets), config.preset,
-                 "".join(f", {n} {lens}" for n, lens in config.cameras.lens.items()),
-                 config.pipeline, config.matcher)
-        request = CalibrationRequest(
-            frame_sets, names, config, source, previous=previous,
-            previous_views=reference_views_of(args.previous, names) if previous else {},
-            known_baseline=parse_known_baseline(args.known_baseline, names), floor=args.floor,
-            floor_hint="add --floor, or run `densecalib floor` on the result (exports use the "
-                       "floor frame as world)")
-        job = run_job(request)
-        replace_directory_atomic(lambda tmp: write_calibration_files(
-            job.rig, tmp, job.calibration.reconstruction, reference_views=job.reference_views),
-            args.out, CALIBRATION_MARKERS, inputs, owned=calibration_entries)
+        with terminal_progress(getattr(args, "verbose", False)) as progress:
+            request = _request(args)
+            with stopping_calibration(progress.stop):
+                job = run_job(request, progress)
+        with finishing_write():
+            replace_directory_atomic(lambda tmp: write_calibration_files(
+                job.rig, tmp, job.calibration.reconstruction,
+                reference_views=job.reference_views),
+                args.out, CALIBRATION_MARKERS, inputs, owned=calibration_entries)
     except InputError as exc:
         log.error("%s", exc)
         return 2
     except CalibrationError as exc:
         log.error("Calibration failed: %s", exc)
         return 1
-    rig = job.rig
+    _print_summary(job.rig, args.out)
+    return 0
+
+
+def _config(args: argparse.Namespace):
+    """The configuration the options select (before the images are read)."""
+    if args.keep_intrinsics and not args.previous:
+        raise InputError("--keep-intrinsics keeps the intrinsics of the --previous calibration: "
+                         "give --previous OLD_OUT, or the files with --intrinsics.")
+    if args.bag_camera_info and not args.bag:
+        raise InputError("--bag-camera-info reads the CameraInfo topics of a bag: use it with "
+                         "--bag, or give camera_info YAML files with --intrinsics.")
+    overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.jobs,
+                 "sfm__share_intrinsics": args.share_intrinsics,
+                 "consensus_runs": args.consensus_runs,
+                 "second_matcher": None if args.second_matcher == "none" else args.second_matcher,
+                 "cameras__initial_focal_px": parse_focal_px(args.focal_px),
+                 "cameras__lens": parse_camera_lens(args.lens),
+                 "detect_info_strips": not args.keep_info_strips}
+    if args.max_side is not None:
+        overrides["max_image_side_px"] = args.max_side
+    if args.match_whole_frames:
+        overrides["new_content_matchers"] = ()
+    return make_config(args.preset, args.pipeline, args.matcher, **overrides)
+
+
+def _request(args: argparse.Namespace):
+    """The calibration job the options and the input ask for (core.job)."""
+    from ..core.io.export import read_calibration, reference_views_of
+    from ..core.job import CalibrationRequest
+    from ..core.method.known_intrinsics import read_known_intrinsics, with_previous_intrinsics
+
+    config = _config(args)
+    frame_sets, names, source, paths = read_input(args)
+    previous = read_calibration(args.previous) if args.previous else None
+    known = read_known_intrinsics(args.intrinsics or [], names)
+    if args.keep_intrinsics:
+        known = with_previous_intrinsics(known, previous, names)
+    if args.bag_camera_info:
+        known = _bag_intrinsics(args, names, known)
+    if known:
+        log.info("intrinsics given and kept for %s", ", ".join(sorted(known)))
+    exif = _exif_focals(paths, frame_sets, names) if args.images and not args.ignore_exif else {}
+    config = config.with_options(cameras__known_intrinsics=known,
+                                 cameras__masks=parse_masks(args.mask, names),
+                                 cameras__exif_focal_px=exif)
+    log.info("%d camera(s) (%s), %d frame set(s); preset %s%s, %s pipeline, matcher %s",
+             len(names), ", ".join(names), len(frame_sets), config.preset,
+             "".join(f", {n} {lens}" for n, lens in config.cameras.lens.items()),
+             config.pipeline, config.matcher)
+    return CalibrationRequest(
+        frame_sets, names, config, source, previous=previous,
+        previous_views=reference_views_of(args.previous, names) if previous else {},
+        known_baseline=parse_known_baseline(args.known_baseline, names), floor=args.floor,
+        floor_hint="add --floor, or run `densecalib floor` on the result (exports use the "
+                   "floor frame as world)")
+
+
+def _print_summary(rig, out: str) -> None:
+    """The per-camera table and what the user needs to know of the result, on stdout."""
     print(camera_table(rig))
     note = intrinsics_note(rig)
     if note:
@@ -244,5 +254,4 @@ def run(args: argparse.Namespace) -> int:
         print("not registered: " + ", ".join(rig.failed_cameras))
     if rig.quality.change_summary is not None:
         print(f"{rig.quality.change_summary} (started {rig.quality.init})")
-    print(f"reference camera {rig.reference_camera}; wrote {args.out}")
-    return 0
+    print(f"reference camera {rig.reference_camera}; wrote {out}")
