@@ -146,6 +146,38 @@ def test_a_run_killed_while_writing_leaves_the_last_output_and_its_leftovers_go(
     assert f"removed {leftover[0]}" in caplog.text
 
 
+def test_a_signal_as_the_new_folder_is_made_current_is_said_as_it_ended(images, tmp_path):
+    """SIGTERM while the written folder is exchanged with OUT (issue 85, item 3: it used to say
+    "what was written before stays as it was" with OUT replaced, and leave a temporary folder):
+    the exchange and the old folder's removal end first, and the command says that OUT holds
+    the new calibration; exit 143, nothing left beside OUT."""
+    out = tmp_path / "out"
+    _write(out, "good")
+    child = _child("""
+        import sys, time
+        from densecalib_ros import cli
+        from densecalib_ros.core.io import safe_write
+        exchange = safe_write._exchange
+        def slow(a, b):
+            done = exchange(a, b)
+            print("exchanged", flush=True)
+            time.sleep(2)
+            return done
+        safe_write._exchange = slow
+        sys.exit(cli.main(["calibrate", "--images", sys.argv[1], "--out", sys.argv[2],
+                           "--consensus-runs", "1", "--threads", "1"]))
+    """, images, out)
+    _wait_for(child, "exchanged", 240.0)
+    child.send_signal(signal.SIGTERM)
+    code = child.wait(60)
+    said = child.stderr.read()
+    assert code == 143, said
+    assert "after the calibration was written: the output holds the new calibration" in said
+    assert "stays as it was" not in said
+    assert json.loads((out / "calibration.json").read_text())["cameras"]
+    assert _hidden(tmp_path) == []
+
+
 def test_a_recalibration_keeps_what_it_did_not_write(tmp_path, caplog):
     """A new calibration written over an earlier one replaces that calibration's files
     (calibration.json, the camera YAML files, colmap/) and keeps, with a warning, what an

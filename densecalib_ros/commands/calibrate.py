@@ -175,11 +175,10 @@ def run(args: argparse.Namespace) -> int:
             request = _request(args)
             with stopping_calibration(progress.stop):
                 job = run_job(request, progress)
-        with finishing_write():
-            replace_directory_atomic(lambda tmp: write_calibration_files(
-                job.rig, tmp, job.calibration.reconstruction,
-                reference_views=job.reference_views),
-                args.out, CALIBRATION_MARKERS, inputs, owned=calibration_entries)
+        replace_directory_atomic(lambda tmp: write_calibration_files(
+            job.rig, tmp, job.calibration.reconstruction, reference_views=job.reference_views),
+            args.out, CALIBRATION_MARKERS, inputs, owned=calibration_entries,
+            commit_guard=finishing_write)
     except InputError as exc:
         log.error("%s", exc)
         return 2

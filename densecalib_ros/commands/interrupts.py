@@ -5,9 +5,10 @@ Outside a calibration a signal stops the command at once (Interrupted, raised in
 thread). During a calibration (`stopping_calibration`) it does not: an exception raised in the
 middle of a compiled kernel or a C++ call (numba's dispatcher, Ceres, OpenCV's threads) surfaces
 as a SystemError or aborts the process. The signal sets the calibration's stop token instead,
-and the calibration ends at its next check (core.progress), writing nothing. While the result is
-written (`finishing_write`) the signal waits for the write to end, so that what the command says
-is what the output folder holds. A second signal during a calibration ends the process at once.
+and the calibration ends at its next check (core.progress), writing nothing. While the written result
+is made the output folder (`finishing_write`, around the folders' exchange and the old one's
+removal) the signal waits for that to end, so that what the command says is what the output
+folder holds; before it, the half-written folder is removed and the old one stays. A second signal during a calibration ends the process at once.
 """
 from __future__ import annotations
 
@@ -96,8 +97,8 @@ def stopping_calibration(token: StopToken) -> Iterator[StopToken]:
 
 @contextlib.contextmanager
 def finishing_write() -> Iterator[None]:
-    """A write the signals wait for; the signal received meanwhile raised after it, as
-    WrittenThenInterrupted: what was written is current."""
+    """The end of a write that signals wait for; the signal received meanwhile raised after it,
+    as WrittenThenInterrupted: what was written is current."""
     _state.writing, _state.received = True, None
     try:
         yield

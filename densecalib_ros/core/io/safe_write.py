@@ -11,6 +11,7 @@ gone (clean_leftovers). Output folders are checked to be safe to replace first
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import os
@@ -18,7 +19,7 @@ import re
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from typing import Callable, ContextManager, Optional, Sequence
 
 from ..errors import InputError
 from ..parallel import is_running
@@ -164,7 +165,9 @@ def check_output_folder(out_dir: str | os.PathLike, markers: Sequence[str],
 def replace_directory_atomic(build, out_dir: str | os.PathLike,
                              markers: Optional[Sequence[str]] = None,
                              inputs: Sequence[str | os.PathLike] = (),
-                             owned: Optional[Callable[[Path], set]] = None) -> None:
+                             owned: Optional[Callable[[Path], set]] = None,
+                             commit_guard: Callable[[], ContextManager] = contextlib.nullcontext
+                             ) -> None:
     """Call build(tmp_dir) to fill a fresh temporary sibling of out_dir, then make it out_dir in
     one step: the two folders are exchanged atomically where the filesystem can (Linux
     renameat2), else renamed twice, and an old copy a kill left between the two renames is put
@@ -172,7 +175,9 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
     first checked to be safe to replace (check_output_folder; commands check before their work
     too, to fail early). With `owned(out_dir)`, the names in the old out_dir that the command
     writes: every other entry build did not write (an export, a user's notes) is copied into
-    the new folder, and named once at WARNING."""
+    the new folder, and named once at WARNING. commit_guard(): a context held while the new
+    folder is made out_dir and the old one removed (the command's: signals wait for it, so that
+    what it says after a signal is what out_dir holds)."""
     if markers is not None:
         check_output_folder(out_dir, markers, inputs)
     out_dir = Path(out_dir).resolve()
@@ -187,13 +192,18 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
         build(tmp)
         if owned is not None and out_dir.is_dir():
             _carry_over(out_dir, tmp, owned(out_dir))
-        if out_dir.exists() and _exchange(tmp, out_dir):
-            old, tmp = tmp, None  # tmp now holds the previous folder
-        else:
-            if out_dir.exists():
-                old = out_dir.with_name(f".{out_dir.name}.old.{os.getpid()}")
-                os.replace(out_dir, old)
-            os.replace(tmp, out_dir)
+        with commit_guard():
+            if out_dir.exists() and _exchange(tmp, out_dir):
+                old, tmp = tmp, None  # tmp now holds the previous folder
+            else:
+                if out_dir.exists():
+                    old = out_dir.with_name(f".{out_dir.name}.old.{os.getpid()}")
+                    os.replace(out_dir, old)
+                os.replace(tmp, out_dir)
+                tmp = None
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+                old = None
     except BaseException as exc:
         if old is not None and tmp is not None and not out_dir.exists():
             os.replace(old, out_dir)  # the second rename failed: the old folder goes back
@@ -207,8 +217,6 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
             raise InputError(str(exc).replace(building, str(out_dir))
                              + " Nothing was replaced.") from exc
         raise
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 def _carry_over(old_dir: Path, new_dir: Path, owned: set) -> None:
