@@ -16,6 +16,9 @@ from .core.errors import CalibrationError
 SUBCOMMANDS = {
     "calibrate": ("densecalib_ros.commands.calibrate",
                   "calibrate a rig from a folder of images or videos, or a rosbag2 bag"),
+    "keypoints": ("densecalib_ros.commands.keypoints",
+                  "person keypoints (BlazePose) in every camera's frames, as OpenPose JSON for "
+                  "calibrate --keypoints"),
     "demo": ("densecalib_ros.commands.demo",
              "generate a rig, calibrate it through the ROS node (or --offline) and compare to truth"),
     "generate": ("densecalib_ros.commands.generate",
