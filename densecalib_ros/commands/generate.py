@@ -46,6 +46,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="real: intrinsics as real lenses have them (principal points up "
                              "to 2 %% off-centre, focal 0.5-2.2x the width, fy != fx by up to "
                              "0.5 %%); ideal: centred principal points, fx = fy, 55-75 deg")
+    users = parser.add_argument_group("rigs as users build them (issue 81)")
+    users.add_argument("--room", default="textured", choices=["textured", "plain"],  # ROOMS
+                       help="textured: every surface textured, objects in the middle moving "
+                            "between time steps; plain: plain walls and floor, a few textured "
+                            "things at the walls")
+    users.add_argument("--walker", default="none", choices=["none", "person", "animal"],
+                       help="a person or four-legged animal walking a loop through the plain "
+                            "room over the time steps")
+    users.add_argument("--mount", default="any", choices=["any", "high", "low"],
+                       help="camera heights: any 1-2 m; high 1.7-2.4 m looking down (a mocap "
+                            "ring); low 0.4-1.1 m about level (camera traps, desk webcams)")
+    users.add_argument("--lens-mix", default="rig", choices=["rig", "mixed", "identical"],
+                       help="rig: one lens type, each camera within 5 %%; mixed: each camera "
+                            "its own lens (pinhole 56-83 deg); identical: units of one model")
+    users.add_argument("--blur-sigma-px", type=float, default=0.0,
+                       help="Gaussian optical blur before the noise (0: none)")
+    users.add_argument("--jpeg-quality", type=int, default=0,
+                       help="JPEG compression of every image, 10-100 (0: none)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,7 +82,9 @@ def run(args: argparse.Namespace) -> int:
                    height=args.height, num_time_steps=args.time_steps, seed=args.seed,
                    fov_deg=args.fov_deg, noise_std=args.noise_std, gap_deg=args.gap_deg,
                    max_arc_deg=args.max_arc_deg, layout=args.layout,
-                   bar_spacing_m=args.bar_spacing_m, lenses=args.lenses)
+                   bar_spacing_m=args.bar_spacing_m, lenses=args.lenses, room=args.room,
+                   walker=args.walker, mount=args.mount, lens_mix=args.lens_mix,
+                   blur_sigma_px=args.blur_sigma_px, jpeg_quality=args.jpeg_quality)
     try:
         t0 = time.perf_counter()
         rig = generate_rig(spec)

@@ -1,5 +1,6 @@
 """Synthetic camera rigs with exact ground truth: a static rig of 3-10 cameras (RADIAL pinhole or
-OPENCV_FISHEYE) around a textured room with moving objects, rendered by ray casting."""
+OPENCV_FISHEYE) around a textured room with moving objects, or a plain room a person or animal
+walks through, rendered by ray casting."""
 from __future__ import annotations
 
 import json
@@ -16,29 +17,30 @@ from ..io.image_encoding import refuse_png_if_it_would_abort
 from ..io.safe_write import write_text_atomic
 from ..json_text import json_text
 from ..types import CameraIntrinsics, RigCalibration, RigCamera, RigQuality
-from .lens import cam_rays, img_from_cam_any, is_perspective, monotonic_limit, radial_g
-from .render import Photometry, render_camera
+from .intrinsics import (FOV_LIMITS_DEG, FOV_RANGE_DEG, LENS_MIXES, LENS_PROFILES,
+                         REFERENCE_HALF_FOV_DEG, a_limit, rig_intrinsics)
+from .lens import cam_rays, img_from_cam_any
+from .render import Finish, Photometry, StillRoom, render_camera
+from .rooms import furnish, plain_room, plain_styles
 from .scene import Box, Scene, random_scene
 from .textures import STYLE_NAMES, build_atlas
+from .walker import WALKERS, bound_of, walk_loop, walker_parts, walker_styles
 
-_FOV_RANGE_DEG = {"RADIAL": (55.0, 75.0), "OPENCV_FISHEYE": (150.0, 190.0)}
-_FOV_LIMITS_DEG = {"RADIAL": (20.0, 120.0), "OPENCV_FISHEYE": (90.0, 230.0)}
-_FISHEYE_CIRCLE_RAD = np.deg2rad(120.0)  # lens circle: pixels beyond this angle stay black
 LAYOUTS = ("arc", "bar")
 BAR_YAW_DEG = 3.0  # a bar's cameras: each axis turned by up to this from the common direction
-# Lens profiles. "real": intrinsics as real lenses have them (target-based calibrations of
-# Strecha's DSLR, a DTU lab camera, phones, the fisheye pair): principal points up to
-# PP_OFFSET_FRACTION of each side off-centre per axis, pinhole focal lengths from 0.5x to 2.2x the
-# image width (fields of view ~90 down to ~25 deg), fy != fx by up to PIXEL_ASPECT_FRACTION
-# (pinhole cameras are then OPENCV with p1 = p2 = 0). "ideal": the principal point within 4 px
-# of the centre, fx = fy, 55-75 deg (kinder than real cameras; kept for plumbing tests).
-LENS_PROFILES = ("real", "ideal")
-PP_OFFSET_FRACTION = 0.02
-PIXEL_ASPECT_FRACTION = 0.005
-REAL_FOCAL_WIDTH_RATIOS = (0.5, 2.2)
-REAL_FOCAL_JITTER = 0.05  # cameras of one rig: the rig's focal ratio x exp(+-this)
-REFERENCE_HALF_FOV_DEG = 32.5  # a 65 deg lens: the scale of the cameras' aim scatter (_sample_poses)
 AIM_CENTRE_M = np.array([0.0, 0.0, 0.45])  # the middle of the points cameras look at
+# Rooms: "textured" (scene.random_scene: every surface richly textured, 8-11 objects in the
+# middle, a third of them moving between time steps) or "plain" (rooms.py: plain surfaces, a
+# few textured things at the walls; what moves is the walker).
+ROOMS = ("textured", "plain")
+# Camera heights (m) and the heights (m) of the points they aim at, per mount. "any": the rigs
+# before mounts existed. "high": Pose2Sim's ring stands 1.7-2.1 m high, tilted 18-25 deg down
+# at a body 3-3.7 m away; wall-mounted mocap and surveillance cameras up to 2.4 m. "low": camera
+# traps on stakes and trees, webcams on desks (Caliscope's), aimed about level.
+MOUNTS = {"any": ((1.0, 2.0), (0.2, 0.7)), "high": ((1.7, 2.4), (0.6, 1.1)),
+          "low": ((0.4, 1.1), (0.3, 0.9))}
+# JPEG qualities a spec may ask for (0: none); below 10 the blocks are all there is.
+JPEG_QUALITY_RANGE = (10, 100)
 
 
 @dataclass
@@ -47,7 +49,9 @@ class RigSpec:
     per camera (lenses "real": a rig focal ratio log-uniform in REAL_FOCAL_WIDTH_RATIOS, or
     fov_range_deg when given, each camera within REAL_FOCAL_JITTER of it; "ideal": 55-75 deg;
     fisheye 150-190 deg). camera_models: per camera, a model that replaces camera_model (a rig
-    mixing lenses); empty: camera_model for all. lenses: LENS_PROFILES."""
+    mixing lenses); empty: camera_model for all. lenses: LENS_PROFILES. lens_mix "mixed" draws
+    each pinhole's field of view in fov_range_deg (default intrinsics.MIXED_FOV_DEG); "identical"
+    makes every camera a unit of one model (one camera model for all)."""
 
     num_cameras: int = 6
     camera_model: str = "RADIAL"
@@ -69,6 +73,13 @@ class RigSpec:
     bar_spacing_m: float = 0.3
     lenses: str = "real"
     fov_range_deg: tuple | None = None  # pinhole, lenses "real": the rig's (min, max) h. FOV
+    # The rigs users build (issue 81); the defaults are the rigs before these fields existed.
+    room: str = "textured"  # ROOMS
+    walker: str = "none"  # WALKERS: a person or animal walking a loop over the time steps
+    mount: str = "any"  # MOUNTS: camera heights
+    lens_mix: str = "rig"  # intrinsics.LENS_MIXES: one lens type, mixed lenses, identical units
+    blur_sigma_px: float = 0.0  # optical blur before the noise (render.Finish)
+    jpeg_quality: int = 0  # JPEG compression of every image, 0 = none (render.Finish)
 
     def model_of(self, c: int) -> str:
         return self.camera_models[c] if self.camera_models else self.camera_model
@@ -103,7 +114,7 @@ class SyntheticRig:
 
     def _rays_world(self, c: int, xy_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cam = self.cameras[c]
-        a_lim = _a_limit(cam, self.ray_limit_rad[c])
+        a_lim = a_limit(cam, self.ray_limit_rad[c])
         rays, _ = cam_rays(cam, np.asarray(xy_px, np.float64).reshape(-1, 2), a_lim)
         return self.center(c), rays @ self.cam_from_world[c][:3, :3]
 
@@ -174,11 +185,6 @@ class SyntheticRig:
         return xy_b, vis
 
 
-def _a_limit(cam: CameraIntrinsics, theta_limit: float) -> float:
-    """Ray angle limit -> limit of the model's radial variable (r = tan(theta) for RADIAL)."""
-    return float(np.tan(theta_limit)) if is_perspective(cam) else float(theta_limit)
-
-
 def _check_spec(spec: RigSpec) -> None:
     if not 3 <= int(spec.num_cameras) <= 10:
         raise InputError(f"{spec.num_cameras} cameras: a synthetic rig has 3 to 10 (--cameras).")
@@ -187,109 +193,53 @@ def _check_spec(spec: RigSpec) -> None:
                          f"{spec.num_cameras} cameras: give one model per camera (or none).")
     models = set(spec.camera_models or (spec.camera_model,))
     for model in models:
-        if model not in _FOV_RANGE_DEG:
+        if model not in FOV_RANGE_DEG:
             raise InputError(f"Unsupported camera model {model!r}: use one of "
-                             f"{', '.join(_FOV_RANGE_DEG)}.")
+                             f"{', '.join(FOV_RANGE_DEG)}.")
     if spec.lenses not in LENS_PROFILES:
         raise InputError(f"lenses={spec.lenses!r}: use one of {', '.join(LENS_PROFILES)}.")
     if spec.fov_range_deg is not None:
-        lo, hi = _FOV_LIMITS_DEG["RADIAL"]
+        lo, hi = FOV_LIMITS_DEG["RADIAL"]
         if len(spec.fov_range_deg) != 2 or not lo <= min(spec.fov_range_deg) \
                 <= max(spec.fov_range_deg) <= hi:
             raise InputError(f"fov_range_deg={spec.fov_range_deg}: give (min, max) within "
                              f"{lo}..{hi} deg.")
     if spec.width < 32 or spec.height < 32:
         raise InputError(f"Image size {spec.width}x{spec.height} is too small: use >= 32x32.")
-    if not 0 < spec.gap_deg <= 120 or not 45 <= spec.max_arc_deg <= 360:
+    if not 0 < spec.gap_deg <= 180 or not 45 <= spec.max_arc_deg <= 360:
         raise InputError(f"gap_deg={spec.gap_deg}, max_arc_deg={spec.max_arc_deg}: use a gap in "
-                         "(0, 120] deg and an arc in [45, 360] deg.")
+                         "(0, 180] deg and an arc in [45, 360] deg.")
     if spec.layout not in LAYOUTS or not 0.02 <= spec.bar_spacing_m <= 0.6:
         raise InputError(f"layout={spec.layout!r}, bar_spacing_m={spec.bar_spacing_m}: use a "
                          f"layout of {', '.join(LAYOUTS)} and a spacing of 0.02-0.6 m.")
     if spec.num_time_steps < 1 or spec.supersample < 1 or spec.noise_std < 0:
         raise InputError("num_time_steps and supersample must be >= 1 and noise_std >= 0.")
+    _check_users_rig(spec, models)
     for model in sorted(models) if spec.fov_deg is not None else ():
-        lo, hi = _FOV_LIMITS_DEG[model]
+        lo, hi = FOV_LIMITS_DEG[model]
         if not lo <= spec.fov_deg <= hi:
             raise InputError(f"fov_deg={spec.fov_deg} for {model}: use {lo}..{hi}.")
 
 
-def _real_pinhole_ratio(rng: np.random.Generator, spec: RigSpec) -> float:
-    """A "real" rig's focal length / image width (RigSpec docstring)."""
-    if spec.fov_range_deg is not None:
-        ratios = 0.5 / np.tan(np.deg2rad(np.asarray(spec.fov_range_deg, float)) / 2)
-    else:
-        ratios = np.asarray(REAL_FOCAL_WIDTH_RATIOS, float)
-    return float(np.exp(rng.uniform(np.log(ratios.min()), np.log(ratios.max()))))
-
-
-def _sample_intrinsics(rng: np.random.Generator, spec: RigSpec, model: str, half_fov: float
-                       ) -> tuple[CameraIntrinsics, float]:
-    """Random intrinsics of `model` with this half horizontal field of view (rad) and the
-    largest ray angle (rad) the camera images."""
-    w, h = spec.width, spec.height
-    if spec.lenses == "real":
-        cx = w / 2 + rng.uniform(-1, 1) * PP_OFFSET_FRACTION * w
-        cy = h / 2 + rng.uniform(-1, 1) * PP_OFFSET_FRACTION * h
-    else:
-        cx = w / 2 + rng.uniform(-4, 4) * w / 1024
-        cy = h / 2 + rng.uniform(-4, 4) * w / 1024
-    while True:
-        if model == "RADIAL":
-            k = np.array([rng.uniform(-0.15, 0.1), rng.uniform(-0.03, 0.03)])
-            probe = CameraIntrinsics("RADIAL", w, h, np.r_[1.0, cx, cy, k])
-            f = (w / 2) / float(radial_g(probe, np.array([np.tan(half_fov)]))[0][0])
-            if spec.lenses == "real":
-                fy = f * (1 + rng.uniform(-PIXEL_ASPECT_FRACTION, PIXEL_ASPECT_FRACTION))
-                cam = CameraIntrinsics("OPENCV", w, h, np.r_[f, fy, cx, cy, k, 0.0, 0.0])
-            else:
-                fy = f
-                cam = CameraIntrinsics("RADIAL", w, h, np.r_[f, cx, cy, k])
-            a_lim = monotonic_limit(cam, 4.0)
-            theta_lim = float(np.arctan(a_lim))
-            # r_d of the farthest corner
-            need = np.hypot(max(cx, w - cx) / f, max(cy, h - cy) / fy)
-        else:
-            # Equidistant-like lens: small higher-order terms as in real OpenCV fisheye fits.
-            k = np.array([rng.uniform(-0.04, 0.05), rng.uniform(-0.02, 0.02),
-                          rng.uniform(-0.004, 0.004), rng.uniform(-0.001, 0.001)])
-            probe = CameraIntrinsics("OPENCV_FISHEYE", w, h, np.r_[1.0, 1.0, cx, cy, k])
-            f = (w / 2) / float(radial_g(probe, np.array([half_fov]))[0][0])
-            fy = f * (1 + rng.uniform(-0.002, 0.002))
-            cam = CameraIntrinsics("OPENCV_FISHEYE", w, h, np.r_[f, fy, cx, cy, k])
-            theta_lim = monotonic_limit(cam, float(_FISHEYE_CIRCLE_RAD))
-            if theta_lim < min(half_fov + np.deg2rad(10.0), _FISHEYE_CIRCLE_RAD):
-                continue  # folds back inside the field of view: not a real lens
-            need = (max(cx, w - cx) + 8) / f  # the image must be filled horizontally
-        if float(radial_g(cam, np.array([_a_limit(cam, theta_lim)]))[0][0]) > need:
-            return cam, theta_lim
-
-
-def _rig_intrinsics(rng: np.random.Generator, spec: RigSpec
-                    ) -> tuple[list[CameraIntrinsics], list[float], float]:
-    """Every camera's intrinsics and imaged ray angle limit (rad), and the narrowest pinhole half
-    field of view (rad; a 65 deg lens's where there is none)."""
-    n = int(spec.num_cameras)
-    real_pinhole = spec.lenses == "real" and spec.fov_deg is None and \
-        any(spec.model_of(c) == "RADIAL" for c in range(n))
-    rig_ratio = _real_pinhole_ratio(rng, spec) if real_pinhole else None
-    cams, limits, pinhole_half = [], [], []
-    for c in range(n):
-        model = spec.model_of(c)
-        if spec.fov_deg is not None:
-            half = np.deg2rad(spec.fov_deg) / 2
-        elif model == "RADIAL" and rig_ratio is not None:
-            ratio = rig_ratio * np.exp(rng.uniform(-REAL_FOCAL_JITTER, REAL_FOCAL_JITTER))
-            half = float(np.arctan(0.5 / ratio))
-        else:
-            half = np.deg2rad(rng.uniform(*_FOV_RANGE_DEG[model])) / 2
-        cam, limit = _sample_intrinsics(rng, spec, model, half)
-        cams.append(cam)
-        limits.append(limit)
-        if model == "RADIAL":
-            pinhole_half.append(half)
-    narrowest = min(pinhole_half) if pinhole_half else np.deg2rad(REFERENCE_HALF_FOV_DEG)
-    return cams, limits, float(narrowest)
+def _check_users_rig(spec: RigSpec, models: set) -> None:
+    """The fields of issue 81's rigs: room, walker, mount, lens mix, blur, JPEG."""
+    choices = dict(room=ROOMS, walker=WALKERS, mount=tuple(MOUNTS), lens_mix=LENS_MIXES)
+    for name, valid in choices.items():
+        if getattr(spec, name) not in valid:
+            raise InputError(f"{name}={getattr(spec, name)!r}: use one of {', '.join(valid)}.")
+    if spec.walker != "none" and spec.room != "plain":
+        raise InputError(f"walker={spec.walker!r} needs room='plain' (--room plain): the "
+                         "textured room's middle is full of objects.")
+    if spec.lens_mix == "identical" and len(models) > 1:
+        raise InputError("lens_mix='identical' makes every camera a unit of one model: give "
+                         "one camera model, not camera_models mixing several.")
+    if spec.blur_sigma_px < 0 or not (spec.jpeg_quality == 0 or JPEG_QUALITY_RANGE[0]
+                                      <= spec.jpeg_quality <= JPEG_QUALITY_RANGE[1]):
+        raise InputError(f"blur_sigma_px={spec.blur_sigma_px}, jpeg_quality="
+                         f"{spec.jpeg_quality}: use a blur >= 0 and a quality of 0 (none) or "
+                         f"{JPEG_QUALITY_RANGE[0]}-{JPEG_QUALITY_RANGE[1]}.")
+    if spec.layout == "bar" and spec.mount != "any":
+        raise InputError(f"mount={spec.mount!r} places cameras on an arc: use layout 'arc'.")
 
 
 def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
@@ -309,10 +259,13 @@ def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarra
 
 
 def _sample_poses(rng: np.random.Generator, n: int, scene: Scene, gap_deg: float,
-                  max_arc_deg: float, aim_scatter: float = 1.0) -> list[np.ndarray]:
+                  max_arc_deg: float, aim_scatter: float = 1.0,
+                  mount: tuple = MOUNTS["any"]) -> list[np.ndarray]:
     """Cameras on an arc around the room centre (gap_deg per camera gap, 45-max_arc_deg in all),
-    1-2 m high, all looking at points near the centre: every pair overlaps, baselines are wide.
-    Larger gaps (an arena ringed by cameras) make neighbouring views less alike."""
+    at mount's heights, all looking at points near the centre at mount's aim heights: every
+    pair overlaps, baselines are wide. Larger gaps (an arena ringed by cameras) make
+    neighbouring views less alike."""
+    (z_lo, z_hi), (aim_lo, aim_hi) = mount
     arc = np.deg2rad(np.clip(gap_deg * (n - 1), 45.0, max_arc_deg))
     az = rng.uniform(-np.pi, np.pi) + np.linspace(-arc / 2, arc / 2, n) \
         + rng.uniform(-4, 4, n) * np.pi / 180
@@ -320,8 +273,9 @@ def _sample_poses(rng: np.random.Generator, n: int, scene: Scene, gap_deg: float
     poses = []
     for a in az:
         xy = semi * rng.uniform(0.88, 1.0) * np.array([np.cos(a), np.sin(a)])
-        position = np.array([xy[0], xy[1], rng.uniform(1.0, 2.0)])
-        target = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5), rng.uniform(0.2, 0.7)])
+        position = np.array([xy[0], xy[1], rng.uniform(z_lo, z_hi)])
+        target = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5),
+                           rng.uniform(aim_lo, aim_hi)])
         if aim_scatter != 1.0:
             target = AIM_CENTRE_M + (target - AIM_CENTRE_M) * aim_scatter
         poses.append(_look_at(position, target, np.deg2rad(rng.uniform(-6, 6))))
@@ -356,6 +310,49 @@ def _texture_styles(rng: np.random.Generator, scene: Scene) -> dict[int, str]:
     return styles
 
 
+def _rig_poses(rng: np.random.Generator, spec: RigSpec, scene: Scene,
+               narrowest_half_fov: float) -> list[np.ndarray]:
+    n = int(spec.num_cameras)
+    if spec.layout == "bar":
+        return _bar_poses(rng, n, scene, float(spec.bar_spacing_m))
+    # Long lenses see a small part of the room: their aim scatters as little in the image.
+    aim = 1.0 if spec.lenses == "ideal" else min(
+        1.0, np.tan(narrowest_half_fov) / np.tan(np.deg2rad(REFERENCE_HALF_FOV_DEG)))
+    return _sample_poses(rng, n, scene, float(spec.gap_deg), float(spec.max_arc_deg), aim,
+                         MOUNTS[spec.mount])
+
+
+def _texel_m(spec: RigSpec, narrowest_half_fov: float) -> float:
+    """Texel ~ the pixel footprint at ~3 m of a 65 deg camera of this width (detail scales with
+    the resolution; at 1024 px wide this is ~4 mm), finer for long lenses down to 1.5 mm."""
+    half_fov = np.deg2rad(REFERENCE_HALF_FOV_DEG)
+    if spec.lenses == "ideal":
+        return float(np.clip(3.0 * 2 * np.tan(half_fov) / spec.width, 0.003, 0.03))
+    return float(np.clip(3.0 * 2 * np.tan(min(half_fov, narrowest_half_fov)) / spec.width,
+                         0.0015, 0.03))
+
+
+def _plain_world(spec: RigSpec, rng_scene: np.random.Generator, rng_tex: np.random.Generator,
+                 room: Scene, poses: list[np.ndarray]
+                 ) -> tuple[list[Scene], StillRoom, dict[int, str]]:
+    """A plain room's scene per time step: its furniture, and the walker on its loop; what moves
+    (StillRoom) and the texture styles."""
+    centres = np.array([-p[:3, :3].T @ p[:3, 3] for p in poses])
+    base = Scene(room.room_min, room.room_max, room.room_tex, furnish(rng_scene, room, centres),
+                 room.light_pos)
+    styles = plain_styles(rng_tex, base)
+    steps = int(spec.num_time_steps)
+    if spec.walker == "none":
+        return [base] * steps, StillRoom(base, [(np.zeros(3), 0.0)] * steps), styles
+    walk = walk_loop(rng_scene, spec.walker, room, steps, centres)
+    first_tex = max(styles) + 1
+    parts = [walker_parts(walk, t, first_tex) for t in range(steps)]
+    styles.update(walker_styles(rng_tex, spec.walker, parts[0]))
+    scenes = [Scene(base.room_min, base.room_max, base.room_tex, base.objects + p, base.light_pos)
+              for p in parts]
+    return scenes, StillRoom(base, [bound_of(p) for p in parts]), styles
+
+
 def generate_rig(spec: RigSpec) -> SyntheticRig:
     """Render a random rig for spec (deterministic from spec.seed)."""
     _check_spec(spec)
@@ -365,42 +362,35 @@ def generate_rig(spec: RigSpec) -> SyntheticRig:
                                                           for s in seeds[:5])
     noise_seeds = seeds[5].spawn(n * steps)
 
-    scene = random_scene(rng_scene)
-    moving = rng_move.choice(len(scene.objects), size=max(2, len(scene.objects) // 3),
-                             replace=False).tolist()
-    scenes = [scene]
-    for _ in range(1, steps):
-        scenes.append(scenes[-1].moved(rng_move, moving, 0.25))
-
-    cams, limits, narrowest_half_fov = _rig_intrinsics(rng_cam, spec)
-    if spec.layout == "bar":
-        poses = _bar_poses(rng_cam, n, scene, float(spec.bar_spacing_m))
+    if spec.room == "textured":
+        scene = random_scene(rng_scene)
+        moving = rng_move.choice(len(scene.objects), size=max(2, len(scene.objects) // 3),
+                                 replace=False).tolist()
+        scenes = [scene]
+        for _ in range(1, steps):
+            scenes.append(scenes[-1].moved(rng_move, moving, 0.25))
     else:
-        # Long lenses see a small part of the room: their aim scatters as little in the image.
-        aim = 1.0 if spec.lenses == "ideal" else min(
-            1.0, np.tan(narrowest_half_fov) / np.tan(np.deg2rad(REFERENCE_HALF_FOV_DEG)))
-        poses = _sample_poses(rng_cam, n, scene, float(spec.gap_deg), float(spec.max_arc_deg),
-                              aim)
-
-    # Texel ~ the pixel footprint at ~3 m of a 65 deg camera of this width (detail scales with
-    # the resolution; at 1024 px wide this is ~4 mm), finer for long lenses down to 1.5 mm.
-    half_fov = np.deg2rad(REFERENCE_HALF_FOV_DEG)
-    if spec.lenses == "ideal":
-        texel_m = float(np.clip(3.0 * 2 * np.tan(half_fov) / spec.width, 0.003, 0.03))
+        scene = plain_room(rng_scene)
+    cams, limits, narrowest_half_fov = rig_intrinsics(rng_cam, spec)
+    poses = _rig_poses(rng_cam, spec, scene, narrowest_half_fov)
+    if spec.room == "textured":
+        still, styles = None, _texture_styles(rng_tex, scene)
     else:
-        texel_m = float(np.clip(3.0 * 2 * np.tan(min(half_fov, narrowest_half_fov)) / spec.width,
-                                0.0015, 0.03))
-    atlas = build_atlas(rng_tex, scene.surface_extents(), _texture_styles(rng_tex, scene), texel_m)
+        scenes, still, styles = _plain_world(spec, rng_scene, rng_tex, scene, poses)
+    atlas = build_atlas(rng_tex, scenes[0].surface_extents(), styles,
+                        _texel_m(spec, narrowest_half_fov))
 
     images = [[None] * n for _ in range(steps)]
     depth = [[None] * n for _ in range(steps)]
+    finish = Finish(float(spec.blur_sigma_px), int(spec.jpeg_quality))
     for c in range(n):
         photo = Photometry(gain=rng_photo.uniform(0.85, 1.15),
                            white_balance=rng_photo.uniform(0.95, 1.05, 3),
                            vignetting=rng_photo.uniform(0.1, 0.3))
         noise_rngs = [np.random.default_rng(noise_seeds[c * steps + t]) for t in range(steps)]
-        imgs, deps = render_camera(cams[c], poses[c], _a_limit(cams[c], limits[c]), scenes, atlas,
-                                   photo, spec.supersample, spec.noise_std, noise_rngs)
+        imgs, deps = render_camera(cams[c], poses[c], a_limit(cams[c], limits[c]), scenes, atlas,
+                                   photo, spec.supersample, spec.noise_std, noise_rngs, still,
+                                   finish)
         for t in range(steps):
             images[t][c] = imgs[t]
             depth[t][c] = deps[t]

@@ -26,6 +26,38 @@ _STYLES = {
                     stones=70, leaves=25, lines=14, patches=3.0),
 }
 STYLE_NAMES = tuple(_STYLES)
+# The rooms users calibrate in (issue 81): plain surfaces, and what people and animals wear. Kept
+# out of STYLE_NAMES, which the textured rooms draw from, so that those stay as they were. Base
+# colours (RGB 0..1); make_plain_texture says what each style adds.
+PLAIN_STYLES = {
+    "plain_wall": [(0.82, 0.81, 0.77), (0.78, 0.78, 0.76), (0.80, 0.75, 0.66)],  # paint
+    "plain_floor": [(0.20, 0.34, 0.62), (0.62, 0.30, 0.18), (0.38, 0.36, 0.33)],  # mats, rug, lino
+    "cloth": [(0.15, 0.35, 0.55), (0.55, 0.15, 0.12), (0.20, 0.20, 0.22), (0.60, 0.60, 0.55)],
+    "skin": [(0.80, 0.62, 0.50), (0.55, 0.38, 0.28), (0.90, 0.75, 0.65)],
+    "fur": [(0.45, 0.32, 0.20), (0.60, 0.55, 0.45), (0.25, 0.22, 0.20)],
+}
+# A plain surface's brightness: the real rooms' plain walls, floors and mats (Caliscope's and
+# Pose2Sim's frames at 640 px: 22-48 % of each frame in 16 px blocks of mean gradient under 2
+# levels/px, which is their sensor noise's) vary by a few per cent over decimetres to metres
+# (PLAIN_SHADING: paint, light fall-off the Lambert light leaves out) and by about a level at the
+# texel (PLAIN_GRAIN: 1 % of a 200-level wall, under the 2-level sensor noise).
+PLAIN_SHADING = 0.04
+PLAIN_GRAIN = 0.01
+# What plain walls carry: switches, sockets, frames and scuffs, a few per wall (per m^2), of low
+# contrast (a fraction of the wall's brightness).
+PLAIN_MARKS_PER_M2 = 0.3
+PLAIN_MARK_CONTRAST = (0.05, 0.25)
+# Floors: the seams of mats, lino sheets and rug edges every 1-2 m.
+FLOOR_SEAM_SPACING_M = (1.0, 2.0)
+# Clothes: stripes or checks of 1.5-6 cm period (shirts), 15-45 % contrast, in folds of 5-20 cm
+# that shade by CLOTH_FOLDS; skin: almost plain (Pose2Sim's bare torso); fur: fine hair texture
+# of FUR_HAIR and, on half the animals, FUR_SPOTS_PER_M2 spots of 2-8 cm (a dappled coat).
+CLOTH_PERIOD_M = (0.015, 0.06)
+CLOTH_CONTRAST = (0.15, 0.45)
+CLOTH_FOLDS = 0.15
+SKIN_SHADING = 0.05
+FUR_HAIR = 0.25
+FUR_SPOTS_PER_M2 = 60.0
 
 
 @dataclass
@@ -123,6 +155,81 @@ def make_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_
     return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
+def make_plain_texture(rng: np.random.Generator, extent_m: tuple[float, float], texel_m: float,
+                       style: str) -> np.ndarray:
+    """(h, w, 3) uint8 RGB texture of a PLAIN_STYLES style covering extent_m = (u, v) metres:
+    one base colour of the style, shaded and grained (PLAIN_SHADING, PLAIN_GRAIN), with what the
+    style carries (walls: marks; floors: seams; cloth: stripes or checks in folds; fur: hair)."""
+    w = int(np.ceil(extent_m[0] / texel_m)) + 2
+    h = int(np.ceil(extent_m[1] / texel_m)) + 2
+    palette = np.array(PLAIN_STYLES[style], np.float32)
+    base = palette[rng.integers(len(palette))] * np.float32(rng.uniform(0.9, 1.1))
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = np.clip(base + rng.normal(0, 0.02, 3), 0.03, 0.97)
+    px = 1.0 / texel_m
+    if style == "plain_wall":
+        _marks(img, rng, rng.poisson(PLAIN_MARKS_PER_M2 * extent_m[0] * extent_m[1]), px)
+    elif style == "plain_floor":
+        _seams(img, rng, extent_m, px)
+    elif style == "cloth":
+        _weave(img, rng, texel_m)
+    elif style == "fur":
+        img *= (1 + FUR_HAIR * value_noise(rng, h, w, texel_m, [0.05, 0.015, 3 * texel_m])
+                )[..., None]
+        spots = rng.poisson(rng.choice([0.0, FUR_SPOTS_PER_M2]) * extent_m[0] * extent_m[1])
+        _stones(img, rng, palette * 0.6, spots, px, (0.01, 0.04))
+    shading = {"cloth": CLOTH_FOLDS, "skin": SKIN_SHADING}.get(style, PLAIN_SHADING)
+    img *= (1 + shading * value_noise(rng, h, w, texel_m, [1.0, 0.3])
+            + PLAIN_GRAIN * value_noise(rng, h, w, texel_m, [3 * texel_m]))[..., None]
+    return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def _marks(img: np.ndarray, rng: np.random.Generator, n_marks: int, px: float) -> None:
+    """Small low-contrast rectangles and strokes on a plain wall (PLAIN_MARKS_PER_M2)."""
+    h, w = img.shape[:2]
+    wall = img[0, 0].copy()
+    for _ in range(n_marks):
+        shade = 1 + rng.choice([-1, 1]) * rng.uniform(*PLAIN_MARK_CONTRAST)
+        col = tuple(float(v) for v in np.clip(wall * shade, 0, 1))
+        c = (rng.uniform(0, w), rng.uniform(0, h))
+        if rng.random() < 0.6:  # a switch, a socket, a frame
+            size = (rng.uniform(0.06, 0.4) * px, rng.uniform(0.06, 0.4) * px)
+            cv2.fillPoly(img, [cv2.boxPoints((c, size, rng.uniform(-3, 3))).astype(np.int32)],
+                         col)
+        else:  # a scuff
+            end = np.array(c) + rng.normal(0, 0.1 * px, 2)
+            cv2.line(img, tuple(int(v) for v in c), tuple(int(v) for v in end), col,
+                     max(1, int(0.005 * px)), cv2.LINE_AA)
+
+
+def _seams(img: np.ndarray, rng: np.random.Generator, extent_m: tuple[float, float],
+           px: float) -> None:
+    """Straight dark seams along u and v every FLOOR_SEAM_SPACING_M."""
+    h, w = img.shape[:2]
+    col = tuple(float(v) for v in img[0, 0] * 0.6)
+    width = max(1, int(0.005 * px))
+    for axis, extent in enumerate(extent_m):
+        at = rng.uniform(*FLOOR_SEAM_SPACING_M)
+        while at < extent:
+            k = int(at * px)
+            ends = ((k, 0), (k, h - 1)) if axis == 0 else ((0, k), (w - 1, k))
+            cv2.line(img, *ends, col, width)
+            at += rng.uniform(*FLOOR_SEAM_SPACING_M)
+
+
+def _weave(img: np.ndarray, rng: np.random.Generator, texel_m: float) -> None:
+    """Stripes (along v) or checks of CLOTH_PERIOD_M and CLOTH_CONTRAST."""
+    h, w = img.shape[:2]
+    period_px = rng.uniform(*CLOTH_PERIOD_M) / texel_m
+    contrast = rng.uniform(*CLOTH_CONTRAST)
+    u = np.sin(2 * np.pi * (np.arange(w) + rng.uniform(0, period_px)) / period_px) > 0
+    pattern = np.broadcast_to(u[None, :], (h, w)).astype(np.float32)
+    if rng.random() < 0.5:  # checks
+        v = np.sin(2 * np.pi * (np.arange(h) + rng.uniform(0, period_px)) / period_px) > 0
+        pattern = 0.5 * (pattern + v[:, None])
+    img *= (1 - contrast * pattern)[..., None]
+
+
 def _patches(img: np.ndarray, rng: np.random.Generator, colors: np.ndarray, n_patch: int,
              px: float) -> None:
     """Rectangles of the palette's colours, some with strokes ("print" on a poster)."""
@@ -141,10 +248,12 @@ def _patches(img: np.ndarray, rng: np.random.Generator, colors: np.ndarray, n_pa
 
 
 def _stones(img: np.ndarray, rng: np.random.Generator, colors: np.ndarray, n_stones: int,
-            px: float) -> None:
-    """Ellipses, the larger with a shaded rim (3D look, corners for detectors)."""
+            px: float, sizes_m: tuple = (0.004, 0.09)) -> None:
+    """Ellipses of sizes_m (log-uniform), the larger with a shaded rim (3D look, corners for
+    detectors)."""
     h, w = img.shape[:2]
-    sizes = np.maximum(np.exp(rng.uniform(np.log(0.004), np.log(0.09), n_stones)) * px, 1.0)
+    sizes = np.maximum(np.exp(rng.uniform(np.log(sizes_m[0]), np.log(sizes_m[1]), n_stones))
+                       * px, 1.0)
     centres = (rng.uniform(0, 1, (n_stones, 2)) * (w, h)).astype(int).tolist()
     flat = rng.uniform(0.4, 1.0, n_stones)
     angles = rng.uniform(0, 180, (n_stones, 4))
@@ -201,7 +310,8 @@ def build_atlas(rng: np.random.Generator, extents: dict[int, tuple[float, float]
                 styles: dict[int, str], texel_m: float) -> TextureAtlas:
     """Textures for ids 0..K-1 (extents and styles keyed by id), shelf-packed into one atlas."""
     k = max(extents) + 1
-    textures = [make_texture(rng, extents[tid], texel_m, styles[tid]) for tid in range(k)]
+    textures = [(make_plain_texture if styles[tid] in PLAIN_STYLES else make_texture)(
+        rng, extents[tid], texel_m, styles[tid]) for tid in range(k)]
     atlas_w = max(4096, max(t.shape[1] for t in textures))
     x0, y0 = np.zeros(k, np.float32), np.zeros(k, np.float32)
     x = y = shelf_h = 0
