@@ -33,6 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="6 generated rigs of 3-8 pinhole cameras side by side on a bar, "
                             "looking the same way (a stereo head, a camera array): focal "
                             "lengths weakly determined; does the calibration say so")
+    which.add_argument("--few", action="store_true",
+                       help="7 generated rigs as users build them: 3-4 cameras 45-140 deg apart "
+                            "around a plain room a person or animal walks through, 20 frame "
+                            "sets at 1280x720, pinhole and fisheye, mixed lenses or units of "
+                            "one model, mounted high or low, blurred, noisy, JPEG-compressed")
     which.add_argument("--real", action="store_true",
                        help="the real scenes of the full set only: Strecha entry-P10 (ten "
                             "cameras, one camera), the fox, Caliscope's 4 webcams and Pose2Sim's 4-camera "
@@ -55,9 +60,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..eval.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
                               quick_scenes, real_scenes, run_bench)
+    from ..eval.few_rigs import few_scenes
 
     specs = (quick_scenes() if args.quick else heldout_scenes() if args.heldout
              else mixed_scenes() if args.mixed else forward_scenes() if args.forward
+             else few_scenes() if args.few
              else real_scenes() if args.real else full_scenes())
     if args.scenes:
         specs = [s for s in specs if any(p in s.name for p in args.scenes)]

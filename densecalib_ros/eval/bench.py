@@ -3,7 +3,8 @@ images in the same process, scored against exact or reference cameras (core.metr
 
 Scenes are generated rigs (deterministic from their seeds; the seeds are the benchmark's own, not
 those used in development tests) and real photographs with reference cameras (Strecha entry-P10).
-Every method gets the scene's images as RGB uint8 arrays; peers use the first time step only.
+Every method gets the scene's images as RGB uint8 arrays, every frame set of them (the peers: all
+frames of a camera as one COLMAP camera, peers.py).
 
 Resources per method: wall-clock runtime and its ratio to COLMAP's on the same images, and peak
 resident memory of the process and its worker processes while the method ran (Linux: each one's
@@ -86,6 +87,9 @@ class SceneSpec:
     share_intrinsics: bool = False
     fov_range_deg: Optional[tuple] = None  # synthetic.RigSpec.fov_range_deg
     num_frame_sets: int = 1  # kinds "caliscope", "qualisys": frame sets read from the videos
+    # kind "synthetic": further synthetic.RigSpec fields as (name, value) pairs (the rigs users
+    # build, few_rigs.py: room, walker, mount, lens_mix, num_time_steps, blur, JPEG).
+    rig: tuple = ()
 
 
 def _synthetic(num_cameras: int, camera_model: str, seed: int, width: int = 1024,
@@ -237,7 +241,7 @@ def _loaded_scene(spec: SceneSpec, data_dir: Path) -> Scene:
                                    seed=spec.seed, gap_deg=spec.gap_deg,
                                    max_arc_deg=spec.max_arc_deg, layout=spec.layout,
                                    bar_spacing_m=spec.bar_spacing_m, lenses=spec.lenses,
-                                   fov_range_deg=spec.fov_range_deg))
+                                   fov_range_deg=spec.fov_range_deg, **dict(spec.rig)))
         return scene_from_synthetic(rig, spec.name)
     if spec.kind == "strecha":
         folder = Path(data_dir) / spec.folder
