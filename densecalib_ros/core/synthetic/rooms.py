@@ -24,6 +24,7 @@ FURNITURE_SIZE_M = ((0.4, 0.6), (0.6, 2.0), (0.7, 2.2))  # depth, width, height
 TEXTURED_WALL_CHANCE = 0.5
 POSTER_SIZE_M = ((0.5, 1.0), (0.6, 1.2))  # width, height; 2 cm thick, 1.2-1.8 m up its middle
 POSTER_HEIGHT_M = (1.2, 1.8)
+POSTER_SHARE = 0.4  # of the things; Caliscope's room: two posters of five things
 # A thing keeps this far (m, in the floor plane) from every camera: none stands in front of a
 # lens, hiding the room.
 THING_CAMERA_CLEARANCE_M = 1.0
@@ -46,6 +47,7 @@ def _against_wall(rng: np.random.Generator, scene: Scene, depth: float, width: f
     along = 1 - axis
     room_half = scene.room_max[:2]
     centre = np.zeros(3)
+    # 5 mm off the wall (no two surfaces coincide), 10 cm from the corners.
     centre[axis] = sign * (room_half[axis] - depth / 2 - 0.005)
     centre[along] = rng.uniform(-1, 1) * max(room_half[along] - width / 2 - 0.1, 0.0)
     centre[2] = z
@@ -59,8 +61,8 @@ def furnish(rng: np.random.Generator, scene: Scene, cameras_xyz: np.ndarray) -> 
     texture ids after the room's."""
     things, tex = [], 6
     for _ in range(int(rng.integers(PLAIN_ROOM_THINGS[0], PLAIN_ROOM_THINGS[1] + 1))):
-        poster = rng.random() < 0.4
-        for _ in range(50):
+        poster = rng.random() < POSTER_SHARE
+        for _ in range(50):  # places drawn for a thing before it is left out
             if poster:
                 w, h = (rng.uniform(*r) for r in POSTER_SIZE_M)
                 box = _against_wall(rng, scene, 0.02, w, h, rng.uniform(*POSTER_HEIGHT_M))
@@ -87,7 +89,7 @@ def plain_styles(rng: np.random.Generator, scene: Scene) -> dict[int, str]:
     styles[scene.room_tex[4]] = "plain_floor"
     styles[scene.room_tex[5]] = "plain_wall"
     for thing in scene.objects:
-        poster = min(thing.size[:2]) < 0.05
+        poster = min(thing.size[:2]) < 0.05  # 2 cm thick; furniture is at least 0.4 m deep
         style = "painted" if poster else str(rng.choice(["wood", "painted"]))
         styles.update({tid: style for tid in thing.tex})
     return styles

@@ -163,6 +163,7 @@ def make_plain_texture(rng: np.random.Generator, extent_m: tuple[float, float], 
     w = int(np.ceil(extent_m[0] / texel_m)) + 2
     h = int(np.ceil(extent_m[1] / texel_m)) + 2
     palette = np.array(PLAIN_STYLES[style], np.float32)
+    # One of the style's colours, +-10 % in brightness and a slight tint: no two walls alike.
     base = palette[rng.integers(len(palette))] * np.float32(rng.uniform(0.9, 1.1))
     img = np.empty((h, w, 3), np.float32)
     img[:] = np.clip(base + rng.normal(0, 0.02, 3), 0.03, 0.97)
@@ -192,7 +193,7 @@ def _marks(img: np.ndarray, rng: np.random.Generator, n_marks: int, px: float) -
         shade = 1 + rng.choice([-1, 1]) * rng.uniform(*PLAIN_MARK_CONTRAST)
         col = tuple(float(v) for v in np.clip(wall * shade, 0, 1))
         c = (rng.uniform(0, w), rng.uniform(0, h))
-        if rng.random() < 0.6:  # a switch, a socket, a frame
+        if rng.random() < 0.6:  # a switch, a socket, a frame (6-40 cm); else a scuff (~10 cm)
             size = (rng.uniform(0.06, 0.4) * px, rng.uniform(0.06, 0.4) * px)
             cv2.fillPoly(img, [cv2.boxPoints((c, size, rng.uniform(-3, 3))).astype(np.int32)],
                          col)
@@ -224,7 +225,7 @@ def _weave(img: np.ndarray, rng: np.random.Generator, texel_m: float) -> None:
     contrast = rng.uniform(*CLOTH_CONTRAST)
     u = np.sin(2 * np.pi * (np.arange(w) + rng.uniform(0, period_px)) / period_px) > 0
     pattern = np.broadcast_to(u[None, :], (h, w)).astype(np.float32)
-    if rng.random() < 0.5:  # checks
+    if rng.random() < 0.5:  # checks, else stripes, as often
         v = np.sin(2 * np.pi * (np.arange(h) + rng.uniform(0, period_px)) / period_px) > 0
         pattern = 0.5 * (pattern + v[:, None])
     img *= (1 - contrast * pattern)[..., None]

@@ -49,6 +49,7 @@ def walk_loop(rng: np.random.Generator, kind: str, scene: Scene, steps: int,
     keeps CAMERA_CLEARANCE_M from every camera centre (cameras_xyz (N, 3))."""
     scale = rng.uniform(*(PERSON_SCALE if kind == "person" else ANIMAL_SCALE))
     room = np.minimum(-scene.room_min[:2], scene.room_max[:2])
+    # At least 0.3 m half axes: a loop, not a walk on the spot, in the smallest room.
     axes = np.maximum(room - WALK_WALL_MARGIN_M, 0.3) * rng.uniform(*WALK_EXTENT, 2)
     turn = rng.choice([-1.0, 1.0])
     angle = rng.uniform(0, 2 * np.pi) + turn * 2 * np.pi * np.arange(steps) / steps
@@ -60,9 +61,9 @@ def walk_loop(rng: np.random.Generator, kind: str, scene: Scene, steps: int,
         walked = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
         phase = phase0 + 2 * np.pi * walked / (STRIDE_M[kind] * scale)
         walk = Walk(kind, float(scale), xy, heading, phase)
-        if _clear_of(walk, cameras_xyz) or axes.max() < 0.05:
+        if _clear_of(walk, cameras_xyz) or axes.max() < 0.05:  # 5 cm: about on the spot
             return walk
-        axes = axes * 0.85
+        axes = axes * 0.85  # a little smaller each try: the loop stays as wide as it can
 
 
 def _clear_of(walk: Walk, cameras_xyz: np.ndarray) -> bool:
@@ -83,7 +84,9 @@ def _at(walk: Walk, t: int, forward: float, left: float, z: float) -> np.ndarray
 
 
 def _person(walk: Walk, t: int) -> list:
-    """Legs, arms (cylinders), torso (box), head (sphere), without textures."""
+    """Legs, arms (cylinders), torso (box), head (sphere), without textures: an adult's
+    proportions (legs 0.85 m, torso 0.6 m tall and 0.38 m across the shoulders, arms 0.6 m,
+    head 0.22 m), a foot 0.16 m ahead or behind at mid-swing, a hand 0.12 m."""
     k, h, swing = walk.scale, float(walk.heading[t]), np.sin(walk.phase[t])
     parts = []
     for side in (1.0, -1.0):  # a leg forward, the same side's arm back
@@ -97,7 +100,9 @@ def _person(walk: Walk, t: int) -> list:
 
 
 def _animal(walk: Walk, t: int) -> list:
-    """Four legs (cylinders, diagonal pairs together: a trot), body and neck (boxes), head."""
+    """Four legs (cylinders, diagonal pairs together: a trot), body and neck (boxes), head: a
+    dog's proportions (legs 0.5 m, a 0.9 m body, the head up front at 1.05 m), a foot 0.1 m
+    ahead or behind at mid-swing."""
     k, h, swing = walk.scale, float(walk.heading[t]), np.sin(walk.phase[t])
     parts = []
     for fore in (0.33, -0.33):
@@ -132,7 +137,7 @@ def walker_styles(rng: np.random.Generator, kind: str, parts: list) -> dict[int,
     torso in cloth, arms bare or in sleeves, the head skin; an animal's coat fur all over."""
     if kind == "animal":
         return {tid: "fur" for p in parts for tid in p.tex}
-    sleeves = "cloth" if rng.random() < 0.5 else "skin"
+    sleeves = "cloth" if rng.random() < 0.5 else "skin"  # half of them in sleeves
     styles = {}
     for i, p in enumerate(parts):  # _person's order: (leg, arm) x 2, torso, head
         style = "skin" if isinstance(p, Sphere) else sleeves if i in (1, 3) else "cloth"
