@@ -190,7 +190,7 @@ def test_transfer_gain_is_how_far_a_source_pixel_moves_the_transferred_point():
     """transfer_gain against finite differences: a source ray turned by 1 px within the epipolar
     plane moves the triangulated point; the target sees it move by the gain (px). Sources a few
     degrees apart with a target far aside magnify noise several times: the figure divides it out."""
-    from densecalib_ros.core.monitor.consistency import _midpoints, transfer_gain
+    from densecalib_ros.core.monitor.consistency import midpoints, transfer_gain
 
     def unit(v):
         return v / np.linalg.norm(v)
@@ -202,12 +202,12 @@ def test_transfer_gain_is_how_far_a_source_pixel_moves_the_transferred_point():
         o_a, o_b, o_t = np.zeros(3), rng.normal(size=3) * [1.0, 0.2, 0.2], rng.normal(size=3)
         point = np.array([0.0, 0.0, 5.0]) + rng.normal(size=3)
         d_a, d_b = unit(point - o_a), unit(point - o_b)
-        p, s_a, s_b, _ = _midpoints(o_a, d_a[None], o_b, d_b[None])
+        p, s_a, s_b, _ = midpoints(o_a, d_a[None], o_b, d_b[None])
         seen = unit(p[0] - o_t)
         for k, (d, other) in enumerate(((d_a, d_b), (d_b, d_a))):
             turned = unit(d + unit(np.cross(np.cross(d_a, d_b), d)) / focal)
             rays = (turned, d_b) if k == 0 else (d_a, turned)
-            q = _midpoints(o_a, rays[0][None], o_b, rays[1][None])[0][0]
+            q = midpoints(o_a, rays[0][None], o_b, rays[1][None])[0][0]
             moved_px = focal * np.linalg.norm(np.cross(unit(q - o_t), seen))
             only = [(d_a[None], s_a, focal if k == 0 else 1e12),
                     (d_b[None], s_b, focal if k == 1 else 1e12)]

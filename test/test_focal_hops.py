@@ -8,7 +8,7 @@ from densecalib_ros.core.method.all_matches import keypoint_tracks, refine_on_tr
 from densecalib_ros.core.method.multistart import HELD_OUT_TRUNCATION_PX, held_out_cost
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core import match_frame_sets
-from densecalib_ros.core.robust.focal_hops import _hop_cameras, _kicked, _points_without, hop_focals
+from densecalib_ros.core.robust.focal_hops import hop_cameras, kicked_state, points_without, hop_focals
 from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
 
@@ -44,7 +44,7 @@ def test_a_kicked_camera_gets_the_new_focal_and_a_pose_fitted_to_it():
                                     outlier_frac=0.0, seed=4)
     state = _state(cams, poses, tracks)
     f = float(state.camera(2).params[0])
-    trial = _kicked(state, 2, 0.8 * f, _points_without(state, 2, seed=0))
+    trial = kicked_state(state, 2, 0.8 * f, points_without(state, 2, seed=0))
     assert trial is not None
     assert abs(trial.camera(2).params[0] - 0.8 * f) < 1e-6
     assert state.camera(2).params[0] == f  # the input is left alone
@@ -56,10 +56,10 @@ def test_a_kicked_camera_gets_the_new_focal_and_a_pose_fitted_to_it():
 def test_given_and_shared_intrinsics_are_kicked_once_or_not_at_all():
     cams, poses = sfm_fixtures.gt_rig(4, seed=5)
     tracks = sfm_fixtures.gt_tracks(cams, poses, num_points=200, seed=5)
-    assert _hop_cameras(_state(cams, poses, tracks)) == [0, 1, 2, 3]
-    assert _hop_cameras(_state(cams, poses, tracks, fixed=(1, 3))) == [0, 2]
+    assert hop_cameras(_state(cams, poses, tracks)) == [0, 1, 2, 3]
+    assert hop_cameras(_state(cams, poses, tracks, fixed=(1, 3))) == [0, 2]
     shared = _state(cams, poses, tracks, share=True)  # one block: one kick moves all four
-    assert _hop_cameras(shared) == [0]
+    assert hop_cameras(shared) == [0]
 
 
 def test_an_end_camera_left_in_a_wrong_minimum_hops_back_to_the_true_rig():
@@ -78,7 +78,7 @@ def test_an_end_camera_left_in_a_wrong_minimum_hops_back_to_the_true_rig():
                       [truth.cameras[n].cam_from_rig for n in names], tracks)
     right = refine_on_tracks(true_rig, tracks, names, config)
     focal = float(right.camera(0).params[0])
-    wrong = refine_on_tracks(_kicked(right, 0, 0.88 * focal, _points_without(right, 0, seed=0)),
+    wrong = refine_on_tracks(kicked_state(right, 0, 0.88 * focal, points_without(right, 0, seed=0)),
                              tracks, names, config)
 
     def auc3(state):

@@ -109,8 +109,8 @@ def test_real_lenses_calibrate_to_a_tenth_of_a_degree(real_rig):
         assert "cx" in cam.quality.estimated_intrinsics
         assert cam.quality.principal_point_std_px < 5.0
     assert result.rig.quality.image_refinement_tracks > 1000
-    held = make_config("regular", "incremental", consensus_runs=1, refine_on_images=False)
-    held.sfm.num_threads = 1
+    held = make_config("regular", "incremental", consensus_runs=1, refine_on_images=False,
+                       sfm__num_threads=1)
     before = evaluate_calibration(run_calibration(real_rig.images, real_rig.names, held).rig,
                                   real_rig.ground_truth())
     assert before["median_rot_err_deg"] > 2 * metrics["median_rot_err_deg"]
@@ -249,11 +249,11 @@ def _refinement_ties(cams, seed):
     _, poses = gt_rig(len(cams), seed=seed)
     tracks, state, blocks, priors = _rig_at_its_truth(cams, poses, 3000, seed)
     start = state.copy()
-    adjustment = ir._adjust_and_gate(state, blocks, priors)
+    adjustment = ir.adjust_and_gate(state, blocks, priors)
     start.active &= state.active
-    _, fold_sigmas = ir._determined_by_images(start, tracks, blocks, priors)
+    _, fold_sigmas = ir.determined_by_images(start, tracks, blocks, priors)
     said = []
-    ties, _ = ir._rig_ties(state, blocks, fold_sigmas, priors, adjustment.noise_px,
+    ties, _ = ir.rig_ties(state, blocks, fold_sigmas, priors, adjustment.noise_px,
                            [f"cam{c}" for c in blocks], said.append)
     return dict(ties), said
 
@@ -322,8 +322,8 @@ def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
     state.cam_from_world = [T.copy() for T in poses]
     names = [f"cam{c}" for c in range(6)]
     said = []
-    refinement = ir._refine(state, None, None, names, None, 0, said.append, {},
-                            _GivenCorrespondences(tracks))
+    refinement = ir.refine_on_images(state, None, None, names, None, 0, said.append, {},
+                                     _GivenCorrespondences(tracks))
     assert any("as one" in s for s in said), said
     assert len({tuple(refinement.estimated[n]) for n in names}) == 1
     focal_std = [refinement.uncertainty[n].focal_std_px for n in names]
@@ -331,7 +331,7 @@ def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
     priors = Priors(principal_point_std_px={c: 0.01 * truth.width for c in range(6)},
                     aspect_std={c: ir.ASPECT_PRIOR_STD for c in range(6)})
     triangulate_tracks(state)
-    _, fold_sigmas = ir._determined_by_images(state, tracks, list(range(6)), priors)
+    _, fold_sigmas = ir.determined_by_images(state, tracks, list(range(6)), priors)
     assert max(focal_std) < min(fold_sigmas[c]["focal_px"] for c in range(6)), fold_sigmas
     for c in range(6):
         f = refinement.state.intrinsics[c].params[0]
@@ -351,8 +351,8 @@ def test_the_folds_side_by_side_give_the_loops_numbers(monkeypatch):
 
     def folds():
         before = state.copy()
-        determined, sigmas = ir._determined_by_images(state, tracks, blocks, priors)
-        held_out = ir._held_out_errors(state, blocks, priors, 0.1,
+        determined, sigmas = ir.determined_by_images(state, tracks, blocks, priors)
+        held_out = ir.held_out_errors(state, blocks, priors, 0.1,
                                        [f"cam{c}" for c in blocks], None)
         assert np.array_equal(state.points_xyz, before.points_xyz, equal_nan=True)
         return determined, sigmas, held_out

@@ -302,7 +302,7 @@ def test_pair_registration_picks_the_focal_that_fits_the_two_view_tracks():
     """A camera seen in 2-view tracks only is placed from its relative poses; its focal is still
     the (here 40 % low) initial estimate, so registration tries focal candidates and keeps the one
     that reprojects best: it must land near the true focal, and the pose near the truth."""
-    from densecalib_ros.core.method.incremental import _register_from_pairs
+    from densecalib_ros.core.method.incremental import register_from_pairs
     from densecalib_ros.core.method.reconstruction import triangulate
 
     cams, poses = gt_rig(5, seed=11)
@@ -314,7 +314,7 @@ def test_pair_registration_picks_the_focal_that_fits_the_two_view_tracks():
         state.cam_from_world[c] = poses[c].copy()
     rows = np.flatnonzero(state.registered_active().sum(axis=1) >= 2)
     triangulate(state, rows, 20.0)
-    assert _register_from_pairs(state, 4, list("abcde"), seed=0, max_error_px=20.0, num_threads=1)
+    assert register_from_pairs(state, 4, list("abcde"), seed=0, max_error_px=20.0, num_threads=1)
     focal = state.camera(4).params[0]
     assert abs(focal / cams[4].params[0] - 1) < 0.1
     R_err = state.cam_from_world[4][:3, :3] @ poses[4][:3, :3].T
@@ -326,7 +326,7 @@ def test_pair_registration_tries_each_partner_orientation_not_only_the_best_supp
     but wrong (as for cameras facing each other across a ring): those tracks alone say the camera
     is rolled 120 deg. The orientation the other partners agree on fits more of the camera's
     tracks and must win over the partner with the most tracks."""
-    from densecalib_ros.core.method.incremental import _register_from_pairs
+    from densecalib_ros.core.method.incremental import register_from_pairs
 
     cams, poses = gt_rig(5, seed=11)
     tracks = two_view_only(gt_tracks(cams, poses, num_points=1500, outlier_frac=0.02, seed=11), 4)
@@ -350,7 +350,7 @@ def test_pair_registration_tries_each_partner_orientation_not_only_the_best_supp
     for c in range(4):
         state.cam_from_world[c] = poses[c].copy()
     triangulate(state, np.flatnonzero(state.registered_active().sum(axis=1) >= 2), 20.0)
-    assert _register_from_pairs(state, 4, list("abcde"), seed=0, max_error_px=20.0, num_threads=1)
+    assert register_from_pairs(state, 4, list("abcde"), seed=0, max_error_px=20.0, num_threads=1)
     R_err = state.cam_from_world[4][:3, :3] @ poses[4][:3, :3].T
     assert np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 2.0
 

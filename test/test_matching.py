@@ -229,12 +229,12 @@ def test_sift_nearest_sites_do_not_depend_on_the_tiles_ties_included(monkeypatch
 def test_sift_column_reduction_takes_the_first_nearest_row_and_the_next_value():
     """The compiled column pass: for the chosen columns, the first row holding the column's
     minimum (numpy's argmin, ties included) and the smallest value among the other rows."""
-    from densecalib_ros.core.method.matching.sift import _nearest_two_rows
+    from densecalib_ros.core.method.matching.sift import nearest_two_rows
 
     rng = np.random.default_rng(11)
     tile = rng.integers(0, 4, (9, 30)).astype(np.float32)  # small range: ties everywhere
     columns = np.array([0, 3, 4, 17, 29])
-    first, second = _nearest_two_rows(tile, columns)
+    first, second = nearest_two_rows(tile, columns)
     sub = tile[:, columns]
     want_first = np.argmin(sub, axis=0)
     others = sub.copy()

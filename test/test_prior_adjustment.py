@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from sfm_fixtures import gt_rig, gt_tracks
 
-from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, _Problem,
-                                                         _damped_point_inverses,
-                                                         _normal_equations, _point_steps,
-                                                         _reduced_system, adjust_with_priors,
+from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, AdjustmentProblem,
+                                                         damped_point_inverses,
+                                                         normal_equations, point_steps,
+                                                         reduced_system, adjust_with_priors,
                                                          posterior_covariance)
 from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
@@ -53,7 +53,7 @@ def test_jacobians_match_finite_differences():
                         for c in true]
     priors = Priors({b: 10.0 for b in range(3)}, {b: 0.01 for b in range(3)},
                     {b: 0.01 for b in range(3)})
-    problem = _Problem(state, [0, 1, 2], priors)
+    problem = AdjustmentProblem(state, [0, 1, 2], priors)
     res, A, B = problem.residuals_and_jacobians()
     obs = 7  # an observation of a camera whose pose is free
     obs = int(np.flatnonzero(problem.c_idx != problem.reference)[obs])
@@ -94,10 +94,10 @@ def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shar
         state = shared_state
     blocks = list(range(len(state.intrinsics)))
     priors = Priors({b: 10.0 for b in blocks}, aspect_std={b: 0.01 for b in blocks})
-    problem = _Problem(state, blocks, priors)
-    U, Wt, V, g_cam, g_pt, flat, _ = _normal_equations(problem, 0.5)
+    problem = AdjustmentProblem(state, blocks, priors)
+    U, Wt, V, g_cam, g_pt, flat, _ = normal_equations(problem, 0.5)
     V_inv = np.linalg.inv(V)
-    S, rhs = _reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
+    S, rhs = reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
     M, P = problem.num_cam_params, len(problem.X)
     W = np.zeros((M + 1, P, 3))  # W_p per point; row M: the held parameters
     for n in range(len(problem.p_idx)):
@@ -118,15 +118,15 @@ def test_a_step_solves_the_damped_normal_equations():
     state = _state(true, poses, 0.3, num_points=150)
     blocks = list(range(4))
     priors = Priors({0: None, 1: 10.0, 2: 10.0, 3: 10.0}, aspect_std={b: 0.01 for b in blocks})
-    problem = _Problem(state, blocks, priors)
+    problem = AdjustmentProblem(state, blocks, priors)
     assert len(problem.used) == 12  # p1, p2 held for every camera
-    U, Wt, V, g_cam, g_pt, flat, _ = _normal_equations(problem, 0.3)
+    U, Wt, V, g_cam, g_pt, flat, _ = normal_equations(problem, 0.3)
     lam = 1e-2
     Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-9))
-    V_inv = _damped_point_inverses(V, lam)
-    S, rhs = _reduced_system(problem, Ud, Wt, V_inv, g_cam, g_pt)
+    V_inv = damped_point_inverses(V, lam)
+    S, rhs = reduced_system(problem, Ud, Wt, V_inv, g_cam, g_pt)
     delta_cam = np.linalg.solve(S, rhs)
-    delta_pts = _point_steps(Wt, V_inv, g_pt, np.r_[delta_cam, 0.0], flat, problem.first_obs)
+    delta_pts = point_steps(Wt, V_inv, g_pt, np.r_[delta_cam, 0.0], flat, problem.first_obs)
 
     M, P = problem.num_cam_params, len(problem.X)
     H = np.zeros((M + 1 + 3 * P, M + 1 + 3 * P))  # row and column M: the held parameters
@@ -162,9 +162,9 @@ def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_ca
     blocks = list(range(num_cameras))
     priors = Priors({b: pp_std_px for b in blocks}, aspect_std={b: 0.003 for b in blocks})
     adjust_with_priors(state, blocks, priors, noise_px=0.3)
-    problem = _Problem(state, blocks, priors)
-    U, Wt, V, g_cam, g_pt, _, _ = _normal_equations(problem, 0.3)
-    S, _ = _reduced_system(problem, U, Wt, np.linalg.pinv(V, hermitian=True), g_cam, g_pt)
+    problem = AdjustmentProblem(state, blocks, priors)
+    U, Wt, V, g_cam, g_pt, _, _ = normal_equations(problem, 0.3)
+    S, _ = reduced_system(problem, U, Wt, np.linalg.pinv(V, hermitian=True), g_cam, g_pt)
     covariance = posterior_covariance(state, blocks, priors, 0.3)
     others = [c for c in state.registered() if c != problem.reference]
     for other in others:

@@ -1,6 +1,6 @@
 """RoMa backend end to end with the real romatch model at random initialisation and a tiny
 resolution (its trained weights cannot be obtained here), and the torchvision stand-in it imports
-with (`densecalib_ros.core.method.matching._tv_compat`)."""
+with (`densecalib_ros.core.method.matching.tv_compat`)."""
 import importlib.util
 import sys
 
@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from densecalib_ros.core.method.matching import create_matcher
-from densecalib_ros.core.method.matching import _tv_compat
+from densecalib_ros.core.method.matching import tv_compat
 from densecalib_ros.core.types import SiteMatchSet
 
 COARSE_RES, UPSAMPLE_RES = 14 * 4, 64  # RoMa's defaults are 560 / 864
@@ -32,7 +32,7 @@ def no_network(monkeypatch):
 def random_checkpoints(tmp_path_factory):
     """(roma.pth, dinov2.pth): state dicts of RoMa outdoor and DINOv2 ViT-L/14 at their own random
     initialisation, written as checkpoint files (the real ones are ~1.6 GB together)."""
-    romatch = _tv_compat.import_romatch()
+    romatch = tv_compat.import_romatch()
     from romatch.models.matcher import RegressionMatcher
     from romatch.models.transformer.dinov2 import DinoVisionTransformer
 
@@ -70,7 +70,7 @@ def test_roma_matches_every_pair_with_random_weights(random_checkpoints, monkeyp
     if importlib.util.find_spec("torchvision") is None:  # the stand-in is gone after the import
         assert not [name for name in sys.modules if name.split(".")[0] == "torchvision"]
         from romatch.models import encoders
-        assert encoders.tvm.vgg19_bn is _tv_compat.vgg19_bn
+        assert encoders.tvm.vgg19_bn is tv_compat.vgg19_bn
 
     # Sizes differ; image 2 is uniform grey. RoMa predicts each direction from the features of its
     # source image, so with any weights every site of a uniform source gets the same prediction
@@ -110,7 +110,7 @@ def test_roma_matches_every_pair_with_random_weights(random_checkpoints, monkeyp
 
 def test_vgg19_bn_stand_in_has_torchvisions_layout():
     torch.manual_seed(0)
-    model = _tv_compat.vgg19_bn()
+    model = tv_compat.vgg19_bn()
     assert sum(p.numel() for p in model.parameters()) == 143678248  # torchvision's VGG19_BN num_params
     keys = model.state_dict().keys()
     for key in ("features.0.weight", "features.1.running_var", "features.49.weight", "features.50.bias",
@@ -125,7 +125,7 @@ def test_vgg19_bn_stand_in_has_torchvisions_layout():
             x = layer(x)
     assert feats == [(64, 32, 48), (128, 16, 24), (256, 8, 12), (512, 4, 6)]
     with pytest.raises(RuntimeError, match="Pretrained"):
-        _tv_compat.vgg19_bn(weights="IMAGENET1K_V1")
+        tv_compat.vgg19_bn(weights="IMAGENET1K_V1")
 
 
 def test_transform_stand_ins_follow_torchvision():
@@ -133,14 +133,14 @@ def test_transform_stand_ins_follow_torchvision():
 
     rgb = textured(40, 30, 4)
     image = Image.fromarray(rgb)
-    resized = _tv_compat.Resize((16, 24), _tv_compat.InterpolationMode.BICUBIC)(image)
+    resized = tv_compat.Resize((16, 24), tv_compat.InterpolationMode.BICUBIC)(image)
     assert resized.size == (24, 16)  # size is (height, width), as in torchvision
     np.testing.assert_array_equal(np.asarray(resized), np.asarray(image.resize((24, 16), Image.BICUBIC)))
     with pytest.raises(TypeError):
-        _tv_compat.Resize(16)
-    tensor = _tv_compat.ToTensor()(image)
+        tv_compat.Resize(16)
+    tensor = tv_compat.ToTensor()(image)
     assert tensor.shape == (3, 30, 40) and tensor.dtype == torch.float32
     np.testing.assert_allclose(tensor.permute(1, 2, 0).numpy(), rgb / 255.0, atol=1e-6)
-    normalized = _tv_compat.Normalize([0.5, 0.25, 0.0], [0.5, 2.0, 1.0])(tensor)
+    normalized = tv_compat.Normalize([0.5, 0.25, 0.0], [0.5, 2.0, 1.0])(tensor)
     np.testing.assert_allclose(normalized[1].numpy(), (tensor[1].numpy() - 0.25) / 2.0, atol=1e-6)
-    assert torch.equal(tensor, _tv_compat.ToTensor()(image))  # not in place
+    assert torch.equal(tensor, tv_compat.ToTensor()(image))  # not in place

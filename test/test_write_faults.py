@@ -14,7 +14,7 @@ import pytest
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.io.export import (CALIBRATION_MARKERS, calibration_entries,
                                            write_calibration_files)
-from densecalib_ros.core.io.safe_write import _exchange, replace_directory_atomic
+from densecalib_ros.core.io.safe_write import exchange_paths, replace_directory_atomic
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, write_rig
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -67,7 +67,7 @@ def test_the_swap_is_one_atomic_exchange(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     (tmp_path / "a" / "x").write_text("a")
-    if not _exchange(tmp_path / "a", tmp_path / "b"):
+    if not exchange_paths(tmp_path / "a", tmp_path / "b"):
         pytest.skip(f"renameat2(RENAME_EXCHANGE) is not available on {tmp_path}'s filesystem")
     assert (tmp_path / "b" / "x").read_text() == "a" and not any((tmp_path / "a").iterdir())
 
@@ -82,7 +82,7 @@ def test_a_kill_between_the_two_renames_is_undone_at_the_next_run(tmp_path, capl
         import os, sys, time
         from pathlib import Path
         from densecalib_ros.core.io import safe_write
-        safe_write._exchange = lambda a, b: False  # a filesystem without RENAME_EXCHANGE
+        safe_write.exchange_paths = lambda a, b: False  # a filesystem without RENAME_EXCHANGE
         rename = os.replace
         def replace(src, dst):
             rename(src, dst)
@@ -157,13 +157,13 @@ def test_a_signal_as_the_new_folder_is_made_current_is_said_as_it_ended(images, 
         import sys, time
         from densecalib_ros import cli
         from densecalib_ros.core.io import safe_write
-        exchange = safe_write._exchange
+        exchange = safe_write.exchange_paths
         def slow(a, b):
             done = exchange(a, b)
             print("exchanged", flush=True)
             time.sleep(2)
             return done
-        safe_write._exchange = slow
+        safe_write.exchange_paths = slow
         sys.exit(cli.main(["calibrate", "--images", sys.argv[1], "--out", sys.argv[2],
                            "--consensus-runs", "1", "--threads", "1"]))
     """, images, out)
@@ -268,7 +268,7 @@ def test_a_second_rename_that_fails_puts_the_old_folder_back(tmp_path, monkeypat
 
     out = tmp_path / "out"
     _write(out, "good")
-    monkeypatch.setattr(safe_write, "_exchange", lambda a, b: False)
+    monkeypatch.setattr(safe_write, "exchange_paths", lambda a, b: False)
     rename = os.replace
 
     def replace(src, dst):

@@ -193,7 +193,7 @@ def replace_directory_atomic(build, out_dir: str | os.PathLike,
         if owned is not None and out_dir.is_dir():
             _carry_over(out_dir, tmp, owned(out_dir))
         with commit_guard():
-            if out_dir.exists() and _exchange(tmp, out_dir):
+            if out_dir.exists() and exchange_paths(tmp, out_dir):
                 old, tmp = tmp, None  # tmp now holds the previous folder
             else:
                 if out_dir.exists():
@@ -249,7 +249,7 @@ def _renameat2():
         return None
 
 
-def _exchange(a: Path, b: Path) -> bool:
+def exchange_paths(a: Path, b: Path) -> bool:
     """Swap two paths atomically (renameat2 RENAME_EXCHANGE); False where the system or the
     filesystem cannot, so that the caller renames instead."""
     renameat2, at_fdcwd = _renameat2(), -100

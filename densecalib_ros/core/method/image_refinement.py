@@ -175,12 +175,12 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         principal_point_centre_px={b: centres[b] for b in blocks if b in centres},
         aspect_std={b: ASPECT_PRIOR_STD for b in blocks})
     start = refined.copy()
-    adjustment = _adjust_and_gate(refined, blocks, priors)
+    adjustment = adjust_and_gate(refined, blocks, priors)
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     check_stop()
-    determined, fold_sigmas = _determined_by_images(start, tracks, blocks, priors)
-    ties, one_cameras = _rig_ties(refined, blocks, fold_sigmas, priors, adjustment.noise_px,
+    determined, fold_sigmas = determined_by_images(start, tracks, blocks, priors)
+    ties, one_cameras = rig_ties(refined, blocks, fold_sigmas, priors, adjustment.noise_px,
                                   camera_names, say)
     for members in one_cameras:
         priors = _as_one_camera(refined, members, determined, fold_sigmas, priors)
@@ -218,7 +218,7 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas)
 
 
-def _adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> PriorAdjustment:
+def adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> PriorAdjustment:
     """adjust_with_priors, then observations beyond GATE_SIGMAS dropped and adjusted again, at
     most GATE_ROUNDS times; in place."""
     adjustment = adjust_with_priors(state, blocks, priors)
@@ -233,7 +233,7 @@ def _adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> Prio
     return adjustment
 
 
-def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors
+def determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors
                           ) -> tuple[dict, dict]:
     """Per block, which of "principal point" and "aspect" the images determine (module
     docstring), and the folds' standard deviations of the mean of the principal point (per axis),
@@ -260,8 +260,8 @@ def _determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pr
 
 def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_sigmas: dict,
                    priors: Priors) -> Priors:
-    """What `_determined_by_images` says of the blocks `members`, made what it says of one camera
-    where `_rig_ties` adjusts them as one: its estimate rests on all their images, so each sigma
+    """What `determined_by_images` says of the blocks `members`, made what it says of one camera
+    where `rig_ties` adjusts them as one: its estimate rests on all their images, so each sigma
     of the folds becomes that of the members' precision-weighted mean (rig_pooling.one_value),
     and the principal point is determined, for all of them or none, by that sigma (where the tie
     holds it: every member's folds gave it one). One camera has one prior: determined, the
@@ -298,7 +298,7 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
     return replace(priors, principal_point_std_px=point_std)
 
 
-def _rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
+def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
               noise_px: float, camera_names: Sequence[str], say: Callable[[str], None]
               ) -> tuple[list, list[list[int]]]:
     """Priors.ties among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them
@@ -358,7 +358,7 @@ def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, sprea
     (spread_ties), NaN where a fold left a camera without data (which keeps them apart); and
     the folds' standard error of its mean."""
     try:
-        held_out = {name: _held_out_errors(state, blocks, replace(priors, ties=group_ties),
+        held_out = {name: held_out_errors(state, blocks, replace(priors, ties=group_ties),
                                            noise_px, camera_names, iterations)
                     for name, group_ties, iterations in (
                         ("apart", spread_ties, None), ("one", one_ties, ONE_CAMERA_ITERATIONS))}
@@ -388,7 +388,7 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
     return ties
 
 
-def _held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
+def held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
                      camera_names: Sequence[str], iterations: Optional[int]) -> np.ndarray:
     """Per fold (`track_folds`) the mean squared reprojection error (px^2) of its correspondences,
     triangulated anew with the rig adjusted under `priors` on the other folds; each error is
@@ -457,7 +457,7 @@ def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigma
                         pp_estimated: bool, focal_scale_std: float = 0.0) -> CameraUncertainty:
     """Focal, principal point and projection standard deviations of a block from the
     adjustment's covariance of INTRINSIC_NAMES, in the block's COLMAP model; the focal's and an
-    estimated principal point's at least the folds' (fold_sigmas: _determined_by_images), which
+    estimated principal point's at least the folds' (fold_sigmas: determined_by_images), which
     see the errors the covariance assumes away, and the focal's at least focal_scale_std (a
     fraction: focal_determination.probed_focal_scale_std) of it."""
     cam = state.intrinsics[block]

@@ -9,7 +9,7 @@
    distortion refined) from points seen by >= 2 registered cameras, BA, triangulation of the
    tracks that now have two registered views (the 2-cycle points), BA, removal of observations
    above B_err. A camera that shares only 2-cycle tracks with the registered ones is placed from
-   its relative poses instead, trying several focal candidates (`_register_from_pairs`).
+   its relative poses instead, trying several focal candidates (`register_from_pairs`).
 4. A final global BA (principal point refined per preset), every track re-triangulated from the
    final cameras, B_err, the final BA again and, for fisheye, a distortion-only refinement into
    the richer model (RADIAL_FISHEYE -> OPENCV_FISHEYE).
@@ -147,7 +147,7 @@ def _first_pair_candidate(state: SfMState, i: int, j: int, max_error_px: float, 
     return float(d[front].sum() / n ** 2), pose_j
 
 
-def _register_from_pairs(state: SfMState, c: int, camera_names: Sequence[str], seed: int,
+def register_from_pairs(state: SfMState, c: int, camera_names: Sequence[str], seed: int,
                          max_error_px: float, num_threads: int) -> bool:
     """Fallback registration of a camera that shares no 3D points with the reconstruction (only
     2-cycle tracks; common when baselines are wide and few 3-cycles close).
@@ -393,7 +393,7 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             seen_by_registered = state.registered_active().any(axis=1)
             shared = [int(np.sum(state.active[:, c] & seen_by_registered)) for c in pending]
             c = pending[int(np.argmax(shared))]
-            if not _register_from_pairs(state, c, camera_names, seed, b_err, config.num_threads):
+            if not register_from_pairs(state, c, camera_names, seed, b_err, config.num_threads):
                 break
             how = "two-view geometry (2-cycle tracks only)"
         pending.remove(c)

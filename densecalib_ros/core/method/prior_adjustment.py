@@ -33,8 +33,8 @@ import numpy as np
 
 from ..progress import check_stop
 from ..types import CameraIntrinsics
-from .prior_adjustment_kernels import (_damped_point_inverses, _observation_products,
-                                       _point_products, _point_steps, _project, _to_columns)
+from .prior_adjustment_kernels import (damped_point_inverses, _observation_products,
+                                       _point_products, point_steps, _project, _to_columns)
 from .reconstruction import SfMState
 
 log = logging.getLogger(__name__)
@@ -112,7 +112,7 @@ def intrinsics_vector(cam: CameraIntrinsics) -> np.ndarray:
                      f"{', '.join(SUPPORTED_MODELS)}")
 
 
-class _Problem:
+class AdjustmentProblem:
     """Observations, parameter layout and the current estimate."""
 
     def __init__(self, state: SfMState, blocks: list[int], priors: Priors):
@@ -246,10 +246,10 @@ class _Problem:
         self.R, self.t, self.K, self.X = saved["R"], saved["t"], saved["K"], saved["X"]
 
 
-def _normal_equations(problem: _Problem, noise_px: float):
+def normal_equations(problem: AdjustmentProblem, noise_px: float):
     """Robust-weighted normal equations: U (M, M), Wt (N, 3, K), V (P, 3, 3), g_cam (M,),
     g_pt (P, 3), each observation's camera columns (N, K; M where held) and the residuals; K
-    columns of each camera: those of its parameters that some camera frees (_Problem.used).
+    columns of each camera: those of its parameters that some camera frees (AdjustmentProblem.used).
     Held columns' parts go to a column M, dropped (Wt keeps them: every use of it adds them
     to column M or multiplies them by a zero step)."""
     res, A, B = problem.residuals_and_jacobians()
@@ -274,7 +274,7 @@ def _normal_equations(problem: _Problem, noise_px: float):
     return U, Wt, V, g_cam, g_pt, problem.obs_cols, res
 
 
-def _reduced_system(problem: _Problem, U, Wt, V_inv, g_cam, g_pt):
+def reduced_system(problem: AdjustmentProblem, U, Wt, V_inv, g_cam, g_pt):
     """The reduced camera system S = U - sum over points of W_p V_p^-1 W_p^T (M, M) and its
     right-hand side -g_cam + sum over points of W_p V_p^-1 g_p (M,): each point's share
     computed camera pair by camera pair (_point_products), then added to the cameras' columns
@@ -297,7 +297,7 @@ def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
         if state.intrinsics[b].model not in ("RADIAL", "OPENCV"):
             raise ValueError(f"prior adjustment: block {b} is {state.intrinsics[b].model}; "
                              "RADIAL or OPENCV cameras are adjusted (others may be held)")
-    problem = _Problem(state, blocks, priors)
+    problem = AdjustmentProblem(state, blocks, priors)
     if not len(problem.t_idx):
         raise ValueError("prior adjustment: no observations")
     estimate_noise = noise_px is None
@@ -332,27 +332,27 @@ def posterior_covariance(state: SfMState, blocks: list[int], priors: Priors,
     under these priors and pixel noise: where a parameter was held at its prior's centre, the
     covariance with it free under that prior says how far off it may be, and what the others
     inherit from it."""
-    problem = _Problem(state, blocks, priors)
+    problem = AdjustmentProblem(state, blocks, priors)
     return _intrinsics_covariance(problem, noise_px, blocks)
 
 
-def _levenberg_marquardt(problem: _Problem, noise_px: float, max_iterations: int) -> int:
+def _levenberg_marquardt(problem: AdjustmentProblem, noise_px: float, max_iterations: int) -> int:
     """Levenberg-Marquardt on the reduced camera system, in place; returns the iterations."""
     cost = problem.cost(noise_px)
     lam, iterations = 1e-4, 0
     for iterations in range(1, max_iterations + 1):
         check_stop()  # a stopped calibration ends between iterations
-        U, Wt, V, g_cam, g_pt, flat, _ = _normal_equations(problem, noise_px)
+        U, Wt, V, g_cam, g_pt, flat, _ = normal_equations(problem, noise_px)
         improved = False
         for _ in range(10):
             Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-9))
-            V_inv = _damped_point_inverses(V, lam)
-            S, rhs = _reduced_system(problem, Ud, Wt, V_inv, g_cam, g_pt)
+            V_inv = damped_point_inverses(V, lam)
+            S, rhs = reduced_system(problem, Ud, Wt, V_inv, g_cam, g_pt)
             try:
                 delta_cam = np.linalg.solve(S, rhs)
             except np.linalg.LinAlgError:
                 delta_cam = np.linalg.lstsq(S, rhs, rcond=None)[0]
-            delta_pts = _point_steps(Wt, V_inv, g_pt, np.r_[delta_cam, 0.0], flat,
+            delta_pts = point_steps(Wt, V_inv, g_pt, np.r_[delta_cam, 0.0], flat,
                                      problem.first_obs)
             saved = problem.apply(delta_cam, delta_pts)
             new_cost = problem.cost(noise_px)
@@ -370,14 +370,14 @@ def _levenberg_marquardt(problem: _Problem, noise_px: float, max_iterations: int
     return iterations
 
 
-def _residual_scale_px(problem: _Problem) -> float:
+def _residual_scale_px(problem: AdjustmentProblem) -> float:
     """Robust per-coordinate scale of the residuals (median of the 2-D norm over the Rayleigh
     median), at least MIN_NOISE_PX."""
     res = problem.residuals_and_jacobians(False)
     return max(float(np.median(np.linalg.norm(res, axis=1))) / _RAYLEIGH_MEDIAN, MIN_NOISE_PX)
 
 
-def _noise_px(problem: _Problem) -> float:
+def _noise_px(problem: AdjustmentProblem) -> float:
     """The pixel noise sigma_n per coordinate: the residuals' robust scale, corrected for the
     degrees of freedom the points take (a 2-view point absorbs 3 of its 4 coordinates' noise)."""
     n_obs, n_points = len(problem.t_idx), len(problem.X)
@@ -385,21 +385,21 @@ def _noise_px(problem: _Problem) -> float:
     return max(_residual_scale_px(problem) * np.sqrt(2 * n_obs / dof), MIN_NOISE_PX)
 
 
-def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]) -> dict:
+def _intrinsics_covariance(problem: AdjustmentProblem, noise_px: float, blocks: list[int]) -> dict:
     """Per block the posterior covariance of INTRINSIC_NAMES (zeros where held): the inverse of
     the reduced camera system at the solution (the points marginalised) with the gauge's free
     direction (_scale_direction) fixed by holding the translation coordinate it moves most; the
     intrinsics' marginal does not depend on which. The points' blocks are pseudo-inverted, not
-    ridged as in the solve (_damped_point_inverses): the ridge resists the scale about as much as a
+    ridged as in the solve (damped_point_inverses): the ridge resists the scale about as much as a
     3-camera rig's weakest directions, and the held coordinate's choice then moved their sigmas
     by up to 8 %. The system is inverted scaled to a unit diagonal: its curvatures span ~13
     orders of magnitude (per radian of rotation against per pixel of a weakly held principal
     point), and a pseudo-inverse's relative cut-off on the raw system gave the directions a few
     cameras leave weak no variance at all (docs/design-notes.md, Intrinsics' standard
     deviations: the gauge held, not cut off)."""
-    U, Wt, V, g_cam, g_pt, _, _ = _normal_equations(problem, noise_px)
+    U, Wt, V, g_cam, g_pt, _, _ = normal_equations(problem, noise_px)
     V_inv = np.linalg.pinv(V, hermitian=True)  # a point its rays do not fix moves by nothing
-    S, _ = _reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
+    S, _ = reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
     keep = np.ones(len(S), bool)
     gauge = np.abs(_scale_direction(problem)) / d  # in the unit-diagonal system's coordinates
@@ -422,13 +422,13 @@ def _intrinsics_covariance(problem: _Problem, noise_px: float, blocks: list[int]
     return out
 
 
-def _scale_direction(problem: _Problem) -> np.ndarray:
+def _scale_direction(problem: AdjustmentProblem) -> np.ndarray:
     """The gauge left free (the reference camera's pose is held): the whole scene scaled about
     the reference camera's centre C, which moves each other camera's translation by R C + t
-    (that camera's t is additive, _Problem.apply) and each point by X - C, reprojecting every
+    (that camera's t is additive, AdjustmentProblem.apply) and each point by X - C, reprojecting every
     point as before; in the camera columns (the points are marginalised). Free in the
     covariance's system, whose points' blocks are pseudo-inverted; the solve's ridge
-    (_damped_point_inverses) resists it a little."""
+    (damped_point_inverses) resists it a little."""
     out = np.zeros(problem.num_cam_params)
     ref = problem.reference
     centre = -problem.R[ref].T @ problem.t[ref]
@@ -439,7 +439,7 @@ def _scale_direction(problem: _Problem) -> np.ndarray:
     return out
 
 
-def _write_back(problem: _Problem, state: SfMState, blocks: list[int]) -> None:
+def _write_back(problem: AdjustmentProblem, state: SfMState, blocks: list[int]) -> None:
     for c in state.registered():
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = problem.R[c], problem.t[c]

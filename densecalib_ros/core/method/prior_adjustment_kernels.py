@@ -157,7 +157,7 @@ def _to_columns(products, yg, camera_cols, obs_cols, size):
 
 
 @compiled()
-def _damped_point_inverses(V, lam):
+def damped_point_inverses(V, lam):
     """Each point's 3x3 block with its diagonal scaled by 1 + lam (Levenberg-Marquardt's
     damping) and a ridge of 1e-9 of its trace (at least 1e-18) on the diagonal, inverted: a
     point whose observations do not fix it (all behind a camera, rays parallel) then moves by
@@ -179,7 +179,7 @@ def _damped_point_inverses(V, lam):
 
 
 @compiled()
-def _point_steps(Wt, V_inv, g_pt, delta_cols, obs_cols, first_obs):
+def point_steps(Wt, V_inv, g_pt, delta_cols, obs_cols, first_obs):
     """The points' step given the cameras' (back-substitution): per point
     V^-1 (-g_pt - sum over its observations of W^T delta), delta_cols (M + 1,) the cameras'
     step by column with a zero for the held ones' column M."""

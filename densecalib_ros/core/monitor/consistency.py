@@ -156,7 +156,7 @@ def self_consistent(ray_a: np.ndarray, ray_b: np.ndarray, threshold_rad: float) 
     return keep
 
 
-def _midpoints(o_a: np.ndarray, d_a: np.ndarray, o_b: np.ndarray, d_b: np.ndarray):
+def midpoints(o_a: np.ndarray, d_a: np.ndarray, o_b: np.ndarray, d_b: np.ndarray):
     """Midpoint triangulation of rays o + s d (unit d): (points (N, 3), s_a, s_b, sin of the
     angle between the rays)."""
     w = o_a - o_b
@@ -257,7 +257,7 @@ def transfer_errors_px(rig: RigCalibration, camera_names: Sequence[str],
             for name, xy in ((a, xy_a), (b, xy_b)):
                 r = colmap[name].cam_ray_from_img(xy) @ rig_from_cam[name][:3, :3].T
                 rays.append(r / np.linalg.norm(r, axis=1, keepdims=True))
-            point, s_a, s_b, sin_ab = _midpoints(o_a, rays[0], o_b, rays[1])
+            point, s_a, s_b, sin_ab = midpoints(o_a, rays[0], o_b, rays[1])
             with np.errstate(invalid="ignore"):
                 meet = ((sin_ab > min_sin) & (s_a > 0) & (s_b > 0)
                         & (_ray_miss_px(point, o_a, rays[0], focal[a]) <= CONSENSUS_PX)

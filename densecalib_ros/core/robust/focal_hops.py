@@ -64,9 +64,9 @@ def hop_focals(state: SfMState, match_tracks: Tracks, camera_names: Sequence[str
     for _ in range(MAX_ROUNDS):
         best = (cost * (1.0 - MIN_RELATIVE_GAIN), None, "")
         tasks, labels = [], []
-        for c in _hop_cameras(current):
+        for c in hop_cameras(current):
             focal = float(current.camera(c).to_pycolmap().mean_focal_length())
-            points = _points_without(current, c, seed)
+            points = points_without(current, c, seed)
             for factor in HOP_FACTORS:
                 tasks.append((current, c, focal * factor, points, sample, camera_names,
                               trial_config, seed, truncation))
@@ -92,9 +92,9 @@ def hop_focals(state: SfMState, match_tracks: Tracks, camera_names: Sequence[str
 def _hop_trial(state: SfMState, c: int, focal_px: float, others: SfMState, sample: Tracks,
                camera_names: Sequence[str], config: SfMConfig, seed: int,
                truncation) -> Optional[tuple[float, SfMState]]:
-    """One hop (a worker's task): camera c kicked to focal_px (_kicked), the rig refined on
+    """One hop (a worker's task): camera c kicked to focal_px (kicked_state), the rig refined on
     `sample`, and its truncated cost; None where it could not be posed or ended implausible."""
-    trial = _kicked(state, c, focal_px, others)
+    trial = kicked_state(state, c, focal_px, others)
     if trial is None:
         return None
     trial = refine_on_tracks(trial, sample, camera_names, config, seed)
@@ -103,7 +103,7 @@ def _hop_trial(state: SfMState, c: int, focal_px: float, others: SfMState, sampl
     return held_out_cost(trial, sample, truncation, seed), trial
 
 
-def _hop_cameras(state: SfMState) -> list[int]:
+def hop_cameras(state: SfMState) -> list[int]:
     """Registered cameras whose focal may be kicked: not given, and for intrinsics shared between
     cameras only the first of the block (a kick moves the whole block)."""
     out, blocks = [], set()
@@ -116,7 +116,7 @@ def _hop_cameras(state: SfMState) -> list[int]:
     return out
 
 
-def _points_without(state: SfMState, c: int, seed: int) -> SfMState:
+def points_without(state: SfMState, c: int, seed: int) -> SfMState:
     """A copy of `state` with every track triangulated from the registered cameras other than c
     (c's focal plays no part, so one copy serves every kick of c)."""
     others = state.copy()
@@ -125,9 +125,9 @@ def _points_without(state: SfMState, c: int, seed: int) -> SfMState:
     return others
 
 
-def _kicked(state: SfMState, c: int, focal_px: float, others: SfMState) -> Optional[SfMState]:
+def kicked_state(state: SfMState, c: int, focal_px: float, others: SfMState) -> Optional[SfMState]:
     """A copy of `state` with camera c's focal set to focal_px and its pose re-estimated for it
-    from the points of `others` (_points_without(state, c)); None when too few."""
+    from the points of `others` (points_without(state, c)); None when too few."""
     trial = state.copy()
     set_focal(trial, c, focal_px)
     rows = np.flatnonzero(others.point_mask() & trial.tracks.observed()[:, c])

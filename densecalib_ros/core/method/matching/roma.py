@@ -13,7 +13,7 @@ variables DENSECALIB_ROMA_WEIGHTS / DENSECALIB_DINOV2_WEIGHTS.
 Requirements beyond the core: romatch 0.1.2 installed with --no-deps, plus pillow, einops and
 loguru (requirements-nodeps.txt / requirements.txt; scripts/setup_env.sh installs them). romatch
 imports torchvision; where no working torchvision exists (as with this project's CPU torch) a
-narrow stand-in is used while importing it (see `_tv_compat`).
+narrow stand-in is used while importing it (see `tv_compat`).
 """
 from __future__ import annotations
 
@@ -100,7 +100,7 @@ class RomaMatcher(Matcher):
                                "DINOv2 ViT-L/14 (dinov2_vitl14_pretrain.pth)")
         import torch
 
-        from ._tv_compat import import_romatch
+        from .tv_compat import import_romatch
 
         try:
             roma_outdoor = import_romatch().roma_outdoor

@@ -124,7 +124,7 @@ class _NearestSites:
         closer = np.flatnonzero(near < col_d1)
         np.minimum(col_d2, near, out=col_d2)
         if len(closer):
-            first, second = _nearest_two_rows(d2, closer)
+            first, second = nearest_two_rows(d2, closer)
             col_d2[closer] = np.minimum(col_d1[closer], second)
             col_best[closer] = s0 + first
             col_d1[closer] = near[closer]
@@ -159,7 +159,7 @@ class _NearestSites:
 
 
 @compiled()
-def _nearest_two_rows(tile: np.ndarray, columns: np.ndarray
+def nearest_two_rows(tile: np.ndarray, columns: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """For each of `columns` of `tile`: its nearest row (the first on ties) and the smallest
     value in its other rows. Row by row, so that the tile is read in memory order: numpy's
