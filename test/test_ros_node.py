@@ -273,6 +273,11 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     # the core's own log lines reach /rosout under the node's name
     assert wait_until(lambda: any(m.name == "densecalib_node.core" and "sampled" in m.msg
                                   for m in rosout.copy()), 5.0)
+    # No baseline known: the reply, the log (WARN) and /diagnostics say /tf_static is in rig units
+    assert "; warning: no metric scale: /tf_static and the files are in rig units, not metres" \
+        in response.message
+    assert wait_until(lambda: any(m.level == Log.WARN and "no metric scale" in m.msg
+                                  for m in rosout.copy()), 5.0)
     ros.remove(rosout)
     assert response.message.endswith(
         "set_camera_info: cam0 ok, cam1 refused (no thanks), cam2 timeout, "
@@ -315,7 +320,7 @@ def test_calibrate_busy_restart_and_failure(ros, rig, tmp_path):
     level, _, values = diag_state()
     assert float(values["reprojection_rms_px"]) == pytest.approx(
         node.calibration.quality.reprojection_rms_px, abs=1e-3)
-    assert float(values["age_s"]) >= 0.0
+    assert float(values["age_s"]) >= 0.0 and values["metric_scale"] == "no (rig units)"
     assert set(values["focal_std_px"].split(", ")) == {
         f"{n}={c.quality.focal_std_px:.1f}" for n, c in node.calibration.cameras.items()}
     assert len(values["projection_std_px"].split(", ")) == len(node.calibration.cameras)
@@ -576,7 +581,7 @@ def test_stereo_pairs_camera_info_carry_the_pair_rectification(ros, tmp_path):
         assert infos["cam3"].p[3] < 0 and "arbitrary units" in node.publisher.stereo_problem
         # the files a calibration writes say what is published: the pairs' YAML their R and P
         import yaml
-        written = node._write_files(rig)
+        written = node.write_files(rig)
         for name in ("cam0", "cam3"):
             data = yaml.safe_load((written / f"{name}.yaml").read_text())
             np.testing.assert_allclose(data["rectification_matrix"]["data"], infos[name].r)
@@ -718,6 +723,8 @@ def test_reload_publishes_the_calibration_changed_on_disk(ros, tmp_path):
         assert wait_until(lambda: cam1_x() == pytest.approx(0.5), 10.0)
         assert listener.rig_from_optical()["rig"][2, 3] == pytest.approx(3.75)
         assert node.calibration.metric_scale
+        assert wait_until(lambda: (diagnostic_state(listener) or (0, "", {}))[2].get(
+            "metric_scale") == "yes (cam0-cam1 = 0.5 m)", 5.0)
 
         # `latest` onto a calibration of cameras the node does not have: refused, nothing changes
         other = RigCalibration("left", {"left": RigCamera("left", lens, np.eye(4)),
@@ -910,13 +917,13 @@ def test_a_stop_while_the_files_are_written_tells_the_caller_what_became_current
     calibration stays' while latest switched: issue 40); a stop before the write writes nothing."""
     node = ros.densecalib(tmp_path / "calib")
     publish_frame_sets(ros, node, rig.images)
-    write = node._write_files
+    write = node.write_files
 
     def slow_write(*args, **kwargs):  # the stop lands in the middle of the write
         out = write(*args, **kwargs)
         time.sleep(0.5)
         return out
-    node._write_files = slow_write
+    node.write_files = slow_write
     caller = ros.caller("calibrate")
     try:
         future = caller.call_async()
@@ -960,7 +967,7 @@ def test_timers_of_a_destroyed_node_end_quietly(ros, tmp_path):
     assert len(callbacks) == 3  # topic discovery, diagnostics, watch
     ros.remove(node)
     with pytest.raises(InvalidHandle):
-        node._publish_diagnostics()  # what the diagnostics timer does, unguarded
+        node.publish_diagnostics()  # what the diagnostics timer does, unguarded
     for callback in callbacks:
         callback()
 
@@ -981,9 +988,9 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
         node = ros.densecalib(tmp_path / f"out_{storage}", replay_bag=str(bag),
                               calibrate_after_replay=True, transports=["auto"], **scale)
         try:
-            assert wait_until(lambda: node.calibration is not None or node._last_failure,
+            assert wait_until(lambda: node.calibration is not None or node.last_failure,
                               CALIBRATION_TIMEOUT_S, 0.1)
-            assert node._last_failure is None, node._last_failure
+            assert node.last_failure is None, node.last_failure
             assert node.sync.stats()["received"] == [2, 2, 2, 2]
             assert len(node.sync) == 2
             results[storage] = node.calibration
@@ -1010,9 +1017,9 @@ def test_bag_replay_gives_the_same_result(ros, rig, tmp_path):
                           transports=["auto"], keep_intrinsics=True)
     try:
         assert wait_until(lambda: node.calibration is not a and node.calibration is not None
-                          and node.calibration.quality.init is not None or node._last_failure,
+                          and node.calibration.quality.init is not None or node.last_failure,
                           CALIBRATION_TIMEOUT_S, 0.1)
-        assert node._last_failure is None, node._last_failure
+        assert node.last_failure is None, node.last_failure
         kept = node.calibration
         assert sorted(kept.quality.given_intrinsics) == sorted(CAMERAS)
         for name in CAMERAS:

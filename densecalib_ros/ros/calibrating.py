@@ -42,6 +42,24 @@ def calibration_request(s: Settings, sets: list, images: list,
         matcher=matcher)
 
 
+# What a calibration without metric scale means for whoever reads /tf_static (said at WARN when it
+# is published, in the ~/calibrate reply and on /diagnostics: consumers of tf take metres).
+UNSCALED = ("no metric scale: /tf_static and the files are in rig units, not metres (the median "
+            "distance of the other cameras from the reference camera is 1); set "
+            "known_baseline_m and baseline_cameras, or give the calibration metres with "
+            "`densecalib scale` and call ~/reload")
+
+
+def scale_said(rig: RigCalibration) -> str:
+    """The calibration's scale in a word or two: where its metres came from, or "rig units"."""
+    if not rig.metric_scale:
+        return "no (rig units)"
+    baseline, points = rig.quality.scale_from_baseline, rig.quality.scale_from_points
+    if baseline:
+        return f"yes ({'-'.join(baseline['cameras'])} = {baseline['baseline_m']} m)"
+    return "yes (a measured length in the scene)" if points else "yes"
+
+
 def calibrated_message(s: Settings, rig: RigCalibration, num_sets: int, elapsed: float,
                        out: Path, removed: list, stereo_problem: Optional[str],
                        set_camera_info: Optional[str]) -> str:
@@ -64,6 +82,8 @@ def calibrated_message(s: Settings, rig: RigCalibration, num_sets: int, elapsed:
         message += f"; {info_strips_line(rig.quality)}"
     for warning in rig.quality.warnings:
         message += f"; warning: {warning}"
+    if not rig.metric_scale:
+        message += f"; warning: {UNSCALED}"
     if stereo_problem:
         message += f"; warning: {stereo_problem}"
     if set_camera_info is not None:

@@ -9,6 +9,7 @@ from typing import Optional
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..core.types import RigCalibration
+from .calibrating import scale_said
 from .frame_loss import WARN_LOSS_FRACTION
 from .settings import Settings
 
@@ -85,6 +86,7 @@ def _add_calibration(values: dict, status: DiagnosticStatus, calibration: RigCal
     the status: warnings make it WARN)."""
     values.update(
         reprojection_rms_px=f"{calibration.quality.fit_rms_px():.3f}",
+        metric_scale=scale_said(calibration),
         cameras=", ".join(calibration.cameras),
         age_s=f"{time.time() - calibrated_at:.1f}",
         files=str(calibration_dir))

@@ -36,7 +36,7 @@ from ..core.io.sync import evenly_spaced
 from ..core.progress import Progress, StopToken
 from ..core.types import RigCalibration
 from .calibrate_action import CalibrateAction
-from .calibrating import calibrated_message, calibration_request
+from .calibrating import UNSCALED, calibrated_message, calibration_request
 from .calibration_files import (check_output_dir, latest_calibration, save_found_floor,
                                 write_calibration)
 from .checking import CheckOutcome, check_frame_sets
@@ -90,7 +90,7 @@ class DenseCalibNode(Node):
         self.calibration: Optional[RigCalibration] = None
         self.calibration_dir: Optional[Path] = None
         self._calibrated_at: Optional[float] = None  # time.time() of the published calibration
-        self._last_failure: Optional[str] = None
+        self.last_failure: Optional[str] = None
         self._status = "idle"
         self._last_check: Optional[CheckOutcome] = None
         self._watch_sets = Watch()
@@ -115,7 +115,7 @@ class DenseCalibNode(Node):
             self._discovery_timer = self.create_timer(
                 0.5, _ends_with_the_node(self._subscribe_discovered_topics),
                 callback_group=self._timer_group)
-        self.create_timer(1.0, _ends_with_the_node(self._publish_diagnostics),
+        self.create_timer(1.0, _ends_with_the_node(self.publish_diagnostics),
                           callback_group=self._timer_group)
         # the watch's checks take seconds: a group of their own keeps diagnostics flowing
         self.create_timer(1.0, _ends_with_the_node(self._watch),
@@ -239,12 +239,12 @@ class DenseCalibNode(Node):
                 and not self.jobs.stopping.is_set():
             outcome.message += f"; still publishing the calibration of {self.calibration_dir.name}"
         if outcome.success:
-            self._last_failure = None
+            self.last_failure = None
             self.get_logger().info(outcome.message)
         elif outcome.cancelled:
             self.get_logger().warning(outcome.message)
         else:
-            self._last_failure = outcome.message
+            self.last_failure = outcome.message
             self.get_logger().error(outcome.message)
         self.set_status(("done: " if outcome.success else "cancelled: " if outcome.cancelled
                          else "failed: ") + outcome.message, level=None)
@@ -337,7 +337,7 @@ class DenseCalibNode(Node):
         sets = sets[before_change:]
         elapsed = time.perf_counter() - start
         with self.jobs.writing_files(job):
-            out = self._write_files(rig, reconstruction, result.reference_views)
+            out = self.write_files(rig, reconstruction, result.reference_views)
             self._publish(rig, out)
         removed = prune_calibrations(s.output_dir, s.keep_calibrations, [out])
         set_info = (self.publisher.call_set_camera_info(rig) if s.call_set_camera_info
@@ -359,7 +359,7 @@ class DenseCalibNode(Node):
         return self._matcher[1]
 
     # ----------------------------------------------------------------- outputs
-    def _write_files(self, rig: RigCalibration, reconstruction=None,
+    def write_files(self, rig: RigCalibration, reconstruction=None,
                      reference_views: Optional[dict] = None) -> Path:
         """The calibration's new folder under output_dir, `latest` swapped onto it; the
         stereo_pairs' YAML files with their rectification, as published."""
@@ -385,9 +385,11 @@ class DenseCalibNode(Node):
         """Publish CameraInfo per calibrated camera and all extrinsics in one /tf_static message;
         calibrated_at: when the calibration was made (time.time(); default now), for its age."""
         self.publisher.publish(rig, directory)
+        if not rig.metric_scale:
+            self.get_logger().warning(f"{directory.name}: {UNSCALED}")
         self.calibration, self.calibration_dir = rig, directory
         self._calibrated_at = time.time() if calibrated_at is None else calibrated_at
-        self._publish_diagnostics()
+        self.publish_diagnostics()
 
     # ----------------------------------------------------------------- status
     def set_status(self, text: str, level: Optional[str] = "info") -> None:
@@ -410,14 +412,14 @@ class DenseCalibNode(Node):
     def busy(self) -> bool:
         return self.jobs.reason is not None
 
-    def _publish_diagnostics(self) -> None:
+    def publish_diagnostics(self) -> None:
         reason = self.jobs.reason
         state = ("idle" if reason is None else
                  {CHECK_JOB: "checking", RELOAD_JOB: "reloading"}.get(reason, "calibrating"))
         status, losing = rig_diagnostic_status(
             f"{self.get_name()}: rig calibration", self.settings, self.sync.stats(),
             self.sync.last_malformed, state, self._status, self.calibration,
-            self.calibration_dir, self._calibrated_at, self._last_failure, self._last_check)
+            self.calibration_dir, self._calibrated_at, self.last_failure, self._last_check)
         if losing:
             self.get_logger().warning(
                 f"{', '.join(losing)} of the recent frames missing (gaps in the header stamps): "
