@@ -83,8 +83,11 @@ def main(argv: list[str] | None = None) -> int:
                         datefmt="%H:%M:%S", stream=sys.stderr)
     previous = []
     try:
-        show_colmap_log(args.verbose)  # imports pycolmap, whose glog takes SIGTERM: take it back
-        previous = interrupts.install()
+        # Importing pycolmap installs glog's SIGTERM handler (a crash report): the stop signals
+        # wait until ours is in place.
+        with interrupts.held():
+            show_colmap_log(args.verbose)
+            previous = interrupts.install()
         return int(importlib.import_module(SUBCOMMANDS[args.command][0]).run(args) or 0)
     except CalibrationError as exc:  # one a command did not expect: its message, not a traceback
         logging.getLogger("densecalib").error("%s", exc)

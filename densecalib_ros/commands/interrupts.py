@@ -58,6 +58,19 @@ def install() -> list:
     return [(s, signal.signal(s, _on_signal)) for s in EXIT_CODES]
 
 
+@contextlib.contextmanager
+def held() -> Iterator[None]:
+    """SIGINT and SIGTERM held back (blocked) for the block and delivered after it (main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, set(EXIT_CODES))
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 def restore(previous: list) -> None:
     for signum, handler in previous:
         signal.signal(signum, handler)
@@ -89,6 +102,10 @@ def stopping_calibration(token: StopToken) -> Iterator[StopToken]:
         yield token
     except CalibrationCancelled:
         raise Interrupted(_state.received or signal.SIGINT) from None
+    except Exception:  # a failure that came before the stop's check: the signal is the news
+        if _state.received is not None:
+            raise Interrupted(_state.received) from None
+        raise
     finally:
         _state.token = None
     if _state.received is not None:  # came as the calibration returned: stop before the write

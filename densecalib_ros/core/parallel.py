@@ -38,6 +38,11 @@ log = logging.getLogger(__name__)
 PACKAGE_LOGGER = "densecalib_ros"
 # What the workers import before the first task, so that a task starts without import time.
 PRELOAD_MODULES = ["densecalib_ros.core.method.incremental"]
+# The signals the fork server and its workers never act on: they start with them blocked
+# (_PopenWithoutMain), as `timeout`, systemd and a terminal send them to the whole process group and
+# the calibrating process decides what stops (pycolmap's glog would answer a SIGTERM in them with a
+# crash report, Python a SIGINT with a KeyboardInterrupt traceback).
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 # While workers or work run ahead run, the calibrating thread looks this often whether it was stopped (a
 # cancelled goal must end within a couple of seconds; a trial can take tens of them).
@@ -260,6 +265,15 @@ class _PopenWithoutMain(popen_forkserver.Popen):
     """Starts a forkserver worker without the caller's __main__ in its preparation data."""
 
     def _launch(self, process_obj):
+        # The fork server starts here (on the first worker), with the stop signals blocked: a
+        # blocked mask passes to the server through exec and on to the workers it forks.
+        previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            self._launch_without_main(process_obj)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+
+    def _launch_without_main(self, process_obj):
         with _lock_start:
             get_preparation_data = spawn.get_preparation_data
 
@@ -342,7 +356,9 @@ def map_jobs(fn: Callable, arg_tuples: Sequence[tuple], jobs: int,
     try:
         pool = _get_pool(workers)
         futures = {k: pool.submit(_run_task, *levels, fn, arg_tuples[k]) for k in pending}
-    except OSError as exc:  # no processes or semaphores here (a locked-down container)
+    except (OSError, EOFError) as exc:  # no processes or semaphores (a locked-down container),
+        if check is not None:            # or a fork server a stop's signal ended as it started
+            check()
         log.warning("no worker processes here (%s): this process does all the work, on one "
                     "core", exc)
         _no_workers = True  # said once; not tried again
