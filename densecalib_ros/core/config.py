@@ -88,6 +88,9 @@ class SfMConfig:
     # Cameras (indices) whose intrinsics the user gave (PipelineConfig.cameras.known_intrinsics;
     # resolve_camera_lenses fills it): they start at those values and no step refines them.
     fixed_intrinsics_cameras: tuple = ()
+    # Groups of cameras (indices) whose intrinsics the SfM estimates as one (identical units:
+    # CameraData.identical_units; resolve_camera_lenses fills it).
+    shared_intrinsics_groups: tuple = ()
 
     def model_of(self, c: int) -> str:
         """Camera c's initial COLMAP model."""
@@ -155,6 +158,12 @@ class CameraData:
     # size. Those cameras start from them and keep them exactly: only the extrinsics (and the
     # other cameras' intrinsics) are calibrated. Their lens follows from the model.
     known_intrinsics: dict = field(default_factory=dict)
+    # Cameras that are units of one camera model (the same make, model, lens and focal length:
+    # core.io.exif.identical_unit_groups, or the user's word): ((camera names), why) per group.
+    # The SfM estimates one set of intrinsics per group, which makes three or four cameras far
+    # apart far better determined; the refinement on the images then estimates each unit's own,
+    # as one camera where the images cannot tell them apart (core.method.image_refinement).
+    identical_units: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -216,7 +225,8 @@ class PipelineConfig:
                              f"{', '.join(self.camera_names)}, not {', '.join(names)}: resolve "
                              "the one made by make_config for these cameras instead.")
         resolved = resolve_camera_lenses(self, names)
-        resolved = replace(resolved, camera_names=names)
+        resolved = replace(resolved, camera_names=names, sfm=replace(
+            resolved.sfm, shared_intrinsics_groups=_unit_groups(resolved, names)))
         resolved.check()
         return resolved
 
@@ -361,6 +371,29 @@ def resolve_camera_lenses(config: PipelineConfig, camera_names: Sequence[str]) -
         for n, lens in zip(camera_names, per_camera)),
         "sfm__fixed_intrinsics_cameras": tuple(c for c, n in enumerate(camera_names)
                                                if n in known)})
+
+
+def _unit_groups(config: PipelineConfig, camera_names: Sequence[str]) -> tuple:
+    """CameraData.identical_units as groups of camera indices of one model each (cameras with
+    given intrinsics left out: they keep theirs); InputError on unknown or repeated cameras."""
+    groups, seen = [], set()
+    for names, _ in config.cameras.identical_units:
+        unknown = sorted(set(names) - set(camera_names))
+        twice = sorted(set(names) & seen)
+        if unknown or twice:
+            raise InputError(f"Identical units {', '.join(names)}: "
+                             + (f"{', '.join(unknown)} not among the cameras "
+                                f"{', '.join(camera_names)}" if unknown else
+                                f"{', '.join(twice)} in two groups") + ".")
+        seen |= set(names)
+        members = tuple(camera_names.index(n) for n in names
+                        if n not in config.cameras.known_intrinsics)
+        if len({config.sfm.model_of(c) for c in members}) > 1:
+            raise InputError(f"Identical units {', '.join(names)} have different lenses (--lens): "
+                             "units of one camera model have one lens.")
+        if len(members) >= 2:
+            groups.append(tuple(sorted(members)))
+    return tuple(groups)
 
 
 def _check_config(cfg: PipelineConfig) -> None:

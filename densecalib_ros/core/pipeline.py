@@ -37,7 +37,7 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     CalibrationCancelled where the progress's stop token was set."""
     started = time.perf_counter()
     progress = Progress.of(progress)
-    images = prepare(frame_sets, camera_names, config)
+    images = prepare(frame_sets, camera_names, config, progress)
     progress.plan(planned_stages(images.config, len(images.camera_names)),
                   estimated_run_s(images.image_sizes, len(frame_sets),
                                   images.config.max_image_side_px))

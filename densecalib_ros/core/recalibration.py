@@ -95,7 +95,7 @@ def _recalibrated(frame_sets, camera_names, config: PipelineConfig, previous: Ri
                   ) -> tuple[Attempt, RigImages, str, int]:
     """(the calibration kept, the images it was made from, what it started from, how many frame
     sets before a change were left out): recalibrate's stages."""
-    images = prepare(frame_sets, camera_names, config)
+    images = prepare(frame_sets, camera_names, config, progress)
     progress.plan(planned_stages(images.config, len(images.camera_names)),
                   estimated_run_s(images.image_sizes, len(frame_sets),
                                   images.config.max_image_side_px))

@@ -258,6 +258,8 @@ class RigQuality:
     camera_lens: Optional[dict] = None
     masked_cameras: Optional[list] = None
     exif_focal_px: Optional[dict] = None
+    # groups of cameras estimated as units of one model in the SfM: [{"cameras", "why"}]
+    identical_units: Optional[list] = None
     info_strips: Optional[dict] = None  # camera -> the info strips ignored
     # a recalibration (core.recalibration)
     init: Optional[str] = None  # what the kept run started from

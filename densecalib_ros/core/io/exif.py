@@ -26,6 +26,7 @@ import logging
 import math
 import os
 import time
+from dataclasses import dataclass
 from typing import Optional, Sequence
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,10 @@ _FOCAL_PLANE_RESOLUTION_UNIT = 0xA210
 _PIXEL_X_DIMENSION = 0xA002
 _PIXEL_Y_DIMENSION = 0xA003
 _DATETIME = 0x0132  # IFD0
+_MAKE = 0x010F  # IFD0
+_MODEL = 0x0110  # IFD0
+_BODY_SERIAL = 0xA431
+_LENS_MODEL = 0xA434
 _DATETIME_ORIGINAL = 0x9003
 _SUBSEC_TIME_ORIGINAL = 0x9291
 
@@ -122,6 +127,76 @@ def capture_time_from_tags(ifd0: dict, exif: dict) -> Optional[float]:
 def exif_capture_time_s(path: str | os.PathLike) -> Optional[float]:
     """Capture time of the image file at `path` (capture_time_from_tags), or None."""
     return capture_time_from_tags(*_read_tags(path))
+
+
+@dataclass(frozen=True)
+class CameraIdentity:
+    """What a camera's EXIF says it is: make and model (IFD0), lens model, focal length [mm] and
+    the body's serial number (Exif sub-IFD), None where a tag is absent."""
+
+    make: Optional[str]
+    model: Optional[str]
+    lens: Optional[str]
+    focal_mm: Optional[float]
+    serial: Optional[str]
+
+    def unit(self) -> Optional[tuple]:
+        """What identical units share (make, model, lens, focal): None without make and model."""
+        if not self.make or not self.model:
+            return None
+        return (self.make, self.model, self.lens, self.focal_mm)
+
+
+def _text(value) -> Optional[str]:
+    text = value.decode(errors="replace") if isinstance(value, bytes) else value
+    text = str(text).strip("\x00 ") if text is not None else ""
+    return text or None
+
+
+def camera_identity(path: str | os.PathLike) -> Optional[CameraIdentity]:
+    """The CameraIdentity of the image file at `path`; None where it has no make and model."""
+    ifd0, exif = _read_tags(path)
+    focal = _positive(exif.get(_FOCAL_LENGTH))
+    identity = CameraIdentity(_text(ifd0.get(_MAKE)), _text(ifd0.get(_MODEL)),
+                              _text(exif.get(_LENS_MODEL)),
+                              None if focal is None else round(focal, 2),
+                              _text(exif.get(_BODY_SERIAL)))
+    return identity if identity.unit() is not None else None
+
+
+def camera_identities(paths: Sequence[Sequence[str | os.PathLike]],
+                      camera_names: Sequence[str]) -> dict[str, CameraIdentity]:
+    """{camera name: its CameraIdentity} for the cameras whose images all give the same one
+    (paths[t][c]: camera c's file at time t); a camera whose images disagree (files of several
+    cameras in one folder, a zoom changed) is left out."""
+    out = {}
+    for c, name in enumerate(camera_names):
+        found = {camera_identity(row[c]) for row in paths}
+        if len(found) == 1 and None not in found:
+            out[name] = found.pop()
+    return out
+
+
+def identical_unit_groups(identities: dict, image_sizes: dict) -> list[tuple[tuple, str]]:
+    """[(camera names, why)] for each group of two or more cameras that are units of one camera
+    model: the same EXIF make, model, lens and focal length and the same image size
+    (identities: camera name -> CameraIdentity; image_sizes: camera name -> (width, height));
+    `why` says so, and whether their serial numbers show different bodies or one."""
+    groups: dict[tuple, list[str]] = {}
+    for name, identity in identities.items():
+        if name in image_sizes:
+            groups.setdefault((identity.unit(), tuple(image_sizes[name])), []).append(name)
+    out = []
+    for ((make, model, lens, focal_mm), (w, h)), names in groups.items():
+        if len(names) < 2:
+            continue
+        serials = [identities[n].serial for n in names]
+        bodies = ("; one body (the same serial number)" if len(set(serials)) == 1 and serials[0]
+                  else f"; serial numbers {', '.join(s or '?' for s in serials)}")
+        what = " ".join(x for x in (make, model) if x) + (f", lens {lens}" if lens else "") + \
+            (f", {focal_mm:g} mm" if focal_mm else "")
+        out.append((tuple(names), f"EXIF {what}, {w}x{h}{bodies}"))
+    return out
 
 
 def camera_exif_focals(paths: Sequence[Sequence[str | os.PathLike]], camera_names: Sequence[str],

@@ -414,7 +414,8 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
         for c in config.fixed_intrinsics_cameras:  # given intrinsics win over the previous ones
             start[c] = intrinsics[c]
         state = SfMState.create(tracks, start, config.share_intrinsics,
-                                config.fixed_intrinsics_cameras)
+                                config.fixed_intrinsics_cameras,
+                                config.shared_intrinsics_groups)
     elif init == "incremental":
         # The incremental pipeline needs its outlier threshold (B_err) to stay on track even
         # when the global preset has none.
@@ -431,7 +432,8 @@ def _refine_from_start(init: str, tracks: Tracks, intrinsics: Sequence[CameraInt
         state.active = tracks.observed().copy()  # global: every observation, no B_err removal
     else:
         state = SfMState.create(tracks, intrinsics, config.share_intrinsics,
-                                config.fixed_intrinsics_cameras)
+                                config.fixed_intrinsics_cameras,
+                                config.shared_intrinsics_groups)
         poses = rotation_averaging_poses(tracks, [state.camera(c) for c in range(C)],
                                          camera_names, seed)
     # Only the incremental initialisation can leave cameras without a pose (not registrable).

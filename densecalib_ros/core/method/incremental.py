@@ -350,7 +350,8 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
     first three views by eq. 3."""
     C = tracks.num_cameras
     state = SfMState.create(tracks, intrinsics, config.share_intrinsics,
-                            config.fixed_intrinsics_cameras)
+                            config.fixed_intrinsics_cameras,
+                            config.shared_intrinsics_groups)
     b_err = config.b_err_px if config.b_err_px is not None else np.inf
     order = view_order(tracks)
     if len(order) < 2:

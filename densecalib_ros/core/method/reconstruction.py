@@ -56,22 +56,29 @@ class SfMState:
 
     @classmethod
     def create(cls, tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
-               share_intrinsics: bool = False, fixed_cameras: Sequence[int] = ()) -> "SfMState":
+               share_intrinsics: bool = False, fixed_cameras: Sequence[int] = (),
+               shared_groups: Sequence[Sequence[int]] = ()) -> "SfMState":
         """intrinsics: one initial CameraIntrinsics per camera. With share_intrinsics, cameras of
-        the same model and image size share one block (the first such camera's values).
+        the same model and image size share one block (the first such camera's values);
+        shared_groups: groups of cameras that share one (identical units).
         fixed_cameras: cameras whose intrinsics are given and held; each keeps a block of its
         own (sharing would let another camera's estimate overwrite them)."""
         blocks: list[CameraIntrinsics] = []
         camera_block = np.zeros(len(intrinsics), dtype=np.int64)
         keys: dict[tuple, int] = {}
         fixed = set(int(c) for c in fixed_cameras)
+        group_of = {int(c): g for g, members in enumerate(shared_groups) for c in members}
         for c, cam in enumerate(intrinsics):
             key = (cam.model, cam.width, cam.height) if share_intrinsics and c not in fixed \
+                else ("group", group_of[c]) if c in group_of and c not in fixed \
                 else ("camera", c)
             if key not in keys:
                 keys[key] = len(blocks)
-                blocks.append(CameraIntrinsics(cam.model, cam.width, cam.height,
-                                               np.array(cam.params, dtype=np.float64)))
+                params = np.array(cam.params, dtype=np.float64)
+                if key[0] == "group":  # identical units: the middle of their starts
+                    params = np.median([np.asarray(intrinsics[m].params, dtype=np.float64)
+                                        for m in shared_groups[key[1]]], axis=0)
+                blocks.append(CameraIntrinsics(cam.model, cam.width, cam.height, params))
             camera_block[c] = keys[key]
         T = tracks.num_tracks
         return cls(tracks=tracks, intrinsics=blocks, camera_block=camera_block,
@@ -98,6 +105,21 @@ class SfMState:
         return dataclasses.replace(self.copy(), tracks=tracks,
                                    points_xyz=np.full((tracks.num_tracks, 3), np.nan),
                                    active=tracks.observed().copy())
+
+    def with_own_blocks(self, cameras: Sequence[int]) -> "SfMState":
+        """A copy in which each of `cameras` has a block of its own, starting from the values of
+        the block it shared (identical units estimated as one by the SfM, each estimated on its
+        own from here)."""
+        out = self.copy()
+        for c in cameras:
+            shared = int(out.camera_block[c])
+            if int(np.sum(out.camera_block == shared)) < 2:
+                continue
+            cam = out.intrinsics[shared]
+            out.intrinsics.append(CameraIntrinsics(cam.model, cam.width, cam.height,
+                                                   cam.params.copy()))
+            out.camera_block[c] = len(out.intrinsics) - 1
+        return out
 
     def camera(self, c: int) -> CameraIntrinsics:
         return self.intrinsics[int(self.camera_block[c])]

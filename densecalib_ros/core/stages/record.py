@@ -98,6 +98,9 @@ def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
                                for n, found in images.strips.items()}
     if cameras.exif_focal_px:
         quality.exif_focal_px = {n: round(float(f), 1) for n, f in cameras.exif_focal_px.items()}
+    if cameras.identical_units:
+        quality.identical_units = [{"cameras": list(names), "why": why}
+                                   for names, why in cameras.identical_units]
     if rematch is not None:
         quality.rematch = rematch.record()
     for warning in warnings(result.rig, config, images.camera_names, consensus, rematch,

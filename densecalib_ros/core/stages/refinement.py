@@ -70,7 +70,11 @@ class RefinedRuns:
         found = next((done for done in self._done if done[0] is state), None)
         if found is None:
             messages: list[str] = []
-            refinement = refine_on_images(state, self.images.frame_sets,
+            # identical units, estimated as one by the SfM: each unit's own from here, as one
+            # camera where the images do not tell them apart (the refinement's one-camera test)
+            units = [c for group in self.config.sfm.shared_intrinsics_groups for c in group]
+            refinement = refine_on_images(state.with_own_blocks(units) if units else state,
+                                          self.images.frame_sets,
                                           _seeds(result, self.matched.keypoint_tracks),
                                           self.images.camera_names, self.images.ignored or None,
                                           self.config.sampling.seed, messages.append,
