@@ -31,16 +31,19 @@ class Arena:
 
 def arena(seed: int = 0, num_cameras: int = 3, gap_deg: float = 60.0, frames: int = 300,
           noise_px: float = 1.5, scale: float = 2.0, spec: RigSpec | None = None) -> Arena:
-    """The rig (small images: only its cameras are used here) and its cameras' keypoints of an
-    animal (scaled by `scale`: a dog-sized body reads better in 640 px images) that walks a
-    smooth random path over the arena floor, turning and rearing."""
+    """The rig (small images: only its cameras are used here; lenses of 55-75 deg, as arenas
+    have) and its cameras' keypoints of an animal (scaled by `scale`: a dog-sized body reads
+    better in 640 px images) that walks a smooth random path over the floor all cameras see,
+    turning and rearing."""
     rig = generate_rig(spec or RigSpec(num_cameras=num_cameras, width=640, height=480, seed=seed,
-                                       gap_deg=gap_deg, supersample=1))
+                                       gap_deg=gap_deg, supersample=1, lenses="ideal"))
     rng = np.random.default_rng(seed + 100)
     t = np.linspace(0, 1, frames)
     phases = rng.uniform(0, 2 * np.pi, 4)
-    x = 0.7 * np.sin(2 * np.pi * 1.3 * t + phases[0]) + 0.15 * np.sin(2 * np.pi * 4 * t)
-    y = 0.5 * np.sin(2 * np.pi * 0.9 * t + phases[1])
+    centre, half = _shared_floor(rig)  # an arena's cameras are framed on its floor
+    x = centre[0] + half[0] * (0.8 * np.sin(2 * np.pi * 1.3 * t + phases[0])
+                               + 0.2 * np.sin(2 * np.pi * 4 * t))
+    y = centre[1] + half[1] * np.sin(2 * np.pi * 0.9 * t + phases[1])
     heading = np.arctan2(np.gradient(y), np.gradient(x))
     rear = 0.25 * np.clip(np.sin(2 * np.pi * 3 * t + phases[2]), 0, None)  # rears up, m
     world = np.empty((frames, len(JOINTS), 3))
@@ -65,6 +68,23 @@ def arena(seed: int = 0, num_cameras: int = 3, gap_deg: float = 60.0, frames: in
         noisy[missed], score[missed] = np.nan, rng.uniform(0, 0.1, int(missed.sum()))
         xy[cam], likelihood[cam] = noisy, score
     return Arena(rig, xy, likelihood)
+
+
+def _shared_floor(rig: SyntheticRig) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, half extents) m of the floor all cameras see, within 10 % of their images'
+    borders: where the animal walks."""
+    scene = rig.scenes[0]
+    gx, gy = np.meshgrid(np.linspace(scene.room_min[0], scene.room_max[0], 60),
+                         np.linspace(scene.room_min[1], scene.room_max[1], 60))
+    floor = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, 0.1)])
+    seen = np.ones(len(floor), bool)
+    for c, cam in enumerate(rig.cameras):
+        xy, valid = rig.project(c, floor)
+        with np.errstate(invalid="ignore"):
+            seen &= valid & (np.abs(xy[:, 0] / cam.width - 0.5) < 0.4) & \
+                (np.abs(xy[:, 1] / cam.height - 0.5) < 0.4)
+    lo, hi = np.percentile(floor[seen, :2], [10, 90], axis=0)
+    return (lo + hi) / 2, (hi - lo) / 2
 
 
 def dlc_frame(xy: np.ndarray, likelihood: np.ndarray, individuals=None):

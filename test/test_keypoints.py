@@ -175,3 +175,59 @@ def test_a_folder_with_deeplabcuts_h5_and_csv_of_one_video_reads_the_h5(walk, tm
     write_dlc(walk, tmp_path, "h5")
     sources = keypoint_sources([str(tmp_path)])
     assert sorted(sources) == walk.rig.names and {p.suffix for p in sources.values()} == {".h5"}
+
+
+def test_labelled_data_csv_rows_are_images_numbered_by_frame(tmp_path):
+    import pandas as pd
+
+    columns = pd.MultiIndex.from_product([["Alex"], ["snout", "tail"], ["x", "y"]],
+                                         names=["scorer", "bodyparts", "coords"])
+    rows = pd.MultiIndex.from_tuples([("labeled-data", "cam0", f"img{k:04d}.png")
+                                      for k in (42, 7)])
+    values = np.array([[1.0, 2.0, np.nan, np.nan], [3.0, 4.0, 5.0, 6.0]])
+    pd.DataFrame(values, index=rows, columns=columns).to_csv(tmp_path / "CollectedData_Alex.csv")
+    kp = read_keypoints(tmp_path / "CollectedData_Alex.csv")
+    assert list(kp.frames) == [7, 42] and kp.joints == ("snout", "tail")
+    assert kp.xy_px[1, 0, 0].tolist() == [1.0, 2.0] and np.isnan(kp.likelihood[1, 0, 1])
+    assert kp.likelihood[0, 0].tolist() == [1.0, 1.0]  # a person placed them
+
+
+def test_with_videos_the_time_offsets_pair_the_keypoints_by_each_videos_frame_rate(walk,
+                                                                                    tmp_path):
+    import argparse
+
+    import cv2
+
+    from densecalib_ros.commands import calibrate
+    from densecalib_ros.commands.keypoint_inputs import read_keypoint_input
+
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for name in walk.rig.names:  # 25 fps: cam1's 0.28 s early start is 7 of its frames
+        writer = cv2.VideoWriter(str(videos / f"{name}.avi"), cv2.VideoWriter_fourcc(*"MJPG"),
+                                 25.0, (64, 48))
+        for _ in range(5):
+            writer.write(np.zeros((48, 64, 3), np.uint8))
+        writer.release()
+    for c, name in enumerate(walk.rig.names):
+        frame = dlc_frame(walk.xy_px[c], walk.likelihood[c])
+        if name == "cam1":
+            frame.index = frame.index + 7
+        frame.to_csv(tmp_path / f"{name}.csv")
+    parser = argparse.ArgumentParser()
+    calibrate.add_arguments(parser)
+    args = parser.parse_args(["--videos", str(videos), "--keypoints", *(
+        str(tmp_path / f"{n}.csv") for n in walk.rig.names), "--out", str(tmp_path / "out")])
+    frame_sets = [[np.zeros((480, 640, 3), np.uint8)] * 3]
+    found = read_keypoint_input(args, walk.rig.names, frame_sets,
+                                {"time_offsets_s": {"cam0": 0.0, "cam1": 0.28, "cam2": 0.0}})
+    right = identity_tracks(_read_written(walk, tmp_path / "right"), walk.rig.names, [SIZE] * 3)
+    assert found.record["frame_offsets"] == {"cam0": 0, "cam1": 7, "cam2": 0}
+    np.testing.assert_array_equal(found.tracks.xy_px, right.tracks.xy_px)
+
+
+def test_files_of_frames_no_two_cameras_share_are_refused_with_their_spans(walk, tmp_path):
+    read = _read_written(walk, tmp_path)
+    with pytest.raises(InputError, match=r"No joint .*cam1 frames 500-619.*frame offset"):
+        identity_tracks(read, walk.rig.names, [SIZE] * 3, frame_offsets={"cam1": -500,
+                                                                           "cam2": 300})

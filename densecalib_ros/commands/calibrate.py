@@ -17,12 +17,15 @@ from ..core.method.matching import available_matchers
 from ..core.products.report import camera_table, intrinsics_note
 from .argtypes import number_in, positive, seed
 from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
+from .keypoint_inputs import (add_keypoint_arguments, keypoint_cameras, keypoint_paths,
+                              read_keypoint_input)
 
 log = logging.getLogger("densecalib.calibrate")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_input_arguments(parser)
+    add_input_arguments(parser, required=False)  # or --keypoints alone
+    add_keypoint_arguments(parser)
     parser.add_argument("--out", required=True, metavar="OUT",
                         help="output folder: new, empty or an earlier calibration (replaced)")
     parser.add_argument("--preset", choices=PRESETS, default="regular",
@@ -168,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     from .interrupts import finishing_write, stopping_calibration
     from .progress_line import terminal_progress
 
-    inputs = [p for p in (args.images, args.videos, args.bag) if p]
+    inputs = [p for p in (args.images, args.videos, args.bag) if p] + keypoint_paths(args)
     try:
         check_output_folder(args.out, CALIBRATION_MARKERS, inputs)  # before minutes of work
         with terminal_progress(getattr(args, "verbose", False)) as progress:
@@ -218,7 +221,13 @@ def _request(args: argparse.Namespace):
     from ..core.method.known_intrinsics import read_known_intrinsics, with_previous_intrinsics
 
     config = _config(args)
-    frame_sets, names, source, paths = read_input(args)
+    if args.images or args.videos or args.bag:
+        frame_sets, names, source, paths = read_input(args)
+    else:
+        frame_sets, names, source, paths = [], keypoint_cameras(args), {"source": "keypoints"}, []
+    keypoints = read_keypoint_input(args, names, frame_sets, source)
+    if keypoints is not None:
+        source = {**source, "keypoints": keypoints.record}
     previous = read_calibration(args.previous) if args.previous else None
     known = read_known_intrinsics(args.intrinsics or [], names)
     if args.keep_intrinsics:
@@ -240,7 +249,7 @@ def _request(args: argparse.Namespace):
         previous_views=reference_views_of(args.previous, names) if previous else {},
         known_baseline=parse_known_baseline(args.known_baseline, names), floor=args.floor,
         floor_hint="add --floor, or run `densecalib floor` on the result (exports use the "
-                   "floor frame as world)")
+                   "floor frame as world)", keypoints=keypoints)
 
 
 def _print_summary(rig, out: str) -> None:

@@ -22,8 +22,10 @@ log = logging.getLogger("densecalib.inputs")
 DEFAULT_SLOP_S = 0.02
 
 
-def add_input_arguments(parser: argparse.ArgumentParser) -> None:
-    src = parser.add_mutually_exclusive_group(required=True)
+def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    """The options of read_input; required=False: the command checks for a source itself
+    (calibrate: --keypoints alone)."""
+    src = parser.add_mutually_exclusive_group(required=required)
     src.add_argument("--images", metavar="DIR",
                      help="one image per camera (file stem = camera name) or one subfolder per "
                           "camera with time-aligned images (see --align)")

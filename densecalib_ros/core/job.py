@@ -16,11 +16,13 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import numpy as np
 
 from .config import PipelineConfig
+from .errors import InputError
 from .progress import Progress
 from .types import RigCalibration
 
 if TYPE_CHECKING:  # the pipeline imports pycolmap: on use only
     from .calibration_result import CalibrationResult
+    from .method.identity_tracks import IdentityTracks
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +39,10 @@ class CalibrationRequest:
     floor: "upright" or "top" to find the floor frame (core.products.floor); floor_hint: what finds
         it again in the front end's terms, said when a recalibration lost the previous floor.
     source: what the images came from, recorded as the provenance (core.io.export).
-    matcher: a loaded matcher to reuse (the node keeps one across calibrations)."""
+    matcher: a loaded matcher to reuse (the node keeps one across calibrations).
+    keypoints: pose keypoints as correspondences by identity (core.method.identity_tracks), used
+        beside the images' matches, or alone where frame_sets is empty (then every camera's image
+        size must be in keypoints.image_sizes). A fresh calibration only."""
 
     frame_sets: Sequence[Sequence[np.ndarray]]
     camera_names: list[str]
@@ -49,6 +54,7 @@ class CalibrationRequest:
     floor: Optional[str] = None
     floor_hint: str = "find it with the floor option"
     matcher: object = None
+    keypoints: Optional["IdentityTracks"] = None
 
 
 @dataclass
@@ -75,13 +81,20 @@ def run_job(request: CalibrationRequest, progress=None) -> JobResult:
     from .products.scale import warn_if_scale_lost, with_known_baseline
 
     r, progress = request, Progress.of(progress)
-    if r.previous is not None:
+    if r.keypoints is not None and r.previous is not None:
+        raise InputError("Keypoints are used in a fresh calibration; a recalibration from the "
+                         "previous one uses its images only: leave out the keypoints, or the "
+                         "previous calibration to calibrate afresh.")
+    if not r.frame_sets:
+        result = _from_keypoints(r, progress)
+    elif r.previous is not None:
         result = recalibrate(r.frame_sets, r.camera_names, r.config, r.previous,
                              matcher=r.matcher, progress=progress,
                              previous_views=r.previous_views)
     else:
         result = run_calibration(r.frame_sets, r.camera_names, r.config, matcher=r.matcher,
-                                 progress=progress)
+                                 progress=progress, identity_tracks=r.keypoints and
+                                 r.keypoints.tracks)
     baseline = r.known_baseline or previous_baseline(r.previous)
     if baseline:
         result = with_known_baseline(result, *baseline)
@@ -91,7 +104,35 @@ def run_job(request: CalibrationRequest, progress=None) -> JobResult:
     warn_if_floor_lost(result.rig, r.previous, r.floor_hint)
     record_provenance(result.rig, r.source)
     progress.check()  # the last moment a stop leaves nothing to undo: the front end writes next
-    return JobResult(result, latest_views(r.frame_sets, r.camera_names, result.rig))
+    views = latest_views(r.frame_sets, r.camera_names, result.rig) if r.frame_sets else {}
+    return JobResult(result, views)
+
+
+def _from_keypoints(r: CalibrationRequest, progress: Progress) -> "CalibrationResult":
+    """A calibration from the keypoints alone (no images): their tracks are the SfM's, and the
+    ones it judges and refines the rig on (stages.runs.calibrate_from_tracks); warned as a
+    calibration from images is of a camera left out, a lens unlike a real one and focal lengths
+    the correspondences leave open."""
+    from .method.focal_determination import loose_focal_warning, weak_focal_warning
+    from .method.plausibility import unlike_lens_warning
+    from .stages.record import unregistered_warning
+    from .stages.runs import calibrate_from_tracks
+
+    sizes = r.keypoints.image_sizes if r.keypoints is not None else []
+    unknown = [n for n, size in zip(r.camera_names, sizes) if not size]
+    if r.keypoints is None or unknown or len(sizes) != len(r.camera_names):
+        raise InputError("Without images, a calibration needs keypoints and every camera's "
+                         f"image size{': unknown for ' + ', '.join(unknown) if unknown else ''} "
+                         "(give it, e.g. --image-size 1280x720 or NAME=1280x720).")
+    result = calibrate_from_tracks(r.keypoints.tracks, sizes, r.camera_names, r.config,
+                                   progress=progress, match_tracks=r.keypoints.tracks)
+    rig = result.rig
+    for warning in (unregistered_warning(rig), unlike_lens_warning(rig), weak_focal_warning(rig),
+                    loose_focal_warning(rig, "the keypoints")):
+        if warning:
+            log.warning("%s", warning)
+            rig.quality.warnings.append(warning)
+    return result
 
 
 def previous_baseline(previous: Optional[RigCalibration]) -> Optional[tuple[str, str, float]]:

@@ -19,13 +19,13 @@ from .stages.attempt import Attempt, Calibrator
 from .stages.inputs import RigImages, prepare
 from .stages.matching import match_rig
 from .stages.record import finish
-from .types import RigCalibration
+from .types import RigCalibration, Tracks
 
 
 def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Sequence[str],
                     config: PipelineConfig, *, matcher=None,
                     previous: Optional[RigCalibration] = None,
-                    progress=None) -> CalibrationResult:
+                    progress=None, identity_tracks: Optional[Tracks] = None) -> CalibrationResult:
     """Calibrate a rig from synchronised frame sets.
 
     frame_sets[t][c]: camera c's image at time t, (H, W, 3) uint8 RGB or (H, W) uint8 gray.
@@ -33,8 +33,10 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     is created and loaded here). previous: a previous calibration of the same cameras; its focal
     lengths replace the initial-focal estimate (recalibration; see core.recalibration for
     starting from its poses). progress: a core.progress.Progress (stages, time left, a stop
-    token) or a callback for its messages. Raises CalibrationError subclasses, and
-    CalibrationCancelled where the progress's stop token was set."""
+    token) or a callback for its messages. identity_tracks: correspondences by identity (pose
+    keypoints: core.method.identity_tracks) each run uses beside the image matches. Raises
+    CalibrationError subclasses, and CalibrationCancelled where the progress's stop token was
+    set."""
     started = time.perf_counter()
     progress = Progress.of(progress)
     images = prepare(frame_sets, camera_names, config, progress)
@@ -44,7 +46,8 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     calibrators: dict[str, Calibrator] = {}
     try:
         with stoppable(progress):
-            calibrate = _calibrate_with(images, matcher, previous, progress, calibrators)
+            calibrate = _calibrate_with(images, matcher, previous, progress, calibrators,
+                                        identity_tracks)
             kept, rematch = with_second_matcher(calibrate, images.config, images.camera_names,
                                                 fresh=previous is None, say=progress.say)
     finally:
@@ -73,7 +76,7 @@ def planned_stages(config: PipelineConfig, num_cameras: int) -> list[str]:
 
 
 def _calibrate_with(images: RigImages, matcher, previous: Optional[RigCalibration],
-                    progress: Progress, calibrators: dict
+                    progress: Progress, calibrators: dict, identity_tracks: Optional[Tracks]
                     ) -> Callable[[str, Optional[Callable]], Attempt]:
     """calibrate(matcher name, until) for with_second_matcher: that matcher's frame sets
     matched once (the given, loaded `matcher` reused for the configured one), each call going on
@@ -85,7 +88,8 @@ def _calibrate_with(images: RigImages, matcher, previous: Optional[RigCalibratio
             if calibrators:  # a second matcher: its stages come on top of the plan
                 progress.extend(planned_stages(config, len(images.camera_names)))
             matched = match_rig(images, config, progress,
-                                matcher if name == images.config.matcher else None)
+                                matcher if name == images.config.matcher else None,
+                                identity_tracks=identity_tracks)
             calibrators[name] = Calibrator(images, matched, config, progress, previous)
         return calibrators[name].calibrate(until)
     return calibrate

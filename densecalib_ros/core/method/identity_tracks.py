@@ -77,6 +77,13 @@ def identity_tracks(keypoints: dict, camera_names: Sequence[str],
              for c, kp, size in zip(cams, kps, sizes)]
     frames = [kp.frames - int(offsets.get(camera_names[c], 0)) for c, kp in zip(cams, kps)]
     tracks, used = _tracks(views, frames, cams, len(camera_names), max_tracks)
+    if not tracks.num_tracks:
+        spans = ", ".join(f"{camera_names[c]} frames {int(f.min())}-{int(f.max())}" if len(f)
+                          else f"{camera_names[c]} none" for c, f in zip(cams, frames))
+        raise InputError(
+            f"No joint was seen by two cameras in one frame at likelihood >= {min_likelihood:g} "
+            f"({spans}): check that the files are of videos that run together (a camera that "
+            "started early needs its frame offset) and the likelihood threshold.")
     record = {"files": {camera_names[c]: kp.path for c, kp in zip(cams, kps)},
               "tool": sorted({kp.tool for kp in kps}), "min_likelihood": min_likelihood,
               "joints": list(joints), "individuals": [i for i in individuals if i],

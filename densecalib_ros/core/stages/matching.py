@@ -26,12 +26,14 @@ log = logging.getLogger(__name__)
 class Matched:
     """One matcher's matches of a rig's frame sets: a SiteMatchSet per frame set and, where the
     configuration refines on all keypoint matches, those matches as tracks (else None), drawn
-    with the sampling seed `seed`."""
+    with the sampling seed `seed`; identity_tracks: correspondences by identity the user gave
+    (pose keypoints, core.method.identity_tracks), which each run uses beside the matches."""
 
     matcher: str
     match_sets: list
     keypoint_tracks: Optional[Tracks]
     seed: int = 0
+    identity_tracks: Optional[Tracks] = None
 
     def since(self, first: int) -> "Matched":
         """The matches of frame set `first` on (a recalibration's, after a change of the rig);
@@ -39,19 +41,21 @@ class Matched:
         sets = self.match_sets[first:]
         tracks = None if self.keypoint_tracks is None else keypoint_tracks(
             sets, self.keypoint_tracks.num_cameras, seed=self.seed)
-        return Matched(self.matcher, sets, tracks, self.seed)
+        return Matched(self.matcher, sets, tracks, self.seed, self.identity_tracks)
 
 
 def match_rig(images: RigImages, config: PipelineConfig, progress: Progress, matcher=None,
-              each_on_its_own: bool = False) -> Matched:
+              each_on_its_own: bool = False, identity_tracks: Optional[Tracks] = None
+              ) -> Matched:
     """The stage: images' frame sets matched with config.matcher (`matcher`: such a one, already
-    loaded, to reuse), the keypoint tracks made (config.refine_on_all_matches)."""
+    loaded, to reuse), the keypoint tracks made (config.refine_on_all_matches); identity_tracks
+    carried beside them (Matched)."""
     sets = match_frame_sets(images.frame_sets, config, matcher=matcher, progress=progress,
                             camera_names=images.camera_names, ignored=images.ignored,
                             each_on_its_own=each_on_its_own)
     tracks = keypoint_tracks(sets, len(images.camera_names), seed=config.sampling.seed) \
         if config.refine_on_all_matches else None
-    return Matched(config.matcher, sets, tracks, config.sampling.seed)
+    return Matched(config.matcher, sets, tracks, config.sampling.seed, identity_tracks)
 
 
 def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: PipelineConfig, *,

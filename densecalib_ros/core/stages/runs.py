@@ -15,6 +15,7 @@ from ..config import PipelineConfig
 from ..errors import FocalInitError, InputError, NotEnoughOverlapError, TooFewCamerasGivenError
 from ..method.all_matches import refine_on_tracks
 from ..method.focal_start import eq2_start, initial_focals, start_focals, with_known_intrinsics
+from ..method.identity_tracks import beside_sampled, with_match_tracks
 from ..method.incremental import initial_intrinsics
 from ..method.known_intrinsics import given_intrinsics_fit
 from ..method.multistart import MULTISTART_MAX_TRACKS, run_incremental
@@ -34,18 +35,30 @@ def calibrate_once(matched: Matched, image_sizes: Sequence[tuple[int, int]],
     """Tracks sampled from the matches (with config.sampling.seed), then sfm_run.
     previous: a previous calibration of these cameras, whose poses and intrinsics start the
     global pipeline where config.sfm.global_init is "previous" (and score the samples' angles),
-    else whose focals start the SfM; only_starts: as sfm_run's."""
+    else whose focals start the SfM; only_starts: as sfm_run's. The matches' identity tracks
+    (pose keypoints), where there are any, join the sampled tracks and the keypoint matches
+    (core.method.identity_tracks), and carry the run alone where the images gave no tracks."""
+    identity = matched.identity_tracks
     try:
         sampled, given = _sampled_tracks(matched.match_sets, image_sizes, camera_names, config,
                                          previous)
-    except FocalInitError as exc:  # it knows the cameras by index only
-        raise exc.named(camera_names) from exc
-    stats = sampled.stats
-    progress.say(f"sampled {sampled.tracks.num_tracks} tracks (per order "
-                 f"{stats['tracks_per_order']}) from {stats['closed_cycles']} closed cycles")
-    return sfm_run(sampled.tracks, image_sizes, camera_names, config,
-                   two_view=sampled.two_view, focal_px=sampled.focal_px, previous=previous,
-                   match_tracks=matched.keypoint_tracks,
+    except (FocalInitError, NotEnoughOverlapError) as exc:
+        if identity is None and isinstance(exc, FocalInitError):  # it knows cameras by index
+            raise exc.named(camera_names) from exc
+        if identity is None:
+            raise
+        progress.say(f"the image matches give no tracks to start from ({exc}); the keypoints "
+                     "carry the run")
+        sampled, given = None, start_focals(config, previous, camera_names, image_sizes)
+    if sampled is not None:
+        stats = sampled.stats
+        progress.say(f"sampled {sampled.tracks.num_tracks} tracks (per order "
+                     f"{stats['tracks_per_order']}) from {stats['closed_cycles']} closed cycles")
+    tracks, two_view, focal_px = (sampled.tracks, sampled.two_view, sampled.focal_px) \
+        if identity is None else beside_sampled(sampled, identity, given)
+    return sfm_run(tracks, image_sizes, camera_names, config,
+                   two_view=two_view, focal_px=focal_px, previous=previous,
+                   match_tracks=with_match_tracks(matched.keypoint_tracks, identity),
                    known_focals=previous is None and given is not None, only_starts=only_starts,
                    progress=progress)
 
