@@ -426,3 +426,25 @@ def test_first_pair_starts_are_the_pairs_sharing_most_tracks():
     many = Tracks(np.zeros((20, 10, 2)), np.full(20, 2, np.int32), np.zeros(20),
                   np.zeros(20, np.int32))  # every camera sees every track
     assert len(first_pair_starts(many)) == MAX_FIRST_PAIR_STARTS
+
+
+def test_camera_no_point_of_the_final_fit_observes_is_left_out():
+    """A camera whose observations the refinement's gates all took (keypoints far noisier than
+    the gates) keeps whatever pose and intrinsics the last step left: it must not be published
+    as calibrated (a 4-camera rig from keypoints alone came out with f 930 % off and k2 7e4,
+    no point in the fit and no warning)."""
+    from densecalib_ros.core.method.reconstruction import triangulate_tracks
+    from densecalib_ros.core.stages.runs import unsupported_cameras
+
+    cams, poses = gt_rig(3, seed=7)
+    state = SfMState.create(gt_tracks(cams, poses, seed=7), cams)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state)
+    messages = []
+    assert unsupported_cameras(state, ["a", "b", "c"], messages.append) == []
+    state.active[:, 2] = False  # every observation of c gated out
+    assert unsupported_cameras(state, ["a", "b", "c"], messages.append) == [2]
+    assert state.registered() == [0, 1]
+    assert messages and messages[0].startswith("c left out: 0 points")
+    rig = rig_from_state(state, ["a", "b", "c"], failed=[2])
+    assert sorted(rig.cameras) == ["a", "b"] and rig.failed_cameras == ["c"]

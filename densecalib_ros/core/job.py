@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import numpy as np
 
 from .config import PipelineConfig
-from .errors import InputError
+from .errors import InputError, NotEnoughCamerasError
 from .progress import Progress
 from .types import RigCalibration
 
@@ -124,8 +124,15 @@ def _from_keypoints(r: CalibrationRequest, progress: Progress) -> "CalibrationRe
         raise InputError("Without images, a calibration needs keypoints and every camera's "
                          f"image size{': unknown for ' + ', '.join(unknown) if unknown else ''} "
                          "(give it, e.g. --image-size 1280x720 or NAME=1280x720).")
-    result = calibrate_from_tracks(r.keypoints.tracks, sizes, r.camera_names, r.config,
-                                   progress=progress, match_tracks=r.keypoints.tracks)
+    try:
+        result = calibrate_from_tracks(r.keypoints.tracks, sizes, r.camera_names, r.config,
+                                       progress=progress, match_tracks=r.keypoints.tracks)
+    except NotEnoughCamerasError as exc:
+        raise NotEnoughCamerasError(
+            f"{exc} From the keypoints alone: they do not agree on one rig within the "
+            "adjustment's outlier gates (a tool's error of tens of pixels, or joints swapped "
+            "left for right). Give the videos beside them (--videos), more frames, or one "
+            "camera's intrinsics (--intrinsics NAME=PATH).") from exc
     rig = result.rig
     for warning in (unregistered_warning(rig), unlike_lens_warning(rig), weak_focal_warning(rig),
                     loose_focal_warning(rig, "the keypoints")):

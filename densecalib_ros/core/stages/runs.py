@@ -16,7 +16,7 @@ from ..errors import FocalInitError, InputError, NotEnoughOverlapError, TooFewCa
 from ..method.all_matches import refine_on_tracks
 from ..method.focal_start import eq2_start, initial_focals, start_focals, with_known_intrinsics
 from ..method.identity_tracks import beside_sampled, with_match_tracks
-from ..method.incremental import initial_intrinsics
+from ..method.incremental import MIN_REGISTRATION_INLIERS, initial_intrinsics
 from ..method.known_intrinsics import given_intrinsics_fit
 from ..method.multistart import MULTISTART_MAX_TRACKS, run_incremental
 from ..method.reconstruction import SfMState
@@ -134,8 +134,9 @@ def sfm_run(tracks: Tracks, image_sizes: Sequence[tuple[int, int]],
     state, moved = sfm.state, []
     if keypoints is not None:
         state, moved = _refined_on_matches(state, keypoints, camera_names, config, progress)
+    failed = sorted(set(sfm.failed) | set(unsupported_cameras(state, camera_names, progress)))
     runtime = time.perf_counter() - start
-    rig = rig_from_state(state, camera_names, sfm.failed, RigQuality())
+    rig = rig_from_state(state, camera_names, failed, RigQuality())
     record = SfMRecord(config.pipeline, config.preset, runtime,
                        [camera_names[c] for c in sfm.view_order],
                        0 if match_tracks is None else match_tracks.num_tracks, moved, global_sfm,
@@ -146,6 +147,21 @@ def sfm_run(tracks: Tracks, image_sizes: Sequence[tuple[int, int]],
     return CalibrationResult(rig=rig, reconstruction=saved_model(state, camera_names, rig),
                              tracks=filtered, focal_init_px=focal_px, sfm=record, state=state,
                              settled_starts=settled)
+
+
+def unsupported_cameras(state: SfMState, camera_names: Sequence[str],
+                        progress: Optional[Progress] = None) -> list[int]:
+    """Registered cameras that fewer than MIN_REGISTRATION_INLIERS points of the final
+    reconstruction still observe, unregistered in `state`: the refinement's outlier gates took
+    the observations that placed them, so their pose and intrinsics are whatever the last step
+    left, with nothing in the fit behind them."""
+    observed = (state.registered_active() & state.point_mask()[:, None]).sum(axis=0)
+    out = [c for c in state.registered() if observed[c] < MIN_REGISTRATION_INLIERS]
+    for c in out:
+        Progress.of(progress).say(f"{camera_names[c]} left out: {int(observed[c])} points of the final fit "
+                     "observe it")
+        state.cam_from_world[c] = None
+    return out
 
 
 def _check_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]], C: int) -> None:
