@@ -286,3 +286,25 @@ def test_runs_agree_within_the_turn_a_held_principal_point_leaves():
     assert 1.0 < medoid(rigs, NAMES)[1].max() < wide_deg
     choice = choose_run(rigs, [], NAMES, truncation_px=20.0, agree_deg=wide_deg)
     assert choice.best == 0 and np.isnan(choice.costs_px).all()
+
+
+def test_a_camera_placed_by_one_pair_alone_is_warned_of():
+    """Observations of points a third camera sees are what checks a pair's geometry; a rig of
+    three or more cameras where a camera has fewer than 30 of them is warned of, naming it (a
+    real 4-camera ring with given intrinsics came out 127 deg wrong on 2-view points alone, the
+    runs agreeing and nothing warned)."""
+    from densecalib_ros.core.stages.record import pairwise_only_warning
+    from densecalib_ros.core.types import CameraQuality
+
+    def rig(multiview: list) -> RigCalibration:
+        cams = {f"c{i}": RigCamera(f"c{i}", CameraIntrinsics("RADIAL", 640, 480, np.array(
+            [500.0, 320, 240, 0, 0])), np.eye(4), CameraQuality(0.5, 500, 0.5, m))
+            for i, m in enumerate(multiview)}
+        return RigCalibration("c0", cams)
+
+    assert pairwise_only_warning(rig([400, 400, 400])) is None
+    assert pairwise_only_warning(rig([0, 0])) is None  # a pair has no third camera to ask
+    assert pairwise_only_warning(rig([400, None, 400])) is None  # files without the count
+    warning = pairwise_only_warning(rig([400, 29, 0, 400]))
+    assert warning.startswith("cameras placed by camera pairs alone: c1 (29), c2 (0)")
+    assert "--keypoints" in warning

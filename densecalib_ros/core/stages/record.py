@@ -129,6 +129,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
                 len(rig.cameras)))
     if rematch is None:
         out.append(unregistered_warning(rig, on_sift))
+    out.append(pairwise_only_warning(rig))
     out += given_intrinsics_warnings(rig.quality.given_intrinsics_fit or {})
     out += [unlike_lens_warning(rig), weak_focal_warning(rig)]
     if rematch is None:
@@ -144,6 +145,35 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
             out.append(loose_focal_warning(rig, f"{rematch.second}'s matches (kept over "
                                                 f"{rematch.first}'s)"))
     return [w for w in out if w]
+
+
+# A camera with fewer observations than this of points a third camera sees is placed by one pair's
+# matches alone: nothing in the rig checks them (the floor known_intrinsics judges a focal by, for
+# the same reason: two views do not pin it down).
+MIN_CROSS_CHECKED_OBSERVATIONS = 30
+
+
+def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
+    """The warning for a rig of three or more cameras in which some camera's pose rests on
+    points only two cameras see (CameraQuality.num_multiview_observations below
+    MIN_CROSS_CHECKED_OBSERVATIONS): a pair's wrong geometry (matches on repeated structure or on
+    something that moved, a mirrored pose) is then consistent with everything else and goes
+    unnoticed, whatever the runs and the fit say. None otherwise."""
+    if len(rig.cameras) < 3:
+        return None
+    weak = [f"{name} ({cam.quality.num_multiview_observations})"
+            for name, cam in rig.cameras.items() if cam.quality is not None
+            and cam.quality.num_multiview_observations is not None
+            and cam.quality.num_multiview_observations < MIN_CROSS_CHECKED_OBSERVATIONS]
+    if not weak:
+        return None
+    return (f"cameras placed by camera pairs alone: {', '.join(weak)} observations of points a third "
+            f"camera sees (fewer than {MIN_CROSS_CHECKED_OBSERVATIONS}), so no other camera "
+            "checks the pairs' geometry and a wrong one (matches on repeated structure or on "
+            "something that moved) would look as good as a right one. Add frame sets in which "
+            "three or more cameras see the same things (a person crossing the middle), give "
+            "keypoints of what moves (--keypoints), or check the layout (densecalib report "
+            "--plot) before relying on it.")
 
 
 def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False
