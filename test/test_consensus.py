@@ -296,10 +296,12 @@ def test_a_camera_placed_by_one_pair_alone_is_warned_of():
     from densecalib_ros.core.stages.record import pairwise_only_warning
     from densecalib_ros.core.types import CameraQuality
 
-    def rig(multiview: list) -> RigCalibration:
+    def rig(multiview: list, sfm: tuple = ()) -> RigCalibration:
+        sfm = sfm or (None,) * len(multiview)
         cams = {f"c{i}": RigCamera(f"c{i}", CameraIntrinsics("RADIAL", 640, 480, np.array(
-            [500.0, 320, 240, 0, 0])), np.eye(4), CameraQuality(0.5, 500, 0.5, m))
-            for i, m in enumerate(multiview)}
+            [500.0, 320, 240, 0, 0])), np.eye(4), CameraQuality(0.5, 500, 0.5, m,
+                                                                sfm_multiview_observations=s))
+            for i, (m, s) in enumerate(zip(multiview, sfm))}
         return RigCalibration("c0", cams)
 
     assert pairwise_only_warning(rig([400, 400, 400])) is None
@@ -308,3 +310,6 @@ def test_a_camera_placed_by_one_pair_alone_is_warned_of():
     warning = pairwise_only_warning(rig([400, 29, 0, 400]))
     assert warning.startswith("cameras placed by camera pairs alone: c1 (29), c2 (0)")
     assert "--keypoints" in warning
+    # the image refinement re-measures the rig on dense correspondences, often 2-view: the SfM's
+    # points that placed the camera, seen by three, checked it
+    assert pairwise_only_warning(rig([400, 12, 400], (400, 900, 400))) is None

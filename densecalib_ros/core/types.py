@@ -181,6 +181,9 @@ class CameraQuality:
     # A diagnostic, not a verdict: on generated rigs cameras with < 30 were often, not always,
     # the less accurate ones. None in files written before it was recorded.
     num_multiview_observations: Optional[int] = None
+    # The same count in the SfM's fit that placed the camera, where the image refinement then
+    # re-measured the rig on other (dense) correspondences; None where it did not.
+    sfm_multiview_observations: Optional[int] = None
     # Standard deviations from the final adjustment's information matrix (core.method.uncertainty; a
     # lower bound). None where not estimated (a held principal point).
     focal_std_px: Optional[float] = None

@@ -48,9 +48,9 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
             entry["quality"] = {"reprojection_rms_px": float(cam.quality.reprojection_rms_px),
                                 "num_observations": int(cam.quality.num_observations),
                                 "coverage": float(cam.quality.coverage)}
-            if cam.quality.num_multiview_observations is not None:
-                entry["quality"]["num_multiview_observations"] = int(
-                    cam.quality.num_multiview_observations)
+            for key in ("num_multiview_observations", "sfm_multiview_observations"):
+                if getattr(cam.quality, key) is not None:
+                    entry["quality"][key] = int(getattr(cam.quality, key))
             for key in ("focal_std_px", "principal_point_std_px", "projection_std_px"):
                 if getattr(cam.quality, key) is not None:
                     entry["quality"][key] = float(getattr(cam.quality, key))

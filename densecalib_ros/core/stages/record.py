@@ -155,16 +155,18 @@ MIN_CROSS_CHECKED_OBSERVATIONS = 30
 
 def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
     """The warning for a rig of three or more cameras in which some camera's pose rests on
-    points only two cameras see (CameraQuality.num_multiview_observations below
-    MIN_CROSS_CHECKED_OBSERVATIONS): a pair's wrong geometry (matches on repeated structure or on
+    points only two cameras see (CameraQuality.num_multiview_observations, in the final fit or the
+    SfM's that placed it, whichever is more, below MIN_CROSS_CHECKED_OBSERVATIONS): a pair's wrong geometry (matches on repeated structure or on
     something that moved, a mirrored pose) is then consistent with everything else and goes
     unnoticed, whatever the runs and the fit say. None otherwise."""
     if len(rig.cameras) < 3:
         return None
-    weak = [f"{name} ({cam.quality.num_multiview_observations})"
-            for name, cam in rig.cameras.items() if cam.quality is not None
-            and cam.quality.num_multiview_observations is not None
-            and cam.quality.num_multiview_observations < MIN_CROSS_CHECKED_OBSERVATIONS]
+    counts = {name: max((n for n in (cam.quality.num_multiview_observations,
+                                     cam.quality.sfm_multiview_observations) if n is not None),
+                        default=None)
+              for name, cam in rig.cameras.items() if cam.quality is not None}
+    weak = [f"{name} ({n})" for name, n in counts.items()
+            if n is not None and n < MIN_CROSS_CHECKED_OBSERVATIONS]
     if not weak:
         return None
     return (f"cameras placed by camera pairs alone: {', '.join(weak)} observations of points a third "

@@ -112,6 +112,11 @@ class RefinedRuns:
         if refinement is None:
             return result, None
         refined = result_with_state(result, refinement.state, list(self.images.camera_names))
+        for name, cam in refined.rig.cameras.items():
+            placed_by = result.rig.cameras.get(name)
+            if cam.quality is not None and placed_by is not None and placed_by.quality:
+                cam.quality.sfm_multiview_observations = \
+                    placed_by.quality.num_multiview_observations
         return refined, RefinementRecord(refinement.num_tracks,
                                          round(refinement.adjustment.noise_px, 4),
                                          PP_PRIOR_STD_FRACTION, dict(refinement.estimated),
