@@ -73,6 +73,18 @@ def test_a_rig_around_the_scene_looser_than_1_percent_is_told_so_below_the_weak_
     # at the aim, or above the weak warning's bound: not this warning
     assert loose_focal_warning(_rig(_camera("a", 0, 8.0), _camera("b", 30, 8.0)), "x") is None
     assert loose_focal_warning(_rig(_camera("a", 0, 48.0), _camera("b", 30, 48.0)), "x") is None
+
+
+def test_the_loose_focal_warning_names_the_keypoints_where_they_joined_the_matches():
+    from densecalib_ros.core.stages.record import warnings
+
+    rig = _rig(_camera("a", 0, 12.0), _camera("b", 30, 9.6), _camera("c", 60, 4.0))
+    config = make_config("regular", second_matcher=None)
+    told = [w for w in warnings(rig, config, ["a", "b", "c"], None, None, None, keypoints=True)
+            if w.startswith("focal lengths looser")]
+    assert told and told[0].startswith(
+        "focal lengths looser than the calibration aims at: on sift's matches and the keypoints "
+        "f_std is a 1.5 %")
     # cameras that look the same way: the layout leaves the focal open, which the probe's sigma
     # and the weak warning cover
     assert loose_focal_warning(_rig(_camera("a", 0, 12.0), _camera("b", 10, 12.0)), "x") is None

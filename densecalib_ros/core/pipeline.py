@@ -54,7 +54,8 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         for calibrator in calibrators.values():
             calibrator.close()
     finish(kept.result, images, kept.config, kept.consensus, rematch,
-           kept.matched.keypoint_tracks, time.perf_counter() - started, progress)
+           kept.matched.keypoint_tracks, time.perf_counter() - started, progress,
+           keypoints=kept.matched.identity_tracks is not None)
     progress.finish()
     return kept.result
 

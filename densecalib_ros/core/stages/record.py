@@ -81,7 +81,8 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
 
 def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
            consensus: Optional[ConsensusRecord], rematch: Optional[Rematch],
-           match_tracks: Optional[Tracks], runtime_s: float, progress: Progress) -> None:
+           match_tracks: Optional[Tracks], runtime_s: float, progress: Progress,
+           keypoints: bool = False) -> None:
     """The kept calibration made whole: what it was made from (the matcher of `config`, the
     frame sets, the lenses, masks, info strips and EXIF focals), the second matcher's record,
     the warnings (warnings) and the scene points' colours."""
@@ -104,7 +105,7 @@ def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
     if rematch is not None:
         quality.rematch = rematch.record()
     for warning in warnings(result.rig, config, images.camera_names, consensus, rematch,
-                            match_tracks):
+                            match_tracks, keypoints):
         log.warning("%s", warning)
         if progress.on_message is not None:
             progress.on_message(warning)
@@ -114,10 +115,12 @@ def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
 
 def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[str],
              consensus: Optional[ConsensusRecord], rematch: Optional[Rematch],
-             match_tracks: Optional[Tracks]) -> list[str]:
+             match_tracks: Optional[Tracks], keypoints: bool = False) -> list[str]:
     """What the user is warned of about the finished rig: runs that still disagree as it stands,
-    a camera not registered, given intrinsics that do not fit, lenses unlike a real one, focal
-    lengths the images leave open or looser than the aim; after a second matcher, what it gave."""
+    a camera not registered, cameras placed by pairs alone, given intrinsics that do not fit,
+    lenses unlike a real one, focal lengths the images leave open or looser than the aim; after a
+    second matcher, what it gave. keypoints: pose keypoints joined the matches (named with them)."""
+    with_keypoints = " and the keypoints" if keypoints else ""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     out = []
     if consensus is not None:
@@ -133,7 +136,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
     out += given_intrinsics_warnings(rig.quality.given_intrinsics_fit or {})
     out += [unlike_lens_warning(rig), weak_focal_warning(rig)]
     if rematch is None:
-        out.append(loose_focal_warning(rig, f"{config.matcher}'s matches"))
+        out.append(loose_focal_warning(rig, f"{config.matcher}'s matches{with_keypoints}"))
     else:
         out.append(unregistered_warning(rig))
         if not rematch.kept_second:
@@ -143,7 +146,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
                        f"determined rig ({rematch.second_result}).{hint}")
         else:
             out.append(loose_focal_warning(rig, f"{rematch.second}'s matches (kept over "
-                                                f"{rematch.first}'s)"))
+                                                f"{rematch.first}'s){with_keypoints}"))
     return [w for w in out if w]
 
 
