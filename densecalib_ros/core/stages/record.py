@@ -158,10 +158,11 @@ MIN_CROSS_CHECKED_OBSERVATIONS = 30
 
 def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
     """The warning for a rig of three or more cameras in which some camera's pose rests on
-    points only two cameras see (CameraQuality.num_multiview_observations, in the final fit or the
-    SfM's that placed it, whichever is more, below MIN_CROSS_CHECKED_OBSERVATIONS): a pair's wrong geometry (matches on repeated structure or on
-    something that moved, a mirrored pose) is then consistent with everything else and goes
-    unnoticed, whatever the runs and the fit say. None otherwise."""
+    points only two cameras see (CameraQuality.num_multiview_observations, in the final fit or
+    the SfM's that placed it, whichever is more, below MIN_CROSS_CHECKED_OBSERVATIONS): a pair's
+    wrong geometry (matches on repeated structure or on something that moved, a mirrored pose)
+    is then consistent with everything else and goes unnoticed, whatever the runs and the fit
+    say. None otherwise."""
     if len(rig.cameras) < 3:
         return None
     counts = {name: max((n for n in (cam.quality.num_multiview_observations,
@@ -172,9 +173,9 @@ def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
             if n is not None and n < MIN_CROSS_CHECKED_OBSERVATIONS]
     if not weak:
         return None
-    return (f"cameras placed by camera pairs alone: {', '.join(weak)} observations of points a third "
-            f"camera sees (fewer than {MIN_CROSS_CHECKED_OBSERVATIONS}), so no other camera "
-            "checks the pairs' geometry and a wrong one (matches on repeated structure or on "
+    return (f"cameras placed by camera pairs alone: {', '.join(weak)} observations of points "
+            f"a third camera sees (fewer than {MIN_CROSS_CHECKED_OBSERVATIONS}), so no other "
+            "camera checks the pairs' geometry and a wrong one (matches on repeated structure or on "
             "something that moved) would look as good as a right one. Add frame sets in which "
             "three or more cameras see the same things (a person crossing the middle), give "
             "keypoints of what moves (--keypoints), or check the layout (densecalib report "

@@ -158,8 +158,8 @@ def unsupported_cameras(state: SfMState, camera_names: Sequence[str],
     observed = (state.registered_active() & state.point_mask()[:, None]).sum(axis=0)
     out = [c for c in state.registered() if observed[c] < MIN_REGISTRATION_INLIERS]
     for c in out:
-        Progress.of(progress).say(f"{camera_names[c]} left out: {int(observed[c])} points of the final fit "
-                     "observe it")
+        Progress.of(progress).say(f"{camera_names[c]} left out: {int(observed[c])} points of "
+                                  "the final fit observe it")
         state.cam_from_world[c] = None
     return out
 
