@@ -3,6 +3,7 @@ keypoints beside them, against the generated truth (AUC@3, pair rotation error, 
 
     python scripts/measure_arena_keypoints.py [--seeds 1 2] [--cameras 3 4] [--gap 80]
         [--frames 40] [--frame-sets 10] [--size 640x480] [--noise-px 1.5] [--json OUT.json]
+    python scripts/measure_arena_keypoints.py --few   # bench --few's rooms, with keypoints
 
 The rig: core.synthetic's plain room with an animal walking a loop (room="plain",
 walker="animal"), cameras gap_deg apart, `frames` time steps of which `frame_sets` evenly
@@ -18,6 +19,7 @@ import argparse
 import json
 import sys
 import time
+from typing import Optional
 
 import numpy as np
 
@@ -71,20 +73,44 @@ def measure(seed: int, cameras: int, gap: float, frames: int, frame_sets: int, s
             noise_px: float) -> list[dict]:
     spec = RigSpec(num_cameras=cameras, width=size[0], height=size[1], num_time_steps=frames,
                    seed=seed, gap_deg=gap, room="plain", walker="animal", supersample=1)
-    rig = generate_rig(spec)
+    return measure_rig(generate_rig(spec), dict(seed=seed, cameras=cameras, gap_deg=gap),
+                       frames, frame_sets, noise_px, seed, (False, True), "regular")
+
+
+def measure_few(noise_px: float, only: Optional[list] = None) -> list[dict]:
+    """bench --few's rooms (eval/few_rigs.py), built as the bench builds them, with the walker's
+    keypoints at each of their frame sets beside the images."""
+    from densecalib_ros.eval.few_rigs import few_scenes
+
+    rows = []
+    for spec in [s for s in few_scenes() if not only or any(o in s.name for o in only)]:
+        rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
+                                   width=spec.width, height=spec.height, seed=spec.seed,
+                                   gap_deg=spec.gap_deg, max_arc_deg=spec.max_arc_deg,
+                                   fov_range_deg=spec.fov_range_deg, **dict(spec.rig)))
+        frames = len(rig.images)
+        preset = "fisheye" if spec.camera_model == "OPENCV_FISHEYE" else "regular"  # as the bench
+        rows += measure_rig(rig, dict(scene=spec.name), frames, frames, noise_px, spec.seed,
+                            (True,), preset)
+    return rows
+
+
+def measure_rig(rig, label: dict, frames: int, frame_sets: int, noise_px: float, seed: int,
+                variants: tuple, preset: str) -> list[dict]:
+    """One row per variant (with the keypoints or not) of the rig calibrated on `frame_sets`
+    evenly spaced of its `frames` time steps."""
     sizes = [(cam.width, cam.height) for cam in rig.cameras]
     found: IdentityTracks = identity_tracks(walker_keypoints(rig, noise_px, seed), rig.names,
                                             sizes)
     images = [rig.images[t] for t in np.round(np.linspace(0, frames - 1, frame_sets)).astype(int)]
     rows = []
-    for with_keypoints in (False, True):
+    for with_keypoints in variants:
         start = time.perf_counter()
-        row = dict(seed=seed, cameras=cameras, gap_deg=gap, frames=frames, frame_sets=frame_sets,
-                   keypoints=with_keypoints,
+        row = dict(**label, frames=frames, frame_sets=frame_sets, keypoints=with_keypoints,
                    keypoint_tracks=found.tracks.num_tracks if with_keypoints else 0)
         try:
             job = run_job(CalibrationRequest(
-                images, list(rig.names), make_config("regular"), {"source": "generated"},
+                images, list(rig.names), make_config(preset), {"source": "generated"},
                 keypoints=found if with_keypoints else None))
             ev = evaluate_calibration(job.rig, rig.ground_truth())
             row.update(auc3=round(ev["auc3"], 1), auc30=round(ev["auc30"], 1),
@@ -111,16 +137,21 @@ def main(argv=None) -> int:
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--noise-px", type=float, default=1.5)
     parser.add_argument("--json", default=None)
+    parser.add_argument("--few", nargs="*", default=None, metavar="PATTERN",
+                        help="bench --few's 7 rooms (or those whose name contains a PATTERN) "
+                             "with the walker's keypoints instead")
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
-    rows = [r for seed in args.seeds for n in args.cameras
-            for r in measure(seed, n, args.gap, args.frames, args.frame_sets, size,
-                             args.noise_px)]
+    rows = measure_few(args.noise_px, args.few) if args.few is not None else [
+        r for seed in args.seeds for n in args.cameras
+        for r in measure(seed, n, args.gap, args.frames, args.frame_sets, size, args.noise_px)]
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
     for flag in (False, True):
         sel = [r for r in rows if r["keypoints"] == flag]
+        if not sel:
+            continue
         print(f"{'with' if flag else 'without'} keypoints: mean AUC@3 "
               f"{np.mean([r['auc3'] for r in sel]):.1f} over {len(sel)} rigs", file=sys.stderr)
     return 0
