@@ -3,10 +3,12 @@ Pose2Sim's 4-camera ring) calibrated by the command as a user runs it, with and 
 person's keypoints, against their references (ChArUco bundle adjustment, Qualisys wand).
 
     python scripts/measure_people_rooms.py [--data-dir ../shared/data] [--work DIR]
-        [--sets caliscope pose2sim] [--frame-sets 8] [--variants images keypoints]
+        [--sets caliscope pose2sim] [--frame-sets 8]
+        [--variants images keypoints keypoints-alone]
         [--reference-intrinsics] [--extra ARG ...]
 
-`keypoints` first runs `densecalib keypoints` on every frame of the videos (BlazePose, cached in
+`keypoints` (and `keypoints-alone`: no images, `--image-size` from the reference) first runs
+`densecalib keypoints` on every frame of the videos (BlazePose, cached in
 WORK/kp_<set>), then `densecalib calibrate --videos ... --keypoints WORK/kp_<set>`. Each row:
 AUC@3/@30 of the pair rotations and translations, median and largest pair rotation error (deg),
 median focal error (%), the warnings and the seconds. --reference-intrinsics gives every camera
@@ -45,12 +47,15 @@ def measure(name: str, data_dir: Path, work: Path, variant: str, frame_sets: int
             extra: list[str], reference_intrinsics: bool = False) -> dict:
     folder, videos, loader, num_frames = SETS[name]
     videos_dir = data_dir / folder / videos
+    reference = loader(data_dir / folder, num_sets=1).gt
     args = ["calibrate", "--videos", str(videos_dir), "--max-frame-sets", str(frame_sets)]
+    if variant == "keypoints-alone":  # no images: each camera's size from the reference
+        args = ["calibrate", "--image-size", *(f"{n}={c.intrinsics.width}x{c.intrinsics.height}"
+                                               for n, c in reference.cameras.items())]
     if reference_intrinsics:
-        reference = work / f"reference_{name}"
-        write_calibration_files(loader(data_dir / folder, num_sets=1).gt, reference)
-        args += ["--intrinsics", str(reference)]
-    if variant == "keypoints":
+        write_calibration_files(reference, work / f"reference_{name}")
+        args += ["--intrinsics", str(work / f"reference_{name}")]
+    if variant.startswith("keypoints"):
         kp = work / f"kp_{name}"
         if not (kp / "keypoints_source.yaml").is_file():
             done = densecalib("keypoints", "--videos", str(videos_dir), "--max-frame-sets",
@@ -67,8 +72,7 @@ def measure(name: str, data_dir: Path, work: Path, variant: str, frame_sets: int
     if done.returncode:
         return {**row, "failed": done.stderr.strip().splitlines()[-1:]}
     rig = read_calibration(out / "calibration.json")
-    gt = loader(data_dir / folder, num_sets=1).gt
-    ev = evaluate_calibration(rig, gt)
+    ev = evaluate_calibration(rig, reference)
     focal = {n: round(100 * c["focal_err"], 1) for n, c in ev["cameras"].items()
              if c["registered"]}
     return {**row, "auc3": round(ev["auc3"], 1), "auc30": round(ev["auc30"], 1),
@@ -85,7 +89,7 @@ def main(argv=None) -> int:
     parser.add_argument("--sets", nargs="+", default=list(SETS), choices=list(SETS))
     parser.add_argument("--frame-sets", type=int, default=8)
     parser.add_argument("--variants", nargs="+", default=["images", "keypoints"],
-                        choices=["images", "keypoints"])
+                        choices=["images", "keypoints", "keypoints-alone"])
     parser.add_argument("--reference-intrinsics", action="store_true")
     parser.add_argument("--extra", nargs=argparse.REMAINDER, default=[],
                         help="further arguments for densecalib calibrate")

@@ -1,8 +1,8 @@
 """The two real rooms with a person (../shared/data: Caliscope's 4 webcams, Pose2Sim's 4-camera
 ring), run as a user runs them, on the two ways they came out wrong without a word: a rig from
 the person's keypoints alone whose final fit kept no point, published; and a ring calibrated
-from its images with intrinsics from its own checkerboard views, 127 deg wrong on 2-view points
-alone. Wrong is allowed here only with a warning; a rig nothing supports is refused."""
+from its images with intrinsics from its own checkerboard views, over 120 deg wrong on 2-view
+points alone. Wrong is allowed here only with a warning; a rig nothing supports is refused."""
 from __future__ import annotations
 
 import json
