@@ -302,6 +302,50 @@ def test_a_settled_first_run_that_registered_every_camera_is_the_only_one_and_si
     assert single.rig.quality.consensus_runs is None
 
 
+def test_first_runs_apart_refined_go_to_the_second_matcher_after_two_runs(rig):
+    """Two runs that the images, refined, leave apart beyond the warning's threshold are the
+    second matcher's case: its rule ends sift's runs there instead of after three more (they stay
+    apart however many are made); runs that the images bring together end the consensus as
+    before, and without a refined judgement the runs go on."""
+    import copy
+    from dataclasses import replace
+
+    from densecalib_ros.core.progress import Progress
+    from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG, rig_disagreement_deg
+    from densecalib_ros.core.robust.consensus_runs import ConsensusRuns
+    from densecalib_ros.core.robust.second_matcher import first_runs_undetermined
+
+    config = make_config("regular", matcher="sift", sfm__num_threads=1)
+    found = run_calibration([rig.images[0]], rig.names, config)
+    turned = copy.deepcopy(found.rig)  # the same rig with one camera turned 20 deg about y
+    c, s = np.cos(np.radians(20.0)), np.sin(np.radians(20.0))
+    camera = turned.cameras[rig.names[-1]]
+    camera.cam_from_rig = camera.cam_from_rig.copy()
+    camera.cam_from_rig[:3, :3] = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]) \
+        @ camera.cam_from_rig[:3, :3]
+    runs_made = [replace(found, settled_starts=None), replace(found, rig=turned,
+                                                                settled_starts=None)]
+
+    def once(seed, starts, progress):
+        return runs_made[seed % 2]
+
+    def as_found(results):  # the runs "refined": as they are, 20 deg apart on the turned pairs
+        return np.array([[rig_disagreement_deg(a.rig, b.rig, rig.names) for b in results]
+                         for a in results])
+
+    runs = ConsensusRuns(once, config, rig.names, Progress(), as_found).run(
+        first_runs_undetermined)
+    assert len(runs.results) == 2 and runs.cut_short
+    assert runs.judged_apart_deg > WARN_DISAGREEMENT_DEG
+    runs.run()  # completed where the other matcher does no better: on from the third run
+    assert len(runs.results) == config.consensus_runs and not runs.cut_short
+    together = ConsensusRuns(once, config, rig.names, Progress(),
+                             lambda results: np.zeros((2, 2))).run(first_runs_undetermined)
+    assert len(together.results) == 2 and not together.cut_short
+    unrefined = ConsensusRuns(once, config, rig.names, Progress()).run(first_runs_undetermined)
+    assert len(unrefined.results) == config.consensus_runs and not unrefined.cut_short
+
+
 def test_two_agreeing_runs_end_the_consensus_where_the_multi_start_did_not_settle(rig):
     """Every camera's intrinsics given and one start (no first-pair starts): the multi-start has
     no second trial to settle with. The second run, on another track sample, lands in the first

@@ -68,15 +68,19 @@ class ConsensusRuns:
         self.failed = 0
         self.settled: Optional[list[str]] = None
         self.refined_deg: Optional[np.ndarray] = None
+        # Where the first EARLY_STOP_RUNS runs were judged apart: the largest disagreement
+        # between them refined on the dense image correspondences (deg; None where not refined).
+        self.judged_apart_deg: Optional[float] = None
         self.cut_short = False  # ended by the caller's rule (run's `until`)
         self._first_error: Optional[CalibrationError] = None
         self._next, self._judged, self._run_s = 0, False, None
 
-    def run(self, until: Optional[Callable[[list], bool]] = None) -> "ConsensusRuns":
-        """The runs made, from where an earlier call ended; until(results): a caller's rule that
-        ends them before the next run (a second matcher's: the first run left a camera out, and
-        more runs on these matches would only delay the other matcher). Raises the first run's
-        error where every run failed."""
+    def run(self, until: Optional[Callable[["ConsensusRuns"], bool]] = None) -> "ConsensusRuns":
+        """The runs made, from where an earlier call ended; until(self): a caller's rule that
+        ends them before the next run, once the runs so far are judged (a second matcher's: the
+        first run left a camera out, or the first runs stand apart refined, and more runs on
+        these matches would only delay the other matcher). Raises the first run's error where
+        every run failed."""
         self.cut_short = False
         n = self._config.consensus_runs
         for k in range(self._next, n):
@@ -90,19 +94,20 @@ class ConsensusRuns:
             raise self._first_error
         return self
 
-    def _enough(self, k: int, until: Optional[Callable[[list], bool]]) -> bool:
+    def _enough(self, k: int, until: Optional[Callable[["ConsensusRuns"], bool]]) -> bool:
         """Whether run k need not be made (the class docstring's rules, then `until`)."""
         if k == 1 and self._settled_whole():
             log.info("consensus: the first run's focal multi-start settled and it registered "
                      "every camera; no more runs")
             return True
-        if until is not None and until(self.results):
-            self.cut_short = True
-            return True
         if len(self.results) == EARLY_STOP_RUNS and not self._judged:
             self._judged = True
             stop, self.refined_deg = self._no_more_runs()
-            return stop
+            if stop:
+                return True
+        if until is not None and until(self):
+            self.cut_short = True
+            return True
         return False
 
     def _one_run(self, k: int) -> None:
@@ -152,6 +157,8 @@ class ConsensusRuns:
                      len(self.results), agree_deg)
             return True, None
         refined_deg = self._refined(self.results) if self._refined is not None else None
+        if refined_deg is not None:
+            self.judged_apart_deg = float(refined_deg.max())
         if refined_deg is not None and refined_deg.max() < AGREEMENT_DEG:
             log.info("consensus: the %d runs, %.1f deg apart on the keypoint matches, agree "
                      "within %.2f deg refined on the dense image correspondences; no more runs",

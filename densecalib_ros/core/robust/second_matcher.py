@@ -99,13 +99,18 @@ class Rematch:
                 "kept": self.second if self.kept_second else self.first}
 
 
-def first_run_incomplete(results: list) -> bool:
-    """The consensus runs' rule on the first matcher's matches: end after a first run that left
-    a camera unregistered. That is the second matcher's case; more runs on these matches would
-    only delay it, as a later sample rarely registers a camera the first run left out
-    (docs/design-notes.md, A second matcher: sooner); they are completed where the other matcher
-    does no better."""
-    return len(results) == 1 and bool(results[0].rig.failed_cameras)
+def first_runs_undetermined(runs) -> bool:
+    """The consensus runs' rule on the first matcher's matches (runs: its ConsensusRuns): end
+    after a first run that left a camera unregistered, or once the first runs, judged refined on
+    the dense image correspondences, stand apart beyond WARN_DISAGREEMENT_DEG. Both are the
+    second matcher's case; more runs on these matches would only delay it: a later sample rarely
+    registers a camera the first run left out (docs/design-notes.md, A second matcher: sooner),
+    and runs that the images do not bring together stay apart however many more are made
+    (consensus.EARLY_STOP_RUNS). They are completed where the other matcher does no better."""
+    results = runs.results
+    if len(results) == 1 and bool(results[0].rig.failed_cameras):
+        return True
+    return runs.judged_apart_deg is not None and runs.judged_apart_deg > WARN_DISAGREEMENT_DEG
 
 
 def with_second_matcher(calibrate: Callable[[str, Optional[Callable]], object],
@@ -123,12 +128,15 @@ def with_second_matcher(calibrate: Callable[[str, Optional[Callable]], object],
         return calibrate(config.matcher, None), None
     first, error = None, None
     try:
-        first = calibrate(config.matcher, first_run_incomplete)
+        first = calibrate(config.matcher, first_runs_undetermined)
     except InputError:
         raise  # the user's input, not sift's matches: another matcher would be refused too
     except CalibrationError as exc:
         error = exc
     why = undetermined(first.rig if first else None)
+    if why is None and first.cut_short:  # determined after all: the runs as they would have been
+        first = calibrate(config.matcher, None)
+        why = undetermined(first.rig)
     if why is None:
         return first, None
     second_matcher = config.second_matcher

@@ -60,7 +60,7 @@ class Calibrator:
                 self.refined.disagreement_deg if self.refined is not None else None,
                 (lambda first: ahead.expect(first.state)) if ahead is not None else None)
 
-    def calibrate(self, until: Optional[Callable[[list], bool]] = None) -> Attempt:
+    def calibrate(self, until: Optional[Callable[[ConsensusRuns], bool]] = None) -> Attempt:
         """The calibration (module docstring); `until`: the consensus runs' caller's rule
         (ConsensusRuns.run), and a later call goes on with the runs it ended."""
         names = self.images.camera_names
