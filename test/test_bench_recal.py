@@ -1,5 +1,6 @@
 """The bench's recalibration method: a bumped previous calibration is recalibrated from images."""
 import os
+from dataclasses import replace
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -47,3 +48,24 @@ def test_recalibration_method_recovers_truth(scene):
     check = summarize_error_sigma_ratios([{"results": [record]}])
     assert check[RECAL_METHOD]["focal"]["n"] == 4
     assert check[RECAL_METHOD]["focal"]["median"] == pytest.approx(np.median(ratios))
+
+
+def test_principal_point_ratio_is_the_larger_axis_error_over_the_sigma():
+    """The uncertainty check's principal point: a camera whose cx is 3 px and cy 1 px off, with a
+    sigma of 2 px, gives 1.5; a camera whose principal point was held (no sigma) gives none."""
+    import copy
+
+    from densecalib_ros.core.method.uncertainty import error_sigma_ratios
+    from densecalib_ros.core.synthetic import RigSpec, generate_rig
+    from densecalib_ros.core.types import CameraQuality
+
+    truth = generate_rig(RigSpec(num_cameras=3, camera_model="RADIAL", width=320, height=240,
+                                 seed=3)).ground_truth()
+    rig = copy.deepcopy(truth)
+    first, second = list(rig.cameras.values())[:2]
+    params = first.intrinsics.params.copy()
+    params[list(first.intrinsics.to_pycolmap().principal_point_idxs())] += (3.0, -1.0)
+    first.intrinsics = replace(first.intrinsics, params=params)
+    first.quality = CameraQuality(0.5, 100, 0.5, principal_point_std_px=2.0)
+    second.quality = CameraQuality(0.5, 100, 0.5)
+    assert error_sigma_ratios(rig, truth)["principal_point"] == [pytest.approx(1.5)]

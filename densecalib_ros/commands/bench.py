@@ -40,8 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "one model, mounted high or low, blurred, noisy, JPEG-compressed")
     which.add_argument("--real", action="store_true",
                        help="the real scenes of the full set only: Strecha entry-P10 (ten "
-                            "cameras, one camera), the fox, Caliscope's 4 webcams and Pose2Sim's 4-camera "
-                            "ring (8 frame sets of their videos), MEVA's 6 surveillance cameras")
+                            "cameras, one camera; also at 1536 and 3072 px), the fox, "
+                            "Caliscope's 4 webcams and Pose2Sim's 4-camera ring (8 frame sets "
+                            "of their videos), MEVA's 6 surveillance cameras")
     parser.add_argument("--out", default="bench_out", help="folder for bench.json")
     parser.add_argument("--scenes", nargs="+", default=None, metavar="PATTERN",
                         help="only scenes whose name contains one of these (e.g. fisheye, "

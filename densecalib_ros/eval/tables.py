@@ -106,7 +106,8 @@ def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
 
 def format_error_sigma_ratios(check: dict) -> str:
     lines = ["== uncertainty check: actual error / its estimated sigma over cameras (focal length; "
-             "projection: mean projection-map error / projection_std_px)"]
+             "principal point: larger axis error / principal_point_std_px; projection: mean "
+             "projection-map error / projection_std_px)"]
     for method, kinds in check.items():
         parts = [f"{kind} median {q['median']:.2f}, 90% {q['p90']:.2f}, max {q['max']:.2f} "
                  f"(n={q['n']})" for kind, q in kinds.items()]

@@ -214,9 +214,14 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
 
 def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
     """How the sigmas compare with the actual errors against a ground truth (the benchmark's
-    check), per camera with a sigma: "focal": |focal error| / focal_std_px; "projection": the
-    mean projection-map error (metrics.projection_map_error) / projection_std_px."""
-    out = {"focal": [], "projection": []}
+    check), per camera with a sigma: "focal": |focal error| / focal_std_px; "principal_point":
+    the larger of its |cx| and |cy| errors / principal_point_std_px (the larger of their sigmas,
+    so a ratio on the lower side where the larger error lies on the better determined axis);
+    "projection": the mean projection-map error (metrics.projection_map_error) /
+    projection_std_px."""
+    from ..metrics import principal_point_px
+
+    out = {"focal": [], "principal_point": [], "projection": []}
     for name, cam in rig.cameras.items():
         q, true = cam.quality, truth.cameras.get(name)
         if q is None or true is None:
@@ -224,6 +229,10 @@ def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
         if q.focal_std_px:
             error = mean_focal_px(cam.intrinsics) - mean_focal_px(true.intrinsics)
             out["focal"].append(abs(error) / q.focal_std_px)
+        if q.principal_point_std_px:
+            error = np.subtract(principal_point_px(cam.intrinsics),
+                                principal_point_px(true.intrinsics))
+            out["principal_point"].append(float(np.abs(error).max()) / q.principal_point_std_px)
         if q.projection_std_px:
             error = projection_map_error(true.intrinsics, cam.intrinsics)["mean_px"]
             if np.isfinite(error):
