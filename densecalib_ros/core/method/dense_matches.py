@@ -23,6 +23,7 @@ import logging
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from typing import Callable, Optional, Sequence
 
 import cv2
@@ -68,6 +69,22 @@ MAX_NEIGHBOUR_DISTANCE_PX = 60.0
 # fraction of a pixel, so a right correspondence lies within a few px of it.
 MAX_EPIPOLAR_PX = 3.0
 MAX_FRAME_SETS = 4  # frame sets densified (evenly spaced); more repeat the static rig's geometry
+# MAX_SHIFT_PX, MAX_NEIGHBOUR_DISTANCE_PX (and the neighbours' weights) and MAX_EPIPOLAR_PX are
+# pixels of an image matched at its own size: the predictions come from keypoint matches, whose
+# errors (and spacing) in a larger image, matched downscaled (config.max_image_side_px), grow
+# with the scale. Each is multiplied by the camera's px_scale (keypoint_px_scale); the patches
+# and MAX_ROUND_TRIP_PX, LK's own precision on the image's pixels, are not.
+NEIGHBOUR_WEIGHT_PX = 20.0  # a neighbour this far weighs half as much as one at the point
+
+
+def keypoint_px_scale(image_sizes: Sequence[tuple[int, int]], max_image_side_px: Optional[int]
+                      ) -> np.ndarray:
+    """Per camera, how many of its pixels one pixel of the image its keypoints were matched
+    on spans: its long side over max_image_side_px where larger, else 1 (image_sizes: (w, h))."""
+    long_sides = np.array([max(w, h) for w, h in image_sizes], float)
+    if not max_image_side_px:
+        return np.ones(len(long_sides))
+    return np.maximum(long_sides / float(max_image_side_px), 1.0)
 
 
 def reference_points(gray: np.ndarray, max_points: int = GRID_POINTS_PER_IMAGE,
@@ -88,11 +105,12 @@ def reference_points(gray: np.ndarray, max_points: int = GRID_POINTS_PER_IMAGE,
     return corners.reshape(-1, 2).astype(np.float64) + 0.5
 
 
-def local_affine(query: np.ndarray, src: np.ndarray, dst: np.ndarray
+def local_affine(query: np.ndarray, src: np.ndarray, dst: np.ndarray, px_scale: float = 1.0
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For query points (N, 2) of the source image: the predicted target position (N, 2), the
     local affine Jacobian (N, 2, 2) and valid (N,), from a weighted least-squares affine fit to the
-    AFFINE_NEIGHBOURS nearest correspondences src -> dst within MAX_NEIGHBOUR_DISTANCE_PX."""
+    AFFINE_NEIGHBOURS nearest correspondences src -> dst within MAX_NEIGHBOUR_DISTANCE_PX (times
+    the source camera's px_scale)."""
     n = len(query)
     pred, jac, valid = np.full((n, 2), np.nan), np.zeros((n, 2, 2)), np.zeros(n, bool)
     if len(src) < MIN_AFFINE_NEIGHBOURS or n == 0:
@@ -100,10 +118,10 @@ def local_affine(query: np.ndarray, src: np.ndarray, dst: np.ndarray
     k = min(AFFINE_NEIGHBOURS, len(src))
     dist, nn = cKDTree(src).query(query, k=k)
     dist, nn = dist.reshape(n, k), nn.reshape(n, k)
-    near = dist <= MAX_NEIGHBOUR_DISTANCE_PX
+    near = dist <= MAX_NEIGHBOUR_DISTANCE_PX * px_scale
     enough = near.sum(axis=1) >= MIN_AFFINE_NEIGHBOURS
     # Weights fall with distance (the map is local); far neighbours weigh nothing.
-    wgt = np.where(near, 1.0 / (1.0 + (dist / 20.0) ** 2), 0.0)
+    wgt = np.where(near, 1.0 / (1.0 + (dist / (NEIGHBOUR_WEIGHT_PX * px_scale)) ** 2), 0.0)
     P = src[nn] - query[:, None, :]
     X = np.concatenate([P, np.ones((n, k, 1))], axis=2)  # (n, k, 3)
     Y = dst[nn]
@@ -197,10 +215,12 @@ def densified_times(keypoint_tracks: Tracks) -> np.ndarray:
 def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int],
                keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
                cancelled: Optional[threading.Event] = None,
-               thread_start: Optional[Callable[[], None]] = None) -> FirstPass:
+               thread_start: Optional[Callable[[], None]] = None,
+               px_scale: Optional[np.ndarray] = None) -> FirstPass:
     """dense_tracks' first pass among `cameras` (FirstPass). It does not depend on the rig, so a
     calibration runs it ahead, while the rig is still being found (core.pipeline): cancelled,
-    set, stops it between pairs (Cancelled); thread_start runs first in each of its threads."""
+    set, stops it between pairs (Cancelled); thread_start runs first in each of its threads.
+    px_scale: per camera, keypoint_px_scale (None: 1 for every camera)."""
     times = densified_times(keypoint_tracks)
     cameras = tuple(int(c) for c in cameras)
     observed = keypoint_tracks.observed()
@@ -218,7 +238,7 @@ def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int
         all_points.append(points)
         all_returned.append(_aligned_both_ways(grays, cameras, points, seeds,
                                                {k: none for k in seeds}, cancelled,
-                                               thread_start))
+                                               thread_start, px_scale))
     return FirstPass(cameras, times, all_points, all_returned)
 
 
@@ -226,7 +246,8 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
                  keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
                  ahead: Optional[FirstPass] = None,
                  cancelled: Optional[threading.Event] = None,
-                 thread_start: Optional[Callable[[], None]] = None) -> Tracks:
+                 thread_start: Optional[Callable[[], None]] = None,
+                 px_scale: Optional[np.ndarray] = None) -> Tracks:
     """Guided dense tracks (module docstring) of the registered cameras of `state`, predicted from
     keypoint_tracks (the keypoint matches as tracks, with their frame set index).
 
@@ -234,13 +255,13 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     not yet found, also from the dense correspondences the first found, which reach the parts of
     the images between sparse keypoints (a wider baseline's pairs share few of them). ahead: the
     first pass as first_pass gave it on the same frame sets, matches and masks, used where it
-    was run among the registered cameras (else it runs here); cancelled, thread_start: as
-    first_pass's."""
+    was run among the registered cameras (else it runs here); cancelled, thread_start, px_scale:
+    as first_pass's."""
     C = state.num_cameras
     registered = tuple(int(c) for c in state.registered())
     if ahead is None or ahead.cameras != registered:
         ahead = first_pass(frame_sets, registered, keypoint_tracks, masks, cancelled,
-                           thread_start)
+                           thread_start, px_scale)
     observed = keypoint_tracks.observed()
     parts = []
     for time, points, returned in zip(ahead.times, ahead.points, ahead.returned):
@@ -252,8 +273,9 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
             if second:
                 returned = _aligned_both_ways(grays, registered, points, seeds,
                                               {k: v[0] for k, v in found.items()}, cancelled,
-                                              thread_start)
-            new = {(a, b): _on_epipolar_lines(state, a, b, points[a], *returned[a, b])
+                                              thread_start, px_scale)
+            new = {(a, b): _on_epipolar_lines(state, a, b, points[a], *returned[a, b],
+                                              _scale(px_scale, b))
                    for (a, b) in seeds}
             seeds = {(a, b): (np.concatenate([seeds[a, b][0], points[a][new[a, b][0]],
                                               new[b, a][1]]),
@@ -284,10 +306,13 @@ class DenseAhead:
     dense_tracks would, from the work done ahead where it fits that state."""
 
     def __init__(self, frame_sets: Sequence[Sequence[np.ndarray]], num_cameras: int,
-                 keypoint_tracks: Tracks, masks: Optional[Sequence] = None) -> None:
+                 keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
+                 px_scale: Optional[np.ndarray] = None) -> None:
         self._inputs = (frame_sets, keypoint_tracks, masks)
-        self._first = RunAhead(first_pass, frame_sets, range(num_cameras), keypoint_tracks,
-                               masks, name="densecalib-dense-ahead")
+        self.px_scale = px_scale
+        self._first = RunAhead(partial(first_pass, px_scale=px_scale), frame_sets,
+                               range(num_cameras), keypoint_tracks, masks,
+                               name="densecalib-dense-ahead")
         self._expected: Optional[tuple] = None  # (_rig_key, RunAhead of dense_tracks)
 
     def expect(self, state: SfMState) -> None:
@@ -302,7 +327,7 @@ class DenseAhead:
               thread_start: Callable[[], None]) -> Tracks:
         frame_sets, keypoint_tracks, masks = self._inputs
         return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result(),
-                            cancelled, thread_start)
+                            cancelled, thread_start, self.px_scale)
 
     def tracks(self, state: SfMState) -> Tracks:
         if self._expected is not None and self._expected[0] == _rig_key(state):
@@ -310,7 +335,8 @@ class DenseAhead:
             if tracks is not None:
                 return tracks
         frame_sets, keypoint_tracks, masks = self._inputs
-        return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result())
+        return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result(),
+                            px_scale=self.px_scale)
 
     def cancel(self) -> None:
         """Stop what still runs (a calibration that ends without the tracks)."""
@@ -340,9 +366,14 @@ def _grays(frame_sets: Sequence[Sequence[np.ndarray]], time: int, cameras: Seque
     return {c: to_gray(np.asarray(frame_sets[time][c])).astype(np.float32) for c in cameras}
 
 
+def _scale(px_scale: Optional[np.ndarray], c: int) -> float:
+    return 1.0 if px_scale is None else float(px_scale[c])
+
+
 def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds: dict,
                        skip: dict, cancelled: Optional[threading.Event] = None,
-                       thread_start: Optional[Callable[[], None]] = None) -> dict:
+                       thread_start: Optional[Callable[[], None]] = None,
+                       px_scale: Optional[np.ndarray] = None) -> dict:
     """(a, b) -> (indices into points[a], positions in b (n, 2)): camera a's points, but those
     in skip[a, b], predicted from seeds[a, b] and aligned onto b (_aligned), that align back
     onto where they started (_returned)."""
@@ -360,7 +391,8 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
             if a != b:
                 check()
                 out[a, b] = _aligned(grays, image, a, b, points[a], *seeds[a, b],
-                                     skip=skip[a, b])
+                                     skip=skip[a, b], scales=(_scale(px_scale, a),
+                                                              _scale(px_scale, b)))
         return out
 
     def back_onto(a: int) -> dict:
@@ -376,16 +408,18 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
 
 
 def _aligned(grays: dict, b_and_gradients: np.ndarray, a: int, b: int, points: np.ndarray,
-             seed_a: np.ndarray, seed_b: np.ndarray, skip: np.ndarray
+             seed_a: np.ndarray, seed_b: np.ndarray, skip: np.ndarray,
+             scales: tuple[float, float] = (1.0, 1.0)
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(indices into points, their positions in camera b (n, 2), the local maps (n, 2, 2)) of the
     reference points of camera a aligned onto camera b, predicted from the seed
     correspondences, that pass the correlation, shift and border checks; the points `skip`
-    (indices) are not looked for. b_and_gradients: with_gradients(grays[b])."""
+    (indices) are not looked for. b_and_gradients: with_gradients(grays[b]); scales: a's and
+    b's px_scale."""
     none = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)))
     if not len(points):
         return none
-    pred, jac, valid = local_affine(points, seed_a, seed_b)
+    pred, jac, valid = local_affine(points, seed_a, seed_b, scales[0])
     valid[skip] = False
     h, w = grays[b].shape
     border = PATCH_HALF_PX + 2
@@ -397,7 +431,7 @@ def _aligned(grays: dict, b_and_gradients: np.ndarray, a: int, b: int, points: n
     refined, ncc, map_ab = align_patches(grays[a], grays[b], points[idx], pred[idx], jac[idx],
                                          b_and_gradients)
     shift = np.linalg.norm(refined - pred[idx], axis=1)
-    good = np.isfinite(refined).all(1) & (ncc >= MIN_NCC) & (shift <= MAX_SHIFT_PX)
+    good = np.isfinite(refined).all(1) & (ncc >= MIN_NCC) & (shift <= MAX_SHIFT_PX * scales[1])
     good &= (refined[:, 0] > border) & (refined[:, 0] < w - border) \
         & (refined[:, 1] > border) & (refined[:, 1] < h - border)
     good &= np.abs(np.linalg.det(map_ab)) > 1e-3
@@ -421,10 +455,12 @@ def _returned(grays: dict, a_and_gradients: np.ndarray, a: int, b: int, points: 
 
 
 def _on_epipolar_lines(state: SfMState, a: int, b: int, points: np.ndarray, idx: np.ndarray,
-                       refined: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                       refined: np.ndarray, scale_b: float = 1.0
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """Of camera a's points[idx] found at `refined` in camera b, those on their epipolar line in b
-    under the state's cameras (MAX_EPIPOLAR_PX)."""
+    under the state's cameras (MAX_EPIPOLAR_PX times b's px_scale, scale_b)."""
     if len(idx):
-        keep = epipolar_distance_px(state, a, b, points[idx], refined) <= MAX_EPIPOLAR_PX
+        keep = epipolar_distance_px(state, a, b, points[idx], refined) <= \
+            MAX_EPIPOLAR_PX * scale_b
         idx, refined = idx[keep], refined[keep]
     return idx, refined

@@ -127,33 +127,38 @@ def refine_on_images(state: SfMState, frame_sets: Sequence[Sequence[np.ndarray]]
                      masks: Optional[Sequence] = None, seed: int = 0,
                      say: Callable[[str], None] = lambda m: None,
                      pp_centres: Optional[dict] = None,
-                     ahead: Optional[DenseAhead] = None) -> Optional[ImageRefinement]:
+                     ahead: Optional[DenseAhead] = None,
+                     px_scale: Optional[np.ndarray] = None) -> Optional[ImageRefinement]:
     """The refined state (module docstring), or None where the stage does not apply or the dense
     correspondences leave a registered camera with too few observations. `state` is not
     modified. seeds: correspondences (tracks with their frame set) the dense ones are predicted
     from; masks: per camera bool (H, W) regions to ignore, or None; pp_centres: camera name ->
     (cx, cy, width, height) px, the principal point prior's centre where not the image centre
     (used where the camera's images still have that size); ahead: the dense correspondences on
-    these frame sets, seeds and masks as far as they were found ahead (DenseAhead), or None."""
+    these frame sets, seeds and masks as far as they were found ahead (DenseAhead), or None;
+    px_scale: per camera, dense_matches.keypoint_px_scale (None: 1 for every camera)."""
     if not applies(state):
         return None
     try:
         return _refine(state, frame_sets, seeds, camera_names, masks, seed, say,
-                       pp_centres or {}, ahead)
+                       pp_centres or {}, ahead, px_scale)
     except (ValueError, np.linalg.LinAlgError) as exc:  # a degenerate problem: keep the rig
         log.warning("image refinement skipped: %s", exc)
         say("the dense refinement did not apply; the rig is kept as found")
         return None
 
 
-def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres, ahead
-            ) -> Optional[ImageRefinement]:
+def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres, ahead,
+            px_scale=None) -> Optional[ImageRefinement]:
     tracks = ahead.tracks(state) if ahead is not None \
-        else dense_tracks(frame_sets, state, seeds, masks)
+        else dense_tracks(frame_sets, state, seeds, masks, px_scale=px_scale)
     check_stop()
     refined = state.on_tracks(tracks)
-    triangulate_tracks(refined, TRIANGULATION_GATE_PX, seed=seed)
-    remove_outlier_observations(refined, TRIANGULATION_GATE_PX)
+    # the found rig's fit to right correspondences, in pixels of the images it was matched on
+    gate_px = TRIANGULATION_GATE_PX * (np.ones(state.num_cameras) if px_scale is None
+                                       else np.asarray(px_scale, float))
+    triangulate_tracks(refined, float(gate_px.max()), seed=seed)
+    remove_outlier_observations(refined, gate_px)
     per_camera = refined.registered_active()[refined.point_mask()].sum(axis=0)
     thin = [camera_names[c] for c in refined.registered()
             if per_camera[c] < MIN_CAMERA_OBSERVATIONS]

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..calibration_result import CalibrationResult, result_with_state, rig_from_state
 from ..config import PipelineConfig
-from ..method.dense_matches import DenseAhead
+from ..method.dense_matches import DenseAhead, keypoint_px_scale
 from ..method.image_refinement import PP_PRIOR_STD_FRACTION, ImageRefinement, refine_on_images
 from ..method.prior_adjustment import SUPPORTED_MODELS
 from ..method.uncertainty import estimated_principal_points
@@ -47,7 +47,8 @@ def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig
             m not in SUPPORTED_MODELS for m in config.sfm.models(len(images.camera_names))):
         return None
     return DenseAhead(images.frame_sets, len(images.camera_names), tracks,
-                      images.ignored or None)
+                      images.ignored or None, keypoint_px_scale(images.image_sizes,
+                                                                config.max_image_side_px))
 
 
 class RefinedRuns:
@@ -78,7 +79,9 @@ class RefinedRuns:
                                           _seeds(result, self.matched.keypoint_tracks),
                                           self.images.camera_names, self.images.ignored or None,
                                           self.config.sampling.seed, messages.append,
-                                          self.pp_centres, self.ahead)
+                                          self.pp_centres, self.ahead,
+                                          keypoint_px_scale(self.images.image_sizes,
+                                                            self.config.max_image_side_px))
             found = (state, refinement, messages)
             self._done.append(found)
         for message in found[2] if progress is not None else ():
