@@ -80,14 +80,12 @@ def measure(seed: int, cameras: int, gap: float, frames: int, frame_sets: int, s
 def measure_few(noise_px: float, only: Optional[list] = None) -> list[dict]:
     """bench --few's rooms (eval/few_rigs.py), built as the bench builds them, with the walker's
     keypoints at each of their frame sets beside the images."""
+    from densecalib_ros.eval.bench import synthetic_rig_spec
     from densecalib_ros.eval.few_rigs import few_scenes
 
     rows = []
     for spec in [s for s in few_scenes() if not only or any(o in s.name for o in only)]:
-        rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
-                                   width=spec.width, height=spec.height, seed=spec.seed,
-                                   gap_deg=spec.gap_deg, max_arc_deg=spec.max_arc_deg,
-                                   fov_range_deg=spec.fov_range_deg, **dict(spec.rig)))
+        rig = generate_rig(synthetic_rig_spec(spec))
         frames = len(rig.images)
         preset = "fisheye" if spec.camera_model == "OPENCV_FISHEYE" else "regular"  # as the bench
         rows += measure_rig(rig, dict(scene=spec.name), frames, frames, noise_px, spec.seed,

@@ -181,10 +181,15 @@ P10_SIZES_PX = (1536, 3072)
 def real_scenes() -> list[SceneSpec]:
     """Every real scene of the full set: Strecha and the fox (each as separate cameras and as one
     camera), and the real rigs (rig_scenes); and Strecha entry-P10 at P10_SIZES_PX."""
-    scenes = [s for s in full_scenes() if s.kind != "synthetic"]
-    return scenes[:1] + [SceneSpec(f"strecha-entry-p10-{px}", "strecha",
-                                   folder="strecha_entry_p10", max_side_px=px)
-                         for px in P10_SIZES_PX] + scenes[1:]
+    scenes = []
+    for s in full_scenes():
+        if s.kind != "synthetic":
+            scenes.append(s)
+        if s.name == "strecha-entry-p10-1024":  # the other sizes beside it
+            scenes += [SceneSpec(f"strecha-entry-p10-{px}", "strecha",
+                                 folder="strecha_entry_p10", max_side_px=px)
+                       for px in P10_SIZES_PX]
+    return scenes
 
 
 # Held-out scenes: never used to develop or tune the method (checked only after a change was
@@ -238,19 +243,24 @@ def build_scene(spec: SceneSpec, data_dir: Path) -> Scene:
     return scene
 
 
+def synthetic_rig_spec(spec: SceneSpec):
+    """The core.synthetic.RigSpec a scene of kind "synthetic" is generated from."""
+    from ..core.synthetic import RigSpec
+
+    models = tuple("OPENCV_FISHEYE" if c in spec.fisheye_cameras else spec.camera_model
+                   for c in range(spec.num_cameras)) if spec.fisheye_cameras else ()
+    return RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
+                   camera_models=models, width=spec.width, height=spec.height, seed=spec.seed,
+                   gap_deg=spec.gap_deg, max_arc_deg=spec.max_arc_deg, layout=spec.layout,
+                   bar_spacing_m=spec.bar_spacing_m, lenses=spec.lenses,
+                   fov_range_deg=spec.fov_range_deg, **dict(spec.rig))
+
+
 def _loaded_scene(spec: SceneSpec, data_dir: Path) -> Scene:
     if spec.kind == "synthetic":
-        from ..core.synthetic import RigSpec, generate_rig
+        from ..core.synthetic import generate_rig
 
-        models = tuple("OPENCV_FISHEYE" if c in spec.fisheye_cameras else spec.camera_model
-                       for c in range(spec.num_cameras)) if spec.fisheye_cameras else ()
-        rig = generate_rig(RigSpec(num_cameras=spec.num_cameras, camera_model=spec.camera_model,
-                                   camera_models=models, width=spec.width, height=spec.height,
-                                   seed=spec.seed, gap_deg=spec.gap_deg,
-                                   max_arc_deg=spec.max_arc_deg, layout=spec.layout,
-                                   bar_spacing_m=spec.bar_spacing_m, lenses=spec.lenses,
-                                   fov_range_deg=spec.fov_range_deg, **dict(spec.rig)))
-        return scene_from_synthetic(rig, spec.name)
+        return scene_from_synthetic(generate_rig(synthetic_rig_spec(spec)), spec.name)
     if spec.kind == "strecha":
         folder = Path(data_dir) / spec.folder
         if not (folder / "gt_dense_cameras").is_dir():

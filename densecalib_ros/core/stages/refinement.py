@@ -61,6 +61,7 @@ class RefinedRuns:
                  previous: Optional[RigCalibration], ahead: Optional[DenseAhead]):
         self.images, self.matched, self.config, self.ahead = images, matched, config, ahead
         self.pp_centres = estimated_principal_points(previous)
+        self.px_scale = keypoint_px_scale(images.image_sizes, config.max_image_side_px)
         self._done: list[tuple] = []  # (state, its refinement or None, its messages)
 
     def refinement(self, result: CalibrationResult, progress: Optional[Progress] = None
@@ -79,9 +80,7 @@ class RefinedRuns:
                                           _seeds(result, self.matched.keypoint_tracks),
                                           self.images.camera_names, self.images.ignored or None,
                                           self.config.sampling.seed, messages.append,
-                                          self.pp_centres, self.ahead,
-                                          keypoint_px_scale(self.images.image_sizes,
-                                                            self.config.max_image_side_px))
+                                          self.pp_centres, self.ahead, self.px_scale)
             found = (state, refinement, messages)
             self._done.append(found)
         for message in found[2] if progress is not None else ():
