@@ -72,6 +72,21 @@ def test_tables_name_the_warnings_a_result_carried_and_count_the_scenes_warned()
     assert np.isclose(summary["densecalib-incremental"]["median_focal_err"], 0.08)
 
 
+def test_a_scene_table_gives_each_methods_errors_over_its_own_sigmas():
+    """Issue 82: per scene, how the sigmas compare with the errors (focal, principal point,
+    projection), beside the image size in its header; methods without sigmas get no line."""
+    ours = _record("densecalib-incremental", 100.0, [])
+    ours["error_sigma_ratios"] = {"focal": [0.5, 3.0, 1.0], "principal_point": [],
+                                  "projection": [0.25]}
+    scene = dict(scene="s0", lens="pinhole", num_cameras=4, image_size=[1536, 1024],
+                 results=[_record("colmap", 50.0, []), ours])
+    lines = format_scene_table(scene).splitlines()
+    assert "1536x1024" in lines[0]
+    assert [row for row in lines if "own sigma" in row] == [
+        "  densecalib-incremental |error| / own sigma: focal median 1.00, max 3.00 (n=3); "
+        "projection median 0.25, max 0.25 (n=1)"]
+
+
 def test_tables_give_each_methods_time_over_colmaps_on_the_same_scene():
     def scene(k, ours_s, colmap_s):
         records = [_record("colmap", 50.0, []), _record("densecalib-incremental", 90.0, [])]
