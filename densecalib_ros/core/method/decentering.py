@@ -1,0 +1,58 @@
+"""Whether the image refinement frees the lenses' decentering (tangential) distortion p1, p2.
+
+A decentering the model lacks is not left in the residuals: the principal point and the camera's
+yaw and pitch trade off against it, so the folds agree on a principal point that is off and the
+sigmas cannot show it (docs/design-notes.md, Image refinement: a decentering the images carry).
+Freed everywhere, p1 and p2 trade off against the principal point where the images carry none,
+and the point moves off instead. So they are freed only where the correspondences held out of the
+adjustment (image_refinement.held_out_errors, its spatial folds) fit better with them than
+without by more than chance: the folds' mean relative excess below -T_95_3DOF standard errors.
+Cameras adjusted as one camera (one lens) get one decentering, tied across them."""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from .prior_adjustment import INTRINSIC_NAMES, Priors
+
+# Prior sigma of p1 and p2 (normalised image coordinates): real lenses' decentering coefficients,
+# where target-based calibrations give them, are within about 1e-3.
+TANGENTIAL_PRIOR_STD = 1e-3
+# One-sided 95 % point of Student's t with 3 degrees of freedom: the four folds' mean excess over
+# its standard error must pass it (four folds' standard error is itself rough).
+T_95_3DOF = 2.353
+# Cameras adjusted as one: their p1, p2 tied to a hundredth of the prior's spread (one lens).
+ONE_LENS_TIE_FRACTION = 0.01
+_TANGENTIAL = (INTRINSIC_NAMES.index("p1"), INTRINSIC_NAMES.index("p2"))
+
+
+def with_decentering(priors: Priors, blocks: Sequence[int], one_cameras: Sequence[list[int]]
+                     ) -> Priors:
+    """`priors` with p1, p2 free under TANGENTIAL_PRIOR_STD in `blocks`, tied across each group
+    of one_cameras."""
+    tight = ONE_LENS_TIE_FRACTION * TANGENTIAL_PRIOR_STD
+    ties = [(i, {b: tight for b in members}) for members in one_cameras if len(members) > 1
+            for i in _TANGENTIAL]
+    return replace(priors, tangential_std={b: TANGENTIAL_PRIOR_STD for b in blocks},
+                   ties=list(priors.ties) + ties)
+
+
+def decentering_test(priors: Priors, blocks: Sequence[int], one_cameras: Sequence[list[int]],
+                     held_out: Callable[[Priors], np.ndarray]
+                     ) -> tuple[Priors, float, float]:
+    """(`priors`, with decentering free where the held-out folds ask for it (module
+    docstring); the folds' mean relative excess of the held-out error with it free over without;
+    its standard error). held_out(priors): per fold the held-out mean squared error under those
+    priors; where it fails (a fold left a camera without data) decentering stays held."""
+    free = with_decentering(priors, blocks, one_cameras)
+    try:
+        excess = held_out(free) / held_out(priors) - 1.0
+    except (ValueError, np.linalg.LinAlgError):
+        excess = np.full(2, np.nan)
+    if not np.isfinite(excess).all():
+        return priors, float("nan"), float("nan")
+    mean = float(np.mean(excess))
+    standard_error = float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
+    return (free if mean < -T_95_3DOF * standard_error else priors), mean, standard_error

@@ -1,0 +1,63 @@
+"""Issue 82: a decentering (tangential) distortion the images carry is estimated where the
+held-out correspondences ask for it, and only there (core.method.decentering)."""
+import numpy as np
+import pytest
+from sfm_fixtures import gt_rig, gt_tracks
+
+from densecalib_ros.core.method.decentering import (TANGENTIAL_PRIOR_STD, decentering_test,
+                                                     with_decentering)
+from densecalib_ros.core.method.image_refinement import held_out_errors
+from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
+from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+from densecalib_ros.core.types import CameraIntrinsics
+
+
+def _adjusted(p1p2, seed=5):
+    """(state adjusted with the principal point and aspect under their priors and p1, p2 held,
+    blocks, priors, noise, names, truth): tracks of OPENCV cameras with decentering p1p2."""
+    cams, poses = gt_rig(5, seed=seed, pp_jitter_px=0.0)
+    true = [CameraIntrinsics("OPENCV", c.width, c.height,
+                             np.array([c.params[0], c.params[0] * 1.002, c.params[1] + 6.0,
+                                       c.params[2] - 4.0, c.params[3], c.params[4], *p1p2]))
+            for c in cams]
+    tracks = gt_tracks(true, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0, seed=seed)
+    start = [CameraIntrinsics("RADIAL", c.width, c.height,
+                              np.array([c.params[0], c.width / 2, c.height / 2, c.params[4],
+                                        c.params[5]])) for c in true]
+    state = SfMState.create(tracks, start)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state, max_error_px=50.0)
+    blocks = list(range(len(true)))
+    priors = Priors(principal_point_std_px={b: 0.01 * max(true[b].width, true[b].height)
+                                            for b in blocks},
+                    aspect_std={b: 0.003 for b in blocks})
+    adjustment = adjust_with_priors(state, blocks, priors)
+    names = [f"cam{c}" for c in blocks]
+    return state, blocks, priors, adjustment.noise_px, names, true
+
+
+def _pp_error_px(state, true) -> float:
+    return max(float(np.abs(np.subtract(state.camera(c).params[2:4], true[c].params[2:4])).max())
+               for c in state.registered())
+
+
+@pytest.mark.parametrize("p1p2, freed", [((8e-4, -6e-4), True), ((0.0, 0.0), False)])
+def test_a_decentering_the_images_carry_is_freed_and_none_is_left_held(p1p2, freed):
+    state, blocks, priors, noise_px, names, true = _adjusted(p1p2)
+    decided, excess, standard_error = decentering_test(
+        priors, blocks, [], lambda p: held_out_errors(state, blocks, p, noise_px, names, None))
+    assert bool(decided.tangential_std) is freed, (excess, standard_error)
+    if freed:
+        held_error = _pp_error_px(state, true)
+        adjust_with_priors(state, blocks, decided, noise_px=noise_px)
+        assert _pp_error_px(state, true) < 0.7 * held_error
+        p = np.array([state.camera(c).params[6:8] for c in blocks])
+        # p2 trades off partly against cy (both under priors): the truth's sign, within 5e-4
+        assert np.all(np.sign(p) == np.sign(p1p2)) and np.allclose(p, p1p2, atol=5e-4)
+
+
+def test_cameras_adjusted_as_one_share_one_decentering():
+    priors = with_decentering(Priors(), [0, 1, 2, 3], [[0, 1, 2]])
+    assert priors.tangential_std == {b: TANGENTIAL_PRIOR_STD for b in range(4)}
+    tied = [(i, sorted(m)) for i, m in priors.ties]
+    assert tied == [(6, [0, 1, 2]), (7, [0, 1, 2])]
