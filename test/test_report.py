@@ -148,7 +148,7 @@ def test_principal_point_wording_says_what_was_done_to_each(rig):
         rig.cameras[name].intrinsics = copy.deepcopy(lens)
     rig.cameras["folds"].quality.estimated_intrinsics = ["f", "k1", "k2", "cx", "cy"]
     rig.cameras["folds"].intrinsics.params[1:3] = [327.25, 236.5]
-    rig.cameras["prior"].quality.estimated_intrinsics = ["f", "k1", "k2", "aspect"]
+    rig.cameras["prior"].quality.estimated_intrinsics = ["f", "k1", "k2", "aspect", "p1", "p2"]
     rig.cameras["prior"].intrinsics.params[1:3] = [324.5, 231.6]  # COLMAP: OpenCV + 0.5
     rig.cameras["centre"].quality.principal_point_std_px = None  # held: no sigma of its own
     rig.quality.given_intrinsics = {"given": "RADIAL"}
@@ -174,6 +174,8 @@ def test_principal_point_wording_says_what_was_done_to_each(rig):
     assert lines["principal point given (--intrinsics) and kept"].endswith(": given")
     assert "truth (+10.0, +10.0 px from the centre)" in note
     assert "pixel aspect estimated (fx/fy): prior" in note
+    assert "decentering distortion estimated (p1, p2: held-out correspondences asked for it): " \
+           "prior" in note and note.count("decentering") == 1
     assert "f_std and proj_std of centre include" in note  # its sigmas carry the offset
     rig.quality.change_summary = "focal up to +0.1 %"  # a recalibration: the prior may be moved
     assert "or a previous calibration's estimate" in intrinsics_note(rig).replace("\n  ", " ")

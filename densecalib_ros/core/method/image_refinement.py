@@ -42,8 +42,8 @@ Separately self-calibrated, each camera traded its intrinsics against its pose i
 (docs/design-notes.md, Image refinement: the rig's own spread; one camera or several). The
 pixel aspect is always estimated with its prior (holding a real sensor's aspect at 1 moves the
 principal points far: docs/design-notes.md, Image refinement: folds and the aspect prior); the
-cameras are written as OPENCV (fx, fy, cx, cy, k1, k2, p1 = p2 = 0), and "aspect" is listed as
-estimated where the folds determine it."""
+cameras are written as OPENCV (fx, fy, cx, cy, k1, k2, p1, p2), "aspect" listed as estimated where
+the folds determine it; p1 = p2 = 0 but where held-out folds ask for them (core.method.decentering)."""
 from __future__ import annotations
 
 import logging
