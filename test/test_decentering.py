@@ -61,3 +61,20 @@ def test_cameras_adjusted_as_one_share_one_decentering():
     assert priors.tangential_std == {b: TANGENTIAL_PRIOR_STD for b in range(4)}
     tied = [(i, sorted(m)) for i, m in priors.ties]
     assert tied == [(6, [0, 1, 2]), (7, [0, 1, 2])]
+
+
+def test_a_gain_within_what_fitting_noise_gives_is_no_decentering():
+    """However consistent over the folds, a held-out gain below MIN_HELD_OUT_GAIN leaves p1, p2
+    held; a larger one the folds agree on frees them; one the folds disagree on does not."""
+    from densecalib_ros.core.method.decentering import MIN_HELD_OUT_GAIN
+
+    held = np.array([1.0, 1.1, 0.9, 1.05])
+
+    def decided(gains):
+        free = held * (1.0 - np.asarray(gains))
+        return decentering_test(Priors(), [0], [],
+                                lambda p: free if p.tangential_std else held)[0].tangential_std
+
+    assert not decided(np.full(4, 0.3 * MIN_HELD_OUT_GAIN))
+    assert decided(np.array([1.8, 2.2, 2.0, 2.4]) * MIN_HELD_OUT_GAIN)
+    assert not decided(np.array([-2.0, 6.0, -1.0, 5.0]) * MIN_HELD_OUT_GAIN)
