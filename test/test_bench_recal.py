@@ -48,6 +48,11 @@ def test_recalibration_method_recovers_truth(scene):
     check = summarize_error_sigma_ratios([{"results": [record]}])
     assert check[RECAL_METHOD]["focal"]["n"] == 4
     assert check[RECAL_METHOD]["focal"]["median"] == pytest.approx(np.median(ratios))
+    # a scene whose reference is an SfM estimate is pooled on a line of its own
+    check = summarize_error_sigma_ratios([{"results": [record]},
+                                          {"results": [record], "reference_is_estimate": True}])
+    assert check[RECAL_METHOD]["focal"]["n"] == 4
+    assert check[RECAL_METHOD + " (SfM references)"]["focal"]["n"] == 4
 
 
 def test_principal_point_ratio_is_the_larger_axis_error_over_the_sigma():

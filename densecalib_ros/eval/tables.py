@@ -106,15 +106,23 @@ def summarize(scenes: list[dict]) -> list[dict]:
     return out
 
 
+# The uncertainty check's line for the scenes whose reference is itself an SfM estimate: their
+# errors are partly the reference's, so they are pooled apart from the scenes with ground truth
+# or a target-based reference.
+SFM_REFERENCE = " (SfM references)"
+
+
 def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
     """Per our method: quantiles over all cameras of actual error / estimated sigma, focal and
     projection (core.method.uncertainty.error_sigma_ratios); a sigma that is only a lower bound
-    shows as ratios well above 1."""
+    shows as ratios well above 1. Scenes whose reference is an estimate under the method's name
+    + SFM_REFERENCE."""
     pooled: dict[str, dict[str, list]] = {}
     for entry in scenes:
         for r in entry["results"]:
+            key = r["method"] + (SFM_REFERENCE if entry.get("reference_is_estimate") else "")
             for kind, ratios in r.get("error_sigma_ratios", {}).items():
-                pooled.setdefault(r["method"], {}).setdefault(kind, []).extend(ratios)
+                pooled.setdefault(key, {}).setdefault(kind, []).extend(ratios)
     return {method: {kind: dict(n=len(v), median=float(np.median(v)),
                                 p90=float(np.percentile(v, 90)), max=float(np.max(v)))
                      for kind, v in kinds.items() if v}
@@ -128,7 +136,7 @@ def format_error_sigma_ratios(check: dict) -> str:
     for method, kinds in check.items():
         parts = [f"{kind} median {q['median']:.2f}, 90% {q['p90']:.2f}, max {q['max']:.2f} "
                  f"(n={q['n']})" for kind, q in kinds.items()]
-        lines.append(f"{method:<28}" + ("; ".join(parts) or "no estimated intrinsics"))
+        lines.append(f"{method:<27} " + ("; ".join(parts) or "no estimated intrinsics"))
     return "\n".join(lines)
 
 
