@@ -128,3 +128,20 @@ def turned_image(image, intrinsics, cam_new_from_cam):
     maps = (source - 0.5).reshape(h, w, 2).astype(np.float32)
     return cv2.remap(image, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)
+
+
+def centred_state(true, poses, noise_px, seed=0, num_points=3000):
+    """An SfMState of tracks of the `true` cameras (OPENCV) at their `poses`, with the principal
+    points at the image centre and square pixels (what the pipeline hands the image refinement),
+    points triangulated."""
+    from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+
+    tracks = gt_tracks(true, poses, num_points=num_points, noise_px=noise_px, outlier_frac=0.0,
+                       seed=seed)
+    start = [CameraIntrinsics("RADIAL", c.width, c.height,
+                              np.array([c.params[0], c.width / 2, c.height / 2, c.params[4],
+                                        c.params[5]])) for c in true]
+    state = SfMState.create(tracks, start)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state, max_error_px=50.0)
+    return state

@@ -2,13 +2,12 @@
 held-out correspondences ask for it, and only there (core.method.decentering)."""
 import numpy as np
 import pytest
-from sfm_fixtures import gt_rig, gt_tracks
+from sfm_fixtures import centred_state, gt_rig
 
 from densecalib_ros.core.method.decentering import (TANGENTIAL_PRIOR_STD, decentering_test,
                                                      with_decentering)
 from densecalib_ros.core.method.image_refinement import held_out_errors
 from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
-from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
 
 
@@ -20,13 +19,7 @@ def _adjusted(p1p2, seed=5):
                              np.array([c.params[0], c.params[0] * 1.002, c.params[1] + 6.0,
                                        c.params[2] - 4.0, c.params[3], c.params[4], *p1p2]))
             for c in cams]
-    tracks = gt_tracks(true, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0, seed=seed)
-    start = [CameraIntrinsics("RADIAL", c.width, c.height,
-                              np.array([c.params[0], c.width / 2, c.height / 2, c.params[4],
-                                        c.params[5]])) for c in true]
-    state = SfMState.create(tracks, start)
-    state.cam_from_world = [T.copy() for T in poses]
-    triangulate_tracks(state, max_error_px=50.0)
+    state = centred_state(true, poses, 0.1, seed=seed)
     blocks = list(range(len(true)))
     priors = Priors(principal_point_std_px={b: 0.01 * max(true[b].width, true[b].height)
                                             for b in blocks},

@@ -2,14 +2,14 @@
 the pixel aspect, on exact projections of a point cloud (sfm_fixtures) with Gaussian noise."""
 import numpy as np
 import pytest
-from sfm_fixtures import gt_rig, gt_tracks
+from sfm_fixtures import centred_state, gt_rig
 
 from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, AdjustmentProblem,
                                                          damped_point_inverses,
                                                          normal_equations, point_steps,
                                                          reduced_system, adjust_with_priors,
                                                          posterior_covariance)
-from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+from densecalib_ros.core.method.reconstruction import SfMState
 from densecalib_ros.core.types import CameraIntrinsics
 
 
@@ -27,27 +27,13 @@ def _rig_with_offset_points(num_cameras=5, seed=3):
     return true, poses
 
 
-def _state(true, poses, noise_px, seed=0, num_points=3000):
-    """The truth's poses with the principal points at the image centre and square pixels (what
-    the pipeline hands this stage), points triangulated."""
-    tracks = gt_tracks(true, poses, num_points=num_points, noise_px=noise_px, outlier_frac=0.0,
-                       seed=seed)
-    start = [CameraIntrinsics("RADIAL", c.width, c.height,
-                              np.array([c.params[0], c.width / 2, c.height / 2, c.params[4],
-                                        c.params[5]])) for c in true]
-    state = SfMState.create(tracks, start)
-    state.cam_from_world = [T.copy() for T in poses]
-    triangulate_tracks(state, max_error_px=50.0)
-    return state
-
-
 def _pp(cam):
     return np.asarray(cam.params)[[2, 3]] if cam.model == "OPENCV" else cam.params[[1, 2]]
 
 
 def test_jacobians_match_finite_differences():
     true, poses = _rig_with_offset_points(3)
-    state = _state(true, poses, 0.0)
+    state = centred_state(true, poses, 0.0)
     state.intrinsics = [CameraIntrinsics("OPENCV", c.width, c.height,
                                          c.params + np.r_[0, 0, 0, 0, 0, 0, 1e-3, -2e-3])
                         for c in true]
@@ -86,7 +72,7 @@ def test_the_reduced_system_is_the_schur_complement_of_the_normal_equations(shar
     columns) equals U - W V^-1 W^T formed densely, and its right-hand side -g_cam + W V^-1 g_pt,
     also where cameras share one intrinsics block (their columns coincide)."""
     true, poses = _rig_with_offset_points(4)
-    state = _state(true, poses, 0.3)
+    state = centred_state(true, poses, 0.3)
     if shared:
         shared_state = SfMState.create(state.tracks, state.intrinsics, share_intrinsics=True)
         shared_state.cam_from_world, shared_state.points_xyz = state.cam_from_world, \
@@ -115,7 +101,7 @@ def test_a_step_solves_the_damped_normal_equations():
     principal point held and the tangential parameters held, so that held columns and the
     columns no camera frees are both dropped."""
     true, poses = _rig_with_offset_points(4)
-    state = _state(true, poses, 0.3, num_points=150)
+    state = centred_state(true, poses, 0.3, num_points=150)
     blocks = list(range(4))
     priors = Priors({0: None, 1: 10.0, 2: 10.0, 3: 10.0}, aspect_std={b: 0.01 for b in blocks})
     problem = AdjustmentProblem(state, blocks, priors)
@@ -158,7 +144,7 @@ def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_ca
     scale and moved a weak direction's sigma by up to 8 % with the choice (cy, three cameras);
     a pseudo-inverse of the raw system put these focal sigmas 4-74x too small."""
     true, poses = _rig_with_offset_points(num_cameras)
-    state = _state(true, poses, 0.3)
+    state = centred_state(true, poses, 0.3)
     blocks = list(range(num_cameras))
     priors = Priors({b: pp_std_px for b in blocks}, aspect_std={b: 0.003 for b in blocks})
     adjust_with_priors(state, blocks, priors, noise_px=0.3)
@@ -184,7 +170,7 @@ def test_the_covariance_is_that_of_the_gauge_held_also_in_weak_directions(num_ca
 
 def test_exact_tracks_give_the_exact_cameras_without_priors():
     true, poses = _rig_with_offset_points()
-    state = _state(true, poses, 0.0)
+    state = centred_state(true, poses, 0.0)
     blocks = list(range(len(true)))
     adjust_with_priors(state, blocks, Priors({b: np.inf for b in blocks},
                                              {b: np.inf for b in blocks}), max_iterations=200)
@@ -195,7 +181,7 @@ def test_exact_tracks_give_the_exact_cameras_without_priors():
 
 def test_images_that_determine_the_principal_point_move_it_to_the_truth():
     true, poses = _rig_with_offset_points()
-    state = _state(true, poses, 0.2)
+    state = centred_state(true, poses, 0.2)
     blocks = list(range(len(true)))
     result = adjust_with_priors(state, blocks, Priors({b: 6.4 for b in blocks},
                                                       {b: 0.003 for b in blocks}))
@@ -213,13 +199,13 @@ def test_images_that_determine_the_principal_point_move_it_to_the_truth():
 
 def test_a_tight_prior_holds_the_principal_point_and_a_held_one_does_not_move():
     true, poses = _rig_with_offset_points()
-    state = _state(true, poses, 0.2)
+    state = centred_state(true, poses, 0.2)
     blocks = list(range(len(true)))
     adjust_with_priors(state, blocks, Priors({b: 0.05 for b in blocks}, {}))
     for b in blocks:
         assert np.linalg.norm(_pp(state.intrinsics[b]) - [320.0, 240.0]) < 0.5
         assert state.intrinsics[b].model == "RADIAL"  # aspect held: no OPENCV needed
-    held = _state(true, poses, 0.2)
+    held = centred_state(true, poses, 0.2)
     adjust_with_priors(held, blocks, Priors())
     for b in blocks:
         assert np.array_equal(_pp(held.intrinsics[b]), [320.0, 240.0])
@@ -229,7 +215,7 @@ def test_the_prior_centres_on_a_given_point():
     """A previous calibration's principal point as the prior's centre (a recalibration): a
     tight prior holds the point there, not at the image centre."""
     true, poses = _rig_with_offset_points()
-    state = _state(true, poses, 0.2)
+    state = centred_state(true, poses, 0.2)
     blocks = list(range(len(true)))
     centres = {b: tuple(_pp(true[b]) + [3.0, -2.0]) for b in blocks}
     adjust_with_priors(state, blocks, Priors({b: 0.05 for b in blocks},
@@ -240,12 +226,12 @@ def test_the_prior_centres_on_a_given_point():
 
 def test_fixed_blocks_are_left_alone():
     true, poses = _rig_with_offset_points(4)
-    state = _state(true, poses, 0.2)
+    state = centred_state(true, poses, 0.2)
     before = state.intrinsics[2].params.copy()
     adjust_with_priors(state, [0, 1, 3], Priors({b: 6.4 for b in (0, 1, 3)}, {}))
     assert np.array_equal(state.intrinsics[2].params, before)
     with pytest.raises(ValueError, match="OPENCV_FISHEYE"):
-        fisheye = _state(true, poses, 0.2)
+        fisheye = centred_state(true, poses, 0.2)
         fisheye.intrinsics[0] = CameraIntrinsics("OPENCV_FISHEYE", 640, 480,
                                                  np.r_[300.0, 300.0, 320, 240, 0, 0, 0, 0])
         adjust_with_priors(fisheye, [0], Priors())
@@ -260,11 +246,11 @@ def test_a_tie_pulls_the_cameras_together_and_leaves_their_level_free():
     for b, cam in enumerate(true):  # one lens model: focal lengths 0.5-2 % apart
         cam.params[:2] = 600.0 * (1.0 + 0.005 * b) * np.array([1.0, 1.003])
     pp = {b: 6.4 for b in blocks}
-    free = _state(true, poses, 0.2)
+    free = centred_state(true, poses, 0.2)
     adjust_with_priors(free, blocks, Priors(pp))
-    tight = _state(true, poses, 0.2)
+    tight = centred_state(true, poses, 0.2)
     adjust_with_priors(tight, blocks, Priors(pp, ties=[(0, {b: 1e-3 for b in blocks})]))
-    loose = _state(true, poses, 0.2)
+    loose = centred_state(true, poses, 0.2)
     adjust_with_priors(loose, blocks, Priors(pp, ties=[(0, {b: 1e3 for b in blocks})]))
     tied = np.array([tight.intrinsics[b].params[0] for b in blocks])
     assert np.ptp(tied) < 0.01
