@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from sfm_fixtures import centred_state, gt_rig
 
-from densecalib_ros.core.method.decentering import (TANGENTIAL_PRIOR_STD, decentering_test,
-                                                     with_decentering)
+from densecalib_ros.core.method.decentering import (MIN_HELD_OUT_GAIN, TANGENTIAL_PRIOR_STD,
+                                                     decentering_test, with_decentering)
 from densecalib_ros.core.method.image_refinement import held_out_errors
 from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
 from densecalib_ros.core.types import CameraIntrinsics
@@ -59,8 +59,6 @@ def test_cameras_adjusted_as_one_share_one_decentering():
 def test_a_gain_within_what_fitting_noise_gives_is_no_decentering():
     """However consistent over the folds, a held-out gain below MIN_HELD_OUT_GAIN leaves p1, p2
     held; a larger one the folds agree on frees them; one the folds disagree on does not."""
-    from densecalib_ros.core.method.decentering import MIN_HELD_OUT_GAIN
-
     held = np.array([1.0, 1.1, 0.9, 1.05])
 
     def decided(gains):

@@ -45,21 +45,14 @@ def format_scene_table(entry: dict) -> str:
     for r in entry["results"]:
         if any(r.get("error_sigma_ratios", {}).values()):
             lines.append(f"  {r['method']} |error| / own sigma: "
-                         f"{_error_sigma_parts(r['error_sigma_ratios'], 'max')}")
+                         f"{_error_sigma_parts(r['error_sigma_ratios'])}")
     return "\n".join(lines)
 
 
-def _error_sigma_parts(ratios: dict, top: str = "p90") -> str:
-    """'focal median 0.70, 90% 1.80 (n=8); ...' of error_sigma_ratios' lists (top "max": the
-    largest instead of the 90th percentile, for one scene's few cameras)."""
-    parts = []
-    for kind, v in ratios.items():
-        if len(v):
-            high = (f"max {np.max(v):.2f}" if top == "max"
-                    else f"90% {np.percentile(v, 90):.2f}, max {np.max(v):.2f}")
-            parts.append(f"{kind.replace('_', ' ')} median {np.median(v):.2f}, {high} "
-                         f"(n={len(v)})")
-    return "; ".join(parts)
+def _error_sigma_parts(ratios: dict) -> str:
+    """'focal median 0.70, max 1.80 (n=8); ...' of one scene's error_sigma_ratios lists."""
+    return "; ".join(f"{kind.replace('_', ' ')} median {np.median(v):.2f}, max {np.max(v):.2f} "
+                     f"(n={len(v)})" for kind, v in ratios.items() if len(v))
 
 
 def _shorten(text: str, width: int) -> str:

@@ -55,7 +55,7 @@ def decentering_test(priors: Priors, blocks: Sequence[int], one_cameras: Sequenc
     try:
         excess = held_out(free) / held_out(priors) - 1.0
     except (ValueError, np.linalg.LinAlgError):
-        excess = np.full(2, np.nan)
+        return priors, float("nan"), float("nan")
     if not np.isfinite(excess).all():
         return priors, float("nan"), float("nan")
     mean = float(np.mean(excess))

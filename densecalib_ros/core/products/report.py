@@ -244,15 +244,14 @@ def intrinsics_note(rig: RigCalibration) -> str:
                                              PrincipalPoint.UNKNOWN) \
             else ", ".join(short[n] for n in names)
         lines += _wrapped(wording[case].format(listed))
-    def estimating(parameter: str) -> list[str]:
-        return [short[n] for n, c in rig.cameras.items() if c.quality is not None
-                and isinstance(c.quality.estimated_intrinsics, list)
-                and parameter in c.quality.estimated_intrinsics]
-    if estimating("aspect"):
-        lines += _wrapped(f"pixel aspect estimated (fx/fy): {', '.join(estimating('aspect'))}")
-    if estimating("p1"):
-        lines += _wrapped("decentering distortion estimated (p1, p2: held-out correspondences "
-                          f"asked for it): {', '.join(estimating('p1'))}")
+    for parameter, said in (("aspect", "pixel aspect estimated (fx/fy)"),
+                            ("p1", "decentering distortion estimated (p1, p2: held-out "
+                                   "correspondences asked for it)")):
+        names = [short[n] for n, c in rig.cameras.items() if c.quality is not None
+                 and isinstance(c.quality.estimated_intrinsics, list)
+                 and parameter in c.quality.estimated_intrinsics]
+        if names:
+            lines += _wrapped(f"{said}: {', '.join(names)}")
     held_fraction = rig.quality.held_pp_std_fraction  # absent in files written before it
     held = [short[n] for n in cases.get(PrincipalPoint.CENTRE, [])
             + cases.get(PrincipalPoint.HELD, [])
