@@ -4,12 +4,14 @@ import numpy as np
 import pytest
 
 from densecalib_ros.core.config import make_config
+from densecalib_ros.core.metrics import projection_map_error
 from densecalib_ros.core.method.multistart import (AGREEMENT_DEG, MAX_AGREEMENT_DEG,
                                                    agreement_deg)
 from densecalib_ros.core.robust.consensus import (UNREGISTERED_PAIR_DEG, WARN_DISAGREEMENT_DEG,
                                                   choose_run, disagreement_warning,
                                                   least_determined_pairs, medoid,
                                                   pair_disagreement_deg, rig_disagreement_deg)
+from densecalib_ros.core.robust.consensus_runs import runs_intrinsics_spread
 from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
 
 NAMES = ["a", "b", "c"]
@@ -313,3 +315,27 @@ def test_a_camera_placed_by_one_pair_alone_is_warned_of():
     # the image refinement re-measures the rig on dense correspondences, often 2-view: the SfM's
     # points that placed the camera, seen by three, checked it
     assert pairwise_only_warning(rig([400, 12, 400], (400, 900, 400))) is None
+
+
+def test_the_runs_spread_of_a_cameras_intrinsics_is_their_sample_deviation():
+    def rig(focal_c, names=NAMES):
+        out = _rig(names=names)
+        for name, cam in out.cameras.items():
+            params = cam.intrinsics.params.copy()
+            params[0] = focal_c if name == "c" else 500.0
+            cam.intrinsics = CameraIntrinsics("RADIAL", 640, 480, params)
+        return out
+
+    spread = runs_intrinsics_spread([rig(490.0), rig(500.0), rig(510.0, names=["a", "c"])],
+                                    NAMES)
+    assert spread["a"] == pytest.approx((0.0, 0.0), abs=1e-9)
+    focal_px, projection_px = spread["c"]
+    assert focal_px == pytest.approx(10.0)  # 490, 500, 510: sample deviation 10
+    # a 2 % focal step moves the mean pixel by about 2 % of its distance from the centre; the
+    # pairs (10, 10, 20 px of focal) give sqrt(mean square / 2) = sqrt(((1 + 1 + 4) / 3) / 2) = 1
+    # such step
+    one_step = projection_map_error(rig(500.0).cameras["c"].intrinsics,
+                                    rig(510.0).cameras["c"].intrinsics)["mean_px"]
+    assert projection_px == pytest.approx(one_step, rel=0.02)
+    assert spread["b"] == pytest.approx((0.0, 0.0), abs=1e-9)  # two runs placed it
+    assert "b" not in runs_intrinsics_spread([rig(500.0), rig(500.0, names=["a", "c"])], NAMES)

@@ -83,6 +83,11 @@ def test_camera_table_names_each_models_parameters(rig):
     assert "f_std and proj_std of cam0 include" in note and "1 % of the long side" in note
     assert "principal point held exactly at the image centre: cam0" in note
     assert note in rig_report(rig)
+    # a calibration whose runs disagree says its sigmas include their spread
+    assert "calibration runs, which disagree" not in note
+    rig.quality.sigmas_runs_spread = 5
+    assert "include how far the 5 calibration runs, which disagree, scatter" in \
+        intrinsics_note(rig).replace("\n  ", " ")
 
 
 def _named_rig(names, model="OPENCV_FISHEYE"):

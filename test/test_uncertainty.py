@@ -14,7 +14,8 @@ from densecalib_ros.core.method.multistart import run_incremental
 from densecalib_ros.core.metrics import projection_map_error
 from densecalib_ros.core.method.reconstruction import build_reconstruction
 from densecalib_ros.core.types import CameraIntrinsics
-from densecalib_ros.core.method.uncertainty import calibration_uncertainty
+from densecalib_ros.core.method.uncertainty import (CameraUncertainty, calibration_uncertainty,
+                                                   with_runs_spread)
 
 from sfm_fixtures import gt_rig, gt_tracks
 
@@ -104,3 +105,14 @@ def test_a_free_principal_point_makes_the_focal_less_certain():
     for name in NAMES[2:]:
         assert mixed[name].principal_point_std_px is None
         assert mixed[name].focal_std_px == pytest.approx(held[name].focal_std_px, rel=1e-9)
+
+
+def test_runs_that_disagree_widen_the_sigmas_by_their_spread_in_quadrature():
+    sigmas = {"a": CameraUncertainty(3.0, 1.5, 0.4), "b": CameraUncertainty(2.0, None, None),
+              "g": CameraUncertainty(None, None, None)}  # given intrinsics: no sigmas
+    widened = with_runs_spread(sigmas, {"a": (4.0, 0.3), "b": (0.0, float("nan")),
+                                        "g": (5.0, 1.0)})
+    assert widened["a"] == CameraUncertainty(5.0, 1.5, pytest.approx(0.5))  # pp: runs hold it
+    assert widened["b"] == CameraUncertainty(2.0, None, None)
+    assert widened["g"] == sigmas["g"]
+    assert sigmas["a"].focal_std_px == 3.0  # the caller's are left as they were

@@ -252,6 +252,8 @@ class RigQuality:
     image_refinement_noise_px: Optional[float] = None
     principal_point_prior_std_fraction: Optional[float] = None
     held_pp_std_fraction: Optional[float] = None  # core.method.uncertainty
+    # The runs that disagree whose spread entered f_std and proj_std (uncertainty.with_runs_spread)
+    sigmas_runs_spread: Optional[int] = None
     matcher: Optional[str] = None
     num_frame_sets: Optional[int] = None
     runtime_s: Optional[float] = None

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import copy
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -237,6 +237,29 @@ def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
             error = projection_map_error(true.intrinsics, cam.intrinsics)["mean_px"]
             if np.isfinite(error):
                 out["projection"].append(error / q.projection_std_px)
+    return out
+
+
+def with_runs_spread(sigmas: dict, spread: dict) -> dict:
+    """sigmas (camera name -> CameraUncertainty) with each camera's focal and projection standard
+    deviations widened by the consensus runs' spread of its answer (spread: name -> (focal px,
+    projection px), consensus_runs.runs_intrinsics_spread), in quadrature.
+
+    For a calibration whose runs disagree: each run's covariance describes the valley it settled
+    in, while the runs, calibrated from different samples of the same correspondences, settled in
+    different ones. How far their answers scatter is then the larger part of the uncertainty,
+    and the one a single run's covariance cannot see (docs/design-notes.md, Sigmas of runs that
+    disagree)."""
+    out = dict(sigmas)
+    for name, (focal_px, projection_px) in spread.items():
+        u = out.get(name)
+        if u is None or u.focal_std_px is None:
+            continue
+        out[name] = replace(u, focal_std_px=float(np.hypot(u.focal_std_px, focal_px)),
+                            projection_std_px=(float(np.hypot(u.projection_std_px, projection_px))
+                                               if u.projection_std_px is not None
+                                               and np.isfinite(projection_px)
+                                               else u.projection_std_px))
     return out
 
 

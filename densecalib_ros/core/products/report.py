@@ -209,8 +209,8 @@ def intrinsics_note(rig: RigCalibration) -> str:
     points were decided (principal_point_case), naming the cameras, with the offset from the
     image centre of those not estimated; which pixel aspects the images estimated; and, for
     calibrations that held principal points in a final bundle adjustment with a
-    held_pp_std_fraction, that their f_std and proj_std include that offset. '' where there is
-    nothing to say."""
+    held_pp_std_fraction, that their f_std and proj_std include that offset; where the runs'
+    spread widened them, that. '' where there is nothing to say."""
     cases: dict[PrincipalPoint, list[str]] = {}
     for name in rig.cameras:
         cases.setdefault(principal_point_case(rig, name), []).append(name)
@@ -260,6 +260,10 @@ def intrinsics_note(rig: RigCalibration) -> str:
         lines += _wrapped(f"f_std and proj_std of {', '.join(held)} include where a real "
                           f"principal point may lie: {100 * held_fraction:g} % of the long side "
                           "(1 sigma per axis) from where the calibration held it")
+    runs = rig.quality.sigmas_runs_spread
+    if runs:
+        lines += _wrapped(f"f_std and proj_std include how far the {runs} calibration runs, which "
+                          "disagree, scatter: the images leave these intrinsics open")
     return "\n".join(lines)
 
 

@@ -10,12 +10,14 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from itertools import combinations
 from typing import Callable, Optional, Sequence
 
 import numpy as np
 
 from ..config import PipelineConfig
 from ..errors import CalibrationError
+from ..metrics import mean_focal_px, projection_map_error
 from ..method.multistart import AGREEMENT_DEG, agreement_deg, cost_truncation_px
 from ..progress import Progress
 from ..types import RigCalibration, Tracks
@@ -196,7 +198,8 @@ class ConsensusRecord:
     the kept run was chosen by its fit, the median disagreement of the kept rig with the other
     runs (deg) and, refined on the images, with them (where the runs were judged so), the least
     determined camera pairs (a, b, deg), and where the runs disagree beyond the warning's bar,
-    the other run at the median disagreement (runner_up: its index and seed)."""
+    the other run at the median disagreement (runner_up: its index and seed) and the spread of
+    each camera's intrinsics over the runs (intrinsics_spread: runs_intrinsics_spread)."""
 
     num_runs: int
     failed_runs: int
@@ -209,6 +212,29 @@ class ConsensusRecord:
     least_determined_pairs: list = field(default_factory=list)
     runner_up: Optional[int] = None
     runner_up_seed: Optional[int] = None
+    intrinsics_spread: dict = field(default_factory=dict)
+
+
+def runs_intrinsics_spread(rigs: Sequence[RigCalibration], camera_names: Sequence[str]
+                           ) -> dict[str, tuple[float, float]]:
+    """Camera name -> (focal px, projection px): how far one run's answer for the camera's
+    intrinsics scatters, from the runs that registered it (at least two). Each run calibrates from
+    its own seeded sample of the tracks, so the runs are a bootstrap of the calibration over its
+    correspondences: the focal's is the runs' sample standard deviation, the projection's the
+    same from the pairs' mean projection-map differences (for two independent draws the mean
+    square difference is twice the variance)."""
+    out = {}
+    for name in camera_names:
+        cams = [rig.cameras[name].intrinsics for rig in rigs if name in rig.cameras]
+        if len(cams) < 2:
+            continue
+        focal_px = float(np.std([mean_focal_px(c) for c in cams], ddof=1))
+        apart_px = [projection_map_error(a, b)["mean_px"] for a, b in combinations(cams, 2)]
+        apart_px = [d for d in apart_px if np.isfinite(d)]
+        projection_px = float(np.sqrt(np.mean(np.square(apart_px)) / 2.0)) if apart_px \
+            else float("nan")
+        out[name] = (focal_px, projection_px)
+    return out
 
 
 def summarize(kept: RigCalibration, runs: ConsensusRuns, choice: Choice,
@@ -243,4 +269,7 @@ def summarize(kept: RigCalibration, runs: ConsensusRuns, choice: Choice,
         other_runs = [k for k in range(len(results)) if k != best]
         record.runner_up = other_runs[int(np.argsort(others)[len(others) // 2])]
         record.runner_up_seed = runs.seeds[record.runner_up]
+    if max(record.disagreement_deg, record.refined_disagreement_deg or 0.0) > \
+            WARN_DISAGREEMENT_DEG:  # what a calibration left warned adds to its sigmas
+        record.intrinsics_spread = runs_intrinsics_spread([r.rig for r in results], camera_names)
     return record

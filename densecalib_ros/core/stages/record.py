@@ -17,7 +17,7 @@ from ..method.known_intrinsics import describe as describe_known
 from ..method.known_intrinsics import given_intrinsics_warnings
 from ..method.plausibility import unlike_lens_warning
 from ..method.reconstruction import colour_points
-from ..method.uncertainty import camera_sigmas
+from ..method.uncertainty import camera_sigmas, with_runs_spread
 from ..method.view_graph import pair_track_counts
 from ..progress import Progress
 from ..robust.consensus import (WARN_DISAGREEMENT_DEG, disagreement_warning,
@@ -68,6 +68,10 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
                                           refinement.sigmas if refinement is not None else None)
     if held_fraction is not None:
         quality.held_pp_std_fraction = held_fraction
+    if consensus is not None and consensus.intrinsics_spread and sigmas and \
+            standing_disagreement_deg(quality) > WARN_DISAGREEMENT_DEG:
+        sigmas = with_runs_spread(sigmas, consensus.intrinsics_spread)
+        quality.sigmas_runs_spread = consensus.num_runs
     for name, cam in rig.cameras.items():
         if name in sigmas and cam.quality is not None:
             cam.quality.focal_std_px = sigmas[name].focal_std_px
