@@ -264,7 +264,7 @@ def load_caliscope(directory: str | os.PathLike, num_sets: int = 8,
         cam_from_world[cam] = _cam_from_world(entry["rotation"], entry["translation"])
     return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets,
                  gt=rig_from_cam_from_world(cameras, cam_from_world),
-                 gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
+                 gt_cam_from_world=cam_from_world, lens="pinhole",
                  notes="4 webcams in a furnished room, a person moving a board (57 frames); "
                        "reference = Caliscope's ChArUco bundle adjustment.")
 
@@ -359,6 +359,6 @@ def load_qualisys_videos(directory: str | os.PathLike, num_sets: int = 8,
         cam_from_world[cam] = _cam_from_world(rotation, centre=centre_m)
     return Scene(name=name or root.name, camera_names=names, frame_sets=frame_sets,
                  gt=rig_from_cam_from_world(cameras, cam_from_world),
-                 gt_cam_from_world=cam_from_world, lens="pinhole", reference_is_estimate=True,
+                 gt_cam_from_world=cam_from_world, lens="pinhole",
                  notes="4-camera inward ring in a mocap lab (portrait, a person on a platform, "
                        "little texture); reference = a Qualisys wand calibration.")
