@@ -245,3 +245,12 @@ def test_real_fisheye_pair_rectifies_and_measures_as_well_as_its_target_calibrat
         pytest.approx(rows["ours"], rel=1e-6)
     sizes = figures["square_size"]
     assert sizes["ours"] == pytest.approx(sizes["cam_stereo.yml"], rel=0.03), sizes
+    # our sigmas held against both references, which stand apart themselves (the left focal
+    # lengths by 1.3 %, the principal points by 3-4 px)
+    apart = figures["references_apart"]
+    assert set(apart) == {"stereo_left", "stereo_right"}
+    assert 0.5 < apart["stereo_left"]["focal_pct"] < 3.0, apart
+    assert all(1.0 < a["pp_px"] < 10.0 for a in apart.values()), apart
+    ratios = figures["error_sigma_ratios"]
+    assert set(ratios) == {"cam_stereo.yml", "left/right.yaml"}
+    assert all(len(r["focal"]) == 2 and len(r["projection"]) == 2 for r in ratios.values())

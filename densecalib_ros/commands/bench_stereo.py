@@ -74,4 +74,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name:18s} {figures['row_error_mrad'][name]:15.2f} "
               f"{'-' if size is None else f'{1000 * size:.2f}':>12s} "
               f"{'-' if px is None else f'{px:.2f}':>10s}")
+    _print_error_sigma_ratios(figures)
     return 0
+
+
+def _print_error_sigma_ratios(figures: dict) -> None:
+    """Our intrinsics against each reference over our sigmas, and the references' own spread."""
+    print("our intrinsics against each target-based calibration, |error| / own sigma per camera "
+          "(focal, principal point, projection):")
+    for reference, ratios in figures["error_sigma_ratios"].items():
+        print(f"  {reference:16s} " + "; ".join(
+            f"{kind.replace('_', ' ')} " + (", ".join(f"{z:.2f}" for z in values) or "-")
+            for kind, values in ratios.items()))
+    print("  the two references apart: " + "; ".join(
+        f"{name} focal {apart['focal_pct']:.2f} %, principal point {apart['pp_px']:.1f} px"
+        for name, apart in figures["references_apart"].items()))

@@ -39,7 +39,7 @@ import pycolmap
 
 from ..config import PipelineConfig
 from ..metrics import invertible_pixel_rays, mean_focal_px, projection_map_error
-from ..types import RigCalibration, colmap_parameter_names
+from ..types import CameraIntrinsics, RigCalibration, colmap_parameter_names
 
 log = logging.getLogger(__name__)
 
@@ -219,22 +219,27 @@ def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
     so a ratio on the lower side where the larger error lies on the better determined axis);
     "projection": the mean projection-map error (metrics.projection_map_error) /
     projection_std_px."""
+    return intrinsics_error_sigma_ratios(rig, {n: c.intrinsics for n, c in truth.cameras.items()})
+
+
+def intrinsics_error_sigma_ratios(rig, truth: dict[str, CameraIntrinsics]
+                                  ) -> dict[str, list[float]]:
+    """error_sigma_ratios against reference intrinsics alone (camera name -> intrinsics)."""
     from ..metrics import principal_point_px
 
     out = {"focal": [], "principal_point": [], "projection": []}
     for name, cam in rig.cameras.items():
-        q, true = cam.quality, truth.cameras.get(name)
+        q, true = cam.quality, truth.get(name)
         if q is None or true is None:
             continue
         if q.focal_std_px:
-            error = mean_focal_px(cam.intrinsics) - mean_focal_px(true.intrinsics)
+            error = mean_focal_px(cam.intrinsics) - mean_focal_px(true)
             out["focal"].append(abs(error) / q.focal_std_px)
         if q.principal_point_std_px:
-            error = np.subtract(principal_point_px(cam.intrinsics),
-                                principal_point_px(true.intrinsics))
+            error = np.subtract(principal_point_px(cam.intrinsics), principal_point_px(true))
             out["principal_point"].append(float(np.abs(error).max()) / q.principal_point_std_px)
         if q.projection_std_px:
-            error = projection_map_error(true.intrinsics, cam.intrinsics)["mean_px"]
+            error = projection_map_error(true, cam.intrinsics)["mean_px"]
             if np.isfinite(error):
                 out["projection"].append(error / q.projection_std_px)
     return out

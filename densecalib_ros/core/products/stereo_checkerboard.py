@@ -9,7 +9,10 @@ judged by what its users do with a stereo pair:
 - rectification: the board's corners, undistorted and rectified with the pair's R and P, should
   share a row; the row error is in units of the rectified focal length (mrad), so calibrations
   rectifying to different focals compare;
-- measurement: the corners triangulated with the rig should be one board square apart.
+- measurement: the corners triangulated with the rig should be one board square apart;
+- its own uncertainty: each camera's intrinsics against each target-based calibration's, over
+  the sigmas the calibration gives (|error| / sigma), beside how far the two references stand
+  apart from each other (about 1 % in focal length: neither is exact).
 Medians over pairs of each pair's median: the board is hand-held, and in a few pairs the two
 images were not taken together (every calibration shows those alike).
 """
@@ -22,6 +25,8 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..metrics import mean_focal_px, principal_point_px
+from ..method.uncertainty import intrinsics_error_sigma_ratios
 from ..types import CameraIntrinsics, RigCalibration, RigCamera
 from .stereo import rectify_pair
 from .triangulation import triangulate
@@ -75,16 +80,36 @@ def target_calibration(folder: Path) -> RigCalibration:
     """cam_stereo.yml as a metric rig (its T is in the board's units)."""
     node = _target_file(folder)
 
-    def lens(k, d):
-        return CameraIntrinsics("OPENCV_FISHEYE", 800, 503,
-                                np.array([k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5, *d]))
-
     right_from_left = np.eye(4)
     right_from_left[:3, :3], right_from_left[:3, 3] = node("R"), node("T").ravel()
     return RigCalibration(LEFT, {
-        LEFT: RigCamera(LEFT, lens(node("K1"), node("D1")), np.eye(4)),
-        RIGHT: RigCamera(RIGHT, lens(node("K2"), node("D2")), right_from_left)},
+        LEFT: RigCamera(LEFT, _fisheye(node("K1"), node("D1")), np.eye(4)),
+        RIGHT: RigCamera(RIGHT, _fisheye(node("K2"), node("D2")), right_from_left)},
         metric_scale=True)
+
+
+def _fisheye(k, d) -> CameraIntrinsics:
+    """A camera of the set from OpenCV's K and fisheye D (COLMAP's pixels: cx, cy + 0.5)."""
+    return CameraIntrinsics("OPENCV_FISHEYE", 800, 503,
+                            np.array([k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5, *d]))
+
+
+def reference_intrinsics(folder: Path) -> dict[str, dict[str, CameraIntrinsics]]:
+    """The two target-based calibrations' intrinsics: reference name -> camera -> intrinsics."""
+    target = target_calibration(folder)
+    ros = {cam: _fisheye(*ros_yaml_camera(folder / f"{side}.yaml")[:2])
+           for cam, side in ((LEFT, "left"), (RIGHT, "right"))}
+    return {"cam_stereo.yml": {n: c.intrinsics for n, c in target.cameras.items()},
+            "left/right.yaml": ros}
+
+
+def references_apart(references: dict) -> dict[str, dict[str, float]]:
+    """Camera -> how far the two references' intrinsics stand apart: focal (%), principal
+    point (px, the larger axis)."""
+    a, b = references.values()
+    return {n: {"focal_pct": 100.0 * abs(mean_focal_px(a[n]) / mean_focal_px(b[n]) - 1.0),
+                "pp_px": float(np.abs(principal_point_px(a[n]) - principal_point_px(b[n])).max())}
+            for n in a}
 
 
 def _rectify(corners: np.ndarray, k, d, r, p) -> np.ndarray:
@@ -147,6 +172,7 @@ def evaluate(folder: Path, rig: RigCalibration, indices=range(1, NUM_PAIRS, 2)) 
     target_rect = [(node(f"K{i}"), node(f"D{i}"), node(f"R{i}"), node(f"P{i}")) for i in (1, 2)]
     ours_size, ours_px = square_size(pairs, rig)
     target_size, target_px = square_size(pairs, target)
+    references = reference_intrinsics(folder)
     return {
         "pairs": len(pairs),
         "row_error_mrad": {"ours": rig_row_error_mrad(pairs, rig),
@@ -157,4 +183,7 @@ def evaluate(folder: Path, rig: RigCalibration, indices=range(1, NUM_PAIRS, 2)) 
         "square_size": {"ours": ours_size, "cam_stereo.yml": target_size},
         "corner_reprojection_px": {"ours": ours_px, "cam_stereo.yml": target_px},
         "metric": bool(rig.metric_scale),
+        "error_sigma_ratios": {name: intrinsics_error_sigma_ratios(rig, cams)
+                               for name, cams in references.items()},
+        "references_apart": references_apart(references),
     }
