@@ -8,7 +8,8 @@ and the point moves off instead. So they are freed only where the correspondence
 adjustment (image_refinement.held_out_errors, its spatial folds) fit better with them than
 without by more than chance (the folds' mean relative excess below -T_95_3DOF standard errors)
 and by more than fitting correlated noise gains (MIN_HELD_OUT_GAIN).
-Cameras adjusted as one camera (one lens) get one decentering, tied across them."""
+Cameras adjusted as one camera (one lens) get one decentering, tied across them; where separate
+cameras of one image size do not ask for one each, one shared by them is tested as well."""
 from __future__ import annotations
 
 import logging
@@ -18,6 +19,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from .prior_adjustment import INTRINSIC_NAMES, Priors
+from .rig_pooling import MIN_POOLED_CAMERAS
 
 # Prior sigma of p1 and p2 (normalised image coordinates): real lenses' decentering coefficients,
 # where target-based calibrations give them, are within about 1e-3.
@@ -25,6 +27,10 @@ TANGENTIAL_PRIOR_STD = 1e-3
 # One-sided 95 % point of Student's t with 3 degrees of freedom: the four folds' mean excess over
 # its standard error must pass it (four folds' standard error is itself rough).
 T_95_3DOF = 2.353
+# Its 97.5 % point, for the shared decentering tested where each camera's own was not asked for
+# (decentering_test's one_size): a second look at the same folds, held stricter, so that the two
+# together call a decentering falsely at most about 7.5 % of the time (5 + 2.5).
+T_975_3DOF = 3.182
 # And the held-out error must fall by at least this fraction: two free parameters per camera gain
 # a few tenths of a percent from what the folds share (neighbouring patches' correlated errors)
 # where the images carry no decentering (docs/design-notes.md, same section).
@@ -48,23 +54,58 @@ def with_decentering(priors: Priors, blocks: Sequence[int], one_cameras: Sequenc
 
 
 def decentering_test(priors: Priors, blocks: Sequence[int], one_cameras: Sequence[list[int]],
-                     held_out: Callable[[Priors], np.ndarray]
-                     ) -> tuple[Priors, float, float]:
+                     held_out: Callable[[Priors], np.ndarray],
+                     one_size: Sequence[list[int]] = ()
+                     ) -> tuple[Priors, float, float, bool]:
     """(`priors`, with decentering free where the held-out folds ask for it (module
     docstring); the folds' mean relative excess of the held-out error with it free over without;
-    its standard error). held_out(priors): per fold the held-out mean squared error under those
-    priors; where it fails (a fold left a camera without data) decentering stays held."""
-    free = with_decentering(priors, blocks, one_cameras)
+    its standard error; whether it is one decentering shared by the cameras of one size).
+    held_out(priors): per fold the held-out mean squared error under those priors; where it
+    fails (a fold left a camera without data) decentering stays held.
+
+    one_size: groups of separate cameras of one image size. Where a decentering of each camera's
+    own is not asked for, one shared by each group is tested next, at T_975_3DOF (two parameters,
+    not two a camera: views of one lens judged separate cameras by a fraction of a percent,
+    entry-P10 at 1536 px)."""
     try:
-        excess = held_out(free) / held_out(priors) - 1.0
+        without = held_out(priors)
+        decided = _tested(priors, with_decentering(priors, blocks, one_cameras), without,
+                          held_out, T_95_3DOF)
+        if not decided[0].tangential_std and one_size:
+            shared = with_decentering(priors, blocks, list(one_cameras) + list(one_size))
+            tested = _tested(priors, shared, without, held_out, T_975_3DOF)
+            if tested[0].tangential_std:
+                return (*tested, True)
     except (ValueError, np.linalg.LinAlgError):
-        return priors, float("nan"), float("nan")
+        return priors, float("nan"), float("nan"), False
+    return (*decided, False)
+
+
+def _tested(priors: Priors, free: Priors, without: np.ndarray,
+            held_out: Callable[[Priors], np.ndarray], t_point: float
+            ) -> tuple[Priors, float, float]:
+    """(free where the folds' held-out error under it falls below `without` by more than
+    t_point standard errors and MIN_HELD_OUT_GAIN, else priors; the mean relative excess; its
+    standard error)."""
+    excess = held_out(free) / without - 1.0
     if not np.isfinite(excess).all():
         return priors, float("nan"), float("nan")
     mean = float(np.mean(excess))
     standard_error = float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
-    asked = mean < -max(T_95_3DOF * standard_error, MIN_HELD_OUT_GAIN)
+    asked = mean < -max(t_point * standard_error, MIN_HELD_OUT_GAIN)
     if not asked:  # where it is, the image refinement says so
         log.debug("decentering held: held-out error %+.2f %% with it free (folds' standard "
                   "error %.2f %%)", 100 * mean, 100 * standard_error)
     return (free if asked else priors), mean, standard_error
+
+
+def one_size_groups(intrinsics: Sequence, blocks: Sequence[int],
+                    one_cameras: Sequence[list[int]]) -> list[list[int]]:
+    """The blocks not adjusted as one camera, grouped by image size, in groups of at least
+    MIN_POOLED_CAMERAS (as the rig pools them); intrinsics: per block."""
+    tied = {b for members in one_cameras for b in members}
+    groups: dict = {}
+    for b in blocks:
+        if b not in tied:
+            groups.setdefault((intrinsics[b].width, intrinsics[b].height), []).append(b)
+    return [members for members in groups.values() if len(members) >= MIN_POOLED_CAMERAS]
