@@ -196,9 +196,8 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         lambda p: held_out_errors(refined, blocks, p, adjustment.noise_px, camera_names, None),
         one_size_groups(refined.intrinsics, blocks, one_cameras))
     if in_place.tangential_std:
-        say(f"decentering distortion (p1, p2) estimated{', one per image size' * shared}: "
-            f"correspondences held out of the adjustment fit {-100 * excess:.2f} % better with "
-            f"it (folds' standard error {100 * standard_error:.2f} %)")
+        say(f"decentering (p1, p2) estimated{', one per image size' * shared}: held-out "
+            f"correspondences fit {-100 * excess:.2f} % better (SE {100 * standard_error:.2f} %)")
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
         for b, v in priors.principal_point_std_px.items()})
