@@ -81,6 +81,22 @@ def decentering_test(priors: Priors, blocks: Sequence[int], one_cameras: Sequenc
     return (*decided, False)
 
 
+def with_decentering_asked(priors: Priors, blocks: Sequence[int],
+                           one_cameras: Sequence[list[int]], intrinsics: Sequence,
+                           say: Callable[[str], None],
+                           held_out: Callable[[Priors], np.ndarray]) -> Priors:
+    """decentering_test's priors for the image refinement's blocks (intrinsics: per block), the
+    separate cameras of one size tested for a shared decentering as well (one_size_groups); said
+    where the decentering is freed."""
+    freed, excess, standard_error, shared = decentering_test(
+        priors, blocks, one_cameras, held_out, one_size_groups(intrinsics, blocks, one_cameras))
+    if freed.tangential_std:
+        say(f"decentering distortion (p1, p2) estimated{', one per image size' * shared}: "
+            f"correspondences held out of the adjustment fit {-100 * excess:.2f} % better with "
+            f"it (folds' standard error {100 * standard_error:.2f} %)")
+    return freed
+
+
 def _tested(priors: Priors, free: Priors, without: np.ndarray,
             held_out: Callable[[Priors], np.ndarray], t_point: float
             ) -> tuple[Priors, float, float]:

@@ -55,7 +55,7 @@ import numpy as np
 from ..parallel import map_threads
 from ..progress import check_stop
 from ..types import Tracks
-from .decentering import decentering_test, one_size_groups
+from .decentering import with_decentering_asked
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .image_folds import (HOLDOUT_FOLDS, determined_by_folds, fold_values,
@@ -191,13 +191,9 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     for members in one_cameras:
         priors = _as_one_camera(refined, members, determined, fold_sigmas, priors)
     check_stop()
-    in_place, excess, standard_error, shared = decentering_test(
-        replace(priors, ties=ties), blocks, one_cameras,
-        lambda p: held_out_errors(refined, blocks, p, adjustment.noise_px, camera_names, None),
-        one_size_groups(refined.intrinsics, blocks, one_cameras))
-    if in_place.tangential_std:
-        say(f"decentering (p1, p2) estimated{', one per image size' * shared}: held-out "
-            f"correspondences fit {-100 * excess:.2f} % better (SE {100 * standard_error:.2f} %)")
+    in_place = with_decentering_asked(
+        replace(priors, ties=ties), blocks, one_cameras, refined.intrinsics, say,
+        lambda p: held_out_errors(refined, blocks, p, adjustment.noise_px, camera_names, None))
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
         for b, v in priors.principal_point_std_px.items()})
