@@ -94,9 +94,10 @@ def _fisheye(k, d) -> CameraIntrinsics:
                             np.array([k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5, *d]))
 
 
-def reference_intrinsics(folder: Path) -> dict[str, dict[str, CameraIntrinsics]]:
-    """The two target-based calibrations' intrinsics: reference name -> camera -> intrinsics."""
-    target = target_calibration(folder)
+def reference_intrinsics(folder: Path, target: RigCalibration
+                         ) -> dict[str, dict[str, CameraIntrinsics]]:
+    """The two target-based calibrations' intrinsics (target: cam_stereo.yml's,
+    target_calibration): reference name -> camera -> intrinsics."""
     ros = {cam: _fisheye(*ros_yaml_camera(folder / f"{side}.yaml")[:2])
            for cam, side in ((LEFT, "left"), (RIGHT, "right"))}
     return {"cam_stereo.yml": {n: c.intrinsics for n, c in target.cameras.items()},
@@ -172,7 +173,7 @@ def evaluate(folder: Path, rig: RigCalibration, indices=range(1, NUM_PAIRS, 2)) 
     target_rect = [(node(f"K{i}"), node(f"D{i}"), node(f"R{i}"), node(f"P{i}")) for i in (1, 2)]
     ours_size, ours_px = square_size(pairs, rig)
     target_size, target_px = square_size(pairs, target)
-    references = reference_intrinsics(folder)
+    references = reference_intrinsics(folder, target)
     return {
         "pairs": len(pairs),
         "row_error_mrad": {"ours": rig_row_error_mrad(pairs, rig),
