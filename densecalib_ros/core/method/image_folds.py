@@ -20,16 +20,29 @@ HOLDOUT_FOLDS = 4  # spatial folds of the held-out check (image_refinement's doc
 HOLDOUT_CELL_FRACTION = 0.1  # fold cells: this fraction of the image's long side
 
 
-def track_folds(state: SfMState) -> np.ndarray:
-    """int (T,): each of state's tracks' spatial fold (HOLDOUT_FOLDS of them): cells of
-    HOLDOUT_CELL_FRACTION of the long side around its first observation, dealt out in turn, so
-    that every fold covers the whole of every image."""
+def _track_cells(state: SfMState) -> tuple[np.ndarray, np.ndarray]:
+    """Each of state's tracks' first observing camera (T,) and its cell there (T, 2): squares
+    of HOLDOUT_CELL_FRACTION of the long side."""
     tracks = state.tracks
     first = np.argmax(tracks.observed(), axis=1)
     xy = tracks.xy_px[np.arange(tracks.num_tracks), first]
     cell_px = HOLDOUT_CELL_FRACTION * max(max(c.width, c.height) for c in state.intrinsics)
-    cell = np.floor(xy / cell_px).astype(np.int64)
+    return first, np.floor(xy / cell_px).astype(np.int64)
+
+
+def track_folds(state: SfMState) -> np.ndarray:
+    """int (T,): each of state's tracks' spatial fold (HOLDOUT_FOLDS of them): the cells
+    around its first observation (_track_cells), dealt out in turn, so that every fold covers
+    the whole of every image."""
+    first, cell = _track_cells(state)
     return (cell[:, 0] + 2 * cell[:, 1] + 3 * first) % HOLDOUT_FOLDS
+
+
+def track_regions(state: SfMState) -> np.ndarray:
+    """int (T,): each of state's tracks' image region, the cell around its first observation
+    (_track_cells) numbered from 0: the units the folds deal out, each one on its own."""
+    first, cell = _track_cells(state)
+    return np.unique(np.c_[first, cell], axis=0, return_inverse=True)[1].ravel()
 
 
 def fold_values(cam) -> tuple[float, ...]:

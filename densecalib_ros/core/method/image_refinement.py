@@ -43,7 +43,9 @@ Separately self-calibrated, each camera traded its intrinsics against its pose i
 pixel aspect is always estimated with its prior (holding a real sensor's aspect at 1 moves the
 principal points far: docs/design-notes.md, Image refinement: folds and the aspect prior); the
 cameras are written as OPENCV (fx, fy, cx, cy, k1, k2, p1, p2), "aspect" listed as estimated where
-the folds determine it; p1 = p2 = 0 but where held-out folds ask for them (core.method.decentering)."""
+the folds determine it; p1 = p2 = 0 but where held-out folds ask for them (core.method.decentering).
+The sigmas reported: per camera the largest of the adjustment's covariance, a sandwich over image
+regions and the folds' (core.method.refinement_uncertainty)."""
 from __future__ import annotations
 
 import logging
@@ -59,14 +61,14 @@ from .decentering import with_decentering_asked
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .image_folds import (HOLDOUT_FOLDS, determined_by_folds, fold_values,
-                          principal_point_determined, track_folds)
+                          principal_point_determined, track_folds, track_regions)
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
-                               adjust_with_priors, intrinsics_vector, posterior_covariance)
+                               adjust_with_priors, intrinsics_vector)
 from .reconstruction import (BAStage, SfMState, bundle_adjust, remove_outlier_observations,
                              reprojection_errors, triangulate, triangulate_tracks)
 from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, random_effects,
                           scatter_per_dof)
-from .uncertainty import CameraUncertainty, projection_std_px
+from .refinement_uncertainty import camera_uncertainty, posterior_covariances
 
 log = logging.getLogger(__name__)
 
@@ -212,18 +214,22 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         scale_std = probed_focal_scale_std(refined, blocks, held, adjustment.noise_px)
     # Sigmas with every prior in place: a held principal point may be off by its prior's spread,
     # and the focal length leans on it.
-    covariance = posterior_covariance(refined, blocks, in_place, adjustment.noise_px)
+    covariances = posterior_covariances(refined, blocks, in_place, adjustment.noise_px,
+                                        track_regions(refined))
     estimated, sigmas = {}, {}
     for c in refined.registered():
         b = int(refined.camera_block[c])
-        if b in covariance:
+        if b in covariances[0]:
             estimated[camera_names[c]] = ["f", "k1", "k2"] + \
                 (["cx", "cy"] if "principal point" in determined[b] else []) + \
                 (["aspect"] if "aspect" in determined[b] else []) + \
                 (["p1", "p2"] if b in in_place.tangential_std else [])
-            sigmas[camera_names[c]] = _camera_uncertainty(
-                refined, b, covariance[b], fold_sigmas.get(b, {}),
-                "principal point" in determined[b], scale_std)
+            cam = refined.intrinsics[b]  # a held point: as far off as real lenses' offsets
+            held_pp_std_px = None if "principal point" in determined[b] else \
+                PP_PRIOR_STD_FRACTION * max(cam.width, cam.height)
+            sigmas[camera_names[c]] = camera_uncertainty(
+                refined, b, (covariances[0][b], covariances[1][b]), fold_sigmas.get(b, {}),
+                held_pp_std_px, scale_std)
     return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas)
 
 
@@ -460,34 +466,3 @@ def _set_principal_point(state: SfMState, block: int, xy_px) -> None:
     p = np.array(cam.params, float)
     p[list(cam.to_pycolmap().principal_point_idxs())] = xy_px
     state.intrinsics[block] = type(cam)(cam.model, cam.width, cam.height, p)
-
-
-def _camera_uncertainty(state: SfMState, block: int, cov: np.ndarray, fold_sigmas: dict,
-                        pp_estimated: bool, focal_scale_std: float = 0.0) -> CameraUncertainty:
-    """Focal, principal point and projection standard deviations of a block from the
-    adjustment's covariance of INTRINSIC_NAMES, in the block's COLMAP model; the focal's and an
-    estimated principal point's at least the folds' (fold_sigmas: determined_by_images), which
-    see the errors the covariance assumes away, and the focal's at least focal_scale_std (a
-    fraction: focal_determination.probed_focal_scale_std) of it."""
-    cam = state.intrinsics[block]
-    f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if cam.model == "OPENCV" else 0.0)
-    n = len(INTRINSIC_NAMES)
-    if cam.model == "OPENCV":  # fx, fy, cx, cy, k1, k2, p1, p2 from f, cx, cy, k1, k2, a, p1, p2
-        J = np.zeros((8, n))
-        J[0, 0] = 1.0
-        J[1, 0], J[1, 5] = 1.0 + a, f
-        J[2, 1] = J[3, 2] = J[4, 3] = J[5, 4] = J[6, 6] = J[7, 7] = 1.0
-    else:  # RADIAL: f, cx, cy, k1, k2
-        J = np.eye(5, n)
-    params_cov = J @ cov @ J.T
-    mean_focal = np.zeros(n)
-    mean_focal[0], mean_focal[5] = 1.0 + a / 2.0, f / 2.0
-    focal_std = max(float(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0))),
-                    fold_sigmas.get("focal_px", 0.0), focal_scale_std * f * (1.0 + a / 2.0))
-    pp_std = float(np.sqrt(max(cov[1, 1], cov[2, 2], 0.0)))
-    if pp_estimated:
-        pp_std = max(pp_std, *fold_sigmas.get("principal_point_axes_px", (0.0,)))
-    else:  # held: at most as far off as its prior allows (real lenses' offsets)
-        pp_std = PP_PRIOR_STD_FRACTION * max(cam.width, cam.height)
-    projection = projection_std_px(cam.to_pycolmap(), list(range(len(cam.params))), params_cov)
-    return CameraUncertainty(focal_std, pp_std, projection)

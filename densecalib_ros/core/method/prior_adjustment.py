@@ -253,8 +253,7 @@ def normal_equations(problem: AdjustmentProblem, noise_px: float):
     Held columns' parts go to a column M, dropped (Wt keeps them: every use of it adds them
     to column M or multiplies them by a zero step)."""
     res, A, B = problem.residuals_and_jacobians()
-    s2 = np.sum(res * res, axis=1)
-    w = 1.0 / (1.0 + s2 / LOSS_SCALE_PX ** 2) / noise_px ** 2  # Cauchy IRLS weight
+    w = cauchy_weights(res, noise_px)
     M, P = problem.num_cam_params, len(problem.X)
     U_cam, g_of_cam, V, g_pt, Wt = _observation_products(res, A, B, w, problem.used,
                                                         problem.c_idx, problem.p_idx,
@@ -265,13 +264,24 @@ def normal_equations(problem: AdjustmentProblem, noise_px: float):
         U[np.ix_(cols[c], cols[c])] += U_cam[c]
         g_cam[cols[c]] += g_of_cam[c]
     U, g_cam = U[:M, :M], g_cam[:M]
+    add_prior_terms(problem, U, g_cam)
+    return U, Wt, V, g_cam, g_pt, problem.obs_cols, res
+
+
+def cauchy_weights(res: np.ndarray, noise_px: float) -> np.ndarray:
+    """(N,) the Cauchy loss's IRLS weight of each observation's residual (N, 2), over sigma_n^2."""
+    s2 = np.sum(res * res, axis=1)
+    return 1.0 / (1.0 + s2 / LOSS_SCALE_PX ** 2) / noise_px ** 2
+
+
+def add_prior_terms(problem: AdjustmentProblem, U: np.ndarray, g_cam: np.ndarray) -> None:
+    """The priors' and ties' information and gradient added to U (M, M) and g_cam (M,)."""
     for col, e, inv_sigma in problem.prior_terms():
         U[col, col] += inv_sigma ** 2
         g_cam[col] += e * inv_sigma
     for cols, d, w in problem.tie_terms():  # the mean profiled out: no pull on the rig's level
         U[np.ix_(cols, cols)] += np.diag(w) - np.outer(w, w) / np.sum(w)
         g_cam[cols] += w * d
-    return U, Wt, V, g_cam, g_pt, problem.obs_cols, res
 
 
 def reduced_system(problem: AdjustmentProblem, U, Wt, V_inv, g_cam, g_pt):
@@ -400,6 +410,12 @@ def _intrinsics_covariance(problem: AdjustmentProblem, noise_px: float, blocks: 
     U, Wt, V, g_cam, g_pt, _, _ = normal_equations(problem, noise_px)
     V_inv = np.linalg.pinv(V, hermitian=True)  # a point its rays do not fix moves by nothing
     S, _ = reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
+    return block_marginals(problem, gauge_held_inverse(problem, S), blocks)
+
+
+def gauge_held_inverse(problem: AdjustmentProblem, S: np.ndarray) -> np.ndarray:
+    """(M, M) the inverse of the reduced camera system S with the gauge's translation
+    coordinate held (its row and column zero), as _intrinsics_covariance describes."""
     d = 1.0 / np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
     keep = np.ones(len(S), bool)
     gauge = np.abs(_scale_direction(problem)) / d  # in the unit-diagonal system's coordinates
@@ -412,6 +428,11 @@ def _intrinsics_covariance(problem: AdjustmentProblem, noise_px: float, blocks: 
     w = np.maximum(w, w[-1] * len(w) * np.finfo(float).eps)
     cov = np.zeros_like(S)
     cov[np.ix_(keep, keep)] = (Q / w) @ Q.T * d_kept[:, None] * d_kept[None, :]
+    return cov
+
+
+def block_marginals(problem: AdjustmentProblem, cov: np.ndarray, blocks: list[int]) -> dict:
+    """Per block the (8, 8) marginal of INTRINSIC_NAMES in cov (M, M) (zeros where held)."""
     out = {}
     for b in blocks:
         cols = problem.intr_cols[b]

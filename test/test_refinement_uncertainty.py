@@ -1,0 +1,75 @@
+"""core.method.refinement_uncertainty: the image refinement's sigmas, the posterior covariance
+beside the cluster-robust one over image regions, on exact projections of a point cloud
+(sfm_fixtures) with noise that is independent, or shared within each image region."""
+import numpy as np
+import pytest
+from sfm_fixtures import centred_state, gt_rig
+
+from densecalib_ros.core.method.image_folds import track_regions
+from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
+from densecalib_ros.core.method.reconstruction import triangulate_tracks
+from densecalib_ros.core.method.refinement_uncertainty import (camera_uncertainty,
+                                                              posterior_covariances)
+from densecalib_ros.core.types import CameraIntrinsics
+
+NUM_CAMERAS = 5
+
+
+def _refined(shared_px: float, seed: int = 2):
+    """A 5-camera rig's tracks with 0.3 px of independent noise, plus shared_px of an offset
+    each image region (track_regions) has in each camera, adjusted with a principal point
+    prior; and the true cameras."""
+    cams, poses = gt_rig(NUM_CAMERAS, seed=seed, pp_jitter_px=0.0)
+    true = [CameraIntrinsics("OPENCV", c.width, c.height,
+                             np.r_[c.params[0], c.params[0], c.params[1:], 0.0, 0.0])
+            for c in cams]
+    state = centred_state(true, poses, 0.3, seed=seed)
+    if shared_px:
+        region = track_regions(state)
+        offset = np.random.default_rng(seed).normal(
+            0.0, shared_px, (region.max() + 1, NUM_CAMERAS, 2))
+        t, c = np.nonzero(state.tracks.observed())
+        state.tracks.xy_px[t, c] += offset[region[t], c]
+        triangulate_tracks(state, max_error_px=50.0)
+    blocks = list(range(NUM_CAMERAS))
+    priors = Priors({b: 10.0 for b in blocks}, {b: None for b in blocks})
+    adjustment = adjust_with_priors(state, blocks, priors)
+    return state, blocks, priors, adjustment.noise_px
+
+
+def _focal_and_pp_stds(covariance: dict) -> np.ndarray:
+    return np.array([[np.sqrt(c[0, 0]), np.sqrt(c[1, 1])] for c in covariance.values()])
+
+
+def test_with_independent_errors_the_regions_agree_with_the_posterior():
+    state, blocks, priors, noise_px = _refined(0.0)
+    posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
+                                                 track_regions(state))
+    ratio = _focal_and_pp_stds(clustered) / _focal_and_pp_stds(posterior)
+    assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
+    assert 0.85 < np.median(ratio) < 1.15, ratio
+
+
+def test_errors_shared_within_regions_widen_the_clustered_sigmas():
+    state, blocks, priors, noise_px = _refined(0.3)
+    posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
+                                                 track_regions(state))
+    ratio = _focal_and_pp_stds(clustered) / _focal_and_pp_stds(posterior)
+    assert np.median(ratio) > 1.3, ratio
+
+
+def test_a_camera_reports_the_largest_sigma_each_source_gives():
+    state, blocks, priors, noise_px = _refined(0.0)
+    posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
+                                                 track_regions(state))
+    pair = (posterior[0], clustered[0])
+    own = camera_uncertainty(state, 0, pair, {}, None)
+    focal, pp = _focal_and_pp_stds({0: posterior[0], 1: clustered[0]}).max(axis=0)
+    assert own.focal_std_px == pytest.approx(focal, rel=1e-6)
+    assert own.principal_point_std_px == pytest.approx(
+        max(np.sqrt(posterior[0][2, 2]), np.sqrt(clustered[0][2, 2]), pp), rel=1e-6)
+    folds = dict(focal_px=3.0 * focal, principal_point_axes_px=(0.1, 4.0 * pp))
+    wider = camera_uncertainty(state, 0, pair, folds, None)
+    assert wider.focal_std_px == pytest.approx(3.0 * focal)
+    assert wider.principal_point_std_px == pytest.approx(4.0 * pp)
+    assert camera_uncertainty(state, 0, pair, folds, 12.0).principal_point_std_px == 12.0
