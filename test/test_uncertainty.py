@@ -116,3 +116,24 @@ def test_runs_that_disagree_widen_the_sigmas_by_their_spread_in_quadrature():
     assert widened["b"] == CameraUncertainty(2.0, None, None)
     assert widened["g"] == sigmas["g"]
     assert sigmas["a"].focal_std_px == 3.0  # the caller's are left as they were
+
+
+@pytest.mark.parametrize("num_cameras", [2, 3, 5])
+def test_the_residuals_of_a_fit_scaled_by_the_points_dof_give_the_pixel_noise(num_cameras):
+    """camera_sigmas' noise: the points take 3 of each track's coordinates, so the residuals of
+    points triangulated from the true cameras are smaller than the noise (a 2-view point's by
+    half) and points_dof_factor scales them back."""
+    from densecalib_ros.core.method.prior_adjustment import points_dof_factor
+    from densecalib_ros.core.method.reconstruction import (SfMState, reprojection_errors,
+                                                           triangulate_tracks)
+    cams, poses = gt_rig(num_cameras, seed=1)
+    tracks = gt_tracks(cams, poses, num_points=3000, noise_px=0.5, outlier_frac=0.0, seed=1)
+    state = SfMState.create(tracks, cams)
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state, max_error_px=50.0)
+    errors = reprojection_errors(state)
+    errors = errors[np.isfinite(errors)]
+    residual_px = float(np.sqrt(np.mean(errors ** 2) / 2.0))
+    assert residual_px < 0.45  # short of the noise by what the points took
+    noise_px = residual_px * points_dof_factor(len(errors), int(state.point_mask().sum()))
+    assert noise_px == pytest.approx(0.5, rel=0.05)

@@ -224,12 +224,9 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
                 (["cx", "cy"] if "principal point" in determined[b] else []) + \
                 (["aspect"] if "aspect" in determined[b] else []) + \
                 (["p1", "p2"] if b in in_place.tangential_std else [])
-            cam = refined.intrinsics[b]  # a held point: as far off as real lenses' offsets
-            held_pp_std_px = None if "principal point" in determined[b] else \
-                PP_PRIOR_STD_FRACTION * max(cam.width, cam.height)
             sigmas[camera_names[c]] = camera_uncertainty(
                 refined, b, (covariances[0][b], covariances[1][b]), fold_sigmas.get(b, {}),
-                held_pp_std_px, scale_std)
+                None if "principal point" in determined[b] else PP_PRIOR_STD_FRACTION, scale_std)
     return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas)
 
 

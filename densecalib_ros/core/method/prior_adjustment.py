@@ -390,9 +390,14 @@ def _residual_scale_px(problem: AdjustmentProblem) -> float:
 def _noise_px(problem: AdjustmentProblem) -> float:
     """The pixel noise sigma_n per coordinate: the residuals' robust scale, corrected for the
     degrees of freedom the points take (a 2-view point absorbs 3 of its 4 coordinates' noise)."""
-    n_obs, n_points = len(problem.t_idx), len(problem.X)
-    dof = max(2 * n_obs - 3 * n_points, 1)
-    return max(_residual_scale_px(problem) * np.sqrt(2 * n_obs / dof), MIN_NOISE_PX)
+    return max(_residual_scale_px(problem) * points_dof_factor(len(problem.t_idx), len(problem.X)),
+               MIN_NOISE_PX)
+
+
+def points_dof_factor(num_observations: int, num_points: int) -> float:
+    """sqrt(2 n / (2 n - 3 p)): how much smaller the residuals of a fit are than the pixel noise
+    where p points take 3 each of the 2 n coordinates of their n observations."""
+    return float(np.sqrt(2 * num_observations / max(2 * num_observations - 3 * num_points, 1)))
 
 
 def _intrinsics_covariance(problem: AdjustmentProblem, noise_px: float, blocks: list[int]) -> dict:

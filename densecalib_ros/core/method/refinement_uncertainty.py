@@ -58,14 +58,15 @@ def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, no
 
 
 def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sigmas: dict,
-                       held_pp_std_px: Optional[float], focal_scale_std: float = 0.0
+                       held_pp_std_fraction: Optional[float], focal_scale_std: float = 0.0
                        ) -> CameraUncertainty:
     """Focal, principal point and projection standard deviations of a block in its COLMAP
     model: per quantity the largest that the covariances of INTRINSIC_NAMES (posterior_covariances'
     two) give, the focal's and an estimated principal point's at least the folds' (fold_sigmas:
     image_refinement.determined_by_images), the focal's at least focal_scale_std (a fraction:
-    focal_determination.probed_focal_scale_std) of it. held_pp_std_px: a held principal point's
-    sigma (its prior's: at most as far off as real lenses' offsets); None where estimated."""
+    focal_determination.probed_focal_scale_std) of it. held_pp_std_fraction: a held principal
+    point's sigma as a fraction of the long side (its prior's: at most as far off as real lenses'
+    offsets); None where estimated."""
     cam = state.intrinsics[block]
     f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if cam.model == "OPENCV" else 0.0)
     n = len(INTRINSIC_NAMES)
@@ -86,5 +87,6 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
         pp_std = max(pp_std, float(np.sqrt(max(cov[1, 1], cov[2, 2], 0.0))))
         projection = max(projection, projection_std_px(
             cam.to_pycolmap(), list(range(len(cam.params))), J @ cov @ J.T))
-    return CameraUncertainty(focal_std, pp_std if held_pp_std_px is None else held_pp_std_px,
-                             projection)
+    if held_pp_std_fraction is not None:
+        pp_std = held_pp_std_fraction * max(cam.width, cam.height)
+    return CameraUncertainty(focal_std, pp_std, projection)

@@ -40,6 +40,7 @@ import pycolmap
 from ..config import PipelineConfig
 from ..metrics import invertible_pixel_rays, mean_focal_px, projection_map_error
 from ..types import CameraIntrinsics, RigCalibration, colmap_parameter_names
+from .prior_adjustment import points_dof_factor
 
 log = logging.getLogger(__name__)
 
@@ -295,8 +296,11 @@ def camera_sigmas(rig: RigCalibration, reconstruction, camera_names: Sequence[st
         return sigmas, None
     pp_refined = [camera_names[c] for c in config.sfm.principal_point_cameras(len(camera_names))]
     given = sorted(config.cameras.known_intrinsics or {})
-    # The RMS is over 2D error vectors; the noise of one pixel coordinate is RMS / sqrt(2).
-    noise_px = float(rig.quality.reprojection_rms_px) / np.sqrt(2.0)
+    # The RMS is over 2D error vectors: one pixel coordinate's residual is RMS / sqrt(2), the
+    # noise larger by the coordinates the points take.
+    quality = rig.quality
+    noise_px = float(quality.reprojection_rms_px) / np.sqrt(2.0) * points_dof_factor(
+        quality.num_observations or 0, quality.num_points or 0)
     try:
         return {**calibration_uncertainty(reconstruction, rig.reference_camera, noise_px,
                                           pp_refined, given), **sigmas}, HELD_PP_STD_FRACTION
