@@ -396,7 +396,10 @@ def _noise_px(problem: AdjustmentProblem) -> float:
 
 def points_dof_factor(num_observations: int, num_points: int) -> float:
     """sqrt(2 n / (2 n - 3 p)): how much smaller the residuals of a fit are than the pixel noise
-    where p points take 3 each of the 2 n coordinates of their n observations."""
+    where p points take 3 each of the 2 n coordinates of their n observations; 1 where no
+    observation is counted (nothing to correct by)."""
+    if num_observations <= 0:
+        return 1.0
     return float(np.sqrt(2 * num_observations / max(2 * num_observations - 3 * num_points, 1)))
 
 
@@ -412,10 +415,16 @@ def _intrinsics_covariance(problem: AdjustmentProblem, noise_px: float, blocks: 
     point), and a pseudo-inverse's relative cut-off on the raw system gave the directions a few
     cameras leave weak no variance at all (docs/design-notes.md, Intrinsics' standard
     deviations: the gauge held, not cut off)."""
-    U, Wt, V, g_cam, g_pt, _, _ = normal_equations(problem, noise_px)
+    return block_marginals(problem, camera_covariance(problem, noise_px)[0], blocks)
+
+
+def camera_covariance(problem: AdjustmentProblem, noise_px: float):
+    """(M, M) the covariance of the camera parameters (_intrinsics_covariance), and the normal
+    equations' Wt, V^-1, g_pt, observations' columns and residuals it came from."""
+    U, Wt, V, g_cam, g_pt, obs_cols, res = normal_equations(problem, noise_px)
     V_inv = np.linalg.pinv(V, hermitian=True)  # a point its rays do not fix moves by nothing
     S, _ = reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
-    return block_marginals(problem, gauge_held_inverse(problem, S), blocks)
+    return gauge_held_inverse(problem, S), Wt, V_inv, g_pt, obs_cols, res
 
 
 def gauge_held_inverse(problem: AdjustmentProblem, S: np.ndarray) -> np.ndarray:

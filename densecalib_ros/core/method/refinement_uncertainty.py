@@ -11,7 +11,8 @@ gradient from the data, summed per image region (the cells the folds deal out,
 image_folds.track_regions) and then squared: errors shared within a region add up as they do in
 the estimate, errors independent between regions average out. Where the errors are independent
 its expectation is the covariance. The folds estimate the same spread from four estimates (three
-degrees of freedom: a sigma from them is often half the true one); the regions are hundreds."""
+degrees of freedom: simulated, their sigma averages 0.73 of the true one); a 4:3 image has about
+75 regions."""
 from __future__ import annotations
 
 from typing import Optional
@@ -19,8 +20,7 @@ from typing import Optional
 import numpy as np
 
 from .prior_adjustment import (AdjustmentProblem, INTRINSIC_NAMES, Priors, add_prior_terms,
-                               block_marginals, cauchy_weights, gauge_held_inverse,
-                               normal_equations, reduced_system)
+                               block_marginals, camera_covariance, cauchy_weights)
 from .reconstruction import SfMState
 from .uncertainty import CameraUncertainty, projection_std_px
 
@@ -32,10 +32,7 @@ def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, no
     cluster-robust one over the tracks' regions (track_region (T,): image_folds.track_regions;
     module docstring)."""
     problem = AdjustmentProblem(state, blocks, priors)
-    U, Wt, V, g_cam, g_pt, obs_cols, res = normal_equations(problem, noise_px)
-    V_inv = np.linalg.pinv(V, hermitian=True)
-    S, _ = reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
-    cov = gauge_held_inverse(problem, S)
+    cov, Wt, V_inv, g_pt, obs_cols, res = camera_covariance(problem, noise_px)
     M = problem.num_cam_params
     # Each observation's share of the camera-side gradient with its point profiled out (zero
     # per point at the solution; gated observations leave it slightly off): A^T w r - W V^-1 g.
