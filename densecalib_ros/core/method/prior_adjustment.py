@@ -1,5 +1,6 @@
 """Bundle adjustment of pinhole cameras with Gaussian priors on the intrinsics the images pin down
-least (maximum a posteriori), and the intrinsics' covariance at its solution.
+least (maximum a posteriori), and the intrinsics' covariance at a solution
+(core.method.prior_covariance).
 
 Why a prior and not a switch: a principal point offset by d px is almost the same image as the
 camera turned by d / f rad; only a second-order warp (~d tan^2 of the ray angle) and the
@@ -75,9 +76,9 @@ class Priors:
 @dataclass
 class PriorAdjustment:
     """What the adjustment did: blocks adjusted, the pixel noise sigma_n (px, per coordinate) it
-    weighted the images by, the MAP cost (at that noise) before and after, iterations, and per block
-    the posterior covariance of INTRINSIC_NAMES (6x6; rows of held parameters are zero) and the
-    prior sigmas it ran with."""
+    weighted the images by, the MAP cost (at that noise) before and after, iterations, and the
+    priors it ran with (prior_covariance.posterior_covariance gives the covariance at the solution: most
+    adjustments, the folds' and the held-out tests', need none)."""
 
     blocks: list[int]
     noise_px: float
@@ -87,7 +88,6 @@ class PriorAdjustment:
     cost_before: float
     cost_after: float
     iterations: int
-    covariance: dict  # block -> (6, 6)
     priors: Priors
 
 
@@ -246,14 +246,18 @@ class AdjustmentProblem:
         self.R, self.t, self.K, self.X = saved["R"], saved["t"], saved["K"], saved["X"]
 
 
-def normal_equations(problem: AdjustmentProblem, noise_px: float):
+def normal_equations(problem: AdjustmentProblem, noise_px: float,
+                     point_weight: Optional[np.ndarray] = None):
     """Robust-weighted normal equations: U (M, M), Wt (N, 3, K), V (P, 3, 3), g_cam (M,),
     g_pt (P, 3), each observation's camera columns (N, K; M where held) and the residuals; K
     columns of each camera: those of its parameters that some camera frees (AdjustmentProblem.used).
     Held columns' parts go to a column M, dropped (Wt keeps them: every use of it adds them
-    to column M or multiplies them by a zero step)."""
+    to column M or multiplies them by a zero step). point_weight (P,): each point's
+    observations' weights scaled by it (0: left out)."""
     res, A, B = problem.residuals_and_jacobians()
     w = cauchy_weights(res, noise_px)
+    if point_weight is not None:
+        w = w * point_weight[problem.p_idx]
     M, P = problem.num_cam_params, len(problem.X)
     U_cam, g_of_cam, V, g_pt, Wt = _observation_products(res, A, B, w, problem.used,
                                                         problem.c_idx, problem.p_idx,
@@ -324,7 +328,6 @@ def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
         if abs(measured - noise_px) <= NOISE_TOLERANCE * noise_px:
             break
         noise_px = measured
-    covariance = _intrinsics_covariance(problem, noise_px, blocks)
     solution = dict(R=problem.R, t=problem.t, K=problem.K, X=problem.X)
     problem.restore(start)
     cost_before = problem.cost(noise_px)
@@ -333,17 +336,7 @@ def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
     return PriorAdjustment(blocks=list(blocks), noise_px=noise_px,
                            residual_scale_px=_residual_scale_px(problem),
                            cost_before=cost_before, cost_after=problem.cost(noise_px),
-                           iterations=iterations, covariance=covariance, priors=priors)
-
-
-def posterior_covariance(state: SfMState, blocks: list[int], priors: Priors,
-                         noise_px: float) -> dict:
-    """Per block the posterior covariance of INTRINSIC_NAMES at `state` as it is (no adjustment)
-    under these priors and pixel noise: where a parameter was held at its prior's centre, the
-    covariance with it free under that prior says how far off it may be, and what the others
-    inherit from it."""
-    problem = AdjustmentProblem(state, blocks, priors)
-    return _intrinsics_covariance(problem, noise_px, blocks)
+                           iterations=iterations, priors=priors)
 
 
 def _levenberg_marquardt(problem: AdjustmentProblem, noise_px: float, max_iterations: int) -> int:
@@ -401,77 +394,6 @@ def points_dof_factor(num_observations: int, num_points: int) -> float:
     if num_observations <= 0:
         return 1.0
     return float(np.sqrt(2 * num_observations / max(2 * num_observations - 3 * num_points, 1)))
-
-
-def _intrinsics_covariance(problem: AdjustmentProblem, noise_px: float, blocks: list[int]) -> dict:
-    """Per block the posterior covariance of INTRINSIC_NAMES (zeros where held): the inverse of
-    the reduced camera system at the solution (the points marginalised) with the gauge's free
-    direction (_scale_direction) fixed by holding the translation coordinate it moves most; the
-    intrinsics' marginal does not depend on which. The points' blocks are pseudo-inverted, not
-    ridged as in the solve (damped_point_inverses): the ridge resists the scale about as much as a
-    3-camera rig's weakest directions, and the held coordinate's choice then moved their sigmas
-    by up to 8 %. The system is inverted scaled to a unit diagonal: its curvatures span ~13
-    orders of magnitude (per radian of rotation against per pixel of a weakly held principal
-    point), and a pseudo-inverse's relative cut-off on the raw system gave the directions a few
-    cameras leave weak no variance at all (docs/design-notes.md, Intrinsics' standard
-    deviations: the gauge held, not cut off)."""
-    return block_marginals(problem, camera_covariance(problem, noise_px)[0], blocks)
-
-
-def camera_covariance(problem: AdjustmentProblem, noise_px: float):
-    """(M, M) the covariance of the camera parameters (_intrinsics_covariance), and the normal
-    equations' Wt, V^-1, g_pt, observations' columns and residuals it came from."""
-    U, Wt, V, g_cam, g_pt, obs_cols, res = normal_equations(problem, noise_px)
-    V_inv = np.linalg.pinv(V, hermitian=True)  # a point its rays do not fix moves by nothing
-    S, _ = reduced_system(problem, U, Wt, V_inv, g_cam, g_pt)
-    return gauge_held_inverse(problem, S), Wt, V_inv, g_pt, obs_cols, res
-
-
-def gauge_held_inverse(problem: AdjustmentProblem, S: np.ndarray) -> np.ndarray:
-    """(M, M) the inverse of the reduced camera system S with the gauge's translation
-    coordinate held (its row and column zero), as _intrinsics_covariance describes."""
-    d = 1.0 / np.sqrt(np.maximum(np.diag(S), np.finfo(float).tiny))
-    keep = np.ones(len(S), bool)
-    gauge = np.abs(_scale_direction(problem)) / d  # in the unit-diagonal system's coordinates
-    if gauge.any():
-        keep[np.argmax(gauge)] = False
-    d_kept = d[keep]
-    w, Q = np.linalg.eigh(S[np.ix_(keep, keep)] * d_kept[:, None] * d_kept[None, :])
-    # A direction the images leave open (below numerical rank, numpy's matrix_rank tolerance)
-    # gets the largest variance double precision can state, not an infinite one.
-    w = np.maximum(w, w[-1] * len(w) * np.finfo(float).eps)
-    cov = np.zeros_like(S)
-    cov[np.ix_(keep, keep)] = (Q / w) @ Q.T * d_kept[:, None] * d_kept[None, :]
-    return cov
-
-
-def block_marginals(problem: AdjustmentProblem, cov: np.ndarray, blocks: list[int]) -> dict:
-    """Per block the (8, 8) marginal of INTRINSIC_NAMES in cov (M, M) (zeros where held)."""
-    out = {}
-    for b in blocks:
-        cols = problem.intr_cols[b]
-        block = np.zeros((_NI, _NI))
-        free = np.flatnonzero(cols >= 0)
-        block[np.ix_(free, free)] = cov[np.ix_(cols[free], cols[free])]
-        out[b] = block
-    return out
-
-
-def _scale_direction(problem: AdjustmentProblem) -> np.ndarray:
-    """The gauge left free (the reference camera's pose is held): the whole scene scaled about
-    the reference camera's centre C, which moves each other camera's translation by R C + t
-    (that camera's t is additive, AdjustmentProblem.apply) and each point by X - C, reprojecting every
-    point as before; in the camera columns (the points are marginalised). Free in the
-    covariance's system, whose points' blocks are pseudo-inverted; the solve's ridge
-    (damped_point_inverses) resists it a little."""
-    out = np.zeros(problem.num_cam_params)
-    ref = problem.reference
-    centre = -problem.R[ref].T @ problem.t[ref]
-    for c in range(len(problem.R)):
-        cols = problem.pose_cols[c]
-        if cols[0] >= 0:
-            out[cols[3:]] = problem.R[c] @ centre + problem.t[c]
-    return out
 
 
 def _write_back(problem: AdjustmentProblem, state: SfMState, blocks: list[int]) -> None:

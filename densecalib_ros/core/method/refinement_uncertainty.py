@@ -19,8 +19,8 @@ from typing import Optional
 
 import numpy as np
 
-from .prior_adjustment import (AdjustmentProblem, INTRINSIC_NAMES, Priors, add_prior_terms,
-                               block_marginals, camera_covariance, cauchy_weights)
+from .prior_adjustment import AdjustmentProblem, INTRINSIC_NAMES, Priors, add_prior_terms
+from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
 from .uncertainty import CameraUncertainty, projection_std_px
 
@@ -28,16 +28,15 @@ from .uncertainty import CameraUncertainty, projection_std_px
 def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
                           track_region: np.ndarray) -> tuple[dict, dict]:
     """Per block the (8, 8) covariance of INTRINSIC_NAMES at `state` as it is, under these
-    priors and pixel noise: the posterior's (prior_adjustment.posterior_covariance) and the
+    priors and pixel noise: the posterior's (prior_covariance.posterior_covariance) and the
     cluster-robust one over the tracks' regions (track_region (T,): image_folds.track_regions;
     module docstring)."""
     problem = AdjustmentProblem(state, blocks, priors)
-    cov, Wt, V_inv, g_pt, obs_cols, res = camera_covariance(problem, noise_px)
+    cov, Wt, V_inv, g_pt, obs_cols, weighted = camera_covariance(problem, noise_px)
     M = problem.num_cam_params
     # Each observation's share of the camera-side gradient with its point profiled out (zero
     # per point at the solution; gated observations leave it slightly off): A^T w r - W V^-1 g.
     _, A, _ = problem.residuals_and_jacobians()
-    weighted = cauchy_weights(res, noise_px)[:, None] * res
     point_pull = np.einsum("pjk,pk->pj", V_inv, g_pt)[problem.p_idx]
     score = np.einsum("nik,ni->nk", A[:, :, problem.used], weighted) \
         - np.einsum("njk,nj->nk", Wt, point_pull)
