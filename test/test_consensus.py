@@ -122,6 +122,7 @@ def test_the_warning_names_the_pairs_the_runs_disagree_about_and_the_camera_in_e
     whole = disagreement_warning(60.0, 3, pairs=[("a", "b", 50.0), ("a", "c", 70.0),
                                                  ("b", "c", 60.0)], num_cameras=3)
     assert "every pair of the cameras calibrated" in whole and "is in each" not in whole
+    assert "(most about a/b (50 deg), a/c (70 deg), b/c (60 deg))" in whole
     # A camera the kept run did not register is failed, not undetermined: its pairs are not named.
     assert least_determined_pairs(_rig(names=["a", "b"]), others, NAMES) == []
 

@@ -39,6 +39,11 @@ class DisconnectedViewGraphError(CalibrationError):
     """The cameras split into groups that share no matches; names the groups."""
 
 
+class UndeterminedRigError(CalibrationError):
+    """The calibration's runs fit the matches about as well and place the cameras far apart
+    (core.robust.consensus.REFUSE_DISAGREEMENT_DEG): no rig is determined; names the pairs."""
+
+
 class FocalInitError(CalibrationError):
     """The initial focal lengths could not be estimated from the fundamental matrices. Raised
     where only camera indices are known: `message` may hold "{cameras}", filled with the

@@ -1,7 +1,8 @@
 """A calibration from frame sets, as its stages (core.stages) in one sequence: the inputs checked
 and the configuration resolved, the frame sets matched, the matches calibrated (consensus runs,
-focal hops, refinement on the images) under the second matcher's policy, and the quality record
-and warnings made from the calibration kept. The rig's frame and units: core.calibration_result.
+focal hops, refinement on the images) under the second matcher's policy, the calibration kept
+refused where its runs do not determine the rig (core.stages.record.refusal), else its quality
+record and warnings made. The rig's frame and units: core.calibration_result.
 """
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from .robust.second_matcher import with_second_matcher
 from .stages.attempt import Attempt, Calibrator
 from .stages.inputs import RigImages, prepare
 from .stages.matching import match_rig
-from .stages.record import finish
+from .errors import UndeterminedRigError
+from .stages.record import finish, refusal
 from .types import RigCalibration, Tracks
 
 
@@ -35,7 +37,8 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     starting from its poses). progress: a core.progress.Progress (stages, time left, a stop
     token) or a callback for its messages. identity_tracks: correspondences by identity (pose
     keypoints: core.method.identity_tracks) each run uses beside the image matches. Raises
-    CalibrationError subclasses, and CalibrationCancelled where the progress's stop token was
+    CalibrationError subclasses (UndeterminedRigError: refused, stages.record.refusal), and
+    CalibrationCancelled where the progress's stop token was
     set."""
     started = time.perf_counter()
     progress = Progress.of(progress)
@@ -53,6 +56,10 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
     finally:
         for calibrator in calibrators.values():
             calibrator.close()
+    refused = refusal(kept.result.rig, kept.config, images.camera_names, kept.consensus,
+                      kept.matched.keypoint_tracks)
+    if refused:
+        raise UndeterminedRigError(refused)
     finish(kept.result, images, kept.config, kept.consensus, rematch,
            kept.matched.keypoint_tracks, time.perf_counter() - started, progress,
            keypoints=kept.matched.identity_tracks is not None)

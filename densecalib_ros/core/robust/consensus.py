@@ -64,6 +64,12 @@ EARLY_STOP_RUNS = 2
 # other runs put the cameras where the kept one would count as wrong; runs closer than it can
 # still count as one answer (multistart.agreement_deg), so both are that one threshold.
 WARN_DISAGREEMENT_DEG = MAX_AGREEMENT_DEG
+# The kept run's median disagreement with the other runs that fit the matches as well above which
+# the calibration is refused, not warned: AUC@30's threshold, the bench's coarsest. Runs that fit
+# equally well and stand this far apart disagree about where the cameras are, not how precisely,
+# and nothing in the matches prefers one (rigs kept this far from their runs have all been wrong:
+# 53-151 deg; right ones stood 16 deg apart at most: docs/design-notes.md, Refused, not warned).
+REFUSE_DISAGREEMENT_DEG = 30.0
 MAX_PAIRS_SAID = 3  # a warning names this many pairs at most: the rest is in the quality record
 # A run whose truncated reprojection cost on the common tracks exceeds the best run's by
 # WORSE_FIT_RATIO (multistart) is not kept: a wrong reconstruction, not an alternative.
@@ -236,29 +242,44 @@ def disagreement_warning(disagreement_deg: float, num_runs: int,
     (every pair of them named: the whole rig is undetermined)."""
     if disagreement_deg <= WARN_DISAGREEMENT_DEG:
         return None
-    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
-             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
     return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
             "(median over camera pairs) from the others, so the images allow quite different rigs "
             "and this one may be wrong." + _pairs_said(pairs, shared_matches or {}, num_cameras)
-            + " Add frame sets (time-aligned images of a changing scene) or "
-            "more overlap between cameras, or use --share-intrinsics (node: share_intrinsics; "
-            "SfMConfig.share_intrinsics) if "
-            "the cameras are identical units." + asift)
+            + _remedies(perspective_on_sift))
+
+
+def refusal_message(disagreement_deg: float, num_runs: int, perspective_on_sift: bool = False,
+                    pairs: Sequence[tuple[str, str, float]] = (),
+                    shared_matches: Optional[dict] = None, num_cameras: int = 0) -> str:
+    """Why a calibration whose runs disagree beyond REFUSE_DISAGREEMENT_DEG is refused, with the
+    pairs and remedies of disagreement_warning (its arguments)."""
+    return (f"the calibration is refused: its {num_runs} runs, which fit the matches about as "
+            f"well, place the cameras {disagreement_deg:.0f} deg apart (median over camera "
+            "pairs), so these images do not determine the rig and any of the runs' rigs could be "
+            "that far off." + _pairs_said(pairs, shared_matches or {}, num_cameras)
+            + _remedies(perspective_on_sift))
+
+
+def _remedies(perspective_on_sift: bool) -> str:
+    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
+             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
+    return (" Add frame sets (time-aligned images of a changing scene) or more overlap between "
+            "cameras, or use --share-intrinsics (node: share_intrinsics; "
+            "SfMConfig.share_intrinsics) if the cameras are identical units." + asift)
 
 
 def _pairs_said(pairs: Sequence[tuple[str, str, float]], shared: dict, num_cameras: int) -> str:
     if not pairs:
         return ""
-    if num_cameras >= 3 and len(pairs) == num_cameras * (num_cameras - 1) // 2:
-        return " The runs disagree about every pair of the cameras calibrated: the rig is not " \
-               "determined."
-
     def said(a: str, b: str, deg: float) -> str:
         count = shared.get((a, b), shared.get((b, a)))
         return f"{a}/{b} ({deg:.0f} deg" + (f"; {count} shared matches)" if count is not None
                                             else ")")
-    text = " Least determined: " + ", ".join(said(*p) for p in pairs[:MAX_PAIRS_SAID]) + "."
+    named = ", ".join(said(*p) for p in pairs[:MAX_PAIRS_SAID])
+    if num_cameras >= 3 and len(pairs) == num_cameras * (num_cameras - 1) // 2:
+        return " The runs disagree about every pair of the cameras calibrated: the rig is not " \
+               f"determined (most about {named})."
+    text = " Least determined: " + named + "."
     common = set(pairs[0][:2]).intersection(*(set(p[:2]) for p in pairs))
     if len(common) == 1:
         camera = common.pop()

@@ -213,6 +213,7 @@ class ConsensusRecord:
     runner_up: Optional[int] = None
     runner_up_seed: Optional[int] = None
     intrinsics_spread: dict = field(default_factory=dict)
+    fitting_disagreement_deg: Optional[float] = None
 
 
 def runs_intrinsics_spread(rigs: Sequence[RigCalibration], camera_names: Sequence[str]
@@ -252,6 +253,9 @@ def summarize(kept: RigCalibration, runs: ConsensusRuns, choice: Choice,
     record = ConsensusRecord(len(results), runs.failed, runs.seeds[best], runs.settled,
                              len(choice.worse_fit), choice.by_fit,
                              float(np.median(others)) if len(others) else 0.0)
+    fitting = [d for k, d in zip([k for k in range(len(results)) if k != best], others)
+               if k not in choice.worse_fit]
+    record.fitting_disagreement_deg = float(np.median(fitting)) if fitting else None
     said = ""
     if runs.refined_deg is not None and len(results) > 1:
         record.refined_disagreement_deg = float(np.median(np.delete(runs.refined_deg[best],

@@ -20,8 +20,8 @@ from ..method.reconstruction import colour_points
 from ..method.uncertainty import camera_sigmas, with_runs_spread
 from ..method.view_graph import pair_track_counts
 from ..progress import Progress
-from ..robust.consensus import (WARN_DISAGREEMENT_DEG, disagreement_warning,
-                                standing_disagreement_deg)
+from ..robust.consensus import (REFUSE_DISAGREEMENT_DEG, WARN_DISAGREEMENT_DEG,
+                                disagreement_warning, refusal_message, standing_disagreement_deg)
 from ..robust.consensus_runs import ConsensusRecord
 from ..robust.second_matcher import Rematch, perspective_on_sift
 from ..types import RigCalibration, Tracks
@@ -158,6 +158,25 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
 # matches alone: nothing in the rig checks them (the floor known_intrinsics judges a focal by, for
 # the same reason: two views do not pin it down).
 MIN_CROSS_CHECKED_OBSERVATIONS = 30
+
+
+def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[str],
+            consensus: Optional[ConsensusRecord], match_tracks: Optional[Tracks]
+            ) -> Optional[str]:
+    """Why the finished rig is refused (consensus.REFUSE_DISAGREEMENT_DEG): the other runs that
+    fit the matches about as well stand that far from it, and so does the runner-up where both
+    were refined on the images; None where it is not refused."""
+    if consensus is None or consensus.fitting_disagreement_deg is None:
+        return None
+    standing = standing_disagreement_deg(rig.quality)
+    if standing is None or \
+            min(standing, consensus.fitting_disagreement_deg) <= REFUSE_DISAGREEMENT_DEG:
+        return None
+    on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
+    return refusal_message(consensus.fitting_disagreement_deg,
+                           consensus.num_runs - consensus.worse_fit_runs, on_sift,
+                           consensus.least_determined_pairs,
+                           _shared_matches(match_tracks, camera_names), len(rig.cameras))
 
 
 def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:

@@ -1,0 +1,88 @@
+"""A calibration refused where its runs, fitting the matches about as well, place the cameras
+far apart (core.robust.consensus.REFUSE_DISAGREEMENT_DEG; core.stages.record.refusal): the
+kept run's disagreement with the runs that fit as well (consensus_runs.summarize), the rule, and
+the message naming the pairs. The pipeline raises it as UndeterminedRigError (exit code 1)."""
+import re
+from types import SimpleNamespace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from densecalib_ros.core.config import make_config
+from densecalib_ros.core.progress import Progress
+from densecalib_ros.core.robust.consensus import (REFUSE_DISAGREEMENT_DEG, Choice, medoid,
+                                                  refusal_message)
+from densecalib_ros.core.robust.consensus_runs import ConsensusRuns, summarize
+from densecalib_ros.core.stages.record import refusal
+from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+
+NAMES = ["a", "b", "c", "d"]
+
+
+def _rig(yaws_deg) -> RigCalibration:
+    """Cameras turned by yaws_deg about the vertical."""
+    cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
+    cameras = {}
+    for n, yaw in zip(NAMES, yaws_deg):
+        cam_from_rig = np.eye(4)
+        cam_from_rig[:3, :3] = Rotation.from_euler("y", yaw, degrees=True).as_matrix()
+        cameras[n] = RigCamera(n, cam, cam_from_rig)
+    return RigCalibration("a", cameras)
+
+
+def _record(rigs, worse_fit=()):
+    """summarize's record of runs whose rigs are `rigs`, the first kept; worse_fit: the runs that
+    fit the common tracks clearly worse."""
+    config = make_config("regular", "incremental")
+    runs = ConsensusRuns(lambda *args: None, config, NAMES, Progress.of(None))
+    runs.results = [SimpleNamespace(rig=r) for r in rigs]
+    runs.seeds = list(range(len(rigs)))
+    _, D = medoid(rigs, NAMES)
+    choice = Choice(0, D, np.zeros(len(rigs)), list(worse_fit), by_fit=True)
+    record = summarize(rigs[0], runs, choice, NAMES, Progress.of(None))
+    rigs[0].quality.consensus_disagreement_deg = record.disagreement_deg
+    return record, config
+
+
+def test_runs_that_fit_as_well_and_stand_far_apart_refuse_the_calibration():
+    kept = _rig([0, 60, 120, 180])
+    others = [_rig([0, 60 + 70 * k, 120 - 50 * k, 180 + 40 * k]) for k in (1, -1, 2)]
+    record, config = _record([kept] + others)
+    assert record.fitting_disagreement_deg > REFUSE_DISAGREEMENT_DEG
+    message = refusal(kept, config, NAMES, record, None)
+    assert message is not None and message.startswith("the calibration is refused: its 4 runs")
+    assert re.search(r"(most about|Least determined:) [a-d]/[a-d] \(\d+ deg\)", message), message
+    assert "Add frame sets" in message
+
+
+def test_runs_far_apart_that_fit_clearly_worse_do_not_refuse_it():
+    """The runs that fit clearly worse are wrong reconstructions (consensus.choose_run): a kept
+    rig standing far from them is not in doubt for it; one close run that fits as well keeps it."""
+    kept = _rig([0, 60, 120, 180])
+    close = _rig([0, 61, 121, 181])
+    far = [_rig([0, 60 + 70 * k, 120 - 50 * k, 180 + 40 * k]) for k in (1, -1)]
+    record, config = _record([kept, close] + far, worse_fit=[2, 3])
+    assert record.disagreement_deg > REFUSE_DISAGREEMENT_DEG  # warned as before
+    assert record.fitting_disagreement_deg < 2.0
+    assert refusal(kept, config, NAMES, record, None) is None
+
+
+def test_runs_apart_within_the_bar_are_warned_not_refused():
+    kept = _rig([0, 60, 120, 180])
+    others = [_rig([0, 60 + 12 * k, 120 - 9 * k, 180 + 7 * k]) for k in (1, -1, 2)]
+    record, config = _record([kept] + others)
+    assert 3.0 < record.fitting_disagreement_deg < REFUSE_DISAGREEMENT_DEG
+    assert refusal(kept, config, NAMES, record, None) is None
+    # A runner-up refined on the images that meets the kept rig there keeps it as well.
+    far = [_rig([0, 60 + 70 * k, 120 - 50 * k, 180 + 40 * k]) for k in (1, -1, 2)]
+    record, config = _record([kept] + far)
+    kept.quality.consensus_refined_disagreement_deg = 1.0
+    assert refusal(kept, config, NAMES, record, None) is None
+
+
+def test_the_refusal_names_the_camera_in_each_undetermined_pair():
+    message = refusal_message(75.0, 5, perspective_on_sift=True,
+                              pairs=[("a", "d", 80.0), ("b", "d", 70.0)],
+                              shared_matches={("a", "d"): 12}, num_cameras=4)
+    assert "75 deg apart" in message and "a/d (80 deg; 12 shared matches)" in message
+    assert "d is in each" in message and "--matcher asift" in message
