@@ -199,7 +199,10 @@ class ConsensusRecord:
     runs (deg) and, refined on the images, with them (where the runs were judged so), the least
     determined camera pairs (a, b, deg), and where the runs disagree beyond the warning's bar,
     the other run at the median disagreement (runner_up: its index and seed) and the spread of
-    each camera's intrinsics over the runs (intrinsics_spread: runs_intrinsics_spread)."""
+    each camera's intrinsics over the runs (intrinsics_spread: runs_intrinsics_spread); the
+    median disagreement with the other runs that fit about as well (fitting_disagreement_deg:
+    choose_run's worse_fit left out; None where no other run is left), which a refusal reads
+    (core.stages.record.refusal)."""
 
     num_runs: int
     failed_runs: int
