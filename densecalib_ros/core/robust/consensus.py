@@ -68,7 +68,8 @@ WARN_DISAGREEMENT_DEG = MAX_AGREEMENT_DEG
 # the calibration is refused, not warned: AUC@30's threshold, the bench's coarsest. Runs that fit
 # equally well and stand this far apart disagree about where the cameras are, not how precisely,
 # and nothing in the matches prefers one (rigs kept this far from their runs have all been wrong:
-# 53-151 deg; right ones stood 16 deg apart at most: docs/design-notes.md, Refused, not warned).
+# 53-151 deg; right or partly right ones stood 22 deg apart at most: docs/design-notes.md,
+# Refused, not warned).
 REFUSE_DISAGREEMENT_DEG = 30.0
 MAX_PAIRS_SAID = 3  # a warning names this many pairs at most: the rest is in the quality record
 # A run whose truncated reprojection cost on the common tracks exceeds the best run's by

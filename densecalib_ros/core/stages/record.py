@@ -166,11 +166,11 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
     """Why the finished rig is refused (consensus.REFUSE_DISAGREEMENT_DEG): the other runs that
     fit the matches about as well stand that far from it, and so does the runner-up where both
     were refined on the images; None where it is not refused."""
-    if consensus is None or consensus.fitting_disagreement_deg is None:
+    if consensus is None or consensus.fitting_disagreement_deg is None or \
+            consensus.fitting_disagreement_deg <= REFUSE_DISAGREEMENT_DEG:
         return None
-    standing = standing_disagreement_deg(rig.quality)
-    if standing is None or \
-            min(standing, consensus.fitting_disagreement_deg) <= REFUSE_DISAGREEMENT_DEG:
+    refined = rig.quality.consensus_refined_disagreement_deg  # the runner-up's, both refined
+    if refined is not None and refined <= REFUSE_DISAGREEMENT_DEG:
         return None
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     return refusal_message(consensus.fitting_disagreement_deg,
