@@ -287,7 +287,7 @@ def _refinement_ties(cams, seed):
     start.active &= state.active
     _, fold_sigmas = ir.determined_by_images(start, tracks, blocks, priors)
     said = []
-    ties, _ = ir.rig_ties(state, blocks, fold_sigmas, priors, adjustment.noise_px,
+    ties, _, _ = ir.rig_ties(state, blocks, fold_sigmas, priors, adjustment.noise_px,
                            [f"cam{c}" for c in blocks], said.append)
     return dict(ties), said
 
@@ -359,6 +359,7 @@ def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
     refinement = ir.refine_on_images(state, None, None, names, None, 0, said.append, {},
                                      _GivenCorrespondences(tracks))
     assert any("as one" in s for s in said), said
+    assert refinement.one_camera == {tuple(names): True}  # the verdict, as one_model reads it
     assert len({tuple(refinement.estimated[n]) for n in names}) == 1
     focal_std = [refinement.uncertainty[n].focal_std_px for n in names]
     # each image's own folds' sigma of its focal length, as the stage measures it per camera

@@ -30,10 +30,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output folder: new, empty or an earlier calibration (replaced)")
     parser.add_argument("--preset", choices=PRESETS, default="regular",
                         help="camera type: regular (RADIAL) or fisheye (OPENCV_FISHEYE)")
-    parser.add_argument("--lens", nargs="+", default=None, metavar="NAME=LENS",
-                        help="cameras whose lens differs from the preset's, for a rig mixing "
-                             "lenses: --lens cam3=fisheye (or NAME=pinhole under --preset "
-                             "fisheye); each camera is then calibrated with its lens's model")
     parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see docs/method.md)")
     parser.add_argument("--matcher", default=None,
@@ -47,32 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default asift; none: keep sift's)")
     parser.add_argument("--max-side", type=number_in(64, integer=True), default=None, metavar="PX",
                         help="match images at most at this size (default 1024)")
-    parser.add_argument("--share-intrinsics", action="store_true",
-                        help="one set of intrinsics for cameras of the same image size: use it "
-                             "when the cameras are identical units (same model, lens and zoom)")
-    parser.add_argument("--focal-px", nargs="+", default=None, metavar="PX|NAME=PX",
-                        help="known focal lengths in pixels, one for all cameras (--focal-px 800) "
-                             "or per camera (--focal-px cam0=800 cam1=760): the calibration "
-                             "starts from them instead of estimating them, and still refines "
-                             "them. From a datasheet: focal_mm / pixel_pitch_mm, or "
-                             "(width / 2) / tan(horizontal_fov / 2)")
-    parser.add_argument("--intrinsics", nargs="+", default=None, metavar="PATH|NAME=PATH",
-                        help="intrinsics to keep, for cameras calibrated before (in the lab with "
-                             "a target, or a previous calibration whose lenses were not touched): "
-                             "ROS camera_info YAML files (camera = the file's camera_name, or "
-                             "NAME=PATH), a folder of them, a densecalib calibration, an anipose "
-                             "calibration.toml, a Kalibr camchain or an OpenCV calibration "
-                             "file (a stereo file's two cameras named in order: "
-                             "left,right=PATH); those "
-                             "cameras keep them exactly and only the extrinsics (and the other "
-                             "cameras' intrinsics) are calibrated")
-    parser.add_argument("--bag-camera-info", action="store_true",
-                        help="with --bag: keep the intrinsics the bag's CameraInfo topics carry "
-                             "(<image topic namespace>/camera_info, first message), like "
-                             "--intrinsics for every camera")
-    parser.add_argument("--ignore-exif", action="store_true",
-                        help="do not start from the focal lengths in the images' EXIF (use it "
-                             "when the images were cropped, or taken with digital zoom)")
+    _add_camera_arguments(parser)
     parser.add_argument("--consensus-runs", type=positive(integer=True), default=5, metavar="N",
                         help="sample + SfM up to N times with different seeds and keep the run "
                              "that fits all keypoint matches best (default 5; it stops after 2 runs "
@@ -101,6 +72,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default=-1, help="cores to use (-1 = all this process may run on): the "
                         "SfM's trials run side by side in worker processes; the rig is the same "
                         "with any number")
+
+
+def _add_camera_arguments(parser: argparse.ArgumentParser) -> None:
+    """What the user knows of the cameras: lenses, units, focal lengths, intrinsics, EXIF."""
+    parser.add_argument("--lens", nargs="+", default=None, metavar="NAME=LENS",
+                        help="cameras whose lens differs from the preset's, for a rig mixing "
+                             "lenses: --lens cam3=fisheye (or NAME=pinhole under --preset "
+                             "fisheye); each camera is then calibrated with its lens's model")
+    parser.add_argument("--share-intrinsics", action="store_true",
+                        help="one set of intrinsics for cameras of the same image size: use it "
+                             "when the cameras are identical units (same model, lens and zoom)")
+    parser.add_argument("--separate-intrinsics", action="store_true",
+                        help="the cameras are of different models: never calibrate them as units "
+                             "of one model (tried, where they could be, when the calibration "
+                             "runs disagree)")
+    parser.add_argument("--focal-px", nargs="+", default=None, metavar="PX|NAME=PX",
+                        help="known focal lengths in pixels, one for all cameras (--focal-px 800) "
+                             "or per camera (--focal-px cam0=800 cam1=760): the calibration "
+                             "starts from them instead of estimating them, and still refines "
+                             "them. From a datasheet: focal_mm / pixel_pitch_mm, or "
+                             "(width / 2) / tan(horizontal_fov / 2)")
+    parser.add_argument("--intrinsics", nargs="+", default=None, metavar="PATH|NAME=PATH",
+                        help="intrinsics to keep, for cameras calibrated before (in the lab with "
+                             "a target, or a previous calibration whose lenses were not touched): "
+                             "ROS camera_info YAML files (camera = the file's camera_name, or "
+                             "NAME=PATH), a folder of them, a densecalib calibration, an anipose "
+                             "calibration.toml, a Kalibr camchain or an OpenCV calibration "
+                             "file (a stereo file's two cameras named in order: "
+                             "left,right=PATH); those "
+                             "cameras keep them exactly and only the extrinsics (and the other "
+                             "cameras' intrinsics) are calibrated")
+    parser.add_argument("--bag-camera-info", action="store_true",
+                        help="with --bag: keep the intrinsics the bag's CameraInfo topics carry "
+                             "(<image topic namespace>/camera_info, first message), like "
+                             "--intrinsics for every camera")
+    parser.add_argument("--ignore-exif", action="store_true",
+                        help="do not start from the focal lengths in the images' EXIF (use it "
+                             "when the images were cropped, or taken with digital zoom)")
 
 
 def _exif_focals(paths, frame_sets, names) -> dict:
@@ -197,11 +206,15 @@ def _config(args: argparse.Namespace):
     if args.keep_intrinsics and not args.previous:
         raise InputError("--keep-intrinsics keeps the intrinsics of the --previous calibration: "
                          "give --previous OLD_OUT, or the files with --intrinsics.")
+    if args.share_intrinsics and args.separate_intrinsics:
+        raise InputError("--share-intrinsics says the cameras are units of one model and "
+                         "--separate-intrinsics that they differ: give one of them.")
     if args.bag_camera_info and not args.bag:
         raise InputError("--bag-camera-info reads the CameraInfo topics of a bag: use it with "
                          "--bag, or give camera_info YAML files with --intrinsics.")
     overrides = {"sampling__seed": args.seed, "sfm__num_threads": args.jobs,
                  "sfm__share_intrinsics": args.share_intrinsics,
+                 "cameras__units_from_images": not args.separate_intrinsics,
                  "consensus_runs": args.consensus_runs,
                  "second_matcher": None if args.second_matcher == "none" else args.second_matcher,
                  "cameras__initial_focal_px": parse_focal_px(args.focal_px),

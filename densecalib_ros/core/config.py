@@ -164,6 +164,10 @@ class CameraData:
     # apart far better determined; the refinement on the images then estimates each unit's own,
     # as one camera where the images cannot tell them apart (core.method.image_refinement).
     identical_units: tuple = ()
+    # Where nothing names the units: whether a calibration whose runs disagree may try the
+    # cameras as units of one model, kept where the images bear it out (core/robust/one_model.py).
+    # False where the user knows the cameras are of different models.
+    units_from_images: bool = True
 
 
 @dataclass(frozen=True)

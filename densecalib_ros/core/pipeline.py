@@ -1,8 +1,9 @@
 """A calibration from frame sets, as its stages (core.stages) in one sequence: the inputs checked
 and the configuration resolved, the frame sets matched, the matches calibrated (consensus runs,
-focal hops, refinement on the images) under the second matcher's policy, the calibration kept
-refused where its runs do not determine the rig (core.stages.record.refusal), else its quality
-record and warnings made. The rig's frame and units: core.calibration_result.
+focal hops, refinement on the images) under the second matcher's policy and, where the cameras'
+own intrinsics leave the rig undetermined, again as units of one model (core.robust.one_model);
+the calibration kept refused where its runs do not determine the rig (core.stages.record.refusal),
+else its quality record and warnings made. The rig's frame and units: core.calibration_result.
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from .calibration_result import CalibrationResult
 from .config import PipelineConfig
 from .method.prior_adjustment import SUPPORTED_MODELS
 from .progress import Progress, estimated_run_s, stoppable
+from .robust.one_model import with_one_model
 from .robust.second_matcher import with_second_matcher
 from .stages.attempt import Attempt, Calibrator
 from .stages.inputs import RigImages, prepare
@@ -53,6 +55,9 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
                                         identity_tracks)
             kept, rematch = with_second_matcher(calibrate, images.config, images.camera_names,
                                                 fresh=previous is None, say=progress.say)
+            kept, _ = with_one_model(kept, _again_with(images, kept, progress, calibrators),
+                                     images.config, images.camera_names, images.image_sizes,
+                                     fresh=previous is None, say=progress.say)
     finally:
         for calibrator in calibrators.values():
             calibrator.close()
@@ -81,6 +86,17 @@ def planned_stages(config: PipelineConfig, num_cameras: int) -> list[str]:
     refines = config.refine_on_images and all(m in SUPPORTED_MODELS
                                               for m in config.sfm.models(num_cameras))
     return ["match", "calibrate"] + (["refine"] if refines else [])
+
+
+def _again_with(images: RigImages, kept: Attempt, progress: Progress, calibrators: dict
+                ) -> Callable[[PipelineConfig], Attempt]:
+    """calibrate_as(config) for with_one_model: kept's matches calibrated again with `config`
+    (its calibrator closed with the others)."""
+    def calibrate_as(config: PipelineConfig) -> Attempt:
+        progress.extend(planned_stages(config, len(images.camera_names))[1:])  # no matching
+        calibrators["one model"] = Calibrator(images, kept.matched, config, progress)
+        return calibrators["one model"].calibrate()
+    return calibrate_as
 
 
 def _calibrate_with(images: RigImages, matcher, previous: Optional[RigCalibration],

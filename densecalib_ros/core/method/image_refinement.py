@@ -49,7 +49,7 @@ regions and the folds' (core.method.refinement_uncertainty)."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -115,6 +115,9 @@ class ImageRefinement:
     num_tracks: int
     estimated: dict  # camera name -> list of INTRINSIC_NAMES the images pinned down
     uncertainty: dict  # camera name -> CameraUncertainty
+    # The one-camera test's verdicts (rig_ties): the cameras of each group tested -> whether
+    # they fit held-out correspondences as one camera does.
+    one_camera: dict = field(default_factory=dict)
 
 
 def applies(state: SfMState) -> bool:
@@ -188,8 +191,8 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.drop_weak_points()
     check_stop()
     determined, fold_sigmas = determined_by_images(start, tracks, blocks, priors)
-    ties, one_cameras = rig_ties(refined, blocks, fold_sigmas, priors, adjustment.noise_px,
-                                  camera_names, say)
+    ties, one_cameras, judged = rig_ties(refined, blocks, fold_sigmas, priors,
+                                         adjustment.noise_px, camera_names, say)
     for members in one_cameras:
         priors = _as_one_camera(refined, members, determined, fold_sigmas, priors)
     check_stop()
@@ -227,7 +230,10 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
             sigmas[camera_names[c]] = camera_uncertainty(
                 refined, b, (covariances[0][b], covariances[1][b]), fold_sigmas.get(b, {}),
                 None if "principal point" in determined[b] else PP_PRIOR_STD_FRACTION, scale_std)
-    return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas)
+    verdicts = {tuple(camera_names[c] for c in refined.registered()
+                      if int(refined.camera_block[c]) in members): members in one_cameras
+                for members in judged}
+    return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas, verdicts)
 
 
 def adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> PriorAdjustment:
@@ -312,14 +318,15 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
 
 def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
               noise_px: float, camera_names: Sequence[str], say: Callable[[str], None]
-              ) -> tuple[list, list[list[int]]]:
+              ) -> tuple[list, list[list[int]], list[list[int]]]:
     """Priors.ties among the blocks of one image size, where at least MIN_POOLED_CAMERAS of them
     have the folds' sigmas (the estimates: `state`'s, adjusted under `priors`): as one camera
     where correspondences held out of the adjustment do not tell them apart (`_one_camera_excess`,
     module docstring; not tested where an estimate scatters beyond ONE_CAMERA_MAX_SCATTER), else
     each of POOLED_INTRINSICS as far as they agree
-    (core.method.rig_pooling: the rig's own spread). Also the groups of blocks tied as one."""
-    ties, groups, one_cameras = [], {}, []
+    (core.method.rig_pooling: the rig's own spread). Also the groups of blocks tied as one, and
+    the groups judged (those tied as one among them)."""
+    ties, groups, one_cameras, judged = [], {}, [], []
     for b in blocks:
         sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
         if all(np.isfinite(sigmas.get(i, np.nan)) and sigmas[i] > 0 for i in POOLED_INTRINSICS):
@@ -328,6 +335,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
     for (width, height), members in groups.items():
         if len(members) < MIN_POOLED_CAMERAS:
             continue
+        judged.append(members)
         values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
         same_size = [b for b in blocks
                      if (state.intrinsics[b].width, state.intrinsics[b].height) == (width, height)]
@@ -359,7 +367,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
                 f"{width}x{height} as far as they agree (spread between them: focal "
                 f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 "
                 f"{effects[4].spread:.4f}{tested})")
-    return ties, one_cameras
+    return ties, one_cameras, judged
 
 
 def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, spread_ties: list,

@@ -382,6 +382,9 @@ def overall_lines(rig: RigCalibration) -> list[str]:
         lines.append(", ".join(fit))
     if rig.failed_cameras:
         lines.append("not registered: " + ", ".join(rig.failed_cameras))
+    for unit in q.identical_units or ():
+        lines.append(f"identical units {', '.join(unit['cameras'])} (one set of intrinsics in the "
+                     f"SfM): {unit['why']}")
     if q.info_strips:
         lines.append(info_strips_line(q))
     for warning in q.warnings:

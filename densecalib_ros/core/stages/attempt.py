@@ -35,6 +35,9 @@ class Attempt:
     consensus: Optional[ConsensusRecord]
     refinement: Optional[RefinementRecord]
     cut_short: bool = False  # its consensus runs were ended by the caller's rule
+    # The kept run's rig as the SfM left it, before the refinement on the images (which gives
+    # identical units each its own intrinsics): what the one-model policy judges the model by.
+    sfm_rig: Optional[RigCalibration] = None
 
     @property
     def rig(self) -> RigCalibration:
@@ -79,7 +82,7 @@ class Calibrator:
                                   hopped=bool(hops))
         else:
             result = self._once(self.config.sampling.seed, None, self.progress)
-        refinement = None
+        refinement, sfm_rig = None, result.rig
         if self.refined is not None:
             self.progress.begin("refine", "refining on the images", 1)
             result, refinement = self.refined.refine(result, self.progress)
@@ -90,7 +93,7 @@ class Calibrator:
         assemble(result, self.config, names, self.matched.keypoint_tracks, consensus, hops,
                  refinement)
         return Attempt(result, self.config, self.matched, consensus, refinement,
-                       self.runs is not None and self.runs.cut_short)
+                       self.runs is not None and self.runs.cut_short, sfm_rig)
 
     def close(self) -> None:
         if self.refined is not None:

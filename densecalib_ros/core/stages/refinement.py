@@ -5,7 +5,7 @@ asks for their refinements too (RefinedRuns.disagreement_deg), and the kept run'
 computed again."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
 import numpy as np
@@ -27,13 +27,15 @@ from .matching import Matched
 class RefinementRecord:
     """What the stage did to the kept rig, for the quality record: the dense tracks it adjusted
     on, their noise (px), the principal point prior's sigma (fraction of the long side), per
-    camera the intrinsics the images determined, and per camera its CameraUncertainty."""
+    camera the intrinsics the images determined, per camera its CameraUncertainty, and the
+    one-camera test's verdicts (ImageRefinement.one_camera)."""
 
     num_tracks: int
     noise_px: float
     pp_prior_std_fraction: float
     estimated: dict
     sigmas: dict
+    one_camera: dict = field(default_factory=dict)
 
 
 def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig
@@ -122,7 +124,8 @@ class RefinedRuns:
         return refined, RefinementRecord(refinement.num_tracks,
                                          round(refinement.adjustment.noise_px, 4),
                                          PP_PRIOR_STD_FRACTION, dict(refinement.estimated),
-                                         dict(refinement.uncertainty))
+                                         dict(refinement.uncertainty),
+                                         dict(refinement.one_camera))
 
     def close(self) -> None:
         """Stop the work still run ahead (a calibration that ends without it)."""
