@@ -161,6 +161,9 @@ def test_parameters_are_validated(ros, tmp_path):
         assert not pipeline_config(node.settings).sfm.share_intrinsics
         assert node.set_parameters([Parameter("share_intrinsics", value=True)])[0].successful
         assert pipeline_config(node.settings).sfm.share_intrinsics
+        assert pipeline_config(node.settings).cameras.units_from_images
+        assert node.set_parameters([Parameter("separate_intrinsics", value=True)])[0].successful
+        assert not pipeline_config(node.settings).cameras.units_from_images
         assert pipeline_config(node.settings).consensus_runs == 5
         assert node.set_parameters([Parameter("consensus_runs", value=1)])[0].successful
         assert pipeline_config(node.settings).consensus_runs == 1

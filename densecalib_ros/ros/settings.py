@@ -116,6 +116,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                        "one run, no focal hops)", False, _range(1, 20, True)),
     "share_intrinsics": (False, "one set of intrinsics for cameras of the same image size "
                          "(identical cameras: same model, lens and zoom)", False, {}),
+    "separate_intrinsics": (False, "the cameras are of different models: never calibrate them "
+                            "as units of one model (tried, where they could be, when the "
+                            "calibration runs disagree)", False, {}),
     "initial_focal_px": (Parameter.Type.DOUBLE_ARRAY,
                          "known focal lengths [px]: one for all cameras or one per camera "
                          "(empty: estimated from the images); the calibration starts from them "
@@ -201,6 +204,7 @@ class Settings:
     pipeline: str
     matcher: str
     share_intrinsics: bool
+    separate_intrinsics: bool
     initial_focal_px: dict[str, float]
     consensus_runs: int
     second_matcher: Optional[str]
@@ -228,6 +232,7 @@ def pipeline_config(s: Settings) -> PipelineConfig:
     """The core pipeline configuration the node's method parameters select."""
     return make_config(s.preset, s.pipeline, s.matcher, max_image_side_px=s.max_image_side_px,
                        sfm__share_intrinsics=s.share_intrinsics,
+                       cameras__units_from_images=not s.separate_intrinsics,
                        consensus_runs=s.consensus_runs, detect_info_strips=s.detect_info_strips,
                        new_content_matchers=("asift",) if s.new_content_only else (),
                        second_matcher=s.second_matcher,
@@ -310,6 +315,7 @@ def parse_settings(values: dict[str, Any]) -> Settings:
         known_intrinsics=known_intrinsics, keep_intrinsics=bool(v["keep_intrinsics"]),
         pipeline=v["pipeline"],
         matcher=v["matcher"], share_intrinsics=bool(v["share_intrinsics"]),
+        separate_intrinsics=bool(v["separate_intrinsics"]),
         initial_focal_px=initial_focal_px,
         consensus_runs=int(v["consensus_runs"]),
         second_matcher=None if v["second_matcher"] == "none"
