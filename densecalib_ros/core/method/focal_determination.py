@@ -221,9 +221,10 @@ def one_camera_hint(rig: RigCalibration) -> str:
     focal aim (median_focal_std_fraction above AIMED_FOCAL_STD_FRACTION) whose cameras could be
     one: every camera calibrated with a sigma (weak_focal_fractions), of one image size and lens
     model, and the intrinsics not one set already (not all equal). One set estimated from every
-    image is determined where one per image is left open; "" otherwise. Whether they are one
-    camera only the user knows: separately calibrated, one phone's frames come out with focal
-    lengths several of their sigmas apart (docs/design-notes.md, Images of one camera)."""
+    image is determined where one per image is left open; "" otherwise. The images alone do
+    not prove they are one camera: separately calibrated, one phone's frames come out with focal
+    lengths several of their sigmas apart (docs/design-notes.md, Images of one camera); where
+    the runs disagree, core.robust.one_model tries them as one model."""
     cams = list(rig.cameras.values())
     if len(cams) < 2 or len(weak_focal_fractions(rig)) < len(cams) or \
             median_focal_std_fraction(rig) <= AIMED_FOCAL_STD_FRACTION:
