@@ -62,8 +62,8 @@ def test_the_policy_keeps_one_model_only_where_it_fits_and_says_why():
         tracks = _rig_tracks(focals_px)
         kept = _attempt(tracks, config, apart)
         said = []
-        out, what = with_one_model(kept, lambda c: _attempt(tracks, c), config, NAMES, SIZES,
-                                   True, said.append)
+        out, what = with_one_model(kept, lambda c: _attempt(tracks, c), NAMES, SIZES, True,
+                                   said.append)
         assert what is not None and what.kept == keep and what.own_apart_deg == apart
         assert (out is not kept) == keep
         assert "calibrating them again as one model" in said[0]
@@ -95,14 +95,14 @@ def test_pinhole_units_need_the_one_camera_tests_verdict():
             one.refinement = verdicts and SimpleNamespace(one_camera=verdicts)
             return one
         said = []
-        out, what = with_one_model(kept, again, config, NAMES, SIZES, True, said.append)
+        out, what = with_one_model(kept, again, NAMES, SIZES, True, said.append)
         assert what.kept == keep and (out is not kept) == keep, said
         if not keep:
             assert "the refinement on the images did not judge them one camera" in said[-1]
     # Where the calibration's own refinement told them apart already, no second calibration.
     kept.refinement = SimpleNamespace(one_camera={("a", "b", "c", "d"): False})
     called, said = [], []
-    out, what = with_one_model(kept, called.append, config, NAMES, SIZES, True, said.append)
+    out, what = with_one_model(kept, called.append, NAMES, SIZES, True, said.append)
     assert out is kept and what is None and not called and "told the cameras apart" in said[0]
 
 
@@ -111,7 +111,7 @@ def test_runs_in_agreement_leave_the_cameras_their_own_intrinsics():
     config = make_config("regular", sfm__num_threads=1).for_cameras(NAMES)
     kept = _attempt(tracks, config, WARN_DISAGREEMENT_DEG - 0.5)
     called = []
-    out, what = with_one_model(kept, called.append, config, NAMES, SIZES, True, print)
+    out, what = with_one_model(kept, called.append, NAMES, SIZES, True, print)
     assert out is kept and what is None and not called
 
 

@@ -56,7 +56,7 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
             kept, rematch = with_second_matcher(calibrate, images.config, images.camera_names,
                                                 fresh=previous is None, say=progress.say)
             kept, _ = with_one_model(kept, _again_with(images, kept, progress, calibrators),
-                                     images.config, images.camera_names, images.image_sizes,
+                                     images.camera_names, images.image_sizes,
                                      fresh=previous is None, say=progress.say)
     finally:
         for calibrator in calibrators.values():

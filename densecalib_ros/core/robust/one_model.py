@@ -28,7 +28,6 @@ assumed and why (RigQuality.identical_units).
 """
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, replace
 from typing import Callable, Optional, Sequence
 
@@ -41,8 +40,6 @@ from ..method.prior_adjustment import SUPPORTED_MODELS
 from ..types import RigCalibration, Tracks
 from .consensus import WARN_DISAGREEMENT_DEG, common_track_costs, standing_disagreement_deg
 from .second_matcher import better_determined
-
-log = logging.getLogger(__name__)
 
 
 def one_model_applies(config: PipelineConfig, camera_names: Sequence[str],
@@ -125,25 +122,21 @@ class OneModel:
     kept: bool
 
     def why(self) -> str:
-        """The reason the record gives for the units assumed."""
+        """The reason the record gives for the units assumed (a kept one model's runs agree)."""
         return (f"assumed from the images: with each camera's own intrinsics the calibration "
-                f"runs stood {self.own_apart_deg:.1f} deg apart, as one model "
-                + (f"{self.one_apart_deg:.1f} deg" if self.one_apart_deg is not None
-                   else "they agree")
-                + f", fitting the keypoint matches as well ({self.one_cost_px:.2f} px against "
+                f"runs stood {self.own_apart_deg:.1f} deg apart, as one model they agree, "
+                f"fitting the keypoint matches as well ({self.one_cost_px:.2f} px against "
                 f"{self.own_cost_px:.2f} px); name the units (--share-intrinsics) if they are "
                 "known")
 
 
 def with_one_model(kept, calibrate_as: Callable[[PipelineConfig], object],
-                   config: PipelineConfig, camera_names: Sequence[str],
-                   image_sizes: Sequence[tuple[int, int]], fresh: bool,
+                   camera_names: Sequence[str], image_sizes: Sequence[tuple[int, int]], fresh: bool,
                    say: Callable[[str], None]) -> tuple[object, Optional[OneModel]]:
     """(the calibration to keep, what the policy did or None where it did not run).
 
     kept: the calibration so far (a stages.attempt.Attempt: .rig, .sfm_rig, .config, .matched,
-    .refinement);
-    calibrate_as(config) calibrates kept's matches with `config`. Where one_model_applies and
+    .refinement); calibrate_as(config) calibrates kept's matches with `config`. Where one_model_applies and
     the kept calibration's runs stand apart (runs_apart_deg), they are calibrated again as one
     model and that calibration kept where its runs agree, it is better determined, its SfM fits
     the keypoint matches within WORSE_FIT_RATIO of the other's, and, for lenses the refinement on
