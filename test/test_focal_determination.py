@@ -113,6 +113,11 @@ def test_images_that_could_come_from_one_camera_are_told_to_share_intrinsics():
     assert weak_focal_warning(rig([800.0, 740.0, 860.0], 48.0)).endswith(one_camera_hint(alike))
     assert one_camera_hint(rig([800.0, 812.0, 790.0], 4.0)) == ""  # at the aim
     assert one_camera_hint(rig([800.0, 800.0, 800.0])) == ""  # one set of intrinsics already
+    units = rig([800.0, 740.0, 860.0])  # calibrated as units (each its own after the refinement)
+    units.quality.identical_units = [{"cameras": ["a", "b", "c"], "why": "assumed"}]
+    assert one_camera_hint(units) == ""
+    units.quality.identical_units = [{"cameras": ["a", "b"], "why": "EXIF"}]
+    assert one_camera_hint(units) == one_camera_hint(alike)
     other_size = rig([800.0, 812.0, 790.0])
     c = other_size.cameras["c"]
     c.intrinsics = CameraIntrinsics("RADIAL", 1280, 960, np.array(c.intrinsics.params))

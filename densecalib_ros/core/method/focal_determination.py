@@ -220,7 +220,8 @@ def one_camera_hint(rig: RigCalibration) -> str:
     """" If these images come from one camera, --share-intrinsics ..." for a rig short of the
     focal aim (median_focal_std_fraction above AIMED_FOCAL_STD_FRACTION) whose cameras could be
     one: every camera calibrated with a sigma (weak_focal_fractions), of one image size and lens
-    model, and the intrinsics not one set already (not all equal). One set estimated from every
+    model, the intrinsics not one set already (not all equal) and the cameras not calibrated as
+    units of one model (quality.identical_units). One set estimated from every
     image is determined where one per image is left open; "" otherwise. The images alone do
     not prove they are one camera: separately calibrated, one phone's frames come out with focal
     lengths several of their sigmas apart (docs/design-notes.md, Images of one camera); where
@@ -234,6 +235,9 @@ def one_camera_hint(rig: RigCalibration) -> str:
     params = [np.asarray(c.intrinsics.params, float) for c in cams]
     if all(np.array_equal(p, params[0]) for p in params[1:]):
         return ""  # one set already
+    units = {n for group in rig.quality.identical_units or () for n in group["cameras"]}
+    if set(rig.cameras) <= units:
+        return ""  # calibrated as units of one model (named, EXIF or assumed), each its own after
     return (" If these images come from one camera (moved between shots, or frames of one "
             "video), --share-intrinsics (node: share_intrinsics; library: "
             "SfMConfig.share_intrinsics) estimates one set of intrinsics from all of them, which "
