@@ -1,13 +1,17 @@
 """The image refinement's spatial folds (core.method.image_refinement, module docstring): its dense
 tracks dealt out into HOLDOUT_FOLDS folds that each cover the whole of every image, and what the
 folds' separate estimates say the images determine: a parameter whose uncertainty, the spread
-of the folds' estimates, is below ESTIMATED_FRACTION of its prior's spread."""
+of the folds' estimates, is below ESTIMATED_FRACTION of its prior's spread. Intrinsics that
+several views share are also estimated with each view left out (view_jackknife), and their
+uncertainty is at least that spread."""
 from __future__ import annotations
 
 import logging
+from typing import Callable, Optional
 
 import numpy as np
 
+from ..parallel import map_threads
 from .prior_adjustment import Priors
 from .reconstruction import SfMState
 
@@ -18,6 +22,10 @@ MAD_TO_SIGMA = 1.4826  # median absolute deviation -> standard deviation of a no
 ESTIMATED_FRACTION = 0.5
 HOLDOUT_FOLDS = 4  # spatial folds of the held-out check (image_refinement's docstring)
 HOLDOUT_CELL_FRACTION = 0.1  # fold cells: this fraction of the image's long side
+# A block of intrinsics that this many registered cameras share (one camera moved between shots,
+# frames of one video) is also resampled over its views (view_jackknife). With three views each
+# replicate rests on one pair, whose intrinsics two views do not determine.
+JACKKNIFE_MIN_VIEWS = 4
 
 
 def _track_cells(state: SfMState) -> tuple[np.ndarray, np.ndarray]:
@@ -45,6 +53,11 @@ def track_regions(state: SfMState) -> np.ndarray:
     return np.unique(np.c_[first, cell], axis=0, return_inverse=True)[1].ravel()
 
 
+# Where each of the tied intrinsics (rig_pooling.POOLED_INTRINSICS: f, k1, k2, by index into
+# prior_adjustment.INTRINSIC_NAMES) sits in fold_values.
+FOLD_VALUE_OF = {0: 3, 3: 4, 4: 5}
+
+
 def fold_values(cam) -> tuple[float, ...]:
     """(cx, cy, aspect, mean focal, k1, k2) of a camera, as the folds compare them."""
     p = np.asarray(cam.params, float)
@@ -53,15 +66,42 @@ def fold_values(cam) -> tuple[float, ...]:
     return p[1], p[2], 0.0, p[0], p[3], p[4]
 
 
-def determined_by_folds(estimates: list[dict], blocks: list[int], priors: Priors
-                        ) -> tuple[dict, dict]:
+def view_jackknife(views: dict[int, list[int]], estimate: Callable[[int], Optional[dict]]
+                   ) -> dict[int, np.ndarray]:
+    """Per block shared by at least JACKKNIFE_MIN_VIEWS registered cameras (views: block -> its
+    cameras), the jackknife standard deviations of fold_values over its views: the block
+    estimated once with each of its cameras left out (estimate(camera): block -> fold_values, or
+    None where the adjustment failed), sqrt((n - 1) / n * sum of squared deviations).
+
+    The spatial folds share every view, so they cannot see what the camera path does to a shared
+    camera's estimate: a principal point trades off against the views' common pitch and yaw,
+    and which views there are decides how. Leaving a view out changes the path and shows it
+    (docs/design-notes.md, Image refinement: one camera's views left out in turn)."""
+    out = {}
+    for b, cams in views.items():
+        if len(cams) < JACKKNIFE_MIN_VIEWS:
+            continue
+        replicates = [e[b] for e in map_threads(estimate, cams) if e is not None and b in e]
+        values = np.array(replicates, dtype=float)
+        if len(values) < len(cams) - 1 or not np.isfinite(values).all():
+            continue
+        n = len(values)
+        out[b] = np.sqrt((n - 1) / n * ((values - values.mean(axis=0)) ** 2).sum(axis=0))
+        log.debug("block %d: view jackknife of cx, cy, aspect, f, k1, k2 over %d views: %s", b,
+                  n, np.round(out[b], 4).tolist())
+    return out
+
+
+def determined_by_folds(estimates: list[dict], blocks: list[int], priors: Priors,
+                        floors: Optional[dict[int, np.ndarray]] = None) -> tuple[dict, dict]:
     """Per block, which of "principal point" and "aspect" the images determine, from the folds'
     estimates (per fold: block -> fold_values): those whose estimates scatter by less than
     ESTIMATED_FRACTION of the prior's sigma once averaged over the folds. The scatter is the
     folds' median absolute deviation (as a sigma): one fold that ran off on a weak part of the
     images does not decide it. Also per block the folds' standard deviations of the mean of the
     principal point (per axis), of the focal length (px) and of each tied intrinsic
-    (rig_pooling.POOLED_INTRINSICS): how far off the images leave them."""
+    (rig_pooling.POOLED_INTRINSICS): how far off the images leave them. floors: per block,
+    standard deviations in fold_values' order (view_jackknife's) that these are at least."""
     out, spread_of = {}, {}
     for b in blocks:
         values = np.array([e[b] for e in estimates])
@@ -70,11 +110,13 @@ def determined_by_folds(estimates: list[dict], blocks: list[int], priors: Priors
             continue
         spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
         std_of_mean = spread / np.sqrt(len(values))
+        if floors is not None and b in floors:
+            std_of_mean = np.maximum(std_of_mean, floors[b])
         spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
                             focal_px=float(std_of_mean[3]),
                             # the tied ones (POOLED_INTRINSICS) by index into INTRINSIC_NAMES
-                            intrinsics={0: float(std_of_mean[3]), 3: float(std_of_mean[4]),
-                                        4: float(std_of_mean[5])})
+                            intrinsics={i: float(std_of_mean[k])
+                                        for i, k in FOLD_VALUE_OF.items()})
         log.debug("block %d: fold estimates of cx, cy, aspect, f, k1, k2 %s, sigma of their "
                   "mean %s", b,
                   np.round(values, 4).tolist(), np.round(std_of_mean, 4).tolist())
@@ -90,3 +132,4 @@ def principal_point_determined(axes_std_px, prior_std_px: float) -> bool:
     """Whether the images determine a principal point whose estimate has these standard
     deviations per axis (the folds'), against a prior of prior_std_px (ESTIMATED_FRACTION)."""
     return max(axes_std_px) < ESTIMATED_FRACTION * prior_std_px
+

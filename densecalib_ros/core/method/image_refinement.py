@@ -13,7 +13,9 @@ adjusted on its own without priors, and the spread of the folds' estimates gives
 of the estimate from all the data, systematic errors included (the adjustment's own covariance
 assumes independent pixel noise; neighbouring patches and what the model cannot express make it
 several times too small on real photographs: docs/design-notes.md, Image refinement: folds and
-the aspect prior). A parameter whose uncertainty is below ESTIMATED_FRACTION of its
+the aspect prior); where several cameras share the intrinsics (one camera moved around), at
+least the spread of their estimates with each view left out in turn, which the folds, sharing
+every view, cannot show. A parameter whose uncertainty is below ESTIMATED_FRACTION of its
 prior's spread (the images carry at least four times the prior's information) is estimated with
 its prior; otherwise it is held, and reported as held, where the images' estimate and the prior
 weighed by their spreads put it: the precision-weighted mean of the estimate from all the images
@@ -61,7 +63,7 @@ from .decentering import with_decentering, with_decentering_asked
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .image_folds import (HOLDOUT_FOLDS, determined_by_folds, fold_values,
-                          principal_point_determined, track_folds, track_regions)
+                          principal_point_determined, track_folds, track_regions, view_jackknife)
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, intrinsics_vector)
 from .reconstruction import (BAStage, SfMState, bundle_adjust, remove_outlier_observations,
@@ -257,23 +259,34 @@ def determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], pri
     docstring), and the folds' standard deviations of the mean of the principal point (per axis),
     of the focal length (px) and of each tied intrinsic (image_folds.determined_by_folds): from
     the folds' estimates, adjusted without priors from `state` (the found rig: the principal
-    point at the image centre, square pixels)."""
+    point at the image centre, square pixels), and for a block several cameras share, at least
+    the spread of its estimates with each of them left out (image_folds.view_jackknife)."""
     fold = track_folds(state)
     free = Priors(principal_point_std_px={b: np.inf for b in blocks},
                   aspect_std={b: np.inf for b in blocks})
 
-    def fold_estimate(k: int) -> Optional[dict]:
-        part = state.copy()
-        part.active[fold != k] = False
+    def estimate(part: SfMState) -> Optional[dict]:  # block -> fold_values, adjusted freely
         part.drop_weak_points()
         try:
             adjust_with_priors(part, blocks, free)
         except (ValueError, np.linalg.LinAlgError):
             return None
         return {b: fold_values(part.intrinsics[b]) for b in blocks}
-    # per fold: block -> fold_values; the folds are independent adjustments, side by side
+
+    def fold_estimate(k: int) -> Optional[dict]:
+        part = state.copy()
+        part.active[fold != k] = False
+        return estimate(part)
+
+    def without_view(c: int) -> Optional[dict]:
+        part = state.copy()
+        part.cam_from_world[c] = None
+        return estimate(part)
+    # the folds and the views left out are independent adjustments, side by side
     estimates = [e for e in map_threads(fold_estimate, range(HOLDOUT_FOLDS)) if e is not None]
-    return determined_by_folds(estimates, blocks, priors)
+    views = {b: [c for c in state.registered() if int(state.camera_block[c]) == b]
+             for b in blocks}
+    return determined_by_folds(estimates, blocks, priors, view_jackknife(views, without_view))
 
 
 def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_sigmas: dict,
