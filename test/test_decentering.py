@@ -7,7 +7,7 @@ from sfm_fixtures import centred_state, gt_rig
 from densecalib_ros.core.method.decentering import (MIN_HELD_OUT_GAIN, T_95_3DOF, T_975_3DOF,
                                                      TANGENTIAL_PRIOR_STD, decentering_test,
                                                      one_size_groups, with_decentering)
-from densecalib_ros.core.method.image_refinement import held_out_errors
+from densecalib_ros.core.method.image_folds import held_out_errors
 from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
 from densecalib_ros.core.types import CameraIntrinsics
 

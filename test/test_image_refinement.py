@@ -400,3 +400,31 @@ def test_the_folds_side_by_side_give_the_loops_numbers(monkeypatch):
     one_after_another = folds()
     assert side_by_side[:2] == one_after_another[:2]
     assert np.array_equal(side_by_side[2], one_after_another[2], equal_nan=True)
+
+
+def test_a_pixel_aspect_no_real_sensor_has_is_held_square():
+    """A camera whose correspondences ask for fy / fx 1.03 (beyond the 1.5 % no real sensor
+    exceeds: a fit gone astray, or images resized unevenly) ends with square pixels, held and
+    said; where holding it pushes another camera's beyond the bound, that one is held too (here
+    the rest of the rig: the true 3 % must go somewhere), and no camera ends beyond it."""
+    from sfm_fixtures import centred_state, gt_rig
+
+    from densecalib_ros.core.method import image_refinement as ir
+    from densecalib_ros.core.types import CameraIntrinsics
+
+    cams, poses = gt_rig(5, seed=3, pp_jitter_px=0.0)
+    true = [CameraIntrinsics("OPENCV", c.width, c.height,
+                             np.r_[c.params[0], c.params[0] * (1.03 if k == 2 else 1.0),
+                                   c.params[1:], 0.0, 0.0]) for k, c in enumerate(cams)]
+    state = centred_state(true, poses, 0.2, seed=3)
+    names = [f"cam{c}" for c in range(5)]
+    said = []
+    refinement = ir.refine_on_images(state, None, None, names, None, 0, said.append, {},
+                                     _GivenCorrespondences(state.tracks))
+    assert any(s.startswith("pixel aspect held square for") and "cam2" in s for s in said), said
+    held = refinement.state.intrinsics[2]  # written back in its model: one focal length
+    assert held.model == "RADIAL" or held.params[1] == pytest.approx(held.params[0], rel=1e-9)
+    assert "aspect" not in refinement.estimated["cam2"]
+    for c in (0, 1, 3, 4):
+        cam = refinement.state.intrinsics[c]
+        assert cam.model == "RADIAL" or abs(cam.params[1] / cam.params[0] - 1.0) < 0.015

@@ -62,12 +62,14 @@ from ..types import Tracks
 from .decentering import with_decentering, with_decentering_asked
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
-from .image_folds import (HOLDOUT_FOLDS, determined_by_folds, fold_values,
-                          principal_point_determined, track_folds, track_regions, view_jackknife)
+from .image_folds import (GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_folds, fold_values,
+                          held_out_errors, principal_point_determined, track_folds,
+                          track_regions, view_jackknife)
+from .plausibility import make_pixels_square, unlike_aspect_blocks
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, intrinsics_vector)
-from .reconstruction import (BAStage, SfMState, bundle_adjust, remove_outlier_observations,
-                             reprojection_errors, triangulate, triangulate_tracks)
+from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
+                             triangulate_tracks)
 from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, random_effects,
                           scatter_per_dof)
 from .refinement_uncertainty import camera_uncertainty, posterior_covariances
@@ -80,14 +82,8 @@ PP_PRIOR_STD_FRACTION = 0.01
 # Square pixels to within a few tenths of a percent (docs/design-notes.md, Real cameras'
 # principal points).
 ASPECT_PRIOR_STD = 0.003
-# Observations farther than this many noise sigmas (per coordinate, robust) are dropped between
-# adjustments: a Gaussian 2-D residual lies beyond 4 sigma once in ~3000.
-GATE_SIGMAS = 4.0
 GATE_ROUNDS = 3
 TRIANGULATION_GATE_PX = 4.0  # the found rig fits right correspondences to well under this
-# Held-out correspondences' points are adjusted from their midpoints with the cameras held: each
-# point alone converges in a few steps; the cap only bounds a stray one.
-HELD_OUT_POINT_ITERATIONS = 50
 # Cameras that are one camera reach it from their separate estimates in a few steps (Strecha's
 # ten: 8-9, the fox's six frames 11-14); a rig of different lenses would take all 50 to fit as one
 # badly. Cut short, such a fit only fits worse, which is the verdict anyway; the cap bounds what
@@ -206,10 +202,21 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         for b, v in priors.principal_point_std_px.items()})
     if held != priors:
         _hold_principal_points(refined, blocks, held, priors, fold_sigmas)
-        adjustment = adjust_with_priors(refined, blocks, held, noise_px=adjustment.noise_px)
-        # The held point moved the rig: an observation it now leaves beyond the gate (a point
-        # pushed behind a camera) is not part of the fit, nor of the camera's reported RMS.
-        remove_outlier_observations(refined, GATE_SIGMAS * adjustment.residual_scale_px)
+        adjustment = _readjusted(refined, blocks, held, adjustment.noise_px)
+    square, unlike = [], unlike_aspect_blocks(refined, blocks)
+    while unlike:  # the images moved a pixel aspect where no real sensor's is: held square
+        make_pixels_square(refined, unlike)
+        in_place, held = (replace(p, aspect_std={**p.aspect_std, **dict.fromkeys(unlike)})
+                          for p in (in_place, held))
+        adjustment = _readjusted(refined, blocks, held, adjustment.noise_px)
+        square += unlike  # and where that moved another camera's there, that one too
+        unlike = unlike_aspect_blocks(refined, [b for b in blocks if b not in square])
+    if square:
+        say("pixel aspect held square for " + ", ".join(
+            camera_names[c] for c in refined.registered() if refined.camera_block[c] in square)
+            + ": the images had moved it where no real sensor's is")
+    for b in square:
+        determined[b].discard("aspect")
     say(f"refined on {int(refined.point_mask().sum())} dense image correspondences "
         f"(noise {adjustment.noise_px:.2f} px)")
     check_stop()
@@ -236,6 +243,16 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
                       if int(refined.camera_block[c]) in members): members in one_cameras
                 for members in judged}
     return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas, verdicts)
+
+
+def _readjusted(state: SfMState, blocks: list[int], priors: Priors, noise_px: float
+                ) -> PriorAdjustment:
+    """adjust_with_priors at noise_px after a prior changed, in place; then the observations it
+    leaves beyond the gate (a point pushed behind a camera) are no part of the fit, nor of the
+    camera's reported RMS."""
+    adjustment = adjust_with_priors(state, blocks, priors, noise_px=noise_px)
+    remove_outlier_observations(state, GATE_SIGMAS * adjustment.residual_scale_px)
+    return adjustment
 
 
 def adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> PriorAdjustment:
@@ -424,37 +441,6 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
         ties.append((i, {b: sigma for b in members}))
     return ties
 
-
-def held_out_errors(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
-                     camera_names: Sequence[str], iterations: Optional[int]) -> np.ndarray:
-    """Per fold (`track_folds`) the mean squared reprojection error (px^2) of its correspondences,
-    triangulated anew with the rig adjusted under `priors` on the other folds; each error is
-    truncated at the gate (GATE_SIGMAS noise sigmas), and an observation whose point cannot be
-    triangulated counts the gate. iterations: the adjustments' cap (None: the adjustment's own)."""
-    fold = track_folds(state)
-    cap = {} if iterations is None else {"max_iterations": iterations}
-    gate_px = GATE_SIGMAS * noise_px
-
-    def fold_error(k: int) -> float:
-        train = state.copy()
-        train.active[fold == k] = False
-        train.drop_weak_points()
-        adjust_with_priors(train, blocks, priors, noise_px=noise_px, **cap)
-        test = train.copy()
-        test.active = state.active & (fold == k)[:, None]
-        rows = np.flatnonzero(fold == k)
-        test.points_xyz[:] = np.nan
-        triangulate(test, rows, max_error_px=np.inf, min_angle_deg=0.0)
-        views = test.registered_active()[rows]
-        observed = views & (views.sum(axis=1) >= 2)[:, None]
-        if test.point_mask()[rows].any():
-            bundle_adjust(test, camera_names, BAStage(HELD_OUT_POINT_ITERATIONS,
-                                                      refine_focal=False, refine_extra=False,
-                                                      refine_poses=False), num_threads=1)
-        err = reprojection_errors(test)[rows][observed]
-        return (float(np.mean(np.minimum(np.nan_to_num(err, nan=gate_px), gate_px) ** 2))
-                if err.size else np.nan)
-    return np.array(map_threads(fold_error, range(HOLDOUT_FOLDS)))
 
 
 def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, priors: Priors,

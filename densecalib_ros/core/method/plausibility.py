@@ -123,6 +123,32 @@ def unlike_a_real_lens(camera: CameraIntrinsics) -> Optional[str]:
     return ", ".join(problems) or None
 
 
+def unlike_aspect_blocks(state: SfMState, blocks: Sequence[int]) -> list[int]:
+    """The intrinsics blocks among `blocks` whose pixel aspect no real lens has (fy / fx beyond
+    1 +- UNLIKE_ASPECT_DEVIATION)."""
+    out = []
+    for b in blocks:
+        cam = state.intrinsics[b]
+        layout = _LAYOUT.get(cam.model)
+        if layout is not None and layout[1] is not None and \
+                abs(cam.params[layout[1]] / cam.params[layout[0]] - 1.0) > UNLIKE_ASPECT_DEVIATION:
+            out.append(b)
+    return out
+
+
+def make_pixels_square(state: SfMState, blocks: Sequence[int]) -> None:
+    """In place: fx = fy = their geometric mean, for the intrinsics blocks `blocks` (models with
+    both; the others as they are)."""
+    for b in blocks:
+        cam = state.intrinsics[b]
+        layout = _LAYOUT.get(cam.model)
+        if layout is None or layout[1] is None:
+            continue
+        params = np.array(cam.params, dtype=np.float64)
+        params[[layout[0], layout[1]]] = np.sqrt(params[layout[0]] * params[layout[1]])
+        state.intrinsics[b] = CameraIntrinsics(cam.model, cam.width, cam.height, params)
+
+
 def unlike_lens_warning(rig: RigCalibration) -> Optional[str]:
     """The warning for a calibration whose self-calibrated cameras (those whose intrinsics were
     given left out) include one unlike_a_real_lens, else None."""
