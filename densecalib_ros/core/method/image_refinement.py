@@ -42,8 +42,10 @@ they agree: the cameras' estimates, with the folds' sigmas, give the spread betw
 cameras, and each camera's difference from the rig's mean gets a Gaussian of that spread.
 Separately self-calibrated, each camera traded its intrinsics against its pose in its own way
 (docs/design-notes.md, Image refinement: the rig's own spread; one camera or several). The
-pixel aspect is always estimated with its prior (holding a real sensor's aspect at 1 moves the
-principal points far: docs/design-notes.md, Image refinement: folds and the aspect prior); the
+pixel aspect is estimated with its prior (holding a real sensor's aspect at 1 moves the
+principal points far: docs/design-notes.md, Image refinement: folds and the aspect prior), but
+held square where the fit puts it beyond what any real sensor has
+(plausibility.UNLIKE_ASPECT_DEVIATION: design notes, a pixel aspect no real sensor has); the
 cameras are written as OPENCV (fx, fy, cx, cy, k1, k2, p1, p2), "aspect" listed as estimated where
 the folds determine it; p1 = p2 = 0 but where held-out folds ask for them (core.method.decentering).
 The sigmas reported: per camera the largest of the adjustment's covariance, a sandwich over image
@@ -203,20 +205,8 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     if held != priors:
         _hold_principal_points(refined, blocks, held, priors, fold_sigmas)
         adjustment = _readjusted(refined, blocks, held, adjustment.noise_px)
-    square, unlike = [], unlike_aspect_blocks(refined, blocks)
-    while unlike:  # the images moved a pixel aspect where no real sensor's is: held square
-        make_pixels_square(refined, unlike)
-        in_place, held = (replace(p, aspect_std={**p.aspect_std, **dict.fromkeys(unlike)})
-                          for p in (in_place, held))
-        adjustment = _readjusted(refined, blocks, held, adjustment.noise_px)
-        square += unlike  # and where that moved another camera's there, that one too
-        unlike = unlike_aspect_blocks(refined, [b for b in blocks if b not in square])
-    if square:
-        say("pixel aspect held square for " + ", ".join(
-            camera_names[c] for c in refined.registered() if refined.camera_block[c] in square)
-            + ": the images had moved it where no real sensor's is")
-    for b in square:
-        determined[b].discard("aspect")
+    in_place, held, adjustment = _held_square(refined, blocks, (in_place, held), adjustment,
+                                              determined, camera_names, say)
     say(f"refined on {int(refined.point_mask().sum())} dense image correspondences "
         f"(noise {adjustment.noise_px:.2f} px)")
     check_stop()
@@ -243,6 +233,31 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
                       if int(refined.camera_block[c]) in members): members in one_cameras
                 for members in judged}
     return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas, verdicts)
+
+
+def _held_square(state: SfMState, blocks: list[int], priors: tuple[Priors, Priors],
+                 adjustment: PriorAdjustment, determined: dict, camera_names: Sequence[str],
+                 say: Callable[[str], None]) -> tuple[Priors, Priors, PriorAdjustment]:
+    """Where the fit left a pixel aspect no real sensor has (plausibility.unlike_aspect_blocks):
+    those blocks' pixels made square and held, the rig adjusted again under the second of
+    `priors` (the in-place and the held ones) so changed, and so on while that moves another's
+    beyond the bound (in place, `determined` too; said). Both priors with those aspects held,
+    and the last adjustment (`adjustment` where there was none)."""
+    square, unlike = [], unlike_aspect_blocks(state, blocks)
+    while unlike:
+        make_pixels_square(state, unlike)
+        square += unlike
+        priors = tuple(replace(p, aspect_std={**p.aspect_std, **dict.fromkeys(square)})
+                       for p in priors)
+        adjustment = _readjusted(state, blocks, priors[1], adjustment.noise_px)
+        unlike = unlike_aspect_blocks(state, [b for b in blocks if b not in square])
+    for b in square:
+        determined[b].discard("aspect")
+    if square:
+        say("pixel aspect held square for " + ", ".join(
+            camera_names[c] for c in state.registered() if state.camera_block[c] in square)
+            + ": the images had moved it where no real sensor's is")
+    return priors[0], priors[1], adjustment
 
 
 def _readjusted(state: SfMState, blocks: list[int], priors: Priors, noise_px: float
