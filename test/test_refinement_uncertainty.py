@@ -74,3 +74,21 @@ def test_a_camera_reports_the_largest_sigma_each_source_gives():
     assert wider.principal_point_std_px == pytest.approx(4.0 * pp)
     held = camera_uncertainty(state, 0, pair, folds, 0.01).principal_point_std_px
     assert held == pytest.approx(0.01 * max(state.intrinsics[0].width, state.intrinsics[0].height))
+
+
+def test_the_projection_sigma_is_no_smaller_than_its_parts_reported():
+    """Where the folds (or a held principal point's prior) widen the focal length's and the
+    principal point's sigmas beyond the covariance's, the projection's widens with them: a
+    principal point off by sigma moves every image point by about that much."""
+    state, blocks, priors, noise_px = _refined(0.0)
+    posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
+                                                 track_regions(state))
+    pair = (posterior[0], clustered[0])
+    own = camera_uncertainty(state, 0, pair, {}, None)
+    assert own.projection_std_px < own.principal_point_std_px * 4.0
+    folds = dict(focal_px=3.0 * own.focal_std_px,
+                 principal_point_axes_px=(0.1, 4.0 * own.principal_point_std_px))
+    wider = camera_uncertainty(state, 0, pair, folds, None)
+    assert wider.projection_std_px >= wider.principal_point_std_px > own.projection_std_px
+    held = camera_uncertainty(state, 0, pair, folds, 0.01)
+    assert held.projection_std_px >= held.principal_point_std_px

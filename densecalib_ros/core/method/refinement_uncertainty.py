@@ -62,7 +62,10 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
     image_refinement.determined_by_images), the focal's at least focal_scale_std (a fraction:
     focal_determination.probed_focal_scale_std) of it. held_pp_std_fraction: a held principal
     point's sigma as a fraction of the long side (its prior's: at most as far off as real lenses'
-    offsets); None where estimated."""
+    offsets); None where estimated. The projection's is at least what the wider of the two
+    covariances (in focal length and principal point) gives with those two widened to the
+    sigmas reported: a projection sigma below its own principal point's would contradict it (a
+    point off by sigma moves every image point by about that much)."""
     cam = state.intrinsics[block]
     f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if cam.model == "OPENCV" else 0.0)
     n = len(INTRINSIC_NAMES)
@@ -85,4 +88,11 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
             cam.to_pycolmap(), list(range(len(cam.params))), J @ cov @ J.T))
     if held_pp_std_fraction is not None:
         pp_std = held_pp_std_fraction * max(cam.width, cam.height)
+    cov = max(covariances, key=lambda c: np.trace(c[:3, :3]))  # widened below
+    scale = np.ones(n)
+    scale[0] = max(1.0, focal_std / max(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0)), 1e-12))
+    scale[1:3] = [max(1.0, pp_std / max(np.sqrt(max(cov[i, i], 0.0)), 1e-12)) for i in (1, 2)]
+    widened = projection_std_px(cam.to_pycolmap(), list(range(len(cam.params))),
+                                J @ (scale[:, None] * cov * scale[None, :]) @ J.T)
+    projection = max(projection, widened or 0.0)
     return CameraUncertainty(focal_std, pp_std, projection)
