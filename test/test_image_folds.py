@@ -79,4 +79,3 @@ def test_views_that_agree_keep_the_point_determined():
     determined, _ = determined_by_images(state, state.tracks, [0],
                                          Priors({0: PP_PRIOR_PX}, {0: 0.003}))
     assert "principal point" in determined[0]
-

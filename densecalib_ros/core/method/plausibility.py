@@ -118,22 +118,24 @@ def unlike_a_real_lens(camera: CameraIntrinsics) -> Optional[str]:
     if offset_px > UNLIKE_PP_OFFSET_FRACTION * size:
         problems.append(f"principal point {offset_px:.0f} px ({100 * offset_px / size:.0f} % "
                         "of the long side) off the image centre")
-    if fy_i is not None and abs(params[fy_i] / params[fx_i] - 1.0) > UNLIKE_ASPECT_DEVIATION:
+    if _unlike_aspect(camera):
         problems.append(f"pixel aspect fy/fx {params[fy_i] / params[fx_i]:.3f}")
     return ", ".join(problems) or None
+
+
+def _unlike_aspect(camera: CameraIntrinsics) -> bool:
+    """Whether a perspective camera with fx and fy has an fy / fx beyond 1 +-
+    UNLIKE_ASPECT_DEVIATION (fisheye and one-focal models: False)."""
+    layout = _LAYOUT.get(camera.model)
+    if layout is None or layout[5] or layout[1] is None:
+        return False
+    return abs(camera.params[layout[1]] / camera.params[layout[0]] - 1.0) > UNLIKE_ASPECT_DEVIATION
 
 
 def unlike_aspect_blocks(state: SfMState, blocks: Sequence[int]) -> list[int]:
     """The intrinsics blocks among `blocks` whose pixel aspect no real lens has (fy / fx beyond
     1 +- UNLIKE_ASPECT_DEVIATION)."""
-    out = []
-    for b in blocks:
-        cam = state.intrinsics[b]
-        layout = _LAYOUT.get(cam.model)
-        if layout is not None and layout[1] is not None and \
-                abs(cam.params[layout[1]] / cam.params[layout[0]] - 1.0) > UNLIKE_ASPECT_DEVIATION:
-            out.append(b)
-    return out
+    return [b for b in blocks if _unlike_aspect(state.intrinsics[b])]
 
 
 def make_pixels_square(state: SfMState, blocks: Sequence[int]) -> None:
