@@ -6,8 +6,7 @@ from sfm_fixtures import gt_rig, gt_tracks
 
 from densecalib_ros.core.method import image_folds
 from densecalib_ros.core.method.image_folds import (JACKKNIFE_MIN_VIEWS, determined_by_folds,
-                                                    view_jackknife)
-from densecalib_ros.core.method.image_refinement import determined_by_images
+                                                    determined_by_images, view_jackknife)
 from densecalib_ros.core.method.prior_adjustment import Priors
 from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
@@ -64,18 +63,18 @@ def _one_camera(biased_view_px: float) -> SfMState:
 def test_a_view_that_moves_the_shared_point_widens_its_sigma_and_holds_it(monkeypatch):
     priors = Priors({0: PP_PRIOR_PX}, {0: 0.003})
     state = _one_camera(16.0)
-    determined, sigmas = determined_by_images(state, state.tracks, [0], priors)
+    determined, sigmas = determined_by_images(state, [0], priors)
     assert "principal point" not in determined[0]
     widened = max(sigmas[0]["principal_point_axes_px"])
     # the spatial folds alone: every fold shares the biased view, and they agree
     monkeypatch.setattr(image_folds, "JACKKNIFE_MIN_VIEWS", NUM_VIEWS + 1)
-    determined, sigmas = determined_by_images(state, state.tracks, [0], priors)
+    determined, sigmas = determined_by_images(state, [0], priors)
     assert "principal point" in determined[0]
     assert widened > 3 * max(sigmas[0]["principal_point_axes_px"])
 
 
 def test_views_that_agree_keep_the_point_determined():
     state = _one_camera(0.0)
-    determined, _ = determined_by_images(state, state.tracks, [0],
+    determined, _ = determined_by_images(state, [0],
                                          Priors({0: PP_PRIOR_PX}, {0: 0.003}))
     assert "principal point" in determined[0]

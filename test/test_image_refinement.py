@@ -8,6 +8,7 @@ import pytest
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.method.dense_matches import (align_patches, keypoint_px_scale,
                                                       local_affine, reference_points)
+from densecalib_ros.core.method import image_folds
 from densecalib_ros.core.method.patch_alignment import sample_bicubic
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core import run_calibration
@@ -285,7 +286,7 @@ def _refinement_ties(cams, seed):
     start = state.copy()
     adjustment = ir.adjust_and_gate(state, blocks, priors)
     start.active &= state.active
-    _, fold_sigmas = ir.determined_by_images(start, tracks, blocks, priors)
+    _, fold_sigmas = image_folds.determined_by_images(start, blocks, priors)
     said = []
     ties, _, _ = ir.rig_ties(state, blocks, fold_sigmas, priors, adjustment.noise_px,
                            [f"cam{c}" for c in blocks], said.append)
@@ -366,7 +367,7 @@ def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
     priors = Priors(principal_point_std_px={c: 0.01 * truth.width for c in range(6)},
                     aspect_std={c: ir.ASPECT_PRIOR_STD for c in range(6)})
     triangulate_tracks(state)
-    _, fold_sigmas = ir.determined_by_images(state, tracks, list(range(6)), priors)
+    _, fold_sigmas = image_folds.determined_by_images(state, list(range(6)), priors)
     assert max(focal_std) < min(fold_sigmas[c]["focal_px"] for c in range(6)), fold_sigmas
     for c in range(6):
         f = refinement.state.intrinsics[c].params[0]
@@ -379,24 +380,22 @@ def test_the_folds_side_by_side_give_the_loops_numbers(monkeypatch):
     to the last bit (a fold that wrote to the shared rig would change the others')."""
     from sfm_fixtures import gt_rig
 
-    from densecalib_ros.core.method import image_refinement as ir
-
     cams, poses = gt_rig(4, seed=5, pp_jitter_px=6.0)
     tracks, state, blocks, priors = _rig_at_its_truth(cams, poses, 1500, seed=5)
 
     def folds():
         before = state.copy()
-        determined, sigmas = ir.determined_by_images(state, tracks, blocks, priors)
-        held_out = ir.held_out_errors(state, blocks, priors, 0.1,
-                                       [f"cam{c}" for c in blocks], None)
+        determined, sigmas = image_folds.determined_by_images(state, blocks, priors)
+        held_out = image_folds.held_out_errors(state, blocks, priors, 0.1,
+                                                [f"cam{c}" for c in blocks], None)
         assert np.array_equal(state.points_xyz, before.points_xyz, equal_nan=True)
         return determined, sigmas, held_out
 
     # threads even where the machine has one core (map_threads would then run the loop)
-    threaded = ir.map_threads
-    monkeypatch.setattr(ir, "map_threads", lambda fn, items: threaded(fn, items, workers=4))
+    threaded = image_folds.map_threads
+    monkeypatch.setattr(image_folds, "map_threads", lambda fn, items: threaded(fn, items, workers=4))
     side_by_side = folds()
-    monkeypatch.setattr(ir, "map_threads", lambda fn, items: [fn(i) for i in items])
+    monkeypatch.setattr(image_folds, "map_threads", lambda fn, items: [fn(i) for i in items])
     one_after_another = folds()
     assert side_by_side[:2] == one_after_another[:2]
     assert np.array_equal(side_by_side[2], one_after_another[2], equal_nan=True)

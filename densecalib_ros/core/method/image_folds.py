@@ -3,7 +3,8 @@ tracks dealt out into HOLDOUT_FOLDS folds that each cover the whole of every ima
 folds' separate estimates say the images determine: a parameter whose uncertainty, the spread
 of the folds' estimates, is below ESTIMATED_FRACTION of its prior's spread. Intrinsics that
 several views share are also estimated with each view left out (view_jackknife), and their
-uncertainty is at least that spread. held_out_errors scores a rig adjusted on all folds but one on
+uncertainty is at least that spread (determined_by_images; one_camera_jackknife for separate
+cameras the one-camera test holds as one). held_out_errors scores a rig adjusted on all folds but one on
 that one, for the tests that compare two models of the same images (one camera or several, a
 decentering or none)."""
 from __future__ import annotations
@@ -61,9 +62,10 @@ def track_regions(state: SfMState) -> np.ndarray:
     return np.unique(np.c_[first, cell], axis=0, return_inverse=True)[1].ravel()
 
 
-# Where each of the tied intrinsics (rig_pooling.POOLED_INTRINSICS: f, k1, k2, by index into
-# prior_adjustment.INTRINSIC_NAMES) sits in fold_values.
-FOLD_VALUE_OF = {0: 3, 3: 4, 4: 5}
+# Where each of the tied intrinsics (rig_pooling.POOLED_INTRINSICS: f, k1, k2; and the aspect,
+# which cameras judged one share: by index into prior_adjustment.INTRINSIC_NAMES) sits in
+# fold_values.
+FOLD_VALUE_OF = {0: 3, 3: 4, 4: 5, 5: 2}
 
 
 def fold_values(cam) -> tuple[float, ...]:
@@ -98,6 +100,68 @@ def view_jackknife(views: dict[int, list[int]], estimate: Callable[[int], Option
         log.debug("block %d: view jackknife of cx, cy, aspect, f, k1, k2 over %d views: %s", b,
                   n, np.round(out[b], 4).tolist())
     return out
+
+
+def _free_estimate(part: SfMState, blocks: list[int], ties: Sequence = ()) -> Optional[dict]:
+    """block -> fold_values of `part` adjusted without priors but Priors.ties `ties` (in place),
+    None where the adjustment fails."""
+    part.drop_weak_points()
+    free = Priors(principal_point_std_px={b: np.inf for b in blocks},
+                  aspect_std={b: np.inf for b in blocks}, ties=list(ties))
+    try:
+        adjust_with_priors(part, blocks, free)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    return {b: fold_values(part.intrinsics[b]) for b in blocks}
+
+
+def _without_view(state: SfMState, camera: int) -> SfMState:
+    part = state.copy()
+    part.cam_from_world[camera] = None
+    return part
+
+
+def determined_by_images(state: SfMState, blocks: list[int], priors: Priors
+                         ) -> tuple[dict, dict]:
+    """Per block, which of "principal point" and "aspect" the images determine
+    (core.method.image_refinement, module docstring), and the folds' standard deviations of the
+    mean of the principal point (per axis), of the focal length (px) and of each tied intrinsic
+    (determined_by_folds): from the folds' estimates, adjusted without priors from `state` (the
+    found rig: the principal point at the image centre, square pixels), and for a block several
+    cameras share, at least the spread of its estimates with each of them left out
+    (view_jackknife)."""
+    fold = track_folds(state)
+
+    def fold_estimate(k: int) -> Optional[dict]:
+        part = state.copy()
+        part.active[fold != k] = False
+        return _free_estimate(part, blocks)
+    # the folds and the views left out are independent adjustments, side by side
+    estimates = [e for e in map_threads(fold_estimate, range(HOLDOUT_FOLDS)) if e is not None]
+    views = {b: [c for c in state.registered() if int(state.camera_block[c]) == b]
+             for b in blocks}
+    floors = view_jackknife(views, lambda c: _free_estimate(_without_view(state, c), blocks))
+    return determined_by_folds(estimates, blocks, priors, floors)
+
+
+def one_camera_jackknife(state: SfMState, blocks: list[int], members: list[int],
+                         ties: Sequence) -> Optional[np.ndarray]:
+    """view_jackknife's standard deviations (fold_values' order) for the blocks `members` that
+    the one-camera test holds together as one camera (Priors.ties `ties`): `state` (the found
+    rig) adjusted without priors but the ties, with each of their cameras left out in turn, the
+    one camera's estimate the mean over the members that keep a camera. None where fewer than
+    JACKKNIFE_MIN_VIEWS cameras are theirs. Separate cameras judged one share the view-to-view
+    trade-off of a shared block (view_jackknife) that their spatial folds cannot see."""
+    cams = [c for c in state.registered() if int(state.camera_block[c]) in members]
+
+    def estimate(c: int) -> Optional[dict]:
+        part = _without_view(state, c)
+        values = _free_estimate(part, blocks, ties)
+        kept = {int(part.camera_block[k]) for k in part.registered()}
+        if values is None:
+            return None
+        return {members[0]: np.mean([values[b] for b in members if b in kept], axis=0)}
+    return view_jackknife({members[0]: cams}, estimate).get(members[0])
 
 
 def determined_by_folds(estimates: list[dict], blocks: list[int], priors: Priors,

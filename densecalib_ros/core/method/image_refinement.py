@@ -58,15 +58,14 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ..parallel import map_threads
 from ..progress import check_stop
 from ..types import Tracks
 from .decentering import with_decentering, with_decentering_asked
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
-from .image_folds import (GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_folds, fold_values,
-                          held_out_errors, principal_point_determined, track_folds,
-                          track_regions, view_jackknife)
+from .image_folds import (FOLD_VALUE_OF, GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_images,
+                          held_out_errors, one_camera_jackknife, principal_point_determined,
+                          track_regions)
 from .plausibility import make_pixels_square, unlike_aspect_blocks
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, intrinsics_vector)
@@ -99,6 +98,7 @@ ONE_CAMERA_ITERATIONS = 20
 # or several: the test's cost).
 ONE_CAMERA_MAX_SCATTER = 1000.0
 PRINCIPAL_POINT_INTRINSICS = (1, 2)  # cx, cy as indices into INTRINSIC_NAMES
+ASPECT = 5  # the pixel aspect's index into INTRINSIC_NAMES
 # A camera left with fewer dense observations than this is not refined here (nor the rig).
 MIN_CAMERA_OBSERVATIONS = 50
 
@@ -190,11 +190,12 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     start.active &= refined.active  # the gated observations
     start.drop_weak_points()
     check_stop()
-    determined, fold_sigmas = determined_by_images(start, tracks, blocks, priors)
+    determined, fold_sigmas = determined_by_images(start, blocks, priors)
     ties, one_cameras, judged = rig_ties(refined, blocks, fold_sigmas, priors,
                                          adjustment.noise_px, camera_names, say)
     for members in one_cameras:
-        priors = _as_one_camera(refined, members, determined, fold_sigmas, priors)
+        priors = _as_one_camera(refined, members, determined, fold_sigmas, priors,
+                                one_camera_jackknife(start, blocks, members, ties))
     check_stop()
     in_place = with_decentering_asked(
         replace(priors, ties=ties), blocks, one_cameras, refined.intrinsics, say,
@@ -285,53 +286,22 @@ def adjust_and_gate(state: SfMState, blocks: list[int], priors: Priors) -> Prior
     return adjustment
 
 
-def determined_by_images(state: SfMState, tracks: Tracks, blocks: list[int], priors: Priors
-                          ) -> tuple[dict, dict]:
-    """Per block, which of "principal point" and "aspect" the images determine (module
-    docstring), and the folds' standard deviations of the mean of the principal point (per axis),
-    of the focal length (px) and of each tied intrinsic (image_folds.determined_by_folds): from
-    the folds' estimates, adjusted without priors from `state` (the found rig: the principal
-    point at the image centre, square pixels), and for a block several cameras share, at least
-    the spread of its estimates with each of them left out (image_folds.view_jackknife)."""
-    fold = track_folds(state)
-    free = Priors(principal_point_std_px={b: np.inf for b in blocks},
-                  aspect_std={b: np.inf for b in blocks})
-
-    def estimate(part: SfMState) -> Optional[dict]:  # block -> fold_values, adjusted freely
-        part.drop_weak_points()
-        try:
-            adjust_with_priors(part, blocks, free)
-        except (ValueError, np.linalg.LinAlgError):
-            return None
-        return {b: fold_values(part.intrinsics[b]) for b in blocks}
-
-    def fold_estimate(k: int) -> Optional[dict]:
-        part = state.copy()
-        part.active[fold != k] = False
-        return estimate(part)
-
-    def without_view(c: int) -> Optional[dict]:
-        part = state.copy()
-        part.cam_from_world[c] = None
-        return estimate(part)
-    # the folds and the views left out are independent adjustments, side by side
-    estimates = [e for e in map_threads(fold_estimate, range(HOLDOUT_FOLDS)) if e is not None]
-    views = {b: [c for c in state.registered() if int(state.camera_block[c]) == b]
-             for b in blocks}
-    return determined_by_folds(estimates, blocks, priors, view_jackknife(views, without_view))
-
-
 def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_sigmas: dict,
-                   priors: Priors) -> Priors:
+                   priors: Priors, jackknife: Optional[np.ndarray]) -> Priors:
     """What `determined_by_images` says of the blocks `members`, made what it says of one camera
     where `rig_ties` adjusts them as one: its estimate rests on all their images, so each sigma
     of the folds becomes that of the members' precision-weighted mean (rig_pooling.one_value),
     and the principal point is determined, for all of them or none, by that sigma (where the tie
     holds it: every member's folds gave it one). One camera has one prior: determined, the
     members' principal point priors, which the tie makes act together, widen by
-    sqrt(len(members)); held, each member starts from their precision-weighted mean (in
-    `state`), which `_hold_principal_points` weighs against one prior. `state`, `determined` and
-    `fold_sigmas` in place; returns the priors."""
+    sqrt(len(members)), as do their aspect priors (one camera, one aspect: `_one_camera_ties`);
+    held, each member starts from their precision-weighted mean (in `state`), which
+    `_hold_principal_points` weighs against one prior. The sigmas are then at least the
+    jackknife's over their views (image_folds.one_camera_jackknife, fold_values' order), which
+    unlike a shared block's does not decide: each member's own folds already saw its own view's
+    pitch and yaw, and a point so held moved the fox's six frames from 0.30 to 0.70 deg
+    (docs/design-notes.md, Image refinement: one camera's views left out in turn). `state`,
+    `determined` and `fold_sigmas` in place; returns the priors."""
     def pooled_std(stds) -> float:  # of the mean: the values do not enter it
         return one_value(np.zeros(len(stds)), stds).mean_std
 
@@ -342,12 +312,21 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
                intrinsics={i: pooled_std([fold_sigmas[b]["intrinsics"][i] for b in members])
                            for i in POOLED_INTRINSICS})
     point_std = dict(priors.principal_point_std_px)
+    aspect_std = {**priors.aspect_std, **{b: priors.aspect_std[b] * np.sqrt(len(members))
+                                          for b in members if priors.aspect_std[b] is not None}}
     if point_tied:
         pp = np.array([_principal_point(state.intrinsics[b]) for b in members])
         means = [one_value(pp[:, axis], point[axis]) for axis in range(2)]
         one["principal_point_axes_px"] = tuple(m.mean_std for m in means)
         estimated = principal_point_determined(one["principal_point_axes_px"],
                                                point_std[members[0]])
+    if jackknife is not None:  # widens the sigmas; the folds decided (docstring)
+        one["focal_px"] = max(one["focal_px"], jackknife[3])
+        one["intrinsics"] = {i: max(v, jackknife[FOLD_VALUE_OF[i]])
+                             for i, v in one["intrinsics"].items()}
+        if point_tied:
+            one["principal_point_axes_px"] = tuple(
+                np.maximum(one["principal_point_axes_px"], jackknife[:2]))
     for b in members:
         fold_sigmas[b] = {**fold_sigmas[b], **one}
         if not point_tied:
@@ -358,7 +337,7 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
             point_std[b] *= np.sqrt(len(members))
         else:
             _set_principal_point(state, b, [m.mean for m in means])
-    return replace(priors, principal_point_std_px=point_std)
+    return replace(priors, principal_point_std_px=point_std, aspect_std=aspect_std)
 
 
 def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Priors,
@@ -441,9 +420,11 @@ def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, sprea
 
 
 def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> list:
-    """Priors.ties that hold f, k1, k2 and the principal point of `members` together as one
-    camera would (rig_pooling.one_value); the principal point where the folds gave it a sigma
-    (the adjustment leaves a held one out of its tie)."""
+    """Priors.ties that hold f, k1, k2, the principal point and the pixel aspect of `members`
+    together as one camera would (rig_pooling.one_value); the principal point and the aspect
+    where the folds gave them a sigma (the adjustment leaves a held one out of its tie). Each
+    member's aspect left free traded its own view's focal length and principal point against it:
+    entry-P10 at 3072 px put cx 5.4 px off with fy / fx 1.0000-1.0008 against the lab's 1.0017."""
     ties = []
     values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
     stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
@@ -451,6 +432,9 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
         pp_stds = [fold_sigmas[b]["principal_point_axes_px"][axis] for b in members]
         if all(np.isfinite(pp_stds)) and min(pp_stds) > 0:
             stds[i] = pp_stds
+    aspect_stds = [fold_sigmas[b]["intrinsics"][ASPECT] for b in members]
+    if all(np.isfinite(aspect_stds)) and min(aspect_stds) > 0:
+        stds[ASPECT] = aspect_stds
     for i, i_stds in stds.items():
         sigma = one_value(values[:, i], i_stds).sigma
         ties.append((i, {b: sigma for b in members}))

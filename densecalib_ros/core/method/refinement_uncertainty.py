@@ -59,7 +59,7 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
     """Focal, principal point and projection standard deviations of a block in its COLMAP
     model: per quantity the largest that the covariances of INTRINSIC_NAMES (posterior_covariances'
     two) give, the focal's and an estimated principal point's at least the folds' (fold_sigmas:
-    image_refinement.determined_by_images), the focal's at least focal_scale_std (a fraction:
+    image_folds.determined_by_images), the focal's at least focal_scale_std (a fraction:
     focal_determination.probed_focal_scale_std) of it. held_pp_std_fraction: a held principal
     point's sigma as a fraction of the long side (its prior's: at most as far off as real lenses'
     offsets); None where estimated. The projection's is at least what the wider of the two
