@@ -336,7 +336,7 @@ def test_cameras_adjusted_as_one_are_determined_and_reported_as_one_camera():
     """Six images of one camera (principal point 6 px off the centre of a 640x480 image),
     refined as one camera: its principal point estimated or held for all of them alike, focal
     sigmas the one camera's (from the images of all six: below what any one image's folds give
-    it alone; they differ only through each image's own aspect), and the focal length within
+    it alone; they differ only where the tie lets each image's aspect), and the focal length within
     three of them of the truth."""
     from sfm_fixtures import gt_rig, gt_tracks
 
@@ -427,3 +427,32 @@ def test_a_pixel_aspect_no_real_sensor_has_is_held_square():
     for c in (0, 1, 3, 4):
         cam = refinement.state.intrinsics[c]
         assert cam.model == "RADIAL" or abs(cam.params[1] / cam.params[0] - 1.0) < 0.015
+
+
+def test_cameras_adjusted_as_one_share_one_pixel_aspect():
+    """Six images of one camera whose pixels are 0.2 % taller than wide (fy / fx 1.002, as
+    Strecha's DSLR has 1.0017), refined as one camera: one aspect for all six, near the truth.
+    Each image's aspect left free trades against its own focal length and principal point."""
+    from sfm_fixtures import gt_rig, gt_tracks
+
+    from densecalib_ros.core.method import image_refinement as ir
+    from densecalib_ros.core.method.reconstruction import SfMState
+    from densecalib_ros.core.types import CameraIntrinsics
+
+    cams, poses = gt_rig(6, seed=12, pp_jitter_px=4.0)
+    f, cx, cy, k1, k2 = cams[0].params
+    truth = CameraIntrinsics("OPENCV", 640, 480, np.array([f, 1.002 * f, cx, cy, k1, k2, 0, 0]))
+    tracks = gt_tracks([truth] * 6, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0,
+                       seed=12)
+    start = np.array([1.01 * f, 320.0, 240.0, k1, k2])  # as the SfM hands it over
+    state = SfMState.create(tracks, [CameraIntrinsics("RADIAL", 640, 480, start.copy())
+                                     for _ in cams])
+    state.cam_from_world = [T.copy() for T in poses]
+    names = [f"cam{c}" for c in range(6)]
+    said = []
+    refinement = ir.refine_on_images(state, None, None, names, None, 0, said.append, {},
+                                     _GivenCorrespondences(tracks))
+    assert refinement.one_camera == {tuple(names): True}, said
+    aspect = np.array([cam.params[1] / cam.params[0] for cam in refinement.state.intrinsics])
+    assert np.ptp(aspect) < 1e-4, aspect
+    assert abs(aspect.mean() - 1.002) < 5e-4, aspect
