@@ -30,8 +30,8 @@ in a recalibration). Where three or more cameras of one image size were adjusted
 adjusted once more with their intrinsics tied (core.method.rig_pooling). First, whether they
 are one camera (one camera moved around, frames of one video): the rig is adjusted on three of
 the folds and scored on the fourth (its correspondences triangulated anew, mean squared
-reprojection error), once as one camera (f, k1, k2 and the principal point tied tight) and once
-as separate cameras (not where their estimates of f, k1 or k2 already scatter far beyond their
+reprojection error), once as one camera (f, k1, k2, the principal point and the pixel aspect
+tied tight) and once as separate cameras (not where their estimates of f, k1 or k2 already scatter far beyond their
 sigmas: ONE_CAMERA_MAX_SCATTER); where one camera fits the held-out correspondences no worse
 than separate cameras by more than the folds' standard error of that difference (cross-validation's
 one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted
@@ -298,8 +298,8 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
     held, each member starts from their precision-weighted mean (in `state`), which
     `_hold_principal_points` weighs against one prior. The sigmas are then at least the
     jackknife's over their views (image_folds.one_camera_jackknife, fold_values' order), which
-    unlike a shared block's does not decide: each member's own folds already saw its own view's
-    pitch and yaw, and a point so held moved the fox's six frames from 0.30 to 0.70 deg
+    unlike a shared block's does not decide: deciding, it held the point of the fox's six frames
+    where the folds place it well, and they ended 0.70 deg off instead of 0.30
     (docs/design-notes.md, Image refinement: one camera's views left out in turn). `state`,
     `determined` and `fold_sigmas` in place; returns the priors."""
     def pooled_std(stds) -> float:  # of the mean: the values do not enter it
