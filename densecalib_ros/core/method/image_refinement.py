@@ -31,9 +31,10 @@ adjusted once more with their intrinsics tied (core.method.rig_pooling). First, 
 are one camera (one camera moved around, frames of one video): the rig is adjusted on three of
 the folds and scored on the fourth (its correspondences triangulated anew, mean squared
 reprojection error), once as one camera (f, k1, k2, the principal point and the pixel aspect
-tied tight) and once as separate cameras (not where their estimates of f, k1 or k2 already scatter far beyond their
-sigmas: ONE_CAMERA_MAX_SCATTER); where one camera fits the held-out correspondences no worse
-than separate cameras by more than the folds' standard error of that difference (cross-validation's
+tied tight) and once as separate cameras (not where their estimates of f, k1 or k2 already
+scatter far beyond their sigmas: ONE_CAMERA_MAX_SCATTER); where one camera fits the held-out
+correspondences no worse than separate cameras by more than the folds' standard error of that
+difference (cross-validation's
 one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted
 as one, and judged as one: the sigmas that decide and report a parameter are those of the
 estimate from all their images, and the principal point is estimated or held for all of them
