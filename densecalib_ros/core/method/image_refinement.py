@@ -37,8 +37,8 @@ correspondences no worse than separate cameras by more than the folds' standard 
 difference (cross-validation's one-standard-error rule: the simpler model unless the data
 prefer the other), they are adjusted as one, and judged as one: the sigmas that decide and
 report a parameter are those of the estimate from all their images, and the principal point is
-estimated or held for all of them alike, under one camera's prior (`_as_one_camera`). Otherwise f, k1 and k2 are tied as far as
-they agree: the cameras' estimates, with the folds' sigmas, give the spread between the
+estimated or held for all of them alike, under one camera's prior (`_as_one_camera`).
+Otherwise f, k1 and k2 are tied as far as they agree: the cameras' estimates, with the folds' sigmas, give the spread between the
 cameras, and each camera's difference from the rig's mean gets a Gaussian of that spread.
 Separately self-calibrated, each camera traded its intrinsics against its pose in its own way
 (docs/design-notes.md, Image refinement: the rig's own spread; one camera or several). The
