@@ -28,20 +28,20 @@ recalibration the point the previous calibration of the same camera estimated fr
 threshold, can go either way between runs (measured: docs/design-notes.md, Principal point prior
 in a recalibration). Where three or more cameras of one image size were adjusted, the rig is
 adjusted once more with their intrinsics tied (core.method.rig_pooling). First, whether they
-are one camera (one camera moved around, frames of one video): the rig is adjusted on three of
-the folds and scored on the fourth (its correspondences triangulated anew, mean squared
-reprojection error), once as one camera (f, k1, k2, the principal point and the pixel aspect
-tied tight) and once as separate cameras (not where their estimates of f, k1 or k2 already
-scatter far beyond their sigmas: ONE_CAMERA_MAX_SCATTER); where one camera fits the held-out
-correspondences no worse than separate cameras by more than the folds' standard error of that
-difference (cross-validation's one-standard-error rule: the simpler model unless the data
-prefer the other), they are adjusted as one, and judged as one: the sigmas that decide and
-report a parameter are those of the estimate from all their images, and the principal point is
-estimated or held for all of them alike, under one camera's prior (`_as_one_camera`).
-Otherwise f, k1 and k2 are tied as far as they agree: the cameras' estimates, with the folds' sigmas, give the spread between the
-cameras, and each camera's difference from the rig's mean gets a Gaussian of that spread.
-Separately self-calibrated, each camera traded its intrinsics against its pose in its own way
-(docs/design-notes.md, Image refinement: the rig's own spread; one camera or several). The
+are one camera (one camera moved around, frames of one video): the rig is adjusted on three of the
+folds and scored on the fourth (its correspondences triangulated anew, mean squared reprojection
+error), once as one camera (f, k1, k2 and the principal point tied tight) and once as separate
+cameras (not where their estimates of f, k1 or k2 already scatter far beyond their sigmas:
+ONE_CAMERA_MAX_SCATTER); where one camera fits the held-out correspondences no worse than separate
+cameras by more than the folds' standard error of that difference (cross-validation's
+one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted as
+one (their pixel aspect tied too: `_one_camera_ties`), and judged as one: the sigmas that decide
+and report a parameter are those of the estimate from all their images, and the principal point is
+estimated or held for all of them alike, under one camera's prior (`_as_one_camera`). Otherwise f,
+k1 and k2 are tied as far as they agree: the cameras' estimates, with the folds' sigmas, give the
+spread between the cameras, and each camera's difference from the rig's mean gets a Gaussian of
+that spread. Separately self-calibrated, each camera traded its intrinsics against its pose in its
+own way (docs/design-notes.md, Image refinement: the rig's own spread; one camera or several). The
 pixel aspect is estimated with its prior (holding a real sensor's aspect at 1 moves the
 principal points far: docs/design-notes.md, Image refinement: folds and the aspect prior), but
 held square where the fit puts it beyond what any real sensor has
@@ -312,8 +312,6 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
                intrinsics={i: pooled_std([fold_sigmas[b]["intrinsics"][i] for b in members])
                            for i in POOLED_INTRINSICS})
     point_std = dict(priors.principal_point_std_px)
-    aspect_std = {**priors.aspect_std, **{b: priors.aspect_std[b] * np.sqrt(len(members))
-                                          for b in members if priors.aspect_std[b] is not None}}
     if point_tied:
         pp = np.array([_principal_point(state.intrinsics[b]) for b in members])
         means = [one_value(pp[:, axis], point[axis]) for axis in range(2)]
@@ -337,6 +335,8 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
             point_std[b] *= np.sqrt(len(members))
         else:
             _set_principal_point(state, b, [m.mean for m in means])
+    aspect_std = {**priors.aspect_std, **{b: priors.aspect_std[b] * np.sqrt(len(members))
+                                          for b in members if priors.aspect_std[b] is not None}}
     return replace(priors, principal_point_std_px=point_std, aspect_std=aspect_std)
 
 
@@ -366,7 +366,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
         stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
         effects = {i: random_effects(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
         spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
-        one_ties = _one_camera_ties(state, members, fold_sigmas)
+        one_ties = _one_camera_ties(state, members, fold_sigmas, aspect=False)
         scatter = {i: scatter_per_dof(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
         widest = max(scatter, key=scatter.get)
         if scatter[widest] >= ONE_CAMERA_MAX_SCATTER:
@@ -379,7 +379,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
             tested = (f"; as one camera they fit held-out correspondences "
                       f"{100 * np.mean(excess):.1f} % worse" if np.isfinite(excess).all() else "")
         if excess is not None and float(np.mean(excess)) <= standard_error:
-            ties += one_ties
+            ties += _one_camera_ties(state, members, fold_sigmas)
             one_cameras.append(members)
             say(f"the {len(members)} cameras of {width}x{height} fit the correspondences held "
                 f"out of their adjustment as well as one camera does ({100 * np.mean(excess):+.2f}"
@@ -419,12 +419,17 @@ def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, sprea
     return excess, float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
 
 
-def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> list:
-    """Priors.ties that hold f, k1, k2, the principal point and the pixel aspect of `members`
-    together as one camera would (rig_pooling.one_value); the principal point and the aspect
-    where the folds gave them a sigma (the adjustment leaves a held one out of its tie). Each
-    member's aspect left free traded its own view's focal length and principal point against it:
-    entry-P10 at 3072 px put cx 5.4 px off with fy / fx 1.0000-1.0008 against the lab's 1.0017."""
+def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict,
+                     aspect: bool = True) -> list:
+    """Priors.ties that hold f, k1, k2, the principal point and (aspect) the pixel aspect of
+    `members` together as one camera would (rig_pooling.one_value); the principal point and the
+    aspect where the folds gave them a sigma (the adjustment leaves a held one out of its tie).
+    Each member's aspect left free traded its own view's focal length and principal point
+    against it: entry-P10 at 3072 px put cx 5.4 px off with fy / fx 1.0000-1.0008 against the
+    lab's 1.0017. The one-camera test asks without it (aspect False) whether the images show
+    one lens: the fox's 8 phone-video frames (a rolling shutter may give each frame an apparent
+    aspect of its own) fitted held-out correspondences 3.5 % worse with one aspect than with
+    eight, and one lens no worse than eight."""
     ties = []
     values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
     stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
@@ -433,7 +438,7 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
         if all(np.isfinite(pp_stds)) and min(pp_stds) > 0:
             stds[i] = pp_stds
     aspect_stds = [fold_sigmas[b]["intrinsics"][ASPECT] for b in members]
-    if all(np.isfinite(aspect_stds)) and min(aspect_stds) > 0:
+    if aspect and all(np.isfinite(aspect_stds)) and min(aspect_stds) > 0:
         stds[ASPECT] = aspect_stds
     for i, i_stds in stds.items():
         sigma = one_value(values[:, i], i_stds).sigma
