@@ -429,29 +429,39 @@ def test_a_pixel_aspect_no_real_sensor_has_is_held_square():
         assert cam.model == "RADIAL" or abs(cam.params[1] / cam.params[0] - 1.0) < 0.015
 
 
-def test_cameras_adjusted_as_one_share_one_pixel_aspect():
-    """Six images of one camera whose pixels are 0.2 % taller than wide (fy / fx 1.002, as
-    Strecha's DSLR has 1.0017), refined as one camera: one aspect for all six, near the truth.
-    Each image's aspect left free trades against its own focal length and principal point."""
+def _one_lens_refined(aspects, seed):
+    """Frames of one lens (RADIAL parameters of a gt_rig camera) whose pixel aspects fy / fx are
+    `aspects`, one per frame, at their true poses with 0.1 px noise, handed over as the SfM does
+    (focal 1 % off, principal point at the centre), refined on the images: (refinement, camera
+    names, what it said)."""
     from sfm_fixtures import gt_rig, gt_tracks
 
     from densecalib_ros.core.method import image_refinement as ir
     from densecalib_ros.core.method.reconstruction import SfMState
     from densecalib_ros.core.types import CameraIntrinsics
 
-    cams, poses = gt_rig(6, seed=12, pp_jitter_px=4.0)
+    cams, poses = gt_rig(len(aspects), seed=seed, pp_jitter_px=4.0)
     f, cx, cy, k1, k2 = cams[0].params
-    truth = CameraIntrinsics("OPENCV", 640, 480, np.array([f, 1.002 * f, cx, cy, k1, k2, 0, 0]))
-    tracks = gt_tracks([truth] * 6, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0,
-                       seed=12)
-    start = np.array([1.01 * f, 320.0, 240.0, k1, k2])  # as the SfM hands it over
+    frames = [CameraIntrinsics("OPENCV", 640, 480, np.array([f, a * f, cx, cy, k1, k2, 0, 0]))
+              for a in aspects]
+    tracks = gt_tracks(frames, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0,
+                       seed=seed)
+    start = np.array([1.01 * f, 320.0, 240.0, k1, k2])
     state = SfMState.create(tracks, [CameraIntrinsics("RADIAL", 640, 480, start.copy())
                                      for _ in cams])
     state.cam_from_world = [T.copy() for T in poses]
-    names = [f"cam{c}" for c in range(6)]
+    names = [f"cam{c}" for c in range(len(cams))]
     said = []
     refinement = ir.refine_on_images(state, None, None, names, None, 0, said.append, {},
                                      _GivenCorrespondences(tracks))
+    return refinement, names, said
+
+
+def test_cameras_adjusted_as_one_share_one_pixel_aspect():
+    """Six images of one camera whose pixels are 0.2 % taller than wide (fy / fx 1.002, as
+    Strecha's DSLR has 1.0017), refined as one camera: one aspect for all six, near the truth.
+    Each image's aspect left free trades against its own focal length and principal point."""
+    refinement, names, said = _one_lens_refined([1.002] * 6, seed=12)
     assert refinement.one_camera == {tuple(names): True}, said
     aspect = np.array([cam.params[1] / cam.params[0] for cam in refinement.state.intrinsics])
     assert np.ptp(aspect) < 1e-4, aspect
@@ -463,23 +473,6 @@ def test_frames_whose_apparent_aspects_differ_are_still_judged_one_lens():
     as a rolling shutter in motion gives a phone's video frames): the one-camera test asks about
     the lens (f, k1, k2, principal point), so they are judged one camera (with one aspect in the
     test as well, they fitted held-out correspondences 103 % worse than six)."""
-    from sfm_fixtures import gt_rig, gt_tracks
-
-    from densecalib_ros.core.method import image_refinement as ir
-    from densecalib_ros.core.method.reconstruction import SfMState
-    from densecalib_ros.core.types import CameraIntrinsics
-
-    cams, poses = gt_rig(6, seed=13, pp_jitter_px=4.0)
-    f, cx, cy, k1, k2 = cams[0].params
-    frames = [CameraIntrinsics("OPENCV", 640, 480, np.array([f, a * f, cx, cy, k1, k2, 0, 0]))
-              for a in (0.996, 1.004, 0.998, 1.003, 0.997, 1.002)]
-    tracks = gt_tracks(frames, poses, num_points=3000, noise_px=0.1, outlier_frac=0.0, seed=13)
-    start = np.array([1.01 * f, 320.0, 240.0, k1, k2])
-    state = SfMState.create(tracks, [CameraIntrinsics("RADIAL", 640, 480, start.copy())
-                                     for _ in cams])
-    state.cam_from_world = [T.copy() for T in poses]
-    names = [f"cam{c}" for c in range(6)]
-    said = []
-    refinement = ir.refine_on_images(state, None, None, names, None, 0, said.append, {},
-                                     _GivenCorrespondences(tracks))
+    refinement, names, said = _one_lens_refined([0.996, 1.004, 0.998, 1.003, 0.997, 1.002],
+                                                seed=13)
     assert refinement.one_camera == {tuple(names): True}, said

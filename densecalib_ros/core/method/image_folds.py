@@ -4,9 +4,9 @@ folds' separate estimates say the images determine: a parameter whose uncertaint
 of the folds' estimates, is below ESTIMATED_FRACTION of its prior's spread. Intrinsics that
 several views share are also estimated with each view left out (view_jackknife), and their
 uncertainty is at least that spread (determined_by_images; one_camera_jackknife for separate
-cameras the one-camera test holds as one). held_out_errors scores a rig adjusted on all folds but one on
-that one, for the tests that compare two models of the same images (one camera or several, a
-decentering or none)."""
+cameras the one-camera test holds as one). held_out_errors scores a rig adjusted on all folds
+but one on that one, for the tests that compare two models of the same images (one camera or
+several, a decentering or none)."""
 from __future__ import annotations
 
 import logging
@@ -157,9 +157,9 @@ def one_camera_jackknife(state: SfMState, blocks: list[int], members: list[int],
     def estimate(c: int) -> Optional[dict]:
         part = _without_view(state, c)
         values = _free_estimate(part, blocks, ties)
-        kept = {int(part.camera_block[k]) for k in part.registered()}
         if values is None:
             return None
+        kept = {int(part.camera_block[k]) for k in part.registered()}
         return {members[0]: np.mean([values[b] for b in members if b in kept], axis=0)}
     return view_jackknife({members[0]: cams}, estimate).get(members[0])
 

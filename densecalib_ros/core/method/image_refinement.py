@@ -35,7 +35,7 @@ cameras (not where their estimates of f, k1 or k2 already scatter far beyond the
 ONE_CAMERA_MAX_SCATTER); where one camera fits the held-out correspondences no worse than separate
 cameras by more than the folds' standard error of that difference (cross-validation's
 one-standard-error rule: the simpler model unless the data prefer the other), they are adjusted as
-one (their pixel aspect tied too: `_one_camera_ties`), and judged as one: the sigmas that decide
+one (their pixel aspect tied too: `_one_aspect_tie`), and judged as one: the sigmas that decide
 and report a parameter are those of the estimate from all their images, and the principal point is
 estimated or held for all of them alike, under one camera's prior (`_as_one_camera`). Otherwise f,
 k1 and k2 are tied as far as they agree: the cameras' estimates, with the folds' sigmas, give the
@@ -294,7 +294,7 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
     and the principal point is determined, for all of them or none, by that sigma (where the tie
     holds it: every member's folds gave it one). One camera has one prior: determined, the
     members' principal point priors, which the tie makes act together, widen by
-    sqrt(len(members)), as do their aspect priors (one camera, one aspect: `_one_camera_ties`);
+    sqrt(len(members)), as do their aspect priors (one camera, one aspect: `_one_aspect_tie`);
     held, each member starts from their precision-weighted mean (in `state`), which
     `_hold_principal_points` weighs against one prior. The sigmas are then at least the
     jackknife's over their views (image_folds.one_camera_jackknife, fold_values' order), which
@@ -366,7 +366,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
         stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
         effects = {i: random_effects(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
         spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
-        one_ties = _one_camera_ties(state, members, fold_sigmas, aspect=False)
+        one_ties = _one_camera_ties(state, members, fold_sigmas)
         scatter = {i: scatter_per_dof(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
         widest = max(scatter, key=scatter.get)
         if scatter[widest] >= ONE_CAMERA_MAX_SCATTER:
@@ -379,7 +379,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
             tested = (f"; as one camera they fit held-out correspondences "
                       f"{100 * np.mean(excess):.1f} % worse" if np.isfinite(excess).all() else "")
         if excess is not None and float(np.mean(excess)) <= standard_error:
-            ties += _one_camera_ties(state, members, fold_sigmas)
+            ties += one_ties + _one_aspect_tie(state, members, fold_sigmas)
             one_cameras.append(members)
             say(f"the {len(members)} cameras of {width}x{height} fit the correspondences held "
                 f"out of their adjustment as well as one camera does ({100 * np.mean(excess):+.2f}"
@@ -419,17 +419,10 @@ def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, sprea
     return excess, float(np.std(excess, ddof=1) / np.sqrt(len(excess)))
 
 
-def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict,
-                     aspect: bool = True) -> list:
-    """Priors.ties that hold f, k1, k2, the principal point and (aspect) the pixel aspect of
-    `members` together as one camera would (rig_pooling.one_value); the principal point and the
-    aspect where the folds gave them a sigma (the adjustment leaves a held one out of its tie).
-    Each member's aspect left free traded its own view's focal length and principal point
-    against it: entry-P10 at 3072 px put cx 5.4 px off with fy / fx 1.0000-1.0008 against the
-    lab's 1.0017. The one-camera test asks without it (aspect False) whether the images show
-    one lens: the fox's 8 phone-video frames (a rolling shutter may give each frame an apparent
-    aspect of its own) fitted held-out correspondences 3.5 % worse with one aspect than with
-    eight, and one lens no worse than eight."""
+def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> list:
+    """Priors.ties that hold f, k1, k2 and the principal point of `members` together as one lens
+    would (rig_pooling.one_value); the principal point where the folds gave it a sigma (the
+    adjustment leaves a held one out of its tie). What the one-camera test ties."""
     ties = []
     values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
     stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
@@ -437,14 +430,26 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict,
         pp_stds = [fold_sigmas[b]["principal_point_axes_px"][axis] for b in members]
         if all(np.isfinite(pp_stds)) and min(pp_stds) > 0:
             stds[i] = pp_stds
-    aspect_stds = [fold_sigmas[b]["intrinsics"][ASPECT] for b in members]
-    if aspect and all(np.isfinite(aspect_stds)) and min(aspect_stds) > 0:
-        stds[ASPECT] = aspect_stds
     for i, i_stds in stds.items():
         sigma = one_value(values[:, i], i_stds).sigma
         ties.append((i, {b: sigma for b in members}))
     return ties
 
+
+def _one_aspect_tie(state: SfMState, members: list[int], fold_sigmas: dict) -> list:
+    """The Priors.tie (a list of none or one) that holds the pixel aspect of `members`, judged
+    one camera, together as one value (rig_pooling.one_value), where the folds gave it a sigma.
+    Each member's aspect left free traded its own view's focal length and principal point
+    against it: entry-P10 at 3072 px put cx 5.4 px off with fy / fx 1.0000-1.0008 against the
+    lab's 1.0017. The one-camera test asks without it whether the images show one lens: the
+    fox's 8 phone-video frames (a rolling shutter may give each frame an apparent aspect of its
+    own) fitted held-out correspondences 3.5 % worse with one aspect than with eight, and one
+    lens no worse than eight."""
+    stds = [fold_sigmas[b]["intrinsics"][ASPECT] for b in members]
+    if not (all(np.isfinite(stds)) and min(stds) > 0):
+        return []
+    values = [intrinsics_vector(state.intrinsics[b])[ASPECT] for b in members]
+    return [(ASPECT, dict.fromkeys(members, one_value(values, stds).sigma))]
 
 
 def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, priors: Priors,
