@@ -244,6 +244,49 @@ def test_sift_column_reduction_takes_the_first_nearest_row_and_the_next_value():
     assert np.any(second == sub.min(axis=0))  # a tie for the nearest row occurs
 
 
+def _sift_sites(image, nfeatures):
+    """OpenCV SIFT's (descriptors float32, int64 sites, number of sites) of an image."""
+    keypoints, desc = cv2.SIFT_create(nfeatures).detectAndCompute(
+        cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), None)
+    _, site = np.unique(np.array([k.pt for k in keypoints]), axis=0, return_inverse=True)
+    return desc.astype(np.float32), site.reshape(-1).astype(np.int64), int(site.max()) + 1
+
+
+def test_onednn_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch):
+    """OpenCV SIFT's integer descriptors, and norms cut into parts bfloat16 holds exactly: oneDNN's
+    products (which may compute in bfloat16) give the exact distances, so numpy's nearest sites
+    and ratios; RootSIFT's descriptors are not taken there."""
+    import torch
+
+    import densecalib_ros.core.method.matching.sift as sift
+    from densecalib_ros.core.method.matching import descriptor_products as dp
+
+    monkeypatch.setattr(sift, "BLOCK_SITES", 300)  # several blocks and tiles
+    monkeypatch.setattr(sift, "TILE_COLUMNS", 700)
+    a, b = _sift_sites(image_pair[0], 3000), _sift_sites(image_pair[1], 3000)
+    assert dp.integer_descriptors(a[0]) and dp.integer_descriptors(b[0])
+    assert not dp.integer_descriptors(np.sqrt(a[0]))
+    norms = np.einsum("ij,ij->i", a[0], a[0])
+    parts = dp.norm_parts(norms)
+    np.testing.assert_array_equal(parts.sum(axis=1, dtype=np.float64), norms)
+    np.testing.assert_array_equal(torch.from_numpy(parts).bfloat16().float().numpy(), parts)
+    want = nearest_sites_both_ways(*a, *b)
+    rows = np.c_[-2 * a[0], parts, np.ones((len(norms), 3))].astype(np.float32)
+    cols = np.c_[b[0], np.ones((len(b[0]), 3)),
+                 dp.norm_parts(np.einsum("ij,ij->i", b[0], b[0]))].astype(np.float32)
+    a64, b64 = a[0].astype(np.float64), b[0].astype(np.float64)  # integers: exact in float64
+    exact = (a64 ** 2).sum(axis=1)[:, None] + (b64 ** 2).sum(axis=1) - 2 * a64 @ b64.T
+    with dp.onednn_products(1) as torch_there:
+        assert torch_there and torch.backends.mkldnn.matmul.fp32_precision == "bf16"
+        got = nearest_sites_both_ways(*a, *b, dp.onednn_product)
+        out = np.empty((len(rows), len(cols)), np.float32)
+        dp.onednn_product(cols)(rows, 0, len(cols), out)
+        np.testing.assert_array_equal(out, exact)
+    assert torch.backends.mkldnn.matmul.fp32_precision != "bf16"  # put back
+    for got_k, want_k in zip(got, want):
+        np.testing.assert_array_equal(got_k, want_k)
+
+
 def test_resized_matching_maps_back_to_original_pixels(image_pair):
     gray = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in image_pair]
     ms = create_matcher("sift", max_image_side_px=200).match(gray)
