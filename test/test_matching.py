@@ -287,6 +287,28 @@ def test_onednn_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch)
         np.testing.assert_array_equal(got_k, want_k)
 
 
+def test_asift_matches_with_numpys_products_where_torch_refuses_onednns(monkeypatch):
+    """A torch that refuses the bfloat16 setting (another build or version): the products are
+    numpy's, with the same matches, and the setting is left as it was."""
+    import torch
+
+    from densecalib_ros.core.method.matching import descriptor_products as dp
+
+    def refuse(*args):
+        raise RuntimeError("not on this build")
+    before = torch.backends.mkldnn.matmul.fp32_precision
+    monkeypatch.setattr(torch._C, "_set_fp32_precision_setter", refuse)
+    with dp.onednn_products(1) as torch_there:
+        assert torch_there is None
+    assert torch.backends.mkldnn.matmul.fp32_precision == before
+    image = textured_image(200, 150, seed=4)
+    matches = create_matcher("asift").match([image, image[10:, 8:]])
+    monkeypatch.undo()
+    np.testing.assert_array_equal(matches.pairs[(0, 1)].target,
+                                  create_matcher("asift").match(
+                                      [image, image[10:, 8:]]).pairs[(0, 1)].target)
+
+
 def test_resized_matching_maps_back_to_original_pixels(image_pair):
     gray = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in image_pair]
     ms = create_matcher("sift", max_image_side_px=200).match(gray)
