@@ -2,10 +2,11 @@
 keep the float32 result to the bit even where oneDNN computes in bfloat16.
 
 numpy's BLAS (OpenBLAS, its Haswell kernel on this AMD CPU) runs the product at about 100
-GFLOP/s a core; oneDNN's AVX-512 matmul (brg_matmul:avx512_core in ONEDNN_VERBOSE) 1.6-1.7x
-that on asift's tiles, the same float32 sums. torch hands a float32 product to oneDNN only
-where its matmul precision allows bfloat16 (torch.backends.mkldnn.matmul.fp32_precision; its
-default, MKL, is slower still on this CPU), and oneDNN may then compute in bfloat16 (CPUs with
+GFLOP/s a core; oneDNN's AVX-512 matmul (brg_matmul:avx512_core in ONEDNN_VERBOSE) 1.7x
+that on a block of asift's tiles (a whole pair 1.45-1.6x), the same float32 sums. torch hands
+a float32 product to oneDNN only where its matmul precision allows bfloat16
+(torch.backends.mkldnn.matmul.fp32_precision; its default, MKL, runs at about numpy's speed on
+this CPU), and oneDNN may then compute in bfloat16 (CPUs with
 AMX or bf16 kernels; on this one it kept float32). The inputs are made so that this changes
 nothing: OpenCV's SIFT descriptors are integers 0-255, which bfloat16 holds exactly (8
 significant bits), as it holds -2 x one of them and each base-256 digit of a squared norm times
