@@ -189,6 +189,44 @@ def test_work_run_ahead_takes_the_lowest_priority_and_stops_when_cancelled():
     assert RunAhead(fails).result() is None
 
 
+def test_work_run_ahead_waits_while_paused_and_goes_on_when_resumed_or_asked_for():
+    """pause() holds the work at its next look at `cancelled` (a calibration set aside while
+    the second matcher runs: stages.attempt); resume() lets it go on; result() resumes it
+    itself; a paused work that is cancelled ends."""
+    import threading
+
+    from densecalib_ros.core.parallel import RunAhead
+
+    steps = []
+
+    def work(cancelled, thread_start):
+        while len(steps) < 40:
+            if cancelled.is_set():
+                return None
+            steps.append(1)
+            time.sleep(0.01)
+        return len(steps)
+
+    ahead = RunAhead(work)
+    ahead.pause()
+    time.sleep(0.1)
+    held = len(steps)
+    time.sleep(0.3)
+    assert len(steps) <= held + 1 and ahead._thread.is_alive()  # one step may finish
+    ahead.resume()
+    time.sleep(0.1)
+    assert len(steps) > held + 1
+    ahead.pause()
+    assert ahead.result() == 40  # asked for: taken up again
+
+    stopped = RunAhead(lambda cancelled, thread_start: cancelled.is_set() or
+                       cancelled.wait(5.0) or "not cancelled")
+    stopped.pause()
+    stopped.cancel()
+    stopped._thread.join(2.0)
+    assert not stopped._thread.is_alive() and stopped.result() is None
+
+
 def test_a_process_ending_while_work_runs_ahead_in_opencv_keeps_its_exit_code(tmp_path):
     """A calibration that fails or is interrupted while the dense correspondences are found
     ahead exits with its own code: the work still inside OpenCV when the script ends is

@@ -409,6 +409,8 @@ def test_a_camera_the_first_sift_run_leaves_out_goes_to_asift_after_that_one_run
     before = lines[:rematch[0]]
     assert sum(m.startswith("consensus run 1 of up to 5") for m in before) == 1
     assert not any(m.startswith("consensus run 2") for m in before)
+    # that run is not refined on the images before asift has had its say (with_second_matcher)
+    assert not any(m.startswith("refined on") and "dense image" in m for m in before)
     assert result.rig.failed_cameras == ["stray"] and len(result.rig.cameras) == 4
     assert q.rematch["first_result"] == "stray not registered"
     completed = [m for m in lines if m == "asift: no better determined; completing sift's "
@@ -441,12 +443,12 @@ def test_where_asift_does_no_better_sifts_runs_are_completed_as_without_it(rig, 
                                                       grey.config, progress),
                                       grey.config, progress)}
 
-    def calibrate(name, until):
+    def calibrate(name, until, refine_cut_short=True):
         if name not in calibrators:
             other = grey.config.with_options(matcher=name)
             calibrators[name] = Calibrator(grey, match_rig(grey, other, progress), other,
                                            progress)
-        return calibrators[name].calibrate(until)
+        return calibrators[name].calibrate(until, refine_cut_short)
     kept, rematch = with_second_matcher(calibrate, grey.config, names, True, progress.say)
     q = kept.rig.quality
     assert kept.config.matcher == "sift" and rematch.record() == {

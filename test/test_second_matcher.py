@@ -88,3 +88,47 @@ def test_runs_apart_that_meet_refined_on_the_images_leave_the_rig_determined():
     assert undetermined(apart) == \
         f"the calibration runs disagree by {WARN_DISAGREEMENT_DEG + 1.0:.1f} deg"
     assert better_determined(met, apart) and not better_determined(apart, met)
+
+
+def test_a_first_run_that_left_a_camera_out_is_refined_only_where_the_comparison_needs_it():
+    """with_second_matcher asks for sift's first run unrefined where the run left a camera out
+    (its image refinement is seconds a kept second matcher makes worthless): asift's with every
+    camera is kept over it as is; asift's with as many cameras is compared with it refined (the
+    focal sigmas decide); asift's that failed has sift's runs completed."""
+    from types import SimpleNamespace
+
+    from densecalib_ros.core.errors import CalibrationError
+    from densecalib_ros.core.robust.second_matcher import first_runs_undetermined, \
+        with_second_matcher
+
+    def policy_with(second):
+        calls = []
+
+        def calibrate(matcher, until, refine_cut_short=True):
+            calls.append((matcher, until is first_runs_undetermined, refine_cut_short))
+            if matcher == "asift":
+                if second is None:
+                    raise CalibrationError("no rig")
+                return SimpleNamespace(rig=second, cut_short=False, unrefined=False)
+            cut = until is not None
+            sigma = 0.03 if cut and not refine_cut_short else 0.02  # refined: tighter
+            rig = _rig(("a", "b"), failed=["c"], disagreement=None, focal_std_fraction=sigma)
+            return SimpleNamespace(rig=rig, cut_short=cut, unrefined=cut and not refine_cut_short)
+        kept, rematch = with_second_matcher(calibrate, make_config("regular", matcher="sift"),
+                                            ["a", "b", "c"], True, lambda message: None)
+        return kept, rematch, calls
+
+    every = _rig(disagreement=0.5, focal_std_fraction=0.01)
+    kept, rematch, calls = policy_with(every)
+    assert kept.rig is every and rematch.kept_second
+    assert calls == [("sift", True, False), ("asift", False, True)]
+
+    # as many cameras, looser than sift's refined run but tighter than its unrefined one
+    as_many = _rig(("a", "b"), failed=["c"], focal_std_fraction=0.025)
+    kept, rematch, calls = policy_with(as_many)
+    assert calls[:3] == [("sift", True, False), ("asift", False, True), ("sift", True, True)]
+    assert not rematch.kept_second and kept.rig is not as_many
+
+    kept, rematch, calls = policy_with(None)
+    assert calls == [("sift", True, False), ("asift", False, True), ("sift", False, True)]
+    assert not rematch.kept_second and not kept.cut_short

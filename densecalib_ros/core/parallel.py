@@ -146,11 +146,15 @@ class RunAhead:
     adjustment) instead of after it. result() waits for it and gives its value, or None where it
     failed (the stage then does the work itself, and meets the error itself); cancel() asks fn
     to stop (fn raises to stop, and is not waited for: a failed calibration returns at once).
-    What still runs when the interpreter ends is cancelled and waited for then
-    (_stop_work_ahead)."""
+    pause() holds fn at its next look at `cancelled` until resume() or result() (work for a
+    calibration set aside while another runs: a nice value does not keep its Python parts off
+    the interpreter lock). What still runs when the interpreter ends is cancelled and waited
+    for then (_stop_work_ahead)."""
 
     def __init__(self, fn: Callable, *args: Any, name: str = "densecalib-ahead") -> None:
         self._cancelled = threading.Event()
+        self._going = threading.Event()
+        self._going.set()
         self._value: Any = None
         self._thread = threading.Thread(target=self._run, args=(fn, args), name=name,
                                         daemon=True)
@@ -160,7 +164,8 @@ class RunAhead:
     def _run(self, fn: Callable, args: tuple) -> None:
         lower_this_thread()
         try:
-            self._value = fn(*args, cancelled=self._cancelled, thread_start=lower_this_thread)
+            self._value = fn(*args, cancelled=_Gate(self._cancelled, self._going),
+                             thread_start=lower_this_thread)
         except Exception as exc:  # noqa: BLE001 - the stage that needs it does the work itself
             if not self._cancelled.is_set():
                 log.debug("work run ahead failed (%r); it is done when needed", exc)
@@ -170,6 +175,7 @@ class RunAhead:
     def result(self) -> Any:
         """Its value once it returned (the calibration's stop checked while it is waited for:
         core.progress.check_stop)."""
+        self.resume()
         while self._thread.is_alive():
             check_stop()
             self._thread.join(STOP_CHECK_S)
@@ -177,6 +183,29 @@ class RunAhead:
 
     def cancel(self) -> None:
         self._cancelled.set()
+
+    def pause(self) -> None:
+        self._going.clear()
+
+    def resume(self) -> None:
+        self._going.set()
+
+
+class _Gate:
+    """RunAhead's `cancelled` as its fn sees it (threading.Event's is_set and wait): whether the
+    work was cancelled, once it is not paused (it waits while it is)."""
+
+    def __init__(self, cancelled: threading.Event, going: threading.Event) -> None:
+        self._cancelled, self._going = cancelled, going
+
+    def is_set(self) -> bool:
+        while not self._going.wait(STOP_CHECK_S) and not self._cancelled.is_set():
+            pass
+        return self._cancelled.is_set()
+
+    def wait(self, timeout: float) -> bool:
+        self._cancelled.wait(timeout)
+        return self.is_set()
 
 
 _running_ahead: set = set()  # RunAheads whose work has not returned

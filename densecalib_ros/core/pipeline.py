@@ -101,11 +101,12 @@ def _again_with(images: RigImages, kept: Attempt, progress: Progress, calibrator
 
 def _calibrate_with(images: RigImages, matcher, previous: Optional[RigCalibration],
                     progress: Progress, calibrators: dict, identity_tracks: Optional[Tracks]
-                    ) -> Callable[[str, Optional[Callable]], Attempt]:
-    """calibrate(matcher name, until) for with_second_matcher: that matcher's frame sets
-    matched once (the given, loaded `matcher` reused for the configured one), each call going on
-    with its consensus runs (stages.attempt.Calibrator)."""
-    def calibrate(name: str, until: Optional[Callable]) -> Attempt:
+                    ) -> Callable[..., Attempt]:
+    """calibrate(matcher name, until, refine_cut_short=True) for with_second_matcher: that
+    matcher's frame sets matched once (the given, loaded `matcher` reused for the configured
+    one), each call going on with its consensus runs (stages.attempt.Calibrator.calibrate)."""
+    def calibrate(name: str, until: Optional[Callable], refine_cut_short: bool = True
+                  ) -> Attempt:
         if name not in calibrators:
             config = images.config if name == images.config.matcher else \
                 images.config.with_options(matcher=name)
@@ -115,5 +116,5 @@ def _calibrate_with(images: RigImages, matcher, previous: Optional[RigCalibratio
                                 matcher if name == images.config.matcher else None,
                                 identity_tracks=identity_tracks)
             calibrators[name] = Calibrator(images, matched, config, progress, previous)
-        return calibrators[name].calibrate(until)
+        return calibrators[name].calibrate(until, refine_cut_short)
     return calibrate

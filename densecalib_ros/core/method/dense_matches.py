@@ -344,6 +344,11 @@ class DenseAhead:
         if self._expected is not None:
             self._expected[1].cancel()
 
+    def pause(self, paused: bool = True) -> None:
+        """Hold what still runs between image pairs (paused), or let it go on (not paused)."""
+        for ahead in [self._first] + ([self._expected[1]] if self._expected else []):
+            ahead.pause() if paused else ahead.resume()
+
 
 def _rig_key(state: SfMState) -> tuple:
     """What of a state dense_tracks depends on: the registered cameras' poses and intrinsics."""

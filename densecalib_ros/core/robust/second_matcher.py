@@ -113,22 +113,28 @@ def first_runs_undetermined(runs) -> bool:
     return runs.judged_apart_deg is not None and runs.judged_apart_deg > WARN_DISAGREEMENT_DEG
 
 
-def with_second_matcher(calibrate: Callable[[str, Optional[Callable]], object],
+def with_second_matcher(calibrate: Callable[..., object],
                         config: PipelineConfig, camera_names: Sequence[str], fresh: bool,
                         say: Callable[[str], None]) -> tuple[object, Optional[Rematch]]:
     """(the calibration to keep, what the second matcher did or None where it did not run).
 
-    calibrate(matcher, until) calibrates on that matcher's matches, its consensus runs ended by
-    `until` (ConsensusRuns.run); called again for a matcher it continues the runs it ended. Its
-    result has `.rig` and `.cut_short` (whether `until` ended the runs). Where rematch_applies,
-    the first matcher's calibration is matched again with config.second_matcher where it is
-    undetermined, and the better determined is kept. Raises the first calibration's error where
-    neither gives one."""
+    calibrate(matcher, until, refine_cut_short=True) calibrates on that matcher's matches, its
+    consensus runs ended by `until` (ConsensusRuns.run), a first run they end after left
+    unrefined on the images unless refine_cut_short; called again for a matcher it continues the
+    runs it ended. Its result has `.rig`, `.cut_short` (whether `until` ended the runs) and
+    `.unrefined`. Where rematch_applies, the first matcher's calibration is matched again with
+    config.second_matcher where it is undetermined, and the better determined is kept. Raises the
+    first calibration's error where neither gives one.
+
+    A first run that left a camera out is refined on the images only where the comparison needs
+    it: a second calibration that registers more cameras is kept over it and one that registers
+    fewer has the first's runs completed, whatever its refinement; only one that registers as
+    many is compared on the refined focal sigmas (better_determined)."""
     if not rematch_applies(config, camera_names, fresh=fresh):
         return calibrate(config.matcher, None), None
     first, error = None, None
     try:
-        first = calibrate(config.matcher, first_runs_undetermined)
+        first = calibrate(config.matcher, first_runs_undetermined, False)
     except InputError:
         raise  # the user's input, not sift's matches: another matcher would be refused too
     except CalibrationError as exc:
@@ -147,6 +153,9 @@ def with_second_matcher(calibrate: Callable[[str, Optional[Callable]], object],
         second = calibrate(second_matcher, None)
     except CalibrationError as exc:
         log.info("the calibration on %s's matches failed too: %s", second_matcher, exc)
+    if first is not None and first.unrefined and second is not None and \
+            len(second.rig.cameras) == len(first.rig.cameras):
+        first = calibrate(config.matcher, first_runs_undetermined)  # refined: its sigmas compared
     if first is not None and first.cut_short and \
             not better_determined(second.rig if second else None, first.rig):
         say(f"{second_matcher}: no better determined; completing {config.matcher}'s consensus "

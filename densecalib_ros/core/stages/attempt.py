@@ -35,6 +35,9 @@ class Attempt:
     consensus: Optional[ConsensusRecord]
     refinement: Optional[RefinementRecord]
     cut_short: bool = False  # its consensus runs were ended by the caller's rule
+    # Ended after its first run, not refined on the images (Calibrator.calibrate's
+    # refine_cut_short): calibrate again to have it refined.
+    unrefined: bool = False
     # The kept run's rig as the SfM left it, before the refinement on the images (which gives
     # identical units each its own intrinsics): what the one-model policy judges the model by.
     sfm_rig: Optional[RigCalibration] = None
@@ -63,10 +66,16 @@ class Calibrator:
                 self.refined.disagreement_deg if self.refined is not None else None,
                 (lambda first: ahead.expect(first.state)) if ahead is not None else None)
 
-    def calibrate(self, until: Optional[Callable[[ConsensusRuns], bool]] = None) -> Attempt:
+    def calibrate(self, until: Optional[Callable[[ConsensusRuns], bool]] = None,
+                  refine_cut_short: bool = True) -> Attempt:
         """The calibration (module docstring); `until`: the consensus runs' caller's rule
-        (ConsensusRuns.run), and a later call goes on with the runs it ended."""
+        (ConsensusRuns.run), and a later call goes on with the runs it ended. Where `until` ended
+        them after the first run and not refine_cut_short, the run is not refined on the images
+        (Attempt.unrefined): the caller (the second matcher's policy) may need it only to count
+        its cameras."""
         names = self.images.camera_names
+        if self.refined is not None:
+            self.refined.pause(False)  # set aside unrefined before (below), now taken up again
         self.progress.begin("calibrate", "calibrating", 1)
         consensus, hops = None, []
         if self.runs is not None:
@@ -83,7 +92,11 @@ class Calibrator:
         else:
             result = self._once(self.config.sampling.seed, None, self.progress)
         refinement, sfm_rig = None, result.rig
-        if self.refined is not None:
+        unrefined = not refine_cut_short and self.runs is not None and self.runs.cut_short \
+            and len(self.runs.results) == 1
+        if self.refined is not None and unrefined:
+            self.refined.pause()  # its dense correspondences wait while the caller goes on
+        elif self.refined is not None:
             self.progress.begin("refine", "refining on the images", 1)
             result, refinement = self.refined.refine(result, self.progress)
             if consensus is not None and consensus.runner_up is not None and \
@@ -93,7 +106,8 @@ class Calibrator:
         assemble(result, self.config, names, self.matched.keypoint_tracks, consensus, hops,
                  refinement)
         return Attempt(result, self.config, self.matched, consensus, refinement,
-                       self.runs is not None and self.runs.cut_short, sfm_rig)
+                       cut_short=self.runs is not None and self.runs.cut_short,
+                       unrefined=unrefined and self.refined is not None, sfm_rig=sfm_rig)
 
     def close(self) -> None:
         if self.refined is not None:

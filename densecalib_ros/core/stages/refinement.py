@@ -132,6 +132,12 @@ class RefinedRuns:
         if self.ahead is not None:
             self.ahead.cancel()
 
+    def pause(self, paused: bool = True) -> None:
+        """Hold the work still run ahead (a calibration set aside while another runs), or let
+        it go on (not paused)."""
+        if self.ahead is not None:
+            self.ahead.pause(paused)
+
 
 def _seeds(result: CalibrationResult, match_tracks: Optional[Tracks]) -> Tracks:
     """What the image refinement predicts its dense correspondences from: the keypoint-match
