@@ -39,6 +39,22 @@ def test_runaway_focal_and_non_finite_parameters_are_named():
     assert "not finite" in intrinsics_problem(cam("RADIAL", [np.nan, 512, 384, 0, 0]))
 
 
+def test_a_runaway_coefficient_that_does_not_fold_is_named_as_the_file_reader_would():
+    """Keypoints alone on Caliscope (test_people_rooms) ran cam_1's k2 to 8776 on one CPU: a
+    positive k2 never folds, so the calibration was written and read_calibration then refused
+    its own file as damaged. The plausibility check holds the reader's bound."""
+    from densecalib_ros.core.io.calibration_values import MAX_DISTORTION_COEFFICIENT, \
+        params_problem
+
+    lens = cam("RADIAL", [740, 640, 360, -0.3, 8775.6], 1280, 720)
+    problem = intrinsics_problem(lens)
+    assert problem == "its distortion coefficient k2 is 8775.6: a lens's lies within +-100"
+    assert params_problem("cam_1", 1280, 720, lens.parameter_names, lens.params.tolist()) == \
+        "camera cam_1's " + problem[len("its "):]
+    at_bound = cam("RADIAL", [740, 640, 360, 0.0, MAX_DISTORTION_COEFFICIENT], 1280, 720)
+    assert intrinsics_problem(at_bound) is None  # the reader's bound, not a tighter one
+
+
 def test_fisheye_extent_is_that_of_the_observations():
     # Folds at ~1.05 (normalised) while the corners lie at ~2: fine if nothing is seen out there.
     lens = cam("OPENCV_FISHEYE", [200, 200, 320, 240, -0.04, -0.01, 0.105, -0.144], 640, 480)

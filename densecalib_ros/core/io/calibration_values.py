@@ -76,10 +76,18 @@ def params_problem(name: str, width: int, height: int, parameter_names: Sequence
             if not low <= value <= high:
                 return (f"camera {name}'s principal point {field} is {value:g} px: a "
                         f"{width}x{height} camera's lies within {low:g}-{high:g} px")
-        elif field[0] in "kp" and field[1:].isdigit() and \
-                abs(value) > MAX_DISTORTION_COEFFICIENT:
-            return (f"camera {name}'s distortion coefficient {field} is {value:g}: a lens's "
-                    f"lies within +-{MAX_DISTORTION_COEFFICIENT:g}")
+    runaway = runaway_distortion(parameter_names, params)
+    return f"camera {name}'s {runaway}" if runaway else None
+
+
+def runaway_distortion(parameter_names: Sequence[str], params: Sequence[float]) -> Optional[str]:
+    """What says a distortion coefficient (k1.., p1, p2) is beyond MAX_DISTORTION_COEFFICIENT
+    (the first such), else None: the bound a calibration file is read with, which the
+    calibration's own plausibility check (core.method.plausibility) holds it to as well."""
+    for field, value in zip(parameter_names, params):
+        if field[0] in "kp" and field[1:].isdigit() and abs(value) > MAX_DISTORTION_COEFFICIENT:
+            return (f"distortion coefficient {field} is {value:g}: a lens's lies within "
+                    f"+-{MAX_DISTORTION_COEFFICIENT:g}")
     return None
 
 

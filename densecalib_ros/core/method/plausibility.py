@@ -25,6 +25,7 @@ import numpy as np
 import pycolmap
 
 from ..errors import FocalInitError
+from ..io.calibration_values import runaway_distortion
 from ..types import CameraIntrinsics, RigCalibration
 from .reconstruction import BAStage, SfMState, bundle_adjust, reprojection_errors
 
@@ -54,9 +55,11 @@ _LAYOUT = {
 def intrinsics_problem(camera: CameraIntrinsics,
                        observed_xy_px: Optional[np.ndarray] = None) -> Optional[str]:
     """None when the intrinsics are physically plausible, else a sentence saying what is wrong:
-    a focal outside [MIN, MAX]_FOCAL_IMAGE_RATIO x max(width, height), or a radial distortion
-    that stops increasing before the farthest image corner (fisheye models: before the farthest
-    of `observed_xy_px`, (N, 2) COLMAP px, when given). Models without a known layout pass."""
+    a focal outside [MIN, MAX]_FOCAL_IMAGE_RATIO x max(width, height), a distortion
+    coefficient a calibration file may not carry (calibration_values.runaway_distortion), or a
+    radial distortion that stops increasing before the farthest image corner (fisheye models:
+    before the farthest of `observed_xy_px`, (N, 2) COLMAP px, when given). Models without a
+    known layout pass."""
     size = max(camera.width, camera.height)
     layout = _LAYOUT.get(camera.model)
     params = np.asarray(camera.params, dtype=np.float64)
@@ -69,6 +72,9 @@ def intrinsics_problem(camera: CameraIntrinsics,
     if not MIN_FOCAL_IMAGE_RATIO * size <= focal <= MAX_FOCAL_IMAGE_RATIO * size:
         return (f"its focal length {focal:.0f} px is outside {MIN_FOCAL_IMAGE_RATIO:g}-"
                 f"{MAX_FOCAL_IMAGE_RATIO:g}x the image size")
+    runaway = runaway_distortion(camera.parameter_names, params.tolist())
+    if runaway:  # a coefficient the images did not hold, which no file of ours may carry
+        return f"its {runaway}"
     if not k_idx:
         return None
     extent = np.array([[0, 0], [camera.width, 0], [0, camera.height],
