@@ -92,9 +92,9 @@ class Calibrator:
         else:
             result = self._once(self.config.sampling.seed, None, self.progress)
         refinement, sfm_rig = None, result.rig
-        unrefined = not refine_cut_short and self.runs is not None and self.runs.cut_short \
-            and len(self.runs.results) == 1
-        if self.refined is not None and unrefined:
+        unrefined = self.refined is not None and not refine_cut_short and \
+            self.runs is not None and self.runs.cut_short and len(self.runs.results) == 1
+        if unrefined:
             self.refined.pause()  # its dense correspondences wait while the caller goes on
         elif self.refined is not None:
             self.progress.begin("refine", "refining on the images", 1)
@@ -107,7 +107,7 @@ class Calibrator:
                  refinement)
         return Attempt(result, self.config, self.matched, consensus, refinement,
                        cut_short=self.runs is not None and self.runs.cut_short,
-                       unrefined=unrefined and self.refined is not None, sfm_rig=sfm_rig)
+                       unrefined=unrefined, sfm_rig=sfm_rig)
 
     def close(self) -> None:
         if self.refined is not None:
