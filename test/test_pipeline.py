@@ -8,7 +8,7 @@ import pytest
 
 from densecalib_ros.core.config import make_config
 from densecalib_ros.core.errors import (CalibrationError, InputError, NotEnoughCamerasError,
-                                       NotEnoughOverlapError)
+                                       NotEnoughOverlapError, UndeterminedRigError)
 from densecalib_ros.core.method.matching import create_matcher
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.method.focal_start import start_focals
@@ -389,6 +389,29 @@ def test_runs_that_leave_the_same_camera_out_agree_and_the_user_is_told_what_wou
                                     "other 4 cameras are calibrated without it.")
     assert "--matcher asift" in q.warnings[0]
     assert sum(q.warnings[0] in line for line in lines) == 1  # said once
+
+
+def test_a_rig_left_with_one_pair_is_refused_unless_the_pairs_intrinsics_are_given(rig, with_stray):
+    """Two of the rig's cameras and the stray one: only the pair registers. Self-calibrated, one
+    pair's geometry leaves its focal lengths open and nothing checks it, so the calibration is
+    refused (stages.record.pair_alone_refusal) naming the pair and the stray camera; with the
+    pair's intrinsics given it is calibrated, the stray camera warned of."""
+    frames, names = with_stray
+    three = [[frames[0][0], frames[0][1], frames[0][-1]]]
+    pair_and_stray = [names[0], names[1], "stray"]
+    config = dict(matcher="sift", second_matcher=None, sfm__num_threads=1)
+    with pytest.raises(UndeterminedRigError) as refused:
+        run_calibration(three, pair_and_stray, make_config("regular", **config))
+    assert str(refused.value).startswith(f"the calibration is refused: of the 3 cameras only "
+                                         f"{names[0]} and {names[1]} were registered")
+    assert "stray could not be registered" in str(refused.value)
+    gt = rig.ground_truth()
+    known = {n: gt.cameras[n].intrinsics for n in names[:2]}
+    result = run_calibration(three, pair_and_stray,
+                             make_config("regular", cameras__known_intrinsics=known, **config))
+    assert result.rig.failed_cameras == ["stray"] and len(result.rig.cameras) == 2
+    assert evaluate_calibration(result.rig, gt)["pairs"][0]["rot_err_deg"] < 0.5
+    assert result.rig.quality.warnings[0].startswith("stray could not be registered")
 
 
 def test_a_camera_the_first_sift_run_leaves_out_goes_to_asift_after_that_one_run(rig, with_stray):

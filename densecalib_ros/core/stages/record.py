@@ -163,20 +163,54 @@ MIN_CROSS_CHECKED_OBSERVATIONS = 30
 def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[str],
             consensus: Optional[ConsensusRecord], match_tracks: Optional[Tracks]
             ) -> Optional[str]:
-    """Why the finished rig is refused (consensus.REFUSE_DISAGREEMENT_DEG): the other runs that
-    fit the matches about as well stand that far from it, and so does the runner-up where both
-    were refined on the images; None where it is not refused."""
+    """Why the finished rig is refused: a rig of three or more cameras left with one pair
+    (pair_alone_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
+    matches about as well stand that far from it, and so does the runner-up where both were
+    refined on the images; None where it is not refused."""
+    on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
+    alone = pair_alone_refusal(rig, config, camera_names, on_sift)
+    if alone:
+        return alone
     if consensus is None or consensus.fitting_disagreement_deg is None or \
             consensus.fitting_disagreement_deg <= REFUSE_DISAGREEMENT_DEG:
         return None
     refined = rig.quality.consensus_refined_disagreement_deg  # the runner-up's, both refined
     if refined is not None and refined <= REFUSE_DISAGREEMENT_DEG:
         return None
-    on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     return refusal_message(consensus.fitting_disagreement_deg,
                            consensus.num_runs - consensus.worse_fit_runs, on_sift,
                            consensus.least_determined_pairs,
                            _shared_matches(match_tracks, camera_names), len(rig.cameras))
+
+
+def pair_alone_refusal(rig: RigCalibration, config: PipelineConfig,
+                       camera_names: Sequence[str], perspective_on_sift: bool = False
+                       ) -> Optional[str]:
+    """Why a rig of three or more cameras that came out with two of them registered, not both
+    with given intrinsics, is refused; None otherwise. What is left is one pair's geometry: its
+    two self-calibrated focal lengths rest on that pair's epipolar geometry alone, which leaves
+    them open where the optical axes meet (Sturm's degeneracy of focal lengths from a
+    fundamental matrix: cameras aimed at one spot, as a ring around a room is), and no third
+    camera checks the pair, so a wrong pair (mirrored, on something that moved) fits as well
+    as a right one. perspective_on_sift: as unregistered_warning's."""
+    if len(camera_names) < 3 or len(rig.cameras) != 2:
+        return None
+    pair = sorted(rig.cameras, key=list(camera_names).index)
+    if all(n in config.cameras.known_intrinsics for n in pair):
+        return None
+    a, b = pair
+    own = [n for n in pair if n not in config.cameras.known_intrinsics]
+    focal, them = ((f"{own[0]}'s self-calibrated focal length rests", "it") if len(own) == 1
+                   else ("their self-calibrated focal lengths rest", "them"))
+    return (f"the calibration is refused: of the {len(camera_names)} cameras only {a} and {b} "
+            f"were registered, and one pair does not determine a rig: {focal} on that pair's "
+            f"epipolar geometry alone, which leaves {them} open where the optical axes meet "
+            "(cameras aimed at one spot), and no third camera checks the pair's geometry. "
+            f"{_unregistered_said(rig)} Add frame sets in which three or more cameras see the "
+            "same things (a person crossing the middle), give keypoints of what moves "
+            f"(--keypoints), or give {' and '.join(own)}'s intrinsics from a lab calibration "
+            "(--intrinsics NAME=FILE) to calibrate the pair alone."
+            + _asift_hint(perspective_on_sift))
 
 
 def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
@@ -216,24 +250,38 @@ def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False
     failed = rig.failed_cameras
     if not failed:
         return None
-    partners = rig.quality.unregistered_best_partner or {}
     one = len(failed) == 1
     it, its, subject = ("it", "its", failed[0]) if one else ("them", "their", "they")
+    return (f"{_unregistered_said(rig)} The other "
+            f"{len(rig.cameras)} cameras are calibrated without {it}. Add frame sets in which "
+            f"{subject} and the neighbouring cameras see the same textured things, or turn {it} "
+            f"to overlap more with them. If {'it does' if one else 'they do'} overlap, {its} "
+            f"intrinsics from a lab calibration (--intrinsics {failed[0] if one else 'NAME'}"
+            f"=FILE) would place {it}: a camera whose self-calibrated intrinsics come out "
+            "implausible is left out as well." + _asift_hint(perspective_on_sift))
+
+
+def _asift_hint(perspective_on_sift: bool) -> str:
+    """The sentence suggesting asift to perspective cameras matched with sift, else ""."""
+    return (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
+            "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
+
+
+def _unregistered_said(rig: RigCalibration) -> str:
+    """The sentence naming the cameras left out and, where known, the most keypoint matches each
+    shares with another camera (quality.unregistered_best_partner); "" where none was."""
+    failed = rig.failed_cameras
+    if not failed:
+        return ""
+    partners = rig.quality.unregistered_best_partner or {}
+    one = len(failed) == 1
     shared = ""
     if all(c in partners for c in failed):
         counts = (f"{partners[failed[0]][1]}" if one else " and ".join(
             f"{partners[c][1]} ({c}, with {partners[c][0]})" for c in failed))
         shared = (f": {'it shares' if one else 'they share'} at most {counts} keypoint matches "
                   "with another camera" + (f" ({partners[failed[0]][0]})" if one else ""))
-    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
-             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
-    return (f"{' and '.join(failed)} could not be registered{shared}. The other "
-            f"{len(rig.cameras)} cameras are calibrated without {it}. Add frame sets in which "
-            f"{subject} and the neighbouring cameras see the same textured things, or turn {it} "
-            f"to overlap more with them. If {'it does' if one else 'they do'} overlap, {its} "
-            f"intrinsics from a lab calibration (--intrinsics {failed[0] if one else 'NAME'}"
-            f"=FILE) would place {it}: a camera whose self-calibrated intrinsics come out "
-            "implausible is left out as well." + asift)
+    return f"{' and '.join(failed)} could not be registered{shared}."
 
 
 def with_point_colours(result: CalibrationResult,
