@@ -137,3 +137,39 @@ def test_the_residuals_of_a_fit_scaled_by_the_points_dof_give_the_pixel_noise(nu
     assert residual_px < 0.45  # short of the noise by what the points took
     noise_px = residual_px * points_dof_factor(len(errors), int(state.point_mask().sum()))
     assert noise_px == pytest.approx(0.5, rel=0.05)
+
+
+def test_units_of_one_model_sharing_an_estimated_principal_point_get_each_units_spread():
+    """Units of one model are estimated with one principal point (a fisheye rig's, refined by
+    the SfM); each unit's own sits where its assembly put it, HELD_PP_STD_FRACTION of the long
+    side per axis about theirs, which the shared block's covariance cannot show (a generated
+    rig of three fisheye units: their points 3-14 px from the shared one, sigmas of 2.9 px)."""
+    from densecalib_ros.core.calibration_result import rig_from_state
+    from densecalib_ros.core.method.uncertainty import (HELD_PP_STD_FRACTION, camera_sigmas,
+                                                       with_units_spread)
+
+    sigmas = {"a": CameraUncertainty(3.0, 2.0, 1.0), "b": CameraUncertainty(2.0, None, 0.5),
+              "c": CameraUncertainty(2.0, 2.0, 1.0)}
+    widened = with_units_spread(sigmas, {"a": 1280, "b": 1280})
+    unit_px = HELD_PP_STD_FRACTION * 1280
+    assert widened["a"] == CameraUncertainty(3.0, pytest.approx(np.hypot(2.0, unit_px)),
+                                             pytest.approx(np.hypot(1.0, np.sqrt(2) * unit_px)))
+    assert widened["b"] == sigmas["b"]  # a held point has its offset in already
+    assert widened["c"] == sigmas["c"]  # not a unit
+    # camera_sigmas widens the units whose shared point was refined, and only those.
+    cams, poses = gt_rig(4, seed=3)
+    tracks = gt_tracks(cams, poses, num_points=800, noise_px=0.5, outlier_frac=0.0, seed=3)
+    cfg = make_config("regular", sfm__num_threads=1, sfm__refine_principal_point=True)
+    init = initial_intrinsics([(c.width, c.height) for c in cams],
+                              [c.params[0] for c in cams], "RADIAL")
+    result = run_incremental(tracks, init, NAMES[:4], cfg.sfm)
+    rig = rig_from_state(result.state, NAMES[:4], [])
+    rec, _ = build_reconstruction(result.state, NAMES[:4])
+    units = cfg.with_options(cameras__identical_units=((("a", "b"), "the user's word"),))
+    plain, _ = camera_sigmas(rig, rec, NAMES[:4], cfg)
+    as_units, _ = camera_sigmas(rig, rec, NAMES[:4], units)
+    side = max(cams[0].width, cams[0].height)
+    for name in ("a", "b"):
+        assert as_units[name].principal_point_std_px == pytest.approx(
+            np.hypot(plain[name].principal_point_std_px, HELD_PP_STD_FRACTION * side))
+    assert as_units["c"] == plain["c"] and as_units["a"].focal_std_px == plain["a"].focal_std_px

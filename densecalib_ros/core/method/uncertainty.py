@@ -289,8 +289,10 @@ def camera_sigmas(rig: RigCalibration, reconstruction, camera_names: Sequence[st
                   ) -> tuple[dict, Optional[float]]:
     """(camera name -> CameraUncertainty, the held principal points' sigma as a fraction of the
     long side where it entered them, else None): `sigmas` (the image refinement's) where they
-    cover every camera, else core.method.uncertainty's for the others; ({}, None) where those
-    cannot be computed (a diagnostic: never a reason to lose the result)."""
+    cover every camera, else core.method.uncertainty's for the others, units of one model that
+    share an estimated principal point widened by their own points' spread (with_units_spread);
+    ({}, None) where those cannot be computed (a diagnostic: never a reason to lose the
+    result)."""
     sigmas = dict(sigmas or {})
     if set(sigmas) >= set(rig.cameras):
         return sigmas, None
@@ -302,8 +304,39 @@ def camera_sigmas(rig: RigCalibration, reconstruction, camera_names: Sequence[st
     noise_px = float(quality.reprojection_rms_px) / np.sqrt(2.0) * points_dof_factor(
         quality.num_observations or 0, quality.num_points or 0)
     try:
-        return {**calibration_uncertainty(reconstruction, rig.reference_camera, noise_px,
-                                          pp_refined, given), **sigmas}, HELD_PP_STD_FRACTION
+        found = calibration_uncertainty(reconstruction, rig.reference_camera, noise_px,
+                                        pp_refined, given)
     except (RuntimeError, ValueError) as exc:
         log.warning("no standard deviations for this calibration: %s", exc)
         return {}, None
+    units = {n for names, _ in config.cameras.identical_units for n in names}
+    long_side_px = {n: max(cam.intrinsics.width, cam.intrinsics.height)
+                    for n, cam in rig.cameras.items() if n in units and n in pp_refined}
+    return {**with_units_spread(found, long_side_px), **sigmas}, HELD_PP_STD_FRACTION
+
+
+def with_units_spread(sigmas: dict, long_side_px: dict,
+                      fraction: float = HELD_PP_STD_FRACTION) -> dict:
+    """sigmas (camera name -> CameraUncertainty) with the principal point and projection standard
+    deviations of units of one model, whose one principal point the calibration estimated
+    (long_side_px: those cameras -> their image's long side), widened in quadrature by how far
+    a unit's own point may be from it: `fraction` of the long side per axis, the spread real
+    cameras' points have about the centre (HELD_PP_STD_FRACTION), since each unit's sensor sits
+    where its own assembly put it; the projection by that offset's two axes together.
+
+    The shared estimate's covariance is that of the units' common point: a unit 1 % of the side
+    from it is turned by about that over its focal length, which no covariance of the shared
+    block shows (docs/design-notes.md, Units of one model: each its own principal point)."""
+    out = dict(sigmas)
+    for name, side_px in long_side_px.items():
+        u = out.get(name)
+        if u is None or u.principal_point_std_px is None:
+            continue
+        unit_px = fraction * side_px
+        out[name] = replace(u, principal_point_std_px=float(np.hypot(u.principal_point_std_px,
+                                                                     unit_px)),
+                            projection_std_px=(float(np.hypot(u.projection_std_px,
+                                                              np.sqrt(2.0) * unit_px))
+                                               if u.projection_std_px is not None
+                                               else None))
+    return out
