@@ -13,8 +13,9 @@ from densecalib_ros.core.progress import Progress
 from densecalib_ros.core.robust.consensus import (REFUSE_DISAGREEMENT_DEG, Choice, medoid,
                                                   refusal_message)
 from densecalib_ros.core.robust.consensus_runs import ConsensusRuns, summarize
-from densecalib_ros.core.stages.record import refusal
-from densecalib_ros.core.types import CameraIntrinsics, RigCalibration, RigCamera
+from densecalib_ros.core.stages.record import pairwise_only_warning, refusal
+from densecalib_ros.core.types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera,
+                                       Tracks)
 
 NAMES = ["a", "b", "c", "d"]
 
@@ -88,10 +89,13 @@ def test_the_refusal_names_the_camera_in_each_undetermined_pair():
     assert "d is in each" in message and "--matcher asift" in message
 
 
-def _pair_left(names=NAMES, registered=("b", "d")):
-    """A rig of `names` of which only `registered` came out, the others left out."""
+def _pair_left(names=NAMES, registered=("b", "d"), cross_checked=None):
+    """A rig of `names` of which only `registered` came out, the others left out; cross_checked:
+    each camera's observations of points a third camera sees (no quality record without)."""
     rig = _rig([0, 60, 120, 180][:len(names)])
     rig.cameras = {n: c for n, c in rig.cameras.items() if n in registered}
+    for n, count in (cross_checked or {}).items():
+        rig.cameras[n].quality = CameraQuality(0.5, 500, 0.8, num_multiview_observations=count)
     rig.failed_cameras = [n for n in names if n not in registered]
     rig.quality.unregistered_best_partner = {n: ["b", 12] for n in rig.failed_cameras}
     return rig
@@ -108,7 +112,8 @@ def test_a_rig_left_with_one_self_calibrated_pair_is_refused_naming_the_pair_and
     assert "a and c could not be registered: they share at most 12 (a, with b)" in message
     assert "--keypoints" in message and "give b and d's intrinsics" in message
     assert "--matcher asift" in message  # perspective cameras on sift
-    # Three of four registered, or the pair's intrinsics given, or a rig of two: not refused.
+    # Three of four registered (without a count of what a third camera sees), or the pair's
+    # intrinsics given, or a rig of two: not refused.
     assert refusal(_pair_left(registered=("a", "b", "d")), config, NAMES, None, None) is None
     cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
     given = make_config("regular", "incremental", cameras__known_intrinsics={"b": cam, "d": cam})
@@ -117,3 +122,30 @@ def test_a_rig_left_with_one_self_calibrated_pair_is_refused_naming_the_pair_and
     assert "d's self-calibrated focal length rests" in refusal(_pair_left(), one_given, NAMES,
                                                                 None, None)
     assert refusal(_pair_left(["a", "b"], ("a", "b")), config, ["a", "b"], None, None) is None
+
+
+def test_a_rig_no_camera_of_which_a_third_checks_is_refused_naming_its_pairs():
+    """Three cameras registered, each placed by pairs alone (a ring of three fisheye units 120 deg
+    apart: 16 observations each of points a third camera sees; the pairs' rotations 0.8-2.1 deg
+    off, the units' principal points traded against them): refused, naming the pairs; one
+    camera a third checks is a check on the rig, which is then warned (pairwise_only_warning)."""
+    config = make_config("regular", "incremental", second_matcher=None)
+    names = NAMES[:3]
+    unchecked = _pair_left(names, names, {"a": 16, "b": 16, "c": 16})
+    xy = np.zeros((9, 3, 2))
+    xy[:5, 2] = np.nan  # five tracks of a and b, four of a and c
+    xy[5:, 1] = np.nan
+    tracks = Tracks(xy, np.full(9, 2, np.int32), np.zeros(9), np.zeros(9, np.int32))
+    message = refusal(unchecked, config, names, None, tracks)
+    assert message.startswith("the calibration is refused: no camera is checked by a third: "
+                              "a (16), b (16), c (16) observations")
+    assert "placed by the pairs a/b (5 shared matches), a/c (4 shared matches)." in message
+    assert "give a, b and c's intrinsics" in message
+    checked = _pair_left(names, names, {"a": 16, "b": 40, "c": 16})
+    assert refusal(checked, config, names, None, None) is None
+    assert pairwise_only_warning(checked).startswith("cameras placed by camera pairs alone: "
+                                                      "a (16), c (16)")
+    cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
+    given = make_config("regular", "incremental",
+                        cameras__known_intrinsics={n: cam for n in names})
+    assert refusal(unchecked, given, names, None, None) is None
