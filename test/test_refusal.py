@@ -14,8 +14,7 @@ from densecalib_ros.core.robust.consensus import (REFUSE_DISAGREEMENT_DEG, Choic
                                                   refusal_message)
 from densecalib_ros.core.robust.consensus_runs import ConsensusRuns, summarize
 from densecalib_ros.core.stages.record import pairwise_only_warning, refusal
-from densecalib_ros.core.types import (CameraIntrinsics, CameraQuality, RigCalibration, RigCamera,
-                                       Tracks)
+from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibration, RigCamera
 
 NAMES = ["a", "b", "c", "d"]
 
@@ -124,28 +123,17 @@ def test_a_rig_left_with_one_self_calibrated_pair_is_refused_naming_the_pair_and
     assert refusal(_pair_left(["a", "b"], ("a", "b")), config, ["a", "b"], None, None) is None
 
 
-def test_a_rig_no_camera_of_which_a_third_checks_is_refused_naming_its_pairs():
-    """Three cameras registered, each placed by pairs alone (a ring of three fisheye units 120 deg
-    apart: 16 observations each of points a third camera sees; the pairs' rotations 0.8-2.1 deg
-    off, the units' principal points traded against them): refused, naming the pairs; one
-    camera a third checks is a check on the rig, which is then warned (pairwise_only_warning)."""
+def test_a_rig_each_camera_of_which_pairs_alone_place_is_warned_not_refused():
+    """Three cameras registered, each placed by pairs alone: warned (pairwise_only_warning), not
+    refused. Refusing them was tried: a held-out rig of four cameras 45 deg apart placed so
+    (1-16 such observations a camera) is right (AUC@3 100, 0.35 deg), beside the three fisheye
+    units 1.5 deg off that it would have refused (docs/design-notes.md)."""
     config = make_config("regular", "incremental", second_matcher=None)
     names = NAMES[:3]
     unchecked = _pair_left(names, names, {"a": 16, "b": 16, "c": 16})
-    xy = np.zeros((9, 3, 2))
-    xy[:5, 2] = np.nan  # five tracks of a and b, four of a and c
-    xy[5:, 1] = np.nan
-    tracks = Tracks(xy, np.full(9, 2, np.int32), np.zeros(9), np.zeros(9, np.int32))
-    message = refusal(unchecked, config, names, None, tracks)
-    assert message.startswith("the calibration is refused: no camera is checked by a third: "
-                              "a (16), b (16), c (16) observations")
-    assert "placed by the pairs a/b (5 shared matches), a/c (4 shared matches)." in message
-    assert "give a, b and c's intrinsics" in message
+    assert refusal(unchecked, config, names, None, None) is None
+    assert pairwise_only_warning(unchecked).startswith("cameras placed by camera pairs alone: "
+                                                        "a (16), b (16), c (16)")
     checked = _pair_left(names, names, {"a": 16, "b": 40, "c": 16})
-    assert refusal(checked, config, names, None, None) is None
     assert pairwise_only_warning(checked).startswith("cameras placed by camera pairs alone: "
                                                       "a (16), c (16)")
-    cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
-    given = make_config("regular", "incremental",
-                        cameras__known_intrinsics={n: cam for n in names})
-    assert refusal(unchecked, given, names, None, None) is None

@@ -20,9 +20,8 @@ from ..method.reconstruction import colour_points
 from ..method.uncertainty import camera_sigmas, with_runs_spread
 from ..method.view_graph import pair_track_counts
 from ..progress import Progress
-from ..robust.consensus import (MAX_PAIRS_SAID, REFUSE_DISAGREEMENT_DEG,
-                                WARN_DISAGREEMENT_DEG, disagreement_warning, refusal_message,
-                                standing_disagreement_deg)
+from ..robust.consensus import (REFUSE_DISAGREEMENT_DEG, WARN_DISAGREEMENT_DEG,
+                                disagreement_warning, refusal_message, standing_disagreement_deg)
 from ..robust.consensus_runs import ConsensusRecord
 from ..robust.second_matcher import Rematch, perspective_on_sift
 from ..types import RigCalibration, Tracks
@@ -164,15 +163,14 @@ MIN_CROSS_CHECKED_OBSERVATIONS = 30
 def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[str],
             consensus: Optional[ConsensusRecord], match_tracks: Optional[Tracks]
             ) -> Optional[str]:
-    """Why the finished rig is refused: a rig of three or more cameras that no third camera
-    checks (unchecked_rig_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
+    """Why the finished rig is refused: a rig of three or more cameras left with one pair
+    (pair_alone_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
     matches about as well stand that far from it, and so does the runner-up where both were
     refined on the images; None where it is not refused."""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
-    unchecked = unchecked_rig_refusal(rig, config, camera_names, on_sift,
-                                      _shared_matches(match_tracks, camera_names))
-    if unchecked:
-        return unchecked
+    alone = pair_alone_refusal(rig, config, camera_names, on_sift)
+    if alone:
+        return alone
     if consensus is None or consensus.fitting_disagreement_deg is None or \
             consensus.fitting_disagreement_deg <= REFUSE_DISAGREEMENT_DEG:
         return None
@@ -185,70 +183,39 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
                            _shared_matches(match_tracks, camera_names), len(rig.cameras))
 
 
-def unchecked_rig_refusal(rig: RigCalibration, config: PipelineConfig,
-                          camera_names: Sequence[str], perspective_on_sift: bool = False,
-                          shared_matches: Optional[dict] = None) -> Optional[str]:
-    """Why a rig of three or more cameras that no third camera checks is refused, where the
-    intrinsics are self-calibrated (not all given); None otherwise. Unchecked: two cameras
-    registered, or every registered camera placed by pairs alone (fewer than
-    MIN_CROSS_CHECKED_OBSERVATIONS observations of points a third camera sees). The rig is then
-    its pairs' geometry, each pair's self-calibrated intrinsics traded against its poses with
-    nothing to tell: the focal lengths rest on one pair's epipolar geometry, which leaves them
+def pair_alone_refusal(rig: RigCalibration, config: PipelineConfig,
+                       camera_names: Sequence[str], perspective_on_sift: bool = False
+                       ) -> Optional[str]:
+    """Why a rig of three or more cameras that came out with two of them registered, not both
+    with given intrinsics, is refused; None otherwise. What is left is one pair's geometry: its
+    self-calibrated focal lengths rest on that pair's epipolar geometry alone, which leaves them
     open where the optical axes meet (the degeneracy of focal lengths from a fundamental
-    matrix: cameras aimed at one spot, as a ring around a room is), a principal point's offset
-    turns its camera, and a wrong pair (mirrored, on something that moved) fits as well as a
-    right one. perspective_on_sift: as unregistered_warning's; shared_matches: {(a, b): keypoint
-    matches}, to name the pairs."""
-    known = config.cameras.known_intrinsics
-    own = [n for n in camera_names if n in rig.cameras and n not in known]
-    if len(camera_names) < 3 or len(rig.cameras) < 2 or not own:
+    matrix: cameras aimed at one spot, as a ring around a room is), and no third camera checks
+    the pair, so a wrong pair (mirrored, on something that moved) fits as well as a right one.
+    A rig of three or more cameras each placed by pairs alone is warned, not refused
+    (pairwise_only_warning; docs/design-notes.md, One pair left of a rig: refused).
+    perspective_on_sift: as unregistered_warning's."""
+    own = [n for n in camera_names if n in rig.cameras
+           and n not in config.cameras.known_intrinsics]
+    if len(camera_names) < 3 or len(rig.cameras) != 2 or not own:
         return None
-    if len(rig.cameras) == 2:
-        a, b = sorted(rig.cameras, key=list(camera_names).index)
-        focal, them = ((f"{own[0]}'s self-calibrated focal length rests", "it") if len(own) == 1
-                       else ("their self-calibrated focal lengths rest", "them"))
-        why = (f"of the {len(camera_names)} cameras only {a} and {b} were registered, and one "
-               f"pair does not determine a rig: {focal} on that pair's epipolar geometry alone, "
-               f"which leaves {them} open where the optical axes meet (cameras aimed at one "
-               "spot), and no third camera checks the pair's geometry. "
-               + _unregistered_said(rig))
-    else:
-        counts = _cross_checked_counts(rig)
-        if len(counts) < len(rig.cameras) or any(
-                n is None or n >= MIN_CROSS_CHECKED_OBSERVATIONS for n in counts.values()):
-            return None
-        pairs = sorted(((n, a, b) for (a, b), n in (shared_matches or {}).items()
-                        if n and a in rig.cameras and b in rig.cameras), reverse=True)
-        placed = ("" if not pairs else " It is placed by the pairs " + ", ".join(
-            f"{a}/{b} ({n} shared matches)" for n, a, b in pairs[:MAX_PAIRS_SAID]) + ".")
-        why = ("no camera is checked by a third: "
-               + ", ".join(f"{n} ({c})" for n, c in counts.items())
-               + f" observations of points a third camera sees (fewer than "
-               f"{MIN_CROSS_CHECKED_OBSERVATIONS}), so the rig is its pairs' geometry, each "
-               "trading its self-calibrated intrinsics against its poses with nothing to tell "
-               "(a principal point's offset turns its camera; the focal lengths rest on each "
-               "pair's epipolar geometry), and a wrong pair (mirrored, on something that "
-               "moved) fits as well as a right one." + placed
-               + (" " + _unregistered_said(rig) if rig.failed_cameras else ""))
-    return (f"the calibration is refused: {why} Add frame sets in which three or more cameras "
-            "see the same things (a person crossing the middle), give keypoints of what moves "
+    a, b = sorted(rig.cameras, key=list(camera_names).index)
+    focal, them = ((f"{own[0]}'s self-calibrated focal length rests", "it") if len(own) == 1
+                   else ("their self-calibrated focal lengths rest", "them"))
+    return (f"the calibration is refused: of the {len(camera_names)} cameras only {a} and {b} "
+            f"were registered, and one pair does not determine a rig: {focal} on that pair's "
+            f"epipolar geometry alone, which leaves {them} open where the optical axes meet "
+            "(cameras aimed at one spot), and no third camera checks the pair's geometry. "
+            f"{_unregistered_said(rig)} Add frame sets in which three or more cameras see the "
+            "same things (a person crossing the middle), give keypoints of what moves "
             f"(--keypoints), or give {_and_listed(own)}'s intrinsics from a lab calibration "
-            "(--intrinsics NAME=FILE)." + _asift_hint(perspective_on_sift))
+            "(--intrinsics NAME=FILE) to calibrate the pair alone."
+            + _asift_hint(perspective_on_sift))
 
 
 def _and_listed(names: Sequence[str]) -> str:
     """The names joined for a sentence: a; a and b; a, b and c."""
     return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
-
-
-def _cross_checked_counts(rig: RigCalibration) -> dict:
-    """Per registered camera with a quality record, its observations of points a third camera
-    sees (CameraQuality.num_multiview_observations, in the final fit or the SfM's that placed
-    it, whichever is more; None where neither was counted)."""
-    return {name: max((n for n in (cam.quality.num_multiview_observations,
-                                   cam.quality.sfm_multiview_observations) if n is not None),
-                      default=None)
-            for name, cam in rig.cameras.items() if cam.quality is not None}
 
 
 def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
@@ -260,7 +227,10 @@ def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
     say. None otherwise."""
     if len(rig.cameras) < 3:
         return None
-    counts = _cross_checked_counts(rig)
+    counts = {name: max((n for n in (cam.quality.num_multiview_observations,
+                                     cam.quality.sfm_multiview_observations) if n is not None),
+                        default=None)
+              for name, cam in rig.cameras.items() if cam.quality is not None}
     weak = [f"{name} ({n})" for name, n in counts.items()
             if n is not None and n < MIN_CROSS_CHECKED_OBSERVATIONS]
     if not weak:
