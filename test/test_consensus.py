@@ -103,6 +103,14 @@ def test_users_are_warned_when_runs_disagree_beyond_auc3_threshold():
     assert "frame sets" in message and "share-intrinsics" in message
     assert "asift" not in message  # only where the rig is few perspective cameras
     assert "--matcher asift" in disagreement_warning(12.5, 5, perspective_on_sift=True)
+    # Not suggested where the cameras were calibrated as units of one model already (the runs
+    # stood apart that way too: robust.one_model), or share their intrinsics.
+    tried = disagreement_warning(12.5, 5, units_apart_deg=71.4)
+    assert "share-intrinsics" not in tried
+    assert "(as units of one model, which they could be, the runs stood 71 deg apart too)." in tried
+    shared = disagreement_warning(12.5, 5, units_shared=True)
+    assert "share-intrinsics" not in shared and "units of one model" not in shared
+    assert "more overlap between cameras." in shared
 
 
 def test_the_warning_names_the_pairs_the_runs_disagree_about_and_the_camera_in_each():

@@ -55,19 +55,21 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
                                         identity_tracks)
             kept, rematch = with_second_matcher(calibrate, images.config, images.camera_names,
                                                 fresh=previous is None, say=progress.say)
-            kept, _ = with_one_model(kept, _again_with(images, kept, progress, calibrators),
-                                     images.camera_names, images.image_sizes,
-                                     fresh=previous is None, say=progress.say)
+            kept, one_model = with_one_model(kept, _again_with(images, kept, progress,
+                                                               calibrators),
+                                             images.camera_names, images.image_sizes,
+                                             fresh=previous is None, say=progress.say)
     finally:
         for calibrator in calibrators.values():
             calibrator.close()
+    units_apart_deg = one_model.one_apart_deg if one_model is not None else None
     refused = refusal(kept.result.rig, kept.config, images.camera_names, kept.consensus,
-                      kept.matched.keypoint_tracks)
+                      kept.matched.keypoint_tracks, units_apart_deg)
     if refused:
         raise UndeterminedRigError(refused)
     finish(kept.result, images, kept.config, kept.consensus, rematch,
            kept.matched.keypoint_tracks, time.perf_counter() - started, progress,
-           keypoints=kept.matched.identity_tracks is not None)
+           keypoints=kept.matched.identity_tracks is not None, units_apart_deg=units_apart_deg)
     progress.finish()
     return kept.result
 

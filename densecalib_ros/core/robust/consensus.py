@@ -233,40 +233,50 @@ def disagreement_warning(disagreement_deg: float, num_runs: int,
                          perspective_on_sift: bool = False,
                          pairs: Sequence[tuple[str, str, float]] = (),
                          shared_matches: Optional[dict] = None,
-                         num_cameras: int = 0) -> Optional[str]:
+                         num_cameras: int = 0, units_apart_deg: Optional[float] = None,
+                         units_shared: bool = False) -> Optional[str]:
     """The message for a user whose runs disagree by more than WARN_DISAGREEMENT_DEG, else None.
     perspective_on_sift: perspective cameras matched with sift, whose matches a wide viewpoint
     change or a long lens thins out (docs/benchmarks.md): the message suggests asift. pairs: the
     least determined camera pairs (least_determined_pairs), named with their shared keypoint
     matches (shared_matches: {(a, b): count}) and, where one camera is in each of them, that
     camera: it is the one the images do not place. num_cameras: how many the kept run calibrated
-    (every pair of them named: the whole rig is undetermined)."""
+    (every pair of them named: the whole rig is undetermined). units_apart_deg: how far apart
+    the runs stood with the cameras calibrated as units of one model as well (robust.one_model;
+    None where that was not tried or its runs agreed); units_shared: the cameras' intrinsics were
+    shared already. Either way sharing them is not suggested."""
     if disagreement_deg <= WARN_DISAGREEMENT_DEG:
         return None
     return (f"the {num_runs} calibration runs disagree: the kept one is {disagreement_deg:.1f} deg "
             "(median over camera pairs) from the others, so the images allow quite different rigs "
             "and this one may be wrong." + _pairs_said(pairs, shared_matches or {}, num_cameras)
-            + _remedies(perspective_on_sift))
+            + _remedies(perspective_on_sift, units_apart_deg, units_shared))
 
 
 def refusal_message(disagreement_deg: float, num_runs: int, perspective_on_sift: bool = False,
                     pairs: Sequence[tuple[str, str, float]] = (),
-                    shared_matches: Optional[dict] = None, num_cameras: int = 0) -> str:
+                    shared_matches: Optional[dict] = None, num_cameras: int = 0,
+                    units_apart_deg: Optional[float] = None, units_shared: bool = False) -> str:
     """Why a calibration whose runs disagree beyond REFUSE_DISAGREEMENT_DEG is refused, with the
     pairs and remedies of disagreement_warning (its arguments)."""
     return (f"the calibration is refused: its {num_runs} runs, which fit the matches about as "
             f"well, place the cameras {disagreement_deg:.0f} deg apart (median over camera "
             "pairs), so these images do not determine the rig and any of the runs' rigs could be "
             "that far off." + _pairs_said(pairs, shared_matches or {}, num_cameras)
-            + _remedies(perspective_on_sift))
+            + _remedies(perspective_on_sift, units_apart_deg, units_shared))
 
 
-def _remedies(perspective_on_sift: bool) -> str:
+def _remedies(perspective_on_sift: bool, units_apart_deg: Optional[float] = None,
+              units_shared: bool = False) -> str:
     asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
              "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
+    units = ("" if units_shared else
+             f" (as units of one model, which they could be, the runs stood "
+             f"{units_apart_deg:.0f} deg apart too)" if units_apart_deg is not None else
+             ", or use --share-intrinsics (node: share_intrinsics; SfMConfig.share_intrinsics) "
+             "if the cameras are identical units")
     return (" Add frame sets (time-aligned images of a changing scene) or more overlap between "
-            "cameras, or use --share-intrinsics (node: share_intrinsics; "
-            "SfMConfig.share_intrinsics) if the cameras are identical units." + asift)
+            "cameras" + units + "." + asift)
 
 
 def _pairs_said(pairs: Sequence[tuple[str, str, float]], shared: dict, num_cameras: int) -> str:

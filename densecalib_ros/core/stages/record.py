@@ -86,10 +86,11 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
 def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
            consensus: Optional[ConsensusRecord], rematch: Optional[Rematch],
            match_tracks: Optional[Tracks], runtime_s: float, progress: Progress,
-           keypoints: bool = False) -> None:
+           keypoints: bool = False, units_apart_deg: Optional[float] = None) -> None:
     """The kept calibration made whole: what it was made from (the matcher of `config`, the
     frame sets, the lenses, masks, info strips and EXIF focals), the second matcher's record,
-    the warnings (warnings) and the scene points' colours."""
+    the warnings (warnings; keypoints and units_apart_deg as its) and the scene points'
+    colours."""
     quality = result.rig.quality
     quality.update(matcher=config.matcher, num_frame_sets=len(images.frame_sets),
                    runtime_s=runtime_s)
@@ -109,7 +110,7 @@ def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
     if rematch is not None:
         quality.rematch = rematch.record()
     for warning in warnings(result.rig, config, images.camera_names, consensus, rematch,
-                            match_tracks, keypoints):
+                            match_tracks, keypoints, units_apart_deg):
         log.warning("%s", warning)
         if progress.on_message is not None:
             progress.on_message(warning)
@@ -119,11 +120,13 @@ def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
 
 def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[str],
              consensus: Optional[ConsensusRecord], rematch: Optional[Rematch],
-             match_tracks: Optional[Tracks], keypoints: bool = False) -> list[str]:
+             match_tracks: Optional[Tracks], keypoints: bool = False,
+             units_apart_deg: Optional[float] = None) -> list[str]:
     """What the user is warned of about the finished rig: runs that still disagree as it stands,
     a camera not registered, cameras placed by pairs alone, given intrinsics that do not fit,
     lenses unlike a real one, focal lengths the images leave open or looser than the aim; after a
-    second matcher, what it gave. keypoints: pose keypoints joined the matches (named with them)."""
+    second matcher, what it gave. keypoints: pose keypoints joined the matches (named with them);
+    units_apart_deg: as consensus.disagreement_warning's."""
     with_keypoints = " and the keypoints" if keypoints else ""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     out = []
@@ -133,7 +136,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
             out.append(disagreement_warning(
                 consensus.disagreement_deg, consensus.num_runs, on_sift,
                 consensus.least_determined_pairs, _shared_matches(match_tracks, camera_names),
-                len(rig.cameras)))
+                len(rig.cameras), units_apart_deg, _units_shared(config)))
     if rematch is None:
         out.append(unregistered_warning(rig, on_sift))
     out.append(pairwise_only_warning(rig))
@@ -161,12 +164,13 @@ MIN_CROSS_CHECKED_OBSERVATIONS = 30
 
 
 def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[str],
-            consensus: Optional[ConsensusRecord], match_tracks: Optional[Tracks]
-            ) -> Optional[str]:
+            consensus: Optional[ConsensusRecord], match_tracks: Optional[Tracks],
+            units_apart_deg: Optional[float] = None) -> Optional[str]:
     """Why the finished rig is refused: a rig of three or more cameras left with one pair
     (pair_alone_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
     matches about as well stand that far from it, and so does the runner-up where both were
-    refined on the images; None where it is not refused."""
+    refined on the images; None where it is not refused. units_apart_deg: as
+    consensus.disagreement_warning's."""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     alone = pair_alone_refusal(rig, config, camera_names, on_sift)
     if alone:
@@ -180,7 +184,15 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
     return refusal_message(consensus.fitting_disagreement_deg,
                            consensus.num_runs - consensus.worse_fit_runs, on_sift,
                            consensus.least_determined_pairs,
-                           _shared_matches(match_tracks, camera_names), len(rig.cameras))
+                           _shared_matches(match_tracks, camera_names), len(rig.cameras),
+                           units_apart_deg, _units_shared(config))
+
+
+def _units_shared(config: PipelineConfig) -> bool:
+    """Whether the cameras' intrinsics were shared already (units named or assumed, or
+    --share-intrinsics)."""
+    return bool(config.cameras.identical_units or config.sfm.share_intrinsics
+                or config.sfm.shared_intrinsics_groups)
 
 
 def pair_alone_refusal(rig: RigCalibration, config: PipelineConfig,
