@@ -266,17 +266,21 @@ def refusal_message(disagreement_deg: float, num_runs: int, perspective_on_sift:
             + _remedies(perspective_on_sift, units_apart_deg, units_shared))
 
 
+def asift_hint(perspective_on_sift: bool) -> str:
+    """The sentence suggesting asift to perspective cameras matched with sift, else ""."""
+    return (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
+            "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
+
+
 def _remedies(perspective_on_sift: bool, units_apart_deg: Optional[float] = None,
               units_shared: bool = False) -> str:
-    asift = (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
-             "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
     units = ("" if units_shared else
              f" (as units of one model, which they could be, the runs stood "
              f"{units_apart_deg:.0f} deg apart too)" if units_apart_deg is not None else
              ", or use --share-intrinsics (node: share_intrinsics; SfMConfig.share_intrinsics) "
              "if the cameras are identical units")
     return (" Add frame sets (time-aligned images of a changing scene) or more overlap between "
-            "cameras" + units + "." + asift)
+            "cameras" + units + "." + asift_hint(perspective_on_sift))
 
 
 def _pairs_said(pairs: Sequence[tuple[str, str, float]], shared: dict, num_cameras: int) -> str:

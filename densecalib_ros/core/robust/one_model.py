@@ -53,8 +53,14 @@ def one_model_applies(config: PipelineConfig, camera_names: Sequence[str],
             and len(camera_names) >= 2
             and len(set(map(tuple, image_sizes))) == 1
             and len(set(sfm.models(len(camera_names)))) == 1
-            and not config.cameras.known_intrinsics and not config.cameras.identical_units
-            and not sfm.share_intrinsics and not sfm.shared_intrinsics_groups)
+            and not config.cameras.known_intrinsics and not intrinsics_shared(config))
+
+
+def intrinsics_shared(config: PipelineConfig) -> bool:
+    """Whether the cameras' intrinsics are shared already: units named (by EXIF or the user) or
+    assumed here, or --share-intrinsics."""
+    return bool(config.cameras.identical_units or config.sfm.share_intrinsics
+                or config.sfm.shared_intrinsics_groups)
 
 
 def runs_apart_deg(rig: Optional[RigCalibration]) -> Optional[float]:

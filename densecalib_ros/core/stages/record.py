@@ -20,9 +20,10 @@ from ..method.reconstruction import colour_points
 from ..method.uncertainty import camera_sigmas, with_runs_spread
 from ..method.view_graph import pair_track_counts
 from ..progress import Progress
-from ..robust.consensus import (REFUSE_DISAGREEMENT_DEG, WARN_DISAGREEMENT_DEG,
+from ..robust.consensus import (REFUSE_DISAGREEMENT_DEG, WARN_DISAGREEMENT_DEG, asift_hint,
                                 disagreement_warning, refusal_message, standing_disagreement_deg)
 from ..robust.consensus_runs import ConsensusRecord
+from ..robust.one_model import intrinsics_shared
 from ..robust.second_matcher import Rematch, perspective_on_sift
 from ..types import RigCalibration, Tracks
 from .inputs import RigImages
@@ -136,7 +137,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
             out.append(disagreement_warning(
                 consensus.disagreement_deg, consensus.num_runs, on_sift,
                 consensus.least_determined_pairs, _shared_matches(match_tracks, camera_names),
-                len(rig.cameras), units_apart_deg, _units_shared(config)))
+                len(rig.cameras), units_apart_deg, intrinsics_shared(config)))
     if rematch is None:
         out.append(unregistered_warning(rig, on_sift))
     out.append(pairwise_only_warning(rig))
@@ -185,14 +186,7 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
                            consensus.num_runs - consensus.worse_fit_runs, on_sift,
                            consensus.least_determined_pairs,
                            _shared_matches(match_tracks, camera_names), len(rig.cameras),
-                           units_apart_deg, _units_shared(config))
-
-
-def _units_shared(config: PipelineConfig) -> bool:
-    """Whether the cameras' intrinsics were shared already (units named or assumed, or
-    --share-intrinsics)."""
-    return bool(config.cameras.identical_units or config.sfm.share_intrinsics
-                or config.sfm.shared_intrinsics_groups)
+                           units_apart_deg, intrinsics_shared(config))
 
 
 def pair_alone_refusal(rig: RigCalibration, config: PipelineConfig,
@@ -220,14 +214,9 @@ def pair_alone_refusal(rig: RigCalibration, config: PipelineConfig,
             "(cameras aimed at one spot), and no third camera checks the pair's geometry. "
             f"{_unregistered_said(rig)} Add frame sets in which three or more cameras see the "
             "same things (a person crossing the middle), give keypoints of what moves "
-            f"(--keypoints), or give {_and_listed(own)}'s intrinsics from a lab calibration "
+            f"(--keypoints), or give {' and '.join(own)}'s intrinsics from a lab calibration "
             "(--intrinsics NAME=FILE) to calibrate the pair alone."
-            + _asift_hint(perspective_on_sift))
-
-
-def _and_listed(names: Sequence[str]) -> str:
-    """The names joined for a sentence: a; a and b; a, b and c."""
-    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+            + asift_hint(perspective_on_sift))
 
 
 def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
@@ -275,13 +264,7 @@ def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False
             f"to overlap more with them. If {'it does' if one else 'they do'} overlap, {its} "
             f"intrinsics from a lab calibration (--intrinsics {failed[0] if one else 'NAME'}"
             f"=FILE) would place {it}: a camera whose self-calibrated intrinsics come out "
-            "implausible is left out as well." + _asift_hint(perspective_on_sift))
-
-
-def _asift_hint(perspective_on_sift: bool) -> str:
-    """The sentence suggesting asift to perspective cameras matched with sift, else ""."""
-    return (" With cameras far apart or long lenses, --matcher asift (node: matcher asift) finds "
-            "the matches a wide viewpoint change leaves sift." if perspective_on_sift else "")
+            "implausible is left out as well." + asift_hint(perspective_on_sift))
 
 
 def _unregistered_said(rig: RigCalibration) -> str:
