@@ -143,7 +143,7 @@ def test_units_of_one_model_sharing_an_estimated_principal_point_get_each_units_
     """Units of one model are estimated with one principal point (a fisheye rig's, refined by
     the SfM); each unit's own sits where its assembly put it, HELD_PP_STD_FRACTION of the long
     side per axis about theirs, which the shared block's covariance cannot show (a generated
-    rig of three fisheye units: their points 3-14 px from the shared one, sigmas of 2.9 px)."""
+    rig of three fisheye units: their points 3.4-14.1 px from the shared one, sigma 2.9 px)."""
     from densecalib_ros.core.calibration_result import rig_from_state
     from densecalib_ros.core.method.uncertainty import (HELD_PP_STD_FRACTION, camera_sigmas,
                                                        with_units_spread)
