@@ -141,41 +141,6 @@ def test_multistart_on_a_subsample_is_finished_on_every_track(monkeypatch):
     assert len(tried) == 2 and again.settled_starts is None and again.failed == []
 
 
-def test_trials_judged_on_held_out_matches_are_finished_only_where_they_win():
-    """A trial judged on held-out keypoint matches is judged by its cameras alone: its finishing
-    step (every track triangulated again, B_err, the final BA) is left to the trial that wins,
-    which then comes out as a trial finished in place does (its registration finished on the
-    same tracks); a trial judged on its own tracks is finished in place, as before."""
-    import densecalib_ros.core.method.multistart as multistart
-    from densecalib_ros.core.method.incremental import finish_on
-
-    names = ["a", "b", "c", "d", "e"]
-    cams, poses = gt_rig(5, seed=7)
-    tracks = sfm_fixtures.gt_tracks(cams, poses, num_points=400, outlier_frac=0.05,
-                                    random_scores=False, seed=7)
-    held_out = gt_tracks(cams, poses, seed=8)
-    assert tracks.num_tracks <= multistart.trial_max_tracks(5)  # the trials run on every track
-    cfg = make_config("regular", sfm__num_threads=1).sfm
-    init = initial_intrinsics([(c.width, c.height) for c in cams], noisy_focals(cams), "RADIAL")
-    judged, _, cost = multistart._trial(tracks, init, names, cfg, 0, None, held_out)
-    assert cost is not None and not judged.finished and judged.state is judged.registration
-    own, _, _ = multistart._trial(tracks, init, names, cfg, 0, None, None)
-    assert own.finished and own.state is not own.registration
-    finished = finish_on(tracks, judged, names, cfg, 0)
-    for c in range(5):
-        np.testing.assert_allclose(finished.state.cam_from_world[c], own.state.cam_from_world[c],
-                                   atol=1e-9)
-        np.testing.assert_allclose(finished.state.camera(c).params, own.state.camera(c).params,
-                                   rtol=1e-9)
-    result = run_incremental(tracks, init, names, cfg, validation_tracks=held_out)
-    assert result.finished and result.failed == []
-    # finished: points from (nearly) every inlier track, B_err applied, the final BA run
-    assert result.state.point_mask().sum() > 0.85 * tracks.num_tracks
-    metrics = evaluate_calibration(rig_from_state(result.state, names, result.failed),
-                                   gt_calibration(names, cams, poses))
-    assert metrics["auc3"] > 85.0 and metrics["median_focal_err"] < 0.01
-
-
 def test_the_multistart_settled_only_where_every_start_that_fits_as_well_ends_in_one_rig():
     """settled_starts: two or more trials register as many cameras as the best and fit within
     WORSE_FIT_RATIO of it, and all agree with it within AGREEMENT_DEG (mean over pairs)."""

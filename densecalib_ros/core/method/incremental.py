@@ -73,7 +73,6 @@ class IncrementalResult:
     # The cameras after registration and the first final BA, before `_finish` (re-triangulation
     # of every track, B_err, final BA, model refinement): what a multi-start trial hands on.
     registration: Optional[SfMState] = None
-    finished: bool = True  # False: `state` is the registration, not yet finished (finish_on)
     # Set by the multi-start (multistart.settled_starts): the starts a later run on another
     # sample of the same matches needs, where this run's starts all ended in one rig; else None.
     settled_starts: Optional[list[str]] = None
@@ -345,12 +344,10 @@ def _triangulate_new(state: SfMState, max_error_px: float) -> int:
 def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
                     camera_names: Sequence[str], config: SfMConfig, seed: int,
                     say: Callable[[str], None],
-                    first_pair: Optional[tuple[int, int]] = None,
-                    finish: bool = True) -> IncrementalResult:
+                    first_pair: Optional[tuple[int, int]] = None) -> IncrementalResult:
     """One incremental run from `intrinsics` (module docstring; core.method.multistart runs it
     from several starts); first_pair: start from this camera pair instead of choosing among the
-    first three views by eq. 3; finish: end with `_finish` (not: the state is the registration,
-    which finish_on finishes later: a multi-start trial judged by its cameras alone)."""
+    first three views by eq. 3."""
     C = tracks.num_cameras
     state = SfMState.create(tracks, intrinsics, config.share_intrinsics,
                             config.fixed_intrinsics_cameras,
@@ -413,13 +410,11 @@ def incremental_sfm(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
             f"{int(state.point_mask().sum())} points, {removed} observations above B_err removed")
     failed = list(pending)
     final_adjustment(state, camera_names, config)
-    registration = state.copy() if finish else state
-    if finish:
-        _finish(state, camera_names, config, seed)
+    registration = state.copy()
+    _finish(state, camera_names, config, seed)
     failed += [c for c in range(C) if c not in order]
     return IncrementalResult(state=state, view_order=order, first_pair=(i, j),
-                             failed=sorted(failed), registration=registration,
-                             finished=finish)
+                             failed=sorted(failed), registration=registration)
 
 
 def final_stage(config: SfMConfig) -> BAStage:

@@ -162,8 +162,6 @@ def run_incremental(tracks: Tracks, intrinsics: Sequence[CameraIntrinsics],
         if sub is not tracks:
             result = _on_all_tracks(tracks, result, *starts[best], camera_names, config, seed,
                                     say)
-        elif not result.finished:
-            result = finish_on(tracks, result, camera_names, config, seed)
     else:
         start, pair = starts[best]
         result = incremental_sfm(tracks, start, camera_names, config, seed, say, pair)
@@ -296,14 +294,9 @@ def _trial(tracks: Tracks, start: list[CameraIntrinsics], camera_names: Sequence
     """One multi-start trial (run_incremental): (its result, None where no pair could start it;
     its progress messages; its truncated cost, None where its intrinsics are implausible)."""
     messages: list[str] = []
-    # Judged on held-out matches, a trial is judged by its cameras alone (held_out_cost
-    # triangulates those matches anew), which its registration already has: the finishing
-    # step (every track triangulated again, B_err, the final BA once more) is left to the one
-    # that wins (run_incremental), as the trials on a sample are (_on_all_tracks).
-    judged_by_cameras = validation_tracks is not None and bool(validation_tracks.num_tracks)
     try:
         trial = incremental_sfm(tracks, start, camera_names, config, seed, messages.append,
-                                first_pair, finish=not judged_by_cameras)
+                             first_pair)
     except NotEnoughOverlapError:
         return None, messages, None
     if implausible_cameras(trial.state):
