@@ -103,6 +103,10 @@ def test_calibration_round_trip(tmp_path):
     np.testing.assert_allclose(back.cameras["b"].intrinsics.params, rig.cameras["b"].intrinsics.params)
     assert back.cameras["a"].quality.num_observations == 1000
     assert back.cameras["a"].quality.num_multiview_observations == 600
+    assert back.cameras["a"].quality.rotation_std_deg is None
+    rig.cameras["a"].quality.rotation_std_deg = 0.05
+    write_calibration_files(rig, tmp_path)
+    assert read_calibration(tmp_path).cameras["a"].quality.rotation_std_deg == 0.05
     # Files written before the multi-view count was recorded still load.
     data = json.loads((tmp_path / "calibration.json").read_text())
     del data["cameras"]["a"]["quality"]["num_multiview_observations"]

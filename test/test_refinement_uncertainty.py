@@ -44,7 +44,7 @@ def _focal_and_pp_stds(covariance: dict) -> np.ndarray:
 def test_with_independent_errors_the_regions_agree_with_the_posterior():
     state, blocks, priors, noise_px = _refined(0.0)
     posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
-                                                 track_regions(state))
+                                                 track_regions(state)).marginals
     ratio = _focal_and_pp_stds(clustered) / _focal_and_pp_stds(posterior)
     assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
     assert 0.85 < np.median(ratio) < 1.15, ratio
@@ -53,7 +53,7 @@ def test_with_independent_errors_the_regions_agree_with_the_posterior():
 def test_errors_shared_within_regions_widen_the_clustered_sigmas():
     state, blocks, priors, noise_px = _refined(0.3)
     posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
-                                                 track_regions(state))
+                                                 track_regions(state)).marginals
     ratio = _focal_and_pp_stds(clustered) / _focal_and_pp_stds(posterior)
     assert np.median(ratio) > 1.3, ratio
 
@@ -61,7 +61,7 @@ def test_errors_shared_within_regions_widen_the_clustered_sigmas():
 def test_a_camera_reports_the_largest_sigma_each_source_gives():
     state, blocks, priors, noise_px = _refined(0.0)
     posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
-                                                 track_regions(state))
+                                                 track_regions(state)).marginals
     pair = (posterior[0], clustered[0])
     own = camera_uncertainty(state, 0, pair, {}, None)
     focal, pp = _focal_and_pp_stds({0: posterior[0], 1: clustered[0]}).max(axis=0)
@@ -82,7 +82,7 @@ def test_the_projection_sigma_is_no_smaller_than_its_parts_reported():
     principal point off by sigma moves every image point by about that much."""
     state, blocks, priors, noise_px = _refined(0.0)
     posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
-                                                 track_regions(state))
+                                                 track_regions(state)).marginals
     pair = (posterior[0], clustered[0])
     own = camera_uncertainty(state, 0, pair, {}, None)
     assert own.projection_std_px < own.principal_point_std_px * 4.0

@@ -197,6 +197,10 @@ def test_layout_gives_centres_and_axis_angles_in_the_rig_frame(rig):
     axis_deg = np.degrees(np.arccos(R[2, 2]))  # angle between the z axes of cam3 and the rig
     assert float(rows["cam3"][4]) == pytest.approx(axis_deg, abs=0.01)
     assert float(rows["cam2"][3]) == pytest.approx(np.linalg.norm(centres["cam2"]), abs=1e-3)
+    assert rows["cam0"][5] == "-"  # the reference camera's rotation defines the frame
+    rig.cameras["cam3"].quality = CameraQuality(0.3, 100, 0.5, rotation_std_deg=0.0421)
+    rows = {line.split()[0]: line.split()[1:] for line in layout_table(rig).splitlines()[1:]}
+    assert rows["cam3"][5] == "0.042"
     assert "x_units" in layout_table(rig)
     metric = apply_known_baseline(rig, "cam0", "cam1", 0.25)
     assert "x_m" in layout_table(metric)

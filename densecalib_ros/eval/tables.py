@@ -125,7 +125,8 @@ def summarize_error_sigma_ratios(scenes: list[dict]) -> dict:
 def format_error_sigma_ratios(check: dict) -> str:
     lines = ["== uncertainty check: actual error / its estimated sigma over cameras (focal length; "
              "principal point: larger axis error / principal_point_std_px; projection: mean "
-             "projection-map error / projection_std_px)"]
+             "projection-map error / projection_std_px; rotation: angle of the camera's rotation "
+             "relative to the reference camera against the truth's / rotation_std_deg)"]
     for method, kinds in check.items():
         parts = [f"{kind} median {q['median']:.2f}, 90% {q['p90']:.2f}, max {q['max']:.2f} "
                  f"(n={q['n']})" for kind, q in kinds.items()]

@@ -51,7 +51,8 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
             for key in ("num_multiview_observations", "sfm_multiview_observations"):
                 if getattr(cam.quality, key) is not None:
                     entry["quality"][key] = int(getattr(cam.quality, key))
-            for key in ("focal_std_px", "principal_point_std_px", "projection_std_px"):
+            for key in ("focal_std_px", "principal_point_std_px", "projection_std_px",
+                        "rotation_std_deg"):
                 if getattr(cam.quality, key) is not None:
                     entry["quality"][key] = float(getattr(cam.quality, key))
             if cam.quality.estimated_intrinsics is not None:

@@ -53,6 +53,16 @@ def with_decentering(priors: Priors, blocks: Sequence[int], one_cameras: Sequenc
                    ties=list(priors.ties) + ties)
 
 
+def other_lens_model(priors: Priors, blocks: Sequence[int], one_cameras: Sequence[list[int]]
+                     ) -> Priors:
+    """The nested lens model decentering_test did not choose: `priors` without p1, p2 (and
+    their ties) where they are free, with them (with_decentering) where they are held."""
+    if priors.tangential_std:
+        return replace(priors, tangential_std={},
+                       ties=[t for t in priors.ties if t[0] not in _TANGENTIAL])
+    return with_decentering(priors, blocks, one_cameras)
+
+
 def decentering_test(priors: Priors, blocks: Sequence[int], one_cameras: Sequence[list[int]],
                      held_out: Callable[[Priors], np.ndarray],
                      one_size: Sequence[list[int]] = ()

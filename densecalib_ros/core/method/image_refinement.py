@@ -64,8 +64,7 @@ from .decentering import with_decentering, with_decentering_asked
 from .dense_matches import DenseAhead, dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .image_folds import (FOLD_VALUE_OF, GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_images,
-                          held_out_errors, one_camera_jackknife, principal_point_determined,
-                          track_regions)
+                          held_out_errors, one_camera_jackknife, principal_point_determined)
 from .plausibility import make_pixels_square, unlike_aspect_blocks
 from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
                                adjust_with_priors, intrinsics_vector)
@@ -73,7 +72,7 @@ from .reconstruction import (SfMState, remove_outlier_observations, reprojection
                              triangulate_tracks)
 from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, random_effects,
                           scatter_per_dof)
-from .refinement_uncertainty import camera_uncertainty, posterior_covariances
+from .refinement_uncertainty import refinement_sigmas
 
 log = logging.getLogger(__name__)
 
@@ -215,21 +214,17 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     if axes_spread_deg([refined.cam_from_world[c][:3, :3] for c in refined.registered()]) \
             < FORWARD_SPREAD_DEG:
         scale_std = probed_focal_scale_std(refined, blocks, held, adjustment.noise_px)
-    # Sigmas with every prior in place: a held principal point may be off by its prior's spread,
-    # and the focal length leans on it.
-    covariances = posterior_covariances(refined, blocks, in_place, adjustment.noise_px,
-                                        track_regions(refined))
+    per_camera = refinement_sigmas(refined, blocks, (in_place, held), adjustment.noise_px,
+                                   determined, fold_sigmas, one_cameras, PP_PRIOR_STD_FRACTION,
+                                   scale_std)
     estimated, sigmas = {}, {}
-    for c in refined.registered():
+    for c, sigma in per_camera.items():
         b = int(refined.camera_block[c])
-        if b in covariances[0]:
-            estimated[camera_names[c]] = ["f", "k1", "k2"] + \
-                (["cx", "cy"] if "principal point" in determined[b] else []) + \
-                (["aspect"] if "aspect" in determined[b] else []) + \
-                (["p1", "p2"] if b in in_place.tangential_std else [])
-            sigmas[camera_names[c]] = camera_uncertainty(
-                refined, b, (covariances[0][b], covariances[1][b]), fold_sigmas.get(b, {}),
-                None if "principal point" in determined[b] else PP_PRIOR_STD_FRACTION, scale_std)
+        estimated[camera_names[c]] = ["f", "k1", "k2"] + \
+            (["cx", "cy"] if "principal point" in determined[b] else []) + \
+            (["aspect"] if "aspect" in determined[b] else []) + \
+            (["p1", "p2"] if b in in_place.tangential_std else [])
+        sigmas[camera_names[c]] = sigma
     verdicts = {tuple(camera_names[c] for c in refined.registered()
                       if int(refined.camera_block[c]) in members): members in one_cameras
                 for members in judged}

@@ -15,22 +15,65 @@ degrees of freedom: simulated, their sigma averages 0.73 of the true one); a 4:3
 75 regions."""
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
 
 from .prior_adjustment import AdjustmentProblem, INTRINSIC_NAMES, Priors, add_prior_terms
 from .prior_covariance import block_marginals, camera_covariance
+from .decentering import other_lens_model
+from .image_folds import track_regions
 from .reconstruction import SfMState
+from .rotation_spread import fold_rotation_std_deg, model_choice_deg, rotation_std_deg
 from .uncertainty import CameraUncertainty, projection_std_px
 
 
+@dataclass
+class RefinementCovariances:
+    """The posterior and the sandwich covariance (M, M) of the adjustment's camera parameters
+    (posterior_covariances), their columns (AdjustmentProblem.pose_cols, intr_cols) and per
+    block their (8, 8) marginals of INTRINSIC_NAMES."""
+
+    full: tuple[np.ndarray, np.ndarray]
+    pose_cols: np.ndarray
+    intr_cols: np.ndarray
+    marginals: tuple[dict, dict]
+
+    def of_block(self, block: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.marginals[0][block], self.marginals[1][block]
+
+
+def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, Priors],
+                      noise_px: float, determined: dict, fold_sigmas: dict,
+                      one_cameras: list[list[int]], held_pp_std_fraction: float,
+                      focal_scale_std: float) -> dict[int, CameraUncertainty]:
+    """Per registered camera of the adjusted blocks its sigmas (camera_uncertainty) with its
+    rotation's (rotation_sigmas). priors: (with every prior in place, as adjusted): the
+    covariances take the first, so that a held principal point may be off by its prior's spread
+    and the focal length leans on it; the folds and the lens model's choice refit under the
+    second. determined, fold_sigmas: image_folds.determined_by_images'; a principal point the
+    images do not determine has the sigma held_pp_std_fraction of the long side."""
+    in_place, held = priors
+    covariances = posterior_covariances(state, blocks, in_place, noise_px, track_regions(state))
+    of_block = {b: camera_uncertainty(
+        state, b, covariances.of_block(b), fold_sigmas.get(b, {}),
+        None if "principal point" in determined[b] else held_pp_std_fraction, focal_scale_std)
+        for b in covariances.marginals[0]}
+    turns = rotation_sigmas(state, covariances, of_block,
+                            fold_rotation_std_deg(state, blocks, held, noise_px),
+                            model_choice_deg(state, blocks,
+                                             other_lens_model(held, blocks, one_cameras), noise_px))
+    return {c: replace(of_block[int(state.camera_block[c])], rotation_std_deg=turns.get(c))
+            for c in state.registered() if int(state.camera_block[c]) in of_block}
+
+
 def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
-                          track_region: np.ndarray) -> tuple[dict, dict]:
-    """Per block the (8, 8) covariance of INTRINSIC_NAMES at `state` as it is, under these
-    priors and pixel noise: the posterior's (prior_covariance.posterior_covariance) and the
-    cluster-robust one over the tracks' regions (track_region (T,): image_folds.track_regions;
-    module docstring)."""
+                          track_region: np.ndarray) -> RefinementCovariances:
+    """The covariance of the camera parameters at `state` as it is, under these priors and
+    pixel noise: the posterior's (prior_covariance.posterior_covariance) and the cluster-robust
+    one over the tracks' regions (track_region (T,): image_folds.track_regions; module
+    docstring)."""
     problem = AdjustmentProblem(state, blocks, priors)
     cov, Wt, V_inv, g_pt, obs_cols, weighted = camera_covariance(problem, noise_px)
     M = problem.num_cam_params
@@ -49,8 +92,9 @@ def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, no
     # spent on it (the usual G / (G - 1) of clustered sandwiches).
     meat = per_region.T @ per_region * num_regions / max(num_regions - 1, 1)
     add_prior_terms(problem, meat, np.zeros(M))  # the priors' own information, as in H
-    return block_marginals(problem, cov, blocks), \
-        block_marginals(problem, cov @ meat @ cov, blocks)
+    full = (cov, cov @ meat @ cov)
+    return RefinementCovariances(full, problem.pose_cols, problem.intr_cols,
+                                 tuple(block_marginals(problem, c, blocks) for c in full))
 
 
 def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sigmas: dict,
@@ -89,10 +133,48 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
     if held_pp_std_fraction is not None:
         pp_std = held_pp_std_fraction * max(cam.width, cam.height)
     cov = max(covariances, key=lambda c: np.trace(c[:3, :3]))  # widened below
-    scale = np.ones(n)
-    scale[0] = max(1.0, focal_std / max(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0)), 1e-12))
-    scale[1:3] = [max(1.0, pp_std / max(np.sqrt(max(cov[i, i], 0.0)), 1e-12)) for i in (1, 2)]
+    scale = widening(cam, cov, focal_std, pp_std)
     widened = projection_std_px(cam.to_pycolmap(), list(range(len(cam.params))),
                                 J @ (scale[:, None] * cov * scale[None, :]) @ J.T)
     projection = max(projection, widened or 0.0)
     return CameraUncertainty(focal_std, pp_std, projection)
+
+
+def widening(cam, cov: np.ndarray, focal_std: float, pp_std: float) -> np.ndarray:
+    """(8,) per INTRINSIC_NAMES the factor (>= 1) that takes its sigma in cov (a block's (8, 8)
+    marginal) to the one reported: the mean focal's to focal_std, cx's and cy's to pp_std; 1 for
+    the others."""
+    p = cam.params
+    a = p[1] / p[0] - 1.0 if cam.model == "OPENCV" else 0.0
+    mean_focal = np.zeros(len(INTRINSIC_NAMES))
+    mean_focal[0], mean_focal[5] = 1.0 + a / 2.0, p[0] / 2.0
+    scale = np.ones(len(INTRINSIC_NAMES))
+    scale[0] = max(1.0, focal_std / max(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0)), 1e-12))
+    scale[1:3] = [max(1.0, pp_std / max(np.sqrt(max(cov[i, i], 0.0)), 1e-12)) for i in (1, 2)]
+    return scale
+
+
+def rotation_sigmas(state: SfMState, covariances: RefinementCovariances, sigmas: dict,
+                    folds: dict[int, float], model: dict[int, float]) -> dict[int, float]:
+    """Per registered camera but the reference the rotation sigma (deg; rotation_spread, module
+    docstring): the covariances' with each block's focal and principal point widened to its
+    sigmas (sigmas: block -> CameraUncertainty), or the folds' (rotation_spread.
+    fold_rotation_std_deg) where larger, with the lens model's choice (model_choice_deg)."""
+    columns = covariances.intr_cols
+    intrinsic_cols = columns[columns >= 0]
+    widen = []
+    for k, full in enumerate(covariances.full):
+        factor = np.ones(full.shape[0])
+        for b, sigma in sigmas.items():
+            scale = widening(state.intrinsics[b], covariances.marginals[k][b], sigma.focal_std_px,
+                             sigma.principal_point_std_px)
+            free = columns[b] >= 0
+            factor[columns[b][free]] = scale[free]
+        widen.append(factor[intrinsic_cols])
+    out = {}
+    for c in state.registered():
+        std = rotation_std_deg(covariances.full, covariances.pose_cols, intrinsic_cols,
+                               tuple(widen), folds, model, c)
+        if std is not None:
+            out[c] = std
+    return out

@@ -21,11 +21,11 @@ points free (cross-camera effects left out; pycolmap gives the covariance per ca
 the projection moves with it too. Then the errors are within a few sigma (same section); on tracks
 with a 1 % offset about 1 sigma (test_uncertainty).
 
-No rotation sigma is given: measured the same way it was several times smaller than the rotation
-errors on generated rigs (a principal point held at the image centre that is not there turns a
-camera, which a covariance conditional on the held point cannot show), and with the principal
-point marginalised its ratio to the errors varied from rig to rig (same section): not a number to
-act on. The consensus runs' disagreement (quality.consensus_disagreement_deg) is the measured
+No rotation sigma is given here (the image refinement gives one: core.method.rotation_spread):
+measured the same way it was several times smaller than the rotation errors on generated rigs (a
+principal point held at the image centre that is not there turns a camera, which a covariance
+conditional on the held point cannot show), and with the principal point marginalised its ratio
+to the errors varied from rig to rig (same section): not a number to act on. The consensus runs' disagreement (quality.consensus_disagreement_deg) is the measured
 spread of the extrinsics."""
 from __future__ import annotations
 
@@ -38,7 +38,8 @@ import numpy as np
 import pycolmap
 
 from ..config import PipelineConfig
-from ..metrics import invertible_pixel_rays, mean_focal_px, projection_map_error
+from ..metrics import (invertible_pixel_rays, mean_focal_px, projection_map_error,
+                       rotation_angle_deg)
 from ..types import CameraIntrinsics, RigCalibration, colmap_parameter_names
 from .prior_adjustment import points_dof_factor
 
@@ -53,6 +54,9 @@ class CameraUncertainty:
     # intrinsics' uncertainty as a whole. A focal that trades off against the distortion (a
     # fisheye seen over part of its field) has a large focal_std_px but a small projection_std_px.
     projection_std_px: Optional[float]
+    # The camera's rotation relative to the reference camera (deg, root mean square of the angle;
+    # core.method.rotation_spread): None for the reference camera and where not estimated.
+    rotation_std_deg: Optional[float] = None
 
 
 # Rays sampled on a grid of this many points per image side for projection_std_px.
@@ -219,8 +223,29 @@ def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
     the larger of its |cx| and |cy| errors / principal_point_std_px (the larger of their sigmas,
     so a ratio on the lower side where the larger error lies on the better determined axis);
     "projection": the mean projection-map error (metrics.projection_map_error) /
-    projection_std_px."""
-    return intrinsics_error_sigma_ratios(rig, {n: c.intrinsics for n, c in truth.cameras.items()})
+    projection_std_px; "rotation": the angle (deg) of the camera's rotation relative to the
+    reference camera against the truth's / rotation_std_deg."""
+    out = intrinsics_error_sigma_ratios(rig, {n: c.intrinsics for n, c in truth.cameras.items()})
+    out["rotation"] = rotation_error_sigma_ratios(rig, truth)
+    return out
+
+
+def rotation_error_sigma_ratios(rig, truth) -> list[float]:
+    """Per camera with a rotation sigma: the angle (deg) between its rotation relative to the
+    reference camera and the truth's (both rigs' cameras, rig frames aside) / rotation_std_deg."""
+    ref = rig.reference_camera
+    if ref not in truth.cameras:
+        return []
+    true_ref = truth.cameras[ref].cam_from_rig[:3, :3]
+    out = []
+    for name, cam in rig.cameras.items():
+        q, true = cam.quality, truth.cameras.get(name)
+        if q is None or true is None or not q.rotation_std_deg:
+            continue
+        relative = cam.cam_from_rig[:3, :3] @ rig.cameras[ref].cam_from_rig[:3, :3].T
+        error = rotation_angle_deg(relative @ (true.cam_from_rig[:3, :3] @ true_ref.T).T)
+        out.append(error / q.rotation_std_deg)
+    return out
 
 
 def intrinsics_error_sigma_ratios(rig, truth: dict[str, CameraIntrinsics]

@@ -294,19 +294,23 @@ def camera_centres_in_rig(rig: RigCalibration) -> dict[str, np.ndarray]:
 
 def layout_table(rig: RigCalibration, short: Optional[dict[str, str]] = None) -> str:
     """Where each camera is in the rig frame (x right, y down, z forward of the reference camera):
-    optical centre, its distance from the reference, and the angle between its optical axis and
-    the reference's. Units are metres when the scale came from a known baseline, else the
+    optical centre, its distance from the reference, the angle between its optical axis and
+    the reference's, and the sigma of its rotation relative to the reference (deg; "-" where
+    not estimated). Units are metres when the scale came from a known baseline, else the
     reconstruction's arbitrary unit."""
     unit = "m" if rig.metric_scale else "units"
     width, short = _name_column(list(rig.cameras), short)
     rows = [f"{'camera':<{width}} {f'x_{unit}':>9} {f'y_{unit}':>9} {f'z_{unit}':>9} "
-            f"{f'dist_{unit}':>10} {'axis_deg':>8}"]
+            f"{f'dist_{unit}':>10} {'axis_deg':>8} {'rot_std':>7}"]
     for name, centre in camera_centres_in_rig(rig).items():
         centre = np.round(centre, 3) + 0.0  # no "-0.000"
         axis_in_rig = rig.cameras[name].cam_from_rig[:3, :3].T @ np.array([0.0, 0.0, 1.0])
         axis_deg = float(np.degrees(np.arccos(np.clip(axis_in_rig[2], -1.0, 1.0))))
+        quality = rig.cameras[name].quality
+        rot_std = _optional(None if quality is None else quality.rotation_std_deg, ".3f")
         rows.append(f"{short[name]:<{width}} {centre[0]:9.3f} {centre[1]:9.3f} "
-                    f"{centre[2]:9.3f} {np.linalg.norm(centre):10.3f} {axis_deg:8.2f}")
+                    f"{centre[2]:9.3f} {np.linalg.norm(centre):10.3f} {axis_deg:8.2f} "
+                    f"{rot_std:>7}")
     return "\n".join(rows)
 
 
