@@ -337,8 +337,8 @@ def test_the_runs_spread_of_a_cameras_intrinsics_is_their_sample_deviation():
 
     spread = runs_intrinsics_spread([rig(490.0), rig(500.0), rig(510.0, names=["a", "c"])],
                                     NAMES)
-    assert spread["a"] == pytest.approx((0.0, 0.0), abs=1e-9)
-    focal_px, projection_px = spread["c"]
+    assert spread["a"] == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)
+    focal_px, projection_px, _ = spread["c"]
     assert focal_px == pytest.approx(10.0)  # 490, 500, 510: sample deviation 10
     # a 2 % focal step moves the mean pixel by about 2 % of its distance from the centre; the
     # pairs (10, 10, 20 px of focal) give sqrt(mean square / 2) = sqrt(((1 + 1 + 4) / 3) / 2) = 1
@@ -346,5 +346,17 @@ def test_the_runs_spread_of_a_cameras_intrinsics_is_their_sample_deviation():
     one_step = projection_map_error(rig(500.0).cameras["c"].intrinsics,
                                     rig(510.0).cameras["c"].intrinsics)["mean_px"]
     assert projection_px == pytest.approx(one_step, rel=0.02)
-    assert spread["b"] == pytest.approx((0.0, 0.0), abs=1e-9)  # two runs placed it
+    assert spread["b"] == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)  # two runs placed it
     assert "b" not in runs_intrinsics_spread([rig(500.0), rig(500.0, names=["a", "c"])], NAMES)
+
+
+def test_the_runs_spread_of_a_cameras_rotation_is_their_sample_deviation():
+    """c turned by 0, 2 and 4 deg in three runs: the pairs' angles 2, 2 and 4 deg give
+    sqrt(mean square / 2) = 2 deg, the sample deviation of the three turns."""
+    spread = runs_intrinsics_spread([_rig(0.0), _rig(2.0), _rig(4.0)], NAMES)
+    assert spread["c"][2] == pytest.approx(2.0)
+    assert spread["b"][2] == pytest.approx(0.0, abs=1e-6)
+    # no camera that every run placed: no common reference, no rotation spread
+    apart = runs_intrinsics_spread([_rig(names=["a", "c"]), _rig(2.0, names=["b", "c"]),
+                                    _rig(names=["a", "b"])], NAMES)
+    assert np.isnan(apart["c"][2])

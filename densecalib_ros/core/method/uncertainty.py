@@ -272,25 +272,27 @@ def intrinsics_error_sigma_ratios(rig, truth: dict[str, CameraIntrinsics]
 
 
 def with_runs_spread(sigmas: dict, spread: dict) -> dict:
-    """sigmas (camera name -> CameraUncertainty) with each camera's focal and projection standard
-    deviations widened by the consensus runs' spread of its answer (spread: name -> (focal px,
-    projection px), consensus_runs.runs_intrinsics_spread), in quadrature.
+    """sigmas (camera name -> CameraUncertainty) with each camera's focal, projection and
+    rotation standard deviations widened by the consensus runs' spread of its answer (spread:
+    name -> (focal px, projection px, rotation deg), consensus_runs.runs_intrinsics_spread), in
+    quadrature.
 
     For a calibration whose runs disagree: each run's covariance describes the valley it settled
     in, while the runs, calibrated from different samples of the same correspondences, settled in
     different ones. How far their answers scatter is then the larger part of the uncertainty,
     and the one a single run's covariance cannot see (docs/design-notes.md, Sigmas of runs that
     disagree)."""
+    def widened(std: Optional[float], runs: float) -> Optional[float]:
+        return float(np.hypot(std, runs)) if std is not None and np.isfinite(runs) else std
+
     out = dict(sigmas)
-    for name, (focal_px, projection_px) in spread.items():
+    for name, (focal_px, projection_px, rotation_deg) in spread.items():
         u = out.get(name)
         if u is None or u.focal_std_px is None:
             continue
-        out[name] = replace(u, focal_std_px=float(np.hypot(u.focal_std_px, focal_px)),
-                            projection_std_px=(float(np.hypot(u.projection_std_px, projection_px))
-                                               if u.projection_std_px is not None
-                                               and np.isfinite(projection_px)
-                                               else u.projection_std_px))
+        out[name] = replace(u, focal_std_px=widened(u.focal_std_px, focal_px),
+                            projection_std_px=widened(u.projection_std_px, projection_px),
+                            rotation_std_deg=widened(u.rotation_std_deg, rotation_deg))
     return out
 
 

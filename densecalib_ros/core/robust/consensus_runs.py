@@ -17,7 +17,7 @@ import numpy as np
 
 from ..config import PipelineConfig
 from ..errors import CalibrationError
-from ..metrics import mean_focal_px, projection_map_error
+from ..metrics import mean_focal_px, projection_map_error, rotation_angle_deg
 from ..method.multistart import AGREEMENT_DEG, agreement_deg, cost_truncation_px
 from ..progress import Progress
 from ..types import RigCalibration, Tracks
@@ -199,7 +199,8 @@ class ConsensusRecord:
     runs (deg) and, refined on the images, with them (where the runs were judged so), the least
     determined camera pairs (a, b, deg), and where the runs disagree beyond the warning's bar,
     the other run at the median disagreement (runner_up: its index and seed) and the spread of
-    each camera's intrinsics over the runs (intrinsics_spread: runs_intrinsics_spread); the
+    each camera's intrinsics and rotation over the runs (intrinsics_spread:
+    runs_intrinsics_spread); the
     median disagreement with the other runs that fit about as well (fitting_disagreement_deg:
     choose_run's worse_fit left out; None where no other run is left), which a refusal reads
     (core.stages.record.refusal)."""
@@ -220,24 +221,36 @@ class ConsensusRecord:
 
 
 def runs_intrinsics_spread(rigs: Sequence[RigCalibration], camera_names: Sequence[str]
-                           ) -> dict[str, tuple[float, float]]:
-    """Camera name -> (focal px, projection px): how far one run's answer for the camera's
-    intrinsics scatters, from the runs that registered it (at least two). Each run calibrates from
+                           ) -> dict[str, tuple[float, float, float]]:
+    """Camera name -> (focal px, projection px, rotation deg): how far one run's answer for the
+    camera scatters, from the runs that registered it (at least two). Each run calibrates from
     its own seeded sample of the tracks, so the runs are a bootstrap of the calibration over its
     correspondences: the focal's is the runs' sample standard deviation, the projection's the
     same from the pairs' mean projection-map differences (for two independent draws the mean
-    square difference is twice the variance)."""
+    square difference is twice the variance), the rotation's likewise from the pairs' angles
+    between its rotations relative to the first of camera_names that every run registered (nan
+    where there is none; 0 for that camera)."""
+    common = [n for n in camera_names if all(n in rig.cameras for rig in rigs)]
+
+    def relative(rig: RigCalibration, name: str) -> np.ndarray:
+        return rig.cameras[name].cam_from_rig[:3, :3] @ \
+            rig.cameras[common[0]].cam_from_rig[:3, :3].T
     out = {}
     for name in camera_names:
-        cams = [rig.cameras[name].intrinsics for rig in rigs if name in rig.cameras]
-        if len(cams) < 2:
+        placed = [rig for rig in rigs if name in rig.cameras]
+        if len(placed) < 2:
             continue
+        cams = [rig.cameras[name].intrinsics for rig in placed]
         focal_px = float(np.std([mean_focal_px(c) for c in cams], ddof=1))
         apart_px = [projection_map_error(a, b)["mean_px"] for a, b in combinations(cams, 2)]
         apart_px = [d for d in apart_px if np.isfinite(d)]
         projection_px = float(np.sqrt(np.mean(np.square(apart_px)) / 2.0)) if apart_px \
             else float("nan")
-        out[name] = (focal_px, projection_px)
+        turned_deg = [rotation_angle_deg(relative(a, name) @ relative(b, name).T)
+                      for a, b in combinations(placed, 2)] if common else []
+        rotation_deg = float(np.sqrt(np.mean(np.square(turned_deg)) / 2.0)) if turned_deg \
+            else float("nan")
+        out[name] = (focal_px, projection_px, rotation_deg)
     return out
 
 
