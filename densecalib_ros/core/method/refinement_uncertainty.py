@@ -1,6 +1,7 @@
 """The image refinement's sigmas (core.method.image_refinement): the adjustment's posterior
 covariance, a cluster-robust (sandwich) covariance over image regions, and the spatial folds'
-spread (core.method.image_folds), each camera's sigma the largest of them.
+spread (core.method.image_folds), each camera's sigma the largest of them; each camera's
+rotation sigma beside them (refinement_sigmas, core.method.rotation_spread).
 
 Why a sandwich: the covariance weights every dense correspondence as an independent measurement
 at the fit's pixel noise. Correspondences from patch alignment are not: neighbours share a
@@ -20,10 +21,10 @@ from typing import Optional
 
 import numpy as np
 
-from .prior_adjustment import AdjustmentProblem, INTRINSIC_NAMES, Priors, add_prior_terms
-from .prior_covariance import block_marginals, camera_covariance
 from .decentering import other_lens_model
 from .image_folds import track_regions
+from .prior_adjustment import AdjustmentProblem, INTRINSIC_NAMES, Priors, add_prior_terms
+from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
 from .rotation_spread import fold_rotation_std_deg, model_choice_deg, rotation_std_deg
 from .uncertainty import CameraUncertainty, projection_std_px
@@ -49,11 +50,11 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
                       one_cameras: list[list[int]], held_pp_std_fraction: float,
                       focal_scale_std: float) -> dict[int, CameraUncertainty]:
     """Per registered camera of the adjusted blocks its sigmas (camera_uncertainty) with its
-    rotation's (rotation_sigmas). priors: (with every prior in place, as adjusted): the
-    covariances take the first, so that a held principal point may be off by its prior's spread
-    and the focal length leans on it; the folds and the lens model's choice refit under the
-    second. determined, fold_sigmas: image_folds.determined_by_images'; a principal point the
-    images do not determine has the sigma held_pp_std_fraction of the long side."""
+    rotation's (rotation_sigmas). priors: (every prior in place, those the rig was adjusted
+    under): the covariances take the first, so that a held principal point may be off by its
+    prior's spread and the focal length leans on it; the folds and the lens model's choice refit
+    under the second. determined, fold_sigmas: image_folds.determined_by_images'; a principal
+    point the images do not determine has the sigma held_pp_std_fraction of the long side."""
     in_place, held = priors
     covariances = posterior_covariances(state, blocks, in_place, noise_px, track_regions(state))
     of_block = {b: camera_uncertainty(

@@ -117,7 +117,6 @@ def fold_rotation_std_deg(state: SfMState, blocks: list[int], priors: Priors, no
     rotation: each spatial fold of `state` (image_folds.track_folds) adjusted on its own under
     the final `priors` at noise_px (_folds_std)."""
     fold = track_folds(state)
-    about = state.copy()
 
     def one(k: int) -> Optional[dict[int, np.ndarray]]:
         part = state.copy()
@@ -127,7 +126,7 @@ def fold_rotation_std_deg(state: SfMState, blocks: list[int], priors: Priors, no
             adjust_with_priors(part, blocks, priors, noise_px=noise_px)
         except (ValueError, np.linalg.LinAlgError):
             return None
-        return relative_rotvecs(part, about)
+        return relative_rotvecs(part, state)
     replicates = [r for r in map_threads(one, range(HOLDOUT_FOLDS)) if r is not None]
     return {c: float(np.degrees(s)) for c, s in _folds_std(replicates).items()}
 
@@ -145,4 +144,5 @@ def model_choice_deg(state: SfMState, blocks: list[int], other: Priors, noise_px
         adjust_with_priors(part, blocks, other, noise_px=noise_px)
     except (ValueError, np.linalg.LinAlgError):
         return {}
-    return {c: float(np.degrees(np.linalg.norm(v))) for c, v in relative_rotvecs(part, state).items()}
+    return {c: float(np.degrees(np.linalg.norm(v)))
+            for c, v in relative_rotvecs(part, state).items()}

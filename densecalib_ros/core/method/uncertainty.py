@@ -25,8 +25,9 @@ No rotation sigma is given here (the image refinement gives one: core.method.rot
 measured the same way it was several times smaller than the rotation errors on generated rigs (a
 principal point held at the image centre that is not there turns a camera, which a covariance
 conditional on the held point cannot show), and with the principal point marginalised its ratio
-to the errors varied from rig to rig (same section): not a number to act on. The consensus runs' disagreement (quality.consensus_disagreement_deg) is the measured
-spread of the extrinsics."""
+to the errors varied from rig to rig (same section): not a number to act on. The consensus
+runs' disagreement (quality.consensus_disagreement_deg) is the measured spread of the
+extrinsics."""
 from __future__ import annotations
 
 import copy
