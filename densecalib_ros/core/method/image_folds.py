@@ -180,8 +180,7 @@ def determined_by_folds(estimates: list[dict], blocks: list[int], priors: Priors
         if len(values) < 2 or not np.isfinite(values).all():
             out[b] = set()
             continue
-        spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
-        std_of_mean = spread / np.sqrt(len(values))
+        std_of_mean = folds_std_of_mean(values)
         if floors is not None and b in floors:
             std_of_mean = np.maximum(std_of_mean, floors[b])
         spread_of[b] = dict(principal_point_axes_px=(float(std_of_mean[0]), float(std_of_mean[1])),
@@ -198,6 +197,14 @@ def determined_by_folds(estimates: list[dict], blocks: list[int], priors: Priors
         if std_of_mean[2] < ESTIMATED_FRACTION * priors.aspect_std[b]:
             out[b].add("aspect")
     return out, spread_of
+
+
+def folds_std_of_mean(values: np.ndarray) -> np.ndarray:
+    """Per column the standard deviation of the mean of the folds' estimates (rows): their
+    median absolute deviation as a sigma (one fold that ran off on a weak part of the images
+    does not decide it) over sqrt(folds)."""
+    spread = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
+    return spread / np.sqrt(len(values))
 
 
 def principal_point_determined(axes_std_px, prior_std_px: float) -> bool:

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from ..parallel import map_threads
-from .image_folds import HOLDOUT_FOLDS, MAD_TO_SIGMA, track_folds
+from .image_folds import HOLDOUT_FOLDS, folds_std_of_mean, track_folds
 from .prior_adjustment import Priors, adjust_with_priors
 from .reconstruction import SfMState
 
@@ -61,17 +61,13 @@ def relative_rotvecs(state: SfMState, about: SfMState) -> dict[int, np.ndarray]:
 
 
 def _folds_std(replicates: list[dict[int, np.ndarray]]) -> dict[int, float]:
-    """Per camera the standard deviation (rad) of the mean of the folds' rotations: per axis the
-    folds' median absolute deviation as a sigma (one fold that ran off on a weak part of the
-    images does not decide it, as for the intrinsics: image_folds.determined_by_folds), over
-    sqrt(folds), summed in quadrature."""
+    """Per camera the standard deviation (rad) of the mean of the folds' rotations: per axis
+    as for the intrinsics (image_folds.folds_std_of_mean), summed in quadrature."""
     out = {}
     for c in {c for r in replicates for c in r}:
         v = np.array([r[c] for r in replicates if c in r])
-        if len(v) < 2:
-            continue
-        spread = MAD_TO_SIGMA * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
-        out[c] = float(np.linalg.norm(spread) / np.sqrt(len(v)))
+        if len(v) >= 2:
+            out[c] = float(np.linalg.norm(folds_std_of_mean(v)))
     return out
 
 

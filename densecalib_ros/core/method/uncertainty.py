@@ -40,7 +40,7 @@ import pycolmap
 
 from ..config import PipelineConfig
 from ..metrics import (invertible_pixel_rays, mean_focal_px, projection_map_error,
-                       rotation_angle_deg)
+                       relative_pose_errors)
 from ..types import CameraIntrinsics, RigCalibration, colmap_parameter_names
 from .prior_adjustment import points_dof_factor
 
@@ -232,20 +232,19 @@ def error_sigma_ratios(rig, truth) -> dict[str, list[float]]:
 
 
 def rotation_error_sigma_ratios(rig, truth) -> list[float]:
-    """Per camera with a rotation sigma: the angle (deg) between its rotation relative to the
-    reference camera and the truth's (both rigs' cameras, rig frames aside) / rotation_std_deg."""
+    """Per camera with a rotation sigma: the rotation error of its pair with the reference camera
+    (metrics.relative_pose_errors, the bench's pair metric) / rotation_std_deg."""
     ref = rig.reference_camera
     if ref not in truth.cameras:
         return []
-    true_ref = truth.cameras[ref].cam_from_rig[:3, :3]
     out = []
     for name, cam in rig.cameras.items():
-        q, true = cam.quality, truth.cameras.get(name)
-        if q is None or true is None or not q.rotation_std_deg:
+        q = cam.quality
+        if q is None or name not in truth.cameras or not q.rotation_std_deg:
             continue
-        relative = cam.cam_from_rig[:3, :3] @ rig.cameras[ref].cam_from_rig[:3, :3].T
-        error = rotation_angle_deg(relative @ (true.cam_from_rig[:3, :3] @ true_ref.T).T)
-        out.append(error / q.rotation_std_deg)
+        pair = relative_pose_errors({n: rig.cameras[n].cam_from_rig for n in (ref, name)},
+                                    {n: truth.cameras[n].cam_from_rig for n in (ref, name)})[0]
+        out.append(pair.rot_err_deg / q.rotation_std_deg)
     return out
 
 
