@@ -162,7 +162,8 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
     any other rig (moved, or with a camera left out) they are found for that rig, not taken from
     the expected one."""
     from densecalib_ros.core.method.all_matches import keypoint_tracks
-    from densecalib_ros.core.method.dense_matches import DenseAhead, dense_tracks
+    from densecalib_ros.core.method.dense_ahead import DenseAhead
+    from densecalib_ros.core.method.dense_matches import dense_tracks
     from densecalib_ros.core.method.reconstruction import SfMState
     from densecalib_ros.core import match_frame_sets
 
@@ -181,6 +182,9 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
     ahead.expect(state)
     found = ahead.tracks(state)
     assert found.num_tracks > 1000
+    # what a calibration would still wait for: nothing for the rig found ahead, a pass among
+    # the cameras for a moved one (its rest was not run ahead)
+    assert ahead.seconds_left(state) == 0.0 and ahead.seconds_left(moved) > 0.0
     assert _same_tracks(found, dense_tracks(images, state, seeds))
     for other in (moved, fewer):
         after = dense_tracks(images, other, seeds)

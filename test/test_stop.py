@@ -68,6 +68,26 @@ def test_the_fraction_done_and_the_seconds_left_follow_the_run(rig):
     assert progress.state().fraction == 1.0 and progress.state().seconds_left == 0.0
 
 
+def test_a_stage_that_waits_for_work_run_ahead_counts_its_seconds_at_the_runs_pace():
+    """Where the refinement begins with its dense correspondences still found ahead, the
+    seconds it waits are added to its share at the pace the run has kept: the seconds left are
+    those plus the stage's own planned share's, not the planned share's alone."""
+    progress = Progress()
+    progress.plan(["match", "calibrate", "refine"])
+    progress.begin("match", "matching")
+    time.sleep(0.2)
+    progress.begin("calibrate", "calibrating")
+    time.sleep(0.2)
+    from densecalib_ros.core.progress import STAGE_SHARES
+    done_share = STAGE_SHARES["match"] + STAGE_SHARES["calibrate"]
+    elapsed = progress.state().elapsed_s
+    planned = elapsed * STAGE_SHARES["refine"] / done_share  # at the run's pace
+    progress.begin("refine", "refining", 1, waits_s=2.0)
+    state = progress.state()
+    assert 0.1 < state.fraction < done_share / sum(STAGE_SHARES.values())
+    assert abs(state.seconds_left - (2.0 + planned)) < 0.1, (state.seconds_left, planned)
+
+
 def _digest(folder) -> str:
     h = hashlib.sha256()
     for root, _, files in sorted(os.walk(folder)):

@@ -129,10 +129,14 @@ class Progress:
         calibration): the fraction done falls to what it is of the longer run."""
         self._run.extend(stages)
 
-    def begin(self, stage: str, label: str, total: int = 0) -> None:
-        """Enter `stage` (ending the one before) with `total` steps to count; checks the stop."""
+    def begin(self, stage: str, label: str, total: int = 0, waits_s: Optional[float] = None
+              ) -> None:
+        """Enter `stage` (ending the one before) with `total` steps to count; checks the stop.
+        waits_s: seconds the stage will wait, beyond what its share plans, for work run ahead
+        that is not yet done: its share grows by what the run does in that time at the pace it
+        has kept so far (a share is a guess from other rigs; these seconds are this run's)."""
         self.check()
-        self._run.begin(stage, label, total)
+        self._run.begin(stage, label, total, waits_s)
 
     def advance(self, done: int, total: Optional[int] = None, label: Optional[str] = None
                 ) -> None:
@@ -179,13 +183,17 @@ class _RunState:
         with self._lock:
             self._add(stages)
 
-    def begin(self, stage: str, label: str, total: int) -> None:
+    def begin(self, stage: str, label: str, total: int, waits_s: Optional[float] = None
+              ) -> None:
         with self._lock:
             self._end_stage()
             key = next((k for k in self._shares if k.rstrip("+") == stage and
                         k not in self._ended), None)
             if key is None:
                 key = self._add([stage], UNPLANNED_SHARE)[0]
+            elapsed = time.perf_counter() - self._start
+            if waits_s and self._done_share > 0 and elapsed > 0:
+                self._shares[key] += waits_s * self._done_share / elapsed
             self._stage, self._label = key, label
             self._done, self._total, self._sub = 0, total, 0.0
         self._tell()

@@ -23,14 +23,13 @@ import logging
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import partial
 from typing import Callable, Optional, Sequence
 
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..parallel import RunAhead, available_cores
+from ..parallel import available_cores
 from ..progress import check_stop
 from ..types import Tracks
 from .matching.utils import to_gray
@@ -200,6 +199,23 @@ class FirstPass:
     returned: list
 
 
+class AlignmentCount:
+    """Directed alignments done (one camera's points aligned onto another image, or back from
+    it: _aligned_both_ways' steps), counted from any thread: how far dense work run ahead got."""
+
+    def __init__(self) -> None:
+        self._lock, self.done = threading.Lock(), 0
+
+    def add(self) -> None:
+        with self._lock:
+            self.done += 1
+
+
+def points_per_image(num_cameras: int) -> int:
+    """Reference points per image where this many cameras align them (MAX_ALIGNMENTS)."""
+    return min(GRID_POINTS_PER_IMAGE, MAX_ALIGNMENTS // max(num_cameras * (num_cameras - 1), 1))
+
+
 class Cancelled(Exception):
     """Dense alignments run ahead were called off (first_pass's or dense_tracks' `cancelled`)."""
 
@@ -216,11 +232,13 @@ def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int
                keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
                cancelled: Optional[threading.Event] = None,
                thread_start: Optional[Callable[[], None]] = None,
-               px_scale: Optional[np.ndarray] = None) -> FirstPass:
+               px_scale: Optional[np.ndarray] = None,
+               counted: Optional[AlignmentCount] = None) -> FirstPass:
     """dense_tracks' first pass among `cameras` (FirstPass). It does not depend on the rig, so a
     calibration runs it ahead, while the rig is still being found (core.pipeline): cancelled,
     set, stops it between pairs (Cancelled); thread_start runs first in each of its threads.
-    px_scale: per camera, keypoint_px_scale (None: 1 for every camera)."""
+    px_scale: per camera, keypoint_px_scale (None: 1 for every camera); counted: where to count
+    its alignments (AlignmentCount), or None."""
     times = densified_times(keypoint_tracks)
     cameras = tuple(int(c) for c in cameras)
     observed = keypoint_tracks.observed()
@@ -228,9 +246,7 @@ def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int
     for time in times:
         grays = _grays(frame_sets, int(time), cameras)
         in_set = keypoint_tracks.time_index == time
-        per_image = min(GRID_POINTS_PER_IMAGE,
-                        MAX_ALIGNMENTS // max(len(cameras) * (len(cameras) - 1), 1))
-        points = {a: reference_points(grays[a], per_image,
+        points = {a: reference_points(grays[a], points_per_image(len(cameras)),
                                       mask=None if masks is None else masks[a])
                   for a in cameras}
         seeds = _pair_seeds(keypoint_tracks, observed, in_set, cameras)
@@ -238,7 +254,7 @@ def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int
         all_points.append(points)
         all_returned.append(_aligned_both_ways(grays, cameras, points, seeds,
                                                {k: none for k in seeds}, cancelled,
-                                               thread_start, px_scale))
+                                               thread_start, px_scale, counted))
     return FirstPass(cameras, times, all_points, all_returned)
 
 
@@ -247,7 +263,8 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
                  ahead: Optional[FirstPass] = None,
                  cancelled: Optional[threading.Event] = None,
                  thread_start: Optional[Callable[[], None]] = None,
-                 px_scale: Optional[np.ndarray] = None) -> Tracks:
+                 px_scale: Optional[np.ndarray] = None,
+                 counted: Optional[AlignmentCount] = None) -> Tracks:
     """Guided dense tracks (module docstring) of the registered cameras of `state`, predicted from
     keypoint_tracks (the keypoint matches as tracks, with their frame set index).
 
@@ -255,13 +272,13 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     not yet found, also from the dense correspondences the first found, which reach the parts of
     the images between sparse keypoints (a wider baseline's pairs share few of them). ahead: the
     first pass as first_pass gave it on the same frame sets, matches and masks, used where it
-    was run among the registered cameras (else it runs here); cancelled, thread_start, px_scale:
-    as first_pass's."""
+    was run among the registered cameras (else it runs here); cancelled, thread_start, px_scale,
+    counted: as first_pass's."""
     C = state.num_cameras
     registered = tuple(int(c) for c in state.registered())
     if ahead is None or ahead.cameras != registered:
         ahead = first_pass(frame_sets, registered, keypoint_tracks, masks, cancelled,
-                           thread_start, px_scale)
+                           thread_start, px_scale, counted)
     observed = keypoint_tracks.observed()
     parts = []
     for time, points, returned in zip(ahead.times, ahead.points, ahead.returned):
@@ -273,7 +290,7 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
             if second:
                 returned = _aligned_both_ways(grays, registered, points, seeds,
                                               {k: v[0] for k, v in found.items()}, cancelled,
-                                              thread_start, px_scale)
+                                              thread_start, px_scale, counted)
             new = {(a, b): _on_epipolar_lines(state, a, b, points[a], *returned[a, b],
                                               _scale(px_scale, b))
                    for (a, b) in seeds}
@@ -298,65 +315,6 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     return Tracks.concatenate(parts, C)
 
 
-class DenseAhead:
-    """dense_tracks' work on a calibration's frame sets, keypoint-match tracks and masks, done on
-    cores the calibration leaves idle before the tracks are asked for (parallel.RunAhead): the
-    first pass among all cameras as soon as the matches are known, and the rest for a rig
-    expected to be the final one (expect) as soon as it is found. tracks(state) gives what
-    dense_tracks would, from the work done ahead where it fits that state."""
-
-    def __init__(self, frame_sets: Sequence[Sequence[np.ndarray]], num_cameras: int,
-                 keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
-                 px_scale: Optional[np.ndarray] = None) -> None:
-        self._inputs = (frame_sets, keypoint_tracks, masks)
-        self.px_scale = px_scale
-        self._first = RunAhead(partial(first_pass, px_scale=px_scale), frame_sets,
-                               range(num_cameras), keypoint_tracks, masks,
-                               name="densecalib-dense-ahead")
-        self._expected: Optional[tuple] = None  # (_rig_key, RunAhead of dense_tracks)
-
-    def expect(self, state: SfMState) -> None:
-        """Start the rest of dense_tracks for this rig (replacing an earlier expectation)."""
-        if self._expected is not None:
-            self._expected[1].cancel()
-        state = state.copy()
-        self._expected = (_rig_key(state), RunAhead(self._rest, state,
-                                                    name="densecalib-dense-ahead"))
-
-    def _rest(self, state: SfMState, cancelled: threading.Event,
-              thread_start: Callable[[], None]) -> Tracks:
-        frame_sets, keypoint_tracks, masks = self._inputs
-        return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result(),
-                            cancelled, thread_start, self.px_scale)
-
-    def tracks(self, state: SfMState) -> Tracks:
-        if self._expected is not None and self._expected[0] == _rig_key(state):
-            tracks = self._expected[1].result()
-            if tracks is not None:
-                return tracks
-        frame_sets, keypoint_tracks, masks = self._inputs
-        return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result(),
-                            px_scale=self.px_scale)
-
-    def cancel(self) -> None:
-        """Stop what still runs (a calibration that ends without the tracks)."""
-        self._first.cancel()
-        if self._expected is not None:
-            self._expected[1].cancel()
-
-    def pause(self, paused: bool = True) -> None:
-        """Hold what still runs between image pairs (paused), or let it go on (not paused)."""
-        for ahead in [self._first] + ([self._expected[1]] if self._expected else []):
-            ahead.pause() if paused else ahead.resume()
-
-
-def _rig_key(state: SfMState) -> tuple:
-    """What of a state dense_tracks depends on: the registered cameras' poses and intrinsics."""
-    return tuple((c, state.cam_from_world[c].tobytes(), state.camera(c).model,
-                  np.asarray(state.camera(c).params, np.float64).tobytes())
-                 for c in state.registered())
-
-
 def _pair_seeds(keypoint_tracks: Tracks, observed: np.ndarray, in_set: np.ndarray,
                 cameras: Sequence[int]) -> dict:
     """(a, b) -> (a's pixels (n, 2), b's pixels (n, 2)) of the keypoint matches of the pair in
@@ -378,10 +336,11 @@ def _scale(px_scale: Optional[np.ndarray], c: int) -> float:
 def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds: dict,
                        skip: dict, cancelled: Optional[threading.Event] = None,
                        thread_start: Optional[Callable[[], None]] = None,
-                       px_scale: Optional[np.ndarray] = None) -> dict:
+                       px_scale: Optional[np.ndarray] = None,
+                       counted: Optional[AlignmentCount] = None) -> dict:
     """(a, b) -> (indices into points[a], positions in b (n, 2)): camera a's points, but those
     in skip[a, b], predicted from seeds[a, b] and aligned onto b (_aligned), that align back
-    onto where they started (_returned)."""
+    onto where they started (_returned); each of the steps is counted in `counted` (or not)."""
     def check() -> None:
         if cancelled is not None and cancelled.is_set():
             raise Cancelled()
@@ -398,6 +357,8 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
                 out[a, b] = _aligned(grays, image, a, b, points[a], *seeds[a, b],
                                      skip=skip[a, b], scales=(_scale(px_scale, a),
                                                               _scale(px_scale, b)))
+                if counted is not None:
+                    counted.add()
         return out
 
     def back_onto(a: int) -> dict:
@@ -406,6 +367,8 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
             if b != a:
                 check()
                 out[a, b] = _returned(grays, image, a, b, points[a], *forward[a, b])
+                if counted is not None:
+                    counted.add()
         return out
     with ThreadPoolExecutor(available_cores(), initializer=thread_start) as pool:
         forward = {k: v for part in pool.map(onto, cameras) for k, v in part.items()}

@@ -61,7 +61,8 @@ import numpy as np
 from ..progress import check_stop
 from ..types import Tracks
 from .decentering import with_decentering, with_decentering_asked
-from .dense_matches import DenseAhead, dense_tracks
+from .dense_ahead import DenseAhead
+from .dense_matches import dense_tracks
 from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
 from .image_folds import (FOLD_VALUE_OF, GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_images,
                           held_out_errors, one_camera_jackknife, principal_point_determined)

@@ -97,7 +97,8 @@ class Calibrator:
         if unrefined:
             self.refined.pause()  # its dense correspondences wait while the caller goes on
         elif self.refined is not None:
-            self.progress.begin("refine", "refining on the images", 1)
+            self.progress.begin("refine", "refining on the images", 1,
+                                self.refined.seconds_waited(result))
             result, refinement = self.refined.refine(result, self.progress)
             if consensus is not None and consensus.runner_up is not None and \
                     refinement is not None and consensus.refined_disagreement_deg is None:

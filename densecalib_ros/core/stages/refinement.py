@@ -12,7 +12,8 @@ import numpy as np
 
 from ..calibration_result import CalibrationResult, result_with_state, rig_from_state
 from ..config import PipelineConfig
-from ..method.dense_matches import DenseAhead, keypoint_px_scale
+from ..method.dense_ahead import DenseAhead
+from ..method.dense_matches import keypoint_px_scale
 from ..method.image_refinement import PP_PRIOR_STD_FRACTION, ImageRefinement, refine_on_images
 from ..method.prior_adjustment import SUPPORTED_MODELS
 from ..method.uncertainty import estimated_principal_points
@@ -42,7 +43,7 @@ def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig
                 ) -> Optional[DenseAhead]:
     """The image refinement's dense correspondences, which need only the images and the keypoint
     matches until their last checks, started on cores the rig's search leaves idle
-    (dense_matches.DenseAhead). None where the refinement will not run, or will not start from
+    (dense_ahead.DenseAhead). None where the refinement will not run, or will not start from
     the keypoint matches, or cannot apply (a fisheye lens)."""
     tracks = matched.keypoint_tracks
     if not config.refine_on_images or tracks is None or not tracks.num_tracks or any(
@@ -88,6 +89,13 @@ class RefinedRuns:
         for message in found[2] if progress is not None else ():
             progress.say(message)
         return found[1]
+
+    def seconds_waited(self, result: CalibrationResult) -> Optional[float]:
+        """About how long refining result will wait for its dense correspondences still found
+        ahead (DenseAhead.seconds_left); None where nothing runs ahead."""
+        if self.ahead is None or result.state is None:
+            return None
+        return self.ahead.seconds_left(result.state)
 
     def rig(self, result: CalibrationResult) -> Optional[RigCalibration]:
         """result's rig refined, None where the stage does not apply or there is no state."""
