@@ -175,11 +175,17 @@ class RunAhead:
     def result(self) -> Any:
         """Its value once it returned (the calibration's stop checked while it is waited for:
         core.progress.check_stop)."""
-        self.resume()
-        while self._thread.is_alive():
-            check_stop()
-            self._thread.join(STOP_CHECK_S)
+        while not self.returned_within(STOP_CHECK_S):
+            pass
         return None if self._cancelled.is_set() else self._value
+
+    def returned_within(self, timeout_s: float) -> bool:
+        """Whether fn has returned, waiting for it at most timeout_s (resumed, the calibration's
+        stop checked first)."""
+        self.resume()
+        check_stop()
+        self._thread.join(timeout_s)
+        return not self._thread.is_alive()
 
     def cancel(self) -> None:
         self._cancelled.set()

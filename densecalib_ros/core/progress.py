@@ -144,6 +144,11 @@ class Progress:
         self.check()
         self._run.advance(done, total, label)
 
+    def waited(self, fraction: float) -> None:
+        """`fraction` (0-1) of the wait begin's waits_s announced is over; checks the stop."""
+        self.check()
+        self._run.waited(fraction)
+
     def substep(self, fraction: float) -> None:
         """`fraction` (0-1) of the stage's next step is done (a frame set's image pairs, a
         run's trials); checks the stop."""
@@ -172,6 +177,7 @@ class _RunState:
         self._stage, self._label = "start", "starting"
         self._done, self._total, self._sub = 0, 0, 0.0
         self._prior_s: Optional[float] = None
+        self._wait_share, self._waited = 0.0, 0.0  # the stage's share for its wait, part over
 
     def plan(self, stages: Sequence[str], prior_s: Optional[float]) -> None:
         with self._lock:
@@ -192,8 +198,10 @@ class _RunState:
             if key is None:
                 key = self._add([stage], UNPLANNED_SHARE)[0]
             elapsed = time.perf_counter() - self._start
+            self._wait_share, self._waited = 0.0, 0.0
             if waits_s and self._done_share > 0 and elapsed > 0:
-                self._shares[key] += waits_s * self._done_share / elapsed
+                self._wait_share = waits_s * self._done_share / elapsed
+                self._shares[key] += self._wait_share
             self._stage, self._label = key, label
             self._done, self._total, self._sub = 0, total, 0.0
         self._tell()
@@ -206,6 +214,10 @@ class _RunState:
             if label is not None:
                 self._label = label
         self._tell()
+
+    def waited(self, fraction: float) -> None:
+        with self._lock:
+            self._waited = min(max(float(fraction), self._waited), 1.0)
 
     def substep(self, fraction: float) -> None:
         with self._lock:
@@ -254,9 +266,11 @@ class _RunState:
         if total <= 0:
             return 1.0 if self._stage == "done" else 0.0
         current = 0.0
-        if self._stage in self._shares and self._stage not in self._ended and self._total > 0:
-            current = self._shares[self._stage] * min((self._done + self._sub) / self._total,
-                                                      1.0)
+        if self._stage in self._shares and self._stage not in self._ended:
+            current = self._wait_share * self._waited
+            if self._total > 0:
+                current += (self._shares[self._stage] - self._wait_share) * \
+                    min((self._done + self._sub) / self._total, 1.0)
         return min((self._done_share + current) / total, 1.0)
 
     def _tell(self) -> None:

@@ -9,7 +9,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ..parallel import RunAhead, available_cores
+from ..parallel import STOP_CHECK_S, RunAhead, available_cores
 from ..types import Tracks
 from .dense_matches import (AlignmentCount, densified_times, dense_tracks, first_pass,
                             points_per_image)
@@ -75,6 +75,16 @@ class DenseAhead:
         points = max(first_left, 0) * points_per_image(self._num_cameras) + \
             max(rest - rest_done, 0) * points_per_image(registered)
         return points * ALIGN_CORE_S_PER_POINT / available_cores()
+
+    def wait(self, state: SfMState, report: Callable[[float], None]) -> None:
+        """Wait for the work run ahead that tracks(state) takes up, telling `report` every
+        STOP_CHECK_S the fraction done of what was left when the wait began (seconds_left)."""
+        ahead = self._expected[1] if self._expected is not None and \
+            self._expected[0] == _rig_key(state) else self._first
+        left_s = self.seconds_left(state)
+        while not ahead.returned_within(STOP_CHECK_S):
+            if left_s > 0:
+                report(1.0 - self.seconds_left(state) / left_s)
 
     def tracks(self, state: SfMState) -> Tracks:
         if self._expected is not None and self._expected[0] == _rig_key(state):

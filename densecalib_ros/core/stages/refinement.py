@@ -74,6 +74,8 @@ class RefinedRuns:
         state = result.state
         found = next((done for done in self._done if done[0] is state), None)
         if found is None:
+            if self.ahead is not None and progress is not None:
+                self.ahead.wait(state, progress.waited)
             messages: list[str] = []
             # identical units, estimated as one by the SfM: each unit's own from here, as one
             # camera where the images do not tell them apart (the refinement's one-camera test)
