@@ -15,6 +15,7 @@ import pytest
 
 from densecalib_ros.core import (CalibrationCancelled, Progress, RigSpec, StopToken,
                                  generate_rig, make_config, run_calibration)
+from densecalib_ros.core.progress import STAGE_SHARES
 from densecalib_ros.core.synthetic import write_rig
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -78,7 +79,6 @@ def test_a_stage_that_waits_for_work_run_ahead_counts_its_seconds_at_the_runs_pa
     time.sleep(0.2)
     progress.begin("calibrate", "calibrating")
     time.sleep(0.2)
-    from densecalib_ros.core.progress import STAGE_SHARES
     done_share = STAGE_SHARES["match"] + STAGE_SHARES["calibrate"]
     elapsed = progress.state().elapsed_s
     planned = elapsed * STAGE_SHARES["refine"] / done_share  # at the run's pace
@@ -86,6 +86,11 @@ def test_a_stage_that_waits_for_work_run_ahead_counts_its_seconds_at_the_runs_pa
     state = progress.state()
     assert 0.1 < state.fraction < done_share / sum(STAGE_SHARES.values())
     assert abs(state.seconds_left - (2.0 + planned)) < 0.1, (state.seconds_left, planned)
+    # half the wait over: half its share of the run done (the stage's one step not yet)
+    wait_share = 2.0 * done_share / elapsed
+    progress.waited(0.5)
+    assert abs(progress.state().fraction - (done_share + 0.5 * wait_share) /
+               (sum(STAGE_SHARES.values()) + wait_share)) < 0.01
 
 
 def _digest(folder) -> str:

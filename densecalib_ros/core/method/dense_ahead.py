@@ -70,8 +70,8 @@ class DenseAhead:
             self._first_done.done
         rest = alignment_steps(registered, self._num_frame_sets) * (
             1 if registered == self._num_cameras else 2)  # the first pass again, among fewer
-        rest_done = self._expected[2].done if self._expected is not None and \
-            self._expected[0] == _rig_key(state) else 0
+        expected = self._expected_for(state)
+        rest_done = expected[2].done if expected is not None else 0
         points = max(first_left, 0) * points_per_image(self._num_cameras) + \
             max(rest - rest_done, 0) * points_per_image(registered)
         return points * ALIGN_CORE_S_PER_POINT / available_cores()
@@ -79,21 +79,28 @@ class DenseAhead:
     def wait(self, state: SfMState, report: Callable[[float], None]) -> None:
         """Wait for the work run ahead that tracks(state) takes up, telling `report` every
         STOP_CHECK_S the fraction done of what was left when the wait began (seconds_left)."""
-        ahead = self._expected[1] if self._expected is not None and \
-            self._expected[0] == _rig_key(state) else self._first
+        expected = self._expected_for(state)
+        ahead = expected[1] if expected is not None else self._first
         left_s = self.seconds_left(state)
         while not ahead.returned_within(STOP_CHECK_S):
             if left_s > 0:
                 report(1.0 - self.seconds_left(state) / left_s)
 
     def tracks(self, state: SfMState) -> Tracks:
-        if self._expected is not None and self._expected[0] == _rig_key(state):
-            tracks = self._expected[1].result()
+        expected = self._expected_for(state)
+        if expected is not None:
+            tracks = expected[1].result()
             if tracks is not None:
                 return tracks
         frame_sets, keypoint_tracks, masks = self._inputs
         return dense_tracks(frame_sets, state, keypoint_tracks, masks, self._first.result(),
                             px_scale=self.px_scale)
+
+    def _expected_for(self, state: SfMState) -> Optional[tuple]:
+        """The expectation run ahead for this state's rig, or None."""
+        if self._expected is not None and self._expected[0] == _rig_key(state):
+            return self._expected
+        return None
 
     def cancel(self) -> None:
         """Stop what still runs (a calibration that ends without the tracks)."""
