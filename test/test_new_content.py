@@ -1,4 +1,5 @@
 """Later frame sets are matched only where they show something new (core.method.new_content)."""
+import cv2
 import numpy as np
 import pytest
 
@@ -46,6 +47,29 @@ def test_sift_keypoints_only_in_the_regions_and_other_matchers_drop_matches_outs
     assert match_set.sites[0][:, 0].max() < 160 + 2  # within the region (keypoint subpixel)
     whole = matcher.match([image, image.copy()])
     assert len(whole.sites[0]) > len(match_set.sites[0])
+
+
+def test_keypoints_detected_on_the_regions_box_are_those_of_the_whole_image():
+    # A region is detected on its bounding box grown by sift.REGION_MARGIN_PX: away from the
+    # box's edge the keypoints are the whole image's, to the subpixel.
+    rng = np.random.default_rng(1)
+    image = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.uint8), (0, 0), 1.5)
+    region = np.zeros(image.shape, bool)
+    region[150:330, 200:420] = True
+    matcher = create_matcher("sift")
+    in_box, _, _ = matcher._features(image, region)
+    whole, _, _ = matcher._features(image)
+    assert len(in_box) > 100
+    # within the region (sites in COLMAP px: pixel centres at +0.5; keypoints subpixel)
+    assert (in_box.min(axis=0) > (200 - 1, 150 - 1)).all()
+    assert (in_box.max(axis=0) < (420 + 1, 330 + 1)).all()
+    # whole-image keypoints well inside the region (their descriptor windows too)
+    inner = whole[(whole[:, 0] > 230) & (whole[:, 0] < 390) & (whole[:, 1] > 180)
+                  & (whole[:, 1] < 300)]
+    nearest = np.min(np.linalg.norm(inner[:, None] - in_box[None], axis=2), axis=1)
+    assert len(inner) > 50 and np.mean(nearest < 0.01) > 0.95
+    empty, _, _ = matcher._features(image, np.zeros(image.shape, bool))
+    assert len(empty) == 0
 
 
 def test_a_static_scene_filmed_twice_adds_no_matches_and_the_same_calibration():

@@ -38,6 +38,12 @@ from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
 # large enough that the per-tile Python calls stay a few percent of the product.
 BLOCK_SITES = 512
 TILE_COLUMNS = 4096
+# Where keypoints are wanted in a region only (a later frame set's new content), the image is
+# detected on the region's bounding box grown by this margin (px at the detection size): the
+# window SIFT's descriptor reads around a keypoint (about 5.3 times its size) for keypoints up
+# to 16 px, 95 % of asift's at 1024 px. The scale spaces (most of asift's time) then cover the
+# box, not the whole image; keypoints near the box's edge may differ in the last subpixel.
+REGION_MARGIN_PX = 85
 
 
 def _site_layout(site: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -234,6 +240,17 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     return best_ab, ratio_ab, best_ba, ratio_ba
 
 
+def _region_box(mask: np.ndarray, margin_px: int) -> Optional[tuple[slice, slice]]:
+    """(rows, columns) of the bounding box of mask's nonzero pixels grown by margin_px within
+    the image, or None where the mask is empty."""
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    if not len(rows):
+        return None
+    height, width = mask.shape
+    return (slice(max(0, rows[0] - margin_px), min(height, rows[-1] + 1 + margin_px)),
+            slice(max(0, cols[0] - margin_px), min(width, cols[-1] + 1 + margin_px)))
+
+
 class SiftMatcher(Matcher):
     name = "sift"
 
@@ -260,14 +277,21 @@ class SiftMatcher(Matcher):
         descriptors float32 (K, 128); keypoints only where `region` (bool, the image's size) is
         True, if given."""
         gray, scale_xy = resize_for_matching(to_gray(image), self.max_image_side_px)
-        mask = None
+        mask, corner_xy = None, np.zeros(2)
         if region is not None:
             mask = cv2.resize(region.astype(np.uint8) * 255, gray.shape[::-1],
                               interpolation=cv2.INTER_NEAREST)
-        keypoints, descriptors = self._detector().detectAndCompute(gray, mask)
+            box = _region_box(mask, REGION_MARGIN_PX)
+            if box is None:
+                return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
+            corner_xy = np.array([box[1].start, box[0].start], np.float64)
+            keypoints, descriptors = self._detector().detectAndCompute(
+                np.ascontiguousarray(gray[box]), np.ascontiguousarray(mask[box]))
+        else:
+            keypoints, descriptors = self._detector().detectAndCompute(gray, None)
         if not keypoints:
             return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
-        xy = np.array([k.pt for k in keypoints], dtype=np.float64)
+        xy = np.array([k.pt for k in keypoints], dtype=np.float64) + corner_xy
         # Within the image (asift maps keypoints of its tilted views back slightly beyond it).
         inside = np.all((xy >= -0.5) & (xy <= np.array(gray.shape[1::-1]) - 0.5), axis=1)
         xy, descriptors = xy[inside], descriptors[inside]
