@@ -147,6 +147,17 @@ def test_map_jobs_says_how_many_results_are_in_and_the_stage_clock_its_time_left
     assert clock.left(4) == ""  # the stage is over: nothing left to say
 
 
+def test_a_stage_clock_whose_first_step_is_apart_counts_the_later_steps_pace():
+    # a frame set matched whole, then later ones on what is new only: several times faster
+    clock = StageClock(4, first_apart=True)
+    time.sleep(1.5)
+    assert clock.left(1) == ""  # nothing yet to say the later steps' pace by
+    time.sleep(0.1)
+    left = clock.left(2)  # two more steps at ~0.1 s: 0.2 s, not the 1.6 s the mean of all gives
+    assert left.startswith(", about ") and int(left.split()[2]) <= 1
+    assert clock.left(4) == ""
+
+
 def test_work_run_ahead_takes_the_lowest_priority_and_stops_when_cancelled():
     """RunAhead's thread, and the threads its work starts, run at the lowest priority (Linux:
     a nice value per thread) while the caller's stays as it was; cancel() stops it and result()

@@ -320,20 +320,33 @@ def estimated_run_s(image_sizes: Sequence[tuple[int, int]], num_frame_sets: int,
 
 class StageClock:
     """The time left of a stage of `total` steps that take alike (frame sets, SfM trials): the
-    mean time of the steps done so far times the steps left, counted from the clock's start."""
+    mean time of the steps done so far times the steps left, counted from the clock's start.
+    first_apart: the first step is unlike the rest (a frame set matched whole before the others'
+    new content only, several times their time), so the mean is of the steps after it, and
+    nothing is said after the first alone."""
 
-    def __init__(self, total: int):
+    def __init__(self, total: int, first_apart: bool = False):
         self.total = total
         self._start = time.perf_counter()
         self._said = self._start
+        self._first_apart = first_apart
+        self._first_done: Optional[float] = None
 
     def left(self, done: int) -> str:
-        """", about N s left" after `done` steps; "" before the first and after the last."""
+        """", about N s left" after `done` steps; "" before the first and after the last (and
+        after the first alone where it is apart)."""
+        now = time.perf_counter()
+        if self._first_apart and done == 1 and self._first_done is None:
+            self._first_done = now
         if done <= 0 or done >= self.total:
             return ""
-        now = time.perf_counter()
+        start, counted = self._start, done
+        if self._first_apart:
+            if done < 2 or self._first_done is None:
+                return ""
+            start, counted = self._first_done, done - 1
         self._said = now
-        return f", about {(now - self._start) / done * (self.total - done):.0f} s left"
+        return f", about {(now - start) / counted * (self.total - done):.0f} s left"
 
     def due(self, every_s: float) -> bool:
         """Whether `every_s` seconds went by since the clock last said its time left (or

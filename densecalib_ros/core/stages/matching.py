@@ -83,7 +83,7 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
     regions = new_content_regions(frame_sets) \
         if config.matcher in config.new_content_matchers and not each_on_its_own else None
     progress.begin("match", f"matching ({config.matcher})", len(frame_sets))
-    match_sets, clock = [], StageClock(len(frame_sets))
+    match_sets, clock = [], StageClock(len(frame_sets), first_apart=regions is not None)
     for t, frames in enumerate(frame_sets):
         where = next(regions) if regions is not None else None
         match_sets.append(_matched_set(matcher, frames, where, ignored, t, progress))
