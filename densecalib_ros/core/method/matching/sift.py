@@ -275,22 +275,21 @@ class SiftMatcher(Matcher):
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Returns sites float64 (S, 2) original COLMAP px, keypoint site index int64 (K,),
         descriptors float32 (K, 128); keypoints only where `region` (bool, the image's size) is
-        True, if given."""
+        True, if given (detected on the region's box, REGION_MARGIN_PX)."""
         gray, scale_xy = resize_for_matching(to_gray(image), self.max_image_side_px)
-        mask, corner_xy = None, np.zeros(2)
+        none = np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
+        detected, mask, corner_xy = gray, None, np.zeros(2)
         if region is not None:
             mask = cv2.resize(region.astype(np.uint8) * 255, gray.shape[::-1],
                               interpolation=cv2.INTER_NEAREST)
             box = _region_box(mask, REGION_MARGIN_PX)
             if box is None:
-                return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
+                return none
+            detected, mask = np.ascontiguousarray(gray[box]), np.ascontiguousarray(mask[box])
             corner_xy = np.array([box[1].start, box[0].start], np.float64)
-            keypoints, descriptors = self._detector().detectAndCompute(
-                np.ascontiguousarray(gray[box]), np.ascontiguousarray(mask[box]))
-        else:
-            keypoints, descriptors = self._detector().detectAndCompute(gray, None)
+        keypoints, descriptors = self._detector().detectAndCompute(detected, mask)
         if not keypoints:
-            return np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
+            return none
         xy = np.array([k.pt for k in keypoints], dtype=np.float64) + corner_xy
         # Within the image (asift maps keypoints of its tilted views back slightly beyond it).
         inside = np.all((xy >= -0.5) & (xy <= np.array(gray.shape[1::-1]) - 0.5), axis=1)
