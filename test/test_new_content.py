@@ -50,7 +50,7 @@ def test_sift_keypoints_only_in_the_regions_and_other_matchers_drop_matches_outs
 
 
 def test_keypoints_detected_on_the_regions_box_are_those_of_the_whole_image():
-    # A region is detected on its bounding box grown by sift.REGION_MARGIN_PX: away from the
+    # A region is detected on its bounding box grown by sift.REGION_MARGIN_FRACTION: away from the
     # box's edge the keypoints are the whole image's, to the subpixel.
     rng = np.random.default_rng(1)
     image = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.uint8), (0, 0), 1.5)

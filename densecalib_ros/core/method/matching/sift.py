@@ -39,11 +39,12 @@ from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
 BLOCK_SITES = 512
 TILE_COLUMNS = 4096
 # Where keypoints are wanted in a region only (a later frame set's new content), the image is
-# detected on the region's bounding box grown by this margin (px at the detection size): the
-# window SIFT's descriptor reads around a keypoint (about 5.3 times its size) for keypoints up
-# to 16 px, 95 % of asift's at 1024 px. The scale spaces (most of asift's time) then cover the
-# box, not the whole image; keypoints near the box's edge may differ in the last subpixel.
-REGION_MARGIN_PX = 85
+# detected on the region's bounding box grown by this fraction of the detected image's long
+# side: the window SIFT's descriptor reads around a keypoint (about 5.3 times its size) for
+# keypoints up to 16 px at 1024 px (95 % of asift's there), 85 px; keypoints scale with the
+# image. The scale spaces (most of asift's time) then cover the box, not the whole image;
+# keypoints near the box's edge may differ in the last subpixel.
+REGION_MARGIN_FRACTION = 0.083
 
 
 def _site_layout(site: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -275,14 +276,14 @@ class SiftMatcher(Matcher):
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Returns sites float64 (S, 2) original COLMAP px, keypoint site index int64 (K,),
         descriptors float32 (K, 128); keypoints only where `region` (bool, the image's size) is
-        True, if given (detected on the region's box, REGION_MARGIN_PX)."""
+        True, if given (detected on the region's box, REGION_MARGIN_FRACTION)."""
         gray, scale_xy = resize_for_matching(to_gray(image), self.max_image_side_px)
         none = np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
         detected, mask, corner_xy = gray, None, np.zeros(2)
         if region is not None:
             mask = cv2.resize(region.astype(np.uint8) * 255, gray.shape[::-1],
                               interpolation=cv2.INTER_NEAREST)
-            box = _region_box(mask, REGION_MARGIN_PX)
+            box = _region_box(mask, int(round(REGION_MARGIN_FRACTION * max(gray.shape))))
             if box is None:
                 return none
             detected, mask = np.ascontiguousarray(gray[box]), np.ascontiguousarray(mask[box])
