@@ -93,6 +93,29 @@ def test_a_stage_that_waits_for_work_run_ahead_counts_its_seconds_at_the_runs_pa
                (sum(STAGE_SHARES.values()) + wait_share)) < 0.01
 
 
+def test_a_stage_that_times_its_steps_says_its_own_seconds_left():
+    """The second matcher's matching takes several times its planned share: where a stage says
+    its seconds left (advance's left_s, from its steps' pace), the run's seconds left are those
+    plus the later stages' shares at the pace of the stages before; a share alone says far
+    less. Its steps all done, the stage is done."""
+    progress = Progress()
+    progress.plan(["match", "calibrate", "refine"])
+    progress.begin("match", "matching")
+    time.sleep(0.3)
+    pace = STAGE_SHARES["match"] / progress.state().elapsed_s  # share per second
+    progress.begin("calibrate", "calibrating", 10)
+    time.sleep(0.1)
+    later_s = STAGE_SHARES["refine"] / pace
+    progress.advance(1)  # by its share: one step of ten done
+    by_share = progress.state().seconds_left
+    progress.advance(1, left_s=6.0)
+    state = progress.state()
+    assert abs(state.seconds_left - (6.0 + later_s)) < 0.3, (state.seconds_left, later_s)
+    assert by_share < 6.0 / 2
+    progress.advance(10)
+    assert progress.state().fraction > 0.8  # the stage done; refine's share left
+
+
 def _digest(folder) -> str:
     h = hashlib.sha256()
     for root, _, files in sorted(os.walk(folder)):

@@ -138,11 +138,15 @@ class Progress:
         self.check()
         self._run.begin(stage, label, total, waits_s)
 
-    def advance(self, done: int, total: Optional[int] = None, label: Optional[str] = None
-                ) -> None:
-        """`done` steps of the stage are done (of `total`, where it changed); checks the stop."""
+    def advance(self, done: int, total: Optional[int] = None, label: Optional[str] = None,
+                left_s: Optional[float] = None) -> None:
+        """`done` steps of the stage are done (of `total`, where it changed); checks the stop.
+        left_s: the stage's own measure of its seconds left (StageClock.seconds_left): its
+        share becomes its seconds, taken and left, at the pace the stages before it kept (a
+        share is a guess from other rigs; a stage that times its steps knows better: the second
+        matcher's matching takes several times the first's)."""
         self.check()
-        self._run.advance(done, total, label)
+        self._run.advance(done, total, label, left_s)
 
     def waited(self, fraction: float) -> None:
         """`fraction` (0-1) of the wait begin's waits_s announced is over; checks the stop."""
@@ -178,6 +182,10 @@ class _RunState:
         self._done, self._total, self._sub = 0, 0, 0.0
         self._prior_s: Optional[float] = None
         self._wait_share, self._waited = 0.0, 0.0  # the stage's share for its wait, part over
+        self._pace: Optional[float] = None  # share per second of the stages before this one
+        self._stage_start = 0.0  # seconds into the run when this stage began
+        # the stage's part done by its own seconds taken and left (advance's left_s), or None
+        self._timed_fraction: Optional[float] = None
 
     def plan(self, stages: Sequence[str], prior_s: Optional[float]) -> None:
         with self._lock:
@@ -199,20 +207,33 @@ class _RunState:
                 key = self._add([stage], UNPLANNED_SHARE)[0]
             elapsed = time.perf_counter() - self._start
             self._wait_share, self._waited = 0.0, 0.0
-            if waits_s and self._done_share > 0 and elapsed > 0:
-                self._wait_share = waits_s * self._done_share / elapsed
+            # the pace of the stages done: share per second
+            self._pace = self._done_share / elapsed if self._done_share > 0 and elapsed > 0 \
+                else None
+            self._stage_start = elapsed
+            if waits_s and self._pace is not None:
+                self._wait_share = waits_s * self._pace
                 self._shares[key] += self._wait_share
             self._stage, self._label = key, label
             self._done, self._total, self._sub = 0, total, 0.0
+            self._timed_fraction = None
         self._tell()
 
-    def advance(self, done: int, total: Optional[int], label: Optional[str]) -> None:
+    def advance(self, done: int, total: Optional[int], label: Optional[str],
+                left_s: Optional[float] = None) -> None:
         with self._lock:
             self._done, self._sub = done, 0.0
             if total is not None:
                 self._total = total
             if label is not None:
                 self._label = label
+            if left_s is not None and self._pace is not None and self._stage in self._shares:
+                taken_s = time.perf_counter() - self._start - self._stage_start
+                self._shares[self._stage] = self._wait_share + (taken_s + left_s) * self._pace
+                # its part done by its seconds too: its steps need not take alike
+                self._timed_fraction = taken_s / max(taken_s + left_s, 1e-9)
+            if self._timed_fraction is not None and 0 < self._total <= done:
+                self._timed_fraction = 1.0
         self._tell()
 
     def waited(self, fraction: float) -> None:
@@ -268,7 +289,9 @@ class _RunState:
         current = 0.0
         if self._stage in self._shares and self._stage not in self._ended:
             current = self._wait_share * self._waited
-            if self._total > 0:
+            if self._timed_fraction is not None:
+                current += (self._shares[self._stage] - self._wait_share) * self._timed_fraction
+            elif self._total > 0:
                 current += (self._shares[self._stage] - self._wait_share) * \
                     min((self._done + self._sub) / self._total, 1.0)
         return min((self._done_share + current) / total, 1.0)
@@ -332,21 +355,30 @@ class StageClock:
         self._first_apart = first_apart
         self._first_done: Optional[float] = None
 
-    def left(self, done: int) -> str:
-        """", about N s left" after `done` steps; "" before the first and after the last (and
-        after the first alone where it is apart)."""
+    def seconds_left(self, done: int) -> Optional[float]:
+        """The stage's seconds left after `done` steps; None before the first and after the last
+        (and after the first alone where it is apart)."""
         now = time.perf_counter()
         if self._first_apart and done == 1 and self._first_done is None:
             self._first_done = now
         if done <= 0 or done >= self.total:
-            return ""
+            return None
         start, counted = self._start, done
         if self._first_apart:
             if done < 2 or self._first_done is None:
-                return ""
+                return None
             start, counted = self._first_done, done - 1
         self._said = now
-        return f", about {(now - start) / counted * (self.total - done):.0f} s left"
+        return (now - start) / counted * (self.total - done)
+
+    def left(self, done: int) -> str:
+        """", about N s left" after `done` steps (seconds_left); "" where it is None."""
+        return self.said(self.seconds_left(done))
+
+    @staticmethod
+    def said(left_s: Optional[float]) -> str:
+        """", about N s left", or "" for None."""
+        return "" if left_s is None else f", about {left_s:.0f} s left"
 
     def due(self, every_s: float) -> bool:
         """Whether `every_s` seconds went by since the clock last said its time left (or

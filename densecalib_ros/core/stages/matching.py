@@ -90,9 +90,10 @@ def match_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], config: Pipelin
         if ignored:
             log.debug("frame set %d: %d match(es) on masked regions dropped", t,
                       apply_masks(match_sets[-1], ignored))
-        progress.advance(t + 1)
+        left_s = clock.seconds_left(t + 1)
+        progress.advance(t + 1, left_s=left_s)
         progress.say(f"matched frame set {t + 1}/{len(frame_sets)} ({config.matcher})"
-                     + clock.left(t + 1))
+                     + clock.said(left_s))
     return match_sets
 
 
