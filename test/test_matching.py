@@ -287,6 +287,29 @@ def test_onednn_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch)
         np.testing.assert_array_equal(got_k, want_k)
 
 
+def test_int8_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch):
+    """oneDNN's 8-bit integer products (descriptors less 128, the rows' own terms written into
+    the tile first) give the exact distances, so numpy's nearest sites and ratios, on tiles that
+    are not whole blocks; and are chosen where the CPU's int8 sums are exact."""
+    import densecalib_ros.core.method.matching.sift as sift
+    from densecalib_ros.core.method.matching import descriptor_products as dp
+
+    if not dp.int8_kernel_here():
+        pytest.skip("this CPU has no 8-bit integer dot product (AMX or VNNI) for oneDNN")
+    assert dp.int8_exact_here()
+    monkeypatch.setattr(sift, "BLOCK_SITES", 300)
+    monkeypatch.setattr(sift, "TILE_COLUMNS", 700)
+    a, b = _sift_sites(image_pair[0], 3000), _sift_sites(image_pair[1], 3000)
+    assert dp.int8_exact(a[0]) and dp.int8_exact(b[0])
+    assert dp.onednn_product_for([a[0], b[0]]) is dp.int8_product
+    assert dp.onednn_product_for([a[0], 4 * b[0]]) is dp.onednn_product  # norms past the bound
+    want = nearest_sites_both_ways(*a, *b)
+    with dp.onednn_products(1):
+        got = nearest_sites_both_ways(*a, *b, dp.int8_product)
+    for got_k, want_k in zip(got, want):
+        np.testing.assert_array_equal(got_k, want_k)
+
+
 def test_asift_matches_with_numpys_products_where_torch_refuses_onednns(monkeypatch):
     """A torch that refuses the bfloat16 setting (another build or version): the products are
     numpy's, with the same matches, and the setting is left as it was."""

@@ -27,7 +27,7 @@ from ...parallel import available_cores, map_threads
 from ...types import SiteMatchSet
 from .base import Matcher, Steps
 from .descriptor_products import (Product, integer_descriptors, norm_parts, numpy_product,
-                                  onednn_product, onednn_products)
+                                  onednn_product_for, onednn_products)
 from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
                     resize_for_matching, to_gray)
 
@@ -213,13 +213,13 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     cols, col_site, site_cols = _columns(desc_b, site_b, n_b)
     product = product_of(cols)
     running = _NearestSites(n_a, len(cols))
-    tile = np.empty((0, TILE_COLUMNS), np.float32)
+    tile = np.empty(0, np.float32)  # each tile contiguous: a product may need it so
     for s0, s1, rows, folds in _row_blocks(desc_a, site_a, n_a):
-        if len(rows) > len(tile):
-            tile = np.empty((len(rows), TILE_COLUMNS), np.float32)
+        if len(rows) * TILE_COLUMNS > len(tile):
+            tile = np.empty(len(rows) * TILE_COLUMNS, np.float32)
         for c0 in range(0, len(cols), TILE_COLUMNS):
             c1 = min(len(cols), c0 + TILE_COLUMNS)
-            d2 = tile[:len(rows), :c1 - c0]
+            d2 = tile[:len(rows) * (c1 - c0)].reshape(len(rows), c1 - c0)
             product(rows, c0, c1, d2)
             for sites, extra_rows in folds:
                 d2[sites] = np.minimum(d2[sites], d2[extra_rows])
@@ -323,7 +323,8 @@ class SiftMatcher(Matcher):
         return mutual_pair_maps(src, dst, certainty, n_a, n_b)
 
     detects_in_regions = True
-    # The distance products by oneDNN (descriptor_products: the same matches, 1.6x faster):
+    # The distance products by oneDNN (descriptor_products: the same matches, 1.6x faster; 8-bit
+    # integer products where the CPU has AMX or VNNI, a third of the time again):
     # worth torch's import (about a second) only where the products take seconds, asift's.
     products_by_onednn = False
 
@@ -344,7 +345,8 @@ class SiftMatcher(Matcher):
         by_onednn = self.products_by_onednn and all(integer_descriptors(f[2]) for f in feats)
         with threadpool_limits(threads, user_api="blas"), \
                 (onednn_products(threads) if by_onednn else contextlib.nullcontext()) as torch_there:
-            product_of = onednn_product if torch_there else numpy_product
+            product_of = (onednn_product_for([f[2] for f in feats]) if torch_there
+                          else numpy_product)
             # the products' context is global to torch: the pairs run inside it, not alongside
             return match_unordered_pairs(
                 images, [f[0] for f in feats],
