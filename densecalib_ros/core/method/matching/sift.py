@@ -323,8 +323,8 @@ class SiftMatcher(Matcher):
         return mutual_pair_maps(src, dst, certainty, n_a, n_b)
 
     detects_in_regions = True
-    # The distance products by oneDNN (descriptor_products: the same matches, 1.6x faster; 8-bit
-    # integer products where the CPU has AMX or VNNI, a third of the time again):
+    # The distance products by oneDNN (descriptor_products: the same matches, 1.6x faster; by
+    # 8-bit integers where the CPU has AMX or VNNI, in a third of that time again):
     # worth torch's import (about a second) only where the products take seconds, asift's.
     products_by_onednn = False
 
