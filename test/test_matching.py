@@ -294,9 +294,12 @@ def test_int8_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch):
     import densecalib_ros.core.method.matching.sift as sift
     from densecalib_ros.core.method.matching import descriptor_products as dp
 
-    if not dp.int8_kernel_here():
-        pytest.skip("this CPU has no 8-bit integer dot product (AMX or VNNI) for oneDNN")
-    assert dp.int8_exact_here()
+    import torch
+
+    if torch.cpu._is_amx_tile_supported():  # where it was measured: oneDNN's AMX kernel is exact
+        assert dp.int8_exact_here()
+    elif not dp.int8_exact_here():  # the float products run here, as the check decided
+        pytest.skip("this CPU has no 8-bit integer kernel (AMX or VNNI) whose sums check exact")
     monkeypatch.setattr(sift, "BLOCK_SITES", 300)
     monkeypatch.setattr(sift, "TILE_COLUMNS", 700)
     a, b = _sift_sites(image_pair[0], 3000), _sift_sites(image_pair[1], 3000)
