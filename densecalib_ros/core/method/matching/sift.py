@@ -324,7 +324,7 @@ class SiftMatcher(Matcher):
 
     detects_in_regions = True
     # The distance products by oneDNN (descriptor_products: the same matches, 1.6x faster; by
-    # 8-bit integers where the CPU has AMX or VNNI, in a third of that time again):
+    # 8-bit integers where the CPU has AMX or VNNI, in under half that time again):
     # worth torch's import (about a second) only where the products take seconds, asift's.
     products_by_onednn = False
 
