@@ -36,10 +36,11 @@ def test_no_jackknife_for_few_views_or_where_more_than_one_adjustment_failed():
 
 def test_a_floor_holds_a_point_the_folds_agree_on():
     priors = Priors({0: PP_PRIOR_PX}, {0: 0.003})
-    folds = [{0: (320.0 + d, 240.0 - d, 0.0, 500.0, 0.0, 0.0)} for d in (0.1, -0.1, 0.2, 0.0)]
+    folds = [{0: (320.0 + d, 240.0 - d, 0.0, 500.0, 0.0, 0.0, 0.0, 0.0)}
+             for d in (0.1, -0.1, 0.2, 0.0)]
     determined, sigmas = determined_by_folds(folds, [0], priors)
     assert "principal point" in determined[0]
-    floor = np.array([0.5, 4.0, 0.0, 2.0, 0.0, 0.0])
+    floor = np.array([0.5, 4.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0])
     determined, sigmas = determined_by_folds(folds, [0], priors, {0: floor})
     assert "principal point" not in determined[0]
     assert sigmas[0]["principal_point_axes_px"][1] == 4.0 and sigmas[0]["focal_px"] == 2.0

@@ -76,7 +76,8 @@ def test_point_colours_average_the_pixels_of_each_tracks_frame_set():
 
 def test_rig_mixing_lenses_gets_each_cameras_lens_model():
     """A fisheye camera among pinhole ones (camera_lens): it is calibrated as OPENCV_FISHEYE, the
-    others as RADIAL, and the rig is recovered."""
+    others with the perspective model (OPENCV: the refinement on the images frees their pixel
+    aspect), and the rig is recovered."""
     models = ("RADIAL", "OPENCV_FISHEYE", "RADIAL", "RADIAL")
     rig = generate_rig(RigSpec(lenses="ideal", num_cameras=4, camera_models=models, width=640, height=480,
                                seed=0))
@@ -84,7 +85,7 @@ def test_rig_mixing_lenses_gets_each_cameras_lens_model():
                          cameras__lens={"cam1": "fisheye"})
     result = run_calibration([rig.images[0]], rig.names, config)
     assert [result.rig.cameras[n].intrinsics.model for n in rig.names] == [
-        "RADIAL", "OPENCV_FISHEYE", "RADIAL", "RADIAL"]
+        "OPENCV", "OPENCV_FISHEYE", "OPENCV", "OPENCV"]
     assert result.rig.quality.camera_lens == {"cam1": "fisheye"}
     metrics = evaluate_calibration(result.rig, rig.ground_truth())
     assert metrics["num_registered"] == 4

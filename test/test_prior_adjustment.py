@@ -2,14 +2,14 @@
 the pixel aspect, on exact projections of a point cloud (sfm_fixtures) with Gaussian noise."""
 import numpy as np
 import pytest
-from sfm_fixtures import centred_state, gt_rig
+from sfm_fixtures import centred_state, gt_rig, gt_tracks
 
 from densecalib_ros.core.method.prior_adjustment import (INTRINSIC_NAMES, Priors, AdjustmentProblem,
                                                          damped_point_inverses,
                                                          normal_equations, point_steps,
                                                          reduced_system, adjust_with_priors)
 from densecalib_ros.core.method.prior_covariance import posterior_covariance
-from densecalib_ros.core.method.reconstruction import SfMState, project
+from densecalib_ros.core.method.reconstruction import SfMState, project, triangulate_tracks
 from densecalib_ros.core.types import CameraIntrinsics
 
 
@@ -28,7 +28,98 @@ def _rig_with_offset_points(num_cameras=5, seed=3):
 
 
 def _pp(cam):
-    return np.asarray(cam.params)[[2, 3]] if cam.model == "OPENCV" else cam.params[[1, 2]]
+    return np.asarray(cam.params)[[2, 3]] if cam.model in ("OPENCV", "OPENCV_FISHEYE") \
+        else cam.params[[1, 2]]
+
+
+def _fisheye_rig(num_cameras=5, seed=3):
+    """Ground truth OPENCV_FISHEYE cameras (~150 deg across the diagonal: sfm_fixtures.gt_rig),
+    their principal points 1.5 % of each side off-centre, fy / fx - 1 = 0.2 %, k3 and k4 not
+    zero; and the SfMState the pipeline would hand the refinement: their tracks with 0.2 px of
+    noise, the intrinsics' start at the image centre with the SfM's two-term distortion."""
+    cams, poses = gt_rig(num_cameras, model="OPENCV_FISHEYE", seed=seed)
+    rng = np.random.default_rng(seed)
+    true = []
+    for cam in cams:
+        fx, _, cx, cy, k1, k2, _, _ = cam.params
+        true.append(CameraIntrinsics("OPENCV_FISHEYE", cam.width, cam.height, np.array([
+            fx, fx * 1.002, cx + rng.choice([-1, 1]) * 0.015 * cam.width,
+            cy + rng.choice([-1, 1]) * 0.015 * cam.height, k1, k2, 0.004, -0.002])))
+    tracks = gt_tracks(true, poses, num_points=3000, noise_px=0.2, outlier_frac=0.0, seed=0)
+    state = SfMState.create(tracks, [CameraIntrinsics("OPENCV_FISHEYE", c.width, c.height, np.r_[
+        c.params[0], c.params[0], c.width / 2, c.height / 2, c.params[4:6], 0.0, 0.0])
+        for c in true])
+    state.cam_from_world = [T.copy() for T in poses]
+    triangulate_tracks(state, max_error_px=50.0)
+    return true, state
+
+
+@pytest.mark.parametrize("behind", [False, True])
+def test_the_fisheye_projection_is_colmaps_and_holds_beyond_90_degrees(behind):
+    """kernels._project_fisheye: OPENCV_FISHEYE as COLMAP projects it in front of the camera,
+    the ray's angle from the axis continued past 90 deg (a lens wider than 180 deg), on the axis
+    too; its Jacobians match finite differences there as well."""
+    import pycolmap
+    from densecalib_ros.core.method.prior_adjustment_kernels import _project
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(40, 3))
+    X[:, 2] = -0.3 if behind else np.abs(X[:, 2]) + 0.05  # behind: 90-180 deg from the axis
+    X[0] = [0.0, 0.0, 2.0]  # on the axis
+    K = np.array([[400.0, 640.0, 360.0, 0.04, -0.015, 0.001, 0.004, -0.002]])
+    one = np.zeros(len(X), np.int64)
+
+    def project(points, k, jacobians=False):
+        res, A, B = np.empty((len(X), 2)), np.zeros((len(X) if jacobians else 0, 2, 14)), \
+            np.empty((len(X) if jacobians else 0, 2, 3))
+        _project(np.eye(3)[None], np.zeros((1, 3)), points, k, np.zeros(1, np.int64), one,
+                 np.arange(len(X)), np.zeros((len(X), 2)), res, A, B, np.array([True]))
+        return res, A, B
+
+    res, A, B = project(X, K, True)
+    if not behind:
+        cam = pycolmap.Camera.create_from_model_name(1, "OPENCV_FISHEYE", 400.0, 1280, 720)
+        cam.params = [400.0, 400.4, 640.0, 360.0, 0.04, -0.015, 0.004, -0.002]
+        assert np.abs(cam.img_from_cam(X) - res).max() < 1e-9
+    else:  # beyond 90 deg: along the ray's direction, at the radius of its angle (> 90 deg)
+        theta = np.arctan2(np.linalg.norm(X[1:, :2], axis=1), X[1:, 2])
+        assert np.all(theta > np.pi / 2)
+        t2 = theta ** 2
+        radius = theta * (1 + t2 * (0.04 + t2 * (-0.015 + t2 * (0.004 - 0.002 * t2))))
+        direction = X[1:, :2] / np.linalg.norm(X[1:, :2], axis=1)[:, None]
+        assert np.allclose(res[1:], [640.0, 360.0] + [400.0, 400.4] * radius[:, None] * direction)
+    eps = 1e-6
+    for k, col in enumerate((6, 7, 8, 9, 10, 11, 12, 13)):  # f, cx, cy, k1, k2, aspect, k3, k4
+        moved = K.copy()
+        moved[0, k] += eps
+        assert np.allclose((project(X, moved)[0] - res) / eps, A[:, :, col], rtol=1e-3,
+                           atol=1e-3), col
+    for m in range(3):
+        moved = X.copy()
+        moved[:, m] += eps
+        assert np.allclose((project(moved, K)[0] - res) / eps, B[:, :, m], rtol=1e-3, atol=1e-3)
+
+
+def test_fisheye_cameras_are_adjusted_with_their_principal_points_and_four_terms():
+    """OPENCV_FISHEYE blocks: from the image centre and the SfM's two distortion terms, the
+    adjustment recovers each camera's principal point and its projection as a whole (k3, k4
+    free as k1, k2 are: over a 150 deg field the four terms trade off against each other and
+    the focal length, the map they make over the images does not) from the images, and writes
+    the cameras back as OPENCV_FISHEYE."""
+    true, state = _fisheye_rig()
+    blocks = list(range(len(true)))
+    before = [np.linalg.norm(_pp(state.intrinsics[b]) - _pp(cam)) for b, cam in enumerate(true)]
+    adjustment = adjust_with_priors(state, blocks, Priors({b: 6.4 for b in blocks},
+                                                          {b: 0.003 for b in blocks}))
+    assert adjustment.noise_px < 0.25  # the 0.2 px of the tracks: the model fits them
+    for b, cam in enumerate(true):
+        got = state.intrinsics[b]
+        assert got.model == "OPENCV_FISHEYE"
+        assert before[b] > 10.0 and np.linalg.norm(_pp(got) - _pp(cam)) < 2.0, b
+        seen = state.tracks.xy_px[state.tracks.observed()[:, b], b]  # where the images speak
+        rays = cam.to_pycolmap().cam_ray_from_img(seen)
+        assert np.median(np.linalg.norm(got.to_pycolmap().img_from_cam(rays) - seen, axis=1)) \
+            < 2.0, b
 
 
 def test_jacobians_match_finite_differences():
@@ -258,11 +349,11 @@ def test_fixed_blocks_are_left_alone():
     before = state.intrinsics[2].params.copy()
     adjust_with_priors(state, [0, 1, 3], Priors({b: 6.4 for b in (0, 1, 3)}, {}))
     assert np.array_equal(state.intrinsics[2].params, before)
-    with pytest.raises(ValueError, match="OPENCV_FISHEYE"):
-        fisheye = centred_state(true, poses, 0.2)
-        fisheye.intrinsics[0] = CameraIntrinsics("OPENCV_FISHEYE", 640, 480,
-                                                 np.r_[300.0, 300.0, 320, 240, 0, 0, 0, 0])
-        adjust_with_priors(fisheye, [0], Priors())
+    with pytest.raises(ValueError, match="FULL_OPENCV"):
+        other = centred_state(true, poses, 0.2)
+        other.intrinsics[0] = CameraIntrinsics("FULL_OPENCV", 640, 480, np.r_[
+            300.0, 300.0, 320, 240, np.zeros(8)])
+        adjust_with_priors(other, [0], Priors())
 
 
 def test_a_tie_pulls_the_cameras_together_and_leaves_their_level_free():

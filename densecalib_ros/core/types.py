@@ -190,11 +190,11 @@ class CameraQuality:
     principal_point_std_px: Optional[float] = None
     projection_std_px: Optional[float] = None  # the intrinsics as a whole, mean over the image
     # Of the camera's rotation relative to the reference camera, deg (core.method.rotation_spread);
-    # None for the reference camera and where not estimated (fisheye lenses).
+    # None for the reference camera and where not estimated (no refinement on the images).
     rotation_std_deg: Optional[float] = None
     # The intrinsics the images pinned down (core.method.image_refinement: "f", "cx", "cy", "k1",
     # "k2", "aspect"); those with a prior that are not listed rest on it (the principal point near
-    # the image centre). None where not judged (fisheye lenses, given intrinsics).
+    # the image centre). None where not judged (no refinement on the images, given intrinsics).
     estimated_intrinsics: Optional[list] = None
 
 

@@ -37,7 +37,7 @@ leave that scale open; the cameras' focal sigmas are raised to what the probe sh
 from __future__ import annotations
 
 import logging
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -77,6 +77,15 @@ def axes_spread_deg(cam_from_world_rotations) -> float:
         return 0.0
     cosines = np.clip(axes @ axes.T, -1.0, 1.0)
     return float(np.degrees(np.arccos(cosines.min())))
+
+
+def lenses_adjusted(models: Sequence[str], cam_from_world_rotations) -> bool:
+    """Whether the image refinement adjusts lenses of these models on a rig of these rotations:
+    perspective ones always, fisheye ones where the optical axes spread FORWARD_SPREAD_DEG or
+    more (a forward-facing real pair's came out worse: docs/design-notes.md, Image refinement:
+    fisheye lenses)."""
+    return not any("FISHEYE" in m for m in models) or \
+        axes_spread_deg(cam_from_world_rotations) >= FORWARD_SPREAD_DEG
 
 
 def optical_axes_spread_deg(rig: RigCalibration) -> float:

@@ -15,7 +15,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from ..parallel import map_threads
-from .prior_adjustment import Priors, adjust_with_priors
+from .prior_adjustment import TWO_FOCAL_MODELS, Priors, adjust_with_priors
 from .reconstruction import BAStage, SfMState, bundle_adjust, reprojection_errors, triangulate
 
 log = logging.getLogger(__name__)
@@ -65,15 +65,16 @@ def track_regions(state: SfMState) -> np.ndarray:
 # Where each of the tied intrinsics (rig_pooling.POOLED_INTRINSICS: f, k1, k2; and the aspect,
 # which cameras judged one share: by index into prior_adjustment.INTRINSIC_NAMES) sits in
 # fold_values.
-FOLD_VALUE_OF = {0: 3, 3: 4, 4: 5, 5: 2}
+FOLD_VALUE_OF = {0: 3, 3: 4, 4: 5, 5: 2, 6: 6, 7: 7}
 
 
 def fold_values(cam) -> tuple[float, ...]:
-    """(cx, cy, aspect, mean focal, k1, k2) of a camera, as the folds compare them."""
+    """(cx, cy, aspect, mean focal, k1, k2, p1, p2) of a camera, as the folds compare them (a
+    fisheye's k3, k4 in p1's and p2's places; 0 where the model has none)."""
     p = np.asarray(cam.params, float)
-    if cam.model == "OPENCV":
-        return p[2], p[3], p[1] / p[0] - 1.0, 0.5 * (p[0] + p[1]), p[4], p[5]
-    return p[1], p[2], 0.0, p[0], p[3], p[4]
+    if cam.model in TWO_FOCAL_MODELS:
+        return p[2], p[3], p[1] / p[0] - 1.0, 0.5 * (p[0] + p[1]), p[4], p[5], p[6], p[7]
+    return p[1], p[2], 0.0, p[0], p[3], p[4], 0.0, 0.0
 
 
 def view_jackknife(views: dict[int, list[int]], estimate: Callable[[int], Optional[dict]]

@@ -1,11 +1,14 @@
-"""The last stage of a pinhole calibration: the found rig refined on dense correspondences measured
-in the images (core.method.dense_matches), with Gaussian priors on the principal point and the pixel
-aspect (core.method.prior_adjustment), and the intrinsics' standard deviations from that adjustment.
+"""The last stage of a calibration: the found rig refined on dense correspondences measured in the
+images (core.method.dense_matches), with Gaussian priors on the principal point and the pixel aspect
+(core.method.prior_adjustment), and the intrinsics' standard deviations from that adjustment.
 
 Order: matches find the rig (sampling, SfM, consensus, refinement on all keypoint matches); this
-stage only moves it within its basin. It runs where every registered camera has a perspective
-model (RADIAL; fisheye lenses keep their own path) and the images are at hand (run_calibration),
-and leaves the rig as it was when the dense correspondences do not reach every camera.
+stage only moves it within its basin. It runs where the registered cameras are RADIAL or
+OPENCV_FISHEYE (the SfM's models; given intrinsics are held), as
+focal_determination.lenses_adjusted allows, and the images are at hand (run_calibration), and
+leaves the rig as it was when the dense correspondences do not reach every camera. A fisheye's four
+distortion terms are tied between cameras as k1 and k2 are (docs/design-notes.md, Image refinement:
+fisheye lenses).
 
 Whether the images determine a camera's principal point (and pixel aspect) is decided from the
 data, per camera: the dense tracks are split into HOLDOUT_FOLDS spatial folds, each fold is
@@ -58,21 +61,24 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from ..config import lens_of_model
 from ..progress import check_stop
 from ..types import Tracks
 from .decentering import with_decentering, with_decentering_asked
 from .dense_ahead import DenseAhead
 from .dense_matches import dense_tracks
-from .focal_determination import FORWARD_SPREAD_DEG, axes_spread_deg, probed_focal_scale_std
+from .focal_determination import (FORWARD_SPREAD_DEG, axes_spread_deg, lenses_adjusted,
+                                  probed_focal_scale_std)
 from .image_folds import (FOLD_VALUE_OF, GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_images,
                           held_out_errors, one_camera_jackknife, principal_point_determined)
 from .plausibility import make_pixels_square, unlike_aspect_blocks
-from .prior_adjustment import (INTRINSIC_NAMES, SUPPORTED_MODELS, PriorAdjustment, Priors,
-                               adjust_with_priors, intrinsics_vector)
+from .prior_adjustment import (FISHEYE_MODELS, INTRINSIC_NAMES, SUPPORTED_MODELS,
+                               PriorAdjustment, Priors, adjust_with_priors, intrinsics_vector,
+                               perspective_blocks)
 from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
                              triangulate_tracks)
-from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, random_effects,
-                          scatter_per_dof)
+from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, pooled_intrinsics,
+                          random_effects, scatter_per_dof)
 from .refinement_uncertainty import refinement_sigmas
 
 log = logging.getLogger(__name__)
@@ -121,11 +127,16 @@ class ImageRefinement:
 
 
 def applies(state: SfMState) -> bool:
-    """Whether every registered camera is a pinhole camera this stage adjusts (RADIAL) or holds
-    (given intrinsics of a perspective model)."""
-    return all(state.camera(c).model == "RADIAL" or (state.intrinsics_fixed(c) and
-                                                     state.camera(c).model in SUPPORTED_MODELS)
-               for c in state.registered())
+    """Whether every registered camera is one this stage adjusts (RADIAL, OPENCV_FISHEYE: as
+    lenses_adjusted says) or holds (given intrinsics of a model it projects)."""
+    registered = state.registered()
+    if not all(state.camera(c).model in ("RADIAL", "OPENCV_FISHEYE") or (
+            state.intrinsics_fixed(c) and state.camera(c).model in SUPPORTED_MODELS)
+            for c in registered):
+        return False
+    return lenses_adjusted([state.camera(c).model for c in registered
+                            if not state.intrinsics_fixed(c)],
+                           [state.cam_from_world[c][:3, :3] for c in registered])
 
 
 def refine_on_images(state: SfMState, frame_sets: Sequence[Sequence[np.ndarray]],
@@ -197,9 +208,12 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         priors = _as_one_camera(refined, members, determined, fold_sigmas, priors,
                                 one_camera_jackknife(start, blocks, members, ties))
     check_stop()
+    lens_blocks = perspective_blocks(refined.intrinsics, blocks)  # a decentering to test
     in_place = with_decentering_asked(
-        replace(priors, ties=ties), blocks, one_cameras, refined.intrinsics, say,
-        lambda p: held_out_errors(refined, blocks, p, adjustment.noise_px, camera_names, None))
+        replace(priors, ties=ties), lens_blocks,
+        [m for m in one_cameras if set(m) <= set(lens_blocks)], refined.intrinsics, say,
+        lambda p: held_out_errors(refined, blocks, p, adjustment.noise_px, camera_names, None)) \
+        if lens_blocks else replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
         b: (v if "principal point" in determined[b] else None)
         for b, v in priors.principal_point_std_px.items()})
@@ -224,7 +238,8 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         estimated[camera_names[c]] = ["f", "k1", "k2"] + \
             (["cx", "cy"] if "principal point" in determined[b] else []) + \
             (["aspect"] if "aspect" in determined[b] else []) + \
-            (["p1", "p2"] if b in in_place.tangential_std else [])
+            (["p1", "p2"] if b in in_place.tangential_std else []) + \
+            (["k3", "k4"] if refined.intrinsics[b].model in FISHEYE_MODELS else [])
         sigmas[camera_names[c]] = sigma
     verdicts = {tuple(camera_names[c] for c in refined.registered()
                       if int(refined.camera_block[c]) in members): members in one_cameras
@@ -306,7 +321,7 @@ def _as_one_camera(state: SfMState, members: list[int], determined: dict, fold_s
     point_tied = all(np.isfinite(s) and s > 0 for axis in point for s in axis)
     one = dict(focal_px=pooled_std([fold_sigmas[b]["focal_px"] for b in members]),
                intrinsics={i: pooled_std([fold_sigmas[b]["intrinsics"][i] for b in members])
-                           for i in POOLED_INTRINSICS})
+                           for i in pooled_intrinsics(state.intrinsics[members[0]].model)})
     point_std = dict(priors.principal_point_std_px)
     if point_tied:
         pp = np.array([_principal_point(state.intrinsics[b]) for b in members])
@@ -351,19 +366,21 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
         sigmas = fold_sigmas.get(b, {}).get("intrinsics", {})
         if all(np.isfinite(sigmas.get(i, np.nan)) and sigmas[i] > 0 for i in POOLED_INTRINSICS):
             cam = state.intrinsics[b]
-            groups.setdefault((cam.width, cam.height), []).append(b)
-    for (width, height), members in groups.items():
+            groups.setdefault((lens_of_model(cam.model), cam.width, cam.height), []).append(b)
+    for (lens, width, height), members in groups.items():
         if len(members) < MIN_POOLED_CAMERAS:
             continue
         judged.append(members)
         values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
-        same_size = [b for b in blocks
-                     if (state.intrinsics[b].width, state.intrinsics[b].height) == (width, height)]
-        stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
-        effects = {i: random_effects(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
+        same_size = [b for b in blocks if (lens_of_model(state.intrinsics[b].model),
+                                           state.intrinsics[b].width,
+                                           state.intrinsics[b].height) == (lens, width, height)]
+        pooled = pooled_intrinsics(state.intrinsics[members[0]].model)
+        stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in pooled}
+        effects = {i: random_effects(values[:, i], stds[i]) for i in pooled}
         spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
         one_ties = _one_camera_ties(state, members, fold_sigmas)
-        scatter = {i: scatter_per_dof(values[:, i], stds[i]) for i in POOLED_INTRINSICS}
+        scatter = {i: scatter_per_dof(values[:, i], stds[i]) for i in pooled}
         widest = max(scatter, key=scatter.get)
         if scatter[widest] >= ONE_CAMERA_MAX_SCATTER:
             excess = standard_error = None
@@ -400,7 +417,7 @@ def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, sprea
     prior (decentering.with_decentering): separate principal points absorb a decentering that
     one camera's cannot, which would decide against one lens for what the test is not about
     (entry-P10 at 1536 px: ten cameras by 0.5 % without it, one with it)."""
-    priors = with_decentering(priors, blocks, [])
+    priors = with_decentering(priors, perspective_blocks(state.intrinsics, blocks), [])
     try:
         held_out = {name: held_out_errors(state, blocks, replace(priors, ties=group_ties),
                                            noise_px, camera_names, iterations)
@@ -421,7 +438,8 @@ def _one_camera_ties(state: SfMState, members: list[int], fold_sigmas: dict) -> 
     adjustment leaves a held one out of its tie). What the one-camera test ties."""
     ties = []
     values = np.array([intrinsics_vector(state.intrinsics[b]) for b in members])
-    stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in POOLED_INTRINSICS}
+    stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members]
+            for i in pooled_intrinsics(state.intrinsics[members[0]].model)}
     for axis, i in enumerate(PRINCIPAL_POINT_INTRINSICS):
         pp_stds = [fold_sigmas[b]["principal_point_axes_px"][axis] for b in members]
         if all(np.isfinite(pp_stds)) and min(pp_stds) > 0:

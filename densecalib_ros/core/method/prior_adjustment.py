@@ -15,19 +15,20 @@ The same holds for the pixel aspect (fy / fx - 1): real sensors are within a few
 percent of square, RADIAL cannot express any, and an unmodelled 0.5 % shows up as a residual
 warp that the principal point and poses then absorb.
 
-Parameters per camera block ("RADIAL" cameras): f, cx, cy, k1, k2 and the aspect a (fy = f (1 +
-a)); poses of every registered camera but the reference (gauge; the scale is left free and
-damped, it changes no intrinsics); every point. Residuals: COLMAP-pixel reprojection errors of
-the active observations of reconstruction points, Cauchy loss with COLMAP's scale, weighted by
-1 / sigma_n^2 with sigma_n the pixel noise of the fit (robust, from the residuals); priors
-(value - centre) / sigma; ties (Priors.ties) (value - the tied blocks' weighted mean) / sigma,
-the mean profiled out. Levenberg-Marquardt on the reduced camera system (Schur complement over
-the points: every point is a 3x3 block)."""
+Parameters per camera block (RADIAL cameras; OPENCV ones with their decentering p1, p2 where it is
+freed; OPENCV_FISHEYE ones with k3, k4 in p1's and p2's places, always free): f, cx, cy, k1, k2 and
+the aspect a (fy = f (1 + a)); poses of every registered camera but the reference (gauge; the scale
+is left free and damped, it changes no intrinsics); every point. Residuals: COLMAP-pixel
+reprojection errors of the active observations of reconstruction points, Cauchy loss with COLMAP's
+scale, weighted by 1 / sigma_n^2 with sigma_n the pixel noise of the fit (robust, from the
+residuals); priors (value - centre) / sigma; ties (Priors.ties) (value - the tied blocks' weighted
+mean) / sigma, the mean profiled out. Levenberg-Marquardt on the reduced camera system (Schur
+complement over the points: every point is a 3x3 block)."""
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Sequence
 
 import cv2
 import numpy as np
@@ -91,8 +92,22 @@ class PriorAdjustment:
     priors: Priors
 
 
-# The perspective models this adjustment projects, as (f, cx, cy, k1, k2, aspect, p1, p2).
-SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+# The perspective models this adjustment projects, as (f, cx, cy, k1, k2, aspect, p1, p2), and
+# the fisheye ones, as (f, cx, cy, k1, k2, aspect, k3, k4) (kernels._project_fisheye).
+PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+FISHEYE_MODELS = ("RADIAL_FISHEYE", "OPENCV_FISHEYE")
+SUPPORTED_MODELS = PERSPECTIVE_MODELS + FISHEYE_MODELS
+# Those written fx, fy, cx, cy and four distortion terms: the pixel aspect is fy / fx - 1.
+TWO_FOCAL_MODELS = ("OPENCV", "OPENCV_FISHEYE")
+# The models it adjusts (the others of SUPPORTED_MODELS it holds, e.g. given intrinsics).
+ADJUSTED_MODELS = ("RADIAL", "OPENCV") + FISHEYE_MODELS
+
+
+def perspective_blocks(intrinsics: Sequence[CameraIntrinsics], blocks: Sequence[int]) -> list[int]:
+    """The blocks of `blocks` whose model is a perspective one (intrinsics: per block): those
+    whose last two parameters are a decentering (p1, p2); a fisheye block's are its k3, k4,
+    which the image refinement holds where the SfM put them."""
+    return [b for b in blocks if intrinsics[b].model not in FISHEYE_MODELS]
 
 
 def intrinsics_vector(cam: CameraIntrinsics) -> np.ndarray:
@@ -107,6 +122,10 @@ def intrinsics_vector(cam: CameraIntrinsics) -> np.ndarray:
     if cam.model == "RADIAL":
         return np.array([p[0], p[1], p[2], p[3], p[4], 0, 0, 0])
     if cam.model == "OPENCV":
+        return np.array([p[0], p[2], p[3], p[4], p[5], p[1] / p[0] - 1.0, p[6], p[7]])
+    if cam.model == "RADIAL_FISHEYE":
+        return np.array([p[0], p[1], p[2], p[3], p[4], 0, 0, 0])
+    if cam.model == "OPENCV_FISHEYE":
         return np.array([p[0], p[2], p[3], p[4], p[5], p[1] / p[0] - 1.0, p[6], p[7]])
     raise ValueError(f"prior adjustment: a {cam.model} camera; it projects "
                      f"{', '.join(SUPPORTED_MODELS)}")
@@ -141,6 +160,7 @@ class AdjustmentProblem:
         self.K = np.zeros((len(state.intrinsics), _NI))
         for b, cam in enumerate(state.intrinsics):
             self.K[b] = intrinsics_vector(cam)
+        self.fisheye = np.array([cam.model in FISHEYE_MODELS for cam in state.intrinsics])
         self.centre = np.array([priors.principal_point_centre_px.get(
             b, (cam.width / 2.0, cam.height / 2.0)) for b, cam in enumerate(state.intrinsics)],
             dtype=float)
@@ -156,7 +176,8 @@ class AdjustmentProblem:
         self.intr_cols = np.full((len(state.intrinsics), _NI), -1)
         for b in blocks:
             pp = priors.principal_point_std_px.get(b) is not None
-            tangential = priors.tangential_std.get(b) is not None
+            # a fisheye block's last two are its k3, k4, free as its k1, k2 are
+            tangential = priors.tangential_std.get(b) is not None or bool(self.fisheye[b])
             free = [True, pp, pp, True, True, priors.aspect_std.get(b) is not None,
                     tangential, tangential]
             for k in range(_NI):
@@ -184,7 +205,7 @@ class AdjustmentProblem:
         A = np.zeros((N if with_jacobians else 0, 2, _NP + _NI))
         B = np.empty((N if with_jacobians else 0, 2, 3))
         _project(self.R, self.t, self.X, self.K, self.block_of, self.c_idx, self.p_idx, self.xy,
-                 res, A, B)
+                 res, A, B, self.fisheye)
         return (res, A, B) if with_jacobians else res
 
     def prior_terms(self):
@@ -304,13 +325,15 @@ def adjust_with_priors(state: SfMState, blocks: list[int], priors: Priors,
                        max_iterations: int = 50, noise_px: Optional[float] = None
                        ) -> PriorAdjustment:
     """MAP adjustment of `state` in place (module docstring); `blocks`: the intrinsics blocks
-    refined (RADIAL, or OPENCV with p1 = p2 = 0); the others are held. A block whose aspect ends
-    free is written back as OPENCV (fx, fy, cx, cy, k1, k2, 0, 0), else in its own model.
+    refined (ADJUSTED_MODELS); the others are held. A perspective block whose aspect ends free is
+    written back as OPENCV (fx, fy, cx, cy, k1, k2, p1, p2), else in its own model; a fisheye
+    block as OPENCV_FISHEYE.
     noise_px: sigma_n; None estimates it from the residuals at the start."""
     for b in blocks:
-        if state.intrinsics[b].model not in ("RADIAL", "OPENCV"):
+        if state.intrinsics[b].model not in ADJUSTED_MODELS:
             raise ValueError(f"prior adjustment: block {b} is {state.intrinsics[b].model}; "
-                             "RADIAL or OPENCV cameras are adjusted (others may be held)")
+                             f"{', '.join(ADJUSTED_MODELS)} cameras are adjusted (others may be "
+                             "held)")
     problem = AdjustmentProblem(state, blocks, priors)
     if not len(problem.t_idx):
         raise ValueError("prior adjustment: no observations")
@@ -405,7 +428,11 @@ def _write_back(problem: AdjustmentProblem, state: SfMState, blocks: list[int]) 
     for b in blocks:
         cam = state.intrinsics[b]
         f, cx, cy, k1, k2, a, p1, p2 = problem.K[b]
-        if (problem.intr_cols[b, 5:] >= 0).any() or np.any(problem.K[b, 5:] != 0.0):
+        if problem.fisheye[b]:  # p1, p2 are k3, k4 here
+            state.intrinsics[b] = CameraIntrinsics("OPENCV_FISHEYE", cam.width, cam.height,
+                                                   np.array([f, f * (1 + a), cx, cy, k1, k2,
+                                                             p1, p2]))
+        elif (problem.intr_cols[b, 5:] >= 0).any() or np.any(problem.K[b, 5:] != 0.0):
             state.intrinsics[b] = CameraIntrinsics("OPENCV", cam.width, cam.height,
                                                    np.array([f, f * (1 + a), cx, cy, k1, k2,
                                                              p1, p2]))

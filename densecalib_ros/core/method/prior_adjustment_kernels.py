@@ -10,18 +10,22 @@ from ..compiled import compiled
 
 
 @compiled()
-def _project(R, t, X, K, block_of, c_idx, p_idx, xy, res, A, B):
+def _project(R, t, X, K, block_of, c_idx, p_idx, xy, res, A, B, fisheye):
     """Every observation's residual (projection - xy, px) into res (N, 2), and where A and B
     have rows (N, 2, 14) and (N, 2, 3) (zeros in A on entry) its Jacobians with respect to
     the camera's rotation (a left increment), translation and intrinsics (f, cx, cy, k1, k2,
-    aspect, p1, p2: fy = f (1 + aspect)) and to the point. A point behind the camera gets a
-    large, constant residual."""
+    aspect, p1, p2: fy = f (1 + aspect)) and to the point. A block with fisheye[b] projects as
+    OPENCV_FISHEYE instead (_project_fisheye: k3, k4 in p1's and p2's places). A point behind a
+    perspective camera gets a large, constant residual."""
     jacobians = A.shape[0] > 0
     for n in range(c_idx.shape[0]):
         c, p = c_idx[n], p_idx[n]
         x = R[c, 0, 0] * X[p, 0] + R[c, 0, 1] * X[p, 1] + R[c, 0, 2] * X[p, 2] + t[c, 0]
         y = R[c, 1, 0] * X[p, 0] + R[c, 1, 1] * X[p, 1] + R[c, 1, 2] * X[p, 2] + t[c, 1]
         z = R[c, 2, 0] * X[p, 0] + R[c, 2, 1] * X[p, 1] + R[c, 2, 2] * X[p, 2] + t[c, 2]
+        if fisheye[block_of[c]]:
+            _project_fisheye(n, c, x, y, z, R, K[block_of[c]], xy, res, A, B, jacobians)
+            continue
         z_safe = z if abs(z) > 1e-12 else 1e-12
         u, v = x / z_safe, y / z_safe
         b = block_of[c]
@@ -46,13 +50,8 @@ def _project(R, t, X, K, block_of, c_idx, p_idx, xy, res, A, B):
         j10 = fy * (2 * uv * dd_dr2 + 2 * p1 * u + 2 * p2 * v)
         j11 = fy * (d + 2 * v * v * dd_dr2 + 6 * p1 * v + 2 * p2 * u)
         for k, (ju, jv) in enumerate(((j00, j01), (j10, j11))):
-            d0, d1, d2 = ju / z_safe, jv / z_safe, -(ju * u + jv * v) / z_safe
-            for m in range(3):
-                B[n, k, m] = d0 * R[c, 0, m] + d1 * R[c, 1, m] + d2 * R[c, 2, m]
-            A[n, k, 0] = d2 * y - d1 * z  # rotation: -d(proj)/d(camera point) [camera point]x
-            A[n, k, 1] = d0 * z - d2 * x
-            A[n, k, 2] = d1 * x - d0 * y
-            A[n, k, 3], A[n, k, 4], A[n, k, 5] = d0, d1, d2
+            _point_and_pose_rows(n, k, c, ju / z_safe, jv / z_safe, -(ju * u + jv * v) / z_safe,
+                                 x, y, z, R, A, B)
         A[n, 0, 6], A[n, 1, 6] = xd, (1 + a) * yd
         A[n, 0, 7], A[n, 1, 8] = 1.0, 1.0
         A[n, 0, 9], A[n, 1, 9] = f * u * r2, fy * v * r2
@@ -60,6 +59,70 @@ def _project(R, t, X, K, block_of, c_idx, p_idx, xy, res, A, B):
         A[n, 1, 11] = f * yd
         A[n, 0, 12], A[n, 1, 12] = f * 2 * uv, fy * (r2 + 2 * v * v)
         A[n, 0, 13], A[n, 1, 13] = f * (r2 + 2 * u * u), fy * 2 * uv
+
+
+@compiled()
+def _point_and_pose_rows(n, k, c, d0, d1, d2, x, y, z, R, A, B):
+    """Row k of observation n's Jacobians from d(proj_k)/d(camera point) = (d0, d1, d2), the
+    point (x, y, z) in camera c's frame: B's (the world point, through R[c]) and A's rotation (a
+    left increment) and translation columns."""
+    for m in range(3):
+        B[n, k, m] = d0 * R[c, 0, m] + d1 * R[c, 1, m] + d2 * R[c, 2, m]
+    A[n, k, 0] = d2 * y - d1 * z  # rotation: -d(proj)/d(camera point) [camera point]x
+    A[n, k, 1] = d0 * z - d2 * x
+    A[n, k, 2] = d1 * x - d0 * y
+    A[n, k, 3], A[n, k, 4], A[n, k, 5] = d0, d1, d2
+
+
+@compiled()
+def _project_fisheye(n, c, x, y, z, R, k, xy, res, A, B, jacobians):
+    """_project's observation n of camera c (its point (x, y, z) in the camera's frame) through
+    an OPENCV_FISHEYE lens, k = (f, cx, cy, k1, k2, aspect, k3, k4): the ray's angle from the
+    axis theta = atan2(rho, z), rho = |(x, y)|, mapped to the radius theta (1 + k1 theta^2 +
+    k2 theta^4 + k3 theta^6 + k4 theta^8) along (x, y) / rho. As COLMAP's model in front of the
+    camera (theta = atan(rho / z) there); written with atan2, it holds beyond 90 deg from the
+    axis, where a lens wider than 180 deg still images points."""
+    f, cx, cy, k1, k2, a, k3, k4 = k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7]
+    fy = f * (1 + a)
+    rho2 = x * x + y * y
+    rho = np.sqrt(rho2)
+    n2 = rho2 + z * z
+    if rho < 1e-9 * np.sqrt(n2) and z > 0:
+        # on the axis: theta_d / rho -> 1 / z (the distortion's terms vanish with theta^2)
+        xd, yd = x / z, y / z
+        res[n, 0], res[n, 1] = f * xd + cx - xy[n, 0], fy * yd + cy - xy[n, 1]
+        if not jacobians:
+            return
+        g = 1.0 / z
+        rows = ((f * g, 0.0, -f * xd * g), (0.0, fy * g, -fy * yd * g))
+        theta = 0.0
+        ex, ey = 0.0, 0.0
+    else:
+        theta = np.arctan2(rho, z)
+        t2 = theta * theta
+        d = 1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))
+        theta_d = theta * d
+        ex, ey = x / rho, y / rho  # the image direction of the ray
+        xd, yd = ex * theta_d, ey * theta_d
+        res[n, 0], res[n, 1] = f * xd + cx - xy[n, 0], fy * yd + cy - xy[n, 1]
+        if not jacobians:
+            return
+        dtd = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))  # d theta_d / d theta
+        # d theta / d(x, y, z) and d(ex, ey) / d(x, y, z)
+        ht = dtd * z / (rho * n2)
+        q = theta_d / (rho2 * rho)
+        dxd = (y * y * q + ex * x * ht, -x * y * q + ex * y * ht, -ex * dtd * rho / n2)
+        dyd = (-x * y * q + ey * x * ht, x * x * q + ey * y * ht, -ey * dtd * rho / n2)
+        rows = ((f * dxd[0], f * dxd[1], f * dxd[2]), (fy * dyd[0], fy * dyd[1], fy * dyd[2]))
+    for kk in range(2):
+        _point_and_pose_rows(n, kk, c, rows[kk][0], rows[kk][1], rows[kk][2], x, y, z, R, A, B)
+    A[n, 0, 6], A[n, 1, 6] = xd, (1 + a) * yd
+    A[n, 0, 7], A[n, 1, 8] = 1.0, 1.0
+    A[n, 1, 11] = f * yd
+    t3 = theta * theta * theta
+    for col, power in ((9, t3), (10, t3 * theta * theta), (12, t3 * theta ** 4),
+                       (13, t3 * theta ** 6)):
+        A[n, 0, col], A[n, 1, col] = f * ex * power, fy * ey * power
 
 
 @compiled()

@@ -23,7 +23,8 @@ import numpy as np
 
 from .decentering import other_lens_model
 from .image_folds import track_regions
-from .prior_adjustment import AdjustmentProblem, INTRINSIC_NAMES, Priors, add_prior_terms
+from .prior_adjustment import (TWO_FOCAL_MODELS, AdjustmentProblem, INTRINSIC_NAMES, Priors,
+                               add_prior_terms, perspective_blocks)
 from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
 from .rotation_spread import fold_rotation_std_deg, model_choice_deg, rotation_std_deg
@@ -61,10 +62,11 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
         state, b, covariances.of_block(b), fold_sigmas.get(b, {}),
         None if "principal point" in determined[b] else held_pp_std_fraction, focal_scale_std)
         for b in covariances.marginals[0]}
+    lens = perspective_blocks(state.intrinsics, blocks)  # those with a lens model to choose
+    choice = model_choice_deg(state, blocks, other_lens_model(
+        held, lens, [m for m in one_cameras if set(m) <= set(lens)]), noise_px) if lens else {}
     turns = rotation_sigmas(state, covariances, of_block,
-                            fold_rotation_std_deg(state, blocks, held, noise_px),
-                            model_choice_deg(state, blocks,
-                                             other_lens_model(held, blocks, one_cameras), noise_px))
+                            fold_rotation_std_deg(state, blocks, held, noise_px), choice)
     return {c: replace(of_block[int(state.camera_block[c])], rotation_std_deg=turns.get(c))
             for c in state.registered() if int(state.camera_block[c]) in of_block}
 
@@ -112,14 +114,15 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
     sigmas reported: a projection sigma below its own principal point's would contradict it (a
     point off by sigma moves every image point by about that much)."""
     cam = state.intrinsics[block]
-    f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if cam.model == "OPENCV" else 0.0)
+    two = cam.model in TWO_FOCAL_MODELS
+    f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if two else 0.0)
     n = len(INTRINSIC_NAMES)
-    if cam.model == "OPENCV":  # fx, fy, cx, cy, k1, k2, p1, p2 from f, cx, cy, k1, k2, a, p1, p2
+    if two:  # fx, fy, cx, cy, k1, k2, p1, p2 (fisheye: k3, k4) from f, cx, cy, k1, k2, a, p1, p2
         J = np.zeros((8, n))
         J[0, 0] = 1.0
         J[1, 0], J[1, 5] = 1.0 + a, f
         J[2, 1] = J[3, 2] = J[4, 3] = J[5, 4] = J[6, 6] = J[7, 7] = 1.0
-    else:  # RADIAL: f, cx, cy, k1, k2
+    else:  # RADIAL (RADIAL_FISHEYE): f, cx, cy, k1, k2
         J = np.eye(5, n)
     mean_focal = np.zeros(n)
     mean_focal[0], mean_focal[5] = 1.0 + a / 2.0, f / 2.0
@@ -146,7 +149,7 @@ def widening(cam, cov: np.ndarray, focal_std: float, pp_std: float) -> np.ndarra
     marginal) to the one reported: the mean focal's to focal_std, cx's and cy's to pp_std; 1 for
     the others."""
     p = cam.params
-    a = p[1] / p[0] - 1.0 if cam.model == "OPENCV" else 0.0
+    a = p[1] / p[0] - 1.0 if cam.model in TWO_FOCAL_MODELS else 0.0
     mean_focal = np.zeros(len(INTRINSIC_NAMES))
     mean_focal[0], mean_focal[5] = 1.0 + a / 2.0, p[0] / 2.0
     scale = np.ones(len(INTRINSIC_NAMES))

@@ -26,6 +26,14 @@ import numpy as np
 # the long-lens rigs' points moved further off (docs/design-notes.md, Image refinement: the rig's
 # own spread); it keeps its own prior and hold (core.method.image_refinement).
 POOLED_INTRINSICS = (0, 3, 4)
+# A fisheye's k3, k4 (in p1's and p2's places: prior_adjustment.FISHEYE_MODELS) are its
+# distortion as its k1, k2 are, and tied with them.
+FISHEYE_POOLED_INTRINSICS = POOLED_INTRINSICS + (6, 7)
+
+
+def pooled_intrinsics(model: str) -> tuple[int, ...]:
+    """The intrinsics tied across cameras of this COLMAP model (indices into INTRINSIC_NAMES)."""
+    return FISHEYE_POOLED_INTRINSICS if "FISHEYE" in model else POOLED_INTRINSICS
 # The spread between cameras rests on the scatter of their estimates: with two cameras on one
 # difference, too little to tell one model from two.
 MIN_POOLED_CAMERAS = 3

@@ -17,14 +17,14 @@ model, fits the keypoint matches no worse than multistart.WORSE_FIT_RATIO times 
 camera's own intrinsics: the factor between rigs that are alternatives and rigs that are wrong,
 which lenses that differ grossly make one model. The keypoint matches (about a pixel of noise)
 cannot tell lenses a few percent apart in focal length or distortion from one model, which the
-dense image correspondences (a tenth of that) can. So where the
-refinement on the images adjusts these lenses (pinhole), its one-camera test must have judged the
-units one camera (core.method.image_refinement: three or more cameras of one size, their
-held-out correspondences fitted as one camera and as several); a rig the test could not judge
-(too few dense correspondences, fewer than three cameras) keeps its own intrinsics. For lenses
-the refinement does not adjust (fisheye) the fit to the keypoint matches decides alone
-(docs/design-notes.md, One model from the images). The calibration's record says the units were
-assumed and why (RigQuality.identical_units).
+dense image correspondences (a tenth of that) can. So where the refinement on the images adjusts
+these lenses (focal_determination.lenses_adjusted), its one-camera test must have judged the units
+one camera (core.method.image_refinement: three or more cameras of one size, their held-out
+correspondences fitted as one camera and as several); a rig the test could not judge (too few dense
+correspondences, fewer than three cameras) keeps its own intrinsics. Where it does not adjust them
+(a forward-facing fisheye rig) the fit to the keypoint matches decides alone (docs/design-notes.md,
+One model from the images). The calibration's record says the units were assumed and why
+(RigQuality.identical_units).
 """
 from __future__ import annotations
 
@@ -36,6 +36,7 @@ import numpy as np
 from ..config import PipelineConfig
 from ..errors import CalibrationError
 from ..method.multistart import HELD_OUT_TRUNCATION_PX, WORSE_FIT_RATIO, cost_truncation_px
+from ..method.focal_determination import lenses_adjusted
 from ..method.prior_adjustment import SUPPORTED_MODELS
 from ..types import RigCalibration, Tracks
 from .consensus import WARN_DISAGREEMENT_DEG, common_track_costs, standing_disagreement_deg
@@ -97,10 +98,13 @@ def judged_several(refinement, camera_names: Sequence[str]) -> bool:
                for group, one in verdicts.items())
 
 
-def refined_on_images(config: PipelineConfig, camera_names: Sequence[str]) -> bool:
-    """Whether the refinement on the images adjusts these cameras' lenses (config's)."""
-    return config.refine_on_images and all(
-        m in SUPPORTED_MODELS for m in config.sfm.models(len(camera_names)))
+def refined_on_images(config: PipelineConfig, camera_names: Sequence[str],
+                      rig: RigCalibration) -> bool:
+    """Whether the refinement on the images adjusts these cameras' lenses (config's) in a rig
+    laid out as `rig` (focal_determination.lenses_adjusted)."""
+    models = config.sfm.models(len(camera_names))
+    return config.refine_on_images and all(m in SUPPORTED_MODELS for m in models) and \
+        lenses_adjusted(models, [cam.cam_from_rig[:3, :3] for cam in rig.cameras.values()])
 
 
 def fit_costs_px(rigs: Sequence[RigCalibration], tracks: Optional[Tracks],
@@ -168,7 +172,7 @@ def with_one_model(kept, calibrate_as: Callable[[PipelineConfig], object],
                        False)
     fits = bool(np.isfinite([own_cost, one_cost]).all()) and one_cost <= WORSE_FIT_RATIO * own_cost
     agree = outcome.one_apart_deg is None
-    refuted = refined_on_images(kept.config, camera_names) and \
+    refuted = refined_on_images(kept.config, camera_names, one.rig) and \
         not judged_one_camera(one.refinement, camera_names)
     keep = fits and agree and not refuted and better_determined(one.rig, kept.rig)
     how = (f"runs {outcome.one_apart_deg:.1f} deg apart" if not agree else "runs in agreement") \

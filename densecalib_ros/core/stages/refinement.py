@@ -44,7 +44,7 @@ def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig
     """The image refinement's dense correspondences, which need only the images and the keypoint
     matches until their last checks, started on cores the rig's search leaves idle
     (dense_ahead.DenseAhead). None where the refinement will not run, or will not start from
-    the keypoint matches, or cannot apply (a fisheye lens)."""
+    the keypoint matches, or cannot apply (a lens model it does not project)."""
     tracks = matched.keypoint_tracks
     if not config.refine_on_images or tracks is None or not tracks.num_tracks or any(
             m not in SUPPORTED_MODELS for m in config.sfm.models(len(images.camera_names))):
