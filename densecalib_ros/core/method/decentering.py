@@ -18,7 +18,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from .prior_adjustment import INTRINSIC_NAMES, Priors
+from .prior_adjustment import INTRINSIC_NAMES, Priors, perspective_blocks
 from .rig_pooling import MIN_POOLED_CAMERAS
 
 # Prior sigma of p1 and p2 (normalised image coordinates): real lenses' decentering coefficients,
@@ -40,6 +40,14 @@ ONE_LENS_TIE_FRACTION = 0.01
 _TANGENTIAL = (INTRINSIC_NAMES.index("p1"), INTRINSIC_NAMES.index("p2"))
 
 log = logging.getLogger(__name__)
+
+
+def decentering_blocks(intrinsics: Sequence, blocks: Sequence[int],
+                       one_cameras: Sequence[list[int]]) -> tuple[list[int], list[list[int]]]:
+    """The blocks of `blocks` whose lens model has a decentering (prior_adjustment.
+    perspective_blocks; intrinsics: per block), and the groups of one_cameras made of them."""
+    lens = perspective_blocks(intrinsics, blocks)
+    return lens, [m for m in one_cameras if set(m) <= set(lens)]
 
 
 def with_decentering(priors: Priors, blocks: Sequence[int], one_cameras: Sequence[list[int]]

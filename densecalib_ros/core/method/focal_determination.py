@@ -84,7 +84,7 @@ def lenses_adjusted(models: Sequence[str], cam_from_world_rotations) -> bool:
     perspective ones always, fisheye ones where the optical axes spread FORWARD_SPREAD_DEG or
     more (a forward-facing real pair's came out worse: docs/design-notes.md, Image refinement:
     fisheye lenses)."""
-    return not any("FISHEYE" in m for m in models) or \
+    return all(lens_of_model(m) == "pinhole" for m in models) or \
         axes_spread_deg(cam_from_world_rotations) >= FORWARD_SPREAD_DEG
 
 

@@ -64,7 +64,7 @@ import numpy as np
 from ..config import lens_of_model
 from ..progress import check_stop
 from ..types import Tracks
-from .decentering import with_decentering, with_decentering_asked
+from .decentering import decentering_blocks, with_decentering, with_decentering_asked
 from .dense_ahead import DenseAhead
 from .dense_matches import dense_tracks
 from .focal_determination import (FORWARD_SPREAD_DEG, axes_spread_deg, lenses_adjusted,
@@ -73,8 +73,7 @@ from .image_folds import (FOLD_VALUE_OF, GATE_SIGMAS, HOLDOUT_FOLDS, determined_
                           held_out_errors, one_camera_jackknife, principal_point_determined)
 from .plausibility import make_pixels_square, unlike_aspect_blocks
 from .prior_adjustment import (FISHEYE_MODELS, INTRINSIC_NAMES, SUPPORTED_MODELS,
-                               PriorAdjustment, Priors, adjust_with_priors, intrinsics_vector,
-                               perspective_blocks)
+                               PriorAdjustment, Priors, adjust_with_priors, intrinsics_vector)
 from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
                              triangulate_tracks)
 from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, pooled_intrinsics,
@@ -208,10 +207,9 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
         priors = _as_one_camera(refined, members, determined, fold_sigmas, priors,
                                 one_camera_jackknife(start, blocks, members, ties))
     check_stop()
-    lens_blocks = perspective_blocks(refined.intrinsics, blocks)  # a decentering to test
+    lens_blocks, lens_ones = decentering_blocks(refined.intrinsics, blocks, one_cameras)
     in_place = with_decentering_asked(
-        replace(priors, ties=ties), lens_blocks,
-        [m for m in one_cameras if set(m) <= set(lens_blocks)], refined.intrinsics, say,
+        replace(priors, ties=ties), lens_blocks, lens_ones, refined.intrinsics, say,
         lambda p: held_out_errors(refined, blocks, p, adjustment.noise_px, camera_names, None)) \
         if lens_blocks else replace(priors, ties=ties)
     held = replace(in_place, principal_point_std_px={
@@ -417,7 +415,7 @@ def _one_camera_excess(state: SfMState, blocks: list[int], priors: Priors, sprea
     prior (decentering.with_decentering): separate principal points absorb a decentering that
     one camera's cannot, which would decide against one lens for what the test is not about
     (entry-P10 at 1536 px: ten cameras by 0.5 % without it, one with it)."""
-    priors = with_decentering(priors, perspective_blocks(state.intrinsics, blocks), [])
+    priors = with_decentering(priors, decentering_blocks(state.intrinsics, blocks, [])[0], [])
     try:
         held_out = {name: held_out_errors(state, blocks, replace(priors, ties=group_ties),
                                            noise_px, camera_names, iterations)

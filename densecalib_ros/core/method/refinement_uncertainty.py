@@ -21,10 +21,10 @@ from typing import Optional
 
 import numpy as np
 
-from .decentering import other_lens_model
+from .decentering import decentering_blocks, other_lens_model
 from .image_folds import track_regions
 from .prior_adjustment import (TWO_FOCAL_MODELS, AdjustmentProblem, INTRINSIC_NAMES, Priors,
-                               add_prior_terms, perspective_blocks)
+                               add_prior_terms)
 from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
 from .rotation_spread import fold_rotation_std_deg, model_choice_deg, rotation_std_deg
@@ -62,9 +62,9 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
         state, b, covariances.of_block(b), fold_sigmas.get(b, {}),
         None if "principal point" in determined[b] else held_pp_std_fraction, focal_scale_std)
         for b in covariances.marginals[0]}
-    lens = perspective_blocks(state.intrinsics, blocks)  # those with a lens model to choose
-    choice = model_choice_deg(state, blocks, other_lens_model(
-        held, lens, [m for m in one_cameras if set(m) <= set(lens)]), noise_px) if lens else {}
+    lens, lens_ones = decentering_blocks(state.intrinsics, blocks, one_cameras)
+    choice = model_choice_deg(state, blocks, other_lens_model(held, lens, lens_ones),
+                              noise_px) if lens else {}  # only they have a lens model to choose
     turns = rotation_sigmas(state, covariances, of_block,
                             fold_rotation_std_deg(state, blocks, held, noise_px), choice)
     return {c: replace(of_block[int(state.camera_block[c])], rotation_std_deg=turns.get(c))

@@ -21,6 +21,8 @@ from typing import Sequence
 
 import numpy as np
 
+from ..config import lens_of_model
+
 # Intrinsics tied, as indices into prior_adjustment.INTRINSIC_NAMES: f, k1, k2. Not the principal
 # point: where the images leave it open, the rig's mean of such points is as open, and tied to it
 # the long-lens rigs' points moved further off (docs/design-notes.md, Image refinement: the rig's
@@ -33,7 +35,7 @@ FISHEYE_POOLED_INTRINSICS = POOLED_INTRINSICS + (6, 7)
 
 def pooled_intrinsics(model: str) -> tuple[int, ...]:
     """The intrinsics tied across cameras of this COLMAP model (indices into INTRINSIC_NAMES)."""
-    return FISHEYE_POOLED_INTRINSICS if "FISHEYE" in model else POOLED_INTRINSICS
+    return FISHEYE_POOLED_INTRINSICS if lens_of_model(model) == "fisheye" else POOLED_INTRINSICS
 # The spread between cameras rests on the scatter of their estimates: with two cameras on one
 # difference, too little to tell one model from two.
 MIN_POOLED_CAMERAS = 3

@@ -19,10 +19,10 @@ Where oneDNN has an 8-bit integer kernel that sums exactly (AMX or VNNI: int8_ex
 it), the products are int8_product's instead: unsigned 8-bit row descriptors times the column
 descriptors less 128 (signed 8-bit), summed in int32 and written as float32 with each column's
 squared norm added by the same call, into a tile holding each row's own terms (its squared norm,
-and 256 times its sum, which the shift by 128 takes out). The products, the fill included, take under
-half the float path's time on a CPU with AMX (a quarter of the bytes in, no conversion of the
-inputs; asift's matching 7-13 % less, its reductions and features being the rest), and the sums are exact in int32, so again
-the distances are those of numpy's product to the bit.
+and 256 times its sum, which the shift by 128 takes out). The products, the fill included, take
+under half the float path's time on a CPU with AMX (a quarter of the bytes in, no conversion of the
+inputs; asift's matching 7-13 % less, its reductions and features being the rest), and the sums are
+exact in int32, so again the distances are those of numpy's product to the bit.
 """
 from __future__ import annotations
 
