@@ -612,3 +612,27 @@ def test_an_essential_matrix_with_too_few_inliers_is_a_failed_pair_not_an_opencv
     off = make_config("regular", matcher="sift", second_matcher=None, sfm__num_threads=1)
     result = run_calibration([wide.images[0]], wide.names, off)
     assert len(result.rig.cameras) == 3
+
+
+def test_a_rig_a_noisy_camera_keeps_from_the_image_refinement_is_warned_unrefined(rig):
+    """A camera whose images are too noisy for the patch alignment (no aligned patch correlates
+    at MIN_NCC) while SIFT still matches them: the rig is registered but kept as the SfM found
+    it, and the user is told so, naming the camera and what would fix it; the same rig with a
+    clean camera is refined and not warned."""
+    from densecalib_ros.core.method.dense_matches import MIN_CAMERA_OBSERVATIONS
+
+    config = make_config("regular", matcher="sift", sfm__num_threads=1, consensus_runs=1,
+                         second_matcher=None)
+    noisy = [im.copy() for im in rig.images[0]]
+    noise = np.random.default_rng(0).normal(0.0, 45.0, noisy[3].shape)
+    noisy[3] = np.clip(noisy[3] + noise, 0, 255).astype(np.uint8)
+    for images, thin in ((rig.images[0], None), (noisy, rig.names[3])):
+        q = run_calibration([images], rig.names, config).rig.quality
+        said = [w for w in q.warnings if w.startswith("not refined on the images")]
+        if thin is None:
+            assert q.image_refinement_tracks and not q.image_refinement_too_few_dense and not said
+            continue
+        assert len(q.image_refinement_too_few_dense) == 1
+        assert q.image_refinement_too_few_dense[thin] < MIN_CAMERA_OBSERVATIONS
+        assert q.image_refinement_tracks is None and len(said) == 1
+        assert f"{thin} kept" in said[0] and f"in which {thin} sees" in said[0]

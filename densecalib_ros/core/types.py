@@ -253,6 +253,8 @@ class RigQuality:
     focal_hops: Optional[list] = None  # core.robust.focal_hops, one line per hop
     image_refinement_tracks: Optional[int] = None  # core.method.image_refinement
     image_refinement_noise_px: Optional[float] = None
+    # camera -> dense observations, where too few of them kept the refinement from the rig
+    image_refinement_too_few_dense: Optional[dict] = None
     principal_point_prior_std_fraction: Optional[float] = None
     held_pp_std_fraction: Optional[float] = None  # core.method.uncertainty
     # The runs that disagree whose spread entered f_std and proj_std (uncertainty.with_runs_spread)

@@ -216,6 +216,28 @@ def points_per_image(num_cameras: int) -> int:
     return min(GRID_POINTS_PER_IMAGE, MAX_ALIGNMENTS // max(num_cameras * (num_cameras - 1), 1))
 
 
+# A camera left with fewer dense observations than this is not refined on the images (nor the
+# rig): a handful of correspondences would pull its intrinsics wherever their few errors point.
+MIN_CAMERA_OBSERVATIONS = 50
+
+
+class TooFewDenseCorrespondences(Exception):
+    """Some registered camera keeps fewer than MIN_CAMERA_OBSERVATIONS dense observations once
+    triangulated and gated (thin_cameras): counts is camera name -> its observations."""
+
+    def __init__(self, counts: dict):
+        super().__init__(", ".join(f"{name} ({n})" for name, n in counts.items()))
+        self.counts = counts
+
+
+def thin_cameras(state: SfMState, camera_names: Sequence[str]) -> dict:
+    """Camera name -> dense observations of the registered cameras of `state` (on the dense
+    tracks, triangulated) that keep fewer than MIN_CAMERA_OBSERVATIONS."""
+    per_camera = state.registered_active()[state.point_mask()].sum(axis=0)
+    return {camera_names[c]: int(per_camera[c]) for c in state.registered()
+            if per_camera[c] < MIN_CAMERA_OBSERVATIONS}
+
+
 class Cancelled(Exception):
     """Dense alignments run ahead were called off (first_pass's or dense_tracks' `cancelled`)."""
 

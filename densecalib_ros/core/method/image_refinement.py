@@ -66,7 +66,7 @@ from ..progress import check_stop
 from ..types import Tracks
 from .decentering import decentering_blocks, with_decentering, with_decentering_asked
 from .dense_ahead import DenseAhead
-from .dense_matches import dense_tracks
+from .dense_matches import TooFewDenseCorrespondences, dense_tracks, thin_cameras
 from .focal_determination import (FORWARD_SPREAD_DEG, axes_spread_deg, lenses_adjusted,
                                   probed_focal_scale_std)
 from .image_folds import (FOLD_VALUE_OF, GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_images,
@@ -104,8 +104,6 @@ ONE_CAMERA_ITERATIONS = 20
 ONE_CAMERA_MAX_SCATTER = 1000.0
 PRINCIPAL_POINT_INTRINSICS = (1, 2)  # cx, cy as indices into INTRINSIC_NAMES
 ASPECT = 5  # the pixel aspect's index into INTRINSIC_NAMES
-# A camera left with fewer dense observations than this is not refined here (nor the rig).
-MIN_CAMERA_OBSERVATIONS = 50
 
 
 @dataclass
@@ -145,9 +143,9 @@ def refine_on_images(state: SfMState, frame_sets: Sequence[Sequence[np.ndarray]]
                      pp_centres: Optional[dict] = None,
                      ahead: Optional[DenseAhead] = None,
                      px_scale: Optional[np.ndarray] = None) -> Optional[ImageRefinement]:
-    """The refined state (module docstring), or None where the stage does not apply or the dense
-    correspondences leave a registered camera with too few observations. `state` is not
-    modified. seeds: correspondences (tracks with their frame set) the dense ones are predicted
+    """The refined state (module docstring), or None where the stage does not apply; raises
+    dense_matches.TooFewDenseCorrespondences where the dense correspondences leave a registered
+    camera with too few observations. `state` is not modified. seeds: correspondences (tracks with their frame set) the dense ones are predicted
     from; masks: per camera bool (H, W) regions to ignore, or None; pp_centres: camera name ->
     (cx, cy, width, height) px, the principal point prior's centre where not the image centre
     (used where the camera's images still have that size); ahead: the dense correspondences on
@@ -175,12 +173,9 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
                                        else np.asarray(px_scale, float))
     triangulate_tracks(refined, float(gate_px.max()), seed=seed)
     remove_outlier_observations(refined, gate_px)
-    per_camera = refined.registered_active()[refined.point_mask()].sum(axis=0)
-    thin = [camera_names[c] for c in refined.registered()
-            if per_camera[c] < MIN_CAMERA_OBSERVATIONS]
+    thin = thin_cameras(refined, camera_names)
     if thin:
-        say(f"dense correspondences: too few in {', '.join(thin)}; the rig is kept as found")
-        return None
+        raise TooFewDenseCorrespondences(thin)
     blocks = sorted({int(refined.camera_block[c]) for c in refined.registered()
                      if not refined.intrinsics_fixed(c)})
     centres = {}  # block -> (cx, cy): a previous estimate of the same camera, at this size

@@ -103,9 +103,11 @@ class Calibrator:
             if consensus is not None and consensus.runner_up is not None and \
                     refinement is not None and consensus.refined_disagreement_deg is None:
                 self._refine_runner_up(result, consensus)
+        too_few = self.refined.thin_cameras(result) if self.refined is not None and \
+            refinement is None and not unrefined else None
         result = replace(result, rig=copy.deepcopy(result.rig))  # the record is this one's own
         assemble(result, self.config, names, self.matched.keypoint_tracks, consensus, hops,
-                 refinement)
+                 refinement, too_few)
         return Attempt(result, self.config, self.matched, consensus, refinement,
                        cut_short=self.runs is not None and self.runs.cut_short,
                        unrefined=unrefined, sfm_rig=sfm_rig)

@@ -13,6 +13,7 @@ from ..calibration_result import CalibrationResult
 from ..config import PipelineConfig
 from ..method.focal_determination import (loose_focal_warning, one_camera_hint,
                                           weak_focal_warning)
+from ..method.dense_matches import MIN_CAMERA_OBSERVATIONS
 from ..method.known_intrinsics import describe as describe_known
 from ..method.known_intrinsics import given_intrinsics_warnings
 from ..method.plausibility import unlike_lens_warning
@@ -33,10 +34,13 @@ log = logging.getLogger(__name__)
 
 def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Sequence[str],
              match_tracks: Optional[Tracks], consensus: Optional[ConsensusRecord],
-             focal_hops: Sequence[str], refinement) -> None:
+             focal_hops: Sequence[str], refinement, too_few_dense: Optional[dict] = None
+             ) -> None:
     """Write result.rig's quality record (beyond the fit, which rig_from_state gave it) from the
     run that made it (result.sfm), the consensus, the focal hops and the image refinement
-    (stages.refinement.RefinementRecord or None), and each camera's standard deviations."""
+    (stages.refinement.RefinementRecord or None; too_few_dense: RefinedRuns.thin_cameras where
+    too few dense correspondences kept it from the rig), and each camera's standard
+    deviations."""
     rig, quality = result.rig, result.rig.quality
     sfm = result.sfm
     quality.update(pipeline=sfm.pipeline, preset=sfm.preset, sfm_runtime_s=sfm.sfm_runtime_s,
@@ -55,6 +59,8 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
                 f"{a}/{b}": round(deg, 1) for a, b, deg in consensus.least_determined_pairs}
     if focal_hops:
         quality.focal_hops = list(focal_hops)
+    if too_few_dense:
+        quality.image_refinement_too_few_dense = dict(too_few_dense)
     if refinement is not None:
         quality.update(image_refinement_tracks=refinement.num_tracks,
                        image_refinement_noise_px=refinement.noise_px,
@@ -142,6 +148,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
     if rematch is None:
         out.append(unregistered_warning(rig, on_sift))
     out.append(pairwise_only_warning(rig))
+    out.append(unrefined_warning(rig))
     out += given_intrinsics_warnings(rig.quality.given_intrinsics_fit or {})
     out += [unlike_lens_warning(rig), weak_focal_warning(rig)]
     if rematch is None:
@@ -244,6 +251,26 @@ def pairwise_only_warning(rig: RigCalibration) -> Optional[str]:
             "three or more cameras see the same things (a person crossing the middle), give "
             "keypoints of what moves (--keypoints), or check the layout (densecalib report "
             "--plot) before relying on it.")
+
+
+def unrefined_warning(rig: RigCalibration) -> Optional[str]:
+    """The warning for a rig the image refinement left as the SfM found it because a camera kept
+    too few dense correspondences (RigQuality.image_refinement_too_few_dense); None otherwise.
+    The refinement is the step that pins down each camera's principal point and focal length,
+    and with them its rotation, on unbiased correspondences (core.method.dense_matches); without
+    it the rig rests on keypoint matches, whose bias it was built to remove."""
+    thin = rig.quality.image_refinement_too_few_dense
+    if not thin:
+        return None
+    them, one = " and ".join(thin), len(thin) == 1
+    return (f"not refined on the images: {them} kept "
+            f"{' and '.join(str(k) for k in thin.values())} dense observations, fewer than the "
+            f"{MIN_CAMERA_OBSERVATIONS} a camera needs, so "
+            "the rig rests on the keypoint matches alone, without the refinement that pins down "
+            "each camera's principal point and focal length and with them its rotation. Add "
+            f"frame sets in which {them} {'sees' if one else 'see'} textured things the other "
+            f"cameras see as well, or give {'its' if one else 'their'} intrinsics from a lab "
+            "calibration (--intrinsics NAME=FILE).")
 
 
 def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False

@@ -13,7 +13,7 @@ import numpy as np
 from ..calibration_result import CalibrationResult, result_with_state, rig_from_state
 from ..config import PipelineConfig
 from ..method.dense_ahead import DenseAhead
-from ..method.dense_matches import keypoint_px_scale
+from ..method.dense_matches import TooFewDenseCorrespondences, keypoint_px_scale
 from ..method.image_refinement import PP_PRIOR_STD_FRACTION, ImageRefinement, refine_on_images
 from ..method.prior_adjustment import SUPPORTED_MODELS
 from ..method.uncertainty import estimated_principal_points
@@ -65,7 +65,8 @@ class RefinedRuns:
         self.images, self.matched, self.config, self.ahead = images, matched, config, ahead
         self.pp_centres = estimated_principal_points(previous)
         self.px_scale = keypoint_px_scale(images.image_sizes, config.max_image_side_px)
-        self._done: list[tuple] = []  # (state, its refinement or None, its messages)
+        # (state, its refinement or None, its messages, its thin cameras or None)
+        self._done: list[tuple] = []
 
     def refinement(self, result: CalibrationResult, progress: Optional[Progress] = None
                    ) -> Optional[ImageRefinement]:
@@ -80,17 +81,27 @@ class RefinedRuns:
             # identical units, estimated as one by the SfM: each unit's own from here, as one
             # camera where the images do not tell them apart (the refinement's one-camera test)
             units = [c for group in self.config.sfm.shared_intrinsics_groups for c in group]
-            refinement = refine_on_images(state.with_own_blocks(units) if units else state,
-                                          self.images.frame_sets,
-                                          _seeds(result, self.matched.keypoint_tracks),
-                                          self.images.camera_names, self.images.ignored or None,
-                                          self.config.sampling.seed, messages.append,
-                                          self.pp_centres, self.ahead, self.px_scale)
-            found = (state, refinement, messages)
+            thin = None
+            try:
+                refinement = refine_on_images(
+                    state.with_own_blocks(units) if units else state, self.images.frame_sets,
+                    _seeds(result, self.matched.keypoint_tracks), self.images.camera_names,
+                    self.images.ignored or None, self.config.sampling.seed, messages.append,
+                    self.pp_centres, self.ahead, self.px_scale)
+            except TooFewDenseCorrespondences as exc:
+                refinement, thin = None, exc.counts
+                messages.append(f"dense correspondences: too few in {exc}; the rig is kept as "
+                                "found")
+            found = (state, refinement, messages, thin)
             self._done.append(found)
         for message in found[2] if progress is not None else ():
             progress.say(message)
         return found[1]
+
+    def thin_cameras(self, result: CalibrationResult) -> Optional[dict]:
+        """Where refining result met too few dense correspondences (dense_matches.
+        TooFewDenseCorrespondences): camera name -> its dense observations; else None."""
+        return next((done[3] for done in self._done if done[0] is result.state), None)
 
     def seconds_waited(self, result: CalibrationResult) -> Optional[float]:
         """About how long refining result will wait for its dense correspondences still found
