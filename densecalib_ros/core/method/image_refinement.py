@@ -145,8 +145,9 @@ def refine_on_images(state: SfMState, frame_sets: Sequence[Sequence[np.ndarray]]
                      px_scale: Optional[np.ndarray] = None) -> Optional[ImageRefinement]:
     """The refined state (module docstring), or None where the stage does not apply; raises
     dense_matches.TooFewDenseCorrespondences where the dense correspondences leave a registered
-    camera with too few observations. `state` is not modified. seeds: correspondences (tracks with their frame set) the dense ones are predicted
-    from; masks: per camera bool (H, W) regions to ignore, or None; pp_centres: camera name ->
+    camera with too few observations. `state` is not modified. seeds: correspondences (tracks
+    with their frame set) the dense ones are predicted from; masks: per camera bool (H, W)
+    regions to ignore, or None; pp_centres: camera name ->
     (cx, cy, width, height) px, the principal point prior's centre where not the image centre
     (used where the camera's images still have that size); ahead: the dense correspondences on
     these frame sets, seeds and masks as far as they were found ahead (DenseAhead), or None;

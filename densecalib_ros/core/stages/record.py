@@ -11,9 +11,9 @@ import numpy as np
 
 from ..calibration_result import CalibrationResult
 from ..config import PipelineConfig
+from ..method.dense_matches import MIN_CAMERA_OBSERVATIONS
 from ..method.focal_determination import (loose_focal_warning, one_camera_hint,
                                           weak_focal_warning)
-from ..method.dense_matches import MIN_CAMERA_OBSERVATIONS
 from ..method.known_intrinsics import describe as describe_known
 from ..method.known_intrinsics import given_intrinsics_warnings
 from ..method.plausibility import unlike_lens_warning
