@@ -506,3 +506,32 @@ def test_fisheye_rigs_are_refined_on_the_images_where_their_layout_allows():
     assert not lenses_adjusted(["OPENCV_FISHEYE"] * 2, [ahead, ahead])
     assert lenses_adjusted(["OPENCV_FISHEYE"] * 2, [ahead, turned])
     assert lenses_adjusted(["RADIAL"] * 2, [ahead, ahead])
+
+
+def test_dense_points_that_leave_groups_of_cameras_unlinked_are_found_and_warned():
+    """Cameras 0-1 and 2-3 whose points are never seen across the groups: two groups, and the
+    rig refined on them is warned that how the groups stand rests on the keypoint matches; one
+    group where the points tie every camera, and no warning."""
+    from densecalib_ros.core.method.dense_matches import dense_groups
+    from densecalib_ros.core.method.reconstruction import SfMState, triangulate_tracks
+    from densecalib_ros.core.stages.record import groups_apart_warning
+    from densecalib_ros.core.types import RigQuality
+    from sfm_fixtures import gt_calibration, gt_rig, gt_tracks
+
+    cams, poses = gt_rig(4, seed=2)
+    names = [f"cam{c}" for c in range(4)]
+    found = {}
+    for split in (None, [[0, 1], [2, 3]]):
+        state = SfMState.create(gt_tracks(cams, poses, noise_px=0.3, outlier_frac=0.0, seed=2,
+                                          groups=split), cams)
+        state.cam_from_world = [T.copy() for T in poses]
+        triangulate_tracks(state, max_error_px=5.0)
+        found[split is None] = dense_groups(state, names)
+    assert found[True] == [names]
+    assert found[False] == [["cam0", "cam1"], ["cam2", "cam3"]]
+    rig = gt_calibration(names, cams, poses)
+    rig.quality = RigQuality(image_refinement_groups_apart=found[False])
+    said = groups_apart_warning(rig)
+    assert "{cam0, cam1} and {cam2, cam3}" in said and "keypoint matches alone" in said
+    rig.quality = RigQuality()
+    assert groups_apart_warning(rig) is None

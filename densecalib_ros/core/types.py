@@ -255,6 +255,8 @@ class RigQuality:
     image_refinement_noise_px: Optional[float] = None
     # camera -> dense observations, where too few of them kept the refinement from the rig
     image_refinement_too_few_dense: Optional[dict] = None
+    # the camera groups its dense points leave unconnected, where there are two or more
+    image_refinement_groups_apart: Optional[list] = None
     principal_point_prior_std_fraction: Optional[float] = None
     held_pp_std_fraction: Optional[float] = None  # core.method.uncertainty
     # The runs that disagree whose spread entered f_std and proj_std (uncertainty.with_runs_spread)

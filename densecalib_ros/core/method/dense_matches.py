@@ -35,6 +35,8 @@ from ..types import Tracks
 from .matching.utils import to_gray
 from .patch_alignment import align
 from .reconstruction import SfMState
+from .incremental import MIN_REGISTRATION_POINTS
+from .view_graph import connected_components
 
 log = logging.getLogger(__name__)
 
@@ -236,6 +238,21 @@ def thin_cameras(state: SfMState, camera_names: Sequence[str]) -> dict:
     per_camera = state.registered_active()[state.point_mask()].sum(axis=0)
     return {camera_names[c]: int(per_camera[c]) for c in state.registered()
             if per_camera[c] < MIN_CAMERA_OBSERVATIONS}
+
+
+def dense_groups(state: SfMState, camera_names: Sequence[str]) -> list[list[str]]:
+    """The registered cameras of `state` (on the dense tracks, triangulated) in the groups its
+    points connect: two cameras are linked where they observe MIN_REGISTRATION_POINTS points in
+    common (fewer could not register one on the other's points). One group where the points tie
+    the whole rig together; more where they leave groups without such a link, whose poses
+    relative to one another the dense correspondences then do not determine."""
+    reg = state.registered()
+    seen = state.registered_active()[state.point_mask()][:, reg].astype(np.int64)
+    shared = seen.T @ seen
+    edges = [(i, j) for i in range(len(reg)) for j in range(i + 1, len(reg))
+             if shared[i, j] >= MIN_REGISTRATION_POINTS]
+    return [[camera_names[reg[k]] for k in group]
+            for group in connected_components(len(reg), edges)]
 
 
 class Cancelled(Exception):

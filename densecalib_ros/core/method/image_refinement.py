@@ -66,7 +66,8 @@ from ..progress import check_stop
 from ..types import Tracks
 from .decentering import decentering_blocks, with_decentering, with_decentering_asked
 from .dense_ahead import DenseAhead
-from .dense_matches import TooFewDenseCorrespondences, dense_tracks, thin_cameras
+from .dense_matches import (TooFewDenseCorrespondences, dense_groups, dense_tracks,
+                            thin_cameras)
 from .focal_determination import (FORWARD_SPREAD_DEG, axes_spread_deg, lenses_adjusted,
                                   probed_focal_scale_std)
 from .image_folds import (FOLD_VALUE_OF, GATE_SIGMAS, HOLDOUT_FOLDS, determined_by_images,
@@ -121,6 +122,9 @@ class ImageRefinement:
     # The one-camera test's verdicts (rig_ties): the cameras of each group tested -> whether
     # they fit held-out correspondences as one camera does.
     one_camera: dict = field(default_factory=dict)
+    # The cameras in groups the dense points do not connect (dense_matches.dense_groups), where
+    # there are two or more; else empty.
+    apart: list = field(default_factory=list)
 
 
 def applies(state: SfMState) -> bool:
@@ -238,7 +242,9 @@ def _refine(state, frame_sets, seeds, camera_names, masks, seed, say, pp_centres
     verdicts = {tuple(camera_names[c] for c in refined.registered()
                       if int(refined.camera_block[c]) in members): members in one_cameras
                 for members in judged}
-    return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas, verdicts)
+    groups = dense_groups(refined, camera_names)
+    return ImageRefinement(refined, adjustment, tracks.num_tracks, estimated, sigmas, verdicts,
+                           groups if len(groups) > 1 else [])
 
 
 def _held_square(state: SfMState, blocks: list[int], priors: tuple[Priors, Priors],

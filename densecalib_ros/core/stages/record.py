@@ -61,6 +61,8 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
         quality.focal_hops = list(focal_hops)
     if too_few_dense:
         quality.image_refinement_too_few_dense = dict(too_few_dense)
+    if refinement is not None and refinement.apart:
+        quality.image_refinement_groups_apart = [list(g) for g in refinement.apart]
     if refinement is not None:
         quality.update(image_refinement_tracks=refinement.num_tracks,
                        image_refinement_noise_px=refinement.noise_px,
@@ -148,7 +150,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
     if rematch is None:
         out.append(unregistered_warning(rig, on_sift))
     out.append(pairwise_only_warning(rig))
-    out.append(unrefined_warning(rig))
+    out += [unrefined_warning(rig), groups_apart_warning(rig)]
     out += given_intrinsics_warnings(rig.quality.given_intrinsics_fit or {})
     out += [unlike_lens_warning(rig), weak_focal_warning(rig)]
     if rematch is None:
@@ -271,6 +273,22 @@ def unrefined_warning(rig: RigCalibration) -> Optional[str]:
             f"frame sets in which {them} {'sees' if one else 'see'} textured things the other "
             f"cameras see as well, or give {'its' if one else 'their'} intrinsics from a lab "
             "calibration (--intrinsics NAME=FILE).")
+
+
+def groups_apart_warning(rig: RigCalibration) -> Optional[str]:
+    """The warning for a rig refined on dense correspondences that leave its cameras in groups
+    sharing too few points (RigQuality.image_refinement_groups_apart): how the groups stand to
+    one another rests on the keypoint matches alone, and their rotation sigmas, which the dense
+    correspondences give, say they are not determined. None otherwise."""
+    groups = rig.quality.image_refinement_groups_apart
+    if not groups:
+        return None
+    said = " and ".join("{" + ", ".join(g) + "}" for g in groups)
+    return (f"the dense correspondences leave the cameras in {len(groups)} groups that share "
+            f"too few points, {said}: each group is refined on the images, but how the groups stand to "
+            "one another rests on the keypoint matches alone (their rotation sigmas say the images "
+            "leave it open). Add frame sets in which cameras of different groups see the same "
+            "textured things.")
 
 
 def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False

@@ -29,7 +29,8 @@ class RefinementRecord:
     """What the stage did to the kept rig, for the quality record: the dense tracks it adjusted
     on, their noise (px), the principal point prior's sigma (fraction of the long side), per
     camera the intrinsics the images determined, per camera its CameraUncertainty, and the
-    one-camera test's verdicts (ImageRefinement.one_camera)."""
+    one-camera test's verdicts (ImageRefinement.one_camera), and the camera groups its points do
+    not connect (ImageRefinement.apart)."""
 
     num_tracks: int
     noise_px: float
@@ -37,6 +38,7 @@ class RefinementRecord:
     estimated: dict
     sigmas: dict
     one_camera: dict = field(default_factory=dict)
+    apart: list = field(default_factory=list)  # ImageRefinement.apart
 
 
 def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig
@@ -146,7 +148,7 @@ class RefinedRuns:
                                          round(refinement.adjustment.noise_px, 4),
                                          PP_PRIOR_STD_FRACTION, dict(refinement.estimated),
                                          dict(refinement.uncertainty),
-                                         dict(refinement.one_camera))
+                                         dict(refinement.one_camera), list(refinement.apart))
 
     def close(self) -> None:
         """Stop the work still run ahead (a calibration that ends without it)."""
