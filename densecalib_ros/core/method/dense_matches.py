@@ -32,10 +32,10 @@ from scipy.spatial import cKDTree
 from ..parallel import available_cores
 from ..progress import check_stop
 from ..types import Tracks
+from .incremental import MIN_REGISTRATION_POINTS
 from .matching.utils import to_gray
 from .patch_alignment import align
 from .reconstruction import SfMState
-from .incremental import MIN_REGISTRATION_POINTS
 from .view_graph import connected_components
 
 log = logging.getLogger(__name__)

@@ -285,10 +285,10 @@ def groups_apart_warning(rig: RigCalibration) -> Optional[str]:
         return None
     said = " and ".join("{" + ", ".join(g) + "}" for g in groups)
     return (f"the dense correspondences leave the cameras in {len(groups)} groups that share "
-            f"too few points, {said}: each group is refined on the images, but how the groups stand to "
-            "one another rests on the keypoint matches alone (their rotation sigmas say the images "
-            "leave it open). Add frame sets in which cameras of different groups see the same "
-            "textured things.")
+            f"too few points, {said}: each group is refined on the images, but how the groups "
+            "stand to one another rests on the keypoint matches alone (their rotation sigmas say "
+            "the images leave it open). Add frame sets in which cameras of different groups see "
+            "the same textured things.")
 
 
 def unregistered_warning(rig: RigCalibration, perspective_on_sift: bool = False

@@ -28,8 +28,8 @@ from .matching import Matched
 class RefinementRecord:
     """What the stage did to the kept rig, for the quality record: the dense tracks it adjusted
     on, their noise (px), the principal point prior's sigma (fraction of the long side), per
-    camera the intrinsics the images determined, per camera its CameraUncertainty, and the
-    one-camera test's verdicts (ImageRefinement.one_camera), and the camera groups its points do
+    camera the intrinsics the images determined, per camera its CameraUncertainty, the
+    one-camera test's verdicts (ImageRefinement.one_camera) and the camera groups its points do
     not connect (ImageRefinement.apart)."""
 
     num_tracks: int
