@@ -36,7 +36,7 @@ from .incremental import MIN_REGISTRATION_POINTS
 from .matching.utils import to_gray
 from .patch_alignment import align
 from .reconstruction import SfMState
-from .view_graph import connected_components
+from .view_graph import connected_components, shared_counts
 
 log = logging.getLogger(__name__)
 
@@ -247,8 +247,7 @@ def dense_groups(state: SfMState, camera_names: Sequence[str]) -> list[list[str]
     the whole rig together; more where they leave groups without such a link, whose poses
     relative to one another the dense correspondences then do not determine."""
     reg = state.registered()
-    seen = state.registered_active()[state.point_mask()][:, reg].astype(np.int64)
-    shared = seen.T @ seen
+    shared = shared_counts(state.registered_active()[state.point_mask()][:, reg])
     edges = [(i, j) for i in range(len(reg)) for j in range(i + 1, len(reg))
              if shared[i, j] >= MIN_REGISTRATION_POINTS]
     return [[camera_names[reg[k]] for k in group]

@@ -105,8 +105,8 @@ ADJUSTED_MODELS = ("RADIAL", "OPENCV") + FISHEYE_MODELS
 
 def perspective_blocks(intrinsics: Sequence[CameraIntrinsics], blocks: Sequence[int]) -> list[int]:
     """The blocks of `blocks` whose model is a perspective one (intrinsics: per block): those
-    whose last two parameters are a decentering (p1, p2); a fisheye block's are its k3, k4,
-    which the image refinement holds where the SfM put them."""
+    whose last two parameters are a decentering (p1, p2); a fisheye block's are its k3, k4, free
+    as its k1, k2 are."""
     return [b for b in blocks if intrinsics[b].model not in FISHEYE_MODELS]
 
 
@@ -119,13 +119,9 @@ def intrinsics_vector(cam: CameraIntrinsics) -> np.ndarray:
         return np.array([p[0], p[2], p[3], 0, 0, p[1] / p[0] - 1.0, 0, 0])
     if cam.model == "SIMPLE_RADIAL":
         return np.array([p[0], p[1], p[2], p[3], 0, 0, 0, 0])
-    if cam.model == "RADIAL":
+    if cam.model in ("RADIAL", "RADIAL_FISHEYE"):
         return np.array([p[0], p[1], p[2], p[3], p[4], 0, 0, 0])
-    if cam.model == "OPENCV":
-        return np.array([p[0], p[2], p[3], p[4], p[5], p[1] / p[0] - 1.0, p[6], p[7]])
-    if cam.model == "RADIAL_FISHEYE":
-        return np.array([p[0], p[1], p[2], p[3], p[4], 0, 0, 0])
-    if cam.model == "OPENCV_FISHEYE":
+    if cam.model in TWO_FOCAL_MODELS:  # a fisheye's k3, k4 in p1's and p2's places
         return np.array([p[0], p[2], p[3], p[4], p[5], p[1] / p[0] - 1.0, p[6], p[7]])
     raise ValueError(f"prior adjustment: a {cam.model} camera; it projects "
                      f"{', '.join(SUPPORTED_MODELS)}")

@@ -36,6 +36,8 @@ FISHEYE_POOLED_INTRINSICS = POOLED_INTRINSICS + (6, 7)
 def pooled_intrinsics(model: str) -> tuple[int, ...]:
     """The intrinsics tied across cameras of this COLMAP model (indices into INTRINSIC_NAMES)."""
     return FISHEYE_POOLED_INTRINSICS if lens_of_model(model) == "fisheye" else POOLED_INTRINSICS
+
+
 # The spread between cameras rests on the scatter of their estimates: with two cameras on one
 # difference, too little to tell one model from two.
 MIN_POOLED_CAMERAS = 3

@@ -12,7 +12,12 @@ from ..types import Tracks
 
 def pair_track_counts(tracks: Tracks) -> np.ndarray:
     """int (C, C): number of tracks observed by both cameras (diagonal 0)."""
-    obs = tracks.observed().astype(np.int64)
+    return shared_counts(tracks.observed())
+
+
+def shared_counts(observed: np.ndarray) -> np.ndarray:
+    """int (C, C) from bool (T, C): the rows observed by both cameras (diagonal 0)."""
+    obs = np.asarray(observed).astype(np.int64)
     counts = obs.T @ obs
     np.fill_diagonal(counts, 0)
     return counts
