@@ -133,10 +133,10 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
              match_tracks: Optional[Tracks], keypoints: bool = False,
              units_apart_deg: Optional[float] = None) -> list[str]:
     """What the user is warned of about the finished rig: runs that still disagree as it stands,
-    a camera not registered, cameras placed by pairs alone, given intrinsics that do not fit,
-    lenses unlike a real one, focal lengths the images leave open or looser than the aim; after a
-    second matcher, what it gave. keypoints: pose keypoints joined the matches (named with them);
-    units_apart_deg: as consensus.disagreement_warning's."""
+    a camera not registered, cameras placed by pairs alone or loosely, given intrinsics that do
+    not fit, lenses unlike a real one, focal lengths the images leave open or looser than the
+    aim; after a second matcher, what it gave. keypoints: pose keypoints joined the matches
+    (named with them); units_apart_deg: as consensus.disagreement_warning's."""
     with_keypoints = " and the keypoints" if keypoints else ""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     out = []
@@ -152,7 +152,8 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
     out.append(pairwise_only_warning(rig))
     out += [unrefined_warning(rig), groups_apart_warning(rig)]
     out += given_intrinsics_warnings(rig.quality.given_intrinsics_fit or {})
-    out += [unlike_lens_warning(rig), weak_focal_warning(rig)]
+    # the loose rotations after the causes that may explain them
+    out += [unlike_lens_warning(rig), weak_focal_warning(rig), loose_rotation_warning(rig)]
     if rematch is None:
         out.append(loose_focal_warning(rig, f"{config.matcher}'s matches{with_keypoints}"))
     else:
@@ -273,6 +274,42 @@ def unrefined_warning(rig: RigCalibration) -> Optional[str]:
             f"frame sets in which {them} {'sees' if one else 'see'} textured things the other "
             f"cameras see as well, or give {'its' if one else 'their'} intrinsics from a lab "
             "calibration (--intrinsics NAME=FILE).")
+
+
+# A camera placed to this (1 sigma, relative to the reference camera) may well be twice as far
+# off: 3 deg, where a pair of cameras stops counting as right (AUC@3) and a tracker's rays
+# from the two miss by 5 cm at a metre; the calibration reaches a tenth of a degree where the
+# images determine the rig.
+LOOSE_ROTATION_STD_DEG = 1.5
+
+
+def loose_rotation_warning(rig: RigCalibration) -> Optional[str]:
+    """The warning for a rig in which the image refinement's own sigmas place some camera's
+    rotation more loosely than LOOSE_ROTATION_STD_DEG; None otherwise, and where another warning
+    says why already: runs that disagree (their spread is in the sigmas,
+    RigQuality.sigmas_runs_spread) or groups the dense points leave apart
+    (groups_apart_warning)."""
+    quality = rig.quality
+    if quality.sigmas_runs_spread or quality.image_refinement_groups_apart:
+        return None
+    loose = sorted(((cam.quality.rotation_std_deg, name) for name, cam in rig.cameras.items()
+                    if cam.quality is not None and cam.quality.rotation_std_deg is not None
+                    and cam.quality.rotation_std_deg > LOOSE_ROTATION_STD_DEG), reverse=True)
+    if not loose:
+        return None
+
+    def listed(items: list) -> str:
+        return ", ".join(items[:-1]) + " and " + items[-1] if len(items) > 1 else items[0]
+
+    them = listed([name for _, name in loose])
+    return (f"cameras placed loosely: the calibration's own rotation sigmas are "
+            f"{listed([f'{name} {std:.1f} deg' for std, name in loose])} (relative to "
+            f"{rig.reference_camera}), so a pair may be "
+            f"{2 * LOOSE_ROTATION_STD_DEG:.0f} deg or more off. The images leave "
+            f"{'its' if len(loose) == 1 else 'their'} rotation open against the principal point "
+            f"and focal length: add frame sets in which {them} "
+            f"{'sees' if len(loose) == 1 else 'see'} textured things the other cameras see as "
+            "well, or give the intrinsics from a lab calibration (--intrinsics NAME=FILE).")
 
 
 def groups_apart_warning(rig: RigCalibration) -> Optional[str]:
