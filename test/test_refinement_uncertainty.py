@@ -9,7 +9,8 @@ from densecalib_ros.core.method.image_folds import track_regions
 from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
 from densecalib_ros.core.method.reconstruction import triangulate_tracks
 from densecalib_ros.core.method.refinement_uncertainty import (camera_uncertainty,
-                                                              posterior_covariances)
+                                                               held_point_std_px,
+                                                               posterior_covariances)
 from densecalib_ros.core.types import CameraIntrinsics
 
 NUM_CAMERAS = 5
@@ -72,8 +73,22 @@ def test_a_camera_reports_the_largest_sigma_each_source_gives():
     wider = camera_uncertainty(state, 0, pair, folds, None)
     assert wider.focal_std_px == pytest.approx(3.0 * focal)
     assert wider.principal_point_std_px == pytest.approx(4.0 * pp)
-    held = camera_uncertainty(state, 0, pair, folds, 0.01).principal_point_std_px
-    assert held == pytest.approx(0.01 * max(state.intrinsics[0].width, state.intrinsics[0].height))
+    held = camera_uncertainty(state, 0, pair, folds, 6.4).principal_point_std_px
+    assert held == pytest.approx(6.4)
+
+
+def test_a_held_principal_points_sigma_weighs_the_folds_with_the_prior():
+    """Held where the images' estimate and the prior weighed by their spreads put it, the point
+    is as uncertain as that precision-weighted mean, per axis (the larger reported): the folds'
+    6.4 px against a prior of 12.8 px gives 5.72 px; an axis the folds place to 0.85 px adds
+    nothing beside it; folds that gave no sigma leave the prior's."""
+    cam = CameraIntrinsics("RADIAL", 1280, 720, np.array([426.0, 640.0, 360.0, 0.0, 0.0]))
+    folds = dict(principal_point_axes_px=(6.4, 0.85))
+    assert held_point_std_px(cam, folds, 0.01) == pytest.approx(
+        1.0 / np.sqrt(6.4 ** -2 + 12.8 ** -2))
+    assert held_point_std_px(cam, dict(principal_point_axes_px=(np.inf, np.nan)), 0.01) == \
+        pytest.approx(12.8)
+    assert held_point_std_px(cam, {}, 0.01) == pytest.approx(12.8)
 
 
 def test_the_projection_sigma_is_no_smaller_than_its_parts_reported():
@@ -90,5 +105,5 @@ def test_the_projection_sigma_is_no_smaller_than_its_parts_reported():
                  principal_point_axes_px=(0.1, 4.0 * own.principal_point_std_px))
     wider = camera_uncertainty(state, 0, pair, folds, None)
     assert wider.projection_std_px >= wider.principal_point_std_px > own.projection_std_px
-    held = camera_uncertainty(state, 0, pair, folds, 0.01)
+    held = camera_uncertainty(state, 0, pair, folds, 6.4)
     assert held.projection_std_px >= held.principal_point_std_px

@@ -55,12 +55,14 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
     under): the covariances take the first, so that a held principal point may be off by its
     prior's spread and the focal length leans on it; the folds and the lens model's choice refit
     under the second. determined, fold_sigmas: image_folds.determined_by_images'; a principal
-    point the images do not determine has the sigma held_pp_std_fraction of the long side."""
+    point the images do not determine has held_point_std_px's sigma (its prior's spread,
+    held_pp_std_fraction of the long side, weighed with the folds')."""
     in_place, held = priors
     covariances = posterior_covariances(state, blocks, in_place, noise_px, track_regions(state))
     of_block = {b: camera_uncertainty(
         state, b, covariances.of_block(b), fold_sigmas.get(b, {}),
-        None if "principal point" in determined[b] else held_pp_std_fraction, focal_scale_std)
+        None if "principal point" in determined[b] else held_point_std_px(
+            state.intrinsics[b], fold_sigmas.get(b, {}), held_pp_std_fraction), focal_scale_std)
         for b in covariances.marginals[0]}
     lens, lens_ones = decentering_blocks(state.intrinsics, blocks, one_cameras)
     choice = model_choice_deg(state, blocks, other_lens_model(held, lens, lens_ones),
@@ -100,19 +102,35 @@ def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, no
                                  tuple(block_marginals(problem, c, blocks) for c in full))
 
 
+def held_point_std_px(cam, fold_sigmas: dict, prior_fraction: float) -> float:
+    """The sigma (px, the larger axis) of a principal point held where the images' estimate and
+    the prior weighed by their spreads put it (image_refinement._hold_principal_points): per
+    axis that of the precision-weighted mean of the two, the folds' sigma
+    (fold_sigmas["principal_point_axes_px"]) and the prior's (prior_fraction of the long side);
+    the prior's where the folds gave none. A point the folds place to 6.4 px against a prior of
+    12.8 px is held to 5.7 px, not 12.8: the prior's spread alone, carried into each camera's
+    rotation, made right rigs of a few cameras report rotation sigmas of 2 deg for errors of
+    0.6 (docs/design-notes.md, Cameras placed loosely: warned)."""
+    prior_px = prior_fraction * max(cam.width, cam.height)
+    axes = np.asarray(fold_sigmas.get("principal_point_axes_px", (np.inf, np.inf)), float)
+    with np.errstate(divide="ignore"):
+        precision = np.where(np.isfinite(axes) & (axes > 0), axes ** -2.0, 0.0)
+    return float(np.max(1.0 / np.sqrt(precision + prior_px ** -2.0)))
+
+
 def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sigmas: dict,
-                       held_pp_std_fraction: Optional[float], focal_scale_std: float = 0.0
+                       held_pp_std_px: Optional[float], focal_scale_std: float = 0.0
                        ) -> CameraUncertainty:
     """Focal, principal point and projection standard deviations of a block in its COLMAP
     model: per quantity the largest that the covariances of INTRINSIC_NAMES (posterior_covariances'
     two) give, the focal's and an estimated principal point's at least the folds' (fold_sigmas:
     image_folds.determined_by_images), the focal's at least focal_scale_std (a fraction:
-    focal_determination.probed_focal_scale_std) of it. held_pp_std_fraction: a held principal
-    point's sigma as a fraction of the long side (its prior's: at most as far off as real lenses'
-    offsets); None where estimated. The projection's is at least what the wider of the two
-    covariances (in focal length and principal point) gives with those two widened to the
-    sigmas reported: a projection sigma below its own principal point's would contradict it (a
-    point off by sigma moves every image point by about that much)."""
+    focal_determination.probed_focal_scale_std) of it. held_pp_std_px: a held principal
+    point's sigma (held_point_std_px; at least the covariances'); None where estimated. The
+    projection's is at least what the wider of the two covariances (in focal length and
+    principal point) gives with those two widened to the sigmas reported: a projection sigma
+    below its own principal point's would contradict it (a point off by sigma moves every image
+    point by about that much)."""
     cam = state.intrinsics[block]
     two = cam.model in TWO_FOCAL_MODELS
     f, a = cam.params[0], (cam.params[1] / cam.params[0] - 1.0 if two else 0.0)
@@ -127,15 +145,15 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
     mean_focal = np.zeros(n)
     mean_focal[0], mean_focal[5] = 1.0 + a / 2.0, f / 2.0
     focal_std = max(fold_sigmas.get("focal_px", 0.0), focal_scale_std * f * (1.0 + a / 2.0))
-    pp_std = max(fold_sigmas.get("principal_point_axes_px", (0.0,)))
+    # held: the weighted mean's, which the folds' spread already entered; else the folds'
+    pp_std = held_pp_std_px if held_pp_std_px is not None else \
+        max(fold_sigmas.get("principal_point_axes_px", (0.0,)))
     projection = 0.0
     for cov in covariances:
         focal_std = max(focal_std, float(np.sqrt(max(mean_focal @ cov @ mean_focal, 0.0))))
         pp_std = max(pp_std, float(np.sqrt(max(cov[1, 1], cov[2, 2], 0.0))))
         projection = max(projection, projection_std_px(
             cam.to_pycolmap(), list(range(len(cam.params))), J @ cov @ J.T))
-    if held_pp_std_fraction is not None:
-        pp_std = held_pp_std_fraction * max(cam.width, cam.height)
     cov = max(covariances, key=lambda c: np.trace(c[:3, :3]))  # widened below
     scale = widening(cam, cov, focal_std, pp_std)
     widened = projection_std_px(cam.to_pycolmap(), list(range(len(cam.params))),

@@ -232,7 +232,7 @@ def intrinsics_note(rig: RigCalibration) -> str:
         PrincipalPoint.PRIOR: f"principal point resting on its prior ({prior}): the images do not "
                               "pin it down, so it was placed between their estimate and the "
                               "prior's centre, weighed by their spreads, and held there (pp_std: "
-                              "how far a real lens's may lie): {}",
+                              "that weighted mean's): {}",
         PrincipalPoint.CENTRE: "principal point held exactly at the image centre: {}",
         PrincipalPoint.HELD: "principal point held where the calibration started it: {}",
         PrincipalPoint.GIVEN: "principal point given (--intrinsics) and kept: {}",
