@@ -27,6 +27,7 @@ from .prior_adjustment import (TWO_FOCAL_MODELS, AdjustmentProblem, INTRINSIC_NA
                                add_prior_terms)
 from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
+from .rig_pooling import one_value
 from .rotation_spread import fold_rotation_std_deg, model_choice_deg, rotation_std_deg
 from .uncertainty import CameraUncertainty, projection_std_px
 
@@ -113,9 +114,8 @@ def held_point_std_px(cam, fold_sigmas: dict, prior_fraction: float) -> float:
     0.6 (docs/design-notes.md, Cameras placed loosely: warned)."""
     prior_px = prior_fraction * max(cam.width, cam.height)
     axes = np.asarray(fold_sigmas.get("principal_point_axes_px", (np.inf, np.inf)), float)
-    with np.errstate(divide="ignore"):
-        precision = np.where(np.isfinite(axes) & (axes > 0), axes ** -2.0, 0.0)
-    return float(np.max(1.0 / np.sqrt(precision + prior_px ** -2.0)))
+    axes = np.where(np.isfinite(axes) & (axes > 0), axes, np.inf)  # no sigma: no weight
+    return max(one_value([0.0, 0.0], [axis, prior_px]).mean_std for axis in axes)
 
 
 def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sigmas: dict,
