@@ -12,9 +12,9 @@ from densecalib_ros.core import InputError, calibrate_from_tracks, make_config
 from densecalib_ros.core.method.multistart import WORSE_FIT_RATIO
 from densecalib_ros.core.products.report import overall_lines
 from densecalib_ros.core.robust.consensus import WARN_DISAGREEMENT_DEG
-from densecalib_ros.core.robust.one_model import (as_one_model, fit_costs_px, judged_one_camera,
-                                                  judged_several, one_model_applies,
-                                                  with_one_model)
+from densecalib_ros.core.robust.one_model import (as_one_model, first_runs_apart, fit_costs_px,
+                                                  judged_one_camera, judged_several,
+                                                  one_model_applies, with_one_model)
 from densecalib_ros.core.types import CameraIntrinsics
 from sfm_fixtures import gt_rig, gt_tracks
 
@@ -62,7 +62,7 @@ def test_the_policy_keeps_one_model_only_where_it_fits_and_says_why():
         tracks = _rig_tracks(focals_px)
         kept = _attempt(tracks, config, apart)
         said = []
-        out, what = with_one_model(kept, lambda c: _attempt(tracks, c), NAMES, SIZES, True,
+        out, what = with_one_model(kept, lambda c, until: _attempt(tracks, c), NAMES, SIZES, True,
                                    said.append)
         assert what is not None and what.kept == keep and what.own_apart_deg == apart
         assert (out is not kept) == keep
@@ -90,7 +90,7 @@ def test_pinhole_units_need_the_one_camera_tests_verdict():
     kept.refinement = SimpleNamespace(one_camera={})  # its own refinement could not judge them
     for verdicts, keep in ((None, False), ({("a", "b", "c", "d"): False}, False),
                            ({("a", "b", "c", "d"): True}, True)):
-        def again(c):
+        def again(c, until):
             one = _attempt(tracks, c)
             one.refinement = verdicts and SimpleNamespace(one_camera=verdicts)
             return one
@@ -102,7 +102,8 @@ def test_pinhole_units_need_the_one_camera_tests_verdict():
     # Where the calibration's own refinement told them apart already, no second calibration.
     kept.refinement = SimpleNamespace(one_camera={("a", "b", "c", "d"): False})
     called, said = [], []
-    out, what = with_one_model(kept, called.append, NAMES, SIZES, True, said.append)
+    out, what = with_one_model(kept, lambda *a: called.append(a), NAMES, SIZES, True,
+                               said.append)
     assert out is kept and what is None and not called and "told the cameras apart" in said[0]
 
 
@@ -111,7 +112,7 @@ def test_runs_in_agreement_leave_the_cameras_their_own_intrinsics():
     config = make_config("regular", sfm__num_threads=1).for_cameras(NAMES)
     kept = _attempt(tracks, config, WARN_DISAGREEMENT_DEG - 0.5)
     called = []
-    out, what = with_one_model(kept, called.append, NAMES, SIZES, True, print)
+    out, what = with_one_model(kept, lambda *a: called.append(a), NAMES, SIZES, True, print)
     assert out is kept and what is None and not called
 
 
@@ -161,3 +162,34 @@ def test_calibrate_separate_intrinsics_says_the_cameras_differ():
                               "--separate-intrinsics"])
     with pytest.raises(InputError, match="give one of them"):
         calibrate._config(both)
+
+
+def test_the_calibration_as_one_model_ends_once_its_first_runs_stand_apart():
+    """It is kept only where its runs agree: once its first runs, judged, stand apart beyond the
+    warning's bar (refined on the images where they could be, else on the keypoint matches
+    where only the refinement's verdict could keep it), more runs are not made."""
+    apart, close = WARN_DISAGREEMENT_DEG + 4.0, WARN_DISAGREEMENT_DEG - 1.0
+
+    def runs(on_matches, refined):
+        return SimpleNamespace(apart_on_matches_deg=on_matches, judged_apart_deg=refined)
+    for needs_verdict in (False, True):
+        rule = first_runs_apart(needs_verdict)
+        assert not rule(runs(None, None))  # not judged yet
+        assert rule(runs(apart, apart)) and not rule(runs(apart, close))  # refined decides
+        assert rule(runs(apart, None)) == needs_verdict  # not refined: the matches, if needed
+        assert not rule(runs(close, None))
+    # The policy hands the rule to the calibration and says where it ended the runs.
+    config = make_config("regular", sfm__num_threads=1).for_cameras(NAMES)
+    tracks = _rig_tracks((560.0,) * 4)
+    kept = _attempt(tracks, config, apart)
+    rules, said = [], []
+
+    def again(c, until):
+        rules.append(until)
+        one = _attempt(tracks, c, apart)
+        one.cut_short, one.consensus = True, SimpleNamespace(num_runs=2)
+        return one
+    out, what = with_one_model(kept, again, NAMES, SIZES, True, said.append)
+    assert out is kept and not what.kept
+    assert rules[0](runs(apart, apart)) and not rules[0](runs(close, close))
+    assert f"as one model: its first 2 runs {apart:.1f} deg apart" in said[-1]

@@ -92,12 +92,12 @@ def planned_stages(config: PipelineConfig, num_cameras: int) -> list[str]:
 
 def _again_with(images: RigImages, kept: Attempt, progress: Progress, calibrators: dict
                 ) -> Callable[[PipelineConfig], Attempt]:
-    """calibrate_as(config) for with_one_model: kept's matches calibrated again with `config`
-    (its calibrator closed with the others)."""
-    def calibrate_as(config: PipelineConfig) -> Attempt:
+    """calibrate_as(config, until) for with_one_model: kept's matches calibrated again with
+    `config`, its consensus runs ended by `until` (its calibrator closed with the others)."""
+    def calibrate_as(config: PipelineConfig, until: Callable) -> Attempt:
         progress.extend(planned_stages(config, len(images.camera_names))[1:])  # no matching
         calibrators["one model"] = Calibrator(images, kept.matched, config, progress)
-        return calibrators["one model"].calibrate()
+        return calibrators["one model"].calibrate(until)
     return calibrate_as
 
 

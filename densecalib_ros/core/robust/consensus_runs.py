@@ -70,8 +70,10 @@ class ConsensusRuns:
         self.failed = 0
         self.settled: Optional[list[str]] = None
         self.refined_deg: Optional[np.ndarray] = None
-        # Where the first EARLY_STOP_RUNS runs were judged apart: the largest disagreement
-        # between them refined on the dense image correspondences (deg; None where not refined).
+        # Where the first EARLY_STOP_RUNS runs were judged: the largest disagreement between
+        # them on the keypoint matches (deg), and where they stood apart there, refined on the
+        # dense image correspondences (deg; None where not refined).
+        self.apart_on_matches_deg: Optional[float] = None
         self.judged_apart_deg: Optional[float] = None
         self.cut_short = False  # ended by the caller's rule (run's `until`)
         self._first_error: Optional[CalibrationError] = None
@@ -154,6 +156,7 @@ class ConsensusRuns:
         refined (else None)."""
         agree_deg = runs_agreement_deg(self.results[0].rig, self._names, self._config)
         apart_deg = medoid([r.rig for r in self.results], self._names)[1].max()
+        self.apart_on_matches_deg = float(apart_deg)
         if apart_deg < agree_deg:
             log.info("consensus: the %d runs agree within %.1f deg; no more runs",
                      len(self.results), agree_deg)

@@ -25,6 +25,10 @@ correspondences, fewer than three cameras) keeps its own intrinsics. Where it do
 (a forward-facing fisheye rig) the fit to the keypoint matches decides alone (docs/design-notes.md,
 One model from the images). The calibration's record says the units were assumed and why
 (RigQuality.identical_units).
+
+The calibration as one model is kept only where its runs agree, so its runs end once their first
+ones are judged apart (first_runs_apart), as the second matcher's first runs do: more runs would
+only delay the answer (docs/design-notes.md, One model from the images: sooner).
 """
 from __future__ import annotations
 
@@ -107,6 +111,23 @@ def refined_on_images(config: PipelineConfig, camera_names: Sequence[str],
         lenses_adjusted(models, [cam.cam_from_rig[:3, :3] for cam in rig.cameras.values()])
 
 
+def first_runs_apart(needs_verdict: bool) -> Callable[[object], bool]:
+    """The consensus runs' rule for the calibration as one model (ConsensusRuns.run's `until`):
+    end once the first runs, judged (consensus.EARLY_STOP_RUNS), stand apart beyond
+    WARN_DISAGREEMENT_DEG refined on the dense image correspondences (runs the images do not
+    bring together stay apart however many more are made, second_matcher.
+    first_runs_undetermined), or, where the images could not refine them and the calibration
+    would need the refinement's verdict to be kept (needs_verdict: lenses it adjusts,
+    refined_on_images), on the keypoint matches: a refinement that reaches no run cannot judge
+    the units one camera. Either way the runs cannot come to the agreement the policy keeps."""
+    def apart(runs) -> bool:
+        if runs.judged_apart_deg is not None:
+            return runs.judged_apart_deg > WARN_DISAGREEMENT_DEG
+        return needs_verdict and runs.apart_on_matches_deg is not None and \
+            runs.apart_on_matches_deg > WARN_DISAGREEMENT_DEG
+    return apart
+
+
 def fit_costs_px(rigs: Sequence[RigCalibration], tracks: Optional[Tracks],
                  camera_names: Sequence[str], config: PipelineConfig) -> np.ndarray:
     """Each rig's truncated reprojection cost of the keypoint matches (a common seeded sample,
@@ -140,13 +161,14 @@ class OneModel:
                 "known")
 
 
-def with_one_model(kept, calibrate_as: Callable[[PipelineConfig], object],
+def with_one_model(kept, calibrate_as: Callable[..., object],
                    camera_names: Sequence[str], image_sizes: Sequence[tuple[int, int]], fresh: bool,
                    say: Callable[[str], None]) -> tuple[object, Optional[OneModel]]:
     """(the calibration to keep, what the policy did or None where it did not run).
 
     kept: the calibration so far (a stages.attempt.Attempt: .rig, .sfm_rig, .config, .matched,
-    .refinement); calibrate_as(config) calibrates kept's matches with `config`. Where one_model_applies and
+    .refinement); calibrate_as(config, until) calibrates kept's matches with `config`, its
+    consensus runs ended by `until` (first_runs_apart). Where one_model_applies and
     the kept calibration's runs stand apart (runs_apart_deg), they are calibrated again as one
     model and that calibration kept where its runs agree, it is better determined, its SfM fits
     the keypoint matches within WORSE_FIT_RATIO of the other's, and, for lenses the refinement on
@@ -161,8 +183,10 @@ def with_one_model(kept, calibrate_as: Callable[[PipelineConfig], object],
         return kept, None
     say(f"the calibration runs stand {own_apart:.1f} deg apart and the cameras could be units of "
         "one model (one image size and lens): calibrating them again as one model")
+    needs_verdict = refined_on_images(kept.config, camera_names, kept.rig)
     try:
-        one = calibrate_as(as_one_model(kept.config, camera_names, "assumed from the images"))
+        one = calibrate_as(as_one_model(kept.config, camera_names, "assumed from the images"),
+                           first_runs_apart(needs_verdict))
     except CalibrationError as exc:
         say(f"as one model the calibration failed ({exc}); kept each camera's own intrinsics")
         return kept, None
@@ -175,8 +199,11 @@ def with_one_model(kept, calibrate_as: Callable[[PipelineConfig], object],
     refuted = refined_on_images(kept.config, camera_names, one.rig) and \
         not judged_one_camera(one.refinement, camera_names)
     keep = fits and agree and not refuted and better_determined(one.rig, kept.rig)
-    how = (f"runs {outcome.one_apart_deg:.1f} deg apart" if not agree else "runs in agreement") \
-        + f", its SfM {one_cost:.2f} px on the keypoint matches against {own_cost:.2f} px"
+    first = f"its first {one.consensus.num_runs} runs" if getattr(one, "cut_short", False) \
+        else "runs"
+    how = (f"{first} {outcome.one_apart_deg:.1f} deg apart" if not agree else
+           "runs in agreement") + \
+        f", its SfM {one_cost:.2f} px on the keypoint matches against {own_cost:.2f} px"
     if not keep:
         why = ("fits the matches clearly worse" if not fits else
                "the refinement on the images did not judge them one camera" if refuted else
