@@ -160,7 +160,7 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
     """A calibration finds the dense correspondences while it still searches the rig
     (DenseAhead): for the rig it was told to expect they are dense_tracks' bit for bit, and for
     any other rig (moved, or with a camera left out) they are found for that rig, not taken from
-    the expected one."""
+    the expected one; another calibration of the same matches takes the first pass over."""
     from densecalib_ros.core.method.all_matches import keypoint_tracks
     from densecalib_ros.core.method.dense_ahead import DenseAhead
     from densecalib_ros.core.method.dense_matches import dense_tracks
@@ -190,6 +190,11 @@ def test_dense_tracks_found_ahead_are_those_found_after(real_rig):
         after = dense_tracks(images, other, seeds)
         assert not _same_tracks(after, found)
         assert _same_tracks(ahead.tracks(other), after)
+    # Another calibration of the same matches (the rig as one model) takes the first pass over:
+    # only the rest is left to it, and its tracks are the same.
+    again = DenseAhead(images, C, seeds, first_of=ahead)
+    assert again.seconds_left(state) == ahead.seconds_left(moved) > 0.0
+    assert _same_tracks(again.tracks(state), found)
     ahead.cancel()
 
 

@@ -93,10 +93,12 @@ def planned_stages(config: PipelineConfig, num_cameras: int) -> list[str]:
 def _again_with(images: RigImages, kept: Attempt, progress: Progress, calibrators: dict
                 ) -> Callable[[PipelineConfig], Attempt]:
     """calibrate_as(config, until) for with_one_model: kept's matches calibrated again with
-    `config`, its consensus runs ended by `until` (its calibrator closed with the others)."""
+    `config`, its consensus runs ended by `until` (its calibrator closed with the others, and
+    the dense correspondences' first pass of kept's taken over)."""
     def calibrate_as(config: PipelineConfig, until: Callable) -> Attempt:
         progress.extend(planned_stages(config, len(images.camera_names))[1:])  # no matching
-        calibrators["one model"] = Calibrator(images, kept.matched, config, progress)
+        calibrators["one model"] = Calibrator(images, kept.matched, config, progress,
+                                              same_matches=calibrators.get(kept.config.matcher))
         return calibrators["one model"].calibrate(until)
     return calibrate_as
 

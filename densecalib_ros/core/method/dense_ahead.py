@@ -35,16 +35,23 @@ class DenseAhead:
 
     def __init__(self, frame_sets: Sequence[Sequence[np.ndarray]], num_cameras: int,
                  keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
-                 px_scale: Optional[np.ndarray] = None) -> None:
+                 px_scale: Optional[np.ndarray] = None,
+                 first_of: Optional["DenseAhead"] = None) -> None:
+        """first_of: a DenseAhead on the same frame sets, keypoint tracks, masks and px_scale
+        (another calibration of the same matches) whose first pass, which depends on nothing
+        else, this one takes over instead of running it again."""
         self._inputs = (frame_sets, keypoint_tracks, masks)
         self.px_scale = px_scale
         self._num_cameras = num_cameras
         self._num_frame_sets = len(densified_times(keypoint_tracks))
-        self._first_done = AlignmentCount()
-        self._first = RunAhead(partial(first_pass, px_scale=px_scale,
-                                       counted=self._first_done), frame_sets,
-                               range(num_cameras), keypoint_tracks, masks,
-                               name="densecalib-dense-ahead")
+        if first_of is not None:
+            self._first_done, self._first = first_of._first_done, first_of._first
+        else:
+            self._first_done = AlignmentCount()
+            self._first = RunAhead(partial(first_pass, px_scale=px_scale,
+                                           counted=self._first_done), frame_sets,
+                                   range(num_cameras), keypoint_tracks, masks,
+                                   name="densecalib-dense-ahead")
         # (_rig_key, RunAhead of dense_tracks, the alignments it did)
         self._expected: Optional[tuple] = None
 

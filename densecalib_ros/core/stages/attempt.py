@@ -49,14 +49,18 @@ class Attempt:
 
 class Calibrator:
     """Calibrations on one matcher's matches (`matched`) of the rig's images, with `config`.
-    previous: a previous calibration (a recalibration: one run, started from it). Close it when
-    done: the image refinement's work run ahead is stopped."""
+    previous: a previous calibration (a recalibration: one run, started from it); same_matches:
+    another Calibrator of these matches (the same rig as one model), whose dense correspondences'
+    first pass, found ahead, this one takes over. Close it when done: the image refinement's
+    work run ahead is stopped."""
 
     def __init__(self, images: RigImages, matched: Matched, config: PipelineConfig,
-                 progress: Progress, previous: Optional[RigCalibration] = None):
+                 progress: Progress, previous: Optional[RigCalibration] = None,
+                 same_matches: Optional["Calibrator"] = None):
         self.images, self.matched, self.config = images, matched, config
         self.progress, self.previous = progress, previous
-        ahead = dense_ahead(images, matched, config)
+        ahead = dense_ahead(images, matched, config, same_matches.refined.ahead
+                            if same_matches is not None and same_matches.refined else None)
         self.refined = RefinedRuns(images, matched, config, previous, ahead) \
             if config.refine_on_images else None
         self.runs = None

@@ -41,19 +41,21 @@ class RefinementRecord:
     apart: list = field(default_factory=list)  # ImageRefinement.apart
 
 
-def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig
-                ) -> Optional[DenseAhead]:
+def dense_ahead(images: RigImages, matched: Matched, config: PipelineConfig,
+                first_of: Optional[DenseAhead] = None) -> Optional[DenseAhead]:
     """The image refinement's dense correspondences, which need only the images and the keypoint
     matches until their last checks, started on cores the rig's search leaves idle
     (dense_ahead.DenseAhead). None where the refinement will not run, or will not start from
-    the keypoint matches, or cannot apply (a lens model it does not project)."""
+    the keypoint matches, or cannot apply (a lens model it does not project). first_of: the
+    DenseAhead of another calibration of the same matches, whose first pass is taken over."""
     tracks = matched.keypoint_tracks
     if not config.refine_on_images or tracks is None or not tracks.num_tracks or any(
             m not in SUPPORTED_MODELS for m in config.sfm.models(len(images.camera_names))):
         return None
     return DenseAhead(images.frame_sets, len(images.camera_names), tracks,
                       images.ignored or None, keypoint_px_scale(images.image_sizes,
-                                                                config.max_image_side_px))
+                                                                config.max_image_side_px),
+                      first_of)
 
 
 class RefinedRuns:
@@ -123,10 +125,12 @@ class RefinedRuns:
 
     def disagreement_deg(self, results: Sequence[CalibrationResult]) -> Optional[np.ndarray]:
         """The (R, R) disagreement matrix (consensus.medoid's) of the results refined; None where
-        one of them could not be."""
-        rigs = [self.rig(r) for r in results]
-        if any(r is None for r in rigs):
-            return None
+        one of them could not be (the others then not tried: a kept one is refined when kept)."""
+        rigs = []
+        for result in results:
+            rigs.append(self.rig(result))
+            if rigs[-1] is None:
+                return None
         return medoid(rigs, self.images.camera_names)[1]
 
     def refine(self, result: CalibrationResult, progress: Progress
