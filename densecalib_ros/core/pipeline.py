@@ -91,7 +91,7 @@ def planned_stages(config: PipelineConfig, num_cameras: int) -> list[str]:
 
 
 def _again_with(images: RigImages, kept: Attempt, progress: Progress, calibrators: dict
-                ) -> Callable[[PipelineConfig], Attempt]:
+                ) -> Callable[..., Attempt]:
     """calibrate_as(config, until) for with_one_model: kept's matches calibrated again with
     `config`, its consensus runs ended by `until` (its calibrator closed with the others, and
     the dense correspondences' first pass of kept's taken over)."""
