@@ -119,7 +119,8 @@ def first_runs_apart(needs_verdict: bool) -> Callable[[object], bool]:
     first_runs_undetermined), or, where the images could not refine them and the calibration
     would need the refinement's verdict to be kept (needs_verdict: lenses it adjusts,
     refined_on_images), on the keypoint matches: a refinement that reaches no run cannot judge
-    the units one camera. Either way the runs cannot come to the agreement the policy keeps."""
+    the units one camera. Not a bound: further runs siding with the one the fit keeps could
+    still bring the runs into agreement; the rule takes that risk, as the second matcher's does."""
     def apart(runs) -> bool:
         if runs.judged_apart_deg is not None:
             return runs.judged_apart_deg > WARN_DISAGREEMENT_DEG
