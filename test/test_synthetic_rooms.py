@@ -10,7 +10,8 @@ import pytest
 from densecalib_ros.cli import main as cli_main
 from densecalib_ros.core.errors import InputError
 from densecalib_ros.core.synthetic import RigSpec, generate_rig, read_ground_truth
-from densecalib_ros.core.synthetic.intrinsics import UNIT_FOCAL_SPREAD, UNIT_K_SPREAD
+from densecalib_ros.core.synthetic.intrinsics import (CROPPED_FRAME_PP_FRACTION, PP_OFFSET_FRACTION,
+                                                    UNIT_FOCAL_SPREAD, UNIT_K_SPREAD)
 from densecalib_ros.core.synthetic.lens import cam_rays
 from densecalib_ros.core.synthetic.rig import MOUNTS
 
@@ -158,6 +159,22 @@ def test_identical_units_share_a_model_and_mixed_lenses_do_not():
     fov = [2 * np.degrees(np.arctan(64 / cam.params[0])) for cam in mixed.cameras]
     assert 45 < min(fov) and max(fov) < 95 and np.ptp(fov) > 5
     assert np.ptp([cam.params[4] for cam in mixed.cameras]) > 0.02  # k1 differs too
+
+
+def test_mixed_webcams_of_a_cropped_frame_put_the_principal_point_off_centre_vertically():
+    """A 16:9 frame read out of a 4:3 sensor: cy up to CROPPED_FRAME_PP_FRACTION of the height
+    off-centre (Caliscope's webcams: up to 4.8 %), cx as any real lens's; a 4:3 frame as before."""
+    def offsets(width, height):
+        rig = generate_rig(RigSpec(num_cameras=8, seed=3, lens_mix="mixed", width=width,
+                                   height=height, supersample=1))
+        params = np.array([cam.params for cam in rig.cameras])  # OPENCV: fx, fy, cx, cy, ...
+        return (np.abs(params[:, 2] / width - 0.5).max(),
+                np.abs(params[:, 3] / height - 0.5).max())
+
+    cx_off, cy_off = offsets(128, 72)
+    assert cx_off <= PP_OFFSET_FRACTION
+    assert PP_OFFSET_FRACTION < cy_off <= CROPPED_FRAME_PP_FRACTION
+    assert max(offsets(128, 96)) <= PP_OFFSET_FRACTION
 
 
 @pytest.mark.parametrize("mount", ["high", "low"])

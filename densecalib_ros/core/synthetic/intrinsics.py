@@ -34,6 +34,12 @@ MIXED_FOV_DEG = (56.0, 83.0)
 # -0.33 (a strong barrel) to +0.18. Draws a lens cannot have (folding back inside the image)
 # are drawn again, so the strongest barrels go with the narrower fields of view.
 MIXED_K_RANGES = ((-0.3, 0.15), (-0.05, 0.05))
+# Webcams and camera traps filming 16:9 read that frame out of a 4:3 sensor, and the crop is not
+# centred to the row: Caliscope's four webcams (ChArUco reference, 1280x720) put cy 1.8-4.8 % of
+# the height off-centre (cx 0.6-1.7 % of the width). A "mixed" rig's perspective cameras with a
+# frame wider than 4:3 draw cy within this fraction of the height (docs/benchmarks.md, The real
+# rooms taken apart).
+CROPPED_FRAME_PP_FRACTION = 0.05
 # Units of one model: Pose2Sim's four Qualisys Miqus cameras measure f 1673.7-1681.6 px
 # (+-0.24 %), k1 -0.0462..-0.0478 (+-0.0008) and k2 0.1347..0.1400 (+-0.0027); their principal
 # points differ as independent units' do (cx 513-540 of 1088 px), which PP_OFFSET_FRACTION draws.
@@ -55,11 +61,16 @@ def _real_pinhole_ratio(rng: np.random.Generator, spec) -> float:
     return float(np.exp(rng.uniform(np.log(ratios.min()), np.log(ratios.max()))))
 
 
-def _principal_point(rng: np.random.Generator, spec) -> tuple[float, float]:
+def _principal_point(rng: np.random.Generator, spec, model: str = "") -> tuple[float, float]:
+    """A "real" lens's principal point (px) as it sits in a frame of spec's size: within
+    PP_OFFSET_FRACTION of each side of the centre, cy within CROPPED_FRAME_PP_FRACTION of the
+    height for a "mixed" rig's perspective camera whose frame is cropped wider than 4:3."""
     w, h = spec.width, spec.height
     if spec.lenses == "real":
+        cropped = model == "RADIAL" and spec.lens_mix == "mixed" and 3 * w > 4 * h
         return (w / 2 + rng.uniform(-1, 1) * PP_OFFSET_FRACTION * w,
-                h / 2 + rng.uniform(-1, 1) * PP_OFFSET_FRACTION * h)
+                h / 2 + rng.uniform(-1, 1)
+                * (CROPPED_FRAME_PP_FRACTION if cropped else PP_OFFSET_FRACTION) * h)
     return w / 2 + rng.uniform(-4, 4) * w / 1024, h / 2 + rng.uniform(-4, 4) * w / 1024
 
 
@@ -90,7 +101,7 @@ def sample_intrinsics(rng: np.random.Generator, spec, model: str, half_fov: floa
     largest ray angle (rad) the camera images. k_ranges: the pinhole's (k1, k2) ranges where
     not the default ones."""
     w, h = spec.width, spec.height
-    cx, cy = _principal_point(rng, spec)
+    cx, cy = _principal_point(rng, spec, model)
     while True:
         if model == "RADIAL":
             k_lo, k_hi = np.array(k_ranges or ((-0.15, 0.1), (-0.03, 0.03))).T
