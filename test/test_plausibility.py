@@ -65,6 +65,37 @@ def test_fisheye_extent_is_that_of_the_observations():
     assert "folds the image" in intrinsics_problem(lens)  # no observations: the image corners
 
 
+def test_a_perspective_lens_is_held_to_its_observations_and_warned_past_them():
+    """A webcam whose matches stop short of its corners: the two-term fit folds between the last
+    observation and the corner. Plausible where the images saw (holding it to the corner held
+    Caliscope's webcams at their starting focal lengths), warned as a finished calibration."""
+    from densecalib_ros.core.method.plausibility import corner_fold_warning
+
+    # r_d = r (1 - 0.3 r^2) stops increasing at r_d 0.70; the corners lie at 1.15 (normalised)
+    webcam = cam("RADIAL", [640, 640, 360, -0.3, 0.0], 1280, 720)
+    inner = np.array([[640 + 380, 360], [640, 360 + 300]])  # 0.59 normalised
+    assert intrinsics_problem(webcam, inner) is None
+    assert "before the farthest observation" in intrinsics_problem(webcam, inner * 1.3)
+    assert "before the image corner" in intrinsics_problem(webcam)
+
+    def rig(cameras, given=()):
+        return RigCalibration(next(iter(cameras)),
+                              {n: RigCamera(n, c, np.eye(4)) for n, c in cameras.items()},
+                              quality=RigQuality(given_intrinsics={n: "RADIAL" for n in given}
+                                                 or None))
+
+    straight = cam("RADIAL", [640, 640, 360, -0.1, 0.01], 1280, 720)
+    warning = corner_fold_warning(rig({"cam_0": webcam, "cam_1": straight, "lab": webcam},
+                                      given=["lab"]))
+    # the fold at 0.70 x 640 px against the corner's 734 px from the principal point
+    assert "cam_0 at 61 %" in warning and "cam_1" not in warning and "lab at" not in warning
+    assert "--intrinsics" in warning
+    assert corner_fold_warning(rig({"cam_1": straight})) is None
+    fisheye = cam("OPENCV_FISHEYE", [200, 200, 320, 240, -0.04, -0.01, 0.105, -0.144], 640, 480)
+    assert intrinsics_problem(fisheye) is not None
+    assert corner_fold_warning(rig({"fish": fisheye})) is None  # nothing imaged in its corners
+
+
 def test_guarded_bundle_adjustment_keeps_a_camera_out_of_a_folding_lens():
     """Camera 3's observations come from a lens whose k1 folds inside the image; a free BA fits
     that lens (implausible), the guarded BA keeps camera 3's previous intrinsics instead."""

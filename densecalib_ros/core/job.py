@@ -111,10 +111,10 @@ def run_job(request: CalibrationRequest, progress=None) -> JobResult:
 def _from_keypoints(r: CalibrationRequest, progress: Progress) -> "CalibrationResult":
     """A calibration from the keypoints alone (no images): their tracks are the SfM's, and the
     ones it judges and refines the rig on (stages.runs.calibrate_from_tracks); warned as a
-    calibration from images is of a camera left out, a lens unlike a real one and focal lengths
-    the correspondences leave open."""
+    calibration from images is of a camera left out, a lens unlike a real one or folding before
+    its corner, and focal lengths the correspondences leave open."""
     from .method.focal_determination import loose_focal_warning, weak_focal_warning
-    from .method.plausibility import unlike_lens_warning
+    from .method.plausibility import corner_fold_warning, unlike_lens_warning
     from .stages.record import unregistered_warning
     from .stages.runs import calibrate_from_tracks
 
@@ -135,7 +135,7 @@ def _from_keypoints(r: CalibrationRequest, progress: Progress) -> "CalibrationRe
             "camera's intrinsics (--intrinsics NAME=PATH).") from exc
     rig = result.rig
     for warning in (unregistered_warning(rig), unlike_lens_warning(rig), weak_focal_warning(rig),
-                    loose_focal_warning(rig, "the keypoints")):
+                    loose_focal_warning(rig, "the keypoints"), corner_fold_warning(rig)):
         if warning:
             log.warning("%s", warning)
             rig.quality.warnings.append(warning)

@@ -6,9 +6,12 @@ stays small (docs/design-notes.md, Plausible intrinsics). Such a lens folds the 
 (the radial map is no longer invertible inside the image), so the calibration is unusable whatever
 its residuals say. COLMAP guards the same failure with its "bogus camera parameters" test (focal
 ratio, |extra| <= 1); we test the property that matters instead: the radial distortion map must
-be strictly increasing from the principal point out to the farthest image corner (pinhole models:
-undistorting the whole image needs it) or, for fisheye models, the farthest observation (a
-circular fisheye images nothing in its corners, where the fitted polynomial is unconstrained).
+be strictly increasing from the principal point out to the farthest observation the
+reconstruction explains. Beyond the observations the images say nothing about the lens and a
+low-order polynomial fitted inside may turn anywhere: holding it to the image corner there held
+real webcams' intrinsics at their start in adjustment after adjustment (docs/design-notes.md,
+Plausible intrinsics). A finished perspective lens that folds before its image corner is warned
+(corner_fold_warning): its file does not undistort the corners.
 
 Radial maps (COLMAP models; r = undistorted radius on the normalised plane, theta = angle from
 the optical axis):
@@ -57,9 +60,9 @@ def intrinsics_problem(camera: CameraIntrinsics,
     """None when the intrinsics are physically plausible, else a sentence saying what is wrong:
     a focal outside [MIN, MAX]_FOCAL_IMAGE_RATIO x max(width, height), a distortion
     coefficient a calibration file may not carry (calibration_values.runaway_distortion), or a
-    radial distortion that stops increasing before the farthest image corner (fisheye models:
-    before the farthest of `observed_xy_px`, (N, 2) COLMAP px, when given). Models without a
-    known layout pass."""
+    radial distortion that stops increasing before the farthest of `observed_xy_px` ((N, 2)
+    COLMAP px) when given, else before the farthest image corner. Models without a known layout
+    pass."""
     size = max(camera.width, camera.height)
     layout = _LAYOUT.get(camera.model)
     params = np.asarray(camera.params, dtype=np.float64)
@@ -79,23 +82,31 @@ def intrinsics_problem(camera: CameraIntrinsics,
         return None
     extent = np.array([[0, 0], [camera.width, 0], [0, camera.height],
                        [camera.width, camera.height]], dtype=np.float64)
-    if fisheye and observed_xy_px is not None and len(observed_xy_px):
+    if observed_xy_px is not None and len(observed_xy_px):
         extent = np.asarray(observed_xy_px, dtype=np.float64).reshape(-1, 2)
     f_xy = np.array([params[fx_i], params[fx_i if fy_i is None else fy_i]])
     reach = np.max(np.linalg.norm((extent - params[[cx_i, cy_i]]) / f_xy, axis=1))
+    monotone_reach = _monotone_reach(params, k_idx, fisheye)
+    if monotone_reach < reach:
+        coeffs = ", ".join(f"{params[i]:.3g}" for i in k_idx)
+        where = "the image corner" if observed_xy_px is None or not len(observed_xy_px) \
+            else "the farthest observation"
+        return (f"its radial distortion ({coeffs}) folds the image over itself: the distorted "
+                f"radius stops increasing at {monotone_reach:.2f} before {where} at "
+                f"{reach:.2f} (normalised)")
+    return None
+
+
+def _monotone_reach(params: np.ndarray, k_idx: Sequence[int], fisheye: bool) -> float:
+    """The distorted radius (normalised) at which a radial map first stops increasing, or the
+    largest one sampled where it never does."""
     x = np.linspace(0.0, _FISHEYE_MAX_THETA_RAD if fisheye else _PINHOLE_MAX_RADIUS, _SAMPLES)
     poly = np.ones_like(x)
     for power, i in enumerate(k_idx, start=1):
         poly += params[i] * x ** (2 * power)
     r_d = x * poly
     falling = np.flatnonzero(np.diff(r_d) <= 0)
-    monotone_reach = r_d[falling[0]] if falling.size else r_d[-1]
-    if monotone_reach < reach:
-        coeffs = ", ".join(f"{params[i]:.3g}" for i in k_idx)
-        return (f"its radial distortion ({coeffs}) folds the image over itself: the distorted "
-                f"radius stops increasing at {monotone_reach:.2f} before the image corner at "
-                f"{reach:.2f} (normalised)")
-    return None
+    return float(r_d[falling[0]] if falling.size else r_d[-1])
 
 
 # Real lenses put the principal point within about 2 % of the image's long side from its centre
@@ -176,11 +187,40 @@ def unlike_lens_warning(rig: RigCalibration) -> Optional[str]:
             "directions.")
 
 
+def corner_fold_warning(rig: RigCalibration) -> Optional[str]:
+    """The warning for a calibration with a self-calibrated perspective camera whose radial
+    distortion folds before its image corner (plausible where the images saw: the guards hold
+    the lens to its observations), else None. Fisheye models are left out: a circular fisheye
+    images nothing in its corners."""
+    given = set(rig.quality.given_intrinsics or ())
+    folds = []
+    for name, cam in rig.cameras.items():
+        layout = _LAYOUT.get(cam.intrinsics.model)
+        if name in given or layout is None or layout[5] or not layout[4]:
+            continue
+        problem = intrinsics_problem(cam.intrinsics)
+        if problem and "folds the image" in problem:
+            params = np.asarray(cam.intrinsics.params, dtype=np.float64)
+            corner = np.hypot(max(params[layout[2]], cam.intrinsics.width - params[layout[2]]),
+                              max(params[layout[3]], cam.intrinsics.height - params[layout[3]]))
+            fold = _monotone_reach(params, layout[4], False) * params[layout[0]]
+            folds.append(f"{name} at {100 * fold / corner:.0f} %")
+    if not folds:
+        return None
+    return ("the fitted lens distortion folds over before the image corner (the radius where "
+            "it stops increasing, as a share of the principal point's distance to the farthest "
+            f"corner): {', '.join(folds)}. The matches do not reach that far out, so the "
+            "distortion is known only inside: the calibration stands there, but undistorting "
+            "the image beyond it (OpenCV's undistortion maps) folds the corners back in. Add "
+            "frame sets with texture in these cameras' corners, or give their intrinsics from a "
+            "lab calibration (--intrinsics NAME=PATH).")
+
+
 def implausible_cameras(state: SfMState) -> dict[int, str]:
     """{camera index: problem} for the registered cameras of a reconstruction whose intrinsics
-    fail `intrinsics_problem`; a fisheye's extent is that of its observations the reconstruction
-    explains (reprojection error <= WELL_FIT_PX), so outlier matches in a circular fisheye's dark
-    corners do not count. Given intrinsics (held, never changed) are the user's to judge."""
+    fail `intrinsics_problem` to the extent of their observations the reconstruction explains
+    (reprojection error <= WELL_FIT_PX), so outlier matches (in a circular fisheye's dark
+    corners, say) do not count. Given intrinsics (held, never changed) are the user's to judge."""
     err = reprojection_errors(state)
     out = {}
     for c in state.registered():

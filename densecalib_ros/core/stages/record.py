@@ -16,7 +16,7 @@ from ..method.focal_determination import (loose_focal_warning, one_camera_hint,
                                           weak_focal_warning)
 from ..method.known_intrinsics import describe as describe_known
 from ..method.known_intrinsics import given_intrinsics_warnings
-from ..method.plausibility import unlike_lens_warning
+from ..method.plausibility import corner_fold_warning, unlike_lens_warning
 from ..method.reconstruction import colour_points
 from ..method.uncertainty import camera_sigmas, with_runs_spread
 from ..method.view_graph import pair_track_counts
@@ -134,9 +134,10 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
              units_apart_deg: Optional[float] = None) -> list[str]:
     """What the user is warned of about the finished rig: runs that still disagree as it stands,
     a camera not registered, cameras placed by pairs alone or loosely, given intrinsics that do
-    not fit, lenses unlike a real one, focal lengths the images leave open or looser than the
-    aim; after a second matcher, what it gave. keypoints: pose keypoints joined the matches
-    (named with them); units_apart_deg: as consensus.disagreement_warning's."""
+    not fit, lenses unlike a real one or folding before the image corner, focal lengths the
+    images leave open or looser than the aim; after a second matcher, what it gave. keypoints:
+    pose keypoints joined the matches (named with them); units_apart_deg: as
+    consensus.disagreement_warning's."""
     with_keypoints = " and the keypoints" if keypoints else ""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     out = []
@@ -153,7 +154,8 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
     out += [unrefined_warning(rig), groups_apart_warning(rig)]
     out += given_intrinsics_warnings(rig.quality.given_intrinsics_fit or {})
     # the loose rotations after the causes that may explain them
-    out += [unlike_lens_warning(rig), weak_focal_warning(rig), loose_rotation_warning(rig)]
+    out += [unlike_lens_warning(rig), weak_focal_warning(rig), loose_rotation_warning(rig),
+            corner_fold_warning(rig)]
     if rematch is None:
         out.append(loose_focal_warning(rig, f"{config.matcher}'s matches{with_keypoints}"))
     else:
