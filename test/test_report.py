@@ -344,6 +344,23 @@ def test_corner_rays_of_a_fisheye_keep_their_angle():
     np.testing.assert_allclose(angles(200.0), 80.0)  # past 80 deg: held at 80
 
 
+def test_corner_rays_of_a_lens_folding_before_its_corner_stop_at_the_fold():
+    """Caliscope's webcams come out with a distortion that folds just short of their corners
+    (plausibility.corner_fold_warning); the corners have no ray, and NaN frusta broke the
+    layout plot's limits. They take the widest ray the model has in their direction."""
+    from densecalib_ros.core.products.scene_ply import corner_rays
+    from densecalib_ros.core.types import CameraIntrinsics
+
+    # r_d = r (1 - 0.3 r^2) folds at r = 1.054 (r_d 0.703), short of the corner's 1.147
+    webcam = CameraIntrinsics("RADIAL", 1280, 720, np.array([640.0, 640, 360, -0.3, 0.0]))
+    assert np.isnan(webcam.to_pycolmap().cam_from_img(np.array([[0.0, 0.0]]))).all()
+    rays = corner_rays(webcam)
+    assert np.isfinite(rays).all()
+    tan_off_axis = np.linalg.norm(rays[:, :2], axis=1) / rays[:, 2]
+    # just inside the fold's undistorted radius (r_d at 99 % of the fold's: r = 0.967)
+    assert ((tan_off_axis > 0.95) & (tan_off_axis < 1.054)).all()
+
+
 def test_report_json_is_strict_json_and_against_needs_common_cameras(rig, tmp_path, caplog,
                                                                       capsys):
     """A figure that could not be measured (NaN) is null in every JSON densecalib prints or

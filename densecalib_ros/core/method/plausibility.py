@@ -86,7 +86,7 @@ def intrinsics_problem(camera: CameraIntrinsics,
         extent = np.asarray(observed_xy_px, dtype=np.float64).reshape(-1, 2)
     f_xy = np.array([params[fx_i], params[fx_i if fy_i is None else fy_i]])
     reach = np.max(np.linalg.norm((extent - params[[cx_i, cy_i]]) / f_xy, axis=1))
-    monotone_reach = _monotone_reach(params, k_idx, fisheye)
+    monotone_reach, _ = _monotone_reach(params, k_idx, fisheye)
     if monotone_reach < reach:
         coeffs = ", ".join(f"{params[i]:.3g}" for i in k_idx)
         where = "the image corner" if observed_xy_px is None or not len(observed_xy_px) \
@@ -97,16 +97,28 @@ def intrinsics_problem(camera: CameraIntrinsics,
     return None
 
 
-def _monotone_reach(params: np.ndarray, k_idx: Sequence[int], fisheye: bool) -> float:
-    """The distorted radius (normalised) at which a radial map first stops increasing, or the
-    largest one sampled where it never does."""
+def _monotone_reach(params: np.ndarray, k_idx: Sequence[int], fisheye: bool
+                    ) -> tuple[float, bool]:
+    """(the distorted radius (normalised) at which a radial map first stops increasing, or the
+    largest one sampled where it does not; whether it does)."""
     x = np.linspace(0.0, _FISHEYE_MAX_THETA_RAD if fisheye else _PINHOLE_MAX_RADIUS, _SAMPLES)
     poly = np.ones_like(x)
     for power, i in enumerate(k_idx, start=1):
         poly += params[i] * x ** (2 * power)
     r_d = x * poly
     falling = np.flatnonzero(np.diff(r_d) <= 0)
-    return float(r_d[falling[0]] if falling.size else r_d[-1])
+    return float(r_d[falling[0]] if falling.size else r_d[-1]), bool(falling.size)
+
+
+def perspective_fold_radius(camera: CameraIntrinsics) -> Optional[float]:
+    """The distorted radius (normalised: pixels over the focal length) at which a perspective
+    model's radial distortion stops increasing, where it does before tan(87 deg); None for
+    fisheye and unknown models and lenses that do not fold. No pixel beyond it has a ray."""
+    layout = _LAYOUT.get(camera.model)
+    if layout is None or layout[5] or not layout[4]:
+        return None
+    reach, folds = _monotone_reach(np.asarray(camera.params, dtype=np.float64), layout[4], False)
+    return reach if folds else None
 
 
 # Real lenses put the principal point within about 2 % of the image's long side from its centre
@@ -195,16 +207,14 @@ def corner_fold_warning(rig: RigCalibration) -> Optional[str]:
     given = set(rig.quality.given_intrinsics or ())
     folds = []
     for name, cam in rig.cameras.items():
-        layout = _LAYOUT.get(cam.intrinsics.model)
-        if name in given or layout is None or layout[5] or not layout[4]:
-            continue
-        problem = intrinsics_problem(cam.intrinsics)
-        if problem and "folds the image" in problem:
+        problem = intrinsics_problem(cam.intrinsics) if name not in given else None
+        fold = perspective_fold_radius(cam.intrinsics)
+        if problem and "folds the image" in problem and fold is not None:
+            fx_i, _, cx_i, cy_i = _LAYOUT[cam.intrinsics.model][:4]
             params = np.asarray(cam.intrinsics.params, dtype=np.float64)
-            corner = np.hypot(max(params[layout[2]], cam.intrinsics.width - params[layout[2]]),
-                              max(params[layout[3]], cam.intrinsics.height - params[layout[3]]))
-            fold = _monotone_reach(params, layout[4], False) * params[layout[0]]
-            folds.append(f"{name} at {100 * fold / corner:.0f} %")
+            corner = np.hypot(max(params[cx_i], cam.intrinsics.width - params[cx_i]),
+                              max(params[cy_i], cam.intrinsics.height - params[cy_i]))
+            folds.append(f"{name} at {100 * fold * params[fx_i] / corner:.0f} %")
     if not folds:
         return None
     return ("the fitted lens distortion folds over before the image corner (the radius where "

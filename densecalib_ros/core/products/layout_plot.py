@@ -24,6 +24,7 @@ from typing import Any, Optional
 import numpy as np
 
 from ..errors import InputError
+from ..method.plausibility import perspective_fold_radius
 from ..types import CameraIntrinsics, RigCalibration
 from .floor import world_from_rig
 from .report import camera_centres_in_rig
@@ -91,11 +92,13 @@ def pixel_rays(intrinsics: CameraIntrinsics, xy_px: np.ndarray,
                max_angle_rad: float) -> np.ndarray:
     """(N, 3) unit rays (camera frame) through COLMAP pixels xy_px (N, 2), distortion included;
     fisheye lenses by their equidistant angle (their normalised coordinates end at 90 deg), held
-    at most max_angle_rad off the axis."""
+    at most max_angle_rad off the axis; pixels beyond a perspective lens's fold by the ray just
+    inside it."""
     camera = intrinsics.to_pycolmap()
     xy_px = np.atleast_2d(np.asarray(xy_px, dtype=np.float64))
     if "FISHEYE" not in intrinsics.model:
-        rays = np.column_stack([camera.cam_from_img(xy_px), np.ones(len(xy_px))])
+        rays = np.column_stack([camera.cam_from_img(_within_fold(intrinsics, xy_px)),
+                                np.ones(len(xy_px))])
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
     offsets = (xy_px - [camera.principal_point_x, camera.principal_point_y]) / \
         [camera.focal_length_x, camera.focal_length_y]
@@ -103,6 +106,27 @@ def pixel_rays(intrinsics: CameraIntrinsics, xy_px: np.ndarray,
     theta = np.minimum(radius, max_angle_rad)
     direction = offsets / np.maximum(radius, 1e-12)[:, None]
     return np.column_stack([direction * np.sin(theta)[:, None], np.cos(theta)])
+
+
+# Just inside the fold, where the undistortion still converges.
+_INSIDE_FOLD = 0.99
+
+
+def _within_fold(intrinsics: CameraIntrinsics, xy_px: np.ndarray) -> np.ndarray:
+    """xy_px (N, 2) with the pixels beyond a perspective lens's fold (its fitted distortion
+    stops increasing before the image corner: plausibility.corner_fold_warning) pulled in along
+    their radius to just inside it, the widest ray the model has in their direction; others as
+    they are."""
+    fold = perspective_fold_radius(intrinsics)
+    if fold is None:
+        return xy_px
+    camera = intrinsics.to_pycolmap()
+    centre = np.array([camera.principal_point_x, camera.principal_point_y])
+    focal = np.array([camera.focal_length_x, camera.focal_length_y])
+    offsets = (xy_px - centre) / focal
+    radius = np.linalg.norm(offsets, axis=1, keepdims=True)
+    scale = np.minimum(1.0, _INSIDE_FOLD * fold / np.maximum(radius, 1e-12))
+    return centre + offsets * scale * focal
 
 
 def camera_colours(n: int) -> list[tuple[int, int, int]]:
