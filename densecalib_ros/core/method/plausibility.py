@@ -70,7 +70,7 @@ def intrinsics_problem(camera: CameraIntrinsics,
         return "its parameters are not finite"
     if layout is None:
         return None
-    fx_i, fy_i, cx_i, cy_i, k_idx, fisheye = layout
+    fx_i, fy_i, _, _, k_idx, fisheye = layout
     focal = params[fx_i] if fy_i is None else 0.5 * (params[fx_i] + params[fy_i])
     if not MIN_FOCAL_IMAGE_RATIO * size <= focal <= MAX_FOCAL_IMAGE_RATIO * size:
         return (f"its focal length {focal:.0f} px is outside {MIN_FOCAL_IMAGE_RATIO:g}-"
@@ -80,21 +80,28 @@ def intrinsics_problem(camera: CameraIntrinsics,
         return f"its {runaway}"
     if not k_idx:
         return None
-    extent = np.array([[0, 0], [camera.width, 0], [0, camera.height],
-                       [camera.width, camera.height]], dtype=np.float64)
-    if observed_xy_px is not None and len(observed_xy_px):
-        extent = np.asarray(observed_xy_px, dtype=np.float64).reshape(-1, 2)
-    f_xy = np.array([params[fx_i], params[fx_i if fy_i is None else fy_i]])
-    reach = np.max(np.linalg.norm((extent - params[[cx_i, cy_i]]) / f_xy, axis=1))
+    observed = observed_xy_px is not None and len(observed_xy_px)
+    reach = _normalised_reach(camera, observed_xy_px if observed else None)
     monotone_reach, _ = _monotone_reach(params, k_idx, fisheye)
     if monotone_reach < reach:
         coeffs = ", ".join(f"{params[i]:.3g}" for i in k_idx)
-        where = "the image corner" if observed_xy_px is None or not len(observed_xy_px) \
-            else "the farthest observation"
+        where = "the farthest observation" if observed else "the image corner"
         return (f"its radial distortion ({coeffs}) folds the image over itself: the distorted "
                 f"radius stops increasing at {monotone_reach:.2f} before {where} at "
                 f"{reach:.2f} (normalised)")
     return None
+
+
+def _normalised_reach(camera: CameraIntrinsics, xy_px: Optional[np.ndarray] = None) -> float:
+    """The largest normalised (distorted) radius of the pixels xy_px ((N, 2) COLMAP px; None:
+    the image corners) from a known-layout camera's principal point."""
+    fx_i, fy_i, cx_i, cy_i = _LAYOUT[camera.model][:4]
+    params = np.asarray(camera.params, dtype=np.float64)
+    if xy_px is None:
+        xy_px = [[0, 0], [camera.width, 0], [0, camera.height], [camera.width, camera.height]]
+    f_xy = np.array([params[fx_i], params[fx_i if fy_i is None else fy_i]])
+    offsets = (np.asarray(xy_px, dtype=np.float64).reshape(-1, 2) - params[[cx_i, cy_i]]) / f_xy
+    return float(np.max(np.linalg.norm(offsets, axis=1)))
 
 
 def _monotone_reach(params: np.ndarray, k_idx: Sequence[int], fisheye: bool
@@ -207,14 +214,10 @@ def corner_fold_warning(rig: RigCalibration) -> Optional[str]:
     given = set(rig.quality.given_intrinsics or ())
     folds = []
     for name, cam in rig.cameras.items():
-        problem = intrinsics_problem(cam.intrinsics) if name not in given else None
-        fold = perspective_fold_radius(cam.intrinsics)
-        if problem and "folds the image" in problem and fold is not None:
-            fx_i, _, cx_i, cy_i = _LAYOUT[cam.intrinsics.model][:4]
-            params = np.asarray(cam.intrinsics.params, dtype=np.float64)
-            corner = np.hypot(max(params[cx_i], cam.intrinsics.width - params[cx_i]),
-                              max(params[cy_i], cam.intrinsics.height - params[cy_i]))
-            folds.append(f"{name} at {100 * fold * params[fx_i] / corner:.0f} %")
+        fold = perspective_fold_radius(cam.intrinsics) if name not in given else None
+        share = fold / _normalised_reach(cam.intrinsics) if fold is not None else 1.0
+        if share < 1.0:
+            folds.append(f"{name} at {100 * share:.0f} %")
     if not folds:
         return None
     return ("the fitted lens distortion folds over before the image corner (the radius where "

@@ -97,7 +97,7 @@ def pixel_rays(intrinsics: CameraIntrinsics, xy_px: np.ndarray,
     camera = intrinsics.to_pycolmap()
     xy_px = np.atleast_2d(np.asarray(xy_px, dtype=np.float64))
     if "FISHEYE" not in intrinsics.model:
-        rays = np.column_stack([camera.cam_from_img(_within_fold(intrinsics, xy_px)),
+        rays = np.column_stack([camera.cam_from_img(_within_fold(intrinsics, camera, xy_px)),
                                 np.ones(len(xy_px))])
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
     offsets = (xy_px - [camera.principal_point_x, camera.principal_point_y]) / \
@@ -112,15 +112,14 @@ def pixel_rays(intrinsics: CameraIntrinsics, xy_px: np.ndarray,
 _INSIDE_FOLD = 0.99
 
 
-def _within_fold(intrinsics: CameraIntrinsics, xy_px: np.ndarray) -> np.ndarray:
+def _within_fold(intrinsics: CameraIntrinsics, camera: Any, xy_px: np.ndarray) -> np.ndarray:
     """xy_px (N, 2) with the pixels beyond a perspective lens's fold (its fitted distortion
     stops increasing before the image corner: plausibility.corner_fold_warning) pulled in along
     their radius to just inside it, the widest ray the model has in their direction; others as
-    they are."""
+    they are. camera: intrinsics as a pycolmap.Camera."""
     fold = perspective_fold_radius(intrinsics)
     if fold is None:
         return xy_px
-    camera = intrinsics.to_pycolmap()
     centre = np.array([camera.principal_point_x, camera.principal_point_y])
     focal = np.array([camera.focal_length_x, camera.focal_length_y])
     offsets = (xy_px - centre) / focal
