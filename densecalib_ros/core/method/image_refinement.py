@@ -78,7 +78,7 @@ from .prior_adjustment import (FISHEYE_MODELS, INTRINSIC_NAMES, SUPPORTED_MODELS
 from .reconstruction import (SfMState, remove_outlier_observations, reprojection_errors,
                              triangulate_tracks)
 from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, pooled_intrinsics,
-                          random_effects, scatter_per_dof)
+                          random_effects, scatter_per_dof, spread_said, spread_ties)
 from .refinement_uncertainty import refinement_sigmas
 
 log = logging.getLogger(__name__)
@@ -359,7 +359,8 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
     where correspondences held out of the adjustment do not tell them apart (`_one_camera_excess`,
     module docstring; not tested where an estimate scatters beyond ONE_CAMERA_MAX_SCATTER), else
     each of POOLED_INTRINSICS as far as they agree
-    (core.method.rig_pooling: the rig's own spread). Also the groups of blocks tied as one, and
+    (core.method.rig_pooling: the rig's own spread; from fewer than MIN_SPREAD_CAMERAS, a spread
+    of 0 ties nothing: spread_ties). Also the groups of blocks tied as one, and
     the groups judged (those tied as one among them)."""
     ties, groups, one_cameras, judged = [], {}, [], []
     for b in blocks:
@@ -378,7 +379,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
         pooled = pooled_intrinsics(state.intrinsics[members[0]].model)
         stds = {i: [fold_sigmas[b]["intrinsics"][i] for b in members] for i in pooled}
         effects = {i: random_effects(values[:, i], stds[i]) for i in pooled}
-        spread_ties = [(i, {b: e.sigma for b in same_size}) for i, e in effects.items()]
+        spread, untied = spread_ties(effects, same_size, len(members))
         one_ties = _one_camera_ties(state, members, fold_sigmas)
         scatter = {i: scatter_per_dof(values[:, i], stds[i]) for i in pooled}
         widest = max(scatter, key=scatter.get)
@@ -387,7 +388,7 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
             tested = (f"; their {INTRINSIC_NAMES[widest]} estimates scatter "
                       f"{np.sqrt(scatter[widest]):.0f}x their own sigmas, not one camera's")
         else:
-            excess, standard_error = _one_camera_excess(state, blocks, priors, spread_ties,
+            excess, standard_error = _one_camera_excess(state, blocks, priors, spread,
                                                         one_ties, noise_px, camera_names)
             tested = (f"; as one camera they fit held-out correspondences "
                       f"{100 * np.mean(excess):.1f} % worse" if np.isfinite(excess).all() else "")
@@ -399,11 +400,11 @@ def rig_ties(state: SfMState, blocks: list[int], fold_sigmas: dict, priors: Prio
                 f" %, folds' standard error {100 * standard_error:.2f} %): their focal length, "
                 f"principal point and distortion are estimated as one")
         else:
-            ties += spread_ties
-            say(f"focal length and distortion tied across the {len(members)} cameras of "
-                f"{width}x{height} as far as they agree (spread between them: focal "
-                f"{effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, k2 "
-                f"{effects[4].spread:.4f}{tested})")
+            ties += spread
+            say(f"focal length and distortion {'tied' if spread else 'left untied'} across the "
+                f"{len(members)} cameras of {width}x{height}"
+                f"{' as far as they agree' if spread else ''} ("
+                f"{spread_said(effects, untied, state.intrinsics[members[0]].model)}{tested})")
     return ties, one_cameras, judged
 
 

@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from ..config import lens_of_model
+from .prior_adjustment import INTRINSIC_NAMES
 
 # Intrinsics tied, as indices into prior_adjustment.INTRINSIC_NAMES: f, k1, k2. Not the principal
 # point: where the images leave it open, the rig's mean of such points is as open, and tied to it
@@ -33,6 +34,13 @@ POOLED_INTRINSICS = (0, 3, 4)
 FISHEYE_POOLED_INTRINSICS = POOLED_INTRINSICS + (6, 7)
 
 
+def pooled_name(i: int, model: str) -> str:
+    """The name of intrinsic i (INTRINSIC_NAMES) of a camera of this model: a fisheye's k3, k4."""
+    if lens_of_model(model) == "fisheye" and i in FISHEYE_POOLED_INTRINSICS[-2:]:
+        return f"k{i - 3}"
+    return INTRINSIC_NAMES[i]
+
+
 def pooled_intrinsics(model: str) -> tuple[int, ...]:
     """The intrinsics tied across cameras of this COLMAP model (indices into INTRINSIC_NAMES)."""
     return FISHEYE_POOLED_INTRINSICS if lens_of_model(model) == "fisheye" else POOLED_INTRINSICS
@@ -41,6 +49,12 @@ def pooled_intrinsics(model: str) -> tuple[int, ...]:
 # The spread between cameras rests on the scatter of their estimates: with two cameras on one
 # difference, too little to tell one model from two.
 MIN_POOLED_CAMERAS = 3
+# Below this many cameras a spread estimated at 0 ties nothing: from 2-3 differences the moment
+# estimate (random_effects) comes out 0 about a third of the time for cameras whose values differ
+# by their own sigmas (four cameras: Cochran's Q is then twice a chi-square of 3 degrees of
+# freedom, below its 3 with probability 0.32), and would share one value between different
+# lenses. Whether they are one camera is the one-camera test's to say.
+MIN_SPREAD_CAMERAS = 5
 # A spread of 0 says the estimates scatter no more than their own errors explain: the cameras are
 # one model and share the value. Their tie's sigma is then this fraction of the rig mean's
 # standard error: tight enough to hold them together as one shared parameter would, not zero,
@@ -93,3 +107,25 @@ def one_value(values: Sequence[float], stds: Sequence[float]) -> RandomEffects:
     standard error, and the tie SHARED_FRACTION of that (what a shared parameter would do)."""
     y, w = np.asarray(values, float), np.asarray(stds, float) ** -2.0
     return RandomEffects(float(np.sum(w * y) / np.sum(w)), 0.0, float(np.sqrt(1.0 / np.sum(w))))
+
+
+def spread_ties(effects: dict, blocks: Sequence[int], num_estimates: int
+                ) -> tuple[list, list[int]]:
+    """(Priors.ties of each intrinsic in `effects` (index -> RandomEffects, from num_estimates
+    cameras) across `blocks` at its sigma, the intrinsics left untied): below
+    MIN_SPREAD_CAMERAS estimates, those whose spread came out 0."""
+    untied = [i for i, e in effects.items()
+              if num_estimates < MIN_SPREAD_CAMERAS and e.spread <= 0.0]
+    return [(i, {b: e.sigma for b in blocks}) for i, e in effects.items()
+            if i not in untied], untied
+
+
+def spread_said(effects: dict, untied: Sequence[int], model: str) -> str:
+    """The spreads of f, k1 and k2 (effects: index -> RandomEffects) and the intrinsics left
+    untied (spread_ties), said."""
+    said = (f"spread between them: focal {effects[0].spread:.1f} px, k1 {effects[3].spread:.4f}, "
+            f"k2 {effects[4].spread:.4f}")
+    if untied:
+        said += (f"; {', '.join(pooled_name(i, model) for i in untied)} left untied: a spread "
+                 "of 0 from so few cameras is as likely lenses that differ")
+    return said
