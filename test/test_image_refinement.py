@@ -540,3 +540,40 @@ def test_dense_points_that_leave_groups_of_cameras_unlinked_are_found_and_warned
     assert "{cam0, cam1} and {cam2, cam3}" in said and "keypoint matches alone" in said
     rig.quality = RigQuality()
     assert groups_apart_warning(rig) is None
+
+
+def test_what_moves_through_later_frame_sets_is_densified_where_it_is_new(real_rig):
+    """Beyond the frame sets densified whole, a later frame set gives dense correspondences
+    where it shows what no earlier one did (something walking through the static room); a frame
+    set that shows nothing new gives none."""
+    from densecalib_ros.core.method.all_matches import keypoint_tracks
+    from densecalib_ros.core.method.dense_frame_sets import densified_times, later_frame_sets
+    from densecalib_ros.core.method.dense_matches import dense_tracks
+    from densecalib_ros.core.method.reconstruction import SfMState
+    from densecalib_ros.core import match_frame_sets
+
+    full, C = real_rig.images[0], len(real_rig.names)
+    h = full[0].shape[0]
+
+    def lower_half_grey(image):
+        out = np.array(image, copy=True)
+        out[h // 2:] = 128
+        return out
+    hidden = [lower_half_grey(image) for image in full]
+    # six frame sets: the lower half shows up in the fifth only, which is not one of the four
+    # taken whole; the second repeats the first
+    frame_sets = [hidden, hidden, hidden, hidden, full, hidden]
+    seeds = keypoint_tracks(match_frame_sets(frame_sets, make_config("regular")), C)
+    assert densified_times(seeds).tolist() == [0, 2, 3, 5]
+    later = later_frame_sets(frame_sets, seeds)
+    assert list(later) == [4] and 0.5 < later[4] < 0.6  # the lower half, and a margin
+
+    truth = real_rig.ground_truth()
+    state = SfMState.create(seeds, [truth.cameras[n].intrinsics for n in real_rig.names])
+    state.cam_from_world = [truth.cameras[n].cam_from_rig.copy() for n in real_rig.names]
+    found = dense_tracks(frame_sets, state, seeds)
+    moved_in = found.time_index == 4
+    assert moved_in.sum() > 500
+    # each from a reference point on what is new (another camera may see it higher up)
+    assert (np.nanmax(found.xy_px[moved_in, :, 1], axis=1) > h // 2 - 40).all()
+    assert not (found.xy_px[~moved_in, :, 1] > h // 2 + 40).any()

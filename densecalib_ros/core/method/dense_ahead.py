@@ -11,8 +11,8 @@ import numpy as np
 
 from ..parallel import STOP_CHECK_S, RunAhead, available_cores
 from ..types import Tracks
-from .dense_matches import (AlignmentCount, densified_times, dense_tracks, first_pass,
-                            points_per_image)
+from .dense_frame_sets import densified_times, later_frame_sets
+from .dense_matches import AlignmentCount, dense_tracks, first_pass, points_per_image
 from .reconstruction import SfMState
 
 # Core-seconds one reference point's alignment onto another image, or back, takes (both passes
@@ -21,8 +21,9 @@ from .reconstruction import SfMState
 ALIGN_CORE_S_PER_POINT = 3e-5
 
 
-def alignment_steps(num_cameras: int, num_frame_sets: int) -> int:
-    """_aligned_both_ways' steps over these frame sets among this many cameras (one pass)."""
+def alignment_steps(num_cameras: int, num_frame_sets: float) -> float:
+    """_aligned_both_ways' steps over these frame sets among this many cameras (one pass); a
+    frame set densified on part of its images counts as that share of one (AlignmentCount)."""
     return 2 * num_frame_sets * num_cameras * (num_cameras - 1)
 
 
@@ -43,13 +44,15 @@ class DenseAhead:
         self._inputs = (frame_sets, keypoint_tracks, masks)
         self.px_scale = px_scale
         self._num_cameras = num_cameras
-        self._num_frame_sets = len(densified_times(keypoint_tracks))
         if first_of is not None:
+            self._num_frame_sets = first_of._num_frame_sets
             self._first_done, self._first = first_of._first_done, first_of._first
         else:
+            later = later_frame_sets(frame_sets, keypoint_tracks)
+            self._num_frame_sets = len(densified_times(keypoint_tracks)) + sum(later.values())
             self._first_done = AlignmentCount()
             self._first = RunAhead(partial(first_pass, px_scale=px_scale,
-                                           counted=self._first_done), frame_sets,
+                                           counted=self._first_done, later=later), frame_sets,
                                    range(num_cameras), keypoint_tracks, masks,
                                    name="densecalib-dense-ahead")
         # (_rig_key, RunAhead of dense_tracks, the alignments it did)

@@ -16,7 +16,8 @@ A refined position is kept when the patches agree (normalised cross-correlation 
 moved at most MAX_SHIFT_PX from the prediction, aligning back from it returns to the reference
 point (MAX_ROUND_TRIP_PX), and it lies within MAX_EPIPOLAR_PX of the epipolar line of the found
 cameras. One track per reference point: its pixel in a and in every camera
-where it was found."""
+where it was found. Frame sets beyond the few densified whole give reference points only where
+they show something new: what moves through the view, seen by several cameras at once."""
 from __future__ import annotations
 
 import logging
@@ -34,6 +35,7 @@ from ..progress import check_stop
 from ..types import Tracks
 from .incremental import MIN_REGISTRATION_POINTS
 from .matching.utils import to_gray
+from .dense_frame_sets import densified_frame_sets, later_frame_sets
 from .patch_alignment import align
 from .reconstruction import SfMState
 from .view_graph import connected_components, shared_counts
@@ -69,7 +71,6 @@ MAX_NEIGHBOUR_DISTANCE_PX = 60.0
 # Distance from the found cameras' epipolar line (px): the found rig fits its own matches to a
 # fraction of a pixel, so a right correspondence lies within a few px of it.
 MAX_EPIPOLAR_PX = 3.0
-MAX_FRAME_SETS = 4  # frame sets densified (evenly spaced); more repeat the static rig's geometry
 # MAX_SHIFT_PX, MAX_NEIGHBOUR_DISTANCE_PX (and the neighbours' weights) and MAX_EPIPOLAR_PX are
 # pixels of an image matched at its own size: the predictions come from keypoint matches, whose
 # errors (and spacing) in a larger image, matched downscaled (config.max_image_side_px), grow
@@ -197,20 +198,22 @@ class FirstPass:
 
     cameras: tuple
     times: np.ndarray
+    weights: list  # per frame set, its share of whole images (AlignmentCount's unit)
     points: list
     returned: list
 
 
 class AlignmentCount:
     """Directed alignments done (one camera's points aligned onto another image, or back from
-    it: _aligned_both_ways' steps), counted from any thread: how far dense work run ahead got."""
+    it: _aligned_both_ways' steps; a step on part of the image, a later frame set's new
+    content, counts its share), counted from any thread: how far dense work run ahead got."""
 
     def __init__(self) -> None:
-        self._lock, self.done = threading.Lock(), 0
+        self._lock, self.done = threading.Lock(), 0.0
 
-    def add(self) -> None:
+    def add(self, share: float = 1.0) -> None:
         with self._lock:
-            self.done += 1
+            self.done += share
 
 
 def points_per_image(num_cameras: int) -> int:
@@ -258,42 +261,38 @@ class Cancelled(Exception):
     """Dense alignments run ahead were called off (first_pass's or dense_tracks' `cancelled`)."""
 
 
-def densified_times(keypoint_tracks: Tracks) -> np.ndarray:
-    """The frame sets dense_tracks densifies: at most MAX_FRAME_SETS, evenly spaced."""
-    times = np.unique(keypoint_tracks.time_index)
-    if len(times) > MAX_FRAME_SETS:
-        times = times[np.round(np.linspace(0, len(times) - 1, MAX_FRAME_SETS)).astype(int)]
-    return times
-
-
 def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int],
                keypoint_tracks: Tracks, masks: Optional[Sequence] = None,
                cancelled: Optional[threading.Event] = None,
                thread_start: Optional[Callable[[], None]] = None,
                px_scale: Optional[np.ndarray] = None,
-               counted: Optional[AlignmentCount] = None) -> FirstPass:
+               counted: Optional[AlignmentCount] = None,
+               later: Optional[dict] = None) -> FirstPass:
     """dense_tracks' first pass among `cameras` (FirstPass). It does not depend on the rig, so a
     calibration runs it ahead, while the rig is still being found (core.pipeline): cancelled,
     set, stops it between pairs (Cancelled); thread_start runs first in each of its threads.
     px_scale: per camera, keypoint_px_scale (None: 1 for every camera); counted: where to count
-    its alignments (AlignmentCount), or None."""
-    times = densified_times(keypoint_tracks)
+    its alignments (AlignmentCount), or None; later: later_frame_sets' (None: found here)."""
+    if later is None:
+        later = later_frame_sets(frame_sets, keypoint_tracks)
     cameras = tuple(int(c) for c in cameras)
     observed = keypoint_tracks.observed()
-    all_points, all_returned = [], []
-    for time in times:
+    times, weights, all_points, all_returned = [], [], [], []
+    for time, regions in densified_frame_sets(frame_sets, keypoint_tracks, later):
         grays = _grays(frame_sets, int(time), cameras)
         in_set = keypoint_tracks.time_index == time
         points = {a: reference_points(grays[a], points_per_image(len(cameras)),
-                                      mask=None if masks is None else masks[a])
+                                      mask=_ignored(masks, regions, a))
                   for a in cameras}
         seeds = _pair_seeds(keypoint_tracks, observed, in_set, cameras)
         none = np.zeros(0, np.int64)
+        times.append(time)
+        weights.append(1.0 if regions is None else later[time])
         all_points.append(points)
         all_returned.append(_aligned_both_ways(grays, cameras, points, seeds,
                                                {k: none for k in seeds}, cancelled,
-                                               thread_start, px_scale, counted))
-    return FirstPass(cameras, times, all_points, all_returned)
+                                               thread_start, px_scale, counted, weights[-1]))
+    return FirstPass(cameras, np.array(times, np.int64), weights, all_points, all_returned)
 
 
 def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
@@ -319,7 +318,8 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
                            thread_start, px_scale, counted)
     observed = keypoint_tracks.observed()
     parts = []
-    for time, points, returned in zip(ahead.times, ahead.points, ahead.returned):
+    for time, weight, points, returned in zip(ahead.times, ahead.weights, ahead.points,
+                                              ahead.returned):
         grays = _grays(frame_sets, int(time), registered)
         in_set = keypoint_tracks.time_index == time
         seeds = _pair_seeds(keypoint_tracks, observed, in_set, registered)
@@ -328,7 +328,7 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
             if second:
                 returned = _aligned_both_ways(grays, registered, points, seeds,
                                               {k: v[0] for k, v in found.items()}, cancelled,
-                                              thread_start, px_scale, counted)
+                                              thread_start, px_scale, counted, weight)
             new = {(a, b): _on_epipolar_lines(state, a, b, points[a], *returned[a, b],
                                               _scale(px_scale, b))
                    for (a, b) in seeds}
@@ -362,6 +362,15 @@ def _pair_seeds(keypoint_tracks: Tracks, observed: np.ndarray, in_set: np.ndarra
             for rows in [np.flatnonzero(in_set & observed[:, a] & observed[:, b])]}
 
 
+def _ignored(masks: Optional[Sequence], regions: Optional[list], c: int) -> Optional[np.ndarray]:
+    """Camera c's pixels no reference point may take: its mask's, and outside its region."""
+    mask = None if masks is None else masks[c]
+    if regions is None or regions[c] is None:
+        return mask
+    outside = ~regions[c]
+    return outside if mask is None else outside | mask
+
+
 def _grays(frame_sets: Sequence[Sequence[np.ndarray]], time: int, cameras: Sequence[int]
            ) -> dict:
     return {c: to_gray(np.asarray(frame_sets[time][c])).astype(np.float32) for c in cameras}
@@ -375,10 +384,11 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
                        skip: dict, cancelled: Optional[threading.Event] = None,
                        thread_start: Optional[Callable[[], None]] = None,
                        px_scale: Optional[np.ndarray] = None,
-                       counted: Optional[AlignmentCount] = None) -> dict:
+                       counted: Optional[AlignmentCount] = None, share: float = 1.0) -> dict:
     """(a, b) -> (indices into points[a], positions in b (n, 2)): camera a's points, but those
     in skip[a, b], predicted from seeds[a, b] and aligned onto b (_aligned), that align back
-    onto where they started (_returned); each of the steps is counted in `counted` (or not)."""
+    onto where they started (_returned); each of the steps is counted in `counted` (or not), as
+    `share` of a whole image's."""
     def check() -> None:
         if cancelled is not None and cancelled.is_set():
             raise Cancelled()
@@ -396,7 +406,7 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
                                      skip=skip[a, b], scales=(_scale(px_scale, a),
                                                               _scale(px_scale, b)))
                 if counted is not None:
-                    counted.add()
+                    counted.add(share)
         return out
 
     def back_onto(a: int) -> dict:
@@ -406,7 +416,7 @@ def _aligned_both_ways(grays: dict, cameras: Sequence[int], points: dict, seeds:
                 check()
                 out[a, b] = _returned(grays, image, a, b, points[a], *forward[a, b])
                 if counted is not None:
-                    counted.add()
+                    counted.add(share)
         return out
     with ThreadPoolExecutor(available_cores(), initializer=thread_start) as pool:
         forward = {k: v for part in pool.map(onto, cameras) for k, v in part.items()}
