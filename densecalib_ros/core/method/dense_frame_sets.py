@@ -6,7 +6,7 @@ densified whole. What moves through the rig's view (a person, an animal, a board
 around) stands elsewhere in every set and is seen by several cameras at the same instant: each
 other frame set is densified where it shows what no earlier set of the camera showed
 (new_content), which is what carries the intrinsics of a few cameras far apart in a plain room
-(docs/design-notes.md, Dense correspondences: what moves)."""
+(docs/design-notes.md, Dense correspondences, What moves through later frame sets)."""
 from __future__ import annotations
 
 from typing import Iterator, Optional, Sequence
