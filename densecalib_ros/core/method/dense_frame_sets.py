@@ -58,7 +58,10 @@ def later_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], keypoint_tracks
 def densified_frame_sets(frame_sets: Sequence[Sequence[np.ndarray]], keypoint_tracks: Tracks,
                          later: dict) -> Iterator[tuple[int, Optional[list]]]:
     """(frame set, None: densified whole, or per camera the bool (H, W) region of what is new in
-    it) for densified_times' frame sets and `later`'s (later_frame_sets), in time order."""
+    it) for densified_times' frame sets and `later`'s (later_frame_sets), in time order. The
+    regions are found again here, one frame set at a time, rather than kept by later_frame_sets:
+    full-size masks of every later frame set would be held at once (0.17 s for 20 frame sets of
+    four 1280x720 cameras)."""
     whole = set(int(t) for t in densified_times(keypoint_tracks))
     for t, regions in enumerate(new_content_regions(frame_sets)):
         if t in whole:

@@ -198,9 +198,13 @@ class FirstPass:
 
     cameras: tuple
     times: np.ndarray
-    weights: list  # per frame set, its share of whole images (AlignmentCount's unit)
+    later: dict  # later_frame_sets': the frame sets densified on part of their images, shares
     points: list
     returned: list
+
+    def share(self, time: int) -> float:
+        """The share of whole images frame set `time` is densified on (AlignmentCount's unit)."""
+        return self.later.get(int(time), 1.0)
 
 
 class AlignmentCount:
@@ -277,7 +281,7 @@ def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int
         later = later_frame_sets(frame_sets, keypoint_tracks)
     cameras = tuple(int(c) for c in cameras)
     observed = keypoint_tracks.observed()
-    times, weights, all_points, all_returned = [], [], [], []
+    times, all_points, all_returned = [], [], []
     for time, regions in densified_frame_sets(frame_sets, keypoint_tracks, later):
         grays = _grays(frame_sets, int(time), cameras)
         in_set = keypoint_tracks.time_index == time
@@ -287,12 +291,12 @@ def first_pass(frame_sets: Sequence[Sequence[np.ndarray]], cameras: Sequence[int
         seeds = _pair_seeds(keypoint_tracks, observed, in_set, cameras)
         none = np.zeros(0, np.int64)
         times.append(time)
-        weights.append(1.0 if regions is None else later[time])
         all_points.append(points)
         all_returned.append(_aligned_both_ways(grays, cameras, points, seeds,
                                                {k: none for k in seeds}, cancelled,
-                                               thread_start, px_scale, counted, weights[-1]))
-    return FirstPass(cameras, np.array(times, np.int64), weights, all_points, all_returned)
+                                               thread_start, px_scale, counted,
+                                               later.get(time, 1.0)))
+    return FirstPass(cameras, np.array(times, np.int64), later, all_points, all_returned)
 
 
 def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
@@ -313,13 +317,12 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
     counted: as first_pass's."""
     C = state.num_cameras
     registered = tuple(int(c) for c in state.registered())
-    if ahead is None or ahead.cameras != registered:
+    if ahead is None or ahead.cameras != registered:  # the same frame sets among fewer cameras
         ahead = first_pass(frame_sets, registered, keypoint_tracks, masks, cancelled,
-                           thread_start, px_scale, counted)
+                           thread_start, px_scale, counted, None if ahead is None else ahead.later)
     observed = keypoint_tracks.observed()
     parts = []
-    for time, weight, points, returned in zip(ahead.times, ahead.weights, ahead.points,
-                                              ahead.returned):
+    for time, points, returned in zip(ahead.times, ahead.points, ahead.returned):
         grays = _grays(frame_sets, int(time), registered)
         in_set = keypoint_tracks.time_index == time
         seeds = _pair_seeds(keypoint_tracks, observed, in_set, registered)
@@ -328,7 +331,8 @@ def dense_tracks(frame_sets: Sequence[Sequence[np.ndarray]], state: SfMState,
             if second:
                 returned = _aligned_both_ways(grays, registered, points, seeds,
                                               {k: v[0] for k, v in found.items()}, cancelled,
-                                              thread_start, px_scale, counted, weight)
+                                              thread_start, px_scale, counted,
+                                              ahead.share(time))
             new = {(a, b): _on_epipolar_lines(state, a, b, points[a], *returned[a, b],
                                               _scale(px_scale, b))
                    for (a, b) in seeds}
