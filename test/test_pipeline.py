@@ -3,6 +3,8 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import re
+
 import numpy as np
 import pytest
 
@@ -198,11 +200,15 @@ def test_multistart_is_judged_on_matches_the_sampled_tracks_left_out(pipeline):
     assert result.rig.quality.consensus_disagreement_deg < 1.0
 
 
-def test_images_without_overlap_fail_with_overlap_error():
+def test_images_without_overlap_fail_with_overlap_error_naming_each_pairs_matches():
     rng = np.random.default_rng(0)
     frames = [[rng.integers(0, 255, (240, 320), dtype=np.uint8) for _ in range(3)]]
-    with pytest.raises(NotEnoughOverlapError):
+    with pytest.raises(NotEnoughOverlapError) as error:
         calibrate_rig(frames, ["a", "b", "c"], make_config("regular", matcher="sift"))
+    said = str(error.value)
+    assert re.search(r"Keypoint matches per camera pair \(sift, fewest first\): "
+                     r"(a/b|a/c|b/c) \d+, (a/b|a/c|b/c) \d+, (a/b|a/c|b/c) \d+; "
+                     r"[abc] and [abc] need frame sets in which both see", said), said
 
 
 def test_two_camera_groups_without_common_view_are_named():

@@ -181,12 +181,13 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
             consensus: Optional[ConsensusRecord], match_tracks: Optional[Tracks],
             units_apart_deg: Optional[float] = None) -> Optional[str]:
     """Why the finished rig is refused: a rig of three or more cameras left with one pair
-    (pair_alone_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
+    (pair_alone_refusal), a camera the images place no better than that (unplaced_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
     matches about as well stand that far from it, and so does the runner-up where both were
     refined on the images; None where it is not refused. units_apart_deg: as
     consensus.disagreement_warning's."""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
-    alone = pair_alone_refusal(rig, config, camera_names, on_sift)
+    alone = pair_alone_refusal(rig, config, camera_names, on_sift) or \
+        unplaced_refusal(rig, match_tracks, camera_names)
     if alone:
         return alone
     if consensus is None or consensus.fitting_disagreement_deg is None or \
@@ -285,18 +286,55 @@ def unrefined_warning(rig: RigCalibration) -> Optional[str]:
 LOOSE_ROTATION_STD_DEG = 1.5
 
 
+# A camera placed to this (1 sigma) may be three times as far off: as far as the runs that
+# refuse a calibration stand apart (REFUSE_DISAGREEMENT_DEG), so the images place it no better.
+UNPLACED_ROTATION_STD_DEG = REFUSE_DISAGREEMENT_DEG / 3
+
+
+def _own_rotation_sigmas(rig: RigCalibration, above_deg: float) -> list[tuple[float, str]]:
+    """(the image refinement's rotation sigma, camera) above above_deg, loosest first; [] where
+    the runs' disagreement or groups the dense points leave apart widened the sigmas (their own
+    warnings say why)."""
+    quality = rig.quality
+    if quality.sigmas_runs_spread or quality.image_refinement_groups_apart:
+        return []
+    return sorted(((cam.quality.rotation_std_deg, name) for name, cam in rig.cameras.items()
+                   if cam.quality is not None and cam.quality.rotation_std_deg is not None
+                   and cam.quality.rotation_std_deg > above_deg), reverse=True)
+
+
+def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
+                     camera_names: Sequence[str] = ()) -> Optional[str]:
+    """Why a rig in which the images place some camera's rotation more loosely than
+    UNPLACED_ROTATION_STD_DEG (its own sigma, relative to the reference camera) is refused, naming
+    that camera with the reference camera and the matches they share; None otherwise. Warned
+    instead, such a rig came out wrong (a generated room of three fisheye units 120 deg apart: 3.7
+    deg off, sigmas 15 and 8.7 deg; docs/design-notes.md, Cameras the images do not place)."""
+    loose = _own_rotation_sigmas(rig, UNPLACED_ROTATION_STD_DEG)
+    if not loose:
+        return None
+    std, camera = loose[0]
+    ref = rig.reference_camera
+    shared = _shared_matches(match_tracks, camera_names)
+    count = shared.get((ref, camera), shared.get((camera, ref)))
+    shared = f"; they share {count} keypoint matches" if count is not None else ""
+    others = "".join(f", {n}'s {s:.1f} deg" for s, n in loose[1:])
+    return (f"the calibration is refused: the images place {camera} only to within "
+            f"{std:.1f} deg of {ref} (the calibration's own rotation sigma{others}{shared}), so "
+            f"{camera} may be {3 * std:.0f} deg off, as far as runs that disagree so that a "
+            f"calibration is refused. Add frame sets in which {ref} and {camera} see the same "
+            "textured things (a person crossing between them), give keypoints of what moves "
+            f"(--keypoints), or give {camera}'s intrinsics from a lab calibration "
+            f"(--intrinsics {camera}=FILE).")
+
+
 def loose_rotation_warning(rig: RigCalibration) -> Optional[str]:
     """The warning for a rig in which the image refinement's own sigmas place some camera's
     rotation more loosely than LOOSE_ROTATION_STD_DEG; None otherwise, and where another warning
     says why already: runs that disagree (their spread is in the sigmas,
     RigQuality.sigmas_runs_spread) or groups the dense points leave apart
     (groups_apart_warning)."""
-    quality = rig.quality
-    if quality.sigmas_runs_spread or quality.image_refinement_groups_apart:
-        return None
-    loose = sorted(((cam.quality.rotation_std_deg, name) for name, cam in rig.cameras.items()
-                    if cam.quality is not None and cam.quality.rotation_std_deg is not None
-                    and cam.quality.rotation_std_deg > LOOSE_ROTATION_STD_DEG), reverse=True)
+    loose = _own_rotation_sigmas(rig, LOOSE_ROTATION_STD_DEG)
     if not loose:
         return None
 

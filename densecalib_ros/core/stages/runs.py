@@ -21,7 +21,7 @@ from ..method.known_intrinsics import given_intrinsics_fit
 from ..method.multistart import MULTISTART_MAX_TRACKS, run_incremental
 from ..method.reconstruction import SfMState
 from ..method.twoview import epipolar_filter, fundamental_matrices
-from ..method.view_graph import connected_components, disconnected_error
+from ..method.view_graph import connected_components, disconnected_error, pair_track_counts
 from ..progress import Progress
 from ..robust.placement import repair_placements
 from ..types import RigCalibration, RigQuality, Tracks
@@ -46,10 +46,13 @@ def calibrate_once(matched: Matched, image_sizes: Sequence[tuple[int, int]],
         if identity is None and isinstance(exc, FocalInitError):  # it knows cameras by index
             raise exc.named(camera_names) from exc
         if identity is None:
-            raise
+            raise NotEnoughOverlapError(str(exc) + _pairs_matched(matched, camera_names)) \
+                from exc
         progress.say(f"the image matches give no tracks to start from ({exc}); the keypoints "
                      "carry the run")
         sampled, given = None, start_focals(config, previous, camera_names, image_sizes)
+    if sampled is not None and identity is None and not sampled.tracks.num_tracks:
+        raise NotEnoughOverlapError(_NO_TRACKS + _pairs_matched(matched, camera_names))
     if sampled is not None:
         stats = sampled.stats
         progress.say(f"sampled {sampled.tracks.num_tracks} tracks (per order "
@@ -164,6 +167,29 @@ def unsupported_cameras(state: SfMState, camera_names: Sequence[str],
     return out
 
 
+_NO_TRACKS = ("No correspondences survived cycle sampling: the cameras' views do not overlap enough "
+              "or the scene lacks texture. Point the cameras at a shared, textured scene or add "
+              "frame sets.")
+
+
+def _pairs_matched(matched: Matched, camera_names: Sequence[str]) -> str:
+    """The sentence naming each camera pair's keypoint matches, fewest first, for a refusal
+    that found no correspondences to calibrate from; "" without keypoint-match tracks (a dense
+    matcher)."""
+    tracks = matched.keypoint_tracks
+    if tracks is None or tracks.num_cameras != len(camera_names):
+        return ""
+    shared = pair_track_counts(tracks)
+    pairs = sorted((int(shared[i, j]), a, b) for i, a in enumerate(camera_names)
+                   for j, b in enumerate(camera_names) if i < j)
+    fewest = pairs[0]
+    return (f" Keypoint matches per camera pair ({matched.matcher}, fewest first): "
+            + ", ".join(f"{a}/{b} {n}" for n, a, b in pairs)
+            + f"; {fewest[1]} and {fewest[2]} need frame sets in which both see the same "
+            "textured things (a person crossing between them), or keypoints of what moves "
+            "(--keypoints).")
+
+
 def _check_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]], C: int) -> None:
     if tracks.num_cameras != C or len(image_sizes) != C:
         raise InputError(f"{C} camera names but tracks for {tracks.num_cameras} cameras and "
@@ -171,10 +197,7 @@ def _check_tracks(tracks: Tracks, image_sizes: Sequence[tuple[int, int]], C: int
     if C < 2:
         raise TooFewCamerasGivenError(f"A rig needs at least two cameras, got {C}.")
     if tracks.num_tracks == 0:
-        raise NotEnoughOverlapError(
-            "No correspondences survived cycle sampling: the cameras' views do not overlap enough "
-            "or the scene lacks texture. Point the cameras at a shared, textured scene or add "
-            "frame sets.")
+        raise NotEnoughOverlapError(_NO_TRACKS)
 
 
 def _epipolar_filtered(tracks: Tracks, two_view: Optional[dict], config: PipelineConfig,
