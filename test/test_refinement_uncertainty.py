@@ -8,7 +8,8 @@ from sfm_fixtures import centred_state, gt_rig
 from densecalib_ros.core.method.image_folds import track_regions
 from densecalib_ros.core.method.prior_adjustment import Priors, adjust_with_priors
 from densecalib_ros.core.method.reconstruction import triangulate_tracks
-from densecalib_ros.core.method.refinement_uncertainty import (camera_uncertainty,
+from densecalib_ros.core.method.refinement_uncertainty import (MIN_FRAME_SET_CLUSTERS,
+                                                               camera_uncertainty,
                                                                held_point_std_px,
                                                                posterior_covariances)
 from densecalib_ros.core.types import CameraIntrinsics
@@ -16,15 +17,17 @@ from densecalib_ros.core.types import CameraIntrinsics
 NUM_CAMERAS = 5
 
 
-def _refined(shared_px: float, seed: int = 2):
+def _refined(shared_px: float, seed: int = 2, frame_sets: int = 1):
     """A 5-camera rig's tracks with 0.3 px of independent noise, plus shared_px of an offset
-    each image region (track_regions) has in each camera, adjusted with a principal point
-    prior; and the true cameras."""
+    each image region (track_regions) has in each camera, the tracks dealt out at random into
+    `frame_sets` frame sets, adjusted with a principal point prior; and the true cameras."""
     cams, poses = gt_rig(NUM_CAMERAS, seed=seed, pp_jitter_px=0.0)
     true = [CameraIntrinsics("OPENCV", c.width, c.height,
                              np.r_[c.params[0], c.params[0], c.params[1:], 0.0, 0.0])
             for c in cams]
     state = centred_state(true, poses, 0.3, seed=seed)
+    state.tracks.time_index[:] = np.random.default_rng(seed + 1).integers(
+        0, frame_sets, state.tracks.num_tracks)
     if shared_px:
         region = track_regions(state)
         offset = np.random.default_rng(seed).normal(
@@ -57,6 +60,28 @@ def test_errors_shared_within_regions_widen_the_clustered_sigmas():
                                                  track_regions(state)).marginals
     ratio = _focal_and_pp_stds(clustered) / _focal_and_pp_stds(posterior)
     assert np.median(ratio) > 1.3, ratio
+
+
+def test_a_refinement_over_frame_sets_adds_a_sandwich_clustered_by_frame_set():
+    """Correspondences of one frame set share what that instant did to them (what moved, and how
+    far the cameras' clocks and shutters stood apart meanwhile), which the sandwich over image
+    regions, each region spanning every frame set, cannot see: a third covariance clusters the
+    gradients by frame set, where there are at least MIN_FRAME_SET_CLUSTERS. Frame sets that
+    coincide with the regions give the regions' sandwich; with independent errors it is about
+    the posterior."""
+    state, blocks, priors, noise_px = _refined(0.0, frame_sets=8)
+    posterior, regions, frame_sets = posterior_covariances(
+        state, blocks, priors, noise_px, track_regions(state)).marginals
+    ratio = _focal_and_pp_stds(frame_sets) / _focal_and_pp_stds(posterior)
+    assert 0.6 < np.median(ratio) < 1.6, ratio
+    state.tracks.time_index[:] = track_regions(state)
+    _, regions, frame_sets = posterior_covariances(state, blocks, priors, noise_px,
+                                                   track_regions(state)).marginals
+    for b in blocks:
+        np.testing.assert_allclose(frame_sets[b], regions[b], rtol=1e-9, atol=1e-12)
+    state.tracks.time_index[:] = np.arange(state.tracks.num_tracks) % (MIN_FRAME_SET_CLUSTERS - 1)
+    assert len(posterior_covariances(state, blocks, priors, noise_px,
+                                     track_regions(state)).marginals) == 2
 
 
 def test_a_camera_reports_the_largest_sigma_each_source_gives():

@@ -1,7 +1,7 @@
 """The image refinement's sigmas (core.method.image_refinement): the adjustment's posterior
-covariance, a cluster-robust (sandwich) covariance over image regions, and the spatial folds'
-spread (core.method.image_folds), each camera's sigma the largest of them; each camera's
-rotation sigma beside them (refinement_sigmas, core.method.rotation_spread).
+covariance, cluster-robust (sandwich) covariances over image regions and frame sets, and the
+spatial folds' spread (core.method.image_folds), each camera's sigma the largest of them; each
+camera's rotation sigma beside them (refinement_sigmas, core.method.rotation_spread).
 
 Why a sandwich: the covariance weights every dense correspondence as an independent measurement
 at the fit's pixel noise. Correspondences from patch alignment are not: neighbours share a
@@ -13,7 +13,14 @@ image_folds.track_regions) and then squared: errors shared within a region add u
 the estimate, errors independent between regions average out. Where the errors are independent
 its expectation is the covariance. The folds estimate the same spread from four estimates (three
 degrees of freedom: simulated, their sigma averages 0.73 of the true one); a 4:3 image has about
-75 regions."""
+75 regions.
+
+A rig filmed over several frame sets has a third, clustered by frame set: correspondences of one
+instant share what that instant did to them (what moved and where, how far the cameras' clocks
+and rolling shutters stood apart meanwhile), which the regions, each spanning every frame set,
+average away. On Caliscope's webcams it gave focal sigmas 1.3-1.7 times the regions' and close
+to what leaving each frame set out in turn moves the focal lengths by (docs/design-notes.md,
+Sigmas over frame sets)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -22,7 +29,7 @@ from typing import Optional
 import numpy as np
 
 from .decentering import decentering_blocks, other_lens_model
-from .image_folds import track_regions
+from .image_folds import HOLDOUT_FOLDS, track_regions
 from .prior_adjustment import (TWO_FOCAL_MODELS, AdjustmentProblem, INTRINSIC_NAMES, Priors,
                                add_prior_terms)
 from .prior_covariance import block_marginals, camera_covariance
@@ -32,19 +39,25 @@ from .rotation_spread import fold_rotation_std_deg, model_choice_deg, rotation_s
 from .uncertainty import CameraUncertainty, projection_std_px
 
 
+# Frame sets a refinement's correspondences come from, at least, for a sandwich clustered by frame
+# set (posterior_covariances): no fewer clusters than the folds have estimates (HOLDOUT_FOLDS).
+MIN_FRAME_SET_CLUSTERS = HOLDOUT_FOLDS
+
+
 @dataclass
 class RefinementCovariances:
-    """The posterior and the sandwich covariance (M, M) of the adjustment's camera parameters
-    (posterior_covariances), their columns (AdjustmentProblem.pose_cols, intr_cols) and per
-    block their (8, 8) marginals of INTRINSIC_NAMES."""
+    """The posterior and the sandwich covariances (M, M) of the adjustment's camera parameters
+    (posterior_covariances: over image regions, and over frame sets where there are enough),
+    their columns (AdjustmentProblem.pose_cols, intr_cols) and per block their (8, 8) marginals
+    of INTRINSIC_NAMES."""
 
-    full: tuple[np.ndarray, np.ndarray]
+    full: tuple[np.ndarray, ...]
     pose_cols: np.ndarray
     intr_cols: np.ndarray
-    marginals: tuple[dict, dict]
+    marginals: tuple[dict, ...]
 
-    def of_block(self, block: int) -> tuple[np.ndarray, np.ndarray]:
-        return self.marginals[0][block], self.marginals[1][block]
+    def of_block(self, block: int) -> tuple[np.ndarray, ...]:
+        return tuple(marginals[block] for marginals in self.marginals)
 
 
 def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, Priors],
@@ -77,30 +90,42 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
 def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
                           track_region: np.ndarray) -> RefinementCovariances:
     """The covariance of the camera parameters at `state` as it is, under these priors and
-    pixel noise: the posterior's (prior_covariance.posterior_covariance) and the cluster-robust
-    one over the tracks' regions (track_region (T,): image_folds.track_regions; module
-    docstring)."""
+    pixel noise: the posterior's (prior_covariance.posterior_covariance), the cluster-robust
+    one over the tracks' regions (track_region (T,): image_folds.track_regions) and, where the
+    tracks come from at least MIN_FRAME_SET_CLUSTERS frame sets, the one over their frame sets
+    (module docstring)."""
     problem = AdjustmentProblem(state, blocks, priors)
     cov, Wt, V_inv, g_pt, obs_cols, weighted = camera_covariance(problem, noise_px)
-    M = problem.num_cam_params
     # Each observation's share of the camera-side gradient with its point profiled out (zero
     # per point at the solution; gated observations leave it slightly off): A^T w r - W V^-1 g.
     _, A, _ = problem.residuals_and_jacobians()
     point_pull = np.einsum("pjk,pk->pj", V_inv, g_pt)[problem.p_idx]
     score = np.einsum("nik,ni->nk", A[:, :, problem.used], weighted) \
         - np.einsum("njk,nj->nk", Wt, point_pull)
-    region = np.unique(track_region[problem.t_idx], return_inverse=True)[1].ravel()
-    num_regions = int(region.max()) + 1
-    flat = (region[:, None] * (M + 1) + obs_cols).ravel()
-    per_region = np.bincount(flat, weights=score.ravel(),
-                             minlength=num_regions * (M + 1)).reshape(num_regions, M + 1)[:, :M]
-    # The regions' gradients sum to zero at the solution: one region's worth of freedom is
-    # spent on it (the usual G / (G - 1) of clustered sandwiches).
-    meat = per_region.T @ per_region * num_regions / max(num_regions - 1, 1)
-    add_prior_terms(problem, meat, np.zeros(M))  # the priors' own information, as in H
-    full = (cov, cov @ meat @ cov)
-    return RefinementCovariances(full, problem.pose_cols, problem.intr_cols,
+    full = [cov, cov @ _clustered_meat(problem, score, obs_cols, track_region) @ cov]
+    frame_sets = state.tracks.time_index
+    if len(np.unique(frame_sets[problem.t_idx])) >= MIN_FRAME_SET_CLUSTERS:
+        full.append(cov @ _clustered_meat(problem, score, obs_cols, frame_sets) @ cov)
+    return RefinementCovariances(tuple(full), problem.pose_cols, problem.intr_cols,
                                  tuple(block_marginals(problem, c, blocks) for c in full))
+
+
+def _clustered_meat(problem: AdjustmentProblem, score: np.ndarray, obs_cols: np.ndarray,
+                    track_cluster: np.ndarray) -> np.ndarray:
+    """(M, M): the observations' gradients (score, per observation its camera-side columns
+    obs_cols) summed per cluster of their track (track_cluster (T,)) and then squared, with the
+    priors' own information added: the sandwich's B."""
+    M = problem.num_cam_params
+    cluster = np.unique(track_cluster[problem.t_idx], return_inverse=True)[1].ravel()
+    num_clusters = int(cluster.max()) + 1
+    flat = (cluster[:, None] * (M + 1) + obs_cols).ravel()
+    per_cluster = np.bincount(flat, weights=score.ravel(), minlength=num_clusters * (M + 1)
+                              ).reshape(num_clusters, M + 1)[:, :M]
+    # The clusters' gradients sum to zero at the solution: one cluster's worth of freedom is
+    # spent on it (the usual G / (G - 1) of clustered sandwiches).
+    meat = per_cluster.T @ per_cluster * num_clusters / max(num_clusters - 1, 1)
+    add_prior_terms(problem, meat, np.zeros(M))  # the priors' own information, as in H
+    return meat
 
 
 def held_point_std_px(cam, fold_sigmas: dict, prior_fraction: float) -> float:
@@ -122,8 +147,8 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
                        held_pp_std_px: Optional[float], focal_scale_std: float = 0.0
                        ) -> CameraUncertainty:
     """Focal, principal point and projection standard deviations of a block in its COLMAP
-    model: per quantity the largest that the covariances of INTRINSIC_NAMES (posterior_covariances'
-    two) give, the focal's and an estimated principal point's at least the folds' (fold_sigmas:
+    model: per quantity the largest that the covariances of INTRINSIC_NAMES (posterior_covariances')
+    give, the focal's and an estimated principal point's at least the folds' (fold_sigmas:
     image_folds.determined_by_images), the focal's at least focal_scale_std (a fraction:
     focal_determination.probed_focal_scale_std) of it. held_pp_std_px: a held principal
     point's sigma (held_point_std_px; at least the covariances'); None where estimated. The
