@@ -168,12 +168,18 @@ def test_a_camera_the_images_place_to_within_10_deg_only_refuses_the_rig_naming_
     message = refusal(rig([None, 15.04, 8.7]), config, names, None,
                       Tracks(xy, np.full(20, 2), np.zeros(20), np.zeros(20, int)))
     assert message.startswith("the calibration is refused: the images place b only to within "
-                              "15.0 deg of a (the calibration's own rotation sigma; they "
-                              "share 13 keypoint matches), so b may be 45 deg off"), message
+                              "15.0 deg of a (the calibration's own rotation sigma), so at three "
+                              "sigmas b may be 45 deg off, beyond the 30 deg at which runs that "
+                              "disagree refuse a calibration. b and a share 13 keypoint "
+                              "matches."), message
     assert "a and b see the same textured things" in message and "--keypoints" in message
     assert "--intrinsics b=FILE" in message
     both = refusal(rig([None, 12.0, 15.0]), config, names, None, None)
     assert "place c only to within 15.0 deg of a (the calibration's own rotation sigma, " \
-           "b's 12.0 deg)" in both
+           "b's 12.0 deg), so" in both and "share" not in both
+    cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
+    given = make_config("regular", "incremental", second_matcher=None,
+                        cameras__known_intrinsics={"b": cam})
+    assert "--intrinsics" not in refusal(rig([None, 15.0, 8.7]), given, names, None, None)
     assert refusal(rig([None, 15.0, 8.7], sigmas_runs_spread=20), config, names, None,
                    None) is None

@@ -29,7 +29,7 @@ from typing import Optional
 import numpy as np
 
 from .decentering import decentering_blocks, other_lens_model
-from .image_folds import HOLDOUT_FOLDS, track_regions
+from .image_folds import track_regions
 from .prior_adjustment import (TWO_FOCAL_MODELS, AdjustmentProblem, INTRINSIC_NAMES, Priors,
                                add_prior_terms)
 from .prior_covariance import block_marginals, camera_covariance
@@ -40,8 +40,10 @@ from .uncertainty import CameraUncertainty, projection_std_px
 
 
 # Frame sets a refinement's correspondences come from, at least, for a sandwich clustered by frame
-# set (posterior_covariances): no fewer clusters than the folds have estimates (HOLDOUT_FOLDS).
-MIN_FRAME_SET_CLUSTERS = HOLDOUT_FOLDS
+# set (posterior_covariances): its variance then has 7 degrees of freedom, which keep its sigma
+# within 0.56-1.42 of the true one at 90 %; each sigma reported is the largest of its sources, so
+# a noisier one (4 clusters, the folds' 3 degrees of freedom: 0.34-1.61) would widen it by chance.
+MIN_FRAME_SET_CLUSTERS = 8
 
 
 @dataclass
@@ -152,7 +154,7 @@ def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sig
     image_folds.determined_by_images), the focal's at least focal_scale_std (a fraction:
     focal_determination.probed_focal_scale_std) of it. held_pp_std_px: a held principal
     point's sigma (held_point_std_px; at least the covariances'); None where estimated. The
-    projection's is at least what the wider of the two covariances (in focal length and
+    projection's is at least what the widest of the covariances (in focal length and
     principal point) gives with those two widened to the sigmas reported: a projection sigma
     below its own principal point's would contradict it (a point off by sigma moves every image
     point by about that much)."""

@@ -3,10 +3,10 @@ its orientation relative to the reference camera (the rig frame) may be off, in 
 
 The statistical part is the larger of two estimates, as for the intrinsics
 (core.method.refinement_uncertainty):
-- the adjustment's covariance (posterior or sandwich over image regions) of the camera's
-  rotation with the reference camera's held, widened by what its regression on the intrinsics
-  carries once their variance is widened to the sigmas reported: a principal point off by a
-  pixel turns its camera by about a pixel's angle, and the covariance, resting on the same
+- the adjustment's covariance (posterior, or sandwich over image regions or frame sets) of the
+  camera's rotation with the reference camera's held, widened by what its regression on the
+  intrinsics carries once their variance is widened to the sigmas reported: a principal point
+  off by a pixel turns its camera by about a pixel's angle, and the covariance, resting on the same
   correlated correspondences, holds the principal point and the focal far tighter than the folds
   and the views left out show (refinement_uncertainty, module docstring);
 - the spatial folds' spread of the rotation, each fold adjusted on its own under the final

@@ -181,13 +181,14 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
             consensus: Optional[ConsensusRecord], match_tracks: Optional[Tracks],
             units_apart_deg: Optional[float] = None) -> Optional[str]:
     """Why the finished rig is refused: a rig of three or more cameras left with one pair
-    (pair_alone_refusal), a camera the images place no better than that (unplaced_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
+    (pair_alone_refusal), a camera whose own rotation sigma exceeds UNPLACED_ROTATION_STD_DEG
+    (unplaced_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
     matches about as well stand that far from it, and so does the runner-up where both were
     refined on the images; None where it is not refused. units_apart_deg: as
     consensus.disagreement_warning's."""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     alone = pair_alone_refusal(rig, config, camera_names, on_sift) or \
-        unplaced_refusal(rig, match_tracks, camera_names)
+        unplaced_refusal(rig, match_tracks, camera_names, config.cameras.known_intrinsics)
     if alone:
         return alone
     if consensus is None or consensus.fitting_disagreement_deg is None or \
@@ -304,12 +305,14 @@ def _own_rotation_sigmas(rig: RigCalibration, above_deg: float) -> list[tuple[fl
 
 
 def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
-                     camera_names: Sequence[str] = ()) -> Optional[str]:
+                     camera_names: Sequence[str] = (), known_intrinsics: Sequence[str] = ()
+                     ) -> Optional[str]:
     """Why a rig in which the images place some camera's rotation more loosely than
     UNPLACED_ROTATION_STD_DEG (its own sigma, relative to the reference camera) is refused, naming
     that camera with the reference camera and the matches they share; None otherwise. Warned
     instead, such a rig came out wrong (a generated room of three fisheye units 120 deg apart: 3.7
-    deg off, sigmas 15 and 8.7 deg; docs/design-notes.md, Cameras the images do not place)."""
+    deg off, sigmas 15 and 8.7 deg; docs/design-notes.md, Cameras the images do not place).
+    known_intrinsics: the cameras whose intrinsics were given (not suggested again)."""
     loose = _own_rotation_sigmas(rig, UNPLACED_ROTATION_STD_DEG)
     if not loose:
         return None
@@ -317,15 +320,16 @@ def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
     ref = rig.reference_camera
     shared = _shared_matches(match_tracks, camera_names)
     count = shared.get((ref, camera), shared.get((camera, ref)))
-    shared = f"; they share {count} keypoint matches" if count is not None else ""
     others = "".join(f", {n}'s {s:.1f} deg" for s, n in loose[1:])
     return (f"the calibration is refused: the images place {camera} only to within "
-            f"{std:.1f} deg of {ref} (the calibration's own rotation sigma{others}{shared}), so "
-            f"{camera} may be {3 * std:.0f} deg off, as far as runs that disagree so that a "
-            f"calibration is refused. Add frame sets in which {ref} and {camera} see the same "
-            "textured things (a person crossing between them), give keypoints of what moves "
-            f"(--keypoints), or give {camera}'s intrinsics from a lab calibration "
-            f"(--intrinsics {camera}=FILE).")
+            f"{std:.1f} deg of {ref} (the calibration's own rotation sigma{others}), so at three "
+            f"sigmas {camera} may be {3 * std:.0f} deg off, beyond the "
+            f"{REFUSE_DISAGREEMENT_DEG:.0f} deg at which runs that disagree refuse a calibration."
+            + (f" {camera} and {ref} share {count} keypoint matches." if count is not None else "")
+            + f" Add frame sets in which {ref} and {camera} see the same textured things (a "
+            "person crossing between them), give keypoints of what moves (--keypoints)"
+            + (f", or give {camera}'s intrinsics from a lab calibration (--intrinsics "
+               f"{camera}=FILE)." if camera not in known_intrinsics else "."))
 
 
 def loose_rotation_warning(rig: RigCalibration) -> Optional[str]:

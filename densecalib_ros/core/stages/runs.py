@@ -167,9 +167,9 @@ def unsupported_cameras(state: SfMState, camera_names: Sequence[str],
     return out
 
 
-_NO_TRACKS = ("No correspondences survived cycle sampling: the cameras' views do not overlap enough "
-              "or the scene lacks texture. Point the cameras at a shared, textured scene or add "
-              "frame sets.")
+_NO_TRACKS = ("No correspondences survived cycle sampling: the cameras' views do not overlap "
+              "enough or the scene lacks texture. Point the cameras at a shared, textured scene "
+              "or add frame sets.")
 
 
 def _pairs_matched(matched: Matched, camera_names: Sequence[str]) -> str:
@@ -182,6 +182,8 @@ def _pairs_matched(matched: Matched, camera_names: Sequence[str]) -> str:
     shared = pair_track_counts(tracks)
     pairs = sorted((int(shared[i, j]), a, b) for i, a in enumerate(camera_names)
                    for j, b in enumerate(camera_names) if i < j)
+    if not pairs:
+        return ""
     fewest = pairs[0]
     return (f" Keypoint matches per camera pair ({matched.matcher}, fewest first): "
             + ", ".join(f"{a}/{b} {n}" for n, a, b in pairs)
