@@ -18,7 +18,7 @@ degrees of freedom: simulated, their sigma averages 0.73 of the true one); a 4:3
 A rig filmed over several frame sets has a third, clustered by frame set: correspondences of one
 instant share what that instant did to them (what moved and where, how far the cameras' clocks
 and rolling shutters stood apart meanwhile), which the regions, each spanning every frame set,
-average away. On Caliscope's webcams it gave focal sigmas 1.3-1.7 times the regions' and close
+average away. On Caliscope's webcams it gave focal sigmas 1.3-1.8 times the regions' and close
 to what leaving each frame set out in turn moves the focal lengths by (docs/design-notes.md,
 Sigmas over frame sets)."""
 from __future__ import annotations

@@ -2,7 +2,7 @@
 them all (a rig in two unrelated groups cannot be calibrated as one)."""
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -13,6 +13,16 @@ from ..types import Tracks
 def pair_track_counts(tracks: Tracks) -> np.ndarray:
     """int (C, C): number of tracks observed by both cameras (diagonal 0)."""
     return shared_counts(tracks.observed())
+
+
+def named_pair_counts(tracks: Optional[Tracks], camera_names: Sequence[str]) -> dict:
+    """{(a, b): tracks observed by both cameras} for each pair of camera_names in their order;
+    {} without tracks."""
+    if tracks is None or not tracks.num_tracks:
+        return {}
+    shared = pair_track_counts(tracks)
+    return {(a, b): int(shared[i, j]) for i, a in enumerate(camera_names)
+            for j, b in enumerate(camera_names) if i < j}
 
 
 def shared_counts(observed: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ from ..method.known_intrinsics import given_intrinsics_warnings
 from ..method.plausibility import corner_fold_warning, unlike_lens_warning
 from ..method.reconstruction import colour_points
 from ..method.uncertainty import camera_sigmas, with_runs_spread
-from ..method.view_graph import pair_track_counts
+from ..method.view_graph import named_pair_counts
 from ..progress import Progress
 from ..robust.consensus import (REFUSE_DISAGREEMENT_DEG, WARN_DISAGREEMENT_DEG, asift_hint,
                                 disagreement_warning, refusal_message, standing_disagreement_deg)
@@ -146,7 +146,7 @@ def warnings(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence
         if standing is not None and standing > WARN_DISAGREEMENT_DEG:
             out.append(disagreement_warning(
                 consensus.disagreement_deg, consensus.num_runs, on_sift,
-                consensus.least_determined_pairs, _shared_matches(match_tracks, camera_names),
+                consensus.least_determined_pairs, named_pair_counts(match_tracks, camera_names),
                 len(rig.cameras), units_apart_deg, intrinsics_shared(config)))
     if rematch is None:
         out.append(unregistered_warning(rig, on_sift))
@@ -200,7 +200,7 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
     return refusal_message(consensus.fitting_disagreement_deg,
                            consensus.num_runs - consensus.worse_fit_runs, on_sift,
                            consensus.least_determined_pairs,
-                           _shared_matches(match_tracks, camera_names), len(rig.cameras),
+                           named_pair_counts(match_tracks, camera_names), len(rig.cameras),
                            units_apart_deg, intrinsics_shared(config))
 
 
@@ -318,7 +318,7 @@ def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
         return None
     std, camera = loose[0]
     ref = rig.reference_camera
-    shared = _shared_matches(match_tracks, camera_names)
+    shared = named_pair_counts(match_tracks, camera_names)
     count = shared.get((ref, camera), shared.get((camera, ref)))
     others = "".join(f", {n}'s {s:.1f} deg" for s, n in loose[1:])
     return (f"the calibration is refused: the images place {camera} only to within "
@@ -425,8 +425,9 @@ def with_point_colours(result: CalibrationResult,
 def _best_partners(cameras: Sequence[str], tracks: Optional[Tracks],
                    camera_names: Sequence[str]) -> Optional[dict]:
     """{camera: [the other camera it shares the most keypoint-match tracks with, how many]} for
-    `cameras` (_shared_matches); None without keypoint-match tracks (a dense matcher)."""
-    shared = _shared_matches(tracks, camera_names)
+    `cameras` (view_graph.named_pair_counts); None without keypoint-match tracks (a dense
+    matcher)."""
+    shared = named_pair_counts(tracks, camera_names)
     if not shared:
         return None
     out = {}
@@ -435,12 +436,3 @@ def _best_partners(cameras: Sequence[str], tracks: Optional[Tracks],
         partner = max(counts, key=counts.get)
         out[name] = [partner, counts[partner]]
     return out
-
-
-def _shared_matches(tracks: Optional[Tracks], camera_names: Sequence[str]) -> dict:
-    """{(a, b): keypoint-match tracks seen by both cameras}; {} without tracks."""
-    if tracks is None or not tracks.num_tracks:
-        return {}
-    shared = pair_track_counts(tracks)
-    return {(a, b): int(shared[i, j]) for i, a in enumerate(camera_names)
-            for j, b in enumerate(camera_names) if i < j}

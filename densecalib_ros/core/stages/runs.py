@@ -21,7 +21,7 @@ from ..method.known_intrinsics import given_intrinsics_fit
 from ..method.multistart import MULTISTART_MAX_TRACKS, run_incremental
 from ..method.reconstruction import SfMState
 from ..method.twoview import epipolar_filter, fundamental_matrices
-from ..method.view_graph import connected_components, disconnected_error, pair_track_counts
+from ..method.view_graph import connected_components, disconnected_error, named_pair_counts
 from ..progress import Progress
 from ..robust.placement import repair_placements
 from ..types import RigCalibration, RigQuality, Tracks
@@ -42,6 +42,8 @@ def calibrate_once(matched: Matched, image_sizes: Sequence[tuple[int, int]],
     try:
         sampled, given = _sampled_tracks(matched.match_sets, image_sizes, camera_names, config,
                                          previous)
+        if identity is None and not sampled.tracks.num_tracks:
+            raise NotEnoughOverlapError(_NO_TRACKS)
     except (FocalInitError, NotEnoughOverlapError) as exc:
         if identity is None and isinstance(exc, FocalInitError):  # it knows cameras by index
             raise exc.named(camera_names) from exc
@@ -51,8 +53,6 @@ def calibrate_once(matched: Matched, image_sizes: Sequence[tuple[int, int]],
         progress.say(f"the image matches give no tracks to start from ({exc}); the keypoints "
                      "carry the run")
         sampled, given = None, start_focals(config, previous, camera_names, image_sizes)
-    if sampled is not None and identity is None and not sampled.tracks.num_tracks:
-        raise NotEnoughOverlapError(_NO_TRACKS + _pairs_matched(matched, camera_names))
     if sampled is not None:
         stats = sampled.stats
         progress.say(f"sampled {sampled.tracks.num_tracks} tracks (per order "
@@ -179,9 +179,9 @@ def _pairs_matched(matched: Matched, camera_names: Sequence[str]) -> str:
     tracks = matched.keypoint_tracks
     if tracks is None or tracks.num_cameras != len(camera_names):
         return ""
-    shared = pair_track_counts(tracks)
-    pairs = sorted((int(shared[i, j]), a, b) for i, a in enumerate(camera_names)
-                   for j, b in enumerate(camera_names) if i < j)
+    counts = named_pair_counts(tracks, camera_names)  # {} where no track was matched at all
+    pairs = sorted((counts.get((a, b), 0), a, b) for i, a in enumerate(camera_names)
+                   for b in camera_names[i + 1:])
     if not pairs:
         return ""
     fewest = pairs[0]
