@@ -88,6 +88,11 @@ def test_camera_table_names_each_models_parameters(rig):
     rig.quality.sigmas_runs_spread = 5
     assert "include how far the 5 calibration runs, which disagree, scatter" in \
         intrinsics_note(rig).replace("\n  ", " ")
+    # and where the second matcher's refined calibration stood apart, that it includes its
+    assert "not kept" not in intrinsics_note(rig)
+    rig.quality.sigmas_matchers_spread = "asift"
+    assert "at least how far the calibration on asift's matches, not kept, stands" in \
+        intrinsics_note(rig).replace("\n  ", " ")
 
 
 def _named_rig(names, model="OPENCV_FISHEYE"):

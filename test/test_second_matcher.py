@@ -132,3 +132,62 @@ def test_a_first_run_that_left_a_camera_out_is_refined_only_where_the_comparison
     kept, rematch, calls = policy_with(None)
     assert calls == [("sift", True, False), ("asift", False, True), ("sift", False, True)]
     assert not rematch.kept_second and not kept.cut_short
+
+
+def _refined(focal_b_px, yaw_b_deg, focal_std_px=5.0, rotation_std_deg=0.5, names=("a", "b", "c")):
+    """A rig refined on the images (image_refinement_tracks), each camera with its own sigmas; b
+    with focal_b_px and turned yaw_b_deg."""
+    cameras = {}
+    for i, n in enumerate(names):
+        f = focal_b_px if n == "b" else 500.0
+        cam_from_rig = np.eye(4)
+        cam_from_rig[:3, :3] = Rotation.from_euler(
+            "y", yaw_b_deg if n == "b" else 30.0 * i, degrees=True).as_matrix()
+        cameras[n] = RigCamera(n, CameraIntrinsics("RADIAL", 640, 480,
+                                                   np.array([f, 320, 240, 0, 0])),
+                               cam_from_rig, CameraQuality(
+                                   0.5, 1000, 0.8, focal_std_px=focal_std_px,
+                                   projection_std_px=0.3,
+                                   rotation_std_deg=None if n == "a" else rotation_std_deg))
+    rig = RigCalibration("a", cameras)
+    rig.quality.image_refinement_tracks = 1000
+    return rig
+
+
+def test_two_matchers_refined_calibrations_apart_raise_the_kept_ones_sigmas_to_their_spread():
+    """Both matchers' calibrations refined on the images, the same cameras placed: the kept one's
+    sigmas are raised to how far one answer scatters (their distance / sqrt 2) where that is
+    larger; where either was not refined, or they placed other cameras, nothing is."""
+    from types import SimpleNamespace
+
+    from densecalib_ros.core.robust.second_matcher import Rematch, matchers_spread
+    from densecalib_ros.core.stages.record import with_matchers_spread
+
+    def attempt(rig, unrefined=False):
+        return SimpleNamespace(rig=rig, unrefined=unrefined)
+
+    kept, other = _refined(500.0, 30.0), _refined(540.0, 36.0)
+    spread = matchers_spread(attempt(kept), attempt(other), ["a", "b", "c"])
+    assert np.isclose(spread["b"][0], 40.0 / np.sqrt(2)) and spread["c"][0] == 0.0
+    assert np.isclose(spread["b"][2], 6.0 / np.sqrt(2)) and np.isclose(spread["c"][2], 0.0)
+    with_matchers_spread(kept, Rematch("sift", "loose", "asift", "loose", False, spread))
+    b, c = kept.cameras["b"].quality, kept.cameras["c"].quality
+    assert np.isclose(b.focal_std_px, 40.0 / np.sqrt(2))
+    assert np.isclose(b.rotation_std_deg, 6.0 / np.sqrt(2))
+    assert (c.focal_std_px, c.rotation_std_deg) == (5.0, 0.5)  # they agree: its own stand
+    assert kept.quality.sigmas_matchers_spread == "asift"
+
+    # agreeing within the sigmas: nothing raised, nothing recorded
+    close = _refined(500.0, 30.0)
+    with_matchers_spread(close, Rematch("sift", "loose", "asift", "loose", True, matchers_spread(
+        attempt(close), attempt(_refined(500.5, 30.2)), ["a", "b", "c"])))
+    assert close.cameras["b"].quality.focal_std_px == 5.0
+    assert close.quality.sigmas_matchers_spread is None
+
+    assert matchers_spread(attempt(kept), attempt(other, unrefined=True), ["a", "b", "c"]) == {}
+    assert matchers_spread(attempt(kept), attempt(_refined(540.0, 36.0, names=("a", "b"))),
+                           ["a", "b", "c"]) == {}
+    unrefined_on_images = _refined(540.0, 36.0)
+    unrefined_on_images.quality.image_refinement_tracks = None
+    assert matchers_spread(attempt(kept), attempt(unrefined_on_images), ["a", "b", "c"]) == {}
+    assert matchers_spread(attempt(kept), None, ["a", "b", "c"]) == {}

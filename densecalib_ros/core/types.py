@@ -261,6 +261,10 @@ class RigQuality:
     held_pp_std_fraction: Optional[float] = None  # core.method.uncertainty
     # The runs that disagree whose spread entered f_std and proj_std (uncertainty.with_runs_spread)
     sigmas_runs_spread: Optional[int] = None
+    # The matcher whose refined calibration, not kept, stands apart from the kept one by more than
+    # the sigmas: its distance raised f_std, proj_std and the rotation sigmas (record.
+    # with_matchers_spread)
+    sigmas_matchers_spread: Optional[str] = None
     matcher: Optional[str] = None
     num_frame_sets: Optional[int] = None
     runtime_s: Optional[float] = None

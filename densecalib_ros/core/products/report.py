@@ -264,6 +264,10 @@ def intrinsics_note(rig: RigCalibration) -> str:
     if runs:
         lines += _wrapped(f"f_std and proj_std include how far the {runs} calibration runs, which "
                           "disagree, scatter: the images leave these intrinsics open")
+    other = rig.quality.sigmas_matchers_spread
+    if other:
+        lines += _wrapped(f"f_std, proj_std and rot_std are at least how far the calibration on "
+                          f"{other}'s matches, not kept, stands from this one")
     return "\n".join(lines)
 
 

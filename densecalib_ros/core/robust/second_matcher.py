@@ -15,7 +15,7 @@ rigs (same section).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
 
 from ..config import PipelineConfig
@@ -23,6 +23,7 @@ from ..errors import CalibrationError, InputError
 from ..method.focal_determination import median_focal_std_fraction, short_of_aim
 from ..types import RigCalibration
 from .consensus import WARN_DISAGREEMENT_DEG, standing_disagreement_deg
+from .consensus_runs import runs_intrinsics_spread
 
 log = logging.getLogger(__name__)
 
@@ -84,13 +85,16 @@ def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) 
 @dataclass(frozen=True)
 class Rematch:
     """What the second matcher did: the first matcher and why its calibration was undetermined,
-    the second and how its calibration came out, and whether the second's was kept."""
+    the second and how its calibration came out, whether the second's was kept, and where both
+    calibrations were refined on the images and placed the same cameras, how far their answers
+    stand apart (spread: matchers_spread)."""
 
     first: str
     first_result: str
     second: str
     second_result: str
     kept_second: bool
+    spread: dict = field(default_factory=dict)
 
     def record(self) -> dict:
         """The quality record's `rematch`."""
@@ -174,5 +178,21 @@ def with_second_matcher(calibrate: Callable[..., object],
                                     first.rig if first else None)
     say(f"{second_matcher}: {second_came}; kept the calibration on "
         f"{second_matcher if keep_second else config.matcher}'s matches")
-    return (second if keep_second else first), Rematch(config.matcher, why, second_matcher,
-                                                        second_came, keep_second)
+    kept, other = (second, first) if keep_second else (first, second)
+    return kept, Rematch(config.matcher, why, second_matcher, second_came, keep_second,
+                         matchers_spread(kept, other, camera_names))
+
+
+def matchers_spread(kept, other, camera_names: Sequence[str]) -> dict:
+    """Camera name -> (focal px, projection px, rotation deg): how far one matcher's answer for
+    the camera scatters (consensus_runs.runs_intrinsics_spread of the two), where both
+    calibrations (with_second_matcher's: `.rig`, `.unrefined`) placed the same cameras and were
+    refined on the images; else {}. The matchers' keypoints predict and select different dense
+    correspondences of the same images, so the two refined answers are two draws of what the
+    images say, and their distance is a part of the error neither one's covariance sees."""
+    if kept is None or other is None or kept.unrefined or other.unrefined or \
+            set(kept.rig.cameras) != set(other.rig.cameras) or \
+            not (kept.rig.quality.image_refinement_tracks and
+                 other.rig.quality.image_refinement_tracks):
+        return {}
+    return runs_intrinsics_spread([kept.rig, other.rig], camera_names)

@@ -93,6 +93,29 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
         quality.given_intrinsics_fit = sfm.given_intrinsics_fit
 
 
+def with_matchers_spread(rig: RigCalibration, rematch: Optional[Rematch]) -> None:
+    """rig's focal, projection and rotation sigmas raised, in place, to how far the two matchers'
+    refined calibrations stand apart (Rematch.spread), where they do; the quality record then
+    names the matcher whose calibration was not kept (sigmas_matchers_spread). Each sigma is the
+    larger of the two: where the matchers agree within it, their distance (one draw) says
+    nothing more (docs/design-notes.md, Sigmas of two matchers)."""
+    if rematch is None or not rematch.spread:
+        return
+    raised = False
+    for name, spread in rematch.spread.items():
+        quality = rig.cameras[name].quality if name in rig.cameras else None
+        if quality is None or quality.focal_std_px is None:
+            continue
+        stds = (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg)
+        wider = [max(std, float(s)) if std is not None and np.isfinite(s) else std
+                 for std, s in zip(stds, spread)]
+        raised |= wider != list(stds)
+        quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg = wider
+    if raised:
+        rig.quality.sigmas_matchers_spread = rematch.first if rematch.kept_second \
+            else rematch.second
+
+
 def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
            consensus: Optional[ConsensusRecord], rematch: Optional[Rematch],
            match_tracks: Optional[Tracks], runtime_s: float, progress: Progress,
@@ -304,6 +327,18 @@ def _own_rotation_sigmas(rig: RigCalibration, above_deg: float) -> list[tuple[fl
                    and cam.quality.rotation_std_deg > above_deg), reverse=True)
 
 
+def _whose(rig: RigCalibration) -> str:
+    """ "own " where the rotation sigmas are the image refinement's alone, "" where the matchers'
+    spread raised them (with_matchers_spread)."""
+    return "" if rig.quality.sigmas_matchers_spread else "own "
+
+
+def _legs_apart(rig: RigCalibration) -> str:
+    other = rig.quality.sigmas_matchers_spread
+    return f", at least how far the calibration on {other}'s matches stands from it" if other \
+        else ""
+
+
 def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
                      camera_names: Sequence[str] = (), known_intrinsics: Sequence[str] = ()
                      ) -> Optional[str]:
@@ -322,9 +357,10 @@ def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
     count = shared.get((ref, camera), shared.get((camera, ref)))
     others = "".join(f", {n}'s {s:.1f} deg" for s, n in loose[1:])
     return (f"the calibration is refused: the images place {camera} only to within "
-            f"{std:.1f} deg of {ref} (the calibration's own rotation sigma{others}), so at three "
-            f"sigmas {camera} may be {3 * std:.0f} deg off, beyond the "
-            f"{REFUSE_DISAGREEMENT_DEG:.0f} deg at which runs that disagree refuse a calibration."
+            f"{std:.1f} deg of {ref} (the calibration's {_whose(rig)}rotation sigma{others}"
+            f"{_legs_apart(rig)}), so at three sigmas {camera} may be {3 * std:.0f} deg off, "
+            f"beyond the {REFUSE_DISAGREEMENT_DEG:.0f} deg at which runs that disagree refuse a "
+            "calibration."
             + (f" {camera} and {ref} share {count} keypoint matches." if count is not None else "")
             + f" Add frame sets in which {ref} and {camera} see the same textured things (a "
             "person crossing between them), give keypoints of what moves (--keypoints)"
@@ -346,9 +382,9 @@ def loose_rotation_warning(rig: RigCalibration) -> Optional[str]:
         return ", ".join(items[:-1]) + " and " + items[-1] if len(items) > 1 else items[0]
 
     them = listed([name for _, name in loose])
-    return (f"cameras placed loosely: the calibration's own rotation sigmas are "
+    return (f"cameras placed loosely: the calibration's {_whose(rig)}rotation sigmas are "
             f"{listed([f'{name} {std:.1f} deg' for std, name in loose])} (relative to "
-            f"{rig.reference_camera}), so a pair may be "
+            f"{rig.reference_camera}{_legs_apart(rig)}), so a pair may be "
             f"{2 * LOOSE_ROTATION_STD_DEG:.0f} deg or more off. The images leave "
             f"{'its' if len(loose) == 1 else 'their'} rotation open against the principal point "
             f"and focal length: add frame sets in which {them} "
