@@ -134,7 +134,8 @@ def test_a_first_run_that_left_a_camera_out_is_refined_only_where_the_comparison
     assert not rematch.kept_second and not kept.cut_short
 
 
-def _refined(focal_b_px, yaw_b_deg, focal_std_px=5.0, rotation_std_deg=0.5, names=("a", "b", "c")):
+def _refined(focal_b_px, yaw_b_deg, focal_std_px=5.0, rotation_std_deg=0.5,
+             projection_std_px=0.3, names=("a", "b", "c")):
     """A rig refined on the images (image_refinement_tracks), each camera with its own sigmas; b
     with focal_b_px and turned yaw_b_deg."""
     cameras = {}
@@ -147,47 +148,77 @@ def _refined(focal_b_px, yaw_b_deg, focal_std_px=5.0, rotation_std_deg=0.5, name
                                                    np.array([f, 320, 240, 0, 0])),
                                cam_from_rig, CameraQuality(
                                    0.5, 1000, 0.8, focal_std_px=focal_std_px,
-                                   projection_std_px=0.3,
+                                   projection_std_px=projection_std_px,
                                    rotation_std_deg=None if n == "a" else rotation_std_deg))
     rig = RigCalibration("a", cameras)
     rig.quality.image_refinement_tracks = 1000
     return rig
 
 
-def test_two_matchers_refined_calibrations_apart_raise_the_kept_ones_sigmas_to_their_spread():
-    """Both matchers' calibrations refined on the images, the same cameras placed: the kept one's
-    sigmas are raised to how far one answer scatters (their distance / sqrt 2) where that is
-    larger; where either was not refined, or they placed other cameras, nothing is."""
+def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
+    """Both matchers' calibrations refined on the images, the same cameras placed: where their
+    answers stand further apart than their joint sigma, the kept one's sigmas widen by that
+    factor (with equal sigmas: to their distance / sqrt 2); where the other is the looser, its
+    own sigma explains the distance; where either was not refined, or they placed other
+    cameras, nothing is compared."""
     from types import SimpleNamespace
 
-    from densecalib_ros.core.robust.second_matcher import Rematch, matchers_spread
+    from densecalib_ros.core.robust.second_matcher import Rematch, matchers_apart
     from densecalib_ros.core.stages.record import with_matchers_spread
 
     def attempt(rig, unrefined=False):
         return SimpleNamespace(rig=rig, unrefined=unrefined)
 
+    names = ["a", "b", "c"]
     kept, other = _refined(500.0, 30.0), _refined(540.0, 36.0)
-    spread = matchers_spread(attempt(kept), attempt(other), ["a", "b", "c"])
-    assert np.isclose(spread["b"][0], 40.0 / np.sqrt(2)) and spread["c"][0] == 0.0
-    assert np.isclose(spread["b"][2], 6.0 / np.sqrt(2)) and np.isclose(spread["c"][2], 0.0)
-    with_matchers_spread(kept, Rematch("sift", "loose", "asift", "loose", False, spread))
+    apart = matchers_apart(attempt(kept), attempt(other), names)
+    assert np.isclose(apart["b"][0], 40.0 / np.hypot(5.0, 5.0)) and apart["c"][0] == 0.0
+    assert np.isclose(apart["b"][2], 6.0 / np.hypot(0.5, 0.5)) and np.isclose(apart["c"][2], 0.0)
+    assert np.isnan(apart["a"][2])  # the reference camera has no rotation sigma
+    with_matchers_spread(kept, Rematch("sift", "loose", "asift", "loose", False, apart))
     b, c = kept.cameras["b"].quality, kept.cameras["c"].quality
     assert np.isclose(b.focal_std_px, 40.0 / np.sqrt(2))
     assert np.isclose(b.rotation_std_deg, 6.0 / np.sqrt(2))
     assert (c.focal_std_px, c.rotation_std_deg) == (5.0, 0.5)  # they agree: its own stand
     assert kept.quality.sigmas_matchers_spread == "asift"
 
-    # agreeing within the sigmas: nothing raised, nothing recorded
-    close = _refined(500.0, 30.0)
-    with_matchers_spread(close, Rematch("sift", "loose", "asift", "loose", True, matchers_spread(
-        attempt(close), attempt(_refined(500.5, 30.2)), ["a", "b", "c"])))
-    assert close.cameras["b"].quality.focal_std_px == 5.0
-    assert close.quality.sigmas_matchers_spread is None
+    # the other calibration as far off but eight times as loose: its sigma explains it
+    loose = _refined(500.0, 30.0)
+    with_matchers_spread(loose, Rematch("sift", "loose", "asift", "loose", False, matchers_apart(
+        attempt(loose), attempt(_refined(540.0, 36.0, 40.0, 6.0, 30.0)), names)))
+    assert loose.cameras["b"].quality.focal_std_px == 5.0
+    assert loose.cameras["b"].quality.rotation_std_deg == 0.5
+    assert loose.quality.sigmas_matchers_spread is None
 
-    assert matchers_spread(attempt(kept), attempt(other, unrefined=True), ["a", "b", "c"]) == {}
-    assert matchers_spread(attempt(kept), attempt(_refined(540.0, 36.0, names=("a", "b"))),
-                           ["a", "b", "c"]) == {}
+    assert matchers_apart(attempt(kept), attempt(other, unrefined=True), names) == {}
+    assert matchers_apart(attempt(kept), attempt(_refined(540.0, 36.0, names=("a", "b"))),
+                          names) == {}
     unrefined_on_images = _refined(540.0, 36.0)
     unrefined_on_images.quality.image_refinement_tracks = None
-    assert matchers_spread(attempt(kept), attempt(unrefined_on_images), ["a", "b", "c"]) == {}
-    assert matchers_spread(attempt(kept), None, ["a", "b", "c"]) == {}
+    assert matchers_apart(attempt(kept), attempt(unrefined_on_images), names) == {}
+    assert matchers_apart(attempt(kept), None, names) == {}
+
+
+def test_the_matchers_are_compared_only_where_the_kept_calibration_is_undetermined_too():
+    """with_second_matcher's Rematch.apart: where neither matcher determines the rig, their two
+    refined answers' distance is the outside measure of what the images leave open; where the
+    second's calibration is determined and kept, its sigmas stand and nothing is compared."""
+    from types import SimpleNamespace
+
+    from densecalib_ros.core.robust.second_matcher import with_second_matcher
+
+    def rematch_with(second_focal_std_px):
+        legs = {"sift": _refined(500.0, 30.0, focal_std_px=12.0),
+                "asift": _refined(540.0, 36.0, focal_std_px=second_focal_std_px)}
+
+        def calibrate(matcher, until, refine_cut_short=True):
+            return SimpleNamespace(rig=legs[matcher], cut_short=False, unrefined=False)
+        return with_second_matcher(calibrate, make_config("regular", matcher="sift"),
+                                   ["a", "b", "c"], True, lambda message: None)
+
+    kept, rematch = rematch_with(8.0)  # 1.6 %: asift's kept, short of the aim as well
+    assert rematch.kept_second and undetermined(kept.rig) is not None
+    assert rematch.apart["b"][0] > 1.0
+    kept, rematch = rematch_with(2.0)  # 0.4 %: determined
+    assert rematch.kept_second and undetermined(kept.rig) is None
+    assert rematch.apart == {}

@@ -18,6 +18,8 @@ import logging
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
 
+import numpy as np
+
 from ..config import PipelineConfig
 from ..errors import CalibrationError, InputError
 from ..method.focal_determination import median_focal_std_fraction, short_of_aim
@@ -85,16 +87,16 @@ def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) 
 @dataclass(frozen=True)
 class Rematch:
     """What the second matcher did: the first matcher and why its calibration was undetermined,
-    the second and how its calibration came out, whether the second's was kept, and where both
-    calibrations were refined on the images and placed the same cameras, how far their answers
-    stand apart (spread: matchers_spread)."""
+    the second and how its calibration came out, whether the second's was kept, and where the
+    kept one is undetermined too, how far the two answers stand apart in units of their sigmas
+    (apart: matchers_apart)."""
 
     first: str
     first_result: str
     second: str
     second_result: str
     kept_second: bool
-    spread: dict = field(default_factory=dict)
+    apart: dict = field(default_factory=dict)
 
     def record(self) -> dict:
         """The quality record's `rematch`."""
@@ -179,20 +181,33 @@ def with_second_matcher(calibrate: Callable[..., object],
     say(f"{second_matcher}: {second_came}; kept the calibration on "
         f"{second_matcher if keep_second else config.matcher}'s matches")
     kept, other = (second, first) if keep_second else (first, second)
-    return kept, Rematch(config.matcher, why, second_matcher, second_came, keep_second,
-                         matchers_spread(kept, other, camera_names))
+    # Where the kept calibration is determined its sigmas stand as the rules that judged it
+    # checked them; the other's distance from it is why that one was not.
+    apart = matchers_apart(kept, other, camera_names) if undetermined(kept.rig) else {}
+    return kept, Rematch(config.matcher, why, second_matcher, second_came, keep_second, apart)
 
 
-def matchers_spread(kept, other, camera_names: Sequence[str]) -> dict:
-    """Camera name -> (focal px, projection px, rotation deg): how far one matcher's answer for
-    the camera scatters (consensus_runs.runs_intrinsics_spread of the two), where both
-    calibrations (with_second_matcher's: `.rig`, `.unrefined`) placed the same cameras and were
-    refined on the images; else {}. The matchers' keypoints predict and select different dense
+def matchers_apart(kept, other, camera_names: Sequence[str]) -> dict:
+    """Camera name -> (focal, projection, rotation): how far apart the two matchers' answers for
+    the camera stand, in units of their joint sigma (the distance over the root sum of squares
+    of the two calibrations' own sigmas; NaN where either has none), where both calibrations
+    (with_second_matcher's: `.rig`, `.unrefined`) placed the same cameras and were refined on
+    the images; else {}. The matchers' keypoints predict and select different dense
     correspondences of the same images, so the two refined answers are two draws of what the
-    images say, and their distance is a part of the error neither one's covariance sees."""
+    images say: beyond 1, their distance is error the sigmas do not see."""
     if kept is None or other is None or kept.unrefined or other.unrefined or \
             set(kept.rig.cameras) != set(other.rig.cameras) or \
             not (kept.rig.quality.image_refinement_tracks and
                  other.rig.quality.image_refinement_tracks):
         return {}
-    return runs_intrinsics_spread([kept.rig, other.rig], camera_names)
+    out = {}
+    # for two answers the spread (their sample standard deviation) is the distance / sqrt 2
+    for name, spread in runs_intrinsics_spread([kept.rig, other.rig], camera_names).items():
+        a, b = kept.rig.cameras[name].quality, other.rig.cameras[name].quality
+        out[name] = tuple(
+            float(np.sqrt(2.0) * d / np.hypot(sa, sb)) if sa and sb and np.isfinite(d)
+            else float("nan")
+            for d, sa, sb in zip(spread, *((q.focal_std_px, q.projection_std_px,
+                                            q.rotation_std_deg) if q is not None
+                                           else (None,) * 3 for q in (a, b))))
+    return out

@@ -5,7 +5,7 @@ matcher, the warnings, the scene's colours)."""
 from __future__ import annotations
 
 import logging
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -93,27 +93,31 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
         quality.given_intrinsics_fit = sfm.given_intrinsics_fit
 
 
-def with_matchers_spread(rig: RigCalibration, rematch: Optional[Rematch]) -> None:
-    """rig's focal, projection and rotation sigmas raised, in place, to how far the two matchers'
-    refined calibrations stand apart (Rematch.spread), where they do; the quality record then
-    names the matcher whose calibration was not kept (sigmas_matchers_spread). Each sigma is the
-    larger of the two: where the matchers agree within it, their distance (one draw) says
-    nothing more (docs/design-notes.md, Sigmas of two matchers)."""
-    if rematch is None or not rematch.spread:
+def with_matchers_spread(rig: RigCalibration, rematch: Optional[Rematch],
+                         say: Callable[[str], None] = lambda message: None) -> None:
+    """rig's focal, projection and rotation sigmas widened, in place, where the two matchers'
+    refined calibrations stand further apart than their sigmas allow (Rematch.apart): each by
+    that factor, as both calibrations' sigmas would have to be (said); the quality record then
+    names the matcher whose calibration was not kept (sigmas_matchers_spread). Where the other
+    is the looser, its own sigmas explain most of the distance and the kept ones widen little
+    (docs/design-notes.md, Sigmas of two matchers)."""
+    if rematch is None or not rematch.apart:
         return
     raised = False
-    for name, spread in rematch.spread.items():
+    for name, factors in rematch.apart.items():
         quality = rig.cameras[name].quality if name in rig.cameras else None
         if quality is None or quality.focal_std_px is None:
             continue
         stds = (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg)
-        wider = [max(std, float(s)) if std is not None and np.isfinite(s) else std
-                 for std, s in zip(stds, spread)]
+        wider = [std * factor if std is not None and factor > 1.0 else std
+                 for std, factor in zip(stds, factors)]  # NaN > 1 is False
         raised |= wider != list(stds)
         quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg = wider
     if raised:
-        rig.quality.sigmas_matchers_spread = rematch.first if rematch.kept_second \
-            else rematch.second
+        other = rematch.first if rematch.kept_second else rematch.second
+        rig.quality.sigmas_matchers_spread = other
+        say(f"sigmas widened: the calibration on {other}'s matches stands further from the kept "
+            "one than both calibrations' sigmas allow")
 
 
 def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
@@ -335,8 +339,8 @@ def _whose(rig: RigCalibration) -> str:
 
 def _legs_apart(rig: RigCalibration) -> str:
     other = rig.quality.sigmas_matchers_spread
-    return f", at least how far the calibration on {other}'s matches stands from it" if other \
-        else ""
+    return f", widened to how far the calibration on {other}'s matches stands from it" if \
+        other else ""
 
 
 def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
