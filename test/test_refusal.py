@@ -183,8 +183,8 @@ def test_a_camera_the_images_place_to_within_10_deg_only_refuses_the_rig_naming_
     assert "--intrinsics" not in refusal(rig([None, 15.0, 8.7]), given, names, None, None)
     assert refusal(rig([None, 15.0, 8.7], sigmas_runs_spread=20), config, names, None,
                    None) is None
-    # raised by the two matchers' spread (record.with_matchers_spread): judged, and said so
+    # raised by the two matchers' spread (record.with_matchers_apart): judged, and said so
     legs = refusal(rig([None, 15.0, 8.7], sigmas_matchers_spread="asift"), config, names, None,
                    None)
-    assert "place b only to within 15.0 deg of a (the calibration's rotation sigma, widened " \
-           "to how far the calibration on asift's matches stands from it), so" in legs
+    assert "place b only to within 15.0 deg of a (the calibration's rotation sigma, the " \
+           "calibration on asift's matches compared with it), so" in legs

@@ -91,7 +91,7 @@ def test_camera_table_names_each_models_parameters(rig):
     # and where the second matcher's refined calibration stood apart, that it includes its
     assert "not kept" not in intrinsics_note(rig)
     rig.quality.sigmas_matchers_spread = "asift"
-    assert "widened to how far the calibration on asift's matches, not kept, stands" in \
+    assert "widened where the calibration on asift's matches, not kept, stands further" in \
         intrinsics_note(rig).replace("\n  ", " ")
 
 

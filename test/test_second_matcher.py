@@ -164,7 +164,7 @@ def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
     from types import SimpleNamespace
 
     from densecalib_ros.core.robust.second_matcher import Rematch, matchers_apart
-    from densecalib_ros.core.stages.record import with_matchers_spread
+    from densecalib_ros.core.stages.record import with_matchers_apart
 
     def attempt(rig, unrefined=False):
         return SimpleNamespace(rig=rig, unrefined=unrefined)
@@ -175,7 +175,7 @@ def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
     assert np.isclose(apart["b"][0], 40.0 / np.hypot(5.0, 5.0)) and apart["c"][0] == 0.0
     assert np.isclose(apart["b"][2], 6.0 / np.hypot(0.5, 0.5)) and np.isclose(apart["c"][2], 0.0)
     assert np.isnan(apart["a"][2])  # the reference camera has no rotation sigma
-    with_matchers_spread(kept, Rematch("sift", "loose", "asift", "loose", False, apart))
+    with_matchers_apart(kept, Rematch("sift", "loose", "asift", "loose", False, apart))
     b, c = kept.cameras["b"].quality, kept.cameras["c"].quality
     assert np.isclose(b.focal_std_px, 40.0 / np.sqrt(2))
     assert np.isclose(b.rotation_std_deg, 6.0 / np.sqrt(2))
@@ -184,7 +184,7 @@ def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
 
     # the other calibration as far off but eight times as loose: its sigma explains it
     loose = _refined(500.0, 30.0)
-    with_matchers_spread(loose, Rematch("sift", "loose", "asift", "loose", False, matchers_apart(
+    with_matchers_apart(loose, Rematch("sift", "loose", "asift", "loose", False, matchers_apart(
         attempt(loose), attempt(_refined(540.0, 36.0, 40.0, 6.0, 30.0)), names)))
     assert loose.cameras["b"].quality.focal_std_px == 5.0
     assert loose.cameras["b"].quality.rotation_std_deg == 0.5

@@ -22,7 +22,7 @@ from .stages.attempt import Attempt, Calibrator
 from .stages.inputs import RigImages, prepare
 from .stages.matching import match_rig
 from .errors import UndeterminedRigError
-from .stages.record import finish, refusal, with_matchers_spread
+from .stages.record import finish, refusal, with_matchers_apart
 from .types import RigCalibration, Tracks
 
 
@@ -63,7 +63,7 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         for calibrator in calibrators.values():
             calibrator.close()
     units_apart_deg = one_model.one_apart_deg if one_model is not None else None
-    with_matchers_spread(kept.result.rig, rematch, progress.say)
+    with_matchers_apart(kept.result.rig, rematch, progress.say)
     refused = refusal(kept.result.rig, kept.config, images.camera_names, kept.consensus,
                       kept.matched.keypoint_tracks, units_apart_deg)
     if refused:

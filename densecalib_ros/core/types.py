@@ -263,7 +263,7 @@ class RigQuality:
     sigmas_runs_spread: Optional[int] = None
     # The matcher whose refined calibration, not kept, stands apart from the kept one by more than
     # the sigmas: its distance raised f_std, proj_std and the rotation sigmas (record.
-    # with_matchers_spread)
+    # with_matchers_apart)
     sigmas_matchers_spread: Optional[str] = None
     matcher: Optional[str] = None
     num_frame_sets: Optional[int] = None

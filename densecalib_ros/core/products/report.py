@@ -266,8 +266,9 @@ def intrinsics_note(rig: RigCalibration) -> str:
                           "disagree, scatter: the images leave these intrinsics open")
     other = rig.quality.sigmas_matchers_spread
     if other:
-        lines += _wrapped(f"f_std, proj_std and rot_std are widened to how far the calibration "
-                          f"on {other}'s matches, not kept, stands from this one")
+        lines += _wrapped(f"f_std, proj_std and rot_std are widened where the calibration on "
+                          f"{other}'s matches, not kept, stands further from this one than both "
+                          "calibrations' sigmas allow")
     return "\n".join(lines)
 
 

@@ -93,7 +93,7 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
         quality.given_intrinsics_fit = sfm.given_intrinsics_fit
 
 
-def with_matchers_spread(rig: RigCalibration, rematch: Optional[Rematch],
+def with_matchers_apart(rig: RigCalibration, rematch: Optional[Rematch],
                          say: Callable[[str], None] = lambda message: None) -> None:
     """rig's focal, projection and rotation sigmas widened, in place, where the two matchers'
     refined calibrations stand further apart than their sigmas allow (Rematch.apart): each by
@@ -332,15 +332,14 @@ def _own_rotation_sigmas(rig: RigCalibration, above_deg: float) -> list[tuple[fl
 
 
 def _whose(rig: RigCalibration) -> str:
-    """ "own " where the rotation sigmas are the image refinement's alone, "" where the matchers'
-    spread raised them (with_matchers_spread)."""
+    """ "own " where the rotation sigmas are the image refinement's alone, "" where the two
+    matchers' calibrations compared may have widened them (with_matchers_apart)."""
     return "" if rig.quality.sigmas_matchers_spread else "own "
 
 
 def _legs_apart(rig: RigCalibration) -> str:
     other = rig.quality.sigmas_matchers_spread
-    return f", widened to how far the calibration on {other}'s matches stands from it" if \
-        other else ""
+    return f", the calibration on {other}'s matches compared with it" if other else ""
 
 
 def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
