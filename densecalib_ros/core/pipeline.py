@@ -63,7 +63,8 @@ def run_calibration(frame_sets: Sequence[Sequence[np.ndarray]], camera_names: Se
         for calibrator in calibrators.values():
             calibrator.close()
     units_apart_deg = one_model.one_apart_deg if one_model is not None else None
-    with_matchers_apart(kept.result.rig, rematch, progress.say)
+    if one_model is None or not one_model.kept:  # the calibration the matchers compared
+        with_matchers_apart(kept.result.rig, rematch, progress.say)
     refused = refusal(kept.result.rig, kept.config, images.camera_names, kept.consensus,
                       kept.matched.keypoint_tracks, units_apart_deg)
     if refused:
