@@ -200,14 +200,16 @@ def matchers_apart(kept, other, camera_names: Sequence[str]) -> dict:
             not (kept.rig.quality.image_refinement_tracks and
                  other.rig.quality.image_refinement_tracks):
         return {}
+    def stds(rig: RigCalibration, name: str) -> tuple:
+        q = rig.cameras[name].quality
+        return (None,) * 3 if q is None else \
+            (q.focal_std_px, q.projection_std_px, q.rotation_std_deg)
+
     out = {}
     # for two answers the spread (their sample standard deviation) is the distance / sqrt 2
     for name, spread in runs_intrinsics_spread([kept.rig, other.rig], camera_names).items():
-        a, b = kept.rig.cameras[name].quality, other.rig.cameras[name].quality
-        out[name] = tuple(
-            float(np.sqrt(2.0) * d / np.hypot(sa, sb)) if sa and sb and np.isfinite(d)
-            else float("nan")
-            for d, sa, sb in zip(spread, *((q.focal_std_px, q.projection_std_px,
-                                            q.rotation_std_deg) if q is not None
-                                           else (None,) * 3 for q in (a, b))))
+        out[name] = tuple(float(np.sqrt(2.0) * d / np.hypot(sa, sb))
+                          if sa and sb and np.isfinite(d) else float("nan")
+                          for d, sa, sb in zip(spread, stds(kept.rig, name),
+                                               stds(other.rig, name)))
     return out
