@@ -331,15 +331,13 @@ def _own_rotation_sigmas(rig: RigCalibration, above_deg: float) -> list[tuple[fl
                    and cam.quality.rotation_std_deg > above_deg), reverse=True)
 
 
-def _whose(rig: RigCalibration) -> str:
-    """ "own " where the rotation sigmas are the image refinement's alone, "" where the two
-    matchers' calibrations compared may have widened them (with_matchers_apart)."""
-    return "" if rig.quality.sigmas_matchers_spread else "own "
-
-
-def _legs_apart(rig: RigCalibration) -> str:
+def _sigma_words(rig: RigCalibration) -> tuple[str, str]:
+    """How the rotation sigmas are named: ("own ", "") where they are the image refinement's
+    alone, ("", naming the other matcher's calibration) where comparing it may have widened them
+    (with_matchers_apart)."""
     other = rig.quality.sigmas_matchers_spread
-    return f", the calibration on {other}'s matches compared with it" if other else ""
+    return ("", f", the calibration on {other}'s matches compared with it") if other \
+        else ("own ", "")
 
 
 def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
@@ -359,9 +357,10 @@ def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
     shared = named_pair_counts(match_tracks, camera_names)
     count = shared.get((ref, camera), shared.get((camera, ref)))
     others = "".join(f", {n}'s {s:.1f} deg" for s, n in loose[1:])
+    own, compared = _sigma_words(rig)
     return (f"the calibration is refused: the images place {camera} only to within "
-            f"{std:.1f} deg of {ref} (the calibration's {_whose(rig)}rotation sigma{others}"
-            f"{_legs_apart(rig)}), so at three sigmas {camera} may be {3 * std:.0f} deg off, "
+            f"{std:.1f} deg of {ref} (the calibration's {own}rotation sigma{others}"
+            f"{compared}), so at three sigmas {camera} may be {3 * std:.0f} deg off, "
             f"beyond the {REFUSE_DISAGREEMENT_DEG:.0f} deg at which runs that disagree refuse a "
             "calibration."
             + (f" {camera} and {ref} share {count} keypoint matches." if count is not None else "")
@@ -385,9 +384,10 @@ def loose_rotation_warning(rig: RigCalibration) -> Optional[str]:
         return ", ".join(items[:-1]) + " and " + items[-1] if len(items) > 1 else items[0]
 
     them = listed([name for _, name in loose])
-    return (f"cameras placed loosely: the calibration's {_whose(rig)}rotation sigmas are "
+    own, compared = _sigma_words(rig)
+    return (f"cameras placed loosely: the calibration's {own}rotation sigmas are "
             f"{listed([f'{name} {std:.1f} deg' for std, name in loose])} (relative to "
-            f"{rig.reference_camera}{_legs_apart(rig)}), so a pair may be "
+            f"{rig.reference_camera}{compared}), so a pair may be "
             f"{2 * LOOSE_ROTATION_STD_DEG:.0f} deg or more off. The images leave "
             f"{'its' if len(loose) == 1 else 'their'} rotation open against the principal point "
             f"and focal length: add frame sets in which {them} "
