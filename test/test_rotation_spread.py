@@ -6,13 +6,14 @@ import pytest
 from sfm_fixtures import gt_calibration, gt_rig, pose
 from test_decentering import _adjusted
 
-from densecalib_ros.core.method.decentering import other_lens_model
+from densecalib_ros.core.method.decentering import lens_model_choice, other_lens_model
 from densecalib_ros.core.method.image_folds import track_regions
 from densecalib_ros.core.method.refinement_uncertainty import (camera_uncertainty,
                                                               posterior_covariances,
-                                                              rotation_sigmas)
+                                                              rotation_sigmas,
+                                                              with_lens_model_choice)
 from densecalib_ros.core.method.rotation_spread import (covariance_rotation_std_deg,
-                                                        fold_rotation_std_deg, model_choice_deg)
+                                                        fold_rotation_std_deg)
 from densecalib_ros.core.method.uncertainty import rotation_error_sigma_ratios
 from densecalib_ros.core.metrics import rotation_angle_deg
 from densecalib_ros.core.types import CameraQuality
@@ -36,7 +37,8 @@ def _z(p1p2, seed):
     covariances = posterior_covariances(state, blocks, priors, noise_px, track_regions(state))
     of_block = {b: camera_uncertainty(state, b, covariances.of_block(b), {}, None) for b in blocks}
     folds = fold_rotation_std_deg(state, blocks, priors, noise_px)
-    model = model_choice_deg(state, blocks, other_lens_model(priors, blocks, []), noise_px)
+    model = lens_model_choice(state, blocks, other_lens_model(priors, blocks, []),
+                              noise_px).rotation_deg
     statistical = rotation_sigmas(state, covariances, of_block, folds, {})
     full = rotation_sigmas(state, covariances, of_block, folds, model)
     errors = _rotation_errors_deg(state, poses)
@@ -57,6 +59,30 @@ def test_a_decentering_the_model_lacks_is_covered_by_the_lens_models_part():
     statistical, full = _z((8e-4, -6e-4), 5)
     assert statistical.max() > 2.5, statistical
     assert full.max() < 2.0, full
+
+
+def test_the_lens_models_part_covers_the_principal_points_it_moves():
+    """The decentering the model lacks moves the principal points as it turns the cameras:
+    their statistical sigmas leave the errors at over 3 sigma, the other model's move in
+    quadrature brings them within 2; without a decentering the part only widens sigmas that
+    already fit. The focal sigmas are left as they are."""
+    for p1p2, before in (((8e-4, -6e-4), 3.0), ((0.0, 0.0), 0.0)):
+        state, blocks, priors, noise_px, _, true = _adjusted(p1p2, seed=5)
+        covariances = posterior_covariances(state, blocks, priors, noise_px,
+                                            track_regions(state))
+        moved = lens_model_choice(state, blocks, other_lens_model(priors, blocks, []),
+                                  noise_px).intrinsics_px
+        z = []
+        for b in blocks:
+            sigma = camera_uncertainty(state, b, covariances.of_block(b), {}, None)
+            wider = with_lens_model_choice(sigma, moved[b])
+            assert wider.focal_std_px == sigma.focal_std_px
+            assert wider.projection_std_px >= sigma.projection_std_px
+            error = np.abs(np.subtract(state.intrinsics[b].params[2:4], true[b].params[2:4]))
+            z.append([error.max() / s.principal_point_std_px for s in (sigma, wider)])
+        z = np.array(z)  # per camera: statistical, with the lens model's part
+        assert z[:, 0].max() > before and z[:, 1].max() < 2.0, z
+        assert np.all(z[:, 1] <= z[:, 0])
 
 
 def test_widening_the_intrinsics_adds_what_the_rotation_regresses_on_them():

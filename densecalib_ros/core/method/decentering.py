@@ -9,17 +9,26 @@ adjustment (image_refinement.held_out_errors, its spatial folds) fit better with
 without by more than chance (the folds' mean relative excess below -T_95_3DOF standard errors)
 and by more than fitting correlated noise gains (MIN_HELD_OUT_GAIN).
 Cameras adjusted as one camera (one lens) get one decentering, tied across them; where separate
-cameras of one image size do not ask for one each, one shared by them is tested as well."""
+cameras of one image size do not ask for one each, one shared by them is tested as well.
+
+Whichever model is chosen, the other one says how much the choice matters (lens_model_choice):
+the two nested models put what the lens does beyond them in different places, the principal
+points and the cameras' yaw and pitch, alike in every fold and every resample of the same
+correspondences; how far apart they put them is the size of that error, which the sigmas add in
+quadrature (core.method.refinement_uncertainty, core.method.rotation_spread)."""
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from .prior_adjustment import INTRINSIC_NAMES, Priors, perspective_blocks
+from ..metrics import principal_point_px, projection_map_error
+from .prior_adjustment import INTRINSIC_NAMES, Priors, adjust_with_priors, perspective_blocks
+from .reconstruction import SfMState
 from .rig_pooling import MIN_POOLED_CAMERAS
+from .rotation_spread import relative_rotvecs
 
 # Prior sigma of p1 and p2 (normalised image coordinates): real lenses' decentering coefficients,
 # where target-based calibrations give them, are within about 1e-3.
@@ -69,6 +78,40 @@ def other_lens_model(priors: Priors, blocks: Sequence[int], one_cameras: Sequenc
         return replace(priors, tangential_std={},
                        ties=[t for t in priors.ties if t[0] not in _TANGENTIAL])
     return with_decentering(priors, blocks, one_cameras)
+
+
+@dataclass
+class LensModelChoice:
+    """How far the answer moves when the rig is adjusted under the nested lens model the
+    decentering test did not choose (lens_model_choice): per camera but the reference its
+    rotation relative to the reference camera (deg), per block its principal point (the larger
+    axis) and projection map (the mean over the image), in px."""
+
+    rotation_deg: dict = field(default_factory=dict)  # camera -> deg
+    intrinsics_px: dict = field(default_factory=dict)  # block -> (principal point, map)
+
+
+def lens_model_choice(state: SfMState, blocks: list[int], other: Priors, noise_px: float
+                      ) -> LensModelChoice:
+    """The LensModelChoice of `state` (adjusted under the chosen lens model) against a copy
+    adjusted under the `other` one (other_lens_model); empty where that adjustment fails."""
+    part = state.copy()
+    for b in blocks:
+        if not other.tangential_std.get(b) and part.intrinsics[b].model == "OPENCV":
+            part.intrinsics[b].params[6:8] = 0.0  # held where the other model has none
+    try:
+        adjust_with_priors(part, blocks, other, noise_px=noise_px)
+    except (ValueError, np.linalg.LinAlgError):
+        return LensModelChoice()
+    rotation = {c: float(np.degrees(np.linalg.norm(v)))
+                for c, v in relative_rotvecs(part, state).items()}
+    intrinsics = {}
+    for b in blocks:
+        chosen, moved = state.intrinsics[b], part.intrinsics[b]
+        projection = projection_map_error(chosen, moved)["mean_px"]
+        intrinsics[b] = (float(np.abs(principal_point_px(moved) - principal_point_px(chosen)).max()),
+                         projection if np.isfinite(projection) else 0.0)
+    return LensModelChoice(rotation, intrinsics)
 
 
 def decentering_test(priors: Priors, blocks: Sequence[int], one_cameras: Sequence[list[int]],

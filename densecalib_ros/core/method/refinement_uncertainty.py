@@ -1,6 +1,8 @@
 """The image refinement's sigmas (core.method.image_refinement): the adjustment's posterior
 covariance, cluster-robust (sandwich) covariances over image regions and frame sets, and the
-spatial folds' spread (core.method.image_folds), each camera's sigma the largest of them; each
+spatial folds' spread (core.method.image_folds), each camera's sigma the largest of them, the
+principal point's and the projection's with how far the lens model's choice moves them in
+quadrature (decentering.lens_model_choice); each
 camera's rotation sigma beside them (refinement_sigmas, core.method.rotation_spread).
 
 Why a sandwich: the covariance weights every dense correspondence as an independent measurement
@@ -28,14 +30,14 @@ from typing import Optional
 
 import numpy as np
 
-from .decentering import decentering_blocks, other_lens_model
+from .decentering import LensModelChoice, decentering_blocks, lens_model_choice, other_lens_model
 from .image_folds import track_regions
 from .prior_adjustment import (TWO_FOCAL_MODELS, AdjustmentProblem, INTRINSIC_NAMES, Priors,
                                add_prior_terms)
 from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
 from .rig_pooling import one_value
-from .rotation_spread import fold_rotation_std_deg, model_choice_deg, rotation_std_deg
+from .rotation_spread import fold_rotation_std_deg, rotation_std_deg
 from .uncertainty import CameraUncertainty, projection_std_px
 
 
@@ -66,8 +68,8 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
                       noise_px: float, determined: dict, fold_sigmas: dict,
                       one_cameras: list[list[int]], held_pp_std_fraction: float,
                       focal_scale_std: float) -> dict[int, CameraUncertainty]:
-    """Per registered camera of the adjusted blocks its sigmas (camera_uncertainty) with its
-    rotation's (rotation_sigmas). priors: (every prior in place, those the rig was adjusted
+    """Per registered camera of the adjusted blocks its sigmas (camera_uncertainty, with the lens
+    model's choice: with_lens_model_choice) with its rotation's (rotation_sigmas). priors: (every prior in place, those the rig was adjusted
     under): the covariances take the first, so that a held principal point may be off by its
     prior's spread and the focal length leans on it; the folds and the lens model's choice refit
     under the second. determined, fold_sigmas: image_folds.determined_by_images'; a principal
@@ -81,12 +83,35 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
             state.intrinsics[b], fold_sigmas.get(b, {}), held_pp_std_fraction), focal_scale_std)
         for b in covariances.marginals[0]}
     lens, lens_ones = decentering_blocks(state.intrinsics, blocks, one_cameras)
-    choice = model_choice_deg(state, blocks, other_lens_model(held, lens, lens_ones),
-                              noise_px) if lens else {}  # only they have a lens model to choose
+    choice = lens_model_choice(state, blocks, other_lens_model(held, lens, lens_ones), noise_px) \
+        if lens else LensModelChoice()  # only they have a lens model to choose
+    # the rotations regress on the intrinsics' statistical sigmas: the lens model's part enters
+    # them once, as their own move
     turns = rotation_sigmas(state, covariances, of_block,
-                            fold_rotation_std_deg(state, blocks, held, noise_px), choice)
-    return {c: replace(of_block[int(state.camera_block[c])], rotation_std_deg=turns.get(c))
-            for c in state.registered() if int(state.camera_block[c]) in of_block}
+                            fold_rotation_std_deg(state, blocks, held, noise_px),
+                            choice.rotation_deg)
+    return {c: replace(with_lens_model_choice(of_block[b], choice.intrinsics_px.get(b)),
+                       rotation_std_deg=turns.get(c))
+            for c in state.registered()
+            if (b := int(state.camera_block[c])) in of_block}
+
+
+def with_lens_model_choice(sigma: CameraUncertainty, moved: Optional[tuple]) -> CameraUncertainty:
+    """sigma with the principal point and projection sigmas widened in quadrature by how far the
+    other lens model moves them (moved: decentering.LensModelChoice.intrinsics_px' (principal
+    point, projection) px; None: as it is). A decentering's first-order trade is with
+    the principal point and the camera's yaw and pitch, which the rotation sigma takes as its own
+    move; the focal sigmas fit without it, and the matcher's choice, the second matcher and the
+    one-model retry read them (docs/design-notes.md, The lens model's choice in the principal
+    point's sigma). A principal point the refinement held is held under both models and does
+    not move."""
+    if moved is None:
+        return sigma
+
+    def widened(std: Optional[float], move: float) -> Optional[float]:
+        return float(np.hypot(std, move)) if std is not None else None
+    return replace(sigma, principal_point_std_px=widened(sigma.principal_point_std_px, moved[0]),
+                   projection_std_px=widened(sigma.projection_std_px, moved[1]))
 
 
 def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
@@ -208,7 +233,7 @@ def rotation_sigmas(state: SfMState, covariances: RefinementCovariances, sigmas:
     """Per registered camera but the reference the rotation sigma (deg; rotation_spread, module
     docstring): the covariances' with each block's focal and principal point widened to its
     sigmas (sigmas: block -> CameraUncertainty), or the folds' (rotation_spread.
-    fold_rotation_std_deg) where larger, with the lens model's choice (model_choice_deg)."""
+    fold_rotation_std_deg) where larger, with the lens model's choice (decentering.lens_model_choice)."""
     columns = covariances.intr_cols
     intrinsic_cols = columns[columns >= 0]
     widen = []

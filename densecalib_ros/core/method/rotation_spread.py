@@ -16,7 +16,7 @@ The statistical part is the larger of two estimates, as for the intrinsics
 
 Added in quadrature, the lens model's part: how far the rotations move when the rig is adjusted
 under the nested lens model the decentering test did not choose (p1, p2 free or held:
-decentering.other_lens_model). What a lens model cannot express does not stay in the residuals:
+decentering.lens_model_choice). What a lens model cannot express does not stay in the residuals:
 the principal point and the cameras' yaw and pitch take it up, alike in every fold and every
 resample of the same correspondences, so neither estimate above can see it; the two models put
 it in different places, and how far apart they put the cameras is the size of that error
@@ -94,8 +94,8 @@ def rotation_std_deg(covariances: tuple, pose_cols: np.ndarray, intrinsic_cols: 
     """The rotation sigma (deg) of `camera` (module docstring): the largest of
     covariance_rotation_std_deg over `covariances` (each with its own widening factors in
     `widen`) and the folds' (fold_rotation_std_deg), and the lens model's choice
-    (model_choice_deg) in quadrature. None for the reference camera (its rotation defines the
-    rig frame)."""
+    (decentering.lens_model_choice's rotation_deg) in quadrature. None for the reference camera
+    (its rotation defines the rig frame)."""
     if pose_cols[camera][0] < 0:
         return None
     std = [covariance_rotation_std_deg(cov, pose_cols[camera][:3], intrinsic_cols, w)
@@ -125,20 +125,3 @@ def fold_rotation_std_deg(state: SfMState, blocks: list[int], priors: Priors, no
         return relative_rotvecs(part, state)
     replicates = [r for r in map_threads(one, range(HOLDOUT_FOLDS)) if r is not None]
     return {c: float(np.degrees(s)) for c, s in _folds_std(replicates).items()}
-
-
-def model_choice_deg(state: SfMState, blocks: list[int], other: Priors, noise_px: float
-                     ) -> dict[int, float]:
-    """Per camera but the reference the angle (deg) by which its rotation relative to the
-    reference camera moves when `state` (adjusted under the chosen lens model) is adjusted
-    under the `other` one (decentering.other_lens_model); {} where that adjustment fails."""
-    part = state.copy()
-    for b in blocks:
-        if not other.tangential_std.get(b) and part.intrinsics[b].model == "OPENCV":
-            part.intrinsics[b].params[6:8] = 0.0  # held where the other model has none
-    try:
-        adjust_with_priors(part, blocks, other, noise_px=noise_px)
-    except (ValueError, np.linalg.LinAlgError):
-        return {}
-    return {c: float(np.degrees(np.linalg.norm(v)))
-            for c, v in relative_rotvecs(part, state).items()}
