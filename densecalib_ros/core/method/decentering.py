@@ -109,8 +109,8 @@ def lens_model_choice(state: SfMState, blocks: list[int], other: Priors, noise_p
     for b in blocks:
         chosen, moved = state.intrinsics[b], part.intrinsics[b]
         projection = projection_map_error(chosen, moved)["mean_px"]
-        intrinsics[b] = (float(np.abs(principal_point_px(moved) - principal_point_px(chosen)).max()),
-                         projection if np.isfinite(projection) else 0.0)
+        point = np.abs(principal_point_px(moved) - principal_point_px(chosen)).max()
+        intrinsics[b] = (float(point), projection if np.isfinite(projection) else 0.0)
     return LensModelChoice(rotation, intrinsics)
 
 

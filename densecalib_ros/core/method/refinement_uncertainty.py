@@ -38,7 +38,7 @@ from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
 from .rig_pooling import one_value
 from .rotation_spread import fold_rotation_std_deg, rotation_std_deg
-from .uncertainty import CameraUncertainty, projection_std_px
+from .uncertainty import CameraUncertainty, in_quadrature, projection_std_px
 
 
 # Frame sets a refinement's correspondences come from, at least, for a sandwich clustered by frame
@@ -69,8 +69,8 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
                       one_cameras: list[list[int]], held_pp_std_fraction: float,
                       focal_scale_std: float) -> dict[int, CameraUncertainty]:
     """Per registered camera of the adjusted blocks its sigmas (camera_uncertainty, with the lens
-    model's choice: with_lens_model_choice) with its rotation's (rotation_sigmas). priors: (every prior in place, those the rig was adjusted
-    under): the covariances take the first, so that a held principal point may be off by its
+    model's choice: with_lens_model_choice) with its rotation's (rotation_sigmas). priors:
+    (every prior in place, those the rig was adjusted under): the covariances take the first, so that a held principal point may be off by its
     prior's spread and the focal length leans on it; the folds and the lens model's choice refit
     under the second. determined, fold_sigmas: image_folds.determined_by_images'; a principal
     point the images do not determine has held_point_std_px's sigma (its prior's spread,
@@ -107,11 +107,9 @@ def with_lens_model_choice(sigma: CameraUncertainty, moved: Optional[tuple]) -> 
     not move."""
     if moved is None:
         return sigma
-
-    def widened(std: Optional[float], move: float) -> Optional[float]:
-        return float(np.hypot(std, move)) if std is not None else None
-    return replace(sigma, principal_point_std_px=widened(sigma.principal_point_std_px, moved[0]),
-                   projection_std_px=widened(sigma.projection_std_px, moved[1]))
+    return replace(sigma,
+                   principal_point_std_px=in_quadrature(sigma.principal_point_std_px, moved[0]),
+                   projection_std_px=in_quadrature(sigma.projection_std_px, moved[1]))
 
 
 def posterior_covariances(state: SfMState, blocks: list[int], priors: Priors, noise_px: float,
@@ -233,7 +231,8 @@ def rotation_sigmas(state: SfMState, covariances: RefinementCovariances, sigmas:
     """Per registered camera but the reference the rotation sigma (deg; rotation_spread, module
     docstring): the covariances' with each block's focal and principal point widened to its
     sigmas (sigmas: block -> CameraUncertainty), or the folds' (rotation_spread.
-    fold_rotation_std_deg) where larger, with the lens model's choice (decentering.lens_model_choice)."""
+    fold_rotation_std_deg) where larger, with the lens model's choice
+    (decentering.lens_model_choice)."""
     columns = covariances.intr_cols
     intrinsic_cols = columns[columns >= 0]
     widen = []

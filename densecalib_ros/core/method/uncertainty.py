@@ -271,6 +271,12 @@ def intrinsics_error_sigma_ratios(rig, truth: dict[str, CameraIntrinsics]
     return out
 
 
+def in_quadrature(std: Optional[float], extra: float) -> Optional[float]:
+    """std widened by an independent `extra` of the same unit: their root sum of squares; std as
+    it is where it is None (nothing estimated) or `extra` is not finite (nothing measured)."""
+    return float(np.hypot(std, extra)) if std is not None and np.isfinite(extra) else std
+
+
 def with_runs_spread(sigmas: dict, spread: dict) -> dict:
     """sigmas (camera name -> CameraUncertainty) with each camera's focal, projection and
     rotation standard deviations widened by the consensus runs' spread of its answer (spread:
@@ -282,17 +288,14 @@ def with_runs_spread(sigmas: dict, spread: dict) -> dict:
     different ones. How far their answers scatter is then the larger part of the uncertainty,
     and the one a single run's covariance cannot see (docs/design-notes.md, Sigmas of runs that
     disagree)."""
-    def widened(std: Optional[float], runs: float) -> Optional[float]:
-        return float(np.hypot(std, runs)) if std is not None and np.isfinite(runs) else std
-
     out = dict(sigmas)
     for name, (focal_px, projection_px, rotation_deg) in spread.items():
         u = out.get(name)
         if u is None or u.focal_std_px is None:
             continue
-        out[name] = replace(u, focal_std_px=widened(u.focal_std_px, focal_px),
-                            projection_std_px=widened(u.projection_std_px, projection_px),
-                            rotation_std_deg=widened(u.rotation_std_deg, rotation_deg))
+        out[name] = replace(u, focal_std_px=in_quadrature(u.focal_std_px, focal_px),
+                            projection_std_px=in_quadrature(u.projection_std_px, projection_px),
+                            rotation_std_deg=in_quadrature(u.rotation_std_deg, rotation_deg))
     return out
 
 
@@ -360,10 +363,8 @@ def with_units_spread(sigmas: dict, long_side_px: dict,
         if u is None or u.principal_point_std_px is None:
             continue
         unit_px = fraction * side_px
-        out[name] = replace(u, principal_point_std_px=float(np.hypot(u.principal_point_std_px,
-                                                                     unit_px)),
-                            projection_std_px=(float(np.hypot(u.projection_std_px,
-                                                              np.sqrt(2.0) * unit_px))
-                                               if u.projection_std_px is not None
-                                               else None))
+        out[name] = replace(u, principal_point_std_px=in_quadrature(u.principal_point_std_px,
+                                                                    unit_px),
+                            projection_std_px=in_quadrature(u.projection_std_px,
+                                                            np.sqrt(2.0) * unit_px))
     return out
