@@ -107,7 +107,7 @@ def test_a_held_principal_points_sigma_weighs_the_folds_with_the_prior():
     is as uncertain as that precision-weighted mean, per axis (the larger reported): the folds'
     6.4 px against a prior of 12.8 px gives 5.72 px; an axis the folds place to 0.85 px adds
     nothing beside it; folds that gave no sigma leave the prior's."""
-    cam = CameraIntrinsics("RADIAL", 1280, 720, np.array([426.0, 640.0, 360.0, 0.0, 0.0]))
+    cam = CameraIntrinsics("RADIAL", 1280, 960, np.array([426.0, 640.0, 480.0, 0.0, 0.0]))
     folds = dict(principal_point_axes_px=(6.4, 0.85))
     assert held_point_std_px(cam, folds, 0.01) == pytest.approx(
         1.0 / np.sqrt(6.4 ** -2 + 12.8 ** -2))
@@ -116,19 +116,30 @@ def test_a_held_principal_points_sigma_weighs_the_folds_with_the_prior():
     assert held_point_std_px(cam, {}, 0.01) == pytest.approx(12.8)
 
 
-def test_the_projection_sigma_is_no_smaller_than_its_parts_reported():
-    """Where the folds (or a held principal point's prior) widen the focal length's and the
-    principal point's sigmas beyond the covariance's, the projection's widens with them: a
-    principal point off by sigma moves every image point by about that much."""
-    state, blocks, priors, noise_px = _refined(0.0)
-    posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
-                                                 track_regions(state)).marginals
-    pair = (posterior[0], clustered[0])
-    own = camera_uncertainty(state, 0, pair, {}, None)
-    assert own.projection_std_px < own.principal_point_std_px * 4.0
-    folds = dict(focal_px=3.0 * own.focal_std_px,
-                 principal_point_axes_px=(0.1, 4.0 * own.principal_point_std_px))
-    wider = camera_uncertainty(state, 0, pair, folds, None)
-    assert wider.projection_std_px >= wider.principal_point_std_px > own.projection_std_px
-    held = camera_uncertainty(state, 0, pair, folds, 6.4)
-    assert held.projection_std_px >= held.principal_point_std_px
+def test_a_video_frames_short_axis_has_the_wider_spread():
+    """A 16:9 video frame is a window its firmware placed on a taller sensor, so its principal
+    point's short-axis coordinate spreads wider than a lens centres it (real video cameras: 0.4-4.8
+    % of the short side off): a point held there is that uncertain on that axis, though the prior
+    that placed it stays 1 % of the long side; a still camera's 3:2 or 4:3 frame keeps 1 % of its
+    long side on both, as a fisheye lens's frame does (no real one measured)."""
+    from densecalib_ros.core.method.uncertainty import (CROPPED_FRAME_PP_STD_FRACTION,
+                                                       principal_point_spread_px)
+    assert principal_point_spread_px(1280, 960, "RADIAL") == pytest.approx((12.8, 12.8))
+    assert principal_point_spread_px(1536, 1024, "OPENCV") == pytest.approx((15.36, 15.36))
+    short = CROPPED_FRAME_PP_STD_FRACTION * 720
+    assert principal_point_spread_px(1280, 720, "RADIAL") == pytest.approx((12.8, short))
+    assert principal_point_spread_px(1088, 1920, "OPENCV") == pytest.approx(
+        (CROPPED_FRAME_PP_STD_FRACTION * 1088, 19.2))
+    assert principal_point_spread_px(1280, 720, "OPENCV_FISHEYE") == pytest.approx((12.8, 12.8))
+    assert principal_point_spread_px(1280, 720, "RADIAL", 0.0) == (0.0, 0.0)
+    video = CameraIntrinsics("RADIAL", 1280, 720, np.array([426.0, 640.0, 360.0, 0.0, 0.0]))
+    assert held_point_std_px(video, {}, 0.01) == pytest.approx(short)
+    # the folds place cy to 20 px: the held point takes 29 % of their estimate (against the
+    # prior's 12.8 px), whose error adds to the 71 % of the truth's offset left out
+    weight = 12.8 ** 2 / (12.8 ** 2 + 20.0 ** 2)
+    assert held_point_std_px(video, dict(principal_point_axes_px=(6.4, 20.0)), 0.01) == \
+        pytest.approx(np.hypot((1 - weight) * short, weight * 20.0))
+    fisheye = CameraIntrinsics("OPENCV_FISHEYE", 1280, 720, np.r_[426.0, 426.0, 640.0, 360.0,
+                                                                 np.zeros(4)])
+    assert held_point_std_px(fisheye, dict(principal_point_axes_px=(6.4, 20.0)), 0.01) == \
+        pytest.approx(1.0 / np.sqrt(20.0 ** -2 + 12.8 ** -2))

@@ -151,7 +151,7 @@ def test_units_of_one_model_sharing_an_estimated_principal_point_get_each_units_
 
     sigmas = {"a": CameraUncertainty(3.0, 2.0, 1.0), "b": CameraUncertainty(2.0, None, 0.5),
               "c": CameraUncertainty(2.0, 2.0, 1.0)}
-    widened = with_units_spread(sigmas, {"a": 1280, "b": 1280})
+    widened = with_units_spread(sigmas, {"a": (1280, 960, "RADIAL"), "b": (1280, 960, "RADIAL")})
     unit_px = HELD_PP_STD_FRACTION * 1280
     assert widened["a"] == CameraUncertainty(3.0, pytest.approx(np.hypot(2.0, unit_px)),
                                              pytest.approx(np.hypot(1.0, np.sqrt(2) * unit_px)))

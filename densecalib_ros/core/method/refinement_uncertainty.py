@@ -38,7 +38,8 @@ from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
 from .rig_pooling import one_value
 from .rotation_spread import fold_rotation_std_deg, rotation_std_deg
-from .uncertainty import CameraUncertainty, in_quadrature, projection_std_px
+from .uncertainty import (CameraUncertainty, in_quadrature, principal_point_spread_px,
+                          projection_std_px)
 
 
 # Frame sets a refinement's correspondences come from, at least, for a sandwich clustered by frame
@@ -155,17 +156,25 @@ def _clustered_meat(problem: AdjustmentProblem, score: np.ndarray, obs_cols: np.
 
 def held_point_std_px(cam, fold_sigmas: dict, prior_fraction: float) -> float:
     """The sigma (px, the larger axis) of a principal point held where the images' estimate and
-    the prior weighed by their spreads put it (image_refinement._hold_principal_points): per
-    axis that of the precision-weighted mean of the two, the folds' sigma
-    (fold_sigmas["principal_point_axes_px"]) and the prior's (prior_fraction of the long side);
-    the prior's where the folds gave none. A point the folds place to 6.4 px against a prior of
-    12.8 px is held to 5.7 px, not 12.8: the prior's spread alone, carried into each camera's
-    rotation, made right rigs of a few cameras report rotation sigmas of 2 deg for errors of
-    0.6 (docs/design-notes.md, Cameras placed loosely: warned)."""
+    the prior weighed by their spreads put it (image_refinement._hold_principal_points: the
+    folds' sigma fold_sigmas["principal_point_axes_px"] against the prior's, prior_fraction of
+    the long side): per axis the root mean square of how far the truth may be from there, the
+    truth spread as real cameras' points are (principal_point_spread_px) and the images'
+    estimate off by the folds' sigma. Where that spread is the prior's, it is the precision-
+    weighted mean's sigma: a point the folds place to 6.4 px against a prior of 12.8 px is
+    held to 5.7 px, not 12.8 (the prior's spread alone, carried into each camera's rotation,
+    made right rigs of a few cameras report rotation sigmas of 2 deg for errors of 0.6:
+    docs/design-notes.md, Cameras placed loosely: warned); where the folds gave none, the
+    spread. A video frame's short axis spreads wider than the prior holds it: the prior only
+    shrinks the images' estimate toward the centre, where a wider one lets points the images
+    leave open wander (docs/design-notes.md, Real cameras' principal points)."""
     prior_px = prior_fraction * max(cam.width, cam.height)
+    spread_px = principal_point_spread_px(cam.width, cam.height, cam.model, prior_fraction)
     axes = np.asarray(fold_sigmas.get("principal_point_axes_px", (np.inf, np.inf)), float)
     axes = np.where(np.isfinite(axes) & (axes > 0), axes, np.inf)  # no sigma: no weight
-    return max(one_value([0.0, 0.0], [axis, prior_px]).mean_std for axis in axes)
+    weight = prior_px ** 2 / (prior_px ** 2 + axes ** 2)  # the images' share of the held point
+    images_part = np.where(weight > 0, weight * np.where(np.isfinite(axes), axes, 0.0), 0.0)
+    return float(np.max(np.hypot((1.0 - weight) * np.asarray(spread_px), images_part)))
 
 
 def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sigmas: dict,

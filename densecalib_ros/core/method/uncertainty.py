@@ -42,7 +42,7 @@ from ..config import PipelineConfig
 from ..metrics import (invertible_pixel_rays, mean_focal_px, projection_map_error,
                        relative_pose_errors)
 from ..types import CameraIntrinsics, RigCalibration, colmap_parameter_names
-from .prior_adjustment import points_dof_factor
+from .prior_adjustment import FISHEYE_MODELS, points_dof_factor
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +67,32 @@ PROJECTION_GRID = 12
 # within about that, some up to a few percent (docs/design-notes.md, Real cameras' principal
 # points).
 HELD_PP_STD_FRACTION = 0.01
+# A 16:9 video frame is a window the camera's firmware reads out of a taller sensor (4:3 on most
+# webcam sensors), placed by the firmware as much as by the lens: the real video cameras with a
+# reference here (Caliscope's four webcams, Pose2Sim's four mocap units, the fox's phone) put the
+# short axis's coordinate 0.4-4.8 % of that side off-centre, 2.8 % root mean square over the nine,
+# the long axis's 0.8 % of the long side. A frame at least VIDEO_FRAME_ASPECT wide (16:9 is 1.78,
+# a 1088x1920 portrait 1.76; still cameras' native 3:2 is 1.5) spreads its short axis's point that
+# much (principal_point_spread_px): where it was held, its sigma says so. Measured on perspective
+# lenses only: fisheye ones keep 1 %.
+VIDEO_FRAME_ASPECT = 1.7
+CROPPED_FRAME_PP_STD_FRACTION = 0.028
+
+
+def principal_point_spread_px(width: int, height: int, model: str,
+                              fraction: float = HELD_PP_STD_FRACTION) -> tuple[float, float]:
+    """(x, y) px: how far from the image centre a real camera's principal point may be, per axis,
+    as a standard deviation, for a camera of this COLMAP model name: `fraction` of the long side
+    (HELD_PP_STD_FRACTION), on the short axis of a perspective camera's video frame
+    (VIDEO_FRAME_ASPECT) at least CROPPED_FRAME_PP_STD_FRACTION of the short side; (0, 0) where
+    fraction is 0 (the point taken as right)."""
+    long_px, short_px = max(width, height), min(width, height)
+    spread = [fraction * long_px] * 2
+    video = long_px >= VIDEO_FRAME_ASPECT * short_px and model not in FISHEYE_MODELS
+    if fraction > 0.0 and video:
+        short_axis = 1 if width >= height else 0
+        spread[short_axis] = max(spread[short_axis], CROPPED_FRAME_PP_STD_FRACTION * short_px)
+    return float(spread[0]), float(spread[1])
 
 
 def _covariance(reconstruction: pycolmap.Reconstruction, reference: str,
@@ -135,10 +161,11 @@ def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image
         # The held estimate is off by sensitivity @ offset, offset ~ N(0, std^2 I) per axis;
         # the projection also moves with the offset itself.
         sensitivity, std_px = held_point
-        params_cov = params_cov + std_px ** 2 * sensitivity @ sensitivity.T
+        offset_cov = np.diag(np.square(np.broadcast_to(np.asarray(std_px, float), 2)))
+        params_cov = params_cov + sensitivity @ offset_cov @ sensitivity.T
         free = free + ["cx", "cy"]
-        params_cov = np.block([[params_cov, std_px ** 2 * sensitivity],
-                               [std_px ** 2 * sensitivity.T, std_px ** 2 * np.eye(2)]])
+        params_cov = np.block([[params_cov, sensitivity @ offset_cov],
+                               [offset_cov @ sensitivity.T, offset_cov]])
     focal_rows = [i for i, n in enumerate(free) if n in ("f", "fx", "fy")]
     # The mean focal's variance: the sum of the focal block over its size squared.
     focal = float(np.sqrt(params_cov[np.ix_(focal_rows, focal_rows)].sum()
@@ -188,7 +215,8 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
     the cameras whose principal point the calibration refined; given: the cameras whose
     intrinsics were given and held (constant here too; their values are None);
     held_pp_std_fraction: how far a principal point held at the image centre may be off, per
-    axis, as a fraction of the image's long side (0: the held point is taken as right). Cameras
+    axis, as a fraction of the image's long side (principal_point_spread_px; 0: the held point
+    is taken as right). Cameras
     whose covariance cannot be estimated get None values."""
     out = {name: CameraUncertainty(None, None, None) for name in given}
     for refine_pp in (False, True):
@@ -208,8 +236,8 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
                 camera = rec_free.cameras[rec_free.images[image.image_id].camera_id]
                 sensitivity = _held_point_sensitivity(cov_free, camera)
                 if sensitivity is not None:
-                    held_point = (sensitivity,
-                                  held_pp_std_fraction * max(camera.width, camera.height))
+                    held_point = (sensitivity, principal_point_spread_px(
+                        camera.width, camera.height, camera.model.name, held_pp_std_fraction))
             out[image.name] = (_camera_uncertainty(cov, rec, rec.images[image.image_id], noise_px,
                                                    refine_pp, held_point) if cov is not None
                                else CameraUncertainty(None, None, None))
@@ -340,31 +368,33 @@ def camera_sigmas(rig: RigCalibration, reconstruction, camera_names: Sequence[st
         log.warning("no standard deviations for this calibration: %s", exc)
         return {}, None
     units = {n for names, _ in config.cameras.identical_units for n in names}
-    long_side_px = {n: max(cam.intrinsics.width, cam.intrinsics.height)
-                    for n, cam in rig.cameras.items() if n in units and n in pp_refined}
-    return {**with_units_spread(found, long_side_px), **sigmas}, HELD_PP_STD_FRACTION
+    frames = {n: (cam.intrinsics.width, cam.intrinsics.height, cam.intrinsics.model)
+              for n, cam in rig.cameras.items() if n in units and n in pp_refined}
+    return {**with_units_spread(found, frames), **sigmas}, HELD_PP_STD_FRACTION
 
 
-def with_units_spread(sigmas: dict, long_side_px: dict,
+def with_units_spread(sigmas: dict, frames: dict,
                       fraction: float = HELD_PP_STD_FRACTION) -> dict:
     """sigmas (camera name -> CameraUncertainty) with the principal point and projection standard
     deviations of units of one model, whose one principal point the calibration estimated
-    (long_side_px: those cameras -> their image's long side), widened in quadrature by how far
-    a unit's own point may be from it: `fraction` of the long side per axis, the spread real
-    cameras' points have about the centre (HELD_PP_STD_FRACTION), since each unit's sensor sits
-    where its own assembly put it; the projection by that offset's two axes together.
+    (frames: those cameras -> their image's width, height and COLMAP model name), widened in
+    quadrature by
+    how far a unit's own point may be from it: the spread real cameras' points have about the
+    centre (principal_point_spread_px with `fraction`), since each unit's sensor sits where its
+    own assembly put it (and its video window where its firmware did); the principal point by
+    the larger axis's, the projection by both axes together.
 
     The shared estimate's covariance is that of the units' common point: a unit 1 % of the side
     from it is turned by about that over its focal length, which no covariance of the shared
     block shows (docs/design-notes.md, Units of one model: each its own principal point)."""
     out = dict(sigmas)
-    for name, side_px in long_side_px.items():
+    for name, frame in frames.items():
         u = out.get(name)
         if u is None or u.principal_point_std_px is None:
             continue
-        unit_px = fraction * side_px
+        unit_px = principal_point_spread_px(*frame, fraction)
         out[name] = replace(u, principal_point_std_px=in_quadrature(u.principal_point_std_px,
-                                                                    unit_px),
+                                                                    max(unit_px)),
                             projection_std_px=in_quadrature(u.projection_std_px,
-                                                            np.sqrt(2.0) * unit_px))
+                                                            float(np.hypot(*unit_px))))
     return out

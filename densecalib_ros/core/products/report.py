@@ -16,6 +16,7 @@ from ..errors import InputError
 from ..io.calibration_store import LATEST, stored_calibrations
 from ..io.export import read_calibration
 from ..metrics import mean_focal_px
+from ..method.uncertainty import CROPPED_FRAME_PP_STD_FRACTION
 from ..monitor.change import CameraChange, calibration_change, change_summary, pose_agreement
 from ..types import CameraIntrinsics, RigCalibration, RigQuality
 
@@ -259,7 +260,9 @@ def intrinsics_note(rig: RigCalibration) -> str:
     if held:
         lines += _wrapped(f"f_std and proj_std of {', '.join(held)} include where a real "
                           f"principal point may lie: {100 * held_fraction:g} % of the long side "
-                          "(1 sigma per axis) from where the calibration held it")
+                          "(1 sigma per axis; on a perspective video frame's short axis "
+                          f"{100 * CROPPED_FRAME_PP_STD_FRACTION:g} % of that side) from where "
+                          "the calibration held it")
     runs = rig.quality.sigmas_runs_spread
     if runs:
         lines += _wrapped(f"f_std and proj_std include how far the {runs} calibration runs, which "
