@@ -233,7 +233,7 @@ def intrinsics_note(rig: RigCalibration) -> str:
         PrincipalPoint.PRIOR: f"principal point resting on its prior ({prior}): the images do not "
                               "pin it down, so it was placed between their estimate and the "
                               "prior's centre, weighed by their spreads, and held there (pp_std: "
-                              "that weighted mean's): {}",
+                              "how far a real camera's may lie from there): {}",
         PrincipalPoint.CENTRE: "principal point held exactly at the image centre: {}",
         PrincipalPoint.HELD: "principal point held where the calibration started it: {}",
         PrincipalPoint.GIVEN: "principal point given (--intrinsics) and kept: {}",
