@@ -143,3 +143,21 @@ def test_a_video_frames_short_axis_has_the_wider_spread():
                                                                  np.zeros(4)])
     assert held_point_std_px(fisheye, dict(principal_point_axes_px=(6.4, 20.0)), 0.01) == \
         pytest.approx(1.0 / np.sqrt(20.0 ** -2 + 12.8 ** -2))
+
+
+def test_the_projection_sigma_is_no_smaller_than_its_parts_reported():
+    """Where the folds (or a held principal point's prior) widen the focal length's and the
+    principal point's sigmas beyond the covariance's, the projection's widens with them: a
+    principal point off by sigma moves every image point by about that much."""
+    state, blocks, priors, noise_px = _refined(0.0)
+    posterior, clustered = posterior_covariances(state, blocks, priors, noise_px,
+                                                 track_regions(state)).marginals
+    pair = (posterior[0], clustered[0])
+    own = camera_uncertainty(state, 0, pair, {}, None)
+    assert own.projection_std_px < own.principal_point_std_px * 4.0
+    folds = dict(focal_px=3.0 * own.focal_std_px,
+                 principal_point_axes_px=(0.1, 4.0 * own.principal_point_std_px))
+    wider = camera_uncertainty(state, 0, pair, folds, None)
+    assert wider.projection_std_px >= wider.principal_point_std_px > own.projection_std_px
+    held = camera_uncertainty(state, 0, pair, folds, 6.4)
+    assert held.projection_std_px >= held.principal_point_std_px

@@ -216,8 +216,7 @@ def calibration_uncertainty(reconstruction: pycolmap.Reconstruction, reference: 
     intrinsics were given and held (constant here too; their values are None);
     held_pp_std_fraction: how far a principal point held at the image centre may be off, per
     axis, as a fraction of the image's long side (principal_point_spread_px; 0: the held point
-    is taken as right). Cameras
-    whose covariance cannot be estimated get None values."""
+    is taken as right). Cameras whose covariance cannot be estimated get None values."""
     out = {name: CameraUncertainty(None, None, None) for name in given}
     for refine_pp in (False, True):
         wanted = [im for im in reconstruction.images.values()
@@ -378,11 +377,10 @@ def with_units_spread(sigmas: dict, frames: dict,
     """sigmas (camera name -> CameraUncertainty) with the principal point and projection standard
     deviations of units of one model, whose one principal point the calibration estimated
     (frames: those cameras -> their image's width, height and COLMAP model name), widened in
-    quadrature by
-    how far a unit's own point may be from it: the spread real cameras' points have about the
-    centre (principal_point_spread_px with `fraction`), since each unit's sensor sits where its
-    own assembly put it (and its video window where its firmware did); the principal point by
-    the larger axis's, the projection by both axes together.
+    quadrature by how far a unit's own point may be from it: the spread real cameras' points
+    have about the centre (principal_point_spread_px with `fraction`), since each unit's sensor
+    sits where its own assembly put it (and its video window where its firmware did); the
+    principal point by the larger axis's, the projection by both axes together.
 
     The shared estimate's covariance is that of the units' common point: a unit 1 % of the side
     from it is turned by about that over its focal length, which no covariance of the shared
