@@ -79,7 +79,7 @@ from .reconstruction import (SfMState, remove_outlier_observations, reprojection
                              triangulate_tracks)
 from .rig_pooling import (MIN_POOLED_CAMERAS, POOLED_INTRINSICS, one_value, pooled_intrinsics,
                           random_effects, scatter_per_dof, spread_said, spread_ties)
-from .refinement_uncertainty import refinement_sigmas
+from .refinement_uncertainty import held_point_weight, refinement_sigmas
 
 log = logging.getLogger(__name__)
 
@@ -482,8 +482,7 @@ def _hold_principal_points(state: SfMState, blocks: list[int], held: Priors, pri
             b, (cam.width / 2.0, cam.height / 2.0)), float)
         images_std = np.array(fold_sigmas.get(b, {}).get("principal_point_axes_px",
                                                           (np.inf, np.inf)), float)
-        prior_var = priors.principal_point_std_px[b] ** 2
-        weight = prior_var / (prior_var + images_std ** 2)  # 0 where the folds gave no sigma
+        weight = held_point_weight(priors.principal_point_std_px[b], images_std)
         _set_principal_point(state, b, centre + weight * (_principal_point(cam) - centre))
 
 

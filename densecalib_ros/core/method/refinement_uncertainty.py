@@ -36,7 +36,6 @@ from .prior_adjustment import (TWO_FOCAL_MODELS, AdjustmentProblem, INTRINSIC_NA
                                add_prior_terms)
 from .prior_covariance import block_marginals, camera_covariance
 from .reconstruction import SfMState
-from .rig_pooling import one_value
 from .rotation_spread import fold_rotation_std_deg, rotation_std_deg
 from .uncertainty import (CameraUncertainty, in_quadrature, principal_point_spread_px,
                           projection_std_px)
@@ -71,11 +70,12 @@ def refinement_sigmas(state: SfMState, blocks: list[int], priors: tuple[Priors, 
                       focal_scale_std: float) -> dict[int, CameraUncertainty]:
     """Per registered camera of the adjusted blocks its sigmas (camera_uncertainty, with the lens
     model's choice: with_lens_model_choice) with its rotation's (rotation_sigmas). priors:
-    (every prior in place, those the rig was adjusted under): the covariances take the first, so that a held principal point may be off by its
-    prior's spread and the focal length leans on it; the folds and the lens model's choice refit
-    under the second. determined, fold_sigmas: image_folds.determined_by_images'; a principal
-    point the images do not determine has held_point_std_px's sigma (its prior's spread,
-    held_pp_std_fraction of the long side, weighed with the folds')."""
+    (every prior in place, those the rig was adjusted under): the covariances take the first,
+    so that a held principal point may be off by its prior's spread and the focal length leans
+    on it; the folds and the lens model's choice refit under the second. determined,
+    fold_sigmas: image_folds.determined_by_images'; a principal point the images do not
+    determine has held_point_std_px's sigma (real points' spread, principal_point_spread_px
+    with held_pp_std_fraction, weighed with the folds')."""
     in_place, held = priors
     covariances = posterior_covariances(state, blocks, in_place, noise_px, track_regions(state))
     of_block = {b: camera_uncertainty(
@@ -172,9 +172,17 @@ def held_point_std_px(cam, fold_sigmas: dict, prior_fraction: float) -> float:
     spread_px = principal_point_spread_px(cam.width, cam.height, cam.model, prior_fraction)
     axes = np.asarray(fold_sigmas.get("principal_point_axes_px", (np.inf, np.inf)), float)
     axes = np.where(np.isfinite(axes) & (axes > 0), axes, np.inf)  # no sigma: no weight
-    weight = prior_px ** 2 / (prior_px ** 2 + axes ** 2)  # the images' share of the held point
-    images_part = np.where(weight > 0, weight * np.where(np.isfinite(axes), axes, 0.0), 0.0)
+    weight = held_point_weight(prior_px, axes)
+    images_part = weight * np.where(np.isfinite(axes), axes, 0.0)
     return float(np.max(np.hypot((1.0 - weight) * np.asarray(spread_px), images_part)))
+
+
+def held_point_weight(prior_px, images_std_px) -> np.ndarray:
+    """Per axis the share of the images' estimate in a held principal point, against the prior's
+    centre: the precision weight of the estimate (its sigma images_std_px, the folds') beside the
+    prior's (prior_px); 0 where the folds gave no sigma (inf)."""
+    prior_var = np.square(np.asarray(prior_px, float))
+    return prior_var / (prior_var + np.square(np.asarray(images_std_px, float)))
 
 
 def camera_uncertainty(state: SfMState, block: int, covariances: tuple, fold_sigmas: dict,

@@ -144,11 +144,11 @@ def _held_point_sensitivity(cov_free, camera_free: pycolmap.Camera) -> Optional[
 
 def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image,
                         noise_px: float, refine_principal_point: bool,
-                        held_point: Optional[tuple[np.ndarray, float]] = None
+                        held_point: Optional[tuple[np.ndarray, tuple[float, float]]] = None
                         ) -> CameraUncertainty:
-    """held_point: (sensitivity, std px) of a held principal point (_held_point_sensitivity and
-    the held point's standard deviation per axis): its unknown offset is added to the others'
-    covariance, and enters the projection's."""
+    """held_point: (sensitivity, (x, y) std px) of a held principal point
+    (_held_point_sensitivity and principal_point_spread_px): its unknown offset is added to the
+    others' covariance, and enters the projection's."""
     camera = rec.cameras[image.camera_id]
     names = colmap_parameter_names(camera)
     # The rows of the free parameters, in order (held ones are left out of the covariance).
@@ -158,10 +158,10 @@ def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image
         return CameraUncertainty(None, None, None)
     params_cov = unit_cov * noise_px ** 2
     if held_point is not None:
-        # The held estimate is off by sensitivity @ offset, offset ~ N(0, std^2 I) per axis;
-        # the projection also moves with the offset itself.
+        # The held estimate is off by sensitivity @ offset, offset ~ N(0, diag(std^2)) per
+        # axis; the projection also moves with the offset itself.
         sensitivity, std_px = held_point
-        offset_cov = np.diag(np.square(np.broadcast_to(np.asarray(std_px, float), 2)))
+        offset_cov = np.diag(np.square(std_px))
         params_cov = params_cov + sensitivity @ offset_cov @ sensitivity.T
         free = free + ["cx", "cy"]
         params_cov = np.block([[params_cov, sensitivity @ offset_cov],
