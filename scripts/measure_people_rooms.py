@@ -11,7 +11,9 @@ person's keypoints, against their references (ChArUco bundle adjustment, Qualisy
 `densecalib keypoints` on every frame of the videos (BlazePose, cached in
 WORK/kp_<set>), then `densecalib calibrate --videos ... --keypoints WORK/kp_<set>`. Each row:
 AUC@3/@30 of the pair rotations and translations, median and largest pair rotation error (deg),
-median focal error (%), the warnings and the seconds. --reference-intrinsics gives every camera
+median focal error (%), |error| / the calibration's own sigma per camera (z: focal length, principal
+point, rotation; core.method.uncertainty.error_sigma_ratios, as `densecalib bench` checks it), the
+warnings and the seconds. --reference-intrinsics gives every camera
 the reference's own intrinsics (`--intrinsics`, written to WORK/reference): the extrinsics alone
 are calibrated, which separates the focal lengths' share of the error from the rest.
 """
@@ -29,6 +31,7 @@ import numpy as np
 import densecalib_ros  # noqa: F401  (cv2 before pycolmap)
 from densecalib_ros.core import read_calibration
 from densecalib_ros.core.io.export import write_calibration_files
+from densecalib_ros.core.method.uncertainty import error_sigma_ratios
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.eval.datasets import load_caliscope, load_qualisys_videos
 
@@ -79,7 +82,11 @@ def measure(name: str, data_dir: Path, work: Path, variant: str, frame_sets: int
             "registered": ev["num_registered"],
             "median_rot_deg": round(ev["median_rot_err_deg"], 2),
             "max_rot_deg": round(max(p["rot_err_deg"] for p in ev["pairs"]), 2),
-            "focal_pct": focal, "warnings": list(rig.quality.warnings or [])}
+            "focal_pct": focal,
+            "z": {part: [round(float(z), 2) for z in values]
+                  for part, values in error_sigma_ratios(rig, reference).items()
+                  if part in ("focal", "principal_point", "rotation")},
+            "warnings": list(rig.quality.warnings or [])}
 
 
 def main(argv=None) -> int:

@@ -358,27 +358,35 @@ def test_cameras_the_refinement_places_loosely_are_warned_of_once():
 
 
 def test_the_runs_spread_of_a_cameras_intrinsics_is_their_sample_deviation():
-    def rig(focal_c, names=NAMES):
+    def rig(focal_c, names=NAMES, cy_c=240.0):
         out = _rig(names=names)
         for name, cam in out.cameras.items():
             params = cam.intrinsics.params.copy()
             params[0] = focal_c if name == "c" else 500.0
+            params[2] = cy_c if name == "c" else 240.0
             cam.intrinsics = CameraIntrinsics("RADIAL", 640, 480, params)
         return out
 
     spread = runs_intrinsics_spread([rig(490.0), rig(500.0), rig(510.0, names=["a", "c"])],
                                     NAMES)
-    assert spread["a"] == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)
-    focal_px, projection_px, _ = spread["c"]
+    assert spread["a"] == pytest.approx((0.0, 0.0, 0.0, 0.0), abs=1e-9)
+    focal_px, projection_px, _, point_px = spread["c"]
     assert focal_px == pytest.approx(10.0)  # 490, 500, 510: sample deviation 10
+    assert point_px == pytest.approx(0.0, abs=1e-9)
     # a 2 % focal step moves the mean pixel by about 2 % of its distance from the centre; the
     # pairs (10, 10, 20 px of focal) give sqrt(mean square / 2) = sqrt(((1 + 1 + 4) / 3) / 2) = 1
     # such step
     one_step = projection_map_error(rig(500.0).cameras["c"].intrinsics,
                                     rig(510.0).cameras["c"].intrinsics)["mean_px"]
     assert projection_px == pytest.approx(one_step, rel=0.02)
-    assert spread["b"] == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)  # two runs placed it
+    assert spread["b"] == pytest.approx((0.0, 0.0, 0.0, 0.0), abs=1e-9)  # two runs placed it
     assert "b" not in runs_intrinsics_spread([rig(500.0), rig(500.0, names=["a", "c"])], NAMES)
+    # c's principal point 230, 240 and 256 px in y (x the same): the larger axis's sample
+    # deviation, 13.1 px
+    moved = runs_intrinsics_spread([rig(500.0, cy_c=230.0), rig(500.0), rig(500.0, cy_c=256.0)],
+                                   NAMES)
+    assert moved["c"][3] == pytest.approx(np.std([230.0, 240.0, 256.0], ddof=1))
+    assert moved["b"][3] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_the_runs_spread_of_a_cameras_rotation_is_their_sample_deviation():

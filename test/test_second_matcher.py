@@ -135,20 +135,23 @@ def test_a_first_run_that_left_a_camera_out_is_refined_only_where_the_comparison
 
 
 def _refined(focal_b_px, yaw_b_deg, focal_std_px=5.0, rotation_std_deg=0.5,
-             projection_std_px=0.3, names=("a", "b", "c")):
+             projection_std_px=0.3, names=("a", "b", "c"), cx_c_px=320.0,
+             principal_point_std_px=4.0):
     """A rig refined on the images (image_refinement_tracks), each camera with its own sigmas; b
-    with focal_b_px and turned yaw_b_deg."""
+    with focal_b_px and turned yaw_b_deg, c's principal point at cx_c_px."""
     cameras = {}
     for i, n in enumerate(names):
         f = focal_b_px if n == "b" else 500.0
+        cx = cx_c_px if n == "c" else 320.0
         cam_from_rig = np.eye(4)
         cam_from_rig[:3, :3] = Rotation.from_euler(
             "y", yaw_b_deg if n == "b" else 30.0 * i, degrees=True).as_matrix()
         cameras[n] = RigCamera(n, CameraIntrinsics("RADIAL", 640, 480,
-                                                   np.array([f, 320, 240, 0, 0])),
+                                                   np.array([f, cx, 240, 0, 0])),
                                cam_from_rig, CameraQuality(
                                    0.5, 1000, 0.8, focal_std_px=focal_std_px,
                                    projection_std_px=projection_std_px,
+                                   principal_point_std_px=principal_point_std_px,
                                    rotation_std_deg=None if n == "a" else rotation_std_deg))
     rig = RigCalibration("a", cameras)
     rig.quality.image_refinement_tracks = 1000
@@ -160,7 +163,8 @@ def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
     answers stand further apart than their joint sigma, the kept one's sigmas widen by that
     factor (with equal sigmas: to their distance / sqrt 2); where the other is the looser, its
     own sigma explains the distance; where either was not refined, or they placed other
-    cameras, nothing is compared."""
+    cameras, nothing is compared. The principal point likewise: c's 40 px apart widens its
+    sigma, b's in the same place leaves it."""
     from types import SimpleNamespace
 
     from densecalib_ros.core.robust.second_matcher import Rematch, matchers_apart
@@ -170,9 +174,10 @@ def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
         return SimpleNamespace(rig=rig, unrefined=unrefined)
 
     names = ["a", "b", "c"]
-    kept, other = _refined(500.0, 30.0), _refined(540.0, 36.0)
+    kept, other = _refined(500.0, 30.0), _refined(540.0, 36.0, cx_c_px=360.0)
     apart = matchers_apart(attempt(kept), attempt(other), names)
     assert np.isclose(apart["b"][0], 40.0 / np.hypot(5.0, 5.0)) and apart["c"][0] == 0.0
+    assert np.isclose(apart["c"][3], 40.0 / np.hypot(4.0, 4.0)) and apart["b"][3] == 0.0
     assert np.isclose(apart["b"][2], 6.0 / np.hypot(0.5, 0.5)) and np.isclose(apart["c"][2], 0.0)
     assert np.isnan(apart["a"][2])  # the reference camera has no rotation sigma
     with_matchers_apart(kept, Rematch("sift", "loose", "asift", "loose", False, apart))
@@ -180,6 +185,8 @@ def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
     assert np.isclose(b.focal_std_px, 40.0 / np.sqrt(2))
     assert np.isclose(b.rotation_std_deg, 6.0 / np.sqrt(2))
     assert (c.focal_std_px, c.rotation_std_deg) == (5.0, 0.5)  # they agree: its own stand
+    assert np.isclose(c.principal_point_std_px, 40.0 / np.sqrt(2))
+    assert b.principal_point_std_px == 4.0
     assert kept.quality.sigmas_matchers_spread == "asift"
 
     # the other calibration as far off but eight times as loose: its sigma explains it

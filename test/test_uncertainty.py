@@ -110,11 +110,14 @@ def test_a_free_principal_point_makes_the_focal_less_certain():
 def test_runs_that_disagree_widen_the_sigmas_by_their_spread_in_quadrature():
     sigmas = {"a": CameraUncertainty(3.0, 1.5, 0.4, 0.06), "b": CameraUncertainty(2.0, None, None),
               "g": CameraUncertainty(None, None, None)}  # given intrinsics: no sigmas
-    widened = with_runs_spread(sigmas, {"a": (4.0, 0.3, 0.08), "b": (0.0, float("nan"), 1.0),
-                                        "g": (5.0, 1.0, 1.0)})
-    # pp: the runs hold it
-    assert widened["a"] == CameraUncertainty(5.0, 1.5, pytest.approx(0.5), pytest.approx(0.1))
+    widened = with_runs_spread(sigmas, {"a": (4.0, 0.3, 0.08, 2.0),
+                                        "b": (0.0, float("nan"), 1.0, 3.0),
+                                        "g": (5.0, 1.0, 1.0, 1.0)})
+    assert widened["a"] == CameraUncertainty(5.0, 2.5, pytest.approx(0.5), pytest.approx(0.1))
+    # b's point held (no sigma of its own): nothing to widen; a spread of 0 leaves a sigma
     assert widened["b"] == CameraUncertainty(2.0, None, None)
+    held = with_runs_spread(sigmas, {"a": (0.0, 0.0, 0.0, 0.0)})
+    assert held["a"] == sigmas["a"]
     assert widened["g"] == sigmas["g"]
     assert sigmas["a"].focal_std_px == 3.0  # the caller's are left as they were
 

@@ -259,10 +259,10 @@ class RigQuality:
     image_refinement_groups_apart: Optional[list] = None
     principal_point_prior_std_fraction: Optional[float] = None
     held_pp_std_fraction: Optional[float] = None  # core.method.uncertainty
-    # The runs that disagree whose spread entered f_std and proj_std (uncertainty.with_runs_spread)
+    # The runs that disagree whose spread entered the sigmas (uncertainty.with_runs_spread)
     sigmas_runs_spread: Optional[int] = None
     # The matcher whose refined calibration, not kept, stands apart from the kept one by more than
-    # the sigmas: its distance raised f_std, proj_std and the rotation sigmas (record.
+    # the sigmas: its distance raised f_std, pp_std, proj_std and the rotation sigmas (record.
     # with_matchers_apart)
     sigmas_matchers_spread: Optional[str] = None
     matcher: Optional[str] = None

@@ -305,10 +305,10 @@ def in_quadrature(std: Optional[float], extra: float) -> Optional[float]:
 
 
 def with_runs_spread(sigmas: dict, spread: dict) -> dict:
-    """sigmas (camera name -> CameraUncertainty) with each camera's focal, projection and
-    rotation standard deviations widened by the consensus runs' spread of its answer (spread:
-    name -> (focal px, projection px, rotation deg), consensus_runs.runs_intrinsics_spread), in
-    quadrature.
+    """sigmas (camera name -> CameraUncertainty) with each camera's focal, projection, rotation
+    and principal point standard deviations widened by the consensus runs' spread of its answer
+    (spread: name -> (focal px, projection px, rotation deg, principal point px),
+    consensus_runs.runs_intrinsics_spread), in quadrature.
 
     For a calibration whose runs disagree: each run's covariance describes the valley it settled
     in, while the runs, calibrated from different samples of the same correspondences, settled in
@@ -316,13 +316,15 @@ def with_runs_spread(sigmas: dict, spread: dict) -> dict:
     and the one a single run's covariance cannot see (docs/design-notes.md, Sigmas of runs that
     disagree)."""
     out = dict(sigmas)
-    for name, (focal_px, projection_px, rotation_deg) in spread.items():
+    for name, (focal_px, projection_px, rotation_deg, point_px) in spread.items():
         u = out.get(name)
         if u is None or u.focal_std_px is None:
             continue
         out[name] = replace(u, focal_std_px=in_quadrature(u.focal_std_px, focal_px),
                             projection_std_px=in_quadrature(u.projection_std_px, projection_px),
-                            rotation_std_deg=in_quadrature(u.rotation_std_deg, rotation_deg))
+                            rotation_std_deg=in_quadrature(u.rotation_std_deg, rotation_deg),
+                            principal_point_std_px=in_quadrature(u.principal_point_std_px,
+                                                                 point_px))
     return out
 
 

@@ -265,13 +265,14 @@ def intrinsics_note(rig: RigCalibration) -> str:
                           "the calibration held it")
     runs = rig.quality.sigmas_runs_spread
     if runs:
-        lines += _wrapped(f"f_std and proj_std include how far the {runs} calibration runs, which "
-                          "disagree, scatter: the images leave these intrinsics open")
+        lines += _wrapped(f"f_std, pp_std, proj_std and rot_std include how far the {runs} "
+                          "calibration runs, which disagree, scatter: the images leave these "
+                          "intrinsics open")
     other = rig.quality.sigmas_matchers_spread
     if other:
-        lines += _wrapped(f"f_std, proj_std and rot_std are widened where the calibration on "
-                          f"{other}'s matches, not kept, stands further from this one than both "
-                          "calibrations' sigmas allow")
+        lines += _wrapped("f_std, pp_std, proj_std and rot_std are widened where the "
+                          f"calibration on {other}'s matches, not kept, stands further from this "
+                          "one than both calibrations' sigmas allow")
     return "\n".join(lines)
 
 

@@ -17,7 +17,8 @@ import numpy as np
 
 from ..config import PipelineConfig
 from ..errors import CalibrationError
-from ..metrics import mean_focal_px, projection_map_error, rotation_angle_deg
+from ..metrics import (mean_focal_px, principal_point_px, projection_map_error,
+                       rotation_angle_deg)
 from ..method.multistart import AGREEMENT_DEG, agreement_deg, cost_truncation_px
 from ..progress import Progress
 from ..types import RigCalibration, Tracks
@@ -224,15 +225,16 @@ class ConsensusRecord:
 
 
 def runs_intrinsics_spread(rigs: Sequence[RigCalibration], camera_names: Sequence[str]
-                           ) -> dict[str, tuple[float, float, float]]:
-    """Camera name -> (focal px, projection px, rotation deg): how far one run's answer for the
-    camera scatters, from the runs that registered it (at least two). Each run calibrates from
-    its own seeded sample of the tracks, so the runs are a bootstrap of the calibration over its
-    correspondences: the focal's is the runs' sample standard deviation, the projection's the
-    same from the pairs' mean projection-map differences (for two independent draws the mean
-    square difference is twice the variance), the rotation's likewise from the pairs' angles
-    between its rotations relative to the first of camera_names that every run registered (nan
-    where there is none; 0 for that camera)."""
+                           ) -> dict[str, tuple[float, float, float, float]]:
+    """Camera name -> (focal px, projection px, rotation deg, principal point px): how far one
+    run's answer for the camera scatters, from the runs that registered it (at least two). Each
+    run calibrates from its own seeded sample of the tracks, so the runs are a bootstrap of the
+    calibration over its correspondences: the focal's is the runs' sample standard deviation,
+    the principal point's the larger of its two axes' (as its sigma is checked: the larger
+    axis's error), the projection's the same from the pairs' mean projection-map differences
+    (for two independent draws the mean square difference is twice the variance), the
+    rotation's likewise from the pairs' angles between its rotations relative to the first of
+    camera_names that every run registered (nan where there is none; 0 for that camera)."""
     common = [n for n in camera_names if all(n in rig.cameras for rig in rigs)]
 
     def relative(rig: RigCalibration, name: str) -> np.ndarray:
@@ -245,6 +247,7 @@ def runs_intrinsics_spread(rigs: Sequence[RigCalibration], camera_names: Sequenc
             continue
         cams = [rig.cameras[name].intrinsics for rig in placed]
         focal_px = float(np.std([mean_focal_px(c) for c in cams], ddof=1))
+        point_px = float(np.max(np.std([principal_point_px(c) for c in cams], axis=0, ddof=1)))
         apart_px = [projection_map_error(a, b)["mean_px"] for a, b in combinations(cams, 2)]
         apart_px = [d for d in apart_px if np.isfinite(d)]
         projection_px = float(np.sqrt(np.mean(np.square(apart_px)) / 2.0)) if apart_px \
@@ -253,7 +256,7 @@ def runs_intrinsics_spread(rigs: Sequence[RigCalibration], camera_names: Sequenc
                       for a, b in combinations(placed, 2)] if common else []
         rotation_deg = float(np.sqrt(np.mean(np.square(turned_deg)) / 2.0)) if turned_deg \
             else float("nan")
-        out[name] = (focal_px, projection_px, rotation_deg)
+        out[name] = (focal_px, projection_px, rotation_deg, point_px)
     return out
 
 

@@ -188,9 +188,10 @@ def with_second_matcher(calibrate: Callable[..., object],
 
 
 def matchers_apart(kept, other, camera_names: Sequence[str]) -> dict:
-    """Camera name -> (focal, projection, rotation): how far apart the two matchers' answers for
-    the camera stand, in units of their joint sigma (the distance over the root sum of squares
-    of the two calibrations' own sigmas; NaN where either has none), where both calibrations
+    """Camera name -> (focal, projection, rotation, principal point): how far apart the two
+    matchers' answers for the camera stand, in units of their joint sigma (the distance over the
+    root sum of squares of the two calibrations' own sigmas; NaN where either has none), where
+    both calibrations
     (with_second_matcher's: `.rig`, `.unrefined`) placed the same cameras and were refined on
     the images; else {}. The matchers' keypoints predict and select different dense
     correspondences of the same images, so the two refined answers are two draws of what the
@@ -202,8 +203,8 @@ def matchers_apart(kept, other, camera_names: Sequence[str]) -> dict:
         return {}
     def stds(rig: RigCalibration, name: str) -> tuple:
         q = rig.cameras[name].quality
-        return (None,) * 3 if q is None else \
-            (q.focal_std_px, q.projection_std_px, q.rotation_std_deg)
+        return (None,) * 4 if q is None else \
+            (q.focal_std_px, q.projection_std_px, q.rotation_std_deg, q.principal_point_std_px)
 
     out = {}
     # for two answers the spread (their sample standard deviation) is the distance / sqrt 2

@@ -95,8 +95,9 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
 
 def with_matchers_apart(rig: RigCalibration, rematch: Optional[Rematch],
                          say: Callable[[str], None] = lambda message: None) -> None:
-    """rig's focal, projection and rotation sigmas widened, in place, where the two matchers'
-    refined calibrations stand further apart than their sigmas allow (Rematch.apart): each by
+    """rig's focal, projection, rotation and principal point sigmas widened, in place, where the
+    two matchers' refined calibrations stand further apart than their sigmas allow
+    (Rematch.apart): each by
     that factor, as both calibrations' sigmas would have to be (said); the quality record then
     names the matcher whose calibration was not kept (sigmas_matchers_spread). Where the other
     is the looser, its own sigmas explain most of the distance and the kept ones widen little
@@ -108,11 +109,13 @@ def with_matchers_apart(rig: RigCalibration, rematch: Optional[Rematch],
         quality = rig.cameras[name].quality if name in rig.cameras else None
         if quality is None or quality.focal_std_px is None:
             continue
-        stds = (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg)
+        stds = (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg,
+                quality.principal_point_std_px)
         wider = [std * factor if std is not None and factor > 1.0 else std
                  for std, factor in zip(stds, factors)]  # NaN > 1 is False
         raised |= wider != list(stds)
-        quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg = wider
+        (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg,
+         quality.principal_point_std_px) = wider
     if raised:
         other = rematch.first if rematch.kept_second else rematch.second
         rig.quality.sigmas_matchers_spread = other
