@@ -65,7 +65,11 @@ def test_frames_are_taken_at_common_times_with_offsets(video_dir):
     assert names == ["camA", "camB", "camC"]
     # common span: camA covers 0..2.4 s, camB -0.5..2.167 s, camC 0.2..2.7 s
     first, last = 0.2, 80 / 30 - 0.5
-    assert np.allclose(times, first + (np.arange(4) + 0.5) * (last - first) / 4)
+    even = first + (np.arange(4) + 0.5) * (last - first) / 4
+    # each moved to the middle of the frame the slowest camera (camC, 10 fps) shows then
+    _, slow_fps, _, _, slow_offset = VIDEOS["camC"]
+    assert np.allclose(((np.asarray(times) + slow_offset) * slow_fps) % 1.0, 0.5)
+    assert np.all(np.abs(np.asarray(times) - even) <= 0.5 / slow_fps)
     for t, time_s in enumerate(times):
         for c, name in enumerate(names):
             _, fps, _, _, offset = VIDEOS[name]
@@ -78,12 +82,27 @@ def test_frames_are_taken_at_common_times_with_offsets(video_dir):
 
 def test_window_and_set_count(video_dir):
     _, _, times = read_video_frame_sets(video_dir, 3, start_s=1.0, end_s=1.6)
-    assert np.allclose(times, [1.1, 1.3, 1.5])
+    # 1.1, 1.3 and 1.5 s, each in the middle of one of camC's 0.1 s frames
+    assert np.all(np.abs(np.asarray(times) - [1.1, 1.3, 1.5]) <= 0.05 + 1e-9)
+    assert np.allclose(((np.asarray(times) - 0.2) * 10.0) % 1.0, 0.5)
     # never more sets than the slowest camera has frames in the window (camC: 10 fps)
     frame_sets, _, times = read_video_frame_sets(video_dir, 50, start_s=1.0, end_s=1.6)
     assert len(times) == len(frame_sets) == 6
     numbers = [_frame_number(fs[2]) for fs in frame_sets]
     assert numbers == sorted(set(numbers))
+
+
+def test_an_offset_off_by_under_half_a_frame_picks_the_same_frames(tmp_path):
+    """Two cameras at 6 fps started together (Caliscope's webcams): with an offset off by 0.3
+    of a frame (50 ms, what motion sync estimated there) every set still takes the same frame
+    number in both, wherever the evenly spaced times fall; at 0.7 of a frame the offset is
+    taken as the next frame's."""
+    for name in ("cam0", "cam1"):
+        _write_video(tmp_path / f"{name}.mkv", _numbered_frames(57), 6.0, "FFV1")
+    for offset, shift in ((0.05, 0), (-0.05, 0), (0.7 / 6, 1)):
+        frame_sets, _, times = read_video_frame_sets(tmp_path, 8, {"cam1": offset})
+        assert len(times) == 8
+        assert all(_frame_number(fs[1]) == _frame_number(fs[0]) + shift for fs in frame_sets)
 
 
 def test_errors_say_what_to_do(video_dir, tmp_path):
@@ -142,7 +161,8 @@ def test_rig_calibrated_from_its_videos(tmp_path):
     assert not unaligned[0][2].any()  # without the offset: a black frame
     calibration = read_calibration(out)
     assert calibration.quality.input["time_offsets_s"] == {"cam2": 1.0}
-    assert calibration.quality.input["frame_set_times_s"] == pytest.approx([0.5, 1.5])
+    # the middle of the frames showing at 0.5 and 1.5 s
+    assert calibration.quality.input["frame_set_times_s"] == pytest.approx([0.55, 1.55])
     metrics = evaluate_calibration(calibration, rig.ground_truth())
     assert metrics["num_registered"] == 4
     assert metrics["auc3"] >= 80.0 and metrics["median_focal_err"] <= 0.02

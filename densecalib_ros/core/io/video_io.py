@@ -5,7 +5,9 @@ timeline: the frame of camera c at common time t is at t + offset_c seconds into
 (offset 0 for cameras started together; a camera that started recording 0.4 s before the others
 has +0.4). Frame sets are taken at evenly spaced common times inside the span every video covers
 (and inside an optional [start, end] window), one frame per camera: the one showing at that time
-(frame k shows from k / fps to (k + 1) / fps).
+(frame k shows from k / fps to (k + 1) / fps). Each time is moved to the middle of the frame the
+slowest camera shows then (mid_frame_times_s): a time near a frame boundary would turn an
+offset's error of a fraction of a frame into a whole frame between the cameras.
 
 The rig is rigid, so time errors only matter for what moves in the scene (animals, people): their
 matches then disagree between cameras, and the cycle-consistent sampling and the epipolar filter
@@ -125,6 +127,18 @@ def frame_set_times_s(first_s: float, last_s: float, num_sets: int) -> np.ndarra
     return first_s + (np.arange(num_sets) + 0.5) * (last_s - first_s) / num_sets
 
 
+def mid_frame_times_s(times_s: np.ndarray, infos: list[VideoInfo], offsets_s: list[float]
+                      ) -> np.ndarray:
+    """Each common time moved to the middle of the frame that the slowest camera (the lowest
+    fps; the first of equals) shows then. A camera of the same frame rate whose offset is off by
+    less than half a frame then still shows the frame it shows with the right offset, where at
+    a time near a boundary a small error (motion sync's estimate: docs/cli.md) would pick the
+    next frame, a whole frame period apart in time."""
+    slowest = min(range(len(infos)), key=lambda c: infos[c].fps)
+    fps, offset = infos[slowest].fps, offsets_s[slowest]
+    return (np.floor((np.asarray(times_s, float) + offset) * fps) + 0.5) / fps - offset
+
+
 def _read_frame(cap: cv2.VideoCapture, info: VideoInfo, index: int) -> np.ndarray:
     for i in range(index, max(-1, index - _READ_BACKOFF_FRAMES - 1), -1):
         cap.set(cv2.CAP_PROP_POS_FRAMES, i)
@@ -158,10 +172,11 @@ def read_video_frame_sets(directory: str | os.PathLike,
     offsets = [float(offsets_s.get(n, 0.0)) for n in names]
     infos = [probe_video(p) for p in paths]
     first, last = common_span_s(infos, offsets, start_s, end_s)
-    # Never two sets on the same frame of the slowest camera: at most one set per frame period,
-    # and at that count the set times fall mid-frame, away from the floor's steps.
+    # Never two sets on the same frame of the slowest camera: at most one set per frame period
+    # (set times at least a period apart fall in different frames of it).
     shortest = min(int((last - first) * info.fps) for info in infos)
-    times = frame_set_times_s(first, last, max(1, min(int(num_sets), shortest)))
+    times = mid_frame_times_s(frame_set_times_s(first, last, max(1, min(int(num_sets), shortest))),
+                              infos, offsets)
     frame_sets: list[list[np.ndarray]] = [[] for _ in times]
     for info, offset in zip(infos, offsets):
         cap = _open(info.path)
