@@ -3,6 +3,7 @@ written here with OpenCV in three containers, frames placed on the common timeli
 errors that say what to do, and a generated rig calibrated from its videos."""
 import logging
 import os
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -15,7 +16,8 @@ from densecalib_ros.core.errors import InputError, NotEnoughCamerasError
 from densecalib_ros.core.io.export import read_calibration
 from densecalib_ros.core.metrics import evaluate_calibration
 from densecalib_ros.core.synthetic import RigSpec, generate_rig
-from densecalib_ros.core.io.video_io import read_video_frame_sets
+from densecalib_ros.core.io.video_io import (VideoInfo, read_video_frame_sets,
+                                             synchronising_trims)
 
 BITS = 8
 
@@ -103,6 +105,18 @@ def test_an_offset_off_by_under_half_a_frame_picks_the_same_frames(tmp_path):
         frame_sets, _, times = read_video_frame_sets(tmp_path, 8, {"cam1": offset})
         assert len(times) == 8
         assert all(_frame_number(fs[1]) == _frame_number(fs[0]) + shift for fs in frame_sets)
+
+
+def test_trims_start_together_where_offsets_are_a_fraction_of_a_frame_off():
+    """Four 6 fps videos started together, with the offsets motion sync estimates on
+    Caliscope's webcams (+52, -33, -47 ms: up to a third of a frame off): every video is cut at
+    the same frame, where at the latest camera's start cam_1's nearest frame was the next one;
+    offsets of whole frames are kept exactly."""
+    infos = [VideoInfo(Path(f"cam_{c}.mp4"), 6.0, 57, 1280, 720) for c in range(4)]
+    trims = synchronising_trims(infos, [0.0, 0.052, -0.033, -0.047])
+    assert len({t.first_frame for t in trims}) == 1 and len({t.num_frames for t in trims}) == 1
+    trims = synchronising_trims(infos, [0.0, 2 / 6, -1 / 6, 0.0])
+    assert [t.first_frame for t in trims] == [1, 3, 0, 1]
 
 
 def test_errors_say_what_to_do(video_dir, tmp_path):

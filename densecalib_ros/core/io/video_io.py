@@ -35,6 +35,9 @@ VIDEO_CODECS = {"mp4v": ".mp4", "MJPG": ".avi", "FFV1": ".mkv"}
 # A frame count read from a container can be an estimate (duration x fps); the last frames may
 # not decode, so a failed read steps back this many frames before giving up.
 _READ_BACKOFF_FRAMES = 5
+# Moments tried across one frame of the slowest camera for synchronising_trims' common start: a
+# twenty-fourth of a frame is finer than motion sync's offsets are known to.
+START_CANDIDATES = 24
 
 
 @dataclass(frozen=True)
@@ -223,6 +226,15 @@ def transcode_video(info: VideoInfo, dest: str | os.PathLike, codec: str = "mp4v
     return count
 
 
+def _frame_starts_spread_s(infos: list[VideoInfo], offsets_s: list[float], moment_s: float
+                           ) -> float:
+    """How far apart (s, common time) the frames of the videos starting nearest to moment_s
+    start."""
+    starts = [round((moment_s + off) * info.fps) / info.fps - off
+              for info, off in zip(infos, offsets_s)]
+    return max(starts) - min(starts)
+
+
 @dataclass(frozen=True)
 class Trim:
     first_frame: int  # the first frame kept
@@ -231,13 +243,22 @@ class Trim:
 
 
 def synchronising_trims(infos: list[VideoInfo], offsets_s: list[float]) -> list[Trim]:
-    """Per video, the frames to keep so that all start at the same moment (the latest camera's
-    start, within half a frame) and, at equal frame rates, have as many frames: frame index k
+    """Per video, the frames to keep so that all start at the same moment, as nearly as their
+    frame rates and offsets allow, and, at equal frame rates, have as many frames: frame index k
     then shows the same instant in every video, what tools that take synchronised videos
-    (anipose) assume."""
+    (anipose) assume. The moment is the one, from the latest camera's start on over one frame
+    of the slowest camera (START_CANDIDATES steps), at which the frames starting nearest to it
+    start closest together (the earliest such): at the latest camera's start itself another
+    camera can sit half a frame from its nearest frame, where an offset's error of a fraction of
+    a frame (motion sync's estimate) picks the frame after."""
     first, last = common_span_s(infos, offsets_s)
-    starts = [int(round((first + off) * info.fps)) for info, off in zip(infos, offsets_s)]
-    counts = [min(info.num_frames - k, int(np.floor((last - first) * info.fps)))
+    period_s = 1.0 / min(info.fps for info in infos)
+    moments = first + np.arange(START_CANDIDATES) * period_s / START_CANDIDATES
+    moments = moments[moments < last]  # first < last: common_span_s
+    # spreads compared to the nanosecond: equal ones up to rounding keep the earliest moment
+    start = min(moments, key=lambda t: round(_frame_starts_spread_s(infos, offsets_s, t), 9))
+    starts = [int(round((start + off) * info.fps)) for info, off in zip(infos, offsets_s)]
+    counts = [min(info.num_frames - k, int(np.floor((last - start) * info.fps)))
               for info, k in zip(infos, starts)]
     if len({info.fps for info in infos}) == 1:
         counts = [min(counts)] * len(infos)
