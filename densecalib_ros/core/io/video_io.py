@@ -226,12 +226,18 @@ def transcode_video(info: VideoInfo, dest: str | os.PathLike, codec: str = "mp4v
     return count
 
 
+def _nearest_frames(infos: list[VideoInfo], offsets_s: list[float], moment_s: float
+                    ) -> list[int]:
+    """Per video, the frame starting nearest to the common time moment_s."""
+    return [int(round((moment_s + off) * info.fps)) for info, off in zip(infos, offsets_s)]
+
+
 def _frame_starts_spread_s(infos: list[VideoInfo], offsets_s: list[float], moment_s: float
                            ) -> float:
     """How far apart (s, common time) the frames of the videos starting nearest to moment_s
     start."""
-    starts = [round((moment_s + off) * info.fps) / info.fps - off
-              for info, off in zip(infos, offsets_s)]
+    starts = [k / info.fps - off for info, off, k in
+              zip(infos, offsets_s, _nearest_frames(infos, offsets_s, moment_s))]
     return max(starts) - min(starts)
 
 
@@ -257,7 +263,7 @@ def synchronising_trims(infos: list[VideoInfo], offsets_s: list[float]) -> list[
     moments = moments[moments < last]  # first < last: common_span_s
     # spreads compared to the nanosecond: equal ones up to rounding keep the earliest moment
     start = min(moments, key=lambda t: round(_frame_starts_spread_s(infos, offsets_s, t), 9))
-    starts = [int(round((start + off) * info.fps)) for info, off in zip(infos, offsets_s)]
+    starts = _nearest_frames(infos, offsets_s, start)
     counts = [min(info.num_frames - k, int(np.floor((last - start) * info.fps)))
               for info, k in zip(infos, starts)]
     if len({info.fps for info in infos}) == 1:

@@ -191,9 +191,8 @@ def matchers_apart(kept, other, camera_names: Sequence[str]) -> dict:
     """Camera name -> (focal, projection, rotation, principal point): how far apart the two
     matchers' answers for the camera stand, in units of their joint sigma (the distance over the
     root sum of squares of the two calibrations' own sigmas; NaN where either has none), where
-    both calibrations
-    (with_second_matcher's: `.rig`, `.unrefined`) placed the same cameras and were refined on
-    the images; else {}. The matchers' keypoints predict and select different dense
+    both calibrations (with_second_matcher's: `.rig`, `.unrefined`) placed the same cameras and
+    were refined on the images; else {}. The matchers' keypoints predict and select different dense
     correspondences of the same images, so the two refined answers are two draws of what the
     images say: beyond 1, their distance is error the sigmas do not see."""
     if kept is None or other is None or kept.unrefined or other.unrefined or \

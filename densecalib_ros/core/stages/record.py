@@ -97,11 +97,10 @@ def with_matchers_apart(rig: RigCalibration, rematch: Optional[Rematch],
                          say: Callable[[str], None] = lambda message: None) -> None:
     """rig's focal, projection, rotation and principal point sigmas widened, in place, where the
     two matchers' refined calibrations stand further apart than their sigmas allow
-    (Rematch.apart): each by
-    that factor, as both calibrations' sigmas would have to be (said); the quality record then
-    names the matcher whose calibration was not kept (sigmas_matchers_spread). Where the other
-    is the looser, its own sigmas explain most of the distance and the kept ones widen little
-    (docs/design-notes.md, Sigmas of two matchers)."""
+    (Rematch.apart): each by that factor, as both calibrations' sigmas would have to be (said);
+    the quality record then names the matcher whose calibration was not kept
+    (sigmas_matchers_spread). Where the other is the looser, its own sigmas explain most of the
+    distance and the kept ones widen little (docs/design-notes.md, Sigmas of two matchers)."""
     if rematch is None or not rematch.apart:
         return
     raised = False
