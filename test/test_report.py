@@ -11,6 +11,7 @@ from densecalib_ros.core.products.report import (TABLE_COLUMNS, PrincipalPoint,
                                                  intrinsics_note, layout_table, overall_lines,
                                                  principal_point_case, rig_report, short_names,
                                                  shortened_line)
+from densecalib_ros.core.io.export import calibration_from_dict, calibration_to_dict
 from densecalib_ros.core.products.scale import apply_known_baseline
 from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigQuality
 
@@ -85,6 +86,17 @@ def test_camera_table_names_each_models_parameters(rig):
     assert note in rig_report(rig)
     # a calibration whose runs disagree says its sigmas include their spread
     assert "calibration runs, which disagree" not in note
+    # a calibration that records the point as held gives it the spread as its own sigma
+    rig.cameras["cam0"].quality.principal_point_std_px = 6.4
+    rig.cameras["cam0"].quality.principal_point_held = True
+    assert principal_point_case(rig, "cam0") == PrincipalPoint.CENTRE
+    assert _blocks(camera_table(rig))[0]["cam0"]["pp_std"] == "6.4"
+    assert "pp_std of cam0 is where a real principal point may lie, and their f_std and " \
+        "proj_std include it: 1 % of the long side" in intrinsics_note(rig).replace("\n  ", " ")
+    rig.cameras["cam0"].intrinsics.params[1:3] = [330.0, 250.0]  # held where it started
+    assert principal_point_case(rig, "cam0") == PrincipalPoint.HELD
+    assert calibration_from_dict(calibration_to_dict(rig)).cameras[
+        "cam0"].quality.principal_point_held is True
     rig.quality.sigmas_runs_spread = 5
     assert "include how far the 5 calibration runs, which disagree, scatter" in \
         intrinsics_note(rig).replace("\n  ", " ")

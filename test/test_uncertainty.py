@@ -70,15 +70,22 @@ def _ratios(cams, rec, sigmas):
 def test_a_held_principal_point_off_the_centre_is_in_the_sigmas():
     """Real principal points lie off the image centre where the regular preset holds them (by
     about 1 % of the long side): the sigmas that take the held point as right are then several
-    times too small, those with its offset's spread in them (HELD_PP_STD_FRACTION) are not."""
-    as_right, with_offset = ([], []), ([], [])
+    times too small, those with its offset's spread in them (HELD_PP_STD_FRACTION) are not, and
+    the held point's own sigma is that spread."""
+    as_right, with_offset, point = ([], []), ([], []), []
     for seed in (1, 2):
         # uniform +-J has a standard deviation of J / sqrt(3): 1 % of the 640 px long side
         cams, rec = _solved(seed, pp_jitter_px=0.01 * 640 * np.sqrt(3.0))
         for out, fraction in ((as_right, 0.0), (with_offset, 0.01)):
-            ratios = _ratios(cams, rec, calibration_uncertainty(
-                rec, "a", noise_px=0.5, held_pp_std_fraction=fraction))
+            sigmas = calibration_uncertainty(rec, "a", noise_px=0.5,
+                                             held_pp_std_fraction=fraction)
+            ratios = _ratios(cams, rec, sigmas)
             out[0].extend(ratios[0]), out[1].extend(ratios[1])
+            assert all(sigmas[n].principal_point_held for n in NAMES)
+        assert all(sigmas[n].principal_point_std_px == pytest.approx(6.4) for n in NAMES)
+        point += [np.abs(cam.params[1:3] - 0.5 * np.array([640, 480])).max() / 6.4 for cam in cams]
+    print("held point |error| / its sigma:", np.round(point, 2))
+    assert 0.2 < np.median(point) < 2.0 and max(point) < 4.0, point
     print("taken as right: focal", np.round(as_right[0], 2), "projection",
           np.round(as_right[1], 2))
     print("with its offset: focal", np.round(with_offset[0], 2), "projection",

@@ -185,7 +185,8 @@ class CameraQuality:
     # re-measured the rig on other (dense) correspondences; None where it did not.
     sfm_multiview_observations: Optional[int] = None
     # Standard deviations from the final adjustment's information matrix (core.method.uncertainty; a
-    # lower bound). None where not estimated (a held principal point).
+    # lower bound). None where not estimated; a principal point held there has how far a real
+    # camera's may lie from it (principal_point_held; files written before 2026-12-06: None).
     focal_std_px: Optional[float] = None
     principal_point_std_px: Optional[float] = None
     projection_std_px: Optional[float] = None  # the intrinsics as a whole, mean over the image
@@ -196,6 +197,10 @@ class CameraQuality:
     # "k2", "aspect"); those with a prior that are not listed rest on it (the principal point near
     # the image centre). None where not judged (no refinement on the images, given intrinsics).
     estimated_intrinsics: Optional[list] = None
+    # True where the final bundle adjustment held the principal point (where it started: the
+    # image centre or a previous calibration's); None where it did not say (the image refinement's
+    # estimated_intrinsics say it there, files written before 2026-12-06).
+    principal_point_held: Optional[bool] = None
 
 
 @dataclass

@@ -57,6 +57,8 @@ def calibration_to_dict(rig: RigCalibration) -> dict:
                     entry["quality"][key] = float(getattr(cam.quality, key))
             if cam.quality.estimated_intrinsics is not None:
                 entry["quality"]["estimated_intrinsics"] = list(cam.quality.estimated_intrinsics)
+            if cam.quality.principal_point_held is not None:
+                entry["quality"]["principal_point_held"] = bool(cam.quality.principal_point_held)
         cams[name] = entry
     return {"reference_camera": rig.reference_camera, "cameras": cams,
             "failed_cameras": list(rig.failed_cameras), "metric_scale": bool(rig.metric_scale),

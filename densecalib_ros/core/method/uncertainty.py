@@ -50,7 +50,9 @@ log = logging.getLogger(__name__)
 @dataclass
 class CameraUncertainty:
     focal_std_px: Optional[float]  # of the mean focal length
-    principal_point_std_px: Optional[float]  # larger of cx, cy; None where it was held fixed
+    # The larger of cx's and cy's; for a point held fixed, how far a real camera's point may lie
+    # from there (principal_point_spread_px), else None where it was held.
+    principal_point_std_px: Optional[float]
     # Mean over the image of the standard deviation (px) of where a ray projects: the
     # intrinsics' uncertainty as a whole. A focal that trades off against the distortion (a
     # fisheye seen over part of its field) has a large focal_std_px but a small projection_std_px.
@@ -58,6 +60,7 @@ class CameraUncertainty:
     # The camera's rotation relative to the reference camera (deg, root mean square of the angle;
     # core.method.rotation_spread): None for the reference camera and where not estimated.
     rotation_std_deg: Optional[float] = None
+    principal_point_held: bool = False  # held fixed by the final adjustment, not estimated
 
 
 # Rays sampled on a grid of this many points per image side for projection_std_px.
@@ -148,7 +151,7 @@ def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image
                         ) -> CameraUncertainty:
     """held_point: (sensitivity, (x, y) std px) of a held principal point
     (_held_point_sensitivity and principal_point_spread_px): its unknown offset is added to the
-    others' covariance, and enters the projection's."""
+    others' covariance, enters the projection's, and is the point's own sigma."""
     camera = rec.cameras[image.camera_id]
     names = colmap_parameter_names(camera)
     # The rows of the free parameters, in order (held ones are left out of the covariance).
@@ -171,9 +174,10 @@ def _camera_uncertainty(cov, rec: pycolmap.Reconstruction, image: pycolmap.Image
     focal = float(np.sqrt(params_cov[np.ix_(focal_rows, focal_rows)].sum()
                           / len(focal_rows) ** 2))
     pp = (float(np.sqrt(max(params_cov[free.index(n), free.index(n)] for n in ("cx", "cy"))))
-          if refine_principal_point else None)
+          if "cx" in free else None)
     projection = projection_std_px(camera, [names.index(n) for n in free], params_cov)
-    return CameraUncertainty(focal, pp, projection)
+    return CameraUncertainty(focal, pp, projection,
+                             principal_point_held=not refine_principal_point)
 
 
 def projection_std_px(camera: pycolmap.Camera, free_rows: Sequence[int],

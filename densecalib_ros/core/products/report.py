@@ -44,8 +44,9 @@ def principal_point_case(rig: RigCalibration, name: str) -> PrincipalPoint:
     """How camera `name`'s principal point was decided, from what the calibration recorded:
     given intrinsics; the image refinement's verdict (quality.estimated_intrinsics: "cx" listed
     where the images determined it, else it rests on its prior: core.method.image_refinement);
-    a standard deviation where a final bundle adjustment refined it; else held, exactly at the
-    image centre or where it started."""
+    held, exactly at the image centre or where it started, where the calibration recorded that a
+    final bundle adjustment held it (quality.principal_point_held); in files that do not, a
+    standard deviation where that adjustment refined it, else held."""
     cam = rig.cameras[name]
     quality = cam.quality
     if name in set(rig.quality.given_intrinsics or ()):
@@ -53,6 +54,9 @@ def principal_point_case(rig: RigCalibration, name: str) -> PrincipalPoint:
     if quality is not None and isinstance(quality.estimated_intrinsics, list):
         return PrincipalPoint.ESTIMATED if "cx" in quality.estimated_intrinsics \
             else PrincipalPoint.PRIOR
+    if quality is not None and quality.principal_point_held:  # with a sigma of the held point
+        return PrincipalPoint.HELD if any(principal_point_offset_px(cam.intrinsics)) \
+            else PrincipalPoint.CENTRE
     if quality is not None and quality.principal_point_std_px is not None:
         return PrincipalPoint.ESTIMATED
     if quality is None:  # not a calibration's own record (a ground truth, a hand-written file)
@@ -254,12 +258,18 @@ def intrinsics_note(rig: RigCalibration) -> str:
         if names:
             lines += _wrapped(f"{said}: {', '.join(names)}")
     held_fraction = rig.quality.held_pp_std_fraction  # absent in files written before it
-    held = [short[n] for n in cases.get(PrincipalPoint.CENTRE, [])
-            + cases.get(PrincipalPoint.HELD, [])
-            if rig.cameras[n].quality.focal_std_px is not None] if held_fraction else []
+    held_names = [n for n in cases.get(PrincipalPoint.CENTRE, [])
+                  + cases.get(PrincipalPoint.HELD, [])
+                  if rig.cameras[n].quality.focal_std_px is not None] if held_fraction else []
+    held = [short[n] for n in held_names]
     if held:
-        lines += _wrapped(f"f_std and proj_std of {', '.join(held)} include where a real "
-                          f"principal point may lie: {100 * held_fraction:g} % of the long side "
+        # files written before 2026-12-06 have no pp_std for a held point
+        own = all(rig.cameras[n].quality.principal_point_std_px is not None for n in held_names)
+        said = ("pp_std of {} is where a real principal point may lie, and their f_std and "
+                "proj_std include it" if own else
+                "f_std and proj_std of {} include where a real principal point may lie")
+        lines += _wrapped(f"{said.format(', '.join(held))}: {100 * held_fraction:g} % of the long "
+                          "side "
                           "(1 sigma per axis; on a perspective video frame's short axis "
                           f"{100 * CROPPED_FRAME_PP_STD_FRACTION:g} % of that side) from where "
                           "the calibration held it")

@@ -87,6 +87,8 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
             cam.quality.principal_point_std_px = sigmas[name].principal_point_std_px
             cam.quality.projection_std_px = sigmas[name].projection_std_px
             cam.quality.rotation_std_deg = sigmas[name].rotation_std_deg
+            if sigmas[name].principal_point_held:
+                cam.quality.principal_point_held = True
     if config.cameras.known_intrinsics:
         quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
     if sfm.given_intrinsics_fit:
