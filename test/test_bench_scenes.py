@@ -4,7 +4,8 @@ import numpy as np
 
 from densecalib_ros.eval.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
                                        quick_scenes)
-from densecalib_ros.eval.tables import format_scene_table, format_summary, summarize
+from densecalib_ros.eval.tables import (format_rotation_against_colmap, format_scene_table,
+                                       format_summary, rotation_against_colmap, summarize)
 
 
 def test_heldout_scenes_share_no_scene_or_generator_seed_with_the_bench():
@@ -101,6 +102,27 @@ def test_tables_give_each_methods_time_over_colmaps_on_the_same_scene():
     summary = {s["method"]: s for s in summarize(scenes)}
     assert summary["densecalib-incremental"]["median_colmap_time_ratio"] == 1.5
     assert summary["colmap"]["median_colmap_time_ratio"] == 1.0
+
+
+def test_the_bench_lists_the_scenes_where_our_rotations_are_worse_than_colmaps():
+    """Issue 82: no scene worse than COLMAP's rotation error where both register every camera;
+    a scene where either leaves a camera out is not compared, one whose reference is an SfM
+    estimate is marked so."""
+    def scene(k, ours_deg, colmap_deg, registered=4, sfm=False):
+        records = [_record("colmap", 50.0, []), _record("densecalib-incremental", 90.0, [])]
+        records[0]["metrics"]["median_rot_err_deg"] = colmap_deg
+        records[1]["metrics"].update(median_rot_err_deg=ours_deg, num_registered=registered)
+        return dict(scene=f"s{k}", reference_is_estimate=sfm, results=records)
+
+    scenes = [scene(0, 0.1, 0.2), scene(1, 0.3, 0.2), scene(2, 0.5, 0.2, registered=3),
+              scene(3, 0.44, 0.31, sfm=True)]
+    check = rotation_against_colmap(scenes)["densecalib-incremental"]
+    assert check["compared"] == 3
+    assert [(w["scene"], w["sfm_reference"]) for w in check["worse"]] == [("s1", False),
+                                                                          ("s3", True)]
+    line = format_rotation_against_colmap({"densecalib-incremental": check}).splitlines()[1]
+    assert line.endswith("no worse on 1 of 3; worse on s1 0.300 against 0.200 deg; s3 0.440 "
+                         "against 0.310 deg (reference: an SfM estimate)")
 
 
 def test_peak_memory_counts_the_worker_processes():

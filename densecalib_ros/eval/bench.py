@@ -35,7 +35,8 @@ from .datasets import (Scene, default_data_dir, load_caliscope, load_krtd_stills
                        load_nerf_transforms, load_qualisys_videos, load_strecha,
                        scene_from_synthetic)
 from .peers import PEER_METHODS, run_peer
-from .tables import (format_error_sigma_ratios, format_scene_table, format_summary, summarize,
+from .tables import (format_error_sigma_ratios, format_rotation_against_colmap, format_scene_table,
+                     format_summary, rotation_against_colmap, summarize,
                      summarize_error_sigma_ratios)
 
 log = logging.getLogger(__name__)
@@ -453,6 +454,9 @@ def run_bench(specs: Sequence[SceneSpec], methods: Sequence[str], num_threads: i
     report["uncertainty_check"] = summarize_error_sigma_ratios(report["scenes"])
     if report["uncertainty_check"]:
         say(format_error_sigma_ratios(report["uncertainty_check"]))
+    report["rotation_against_colmap"] = rotation_against_colmap(report["scenes"])
+    if report["rotation_against_colmap"]:
+        say(format_rotation_against_colmap(report["rotation_against_colmap"]))
     _write_json(report, out_dir)
     return report
 
