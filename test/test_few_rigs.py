@@ -21,6 +21,8 @@ def test_the_bench_few_camera_rooms_cover_the_issue_and_use_seeds_of_their_own()
     assert {r["walker"] for r in rigs} == {"person", "animal"}
     assert all(r["room"] == "plain" and 20 <= r["num_time_steps"] <= 100 for r in rigs)
     assert all(45 <= s.gap_deg <= 140 for s in few)
+    # fisheye lenses beyond 180 deg facing out, neighbours sharing their images' rims
+    assert any(s.layout == "outward" and r.get("fov_deg", 0) > 180 for s, r in zip(few, rigs))
     others = full_scenes() + quick_scenes() + heldout_scenes() + mixed_scenes() + forward_scenes()
     assert not {s.seed for s in few} & {s.seed for s in others if s.kind == "synthetic"}
     # A scene hands every frame set on (the methods, COLMAP included, get them all).

@@ -215,6 +215,25 @@ def test_bar_layout_puts_cameras_side_by_side_looking_the_same_way():
         generate_rig(RigSpec(lenses="ideal", layout="bar", bar_spacing_m=2.0))
 
 
+def test_outward_layout_puts_one_head_of_cameras_facing_out_evenly_round():
+    from densecalib_ros.core.synthetic.rig import OUTWARD_JITTER_DEG, OUTWARD_RADIUS_M
+
+    rig = generate_rig(RigSpec(num_cameras=4, camera_model="OPENCV_FISHEYE", fov_deg=220.0,
+                               width=64, height=48, seed=3, layout="outward", room="plain",
+                               mount="low"))
+    centres = np.array([-T[:3, :3].T @ T[:3, 3] for T in rig.cam_from_world])
+    head = centres.mean(axis=0)
+    np.testing.assert_allclose(np.linalg.norm(centres[:, :2] - head[:2], axis=1),
+                               OUTWARD_RADIUS_M, rtol=0.1)
+    axes = np.array([T[2, :3] for T in rig.cam_from_world])  # optical axes in the world
+    out = (centres - head)[:, :2]
+    assert np.all(np.einsum("ij,ij->i", axes[:, :2], out) > 0)  # each faces away from the head
+    yaws = np.sort(np.degrees(np.arctan2(axes[:, 1], axes[:, 0])) % 360)
+    steps = np.diff(np.r_[yaws, yaws[0] + 360])
+    assert np.all(np.abs(steps - 90) <= 2 * OUTWARD_JITTER_DEG + 1e-6)
+    assert np.all(np.abs(np.degrees(np.arcsin(axes[:, 2]))) <= OUTWARD_JITTER_DEG + 1e-6)
+
+
 def test_generate_command(tmp_path):
     rc = cli_main(["generate", "--out", str(tmp_path / "out"), "--cameras", "3", "--width", "64",
                    "--height", "48", "--time-steps", "2", "--model", "OPENCV_FISHEYE"])

@@ -34,10 +34,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "looking the same way (a stereo head, a camera array): focal "
                             "lengths weakly determined; does the calibration say so")
     which.add_argument("--few", action="store_true",
-                       help="7 generated rigs as users build them: 3-4 cameras 45-140 deg apart "
+                       help="8 generated rigs as users build them: 3-4 cameras 45-140 deg apart "
                             "around a plain room a person or animal walks through, 20 frame "
                             "sets at 1280x720, pinhole and fisheye, mixed lenses or units of "
-                            "one model, mounted high or low, blurred, noisy, JPEG-compressed")
+                            "one model, mounted high or low, blurred, noisy, JPEG-compressed; "
+                            "one a head of four 220 deg fisheye units facing out")
     which.add_argument("--real", action="store_true",
                        help="the real scenes of the full set only: Strecha entry-P10 (ten "
                             "cameras, one camera; also at 1536 and 3072 px), the fox, "

@@ -36,10 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "alike views)")
     parser.add_argument("--max-arc-deg", type=float, default=140.0,
                         help="largest arc spanned by all cameras (360 = a ring around the scene)")
-    parser.add_argument("--layout", default="arc", choices=["arc", "bar"],  # synthetic.LAYOUTS
+    parser.add_argument("--layout", default="arc", choices=["arc", "bar", "outward"],  # LAYOUTS
                         help="arc: cameras around the scene looking at its centre (--gap-deg, "
                              "--max-arc-deg); bar: side by side on a bar looking the same way "
-                             "(axes parallel to within 3 deg; --bar-spacing-m)")
+                             "(axes parallel to within 3 deg; --bar-spacing-m); outward: one "
+                             "head near the room's centre facing out, yaws 360/N deg apart")
     parser.add_argument("--bar-spacing-m", type=float, default=0.3,
                         help="distance between neighbouring cameras of --layout bar")
     parser.add_argument("--lenses", default="real", choices=["real", "ideal"],  # LENS_PROFILES

@@ -33,6 +33,13 @@ FEW_RIGS = (
     (4, "OPENCV_FISHEYE", "mixed", "animal", "low", 80, 20, 816),
     (4, "RADIAL", "identical-long", "person", "high", 90, 20, 817),  # Pose2Sim's kind of ring
 )
+# A head of fisheye units facing out from the room's middle (core.synthetic.rig's "outward"
+# layout: a 360-degree camera, a trap on a post), whose neighbours share only their images' rims:
+# the issue's held-out rig of four 220 deg lenses. (cameras, field of view deg, lens mix,
+# walker, mount, frame sets, seed.)
+FEW_OUTWARD_RIGS = (
+    (4, 220.0, "identical", "person", "low", 20, 818),
+)
 
 
 def few_scenes() -> list[SceneSpec]:
@@ -53,4 +60,12 @@ def few_scenes() -> list[SceneSpec]:
                                 gap_deg=float(gap), max_arc_deg=360.0,
                                 fov_range_deg=FEW_RIG_LONG_FOV_DEG if long_lens else None,
                                 rig=rig))
+    for n, fov, mix, walker, mount, sets, seed in FEW_OUTWARD_RIGS:
+        name = (f"synthetic-{walker}-fisheye{fov:.0f}-{mix}-outward-{mount}-{n}cam-{sets}sets-"
+                f"{width}x{height}-s{seed}")
+        rig = (("room", "plain"), ("walker", walker), ("mount", mount), ("lens_mix", mix),
+               ("num_time_steps", sets), ("fov_deg", fov), ("blur_sigma_px", FEW_RIG_BLUR_PX),
+               ("jpeg_quality", FEW_RIG_JPEG_QUALITY))
+        scenes.append(SceneSpec(name, "synthetic", n, "OPENCV_FISHEYE", width, height, seed,
+                                gap_deg=360.0 / n, max_arc_deg=360.0, layout="outward", rig=rig))
     return scenes

@@ -26,7 +26,7 @@ from .scene import Box, Scene, random_scene
 from .textures import STYLE_NAMES, build_atlas
 from .walker import WALKERS, bound_of, walk_loop, walker_parts, walker_styles
 
-LAYOUTS = ("arc", "bar")
+LAYOUTS = ("arc", "bar", "outward")
 BAR_YAW_DEG = 3.0  # a bar's cameras: each axis turned by up to this from the common direction
 AIM_CENTRE_M = np.array([0.0, 0.0, 0.45])  # the middle of the points cameras look at
 # Rooms: "textured" (scene.random_scene: every surface richly textured, 8-11 objects in the
@@ -68,7 +68,9 @@ class RigSpec:
     # "arc": cameras around the scene, looking at its centre (gap_deg, max_arc_deg); "bar":
     # side by side bar_spacing_m apart at one wall, looking across the room with their axes
     # parallel to within BAR_YAW_DEG (a forward-facing array: what fixes the focal lengths is
-    # weak there, core.method.focal_determination).
+    # weak there, core.method.focal_determination); "outward": one head of cameras near the
+    # room's centre facing out, their yaws 360 / n deg apart (a 360-degree camera, a trap on a
+    # post): neighbours share only the edges of their fields of view.
     layout: str = "arc"
     bar_spacing_m: float = 0.3
     lenses: str = "real"
@@ -282,6 +284,29 @@ def _sample_poses(rng: np.random.Generator, n: int, scene: Scene, gap_deg: float
     return poses
 
 
+# An outward head: its cameras this far from its axis, each yaw within OUTWARD_JITTER_DEG of its
+# place (n equal steps round), axes within OUTWARD_JITTER_DEG of level, as a hand-built mount.
+OUTWARD_RADIUS_M = 0.08
+OUTWARD_JITTER_DEG = 3.0
+
+
+def _outward_poses(rng: np.random.Generator, n: int, mount: tuple) -> list[np.ndarray]:
+    """Cameras on one head within 0.3 m of the room's centre at one of mount's heights, facing
+    out, their yaws 360 / n deg apart."""
+    centre = np.r_[rng.uniform(-0.3, 0.3, 2), rng.uniform(*mount[0])]
+    first = rng.uniform(0.0, 2 * np.pi)
+    jitter = np.deg2rad(OUTWARD_JITTER_DEG)
+    poses = []
+    for c in range(n):
+        yaw = first + 2 * np.pi * c / n + rng.uniform(-jitter, jitter)
+        pitch = rng.uniform(-jitter, jitter)
+        out = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+        position = centre + OUTWARD_RADIUS_M * out
+        ahead = np.r_[np.cos(pitch) * out[:2], np.sin(pitch)]
+        poses.append(_look_at(position, position + ahead, rng.uniform(-jitter, jitter)))
+    return poses
+
+
 def _bar_poses(rng: np.random.Generator, n: int, scene: Scene, spacing_m: float
                ) -> list[np.ndarray]:
     """Cameras side by side spacing_m apart along one long wall, 0.3 m from it, 1.0-1.8 m high,
@@ -315,6 +340,8 @@ def _rig_poses(rng: np.random.Generator, spec: RigSpec, scene: Scene,
     n = int(spec.num_cameras)
     if spec.layout == "bar":
         return _bar_poses(rng, n, scene, float(spec.bar_spacing_m))
+    if spec.layout == "outward":
+        return _outward_poses(rng, n, MOUNTS[spec.mount])
     # Long lenses see a small part of the room: their aim scatters as little in the image.
     aim = 1.0 if spec.lenses == "ideal" else min(
         1.0, np.tan(narrowest_half_fov) / np.tan(np.deg2rad(REFERENCE_HALF_FOV_DEG)))
