@@ -183,8 +183,44 @@ def test_a_camera_the_images_place_to_within_10_deg_only_refuses_the_rig_naming_
     assert "--intrinsics" not in refusal(rig([None, 15.0, 8.7]), given, names, None, None)
     assert refusal(rig([None, 15.0, 8.7], sigmas_runs_spread=20), config, names, None,
                    None) is None
-    # raised by the two matchers' spread (record.with_matchers_apart): judged, and said so
+    # raised by the two matchers' spread (second_matcher.with_matchers_apart): judged, and said so
     legs = refusal(rig([None, 15.0, 8.7], sigmas_matchers_spread="asift"), config, names, None,
                    None)
     assert "place b only to within 15.0 deg of a (the calibration's rotation sigma, the " \
            "calibration on asift's matches compared with it), so" in legs
+
+
+def test_a_camera_whose_lens_the_images_leave_open_refuses_the_rig_naming_it():
+    """A camera whose own projection sigma is a quarter of its image's long side may put a ray
+    half the image away at two sigma: its focal length and distortion are open (a head of 220 deg
+    fisheye units facing out, matched at their rims only: 1754 px on a 1280 px image, focal 60 %
+    off). Refused, naming it and the camera it shares the most matches with; below a quarter, or
+    with no sigma (given intrinsics), not."""
+    from densecalib_ros.core.stages.record import OPEN_PROJECTION_FRACTION
+    from densecalib_ros.core.types import Tracks
+
+    config = make_config("regular", "incremental", second_matcher=None)
+    names = NAMES[:3]
+
+    def rig(projection_stds):
+        out = _rig([0, 90, 180])
+        out.cameras = {n: out.cameras[n] for n in names}
+        for n, s in zip(names, projection_stds):
+            out.cameras[n].quality = CameraQuality(0.5, 500, 0.8, num_multiview_observations=300,
+                                                   projection_std_px=s)
+        return out
+
+    assert OPEN_PROJECTION_FRACTION == 0.25
+    assert refusal(rig([3.0, 159.0, None]), config, names, None, None) is None
+    xy = np.full((20, 3, 2), np.nan)
+    xy[:13, :2] = 100.0  # 13 matches a/b, 7 b/c
+    xy[13:, 1:] = 100.0
+    message = refusal(rig([3.0, 170.0, 640.0]), config, names, None,
+                      Tracks(xy, np.full(20, 2), np.zeros(20), np.zeros(20, int)))
+    assert message.startswith("the calibration is refused: the images leave c's lens open: "
+                              "where a ray lands in its image is known to 640 px only (the "
+                              "calibration's projection sigma, mean over the image: 100 % of its "
+                              "640 px side, b's 27 %)"), message
+    assert "It shares the most keypoint matches, 7, with b." in message
+    assert "--intrinsics c=FILE" in message and "--share-intrinsics" in message
+    assert "wider than 180 deg" not in message  # a perspective lens

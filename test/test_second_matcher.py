@@ -168,7 +168,7 @@ def test_two_matchers_refined_calibrations_apart_widen_the_kept_ones_sigmas():
     from types import SimpleNamespace
 
     from densecalib_ros.core.robust.second_matcher import Rematch, matchers_apart
-    from densecalib_ros.core.stages.record import with_matchers_apart
+    from densecalib_ros.core.robust.second_matcher import with_matchers_apart
 
     def attempt(rig, unrefined=False):
         return SimpleNamespace(rig=rig, unrefined=unrefined)

@@ -17,12 +17,12 @@ from .config import PipelineConfig
 from .method.prior_adjustment import SUPPORTED_MODELS
 from .progress import Progress, estimated_run_s, stoppable
 from .robust.one_model import with_one_model
-from .robust.second_matcher import with_second_matcher
+from .robust.second_matcher import with_matchers_apart, with_second_matcher
 from .stages.attempt import Attempt, Calibrator
 from .stages.inputs import RigImages, prepare
 from .stages.matching import match_rig
 from .errors import UndeterminedRigError
-from .stages.record import finish, refusal, with_matchers_apart
+from .stages.record import finish, refusal
 from .types import RigCalibration, Tracks
 
 

@@ -267,7 +267,7 @@ class RigQuality:
     # The runs that disagree whose spread entered the sigmas (uncertainty.with_runs_spread)
     sigmas_runs_spread: Optional[int] = None
     # The matcher whose refined calibration, not kept, stands apart from the kept one by more than
-    # the sigmas: its distance raised f_std, pp_std, proj_std and the rotation sigmas (record.
+    # the sigmas: its distance raised f_std, pp_std, proj_std and the rotation sigmas (second_matcher.
     # with_matchers_apart)
     sigmas_matchers_spread: Optional[str] = None
     matcher: Optional[str] = None

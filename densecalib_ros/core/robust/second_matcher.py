@@ -213,3 +213,32 @@ def matchers_apart(kept, other, camera_names: Sequence[str]) -> dict:
                           for d, sa, sb in zip(spread, stds(kept.rig, name),
                                                stds(other.rig, name)))
     return out
+
+
+def with_matchers_apart(rig: RigCalibration, rematch: Optional[Rematch],
+                         say: Callable[[str], None] = lambda message: None) -> None:
+    """rig's focal, projection, rotation and principal point sigmas widened, in place, where the
+    two matchers' refined calibrations stand further apart than their sigmas allow
+    (Rematch.apart): each by that factor, as both calibrations' sigmas would have to be (said);
+    the quality record then names the matcher whose calibration was not kept
+    (sigmas_matchers_spread). Where the other is the looser, its own sigmas explain most of the
+    distance and the kept ones widen little (docs/design-notes.md, Sigmas of two matchers)."""
+    if rematch is None or not rematch.apart:
+        return
+    raised = False
+    for name, factors in rematch.apart.items():
+        quality = rig.cameras[name].quality if name in rig.cameras else None
+        if quality is None or quality.focal_std_px is None:
+            continue
+        stds = (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg,
+                quality.principal_point_std_px)
+        wider = [std * factor if std is not None and factor > 1.0 else std
+                 for std, factor in zip(stds, factors)]  # NaN > 1 is False
+        raised |= wider != list(stds)
+        (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg,
+         quality.principal_point_std_px) = wider
+    if raised:
+        other = rematch.first if rematch.kept_second else rematch.second
+        rig.quality.sigmas_matchers_spread = other
+        say(f"sigmas widened: the calibration on {other}'s matches stands further from the kept "
+            "one than both calibrations' sigmas allow")

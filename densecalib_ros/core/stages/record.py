@@ -5,7 +5,7 @@ matcher, the warnings, the scene's colours)."""
 from __future__ import annotations
 
 import logging
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -93,35 +93,6 @@ def assemble(result: CalibrationResult, config: PipelineConfig, camera_names: Se
         quality.given_intrinsics = describe_known(config.cameras.known_intrinsics)
     if sfm.given_intrinsics_fit:
         quality.given_intrinsics_fit = sfm.given_intrinsics_fit
-
-
-def with_matchers_apart(rig: RigCalibration, rematch: Optional[Rematch],
-                         say: Callable[[str], None] = lambda message: None) -> None:
-    """rig's focal, projection, rotation and principal point sigmas widened, in place, where the
-    two matchers' refined calibrations stand further apart than their sigmas allow
-    (Rematch.apart): each by that factor, as both calibrations' sigmas would have to be (said);
-    the quality record then names the matcher whose calibration was not kept
-    (sigmas_matchers_spread). Where the other is the looser, its own sigmas explain most of the
-    distance and the kept ones widen little (docs/design-notes.md, Sigmas of two matchers)."""
-    if rematch is None or not rematch.apart:
-        return
-    raised = False
-    for name, factors in rematch.apart.items():
-        quality = rig.cameras[name].quality if name in rig.cameras else None
-        if quality is None or quality.focal_std_px is None:
-            continue
-        stds = (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg,
-                quality.principal_point_std_px)
-        wider = [std * factor if std is not None and factor > 1.0 else std
-                 for std, factor in zip(stds, factors)]  # NaN > 1 is False
-        raised |= wider != list(stds)
-        (quality.focal_std_px, quality.projection_std_px, quality.rotation_std_deg,
-         quality.principal_point_std_px) = wider
-    if raised:
-        other = rematch.first if rematch.kept_second else rematch.second
-        rig.quality.sigmas_matchers_spread = other
-        say(f"sigmas widened: the calibration on {other}'s matches stands further from the kept "
-            "one than both calibrations' sigmas allow")
 
 
 def finish(result: CalibrationResult, images: RigImages, config: PipelineConfig,
@@ -213,13 +184,15 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
             units_apart_deg: Optional[float] = None) -> Optional[str]:
     """Why the finished rig is refused: a rig of three or more cameras left with one pair
     (pair_alone_refusal), a camera whose own rotation sigma exceeds UNPLACED_ROTATION_STD_DEG
-    (unplaced_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
+    (unplaced_refusal) or whose projection sigma OPEN_PROJECTION_FRACTION of its image
+    (open_lens_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
     matches about as well stand that far from it, and so does the runner-up where both were
     refined on the images; None where it is not refused. units_apart_deg: as
     consensus.disagreement_warning's."""
     on_sift = perspective_on_sift(config, camera_names) and not config.second_matcher
     alone = pair_alone_refusal(rig, config, camera_names, on_sift) or \
-        unplaced_refusal(rig, match_tracks, camera_names, config.cameras.known_intrinsics)
+        unplaced_refusal(rig, match_tracks, camera_names, config.cameras.known_intrinsics) or \
+        open_lens_refusal(rig, match_tracks, camera_names)
     if alone:
         return alone
     if consensus is None or consensus.fitting_disagreement_deg is None or \
@@ -338,7 +311,7 @@ def _own_rotation_sigmas(rig: RigCalibration, above_deg: float) -> list[tuple[fl
 def _sigma_words(rig: RigCalibration) -> tuple[str, str]:
     """How the rotation sigmas are named: ("own ", "") where they are the image refinement's
     alone, ("", naming the other matcher's calibration) where comparing it may have widened them
-    (with_matchers_apart)."""
+    (second_matcher.with_matchers_apart)."""
     other = rig.quality.sigmas_matchers_spread
     return ("", f", the calibration on {other}'s matches compared with it") if other \
         else ("own ", "")
@@ -372,6 +345,46 @@ def unplaced_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
             "person crossing between them), give keypoints of what moves (--keypoints)"
             + (f", or give {camera}'s intrinsics from a lab calibration (--intrinsics "
                f"{camera}=FILE)." if camera not in known_intrinsics else "."))
+
+
+# A camera whose own projection sigma (where a ray lands, mean over the image) is this fraction
+# of its image's long side may put a ray half the image away at two sigma: the images leave its
+# focal length and distortion open, whatever its pose came out as.
+OPEN_PROJECTION_FRACTION = 0.25
+
+
+def open_lens_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None,
+                      camera_names: Sequence[str] = ()) -> Optional[str]:
+    """Why a rig in which some camera's projection sigma is OPEN_PROJECTION_FRACTION of its
+    image's long side or more is refused, naming the loosest such camera and the camera it shares
+    the most keypoint matches with; None otherwise (given intrinsics have no sigma)."""
+    open_ = sorted(((cam.quality.projection_std_px / max(cam.intrinsics.width,
+                                                         cam.intrinsics.height), name)
+                    for name, cam in rig.cameras.items() if cam.quality is not None
+                    and cam.quality.projection_std_px is not None), reverse=True)
+    open_ = [(fraction, name) for fraction, name in open_ if fraction >= OPEN_PROJECTION_FRACTION]
+    if not open_:
+        return None
+    fraction, camera = open_[0]
+    cam = rig.cameras[camera]
+    shared = {pair: n for pair, n in named_pair_counts(match_tracks, camera_names).items()
+              if camera in pair and n > 0}
+    partner = max(shared, key=shared.get) if shared else None
+    others = "".join(f", {n}'s {100 * f:.0f} %" for f, n in open_[1:])
+    return (f"the calibration is refused: the images leave {camera}'s lens open: where a ray "
+            f"lands in its image is known to {cam.quality.projection_std_px:.0f} px only (the "
+            f"calibration's projection sigma, mean over the image: {100 * fraction:.0f} % of its "
+            f"{max(cam.intrinsics.width, cam.intrinsics.height)} px side{others}), so its focal "
+            "length and distortion, and the rig placed with them, may be anything near what came "
+            "out."
+            + (f" It shares the most keypoint matches, {shared[partner]}, with "
+               f"{[n for n in partner if n != camera][0]}." if partner else "")
+            + f" Give {camera}'s intrinsics from a lab calibration (--intrinsics {camera}=FILE), "
+            "calibrate units of one model together (--share-intrinsics), or add frame sets in "
+            f"which {camera} sees, over more of its image, what the other cameras see."
+            + (" A fisheye wider than 180 deg needs its intrinsics given: the SfM's lens model "
+               "(pycolmap's) projects nothing more than 90 deg off the axis."
+               if "FISHEYE" in cam.intrinsics.model else ""))
 
 
 def loose_rotation_warning(rig: RigCalibration) -> Optional[str]:
