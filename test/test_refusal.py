@@ -207,10 +207,16 @@ def test_a_camera_whose_lens_the_images_leave_open_refuses_the_rig_naming_it():
         out.cameras = {n: out.cameras[n] for n in names}
         for n, s in zip(names, projection_stds):
             out.cameras[n].quality = CameraQuality(0.5, 500, 0.8, num_multiview_observations=300,
-                                                   projection_std_px=s)
+                                                   projection_std_px=s,
+                                                   estimated_intrinsics=["f", "k1", "k2"])
         return out
 
     assert OPEN_PROJECTION_FRACTION == 0.25
+    # a final bundle adjustment's covariance alone (no image refinement) is not judged
+    sfm_only = rig([3.0, 170.0, 640.0])
+    for cam in sfm_only.cameras.values():
+        cam.quality.estimated_intrinsics = None
+    assert refusal(sfm_only, config, names, None, None) is None
     assert refusal(rig([3.0, 159.0, None]), config, names, None, None) is None
     xy = np.full((20, 3, 2), np.nan)
     xy[:13, :2] = 100.0  # 13 matches a/b, 7 b/c

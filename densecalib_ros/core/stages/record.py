@@ -357,10 +357,14 @@ def open_lens_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None
                       camera_names: Sequence[str] = ()) -> Optional[str]:
     """Why a rig in which some camera's projection sigma is OPEN_PROJECTION_FRACTION of its
     image's long side or more is refused, naming the loosest such camera and the camera it shares
-    the most keypoint matches with; None otherwise (given intrinsics have no sigma)."""
+    the most keypoint matches with; None otherwise. Only the image refinement's sigmas are judged
+    (the cameras it recorded estimated_intrinsics for): a final bundle adjustment's covariance
+    alone, where it holds a focal length weakly, can be near singular on a right rig (thousands of
+    px on four cameras 45 deg apart, test_pipeline); given intrinsics have no sigma."""
     open_ = sorted(((cam.quality.projection_std_px / max(cam.intrinsics.width,
                                                          cam.intrinsics.height), name)
                     for name, cam in rig.cameras.items() if cam.quality is not None
+                    and cam.quality.estimated_intrinsics is not None
                     and cam.quality.projection_std_px is not None), reverse=True)
     open_ = [(fraction, name) for fraction, name in open_ if fraction >= OPEN_PROJECTION_FRACTION]
     if not open_:
