@@ -42,9 +42,17 @@ FEW_OUTWARD_RIGS = (
 )
 
 
+def _users_rig(walker: str, mount: str, mix: str, sets: int) -> tuple:
+    """SceneSpec.rig of a room as users build them: plain, walked through, finished as the
+    webcams' frames are (FEW_RIG_BLUR_PX, FEW_RIG_JPEG_QUALITY)."""
+    return (("room", "plain"), ("walker", walker), ("mount", mount), ("lens_mix", mix),
+            ("num_time_steps", sets), ("blur_sigma_px", FEW_RIG_BLUR_PX),
+            ("jpeg_quality", FEW_RIG_JPEG_QUALITY))
+
+
 def few_scenes() -> list[SceneSpec]:
-    """The generated rigs of FEW_RIGS at FEW_RIG_SIZE, finished with FEW_RIG_BLUR_PX and
-    FEW_RIG_JPEG_QUALITY (sensor noise: RigSpec's default)."""
+    """The generated rigs of FEW_RIGS and FEW_OUTWARD_RIGS at FEW_RIG_SIZE, finished with
+    FEW_RIG_BLUR_PX and FEW_RIG_JPEG_QUALITY (sensor noise: RigSpec's default)."""
     width, height = FEW_RIG_SIZE
     scenes = []
     for n, model, mix, walker, mount, gap, sets, seed in FEW_RIGS:
@@ -53,19 +61,14 @@ def few_scenes() -> list[SceneSpec]:
         name = (f"synthetic-{walker}-{lens}-{'long-' if long_lens else ''}"
                 f"{mix.removesuffix('-long')}-{mount}-gap{gap}-{n}cam-{sets}sets-"
                 f"{width}x{height}-s{seed}")
-        rig = (("room", "plain"), ("walker", walker), ("mount", mount),
-               ("lens_mix", mix.removesuffix("-long")), ("num_time_steps", sets),
-               ("blur_sigma_px", FEW_RIG_BLUR_PX), ("jpeg_quality", FEW_RIG_JPEG_QUALITY))
         scenes.append(SceneSpec(name, "synthetic", n, model, width, height, seed,
                                 gap_deg=float(gap), max_arc_deg=360.0,
                                 fov_range_deg=FEW_RIG_LONG_FOV_DEG if long_lens else None,
-                                rig=rig))
+                                rig=_users_rig(walker, mount, mix.removesuffix("-long"), sets)))
     for n, fov, mix, walker, mount, sets, seed in FEW_OUTWARD_RIGS:
         name = (f"synthetic-{walker}-fisheye{fov:.0f}-{mix}-outward-{mount}-{n}cam-{sets}sets-"
                 f"{width}x{height}-s{seed}")
-        rig = (("room", "plain"), ("walker", walker), ("mount", mount), ("lens_mix", mix),
-               ("num_time_steps", sets), ("fov_deg", fov), ("blur_sigma_px", FEW_RIG_BLUR_PX),
-               ("jpeg_quality", FEW_RIG_JPEG_QUALITY))
         scenes.append(SceneSpec(name, "synthetic", n, "OPENCV_FISHEYE", width, height, seed,
-                                gap_deg=360.0 / n, max_arc_deg=360.0, layout="outward", rig=rig))
+                                gap_deg=360.0 / n, max_arc_deg=360.0, layout="outward",
+                                rig=_users_rig(walker, mount, mix, sets) + (("fov_deg", fov),)))
     return scenes

@@ -164,7 +164,8 @@ def rotation_against_colmap(scenes: list[dict]) -> dict:
         metrics = (record or {}).get("metrics") or {}
         return (record is not None and record["status"] == "ok"
                 and metrics.get("num_registered") == metrics.get("num_cameras")
-                and np.isfinite(metrics.get("median_rot_err_deg", float("nan"))))
+                and metrics.get("median_rot_err_deg") is not None
+                and np.isfinite(metrics["median_rot_err_deg"]))
 
     out: dict[str, dict] = {}
     for entry in scenes:

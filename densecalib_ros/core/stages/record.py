@@ -184,7 +184,7 @@ def refusal(rig: RigCalibration, config: PipelineConfig, camera_names: Sequence[
             units_apart_deg: Optional[float] = None) -> Optional[str]:
     """Why the finished rig is refused: a rig of three or more cameras left with one pair
     (pair_alone_refusal), a camera whose own rotation sigma exceeds UNPLACED_ROTATION_STD_DEG
-    (unplaced_refusal) or whose projection sigma OPEN_PROJECTION_FRACTION of its image
+    (unplaced_refusal) or whose projection sigma reaches OPEN_PROJECTION_FRACTION of its image
     (open_lens_refusal), or (consensus.REFUSE_DISAGREEMENT_DEG) the other runs that fit the
     matches about as well stand that far from it, and so does the runner-up where both were
     refined on the images; None where it is not refused. units_apart_deg: as
@@ -359,8 +359,8 @@ def open_lens_refusal(rig: RigCalibration, match_tracks: Optional[Tracks] = None
     image's long side or more is refused, naming the loosest such camera and the camera it shares
     the most keypoint matches with; None otherwise. Only the image refinement's sigmas are judged
     (the cameras it recorded estimated_intrinsics for): a final bundle adjustment's covariance
-    alone, where it holds a focal length weakly, can be near singular on a right rig (thousands of
-    px on four cameras 45 deg apart, test_pipeline); given intrinsics have no sigma."""
+    alone, where it holds a focal length weakly, can be near singular on a right rig
+    (docs/design-notes.md, Lenses the images leave open); given intrinsics have no sigma."""
     open_ = sorted(((cam.quality.projection_std_px / max(cam.intrinsics.width,
                                                          cam.intrinsics.height), name)
                     for name, cam in rig.cameras.items() if cam.quality is not None
