@@ -19,6 +19,7 @@ import numpy as np
 import pycolmap
 
 from ..types import CameraIntrinsics, CameraQuality, Tracks
+from .colmap_points import add_points, camera_bits
 
 log = logging.getLogger(__name__)
 
@@ -183,22 +184,9 @@ def build_reconstruction(state: SfMState, camera_names: Sequence[str]
         image = pycolmap.Image(name=str(camera_names[c]), keypoints=state.tracks.xy_px[rows, c],
                                camera_id=int(state.camera_block[c]) + 1, image_id=c + 1)
         rec.add_image_with_trivial_frame(image, rigid_from_matrix(state.cam_from_world[c]))
-    # Point2D index of track t in camera c = its rank among c's observed tracks.
-    point2d_idx = np.cumsum(state.tracks.observed(), axis=0) - 1
-    # Every point's elements found at once (row-major: a point's cameras in order); the loop
-    # only builds the pycolmap objects, the one part that has to be a Python call per point.
     rows = np.flatnonzero(points)
-    t_obs, c_obs = np.nonzero(obs[rows])
-    image_ids = (c_obs + 1).tolist()
-    point2d = point2d_idx[rows[t_obs], c_obs].tolist()
-    ends = np.cumsum(np.bincount(t_obs, minlength=len(rows))).tolist()
-    element = pycolmap.TrackElement
-    track_of_point: dict[int, int] = {}
-    start = 0
-    for t, end in zip(rows.tolist(), ends):
-        track = pycolmap.Track([element(image_ids[k], point2d[k]) for k in range(start, end)])
-        track_of_point[rec.add_point3D(state.points_xyz[t], track)] = t
-        start = end
+    ids = add_points(rec, state.tracks, rows, obs[rows], state.points_xyz)
+    track_of_point = dict(zip(ids, rows.tolist()))
     return rec, track_of_point
 
 
@@ -484,11 +472,17 @@ def triangulate_tracks(state: SfMState, max_error_px: float = TRIANGULATION_MAX_
     poses = [rigid_from_matrix(T) if T is not None else None for T in state.cam_from_world]
     obs = state.registered_active()
     state.points_xyz[:] = np.nan
-    for t in np.flatnonzero(obs.sum(axis=1) >= 2):
-        cams = np.flatnonzero(obs[t])
-        result = pycolmap.estimate_triangulation(state.tracks.xy_px[t, cams],
-                                                 [poses[c] for c in cams],
-                                                 [cameras[c] for c in cams], options)
+    rows = np.flatnonzero(obs.sum(axis=1) >= 2)
+    bits = camera_bits(obs[rows])
+    # Per set of cameras its poses and cameras, listed once: the loop is the calls alone.
+    views = {}
+    for b in np.unique(bits).tolist():
+        cams = np.flatnonzero((b >> np.arange(state.num_cameras)) & 1)
+        views[b] = (cams, [poses[c] for c in cams], [cameras[c] for c in cams])
+    xy_px, estimate = state.tracks.xy_px, pycolmap.estimate_triangulation
+    for t, b in zip(rows.tolist(), bits.tolist()):
+        cams, cams_poses, cams_cameras = views[b]
+        result = estimate(xy_px[t, cams], cams_poses, cams_cameras, options)
         if result is not None:
             state.points_xyz[t] = result["xyz"]
     return int(state.point_mask().sum())
