@@ -1,11 +1,13 @@
 """The bench's scene sets: the held-out set must stay disjoint from the bench it checks; what the
 tables say of the warnings a result carried."""
 import numpy as np
+import pytest
 
 from densecalib_ros.eval.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
                                        quick_scenes)
 from densecalib_ros.eval.tables import (format_rotation_against_colmap, format_scene_table,
-                                       format_summary, rotation_against_colmap, summarize)
+                                       format_summary, format_time_against_colmap,
+                                       rotation_against_colmap, summarize, time_against_colmap)
 
 
 def test_heldout_scenes_share_no_scene_or_generator_seed_with_the_bench():
@@ -123,6 +125,30 @@ def test_the_bench_lists_the_scenes_where_our_rotations_are_worse_than_colmaps()
     line = format_rotation_against_colmap({"densecalib-incremental": check}).splitlines()[1]
     assert line.endswith("no worse on 1 of 3; worse on s1 0.300 against 0.200 deg; s3 0.440 "
                          "against 0.310 deg (reference: an SfM estimate)")
+
+
+def test_the_bench_checks_our_time_against_colmaps_as_issue_84_bounds_it():
+    """The median ratio over rigs of 6-10 cameras only, and the rigs of at most 10 cameras at up
+    to 1536 px beyond 3x COLMAP's time or 60 s, whichever is larger; a scene COLMAP did not run
+    on is not counted."""
+    def scene(k, cameras, ours_s, colmap_s, side=1024):
+        records = [_record("colmap", 50.0, []), _record("densecalib-incremental", 90.0, [])]
+        records[0]["runtime_s"], records[1]["runtime_s"] = colmap_s, ours_s
+        if colmap_s is None:
+            records = records[1:]
+        return dict(scene=f"s{k}", num_cameras=cameras, image_size=[side, side * 3 // 4],
+                    results=records)
+
+    scenes = [scene(0, 6, 4.0, 5.0), scene(1, 8, 12.0, 6.0), scene(2, 10, 70.0, 30.0),
+              scene(3, 4, 65.0, 3.0), scene(4, 5, 50.0, 2.0), scene(5, 6, 90.0, 20.0),
+              scene(6, 6, 200.0, 5.0, side=1920), scene(7, 11, 300.0, 5.0), scene(8, 6, 99.0, None)]
+    check = time_against_colmap(scenes)["densecalib-incremental"]
+    assert check["median_rigs"] == 5 and check["median_ratio"] == pytest.approx(70.0 / 30.0)
+    assert check["timed"] == 6
+    assert [(b["scene"], b["bound_s"]) for b in check["beyond"]] == [("s3", 60.0), ("s5", 60.0)]
+    line = format_time_against_colmap({"densecalib-incremental": check}).splitlines()[1]
+    assert line.endswith("median 2.33x over 5 rigs; 4 of 6 within the bound; beyond it: s3 65.0 s "
+                         "(COLMAP 3.0 s); s5 90.0 s (COLMAP 20.0 s)")
 
 
 def test_peak_memory_counts_the_worker_processes():

@@ -36,7 +36,8 @@ from .datasets import (Scene, default_data_dir, load_caliscope, load_krtd_stills
                        scene_from_synthetic)
 from .peers import PEER_METHODS, run_peer
 from .tables import (format_error_sigma_ratios, format_rotation_against_colmap, format_scene_table,
-                     format_summary, rotation_against_colmap, summarize,
+                     format_summary, format_time_against_colmap, rotation_against_colmap,
+                     summarize, time_against_colmap,
                      summarize_error_sigma_ratios)
 
 log = logging.getLogger(__name__)
@@ -457,6 +458,9 @@ def run_bench(specs: Sequence[SceneSpec], methods: Sequence[str], num_threads: i
     report["rotation_against_colmap"] = rotation_against_colmap(report["scenes"])
     if report["rotation_against_colmap"]:
         say(format_rotation_against_colmap(report["rotation_against_colmap"]))
+    report["time_against_colmap"] = time_against_colmap(report["scenes"])
+    if report["time_against_colmap"]:
+        say(format_time_against_colmap(report["time_against_colmap"]))
     _write_json(report, out_dir)
     return report
 

@@ -197,3 +197,58 @@ def format_rotation_against_colmap(check: dict) -> str:
         lines.append(f"{method:<27} no worse on {c['compared'] - len(c['worse'])} of "
                      f"{c['compared']}" + (f"; worse on {worse}" if worse else ""))
     return "\n".join(lines)
+
+
+# Issue 84's bounds on our time against COLMAP's on the same images: the median ratio over the
+# rigs of MEDIAN_CAMERAS cameras (at most 1), and no rig of at most TAIL_MAX_CAMERAS cameras and
+# TAIL_MAX_SIDE_PX beyond TAIL_RATIO times COLMAP's time or TAIL_S, whichever is larger.
+MEDIAN_CAMERAS = (6, 10)
+TAIL_MAX_CAMERAS = 10
+TAIL_MAX_SIDE_PX = 1536
+TAIL_RATIO = 3.0
+TAIL_S = 60.0
+
+
+def time_against_colmap(scenes: list[dict]) -> dict:
+    """Per our method (the records named densecalib-*) on the scenes COLMAP ran on: the median of
+    its time over COLMAP's over the rigs of MEDIAN_CAMERAS cameras (median_ratio, None without
+    such a rig; median_rigs: how many), how many rigs the tail bound covers (timed) and those
+    beyond it (scene, our and COLMAP's seconds, the bound)."""
+    out: dict[str, dict] = {}
+    for entry in scenes:
+        for record in entry["results"]:
+            ratio = colmap_time_ratio(entry, record)
+            if not record["method"].startswith("densecalib") or ratio is None:
+                continue
+            check = out.setdefault(record["method"], dict(ratios=[], timed=0, beyond=[]))
+            cameras = entry.get("num_cameras", 0)
+            if MEDIAN_CAMERAS[0] <= cameras <= MEDIAN_CAMERAS[1]:
+                check["ratios"].append(ratio)
+            long_side_px = max(entry.get("image_size") or [0])
+            if cameras > TAIL_MAX_CAMERAS or long_side_px > TAIL_MAX_SIDE_PX:
+                continue
+            check["timed"] += 1
+            ours_s = record["runtime_s"]
+            bound_s = max(TAIL_RATIO * ours_s / ratio, TAIL_S)
+            if ours_s > bound_s:
+                check["beyond"].append(dict(scene=entry["scene"], ours_s=ours_s,
+                                            colmap_s=ours_s / ratio, bound_s=bound_s))
+    for check in out.values():
+        ratios = check.pop("ratios")
+        check["median_rigs"] = len(ratios)
+        check["median_ratio"] = float(np.median(ratios)) if ratios else None
+    return out
+
+
+def format_time_against_colmap(check: dict) -> str:
+    lines = [f"== time against COLMAP's on the same images (issue 84: median at most 1.0 over the "
+             f"rigs of {MEDIAN_CAMERAS[0]}-{MEDIAN_CAMERAS[1]} cameras; none of at most "
+             f"{TAIL_MAX_CAMERAS} cameras and {TAIL_MAX_SIDE_PX} px beyond {TAIL_RATIO:g}x "
+             f"COLMAP's time or {TAIL_S:g} s, whichever is larger)"]
+    for method, c in check.items():
+        beyond = "; ".join(f"{b['scene']} {b['ours_s']:.1f} s (COLMAP {b['colmap_s']:.1f} s)"
+                           for b in c["beyond"])
+        lines.append(f"{method:<27} median {_fmt(c['median_ratio'], '.2f')}x over "
+                     f"{c['median_rigs']} rigs; {c['timed'] - len(c['beyond'])} of {c['timed']} "
+                     "within the bound" + (f"; beyond it: {beyond}" if beyond else ""))
+    return "\n".join(lines)
