@@ -15,7 +15,7 @@ from densecalib_ros.core.method.reconstruction import (SfMState, build_reconstru
 from sfm_fixtures import gt_rig, gt_tracks
 
 
-def _observations(state, rec, track_of_point):
+def _observations(rec, track_of_point):
     """{track row: (xyz, [(camera, its observation's xy), ...])} as the reconstruction holds them."""
     out = {}
     for point_id, t in track_of_point.items():
@@ -44,7 +44,7 @@ def test_points_built_from_made_tracks_hold_the_states_observations_as_they_chan
         state.cam_from_world[c] = pose
     triangulate_tracks(state)
     rec, points = build_reconstruction(state, list("abcd"))
-    assert _observations(state, rec, points) == _expected(state)
+    assert _observations(rec, points) == _expected(state)
     # Observations switched off and a camera left out: the next build follows them, the Tracks
     # made for the earlier sets of cameras notwithstanding.
     rows = np.flatnonzero(state.tracks.observed().sum(axis=1) >= 3)[:40]
@@ -52,12 +52,12 @@ def test_points_built_from_made_tracks_hold_the_states_observations_as_they_chan
     state.cam_from_world[2] = None
     rec, points = build_reconstruction(state, list("abcd"))
     assert rec.num_reg_images() == 3
-    assert _observations(state, rec, points) == _expected(state)
+    assert _observations(rec, points) == _expected(state)
     # A copy shares the tracks, and with them what was made for them.
     copy = state.copy()
     copy.cam_from_world[2] = poses[2]
     rec, points = build_reconstruction(copy, list("abcd"))
-    assert _observations(copy, rec, points) == _expected(copy)
+    assert _observations(rec, points) == _expected(copy)
 
 
 def test_what_was_made_for_tracks_goes_with_them():
