@@ -5,7 +5,8 @@ import pytest
 
 from densecalib_ros.eval.bench import (forward_scenes, full_scenes, heldout_scenes, mixed_scenes,
                                        quick_scenes)
-from densecalib_ros.eval.tables import (format_rotation_against_colmap, format_scene_table,
+from densecalib_ros.eval.tables import (few_rigs_check, format_few_rigs_check,
+                                       format_rotation_against_colmap, format_scene_table,
                                        format_summary, format_time_against_colmap,
                                        rotation_against_colmap, summarize, time_against_colmap)
 
@@ -149,6 +150,34 @@ def test_the_bench_checks_our_time_against_colmaps_as_issue_84_bounds_it():
     line = format_time_against_colmap({"densecalib-incremental": check}).splitlines()[1]
     assert line.endswith("median 2.33x over 5 rigs; 4 of 6 within the bound; beyond it: s3 65.0 s "
                          "(COLMAP 3.0 s); s5 90.0 s (COLMAP 20.0 s)")
+
+
+def test_the_bench_checks_the_rigs_users_build_as_issue_81_bounds_them():
+    """Generated rigs of 3-4 cameras over several frame sets only: each at AUC@3 >= 90, refused,
+    or kept below it with or without a warning; the time of those of 4 cameras x 20 frame sets
+    at 1280x720 against 2 minutes."""
+    def scene(k, cameras, auc3, status="ok", warnings=(), sets=20, kind="synthetic", s=60.0):
+        records = [_record("colmap", 0.0, []), _record("densecalib-incremental", auc3,
+                                                        list(warnings))]
+        records[1].update(status=status, runtime_s=s,
+                          message="UndeterminedRigError: the runs disagree\nmore" if status != "ok"
+                          else "")
+        return dict(scene=f"s{k}", num_cameras=cameras, image_size=[1280, 720],
+                    num_time_steps=sets, spec=dict(kind=kind), results=records)
+
+    scenes = [scene(0, 3, 100.0), scene(1, 4, 88.9, warnings=["loose"], s=130.0),
+              scene(2, 4, 0.0, status="failed"), scene(3, 3, 50.0), scene(4, 4, 90.0, s=90.0),
+              scene(5, 4, 10.0, sets=1), scene(6, 5, 10.0), scene(7, 4, 10.0, kind="real")]
+    check = few_rigs_check(scenes)["densecalib-incremental"]
+    assert check["rigs"] == 5 and check["reached"] == ["s0", "s4"]
+    assert check["refused"] == [dict(scene="s2", message="UndeterminedRigError: the runs disagree")]
+    assert check["short"] == [dict(scene="s1", auc3=88.9, warned=True),
+                              dict(scene="s3", auc3=50.0, warned=False)]
+    assert [t["scene"] for t in check["timed"]] == ["s1", "s2", "s4"]
+    line = format_few_rigs_check({"densecalib-incremental": check}).splitlines()[1]
+    assert line.endswith("2 of 5 at AUC@3 >= 90, 1 refused (s2: UndeterminedRigError); below "
+                         "it: s1 88.9 warned; s3 50.0 NOT WARNED; timed 2 of 3 within 120 s "
+                         "(slowest 130.0 s); over it: s1 130.0 s")
 
 
 def test_peak_memory_counts_the_worker_processes():

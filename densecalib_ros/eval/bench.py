@@ -35,10 +35,10 @@ from .datasets import (Scene, default_data_dir, load_caliscope, load_krtd_stills
                        load_nerf_transforms, load_qualisys_videos, load_strecha,
                        scene_from_synthetic)
 from .peers import PEER_METHODS, run_peer
-from .tables import (format_error_sigma_ratios, format_rotation_against_colmap, format_scene_table,
-                     format_summary, format_time_against_colmap, rotation_against_colmap,
-                     summarize, time_against_colmap,
-                     summarize_error_sigma_ratios)
+from .tables import (few_rigs_check, format_error_sigma_ratios, format_few_rigs_check,
+                     format_rotation_against_colmap, format_scene_table, format_summary,
+                     format_time_against_colmap, rotation_against_colmap, summarize,
+                     summarize_error_sigma_ratios, time_against_colmap)
 
 log = logging.getLogger(__name__)
 
@@ -461,6 +461,9 @@ def run_bench(specs: Sequence[SceneSpec], methods: Sequence[str], num_threads: i
     report["time_against_colmap"] = time_against_colmap(report["scenes"])
     if report["time_against_colmap"]:
         say(format_time_against_colmap(report["time_against_colmap"]))
+    report["few_rigs_check"] = few_rigs_check(report["scenes"])
+    if report["few_rigs_check"]:
+        say(format_few_rigs_check(report["few_rigs_check"]))
     _write_json(report, out_dir)
     return report
 

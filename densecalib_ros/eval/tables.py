@@ -253,3 +253,74 @@ def format_time_against_colmap(check: dict) -> str:
                      f"{c['median_rigs']} rigs; {c['timed'] - len(c['beyond'])} of {c['timed']} "
                      "within the bound" + (f"; beyond it: {beyond}" if beyond else ""))
     return "\n".join(lines)
+
+
+# Issue 81's bounds on the generated rigs users build (FEW_CAMERAS cameras filmed over several
+# frame sets, with motion): each reaches AUC@3 of FEW_AUC3 or is refused, none is wrong without
+# a warning, and one of FEW_TIMED (cameras, frame sets, image size) is calibrated within
+# FEW_TIME_S.
+FEW_CAMERAS = (3, 4)
+FEW_AUC3 = 90.0
+FEW_TIMED = (4, 20, (1280, 720))
+FEW_TIME_S = 120.0
+
+
+def few_rigs_check(scenes: list[dict]) -> dict:
+    """Per our method (the records named densecalib-*) on the generated scenes of FEW_CAMERAS
+    cameras over more than one frame set: how many (rigs), those at FEW_AUC3 or above (reached),
+    those refused (scene, the refusal's first line), those kept below it (scene, AUC@3, whether
+    warned), and the rigs of FEW_TIMED with their time (timed: scene, seconds)."""
+    out: dict[str, dict] = {}
+    for entry in scenes:
+        cameras = entry.get("num_cameras", 0)
+        if (entry.get("spec") or {}).get("kind") != "synthetic" or \
+                not FEW_CAMERAS[0] <= cameras <= FEW_CAMERAS[1] or \
+                entry.get("num_time_steps", 1) < 2:
+            continue
+        for record in entry["results"]:
+            if not record["method"].startswith("densecalib"):
+                continue
+            check = out.setdefault(record["method"], dict(rigs=0, reached=[], refused=[],
+                                                          short=[], timed=[]))
+            check["rigs"] += 1
+            auc3 = record["metrics"]["auc3"]
+            if record["status"] != "ok":
+                check["refused"].append(dict(scene=entry["scene"],
+                                             message=record["message"].splitlines()[0]))
+            elif auc3 >= FEW_AUC3:
+                check["reached"].append(entry["scene"])
+            else:
+                check["short"].append(dict(scene=entry["scene"], auc3=auc3,
+                                           warned=bool(record.get("warnings"))))
+            if (cameras, entry.get("num_time_steps"),
+                    tuple(entry.get("image_size") or ())) == FEW_TIMED:
+                check["timed"].append(dict(scene=entry["scene"], s=record["runtime_s"]))
+    return out
+
+
+def format_few_rigs_check(check: dict) -> str:
+    """The check's line per method, each rig by its seed (the scene name's last part)."""
+    def seed(scene: str) -> str:
+        return scene.rsplit("-", 1)[-1]
+
+    cameras, sets, (width, height) = FEW_TIMED
+    lines = [f"== the rigs users build (issue 81: each generated rig of {FEW_CAMERAS[0]}-"
+             f"{FEW_CAMERAS[1]} cameras over several frame sets at AUC@3 >= {FEW_AUC3:g} or "
+             f"refused, none wrong without a warning; {cameras} cameras x {sets} frame sets at "
+             f"{width}x{height} within {FEW_TIME_S:g} s)"]
+    for method, c in check.items():
+        short = "; ".join(f"{seed(s['scene'])} {s['auc3']:.1f}"
+                          + (" warned" if s["warned"] else " NOT WARNED") for s in c["short"])
+        over = [t for t in c["timed"] if t["s"] > FEW_TIME_S]
+        slowest = max((t["s"] for t in c["timed"]), default=None)
+        lines.append(f"{method:<27} {len(c['reached'])} of {c['rigs']} at AUC@3 >= "
+                     f"{FEW_AUC3:g}, {len(c['refused'])} refused"
+                     + (" (" + "; ".join(f"{seed(r['scene'])}: {r['message'].split(':')[0]}"
+                                         for r in c["refused"]) + ")" if c["refused"] else "")
+                     + (f"; below it: {short}" if short else "")
+                     + f"; timed {len(c['timed']) - len(over)} of {len(c['timed'])} within "
+                     f"{FEW_TIME_S:g} s (slowest {_fmt(slowest, '.1f')} s)"
+                     + ("; over it: " + "; ".join(f"{seed(t['scene'])} {t['s']:.1f} s"
+                                                  for t in over)
+                        if over else ""))
+    return "\n".join(lines)
