@@ -13,13 +13,15 @@ from densecalib_ros.core.types import CameraIntrinsics, CameraQuality, RigCalibr
 
 
 def _rig(names=("a", "b", "c"), failed=(), disagreement=None, focal_std_fraction=None,
-         step_deg=30.0):
-    """Cameras turned step_deg from each other about the vertical."""
+         step_deg=30.0, rotation_std_deg=None):
+    """Cameras turned step_deg from each other about the vertical; rotation_std_deg: the
+    sigmas of the cameras but the reference ("a"), in order."""
     cam = CameraIntrinsics("RADIAL", 640, 480, np.array([500.0, 320, 240, 0, 0]))
-    quality = None if focal_std_fraction is None else \
-        CameraQuality(0.5, 1000, 0.8, focal_std_px=500.0 * focal_std_fraction)
     cameras = {}
     for i, n in enumerate(names):
+        quality = None if focal_std_fraction is None else CameraQuality(
+            0.5, 1000, 0.8, focal_std_px=500.0 * focal_std_fraction,
+            rotation_std_deg=rotation_std_deg[i - 1] if rotation_std_deg and i else None)
         cam_from_rig = np.eye(4)
         cam_from_rig[:3, :3] = Rotation.from_euler("y", i * step_deg, degrees=True).as_matrix()
         cameras[n] = RigCamera(n, cam, cam_from_rig, quality)
@@ -57,6 +59,20 @@ def test_the_better_determined_calibration_registers_more_cameras_then_agrees_mo
     assert better_determined(tight, _rig(disagreement=0.0, focal_std_fraction=0.017))
     assert better_determined(_rig(disagreement=0.5, focal_std_fraction=0.03),
                              _rig(disagreement=8.0, focal_std_fraction=0.001))
+
+
+def test_calibrations_that_both_place_their_cameras_are_compared_on_their_rotation_sigmas():
+    """Where both have rotation sigmas, the one whose cameras are placed more tightly (median
+    over the cameras but the reference) is kept, whatever the focal sigmas; where one has none
+    (not refined on the images), the focal sigmas decide as before."""
+    placed = _rig(disagreement=0.2, focal_std_fraction=0.013, rotation_std_deg=[1.0, 1.2])
+    focal = _rig(disagreement=0.0, focal_std_fraction=0.011, rotation_std_deg=[1.0, 1.7])
+    assert better_determined(placed, focal) and not better_determined(focal, placed)
+    unrefined = _rig(disagreement=0.0, focal_std_fraction=0.011)
+    assert better_determined(unrefined, placed) and not better_determined(placed, unrefined)
+    # runs apart still come first
+    assert better_determined(placed, _rig(disagreement=8.0, focal_std_fraction=0.011,
+                                              rotation_std_deg=[0.1, 0.1]))
 
 
 def test_the_second_matcher_applies_to_fresh_calibrations_of_perspective_cameras_on_sift():
@@ -216,7 +232,8 @@ def test_the_matchers_are_compared_only_where_the_kept_calibration_is_undetermin
 
     def rematch_with(second_focal_std_px):
         legs = {"sift": _refined(500.0, 30.0, focal_std_px=12.0),
-                "asift": _refined(540.0, 36.0, focal_std_px=second_focal_std_px)}
+                "asift": _refined(540.0, 36.0, focal_std_px=second_focal_std_px,
+                                  rotation_std_deg=0.4)}  # the better placed, kept
 
         def calibrate(matcher, until, refine_cut_short=True):
             return SimpleNamespace(rig=legs[matcher], cut_short=False, unrefined=False)

@@ -72,16 +72,34 @@ def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) 
     """Whether `a` is the calibration to keep over `b`: one where the other is None, else more
     cameras registered, then the smaller disagreement between its consensus runs where they
     disagree beyond WARN_DISAGREEMENT_DEG (the direct measure of how well the images determine
-    the rig), then the smaller focal sigma
-    (focal_determination.median_focal_std_fraction); `b` on a tie."""
+    the rig), then the one that places its cameras more tightly: the smaller median rotation
+    sigma (median_rotation_std_deg) where both have one, else the smaller focal sigma
+    (focal_determination.median_focal_std_fraction); `b` on a tie. A camera's rotation sigma
+    takes in its focal length's, principal point's and lens model's shares of where the camera
+    points, which is what the rig's pairs are judged by; the focal sigma is one of those shares
+    (docs/design-notes.md, A second matcher: the legs compared on their rotation sigmas)."""
     if a is None or b is None:
         return b is None and a is not None
+    by_rotation = median_rotation_std_deg(a) is not None and \
+        median_rotation_std_deg(b) is not None
 
     def rank(rig: RigCalibration) -> tuple[int, float, float]:
         disagreement = standing_disagreement_deg(rig.quality) or 0.0
+        spread = median_rotation_std_deg(rig) if by_rotation else median_focal_std_fraction(rig)
         return (len(rig.cameras), -(disagreement if disagreement > WARN_DISAGREEMENT_DEG else 0.0),
-                -median_focal_std_fraction(rig))
+                -spread)
     return rank(a) > rank(b)
+
+
+def median_rotation_std_deg(rig: RigCalibration) -> Optional[float]:
+    """The median over the rig's cameras but the reference of their rotation sigmas (deg,
+    relative to the reference camera: CameraQuality.rotation_std_deg); None where one of them
+    has none (the rig was not refined on the images) or there is no other camera."""
+    stds = [cam.quality.rotation_std_deg if cam.quality is not None else None
+            for name, cam in rig.cameras.items() if name != rig.reference_camera]
+    if not stds or any(s is None or not np.isfinite(s) for s in stds):
+        return None
+    return float(np.median(stds))
 
 
 @dataclass(frozen=True)
@@ -135,7 +153,7 @@ def with_second_matcher(calibrate: Callable[..., object],
     A first run that left a camera out is refined on the images only where the comparison needs
     it: a second calibration that registers more cameras is kept over it and one that registers
     fewer has the first's runs completed, whatever its refinement; only one that registers as
-    many is compared on the refined focal sigmas (better_determined)."""
+    many is compared on the refined sigmas (better_determined)."""
     if not rematch_applies(config, camera_names, fresh=fresh):
         return calibrate(config.matcher, None), None
     first, error = None, None
