@@ -72,7 +72,7 @@ def test_calibrations_that_both_place_their_cameras_are_compared_on_their_rotati
     assert better_determined(unrefined, placed) and not better_determined(placed, unrefined)
     # runs apart still come first
     assert better_determined(placed, _rig(disagreement=8.0, focal_std_fraction=0.011,
-                                              rotation_std_deg=[0.1, 0.1]))
+                                          rotation_std_deg=[0.1, 0.1]))
 
 
 def test_the_second_matcher_applies_to_fresh_calibrations_of_perspective_cameras_on_sift():

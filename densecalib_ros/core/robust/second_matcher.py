@@ -80,15 +80,15 @@ def better_determined(a: Optional[RigCalibration], b: Optional[RigCalibration]) 
     (docs/design-notes.md, A second matcher: the legs compared on their rotation sigmas)."""
     if a is None or b is None:
         return b is None and a is not None
-    by_rotation = median_rotation_std_deg(a) is not None and \
-        median_rotation_std_deg(b) is not None
+    rotation_deg = (median_rotation_std_deg(a), median_rotation_std_deg(b))
+    by_rotation = None not in rotation_deg
 
-    def rank(rig: RigCalibration) -> tuple[int, float, float]:
+    def rank(rig: RigCalibration, rotation: Optional[float]) -> tuple[int, float, float]:
         disagreement = standing_disagreement_deg(rig.quality) or 0.0
-        spread = median_rotation_std_deg(rig) if by_rotation else median_focal_std_fraction(rig)
+        spread = rotation if by_rotation else median_focal_std_fraction(rig)
         return (len(rig.cameras), -(disagreement if disagreement > WARN_DISAGREEMENT_DEG else 0.0),
                 -spread)
-    return rank(a) > rank(b)
+    return rank(a, rotation_deg[0]) > rank(b, rotation_deg[1])
 
 
 def median_rotation_std_deg(rig: RigCalibration) -> Optional[float]:
