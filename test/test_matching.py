@@ -226,22 +226,43 @@ def test_sift_nearest_sites_do_not_depend_on_the_tiles_ties_included(monkeypatch
             np.testing.assert_array_equal(got, want)
 
 
-def test_sift_column_reduction_takes_the_first_nearest_row_and_the_next_value():
-    """The compiled column pass: for the chosen columns, the first row holding the column's
-    minimum (numpy's argmin, ties included) and the smallest value among the other rows."""
-    from densecalib_ros.core.method.matching.sift import nearest_two_rows
+def test_sift_nearest_sites_on_ties_are_the_lowest_column_and_the_lowest_row_site():
+    """The one-pass tile reduction where equal distances are everywhere: a site of a takes the b
+    site of the lowest column (b's keypoints: every site's first, then the others) at its
+    nearest distance; a site of b the lowest a site at its first keypoint at its nearest
+    distance; the next distance is the nearest to any other site, equal to the nearest on a
+    tie. Checked against the whole matrix by brute force."""
+    import densecalib_ros.core.method.matching.sift as sift
 
-    rng = np.random.default_rng(11)
-    tile = rng.integers(0, 4, (9, 30)).astype(np.float32)  # small range: ties everywhere
-    columns = np.array([0, 3, 4, 17, 29])
-    first, second = nearest_two_rows(tile, columns)
-    sub = tile[:, columns]
-    want_first = np.argmin(sub, axis=0)
-    others = sub.copy()
-    others[want_first, np.arange(len(columns))] = np.inf
-    np.testing.assert_array_equal(first, want_first)
-    np.testing.assert_array_equal(second, others.min(axis=0))
-    assert np.any(second == sub.min(axis=0))  # a tie for the nearest row occurs
+    rng = np.random.default_rng(7)
+    desc_a, site_a = _keypoints_at_sites(rng, 30, integer_range=2)
+    desc_b, site_b = _keypoints_at_sites(rng, 35, integer_range=2)
+    best_ab, ratio_ab, best_ba, ratio_ba = nearest_sites_both_ways(desc_a, site_a, 30, desc_b,
+                                                                   site_b, 35)
+    cols, col_site, _ = sift._columns(desc_b, site_b, 35)
+    d = ((desc_a[:, None, :].astype(np.int64) - cols[None, :, :-6]) ** 2).sum(axis=2)
+    want_ab, want_ratio_ab = [], []
+    for s in range(30):
+        row = d[site_a == s].min(axis=0)  # over the site's keypoints
+        col = int(np.argmin(row))  # the lowest column at the nearest distance
+        other = row[col_site != col_site[col]].min()
+        want_ab.append(col_site[col])
+        want_ratio_ab.append(np.sqrt(row[col] / other))
+    np.testing.assert_array_equal(best_ab, want_ab)
+    np.testing.assert_allclose(ratio_ab, want_ratio_ab, rtol=1e-6)
+    by_site = np.stack([d[site_a == s].min(axis=0) for s in range(30)])  # (a sites, columns)
+    want_ba, want_ratio_ba = [], []
+    for s in range(35):
+        mine = by_site[:, col_site == s]  # its keypoints' columns, first keypoint first
+        nearest = mine.min()
+        column = int(np.flatnonzero((mine == nearest).any(axis=0))[0])  # its first at it
+        a_site = int(np.argmin(mine[:, column]))  # the lowest a site there
+        other = np.delete(mine, a_site, axis=0).min()
+        want_ba.append(a_site)
+        want_ratio_ba.append(np.sqrt(nearest / other))
+    np.testing.assert_array_equal(best_ba, want_ba)
+    np.testing.assert_allclose(ratio_ba, want_ratio_ba, rtol=1e-6)
+    assert np.mean(np.r_[ratio_ab, ratio_ba] == 1.0) > 0.2  # ties decided these
 
 
 def _sift_sites(image, nfeatures):
@@ -280,7 +301,7 @@ def test_onednn_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch)
         assert torch_there and torch.backends.mkldnn.matmul.fp32_precision == "bf16"
         got = nearest_sites_both_ways(*a, *b, dp.onednn_product)
         out = np.empty((len(rows), len(cols)), np.float32)
-        dp.onednn_product(cols)(rows, 0, len(cols), out)
+        dp.onednn_product(cols).fill(rows, 0, len(cols), out)
         np.testing.assert_array_equal(out, exact)
     assert torch.backends.mkldnn.matmul.fp32_precision != "bf16"  # put back
     for got_k, want_k in zip(got, want):
@@ -288,9 +309,10 @@ def test_onednn_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch)
 
 
 def test_int8_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch):
-    """oneDNN's 8-bit integer products (descriptors less 128, the rows' own terms written into
-    the tile first) give the exact distances, so numpy's nearest sites and ratios, on tiles that
-    are not whole blocks; and are chosen where the CPU's int8 sums are exact."""
+    """torch's 8-bit integer products (descriptors less 128, each distance that product times -2
+    plus the row's and the column's own terms) give the exact distances, so numpy's nearest sites
+    and ratios, on tiles that are not whole blocks; and are chosen where the CPU's int8 sums are
+    exact."""
     import densecalib_ros.core.method.matching.sift as sift
     from densecalib_ros.core.method.matching import descriptor_products as dp
 
@@ -305,7 +327,7 @@ def test_int8_products_give_numpys_matches_to_the_bit(image_pair, monkeypatch):
     a, b = _sift_sites(image_pair[0], 3000), _sift_sites(image_pair[1], 3000)
     assert dp.int8_exact(a[0]) and dp.int8_exact(b[0])
     assert dp.onednn_product_for([a[0], b[0]]) is dp.int8_product
-    assert dp.onednn_product_for([a[0], 4 * b[0]]) is dp.onednn_product  # norms past the bound
+    assert not dp.int8_exact(a[0][:, :64])  # 128 values a descriptor
     want = nearest_sites_both_ways(*a, *b)
     with dp.onednn_products(1):
         got = nearest_sites_both_ways(*a, *b, dp.int8_product)

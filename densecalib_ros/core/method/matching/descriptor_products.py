@@ -15,33 +15,46 @@ partial sum of a distance (|r|^2 + |c|^2 - 2 r.c: integers below 2^24) is too, i
 So the distances, and the matches, are those of numpy's product. RootSIFT's descriptors are not
 integers and stay with numpy.
 
-Where oneDNN has an 8-bit integer kernel that sums exactly (AMX or VNNI: int8_exact_here checks
-it), the products are int8_product's instead: unsigned 8-bit row descriptors times the column
-descriptors less 128 (signed 8-bit), summed in int32 and written as float32 with each column's
-squared norm added by the same call, into a tile holding each row's own terms (its squared norm,
-and 256 times its sum, which the shift by 128 takes out). The products, the fill included, take
-under half the float path's time on a CPU with AMX (a quarter of the bytes in, no conversion of the
-inputs; asift's matching 7-13 % less, its reductions and features being the rest), and the sums are
-exact in int32, so again the distances are those of numpy's product to the bit.
+Where torch has an 8-bit integer product whose sums are exact on this CPU (AMX or VNNI:
+int8_exact_here checks it), the products are int8_product's instead: the row and column
+descriptors less 128 (signed 8-bit) multiplied into int32 (torch._int_mm), each distance being
+that product times -2 plus a row's and a column's own terms (their squared norms, and the sums
+the shift by 128 adds; Product). A quarter of the bytes in, no conversion of the inputs, and no
+pass writing the terms into the tile: on a Zen 4 core 1.5 ms a tile of 600 x 4096 against 3.0 ms
+for oneDNN's int8 matmul summed into the terms written first, with every sum exact in int32, so
+the distances are those of numpy's product to the bit.
 """
 from __future__ import annotations
 
 import contextlib
 import functools
-from typing import Callable, Iterator, Optional
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator, Optional
 
 import numpy as np
 
 # Squared norms below this are integers whose three base-256 digits bfloat16 holds exactly, and
 # whose sums with a product's terms stay below float32's 2^24 exact integers.
 EXACT_BELOW = 2 ** 22
-# int8_product's float32 partial sums stay below 2^24 (exact integers) where every squared norm
-# is below this and descriptors have 128 values: |r.(c - 128)| <= |r| (|c| + 128 sqrt(128)),
-# 2.5e6 for norms under 1024; twice that, plus |c|^2 and |r|^2 + 256 sum(r) (under 1.05e6 and
-# 4e6), is 9.1e6. OpenCV's SIFT descriptors have norms of about 512.
-INT8_NORMS_BELOW = 2 ** 20
 
-Product = Callable[[np.ndarray, int, int, np.ndarray], None]
+
+@dataclass(frozen=True)
+class Product:
+    """A tile of the distance matrix, computed in parts: distance[i, j] = row_terms(rows)[i] +
+    col_terms[c0 + j] + scale x tile[i, j], where fill(rows, c0, c1, tile) writes the tile (of
+    dtype) for columns c0..c1. The float products hold whole distances (terms of 0, scale 1)."""
+    fill: Callable[[np.ndarray, int, int, np.ndarray], None]
+    dtype: type
+    scale: Any
+    col_terms: np.ndarray
+    row_terms: Callable[[np.ndarray], np.ndarray]
+
+
+def _whole_distances(fill: Callable[[np.ndarray, int, int, np.ndarray], None],
+                     cols: np.ndarray) -> Product:
+    """A float32 product whose tile holds the distances themselves."""
+    return Product(fill, np.float32, np.float32(1.0), np.zeros(len(cols), np.float32),
+                   lambda rows: np.zeros(len(rows), np.float32))
 
 
 def integer_descriptors(desc: np.ndarray) -> bool:
@@ -51,10 +64,11 @@ def integer_descriptors(desc: np.ndarray) -> bool:
 
 
 def int8_exact(desc: np.ndarray) -> bool:
-    """Whether int8_product gives these descriptors' distances exactly (INT8_NORMS_BELOW);
-    integer_descriptors must hold as well."""
-    return bool(desc.size == 0 or (desc.shape[1] == 128 and np.einsum(
-        "ij,ij->i", desc, desc, dtype=np.float64).max() < INT8_NORMS_BELOW))
+    """Whether int8_product's int32 sums hold these descriptors' distances: 128 values each
+    (integer_descriptors must hold as well). Each product of two descriptors less 128 is within
+    128^3 = 2.1e6 of zero, a squared norm under 255^2 x 128 = 8.3e6, and every term and sum of
+    Product's far below int32's 2^31."""
+    return bool(desc.size == 0 or desc.shape[1] == 128)
 
 
 def norm_parts(sq_norms: np.ndarray) -> np.ndarray:
@@ -74,10 +88,10 @@ def norm_parts(sq_norms: np.ndarray) -> np.ndarray:
 
 
 def numpy_product(cols: np.ndarray) -> Product:
-    """out = rows @ cols[c0:c1].T in float32 (numpy's BLAS)."""
-    def product(rows: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
+    """Tiles of rows @ cols[c0:c1].T in float32 (numpy's BLAS): whole distances."""
+    def fill(rows: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
         np.matmul(rows, cols[c0:c1].T, out=out)
-    return product
+    return _whole_distances(fill, cols)
 
 
 def onednn_product(cols: np.ndarray) -> Product:
@@ -87,53 +101,38 @@ def onednn_product(cols: np.ndarray) -> Product:
 
     cols_t = torch.from_numpy(cols)
 
-    def product(rows: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
+    def fill(rows: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
         torch.mm(torch.from_numpy(rows), cols_t[c0:c1].T, out=torch.from_numpy(out))
-    return product
+    return _whole_distances(fill, cols)
 
 
 def int8_product(cols: np.ndarray) -> Product:
-    """The same product by oneDNN's 8-bit integer matmul (module docstring): only where
+    """The distances by torch's 8-bit integer product (module docstring): only where
     int8_exact_here() and for columns of descriptors that integer_descriptors and int8_exact
-    pass, under onednn_products. Each rows array is converted once (the tiles of a block row
-    come one after another), each tile of columns packed once."""
+    pass. Each rows array is converted once (the tiles of a block row come one after another).
+    The rows and columns are _row_blocks' and _columns' (matching/sift.py): -2 x the descriptors
+    and the descriptors, each followed by six values of its squared norm's parts and ones."""
     import torch
 
     desc_cols = cols[:, :-6]
-    shifted = torch.from_numpy((desc_cols - 128.0).astype(np.int8))
-    sq_norms = cols[:, -3:].sum(axis=1, dtype=np.float32)  # norm_parts: integers, exact
-    packed: dict = {}
-    converted: list = [None, None, None]  # rows, as unsigned 8-bit, each row's own terms
+    shifted_t = torch.from_numpy((desc_cols - 128.0).astype(np.int8)).T
+    converted: list = [None, None]  # rows, as signed 8-bit less 128
 
-    def product(rows: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
+    def fill(rows: np.ndarray, c0: int, c1: int, out: np.ndarray) -> None:
         if converted[0] is not rows:
-            desc_rows = rows[:, :-6] * -0.5  # rows hold -2 x the descriptors (exact)
-            converted[:] = [rows, torch.from_numpy(desc_rows.astype(np.uint8)),
-                            rows[:, -6:-3].sum(axis=1) - 256.0 * desc_rows.sum(axis=1)]
-        if (c0, c1) not in packed:
-            packed[(c0, c1)] = (torch.ops.onednn.qlinear_prepack(shifted[c0:c1], None),
-                                torch.full((c1 - c0,), -2.0),
-                                torch.zeros(c1 - c0, dtype=torch.int64),
-                                torch.from_numpy(sq_norms[c0:c1]))
-        into = out if out.flags.c_contiguous else np.empty(out.shape, np.float32)
-        into[...] = converted[2][:, None]
-        _int8_sum_into(converted[1], *packed[(c0, c1)], into)
-        if into is not out:
-            out[...] = into
-    return product
+            converted[:] = [rows, torch.from_numpy((rows[:, :-6] * -0.5 - 128.0).astype(np.int8))]
+        torch._int_mm(converted[1], shifted_t[:, c0:c1], out=torch.from_numpy(out))
+    return Product(fill, np.int32, np.int32(-2), _shifted_terms(desc_cols),
+                   lambda rows: _shifted_terms(rows[:, :-6] * -0.5))
 
 
-def _int8_sum_into(rows_u8, packed_cols, col_scales, col_zero_points, col_terms,
-                   into: np.ndarray) -> None:
-    """into += col_scales x (rows_u8 @ columns.T) + col_terms, by oneDNN (float32 out)."""
-    import torch
-
-    target = torch.from_numpy(into)
-    result = torch.ops.onednn.qlinear_pointwise.binary(
-        rows_u8, 1.0, 0, packed_cols, col_scales, col_zero_points, target, col_terms, 1.0, 0,
-        torch.float32, 1.0, 0, "sum", 1.0, "none", [], "")
-    if result.data_ptr() != target.data_ptr():  # a build that does not sum in place
-        into[...] = result.numpy()
+def _shifted_terms(desc: np.ndarray) -> np.ndarray:
+    """Each descriptor's own term of its distances when products are taken less 128 (int8_product):
+    |d|^2 - 256 sum(d - 128) - 128^3, as int32 (int8_exact bounds it). Since
+    d.e = (d - 128).(e - 128) + 128 sum(d - 128) + 128 sum(e - 128) + 128^3 over 128 values,
+    |d - e|^2 = these terms of d and e less 2 (d - 128).(e - 128)."""
+    d = desc.astype(np.int64)
+    return ((d * d).sum(axis=1) - 256 * (d - 128).sum(axis=1) - 128 ** 3).astype(np.int32)
 
 
 def onednn_product_for(descriptors: list[np.ndarray]) -> Callable[[np.ndarray], Product]:
@@ -145,12 +144,12 @@ def onednn_product_for(descriptors: list[np.ndarray]) -> Callable[[np.ndarray], 
 
 
 def int8_kernel_here() -> bool:
-    """Whether torch has oneDNN's quantized matmul and this CPU an 8-bit integer dot product
+    """Whether torch has its 8-bit integer product and this CPU an 8-bit integer dot product
     (AMX or VNNI): without one, oneDNN adds pairs of 8-bit products in saturating 16-bit lanes
     (255 x 127 twice is past 32767)."""
     try:
         import torch
-        return bool(hasattr(torch.ops.onednn, "qlinear_pointwise") and (
+        return bool(hasattr(torch, "_int_mm") and (
             torch.cpu._is_amx_tile_supported() or torch.cpu._is_vnni_supported()))
     except (ImportError, AttributeError, RuntimeError):
         return False
@@ -166,15 +165,18 @@ def int8_exact_here() -> bool:
         rng = np.random.default_rng(0)
         rows = rng.integers(0, 256, (96, 128)).astype(np.float64)
         cols = rng.integers(0, 256, (160, 128)).astype(np.float64)
-        rows[:32], cols[:32], cols[32:64] = 255.0, 255.0, 0.0  # shifted 127, -128; sums < 2^24
+        rows[:32], cols[:32], cols[32:64] = 255.0, 255.0, 0.0  # shifted 127, -128
         exact = ((rows ** 2).sum(axis=1)[:, None] + (cols ** 2).sum(axis=1)
                  - 2.0 * rows @ cols.T)
         packed = np.c_[cols, np.ones((len(cols), 3)), norm_parts((cols ** 2).sum(axis=1))]
-        out = np.empty(exact.shape, np.float32)
-        int8_product(packed.astype(np.float32))(
-            np.c_[-2.0 * rows, norm_parts((rows ** 2).sum(axis=1)),
-                  np.ones((len(rows), 3))].astype(np.float32), 0, len(cols), out)
-        return bool(np.array_equal(out, exact))
+        product = int8_product(packed.astype(np.float32))
+        block = np.c_[-2.0 * rows, norm_parts((rows ** 2).sum(axis=1)),
+                      np.ones((len(rows), 3))].astype(np.float32)
+        tile = np.empty(exact.shape, np.int32)
+        product.fill(block, 0, len(cols), tile)
+        got = (product.row_terms(block).astype(np.int64)[:, None] + product.col_terms
+               + product.scale * tile.astype(np.int64))
+        return bool(np.array_equal(got, exact))
     except (ImportError, AttributeError, RuntimeError, NotImplementedError):
         return False
 

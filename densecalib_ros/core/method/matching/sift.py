@@ -32,9 +32,8 @@ from .utils import (match_unordered_pairs, mutual_pair_maps, opencv_to_original,
                     resize_for_matching, to_gray)
 
 # The distance matrix is computed and reduced one tile at a time, BLOCK_SITES row sites (with
-# their further keypoints) by TILE_COLUMNS column keypoints: ~10 MB, so that the tile each core
-# works on stays in the shared last-level cache while numpy reduces it several times over (a
-# whole block row of asift's ~40k columns went out to memory and back for every reduction), and
+# their further keypoints) by TILE_COLUMNS column keypoints: ~10 MB, which stays in the shared
+# last-level cache from the product to the one pass that reduces it (nearest_sites_in_tile), and
 # large enough that the per-tile Python calls stay a few percent of the product.
 BLOCK_SITES = 512
 TILE_COLUMNS = 4096
@@ -79,10 +78,9 @@ def _columns(desc_c: np.ndarray, site_c: np.ndarray, n_c: int
 
 
 def _row_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int):
-    """Yield (s0, s1, rows, folds): the row side of the distance matrix for row sites s0..s1,
+    """Yield (s0, s1, rows, row_site): the row side of the distance matrix for row sites s0..s1,
     BLOCK_SITES at a time: each site's first keypoint then the block's other keypoints, as
-    (-2 r, |r|^2, 1); folds: (sites, their rows), one further keypoint per site at a time, whose
-    distances a site's row takes the minimum of.
+    (-2 r, |r|^2, 1); row_site: each row's site less s0 (int32).
 
     |r - c|^2 = -2 r.c + |r|^2 + |c|^2 is one matrix product of these rows with the columns
     (c, 1, |c|^2) (_columns): three passes over the tile fewer than adding the norms after it.
@@ -100,98 +98,63 @@ def _row_blocks(desc_r: np.ndarray, site_r: np.ndarray, n_r: int):
         np.multiply(desc_rows, -2.0, out=rows[:, :-6])
         rows[:, -6:-3] = norm_parts(np.einsum("ij,ij->i", desc_rows, desc_rows))
         rows[:, -3:] = 1.0
-        extra_rows_site = extra_site_r[lo:hi] - s0
-        rank = _rank_within_site(extra_rows_site)
-        folds = [(extra_rows_site[k], s1 - s0 + k) for k in
-                 (np.flatnonzero(rank == r) for r in range(int(rank.max(initial=-1)) + 1))]
-        yield s0, s1, rows, folds
-
-
-class _NearestSites:
-    """Running nearest and second-nearest sites, in both directions, over the tiles of one
-    distance matrix (nearest_sites_both_ways). Ties go to the lower index, as numpy's argmin
-    over the whole matrix would give them.
-
-    Rows (sites of a): nearest[i] the nearest b site so far, d1[i] its distance, d2[i] the
-    distance to the nearest other b site so far. Columns (keypoints of b): col_d1[k] the
-    distance to the nearest a site so far, col_best[k] that site, col_d2[k] the distance to the
-    next a site."""
-
-    def __init__(self, n_rows: int, n_cols: int):
-        self.d1 = np.full(n_rows, np.inf, np.float32)
-        self.d2 = np.full(n_rows, np.inf, np.float32)
-        self.nearest = np.full(n_rows, -1, np.int64)
-        self.col_d1 = np.full(n_cols, np.inf, np.float32)
-        self.col_d2 = np.full(n_cols, np.inf, np.float32)
-        self.col_best = np.zeros(n_cols, np.int64)
-
-    def add_columns(self, d2: np.ndarray, s0: int, c0: int) -> None:
-        """b -> a: the tile d2 (row sites s0.., columns c0..) merged in per column: where it holds
-        a nearer a site, that site and the next (taken on those columns only: numpy finds
-        indices along rows fast only); elsewhere its nearest is a candidate for the second."""
-        c1 = c0 + d2.shape[1]
-        col_d1, col_d2, col_best = (self.col_d1[c0:c1], self.col_d2[c0:c1],
-                                    self.col_best[c0:c1])
-        near = d2.min(axis=0)
-        closer = np.flatnonzero(near < col_d1)
-        np.minimum(col_d2, near, out=col_d2)
-        if len(closer):
-            first, second = nearest_two_rows(d2, closer)
-            col_d2[closer] = np.minimum(col_d1[closer], second)
-            col_best[closer] = s0 + first
-            col_d1[closer] = near[closer]
-
-    def add_rows(self, d2: np.ndarray, s0: int, c0: int, col_site: np.ndarray,
-                 site_cols: np.ndarray) -> None:
-        """a -> b: the tile's nearest column per row gives its nearest site there, whose columns
-        in the tile are set to infinity in d2 before the tile's nearest other site is taken; then
-        merged with the rows' running sites. Where the tile's nearest site is the running one,
-        both distances can only shrink; where it is nearer than the running one, it takes over
-        and the running one is the second candidate (the running second is no nearer than it);
-        else the tile's nearest is a candidate for the second (its own second no nearer)."""
-        rows = np.arange(len(d2))
-        nearest_col = np.argmin(d2, axis=1)
-        d_near = d2[rows, nearest_col]
-        site = col_site[c0 + nearest_col]
-        local = site_cols[site] - c0
-        inside = (local >= 0) & (local < d2.shape[1])
-        d2[np.broadcast_to(rows[:, None], local.shape)[inside], local[inside]] = np.inf
-        d_other = d2.min(axis=1)
-        s1 = s0 + len(d2)
-        d1, d2_run, nearest = self.d1[s0:s1], self.d2[s0:s1], self.nearest[s0:s1]
-        same = site == nearest
-        takes_over = ~same & (d_near < d1)
-        second = ~same & ~takes_over
-        d2_run[same] = np.minimum(d2_run[same], d_other[same])
-        d1[same] = np.minimum(d1[same], d_near[same])
-        d2_run[takes_over] = np.minimum(d1[takes_over], d_other[takes_over])
-        d1[takes_over] = d_near[takes_over]
-        nearest[takes_over] = site[takes_over]
-        d2_run[second] = np.minimum(d2_run[second], d_near[second])
+        row_site = np.concatenate([np.arange(s1 - s0), extra_site_r[lo:hi] - s0])
+        yield s0, s1, rows, row_site.astype(np.int32)
 
 
 @compiled()
-def nearest_two_rows(tile: np.ndarray, columns: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """For each of `columns` of `tile`: its nearest row (the first on ties) and the smallest
-    value in its other rows. Row by row, so that the tile is read in memory order: numpy's
-    argmin down axis 0, like a transposed copy of the columns, reads it column by column, many
-    times slower than a pass along its rows."""
-    n = len(columns)
-    first = np.zeros(n, np.int64)
-    best = np.full(n, np.inf, np.float32)
-    second = np.full(n, np.inf, np.float32)
+def nearest_sites_in_tile(tile, scale, row_terms, col_terms, row_site, col_site, s0, c0,
+                          d1, d1_col, d2, col_d1, col_d2, col_best, dist, worst
+                          ):  # pragma: no cover - compiled
+    """Merge one tile of the distance matrix (rows of sites s0.. by the columns c0..) into the
+    running nearest sites both ways (nearest_sites_both_ways), in one pass over the tile.
+
+    Each row's distances (row_terms[i] + col_terms[c0 + j] + scale x tile[i, j], into dist: int32
+    where they are integers, whose min passes vectorise) give the tile's nearest column and the
+    nearest column of another site; merged into the row's site: d1 the nearest distance so far,
+    d1_col its column, d2 the nearest distance to another b site. Each column likewise keeps
+    col_d1, col_best (the nearest a site) and col_d2 (the next a site's distance). A site's
+    further keypoints are rows of their own merged into the same site, so the running values are
+    the smallest over each site's keypoints (module docstring). Ties go to the lowest column and
+    the lowest row site, as numpy's argmin over the whole matrix gives them, whatever the tiles.
+    worst: the largest value of dist's dtype (infinity for floats)."""
+    n_cols = tile.shape[1]
+    sites_c = col_site[c0:c0 + n_cols]  # views: the loops below vectorise on them
+    terms_c = col_terms[c0:c0 + n_cols]
+    near_c, next_c = col_d1[c0:c0 + n_cols], col_d2[c0:c0 + n_cols]
+    best_c = col_best[c0:c0 + n_cols]
     for i in range(tile.shape[0]):
-        row = tile[i]
-        for j in range(n):
-            v = row[columns[j]]
-            if v < best[j]:
-                second[j] = best[j]
-                best[j] = v
-                first[j] = i
-            elif v < second[j]:
-                second[j] = v
-    return first, second
+        values, term = tile[i], row_terms[i]
+        for j in range(n_cols):
+            dist[j] = term + terms_c[j] + scale * values[j]
+        near = worst
+        for j in range(n_cols):
+            near = min(near, dist[j])
+        j_near = 0
+        while dist[j_near] != near:
+            j_near += 1
+        site_near = sites_c[j_near]
+        other = worst
+        for j in range(n_cols):
+            other = min(other, dist[j] if sites_c[j] != site_near else worst)
+        s = s0 + row_site[i]
+        if d1_col[s] >= 0 and col_site[d1_col[s]] == site_near:  # the same site: both shrink
+            if near < d1[s]:
+                d1[s], d1_col[s] = near, c0 + j_near
+            d2[s] = min(d2[s], other)
+        elif d1_col[s] < 0 or near < d1[s] or (near == d1[s] and c0 + j_near < d1_col[s]):
+            d2[s] = min(d1[s], other)  # the old nearest is the next, or the tile's other
+            d1[s], d1_col[s] = near, c0 + j_near
+        else:
+            d2[s] = min(d2[s], near)
+        site = col_best.dtype.type(s)
+        for j in range(n_cols):  # branch-free: it vectorises
+            v, c1, cb, c2 = dist[j], near_c[j], best_c[j], next_c[j]
+            same = cb == site
+            nearer = (v < c1) | ((v == c1) & (site < cb))
+            next_c[j] = c2 if same else (c1 if nearer else min(c2, v))
+            near_c[j] = min(c1, v)
+            best_c[j] = site if (nearer and not same) else cb
 
 
 def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
@@ -205,40 +168,54 @@ def nearest_sites_both_ways(desc_a: np.ndarray, site_a: np.ndarray, n_a: int,
     (K,) each keypoint's site.
 
     One distance matrix serves both directions, computed a tile at a time (BLOCK_SITES row sites
-    of a, a site's further keypoints folded into its row, by TILE_COLUMNS keypoints of b) and
-    reduced into running nearest sites both ways while in cache (_NearestSites); b's keypoints
-    are folded into their sites at the end. Half the arithmetic of one matrix per direction, and
-    both directions see the same distances. product_of(columns) gives the tiles' product
-    (descriptor_products: numpy's, or oneDNN's for integer descriptors: the same values)."""
+    of a with their further keypoints, by TILE_COLUMNS keypoints of b) and reduced into running
+    nearest sites both ways while in cache (nearest_sites_in_tile); b's keypoints are folded
+    into their sites at the end. Half the arithmetic of one matrix per direction, and both
+    directions see the same distances. product_of(columns) gives the tiles' product
+    (descriptor_products: numpy's, or oneDNN's or 8-bit integers' for integer descriptors: the
+    same values). Distances of integer descriptors are integers, reduced as int32."""
     cols, col_site, site_cols = _columns(desc_b, site_b, n_b)
     product = product_of(cols)
-    running = _NearestSites(n_a, len(cols))
-    tile = np.empty(0, np.float32)  # each tile contiguous: a product may need it so
-    for s0, s1, rows, folds in _row_blocks(desc_a, site_a, n_a):
+    integer = integer_descriptors(desc_a) and integer_descriptors(desc_b)
+    dist_type = np.int32 if integer else np.float32
+    worst = dist_type(np.iinfo(np.int32).max if integer else np.inf)
+    d1, d2 = np.full(n_a, worst), np.full(n_a, worst)
+    d1_col = np.full(n_a, -1, np.int64)
+    col_d1, col_d2 = np.full(len(cols), worst), np.full(len(cols), worst)
+    col_best = np.full(len(cols), -1, np.int32)
+    dist = np.empty(TILE_COLUMNS, dist_type)
+    col_site = col_site.astype(np.int32)
+    tile = np.empty(0, product.dtype)  # each tile contiguous: a product may need it so
+    for s0, s1, rows, row_site in _row_blocks(desc_a, site_a, n_a):
         if len(rows) * TILE_COLUMNS > len(tile):
-            tile = np.empty(len(rows) * TILE_COLUMNS, np.float32)
+            tile = np.empty(len(rows) * TILE_COLUMNS, product.dtype)
+        row_terms = product.row_terms(rows)
         for c0 in range(0, len(cols), TILE_COLUMNS):
             c1 = min(len(cols), c0 + TILE_COLUMNS)
-            d2 = tile[:len(rows) * (c1 - c0)].reshape(len(rows), c1 - c0)
-            product(rows, c0, c1, d2)
-            for sites, extra_rows in folds:
-                d2[sites] = np.minimum(d2[sites], d2[extra_rows])
-            running.add_columns(d2[:s1 - s0], s0, c0)  # before add_rows writes infinities
-            running.add_rows(d2[:s1 - s0], s0, c0, col_site, site_cols)
-    best_ab = running.nearest
-    ratio_ab = np.sqrt(np.maximum(running.d1, 0.0) / np.maximum(running.d2, 1e-12))
+            part = tile[:len(rows) * (c1 - c0)].reshape(len(rows), c1 - c0)
+            product.fill(rows, c0, c1, part)
+            nearest_sites_in_tile(part, product.scale, row_terms, product.col_terms, row_site,
+                                  col_site, s0, c0, d1, d1_col, d2, col_d1, col_d2, col_best,
+                                  dist, worst)
+    d1, d2, col_d1, col_d2 = (_as_float(d, worst) for d in (d1, d2, col_d1, col_d2))
+    best_ab = col_site[d1_col].astype(np.int64)
+    ratio_ab = np.sqrt(np.maximum(d1, 0.0) / np.maximum(d2, 1e-12))
     # fold b's keypoints into their sites: the nearest a site over a site's keypoints, and the
     # nearest other a site: a keypoint's own second where its nearest is that site, else its
     # nearest
-    col_d1, col_d2, col_best = running.col_d1, running.col_d2, running.col_best
     which = np.argmin(col_d1[site_cols], axis=1)
     chosen_col = site_cols[np.arange(n_b), which]
-    best_ba = col_best[chosen_col]
+    best_ba = col_best[chosen_col].astype(np.int64)
     nearest_ba = col_d1[chosen_col]
     other = np.where(col_best[site_cols] == best_ba[:, None], col_d2[site_cols],
                      col_d1[site_cols]).min(axis=1)
     ratio_ba = np.sqrt(np.maximum(nearest_ba, 0.0) / np.maximum(other, 1e-12)).astype(np.float32)
     return best_ab, ratio_ab, best_ba, ratio_ba
+
+
+def _as_float(distances: np.ndarray, worst) -> np.ndarray:
+    """Running distances as float32, the dtype's largest value (none found) as infinity."""
+    return np.where(distances == worst, np.float32(np.inf), distances.astype(np.float32))
 
 
 def _region_box(mask: np.ndarray, margin_px: int) -> Optional[tuple[slice, slice]]:
