@@ -141,7 +141,9 @@ def test_calibration_failure_exits_1_with_message(tmp_path, caplog):
     ("--lens", "cam9=fisheye", "unknown camera(s) cam9"),
     ("--known-baseline", "cam0 cam0 0.5", "expected two different cameras of cam0, cam1"),
     ("--known-baseline", "cam0 cam9 0.5", "expected two different cameras"),
-    ("--known-baseline", "cam0 cam1 -2", "their distance in metres (> 0)"),
+    ("--known-baseline", "cam0 cam1 -2", "their distance in metres (1e-06 to 1e+06)"),
+    ("--known-baseline", "cam0 cam1 inf", "their distance in metres (1e-06 to 1e+06)"),
+    ("--keypoint-min-likelihood", "0.9", "--keypoint-min-likelihood belong(s) to --keypoints"),
     ("--time-offset", "cam1=3", "--time-offset belongs to --videos, --bag or"),
     ("--align", "name --time-offset cam1=3", "--time-offset belongs to"),
     ("--align", "time", "no EXIF capture time"),
@@ -156,6 +158,15 @@ def test_options_are_checked_before_matching(rig_dir, tmp_path, caplog, option, 
                    option, *value.split(), "--consensus-runs", "1"])
     assert rc == 2 and message in caplog.text
     assert not (tmp_path / "o").exists()
+
+
+def test_the_folder_the_user_is_in_is_not_replaced(rig_dir, tmp_path, caplog, monkeypatch):
+    """--out . replaces the folder the shell is in: the shell would be left in a deleted folder."""
+    (tmp_path / "o").mkdir()
+    monkeypatch.chdir(tmp_path / "o")
+    with caplog.at_level(logging.ERROR):
+        assert main(["calibrate", "--images", str(rig_dir), "--out", "."]) == 2
+    assert "the folder you are in" in caplog.text and "cd " in caplog.text
 
 
 def test_bag_needs_topics(tmp_path, caplog):

@@ -57,3 +57,22 @@ def test_an_export_that_fails_part_way_replaces_none_of_the_earlier_files(calibr
     assert _export(new, out)[0] == 0
     after = _files(out)
     assert after == _files(tmp_path / "sizes") and all(after[n] != before[n] for n in after)
+
+
+def test_an_export_into_another_calibration_is_refused(calibrations, tmp_path):
+    """JARVIS writes <camera>.yaml per camera: into another calibration's folder they would replace
+    its camera_info YAMLs. Refused, that calibration untouched; a single-file path ending in a
+    separator (a folder meant) is refused too."""
+    old, new = calibrations
+    before = _files(new)
+    env = {**os.environ, "PYTHONPATH": REPO + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    for fmt, out in (("jarvis", new), ("anipose", tmp_path / "folder_meant" / "")):
+        done = subprocess.run([sys.executable, "-m", "densecalib_ros.cli", "export", str(old),
+                               "--format", fmt, "--out", str(out) + ("/" if fmt == "anipose"
+                                                                      else "")],
+                              capture_output=True, text=True, env=env, timeout=120)
+        said = done.stdout + done.stderr
+        assert done.returncode == 2, said
+        assert ("is a file of the calibration" if fmt == "jarvis" else "is a folder") in said
+        assert "Traceback" not in said
+    assert _files(new) == before and not (tmp_path / "folder_meant").exists()

@@ -98,6 +98,32 @@ def test_unaligned_subfolders_need_a_choice_and_order_pairs_evenly(tmp_path):
         ["IMG_0004.png", "DSC00002.png"]]
 
 
+def test_frame_numbers_pair_however_padded(tmp_path):
+    """One camera numbering its frames 1, 2, 10 beside others' 0001, 0002, 0010: the frames pair
+    by number (by sorted name, 10 would sit beside 0002), and in number order."""
+    for cam in ("a", "b"):
+        for t in (1, 2, 10):
+            _write(tmp_path / cam / f"{t:04d}.png", 20 * t)
+    for t in (1, 2, 10):
+        _write(tmp_path / "c" / f"{t}.png", 20 * t)
+    paths, names = list_image_folder(tmp_path)
+    assert names == ["a", "b", "c"]
+    assert [[p.name for p in row] for row in paths] == [
+        ["0001.png", "0001.png", "1.png"], ["0002.png", "0002.png", "2.png"],
+        ["0010.png", "0010.png", "10.png"]]
+    paths, _ = list_image_folder(tmp_path, align="order")
+    assert [p.name for p in paths[1]] == ["0002.png", "0002.png", "2.png"]
+
+
+def test_one_image_per_camera_takes_no_alignment(tmp_path):
+    _write(tmp_path / "left.png", 10)
+    _write(tmp_path / "right.png", 20)
+    with pytest.raises(InputError, match="one image per camera.*--align time belong"):
+        list_image_folder(tmp_path, align="time")
+    with pytest.raises(InputError, match="nothing to pair: --time-offset belong"):
+        list_image_folder(tmp_path, time_offsets_s={"left": 60.0})
+
+
 def _write_shot(path, when, subsec=""):
     """An image file whose EXIF says it was taken at `when` ("YYYY:MM:DD HH:MM:SS")."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -126,6 +126,8 @@ def test_kalibr_topics_must_be_ros_names(rig):
     assert "/cam_0001/image_raw" in kalibr_camchain_yaml(numbered, "/cam_{name}/image_raw")
     with pytest.raises(InputError, match="left: '/my cams/left'"):
         kalibr_camchain_yaml(rig, "/my cams/{name}")
+    with pytest.raises(InputError, match="gives several cameras the topic '/cam/image_raw'"):
+        kalibr_camchain_yaml(rig, "/cam/image_raw")  # no {name}: one topic for every camera
 
 
 def test_models_a_format_cannot_hold_are_refused(rig):

@@ -119,7 +119,7 @@ def test_trims_start_together_where_offsets_are_a_fraction_of_a_frame_off():
     assert [t.first_frame for t in trims] == [1, 3, 0, 1]
 
 
-def test_errors_say_what_to_do(video_dir, tmp_path):
+def test_errors_say_what_to_do(video_dir, tmp_path, caplog):
     with pytest.raises(InputError, match="unknown camera.*camZ.*camA, camB, camC"):
         read_video_frame_sets(video_dir, 2, {"camZ": 1.0})
     with pytest.raises(InputError, match="share no time span"):
@@ -133,6 +133,14 @@ def test_errors_say_what_to_do(video_dir, tmp_path):
     with pytest.raises(InputError, match="share the camera name.*only"):
         read_video_frame_sets(tmp_path, 2)
     (tmp_path / "only.avi").unlink()
+    # a camera in another container is read; one given as a still among videos is warned of
+    (tmp_path / "other.flv").write_bytes((video_dir / "camB.avi").read_bytes())
+    cv2.imwrite(str(tmp_path / "still.png"), np.zeros((8, 8, 3), np.uint8))
+    with caplog.at_level(logging.WARNING):
+        assert read_video_frame_sets(tmp_path, 2)[1] == ["only", "other"]
+    assert "still.png (images: only the videos are read" in caplog.text
+    for name in ("other.flv", "still.png"):
+        (tmp_path / name).unlink()
     (tmp_path / "broken.mp4").write_bytes(b"\x00" * 4096)
     with pytest.raises(InputError, match="Cannot open video .*broken.mp4"):
         read_video_frame_sets(tmp_path, 2)
@@ -142,9 +150,13 @@ def test_errors_say_what_to_do(video_dir, tmp_path):
     (["--time-offset", "cam1"], "expected NAME=SECONDS"),
     (["--start", "1.0"], "--start belong(s) to --videos"),
     (["--topics", "/a", "/b"], "--topics belongs to --bag"),
-    (["--align", "time"], "--align belongs to --images")])
+    (["--align", "time"], "--align belongs to --images"),
+    (["--start", "nan", "--videos"], "--start nan: give a time in seconds"),
+    (["--end", "inf", "--videos"], "--end inf: give a time in seconds")])
 def test_cli_video_options_are_checked(video_dir, tmp_path, caplog, args, message):
     source = [] if args[0] == "--start" else ["--videos", str(video_dir)]
+    if args[-1] == "--videos":
+        args, source = args[:-1], ["--videos", str(video_dir)]
     if not source:
         source = ["--images", str(tmp_path)]
     with caplog.at_level(logging.ERROR):

@@ -15,6 +15,7 @@ from ..core.config import DEFAULT_PIPELINE, LENS_MODELS, PIPELINES, PRESETS, mak
 from ..core.errors import CalibrationError, InputError
 from ..core.method.matching import available_matchers
 from ..core.products.report import camera_table, intrinsics_note
+from ..core.products.scale import MAX_LENGTH_M, MIN_LENGTH_M
 from .argtypes import number_in, positive, seed
 from .inputs import add_input_arguments, named_numbers, parse_masks, read_input
 from .keypoint_inputs import (add_keypoint_arguments, keypoint_cameras, keypoint_paths,
@@ -144,7 +145,8 @@ def parse_camera_lens(values: Optional[list[str]]) -> dict:
 
 def parse_known_baseline(values: Optional[list[str]], names: list[str]) -> Optional[tuple]:
     """--known-baseline CAM_A CAM_B METRES -> (cam_a, cam_b, metres) or None; InputError when the
-    cameras are not two different ones of `names` or the distance is not a positive number."""
+    cameras are not two different ones of `names` or the distance is not a length scale.py
+    takes (checked before the calibration runs, not after it)."""
     if not values:
         return None
     cam_a, cam_b, metres = values
@@ -152,10 +154,12 @@ def parse_known_baseline(values: Optional[list[str]], names: list[str]) -> Optio
         baseline_m = float(metres)
     except ValueError:
         baseline_m = float("nan")
-    if cam_a == cam_b or cam_a not in names or cam_b not in names or not baseline_m > 0:
+    if cam_a == cam_b or cam_a not in names or cam_b not in names or \
+            not MIN_LENGTH_M <= baseline_m <= MAX_LENGTH_M:
         raise InputError(f"--known-baseline {' '.join(values)}: expected two different cameras "
-                         f"of {', '.join(names)} and their distance in metres (> 0), e.g. "
-                         f"--known-baseline {names[0]} {names[-1]} 0.5.")
+                         f"of {', '.join(names)} and their distance in metres ({MIN_LENGTH_M:g} "
+                         f"to {MAX_LENGTH_M:g}), e.g. --known-baseline {names[0]} {names[-1]} "
+                         "0.5.")
     return cam_a, cam_b, baseline_m
 
 

@@ -192,6 +192,10 @@ def _check_input_options(args) -> None:
                   if value is not None]
     if video_only and not args.videos:
         raise InputError(f"{', '.join(video_only)} belong(s) to --videos.")
+    for option, value in (("--start", args.start), ("--end", args.end)):
+        if value is not None and not np.isfinite(value):
+            raise InputError(f"{option} {value:g}: give a time in seconds from the videos' "
+                             "start.")
     if args.time_offset and not (args.videos or args.bag or
                                  (args.images and args.align == "time")):
         raise InputError("--time-offset belongs to --videos, --bag or --images with --align "

@@ -23,7 +23,7 @@ def add_keypoint_arguments(parser: argparse.ArgumentParser) -> None:
                              "file's video name), a folder of them, or NAME=PATH. Frame k of "
                              "every camera is one instant. With --images/--videos/--bag, or "
                              "alone (then --image-size where the files do not say it)")
-    parser.add_argument("--keypoint-min-likelihood", type=float, default=MIN_LIKELIHOOD,
+    parser.add_argument("--keypoint-min-likelihood", type=float, default=None,
                         metavar="L", help="use keypoints the tool scored at least this "
                         f"(default {MIN_LIKELIHOOD:g}, DeepLabCut's pcutoff)")
     parser.add_argument("--keypoint-frame-offset", nargs="+", default=None,
@@ -64,7 +64,9 @@ def read_keypoint_input(args: argparse.Namespace, names: list[str], frame_sets: 
     from ..core.method.identity_tracks import identity_tracks
 
     given = [opt for opt, v in (("--keypoint-frame-offset", args.keypoint_frame_offset),
-                                ("--image-size", args.image_size)) if v]
+                                ("--image-size", args.image_size),
+                                ("--keypoint-min-likelihood",
+                                 args.keypoint_min_likelihood is not None)) if v]
     if not args.keypoints:
         if given:
             raise InputError(f"{', '.join(given)} belong(s) to --keypoints.")
@@ -72,9 +74,11 @@ def read_keypoint_input(args: argparse.Namespace, names: list[str], frame_sets: 
     if args.image_size and frame_sets:
         raise InputError("--image-size is for --keypoints alone: with images, their size is "
                          "used.")
-    if not 0 <= args.keypoint_min_likelihood <= 1:
-        raise InputError(f"--keypoint-min-likelihood {args.keypoint_min_likelihood:g}: give a "
-                         "likelihood from 0 to 1.")
+    min_likelihood = MIN_LIKELIHOOD if args.keypoint_min_likelihood is None \
+        else args.keypoint_min_likelihood
+    if not 0 <= min_likelihood <= 1:
+        raise InputError(f"--keypoint-min-likelihood {min_likelihood:g}: give a likelihood "
+                         "from 0 to 1.")
     files = keypoint_sources(args.keypoints, names)
     sizes = [(im.shape[1], im.shape[0]) for im in frame_sets[0]] if frame_sets else \
         parse_image_sizes(args.image_size, names)
@@ -83,10 +87,10 @@ def read_keypoint_input(args: argparse.Namespace, names: list[str], frame_sets: 
         read[name] = read_keypoints(path)
         log.info("keypoints of %s: %s (%s, %d frames)", name, path, read[name].tool,
                  len(read[name].frames))
-    found = identity_tracks(read, names, sizes, args.keypoint_min_likelihood,
+    found = identity_tracks(read, names, sizes, min_likelihood,
                             _frame_offsets(args, names, source))
     log.info("%d keypoint tracks (joints seen by two or more cameras at likelihood >= %g) from "
-             "%d frames", found.tracks.num_tracks, args.keypoint_min_likelihood,
+             "%d frames", found.tracks.num_tracks, min_likelihood,
              found.record["frames_used"])
     return found
 

@@ -165,7 +165,7 @@ def _remap_image(path: Path, dest: Path, maps, source, name: str) -> None:
 
 def _camera_video(directory: str, name: str) -> list[Path]:
     """[the video of camera `name` in directory] (DIR/<name>.<video ext>), or []."""
-    from ..core.io.video_io import VIDEO_EXTENSIONS
+    from ..core.io.file_kinds import VIDEO_EXTENSIONS
 
     return sorted(p for p in Path(directory).glob(f"{name}.*")
                   if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS)[:1]

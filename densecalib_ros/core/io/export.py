@@ -290,21 +290,28 @@ def check_output_files(paths: Sequence[str | os.PathLike],
                        calibration_dir: Optional[str | os.PathLike] = None,
                        input_dir: Optional[str | os.PathLike] = None) -> None:
     """Raise InputError when writing `paths` would lose data: an empty path, a path that is a
-    folder, a file of the calibration being read (its calibration.json, camera_info YAMLs,
-    COLMAP model, reference views: an export must not replace what it reads; other files beside
-    them are fine, an earlier export's included), or any file in the input images' folder."""
+    folder (or ends with a separator), a file of the calibration being read or of another
+    calibration folder (its calibration.json, camera_info YAMLs, COLMAP model, reference views:
+    an export must not replace a calibration; other files beside them are fine, an earlier
+    export's included), or any file in the input images' folder."""
     calibration = Path(calibration_dir).resolve() if calibration_dir is not None else None
     inputs = Path(input_dir).resolve() if input_dir is not None else None
     for given in paths:
         if not str(given).strip():
             raise InputError("The output path is empty (''): give a file or folder to write.")
         path = Path(given).resolve()
-        if path.is_dir():
-            raise InputError(f"{given} is a folder: give the file to write (this writes one "
-                             "file).")
+        if path.is_dir() or str(given).endswith(("/", os.sep)):
+            said = "" if path.is_dir() else " (it ends with a separator)"
+            raise InputError(f"{given} is a folder{said}: give the file to write (this writes "
+                             "one file).")
         if calibration is not None and _calibration_file(path, calibration):
             raise InputError(f"{given} is a file of the calibration {calibration}: writing it "
                              "would replace what this command reads. Write somewhere else.")
+        # another calibration's folder (its own files, or its COLMAP model's and reference views')
+        for other in list(path.parents)[:3]:
+            if (other / "calibration.json").is_file() and _calibration_file(path, other):
+                raise InputError(f"{given} is a file of the calibration {other}: writing it "
+                                 "would replace part of that calibration. Write somewhere else.")
         if inputs is not None and inputs in path.parents:
             raise InputError(f"{given} is in the input folder {inputs}: write somewhere else, "
                              "so that the inputs stay as they are.")

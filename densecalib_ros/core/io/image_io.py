@@ -29,15 +29,14 @@ import numpy as np
 
 from ..errors import InputError, TooFewCamerasGivenError
 from ..types import check_camera_names
+from .file_kinds import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from .image_encoding import to_pipeline_image
 from .sync import evenly_spaced
-from .video_io import VIDEO_EXTENSIONS
 
 log = logging.getLogger(__name__)
 
 ALIGNMENTS = ("auto", "name", "order", "time")
 DEFAULT_MAX_TIME_GAP_S = 2.0  # a burst of trail-camera shots spans about this
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
 
 
 def jpeg_truncated(data: bytes) -> bool:
@@ -167,6 +166,7 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
             f"({subdirs[0].name}, ...): use one image per camera OR one subfolder per camera.")
     if files:
         _refuse_frames_of_one_camera(directory, files)
+        _refuse_alignment_of_one_set(directory, align, time_offsets_s)
         names = [p.stem for p in files]
         duplicate = sorted({n for n in names if names.count(n) > 1})
         if duplicate:
@@ -187,6 +187,18 @@ def list_image_folder(directory: str | os.PathLike, align: str = "auto",
             f"Found only one camera ({names[0]}) in {directory}: a rig calibration needs images "
             "of at least two cameras (one file per camera, or one subfolder per camera).")
     return paths, names
+
+
+def _refuse_alignment_of_one_set(directory: Path, align: str,
+                                 time_offsets_s: Optional[dict[str, float]]) -> None:
+    """InputError where an alignment (or clock offsets) is asked of DIR's one image per camera:
+    one frame set has nothing to pair, and the options would be ignored unsaid."""
+    asked = ([f"--align {align}"] if align != "auto" else []) + \
+        (["--time-offset"] if time_offsets_s else [])
+    if asked:
+        raise InputError(f"{directory} holds one image per camera (a single frame set), so "
+                         f"there is nothing to pair: {' and '.join(asked)} belong(s) to camera "
+                         "subfolders of images. Leave them out, or give one subfolder per camera.")
 
 
 def _leave_out(directory: Path, files: list[Path], subdirs: list[Path], without: Sequence[str]
@@ -272,7 +284,7 @@ def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: 
     if unknown:
         raise InputError(f"Time offsets for unknown camera(s) {', '.join(unknown)}: the cameras "
                          f"of {directory} are {', '.join(names)}.")
-    stems = [[p.stem for p in ps] for ps in per_cam]
+    per_cam, stems = _numbered_frames(per_cam)
     counts = {n: len(ps) for n, ps in zip(names, per_cam)}
     shared = set(stems[0]).intersection(*stems[1:])
     if align == "auto":
@@ -295,7 +307,7 @@ def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: 
                              f"{directory} (e.g. {names[0]}/{per_cam[0][0].name} and "
                              f"{names[1]}/{per_cam[1][0].name}); name each time step alike in "
                              "every folder, or use --align order or --align time.")
-        _warn_about_unshared_frames(names, stems, shared)
+        _warn_about_unshared_frames(names, per_cam, stems, shared)
         by_stem = [dict(zip(s, ps)) for s, ps in zip(stems, per_cam)]
         return [[files[stem] for files in by_stem] for stem in stems[0] if stem in shared]
     if align == "order":
@@ -309,11 +321,38 @@ def _align(directory: Path, names: list[str], per_cam: list[list[Path]], align: 
     return _align_by_capture_time(names, per_cam, time_offsets_s, max_time_gap_s)
 
 
-def _warn_about_unshared_frames(names: list[str], stems: list[list[str]], shared: set) -> None:
+# A frame counter: a run of digits at the end of a file stem, however padded (1, 0001).
+_FRAME_COUNTER = re.compile(r"^(?P<head>.*?)(?P<number>\d+)(?P<tail>\D*)$")
+
+
+def _numbered_frames(per_cam: list[list[Path]]) -> tuple[list[list[Path]], list[list[str]]]:
+    """(each camera's images, their frame names): a camera whose files are named alike around
+    a frame counter (_FRAME_COUNTER) in the counter's order (1, 2, 10, not 1, 10, 2); and where
+    every camera names its files alike, the counter as the name, so that 0002 and 2 are one
+    frame. Otherwise the files' sorted order and stems."""
+    parts = []
+    for files in per_cam:
+        matches = [_FRAME_COUNTER.match(p.stem) for p in files]
+        numbered = all(matches) and len({(m["head"], m["tail"]) for m in matches}) == 1 and \
+            len({int(m["number"]) for m in matches}) == len(files)
+        parts.append([(int(m["number"]), m["head"], m["tail"]) for m in matches]
+                     if numbered else None)
+    ordered = [[f for _, f in sorted(zip(part, files), key=lambda x: x[0][0])]
+               if part else files for part, files in zip(parts, per_cam)]
+    patterns = {(head, tail) for part in parts if part for _, head, tail in part}
+    if all(parts) and len(patterns) == 1:
+        return ordered, [[str(n) for n, _, _ in sorted(part)] for part in parts]
+    return ordered, [[p.stem for p in files] for files in ordered]
+
+
+def _warn_about_unshared_frames(names: list[str], per_cam: list[list[Path]],
+                                frames: list[list[str]], shared: set) -> None:
+    """Warn of the images left out (by file stem) whose frame name is not in `shared`."""
     def listed(xs: list[str]) -> str:
         return ", ".join(xs[:5]) + (f" and {len(xs) - 5} more" if len(xs) > 5 else "")
 
-    left_out = {n: [x for x in s if x not in shared] for n, s in zip(names, stems)}
+    left_out = {n: [p.stem for p, x in zip(ps, fs) if x not in shared]
+                for n, ps, fs in zip(names, per_cam, frames)}
     if any(left_out.values()):
         log.warning("Frame sets by file name: %d with every camera; left out, as not every "
                     "camera has them: %s", len(shared),

@@ -135,9 +135,10 @@ def disk_hint(path: Path) -> str:
 def check_output_folder(out_dir: str | os.PathLike, markers: Sequence[str],
                         inputs: Sequence[str | os.PathLike] = ()) -> Path:
     """The resolved out_dir, after making sure that replacing it as a whole loses nothing: raises
-    InputError when it is empty (the current folder), a file, holds one of `inputs` (or is one),
-    or is a folder with contents but none of `markers` (the files by which a command knows its
-    own earlier output: calibration.json, sync.json). A user's own folder is never emptied."""
+    InputError when it is empty, a file, the current folder or one holding it, holds one of
+    `inputs` (or is one), or is a folder with contents but none of `markers` (the files by
+    which a command knows its own earlier output: calibration.json, sync.json). A user's own
+    folder is never emptied."""
     if not str(out_dir).strip():
         raise InputError("The output folder is empty (''): give a folder to write, e.g. "
                          "--out calib.")
@@ -155,6 +156,11 @@ def check_output_folder(out_dir: str | os.PathLike, markers: Sequence[str],
         raise InputError(f"{out_dir} exists and is not an earlier output of this command (no "
                          f"{' or '.join(markers)} in it): writing there would replace all it "
                          "holds. Give a new or empty folder, or remove this one first.")
+    here = Path.cwd().resolve()
+    if here == out or out in here.parents:
+        raise InputError(f"{out_dir} is the folder you are in (or holds it): it is replaced as a "
+                         "whole, which would leave your shell in a folder that no longer "
+                         f"exists. Run the command from outside it (cd {out.parent}).")
     parent = next(p for p in out.parents if p.exists())  # the folder written into (swap)
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"Cannot write {out_dir}: {parent} is not a writable folder. Give a "

@@ -16,6 +16,7 @@ did not start together.
 """
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,9 +26,10 @@ import cv2
 import numpy as np
 
 from ..errors import InputError, TooFewCamerasGivenError
+from .file_kinds import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 
-VIDEO_EXTENSIONS = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".mts",
-                    ".ts", ".wmv")
+log = logging.getLogger(__name__)
+
 DEFAULT_VIDEO_FRAME_SETS = 8
 # fourcc -> container (OpenCV's FFmpeg writes them): mp4v and MJPG lossy, FFV1 lossless (every
 # frame decodes to the pixels written; large files, and not every player reads it)
@@ -64,6 +66,7 @@ def list_video_folder(directory: str | os.PathLike) -> tuple[list[Path], list[st
     if not files:
         raise InputError(f"No videos ({', '.join(VIDEO_EXTENSIONS)}) in {directory}: put one video "
                          "per camera there, named after the camera (e.g. cam0.mp4).")
+    _warn_about_images(directory)
     names = [p.stem for p in files]
     duplicate = sorted({n for n in names if names.count(n) > 1})
     if duplicate:
@@ -74,6 +77,16 @@ def list_video_folder(directory: str | os.PathLike) -> tuple[list[Path], list[st
             f"Found only one video ({files[0].name}) in {directory}: a rig calibration needs "
             "videos of at least two cameras.")
     return files, names
+
+
+def _warn_about_images(directory: Path) -> None:
+    """Warn of images in a folder of videos: a camera given as a still among videos is not read,
+    and would leave the rig unnoticed."""
+    images = sorted(p.name for p in directory.iterdir() if p.is_file()
+                    and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS)
+    if images:
+        log.warning("skipped in %s: %s (images: only the videos are read; give a camera's "
+                    "images with --images, or its video here)", directory, ", ".join(images))
 
 
 def _open(path: Path) -> cv2.VideoCapture:

@@ -148,6 +148,12 @@ def kalibr_camchain_yaml(rig: RigCalibration,
         raise InputError(f"--topic-pattern {topic_pattern!r} cannot be filled in ({exc!r}): "
                          "write {name} where the camera name goes, e.g. "
                          "/{name}/image_raw.") from None
+    shared = sorted({t for t in topics.values() if list(topics.values()).count(t) > 1})
+    if shared:
+        raise InputError(f"--topic-pattern {topic_pattern!r} gives several cameras the topic "
+                         f"{shared[0]!r}: Kalibr would read one camera's images for all of "
+                         "them. Write {name} where the camera name goes, e.g. "
+                         "/{name}/image_raw.")
     invalid = {n: t for n, t in topics.items() if not _ROS_TOPIC.match(t)}
     if invalid:
         raise InputError(
