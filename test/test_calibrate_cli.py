@@ -175,7 +175,7 @@ def test_bag_needs_topics(tmp_path, caplog):
     assert rc == 2 and "--topics" in caplog.text
 
 
-def test_recalibration_from_previous_reports_change(rig_dir, tmp_path, capsys):
+def test_recalibration_from_previous_reports_change(rig_dir, tmp_path, capsys, caplog):
     """Also: --known-baseline makes the rig file and the COLMAP model metric, and a recalibration
     from a metric calibration stays metric."""
     first, second = tmp_path / "first", tmp_path / "second"
@@ -201,6 +201,16 @@ def test_recalibration_from_previous_reports_change(rig_dir, tmp_path, capsys):
     # Same images: nothing moved, so the reported change is small.
     for change in quality["change_vs_previous"].values():
         assert abs(change["focal_change_pct"]) < 1.0 and change["rotation_change_deg"] < 0.5
+    # The same cameras renamed: refused before any work, saying that the names differ (it ran
+    # the whole calibration, then blamed a covered lens).
+    renamed = tmp_path / "renamed"
+    for k in range(4):
+        (renamed / f"left{k}").mkdir(parents=True)
+        (renamed / f"left{k}" / "0000.png").symlink_to(rig_dir / f"cam{k}" / "0000.png")
+    with caplog.at_level(logging.ERROR):
+        assert main(["calibrate", "--images", str(renamed), "--out", str(tmp_path / "third"),
+                     "--previous", str(first)]) == 2
+    assert "no camera is named as before" in caplog.text and not (tmp_path / "third").exists()
 
 
 def test_exif_focal_lengths_are_read_from_the_images_and_can_be_ignored(rig_dir, tmp_path):

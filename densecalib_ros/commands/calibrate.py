@@ -246,6 +246,12 @@ def _request(args: argparse.Namespace):
     if keypoints is not None:
         source = {**source, "keypoints": keypoints.record}
     previous = read_calibration(args.previous) if args.previous else None
+    if previous is not None and not set(previous.cameras) & set(names):
+        raise InputError(f"--previous {args.previous} calibrated the cameras "
+                         f"{', '.join(previous.cameras)}; these images are of "
+                         f"{', '.join(names)}: no camera is named as before. Name each camera's "
+                         "images as before (file stems, folders, topics), or calibrate without "
+                         "--previous.")
     known = read_known_intrinsics(args.intrinsics or [], names)
     if args.keep_intrinsics:
         known = with_previous_intrinsics(known, previous, names)
