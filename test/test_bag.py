@@ -93,6 +93,25 @@ def test_iter_image_messages_gives_stamps_in_bag_order(tmp_path):
     assert sorted(got) == sorted((c, stamps[t][c]) for t in range(3) for c in range(2))
 
 
+def test_a_topic_that_changes_resolution_is_refused_for_every_command(tmp_path):
+    """check and overlay read bags through commands.inputs.read_input as calibrate does: a
+    camera whose topic switched resolution part-way was judged moved there (calibrate's own check
+    came later, in the pipeline); now the reader refuses it, naming the camera."""
+    import argparse
+
+    from densecalib_ros.commands.inputs import add_input_arguments, read_input
+
+    frames = _frames(3, 2)
+    frames[2][1] = frames[2][1][::2, ::2].copy()
+    write_image_bag(tmp_path / "b", frames, TOPICS[:2], _stamps(3, 2))
+    parser = argparse.ArgumentParser()
+    add_input_arguments(parser)
+    args = parser.parse_args(["--bag", str(tmp_path / "b"), "--topics", *TOPICS[:2]])
+    with pytest.raises(InputError, match="Camera rig_cam_b's images change size between frame "
+                                         "sets: 128x96 in set 0, 64x48 in set 2"):
+        read_input(args)
+
+
 def test_errors_name_what_to_do(tmp_path):
     write_image_bag(tmp_path / "b", _frames(2, 2), TOPICS[:2], [[0, 1000], [10**8, 10**8 + 1]])
     with pytest.raises(InputError, match="not in bag.*/rig/cam_a/image_raw"):

@@ -2,6 +2,7 @@
 initUndistortRectifyMap for the same camera (pinhole and fisheye), a fisheye's view is capped by
 max_fov, and the command writes images and a pinhole calibration with the same extrinsics."""
 import json
+import logging
 
 import cv2
 import numpy as np
@@ -64,7 +65,7 @@ def test_pinhole_keeps_the_focal_and_caps_a_fisheye_view():
     assert 2 * np.degrees(np.arctan(160.0 / narrow.params[0])) == pytest.approx(60.0)
 
 
-def test_command_writes_images_and_pinhole_calibration(tmp_path, capsys):
+def test_command_writes_images_and_pinhole_calibration(tmp_path, capsys, caplog):
     pose = np.eye(4)
     pose[:3, 3] = [0.4, 0.0, 0.0]
     rig = RigCalibration("a", {"a": RigCamera("a", RADIAL, np.eye(4)),
@@ -87,6 +88,12 @@ def test_command_writes_images_and_pinhole_calibration(tmp_path, capsys):
     cv2.imwrite(str(images / "a" / "0000.jpg"), np.zeros((100, 100, 3), np.uint8))
     assert main(["undistort", str(calib), "--images", str(images), "--out", str(out)]) == 2
     assert (out / "b" / "0001.png").exists()
+    # a calibration that is not an earlier output of undistort is not replaced
+    other = _write_calibration(rig, tmp_path / "other")
+    with caplog.at_level(logging.ERROR):
+        assert main(["undistort", str(calib), "--images", str(images), "--out", str(other)]) == 2
+    assert "holds a calibration, not an earlier output of undistort" in caplog.text
+    assert sorted(p.name for p in other.iterdir()) == ["calibration.json"]
 
 
 @pytest.mark.parametrize("lens", [RADIAL, FISHEYE], ids=["radial", "fisheye"])
@@ -130,6 +137,10 @@ def test_stereo_pair_is_rectified_as_opencv_rectifies_it(lens, tmp_path, capsys)
     assert main(["undistort", str(calib), "--images", str(images), "--out", str(out),
                  "--stereo-pair", "a", "b"]) == 0
     assert "2 rectified image(s) of 2 camera(s)" in capsys.readouterr().out
+    # the pair named right camera first would come out mirrored (negative disparities): refused
+    assert main(["undistort", str(calib), "--images", str(images), "--out",
+                 str(tmp_path / "reversed"), "--stereo-pair", "b", "a"]) == 2
+    assert not (tmp_path / "reversed").exists()
     assert main(["export", str(calib), "--format", "ros-stereo", "--pair", "a", "b",
                  "--out", str(tmp_path / "stereo")]) == 0
     result = read_calibration(out)

@@ -12,6 +12,7 @@ from typing import Optional
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.method.frame_checks import camera_sizes
 from ..core.io.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.io.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.io.video_io import DEFAULT_VIDEO_FRAME_SETS
@@ -179,6 +180,9 @@ def read_input(args) -> tuple[list, list[str], dict, list]:
         args.bag, args.topics, slop_s=DEFAULT_SLOP_S if args.slop is None else args.slop,
         max_frame_sets=_frame_sets(args, DEFAULT_MAX_FRAME_SETS), return_stamps=True,
         stamp_offsets_s=[float(offsets.get(n, 0.0)) for n in names])
+    # a topic that switched resolution part-way: refused here for every command (check and
+    # overlay would otherwise judge the camera moved); folders and videos cannot change it
+    camera_sizes(frame_sets, names)
     if offsets:
         record = {"time_offsets_s": offsets, **record}
     return frame_sets, names, {"source": "bag", "path": str(Path(args.bag).resolve()),

@@ -65,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         inputs = [p for p in (args.images, args.videos) if p] + [
             calibration_folder(args.calibration)]
         check_output_folder(args.out, CALIBRATION_MARKERS, inputs)
+        _refuse_a_calibration(args.out)
         rig = read_calibration(args.calibration)
         targets, rect = _targets(rig, args)
         if rect is not None:
@@ -131,6 +132,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refuse_a_calibration(out: str) -> None:
+    """InputError where OUT holds a calibration that is not an earlier output of undistort (whose
+    calibration.json records quality.undistorted_from): replacing it would lose that calibration,
+    its COLMAP model and reference views."""
+    from ..core.io.export import read_calibration
+
+    if not (Path(out) / "calibration.json").is_file():
+        return
+    try:
+        undistorted_from = read_calibration(out).quality.undistorted_from
+    except InputError:  # a damaged calibration is still not ours to replace
+        undistorted_from = None
+    if not undistorted_from:
+        raise InputError(f"{out} holds a calibration, not an earlier output of undistort: "
+                         "writing there would replace it. Give a new folder.")
+
+
 def _targets(rig, args: argparse.Namespace) -> tuple[dict, object]:
     """(camera -> (target pinhole camera, rotation of the target from the source camera or
     None), the stereo pair's rectification or None)."""
@@ -141,6 +159,9 @@ def _targets(rig, args: argparse.Namespace) -> tuple[dict, object]:
         return {name: (pinhole_for(cam.intrinsics, args.max_fov), None)
                 for name, cam in rig.cameras.items()}, None
     rect = stereo_pair(rig, args.stereo_pair, args.alpha, left_to_right=False)
+    if rect.horizontal and not rect.right_is_right:  # mirrored: a disparity matcher fails on it
+        raise InputError(f"Camera {rect.right} lies to the left of {rect.left}: give the pair "
+                         f"left camera first: --stereo-pair {rect.right} {rect.left}.")
     return {rect.left: (rectified_pinhole(rect.projection_left, rect.width, rect.height),
                         rect.rect_from_left),
             rect.right: (rectified_pinhole(rect.projection_right, rect.width, rect.height),

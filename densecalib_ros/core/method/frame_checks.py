@@ -30,15 +30,23 @@ def check_frame_sets(frame_sets, camera_names) -> list[tuple[int, int]]:
             raise InputError(f"Frame set {t} has {len(frames)} images for {C} cameras.")
         for name, image in zip(camera_names, frames):
             _check_image(image, t, name)
+        _check_distinct(frames, t, camera_names)
+    return camera_sizes(frame_sets, camera_names)
+
+
+def camera_sizes(frame_sets, camera_names) -> list[tuple[int, int]]:
+    """(width, height) per camera of frame_sets[t][c]; InputError naming the camera whose images
+    change size between frame sets (a bag's topic switched resolution part-way)."""
+    sizes = None
+    for t, frames in enumerate(frame_sets):
         shape = [(int(im.shape[1]), int(im.shape[0])) for im in frames]
         if sizes is not None and shape != sizes:
-            c = next(c for c in range(C) if shape[c] != sizes[c])
+            c = next(c for c in range(len(shape)) if shape[c] != sizes[c])
             raise InputError(f"Camera {camera_names[c]}'s images change size between frame "
                              f"sets: {sizes[c][0]}x{sizes[c][1]} in set 0, {shape[c][0]}x"
                              f"{shape[c][1]} in set {t}. A camera is calibrated at one "
                              "resolution: leave out the frame sets of the other size.")
         sizes = shape
-        _check_distinct(frames, t, camera_names)
     return sizes
 
 
