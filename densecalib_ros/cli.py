@@ -7,6 +7,7 @@ import importlib
 import logging
 import os
 import sys
+from typing import Optional
 
 from .commands import interrupts
 from .core.colmap_logging import show_colmap_log
@@ -61,8 +62,9 @@ SUBCOMMANDS = {
 }
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+def _parsed(argv: list[str]) -> Optional[argparse.Namespace]:
+    """The arguments, the subcommand's module imported to parse them; None (help printed) without
+    a subcommand."""
     parser = argparse.ArgumentParser(
         prog="densecalib",
         description="Target-free calibration of multi-camera rigs from scene images.")
@@ -77,15 +79,24 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
-        return 2
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="[%(asctime)s %(levelname)s %(name)s] %(message)s",
-                        datefmt="%H:%M:%S", stream=sys.stderr)
+        return None
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
     previous = []
     try:
-        # Importing pycolmap installs glog's SIGTERM handler (a crash report): the stop signals
-        # wait until ours is in place.
+        # The stop signals wait until our handler is in place: a Ctrl-C while the subcommand's
+        # modules import (pycolmap's C++ part among them) ended in pycolmap's 'reinstall me'
+        # traceback, and importing pycolmap installs glog's SIGTERM handler (a crash report).
         with interrupts.held():
+            args = _parsed(argv)
+            if args is None:
+                return 2
+            logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                                format="[%(asctime)s %(levelname)s %(name)s] %(message)s",
+                                datefmt="%H:%M:%S", stream=sys.stderr)
             show_colmap_log(args.verbose)
             previous = interrupts.install()
         return int(importlib.import_module(SUBCOMMANDS[args.command][0]).run(args) or 0)

@@ -112,6 +112,28 @@ def test_a_topic_that_changes_resolution_is_refused_for_every_command(tmp_path):
         read_input(args)
 
 
+def test_a_malformed_image_names_its_camera_and_stamp(tmp_path, monkeypatch):
+    """A raw image whose data is shorter than its step says (a driver's bug, a cut recording):
+    the error names the camera, topic and header stamp, and the bytes the size needs."""
+    from densecalib_ros.core.io import image_encoding
+
+    encode = image_encoding.encode_raw
+    calls = []
+
+    def cut_third(image, encoding):  # the 3rd message written (set 1, cam_a) loses its rows
+        h, w, step, raw = encode(image, encoding)
+        calls.append(1)
+        return (h, w, step, raw[:1000]) if len(calls) == 3 else (h, w, step, raw)
+
+    monkeypatch.setattr(image_encoding, "encode_raw", cut_third)
+    write_image_bag(tmp_path / "b", _frames(2, 2), TOPICS[:2], [0, 10**8])
+    with pytest.raises(InputError, match=r"Camera rig_cam_a \(/rig/cam_a/image_raw\), frame set "
+                                         r"1 \(header stamp 100000000 ns\).*Malformed rgb8 "
+                                         r"image: 128x96 needs step >= 384 and 36864 bytes, got "
+                                         r"step 384 and 1000 bytes"):
+        read_frame_sets(tmp_path / "b", TOPICS[:2])
+
+
 def test_errors_name_what_to_do(tmp_path):
     write_image_bag(tmp_path / "b", _frames(2, 2), TOPICS[:2], [[0, 1000], [10**8, 10**8 + 1]])
     with pytest.raises(InputError, match="not in bag.*/rig/cam_a/image_raw"):

@@ -208,3 +208,26 @@ def test_on_a_terminal_the_command_shows_a_line_per_stage_and_the_log_with_v(cal
     assert "refining on the images" in line and " left" in line and "\r" in line
     assert " INFO " not in line
     assert " INFO " in shown[("-v",)] and "matched frame set 1/2" in shown[("-v",)]
+
+
+def test_a_ctrl_c_while_the_command_imports_ends_in_one_line(monkeypatch, caplog, tmp_path):
+    """Ctrl-C while the subcommand's modules load (pycolmap's C++ part among them) ended in a
+    traceback that told the user to reinstall pycolmap, exit 1. The signal now waits for the
+    command's own handler: exit 130 and one line. The user's Ctrl-C is raised, for real, from
+    inside the import."""
+    import importlib
+    import logging
+
+    from densecalib_ros.cli import main
+
+    real_import = importlib.import_module
+
+    def import_with_ctrl_c(name, *args, **kwargs):
+        if name.startswith("densecalib_ros.commands."):
+            signal.raise_signal(signal.SIGINT)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(importlib, "import_module", import_with_ctrl_c)
+    with caplog.at_level(logging.ERROR):
+        assert main(["report", str(tmp_path / "none")]) == 130
+    assert "interrupted" in caplog.text

@@ -271,7 +271,13 @@ def read_frame_sets(bag_path: str | os.PathLike, topics: list[str], slop_s: floa
         t = wanted.get((topic_index, seen[topic_index]))
         seen[topic_index] += 1
         if t is not None:
-            frame_sets[t][topic_index] = decode_image_message(msgtype, msg)
+            try:
+                frame_sets[t][topic_index] = decode_image_message(msgtype, msg)
+            except InputError as exc:  # which camera, and where in the bag
+                stamp = int(sets[t].stamps_ns[topic_index]) + offsets_ns[topic_index]
+                raise InputError(f"Camera {names[topic_index]} ({topics[topic_index]}), frame "
+                                 f"set {t} (header stamp {stamp} ns) of {bag_path}: {exc} Check "
+                                 "that camera's driver or recording.") from None
     if return_stamps:  # the header stamps as recorded
         return frame_sets, names, [[int(t) + o for t, o in zip(s.stamps_ns, offsets_ns)]
                                    for s in sets]

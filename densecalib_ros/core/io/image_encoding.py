@@ -64,7 +64,8 @@ def raw_to_array(encoding: str, height: int, width: int, step: int, data,
     row_bytes = width * channels * itemsize
     if step < row_bytes or buf.size < step * height:
         raise InputError(f"Malformed {encoding} image: {width}x{height} needs step >= {row_bytes} "
-                         f"and {step * height} bytes, got step {step} and {buf.size} bytes.")
+                         f"and {max(step, row_bytes) * height} bytes, got step {step} and "
+                         f"{buf.size} bytes.")
     rows = buf[: step * height].reshape(height, step)[:, :row_bytes]
     pixels = rows.copy().view(np.dtype(dtype).newbyteorder(">" if is_bigendian else "<"))
     pixels = pixels.astype(dtype)  # native byte order
