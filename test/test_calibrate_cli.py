@@ -98,6 +98,11 @@ def test_calibrate_writes_calibration_files(rig_dir, tmp_path, capsys):
     for name in names:
         drawn = cv2.imread(str(tmp_path / "ov" / f"{name}.png"))
         assert drawn is not None and drawn.shape == (480, 640, 3)
+    # calibrate's masks mean nothing to it: refused, not ignored (a mask file that did not exist
+    # was taken in silence)
+    assert main(["overlay", str(out), "--images", str(rig_dir), "--out", str(tmp_path / "ov2"),
+                 "--mask", str(tmp_path / "no_such_mask.png")]) == 2
+    assert not (tmp_path / "ov2").exists()
 
 
 def test_report_of_a_missing_calibration_says_what_it_needs(tmp_path, caplog):

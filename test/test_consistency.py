@@ -98,6 +98,14 @@ def test_check_command(rig, tmp_path, capsys, caplog):
     assert "no longer fits: cam3 moved or changed" in capsys.readouterr().out
     assert main(["check", str(tmp_path / "none.json"), "--images",
                  str(tmp_path / "images")]) == 2
+    # images of a camera the calibration lacks: the verdict says it did not judge it
+    partial = _truth(rig)
+    del partial.cameras["cam3"]
+    (tmp_path / "three.json").write_text(json.dumps(calibration_to_dict(partial)))
+    caplog.clear()
+    assert main(["check", str(tmp_path / "three.json"), "--images",
+                 str(tmp_path / "images")]) == 0
+    assert "not in the calibration, so not judged: cam3" in caplog.text
     # a camera whose images are missing (stolen, dead): not vouched for (exit 2), and named
     shutil.move(tmp_path / "images" / "cam3", tmp_path / "cam3_away")
     assert main(["check", str(good), "--images", str(tmp_path / "images")]) == 2

@@ -255,6 +255,19 @@ def parse_time_offsets(values: Optional[list[str]]) -> dict:
     return named_numbers(values, "--time-offset", "NAME=SECONDS (cam1=0.4)")
 
 
+# Input options only calibrate (and check) use: the masks of what is not scene, for matching.
+CALIBRATE_ONLY = (("mask", "--mask"), ("keep_info_strips", "--keep-info-strips"),
+                  ("match_whole_frames", "--match-whole-frames"))
+
+
+def refuse_calibrate_only(args, why: str) -> None:
+    """InputError naming the first of CALIBRATE_ONLY given to a command that does not match
+    (`why` says what it does instead), rather than ignoring it unsaid."""
+    for attr, option in CALIBRATE_ONLY:
+        if getattr(args, attr, None):
+            raise InputError(f"{option} belongs to calibrate; {why}.")
+
+
 def parse_masks(values: Optional[list[str]], names: list[str]) -> dict:
     """--mask values -> {camera name: ignored pixels}: NAME=PATH for one camera (NAME one of
     `names`; a path may itself hold '='), a bare PATH for every camera."""
@@ -289,11 +302,16 @@ def topics_from_calibration(args, rig) -> None:
 
 def require_calibrated_cameras(rig, names: list[str], frame_set: list, at_least: int) -> None:
     """InputError unless at least `at_least` of the input's cameras are in the calibration `rig`,
-    each with images of its calibrated size (a command that holds images against a calibration)."""
+    each with images of its calibrated size (a command that holds images against a calibration);
+    the input's cameras the calibration lacks are named in a warning."""
     known = [n for n in names if n in rig.cameras]
     if len(known) < at_least:
         raise InputError(f"The images are of {', '.join(names)}; the calibration has "
                          f"{', '.join(rig.cameras)}: at least {at_least} must be in both.")
+    unknown = [n for n in names if n not in rig.cameras]
+    if unknown:  # a verdict that leaves a camera out says so
+        log.warning("not in the calibration, so not judged: %s (its cameras: %s)",
+                    ", ".join(unknown), ", ".join(rig.cameras))
     for name, image in zip(names, frame_set):
         if name in rig.cameras:
             intr = rig.cameras[name].intrinsics

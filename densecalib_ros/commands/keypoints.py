@@ -27,7 +27,7 @@ from ..core.json_text import json_text, jsonable
 from ..core.method.person_keypoints import (DEFAULT_MAX_PERSONS, DEFAULT_MIN_DETECTION_SCORE,
                                             DEFAULT_MIN_POSE_PRESENCE, LANDMARK_NAMES,
                                             PersonKeypointDetector, PersonKeypointOptions)
-from .inputs import add_input_arguments, read_input
+from .inputs import add_input_arguments, read_input, refuse_calibrate_only
 
 log = logging.getLogger("densecalib.keypoints")
 
@@ -35,9 +35,6 @@ log = logging.getLogger("densecalib.keypoints")
 SOURCE_FILE = "keypoints_source.yaml"
 # OpenPose's JSON version field (its 1.3+ layout: people[].pose_keypoints_2d and the rest).
 OPENPOSE_JSON_VERSION = 1.3
-# calibrate's input options that mean nothing here: refused rather than silently ignored.
-CALIBRATE_ONLY = (("mask", "--mask"), ("keep_info_strips", "--keep-info-strips"),
-                  ("match_whole_frames", "--match-whole-frames"))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -98,10 +95,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_options(args: argparse.Namespace) -> None:
     """InputError naming the option that is out of range or belongs to calibrate."""
-    for attr, option in CALIBRATE_ONLY:
-        if getattr(args, attr, None):
-            raise InputError(f"{option} belongs to calibrate; keypoints are found in the whole "
-                             "images.")
+    refuse_calibrate_only(args, "keypoints are found in the whole images")
     if args.max_persons < 1:
         raise InputError(f"--max-persons {args.max_persons}: give at least 1.")
     for option, value in (("--min-detection-score", args.min_detection_score),

@@ -14,8 +14,8 @@ from ..core.errors import InputError
 from ..core.io.export import (calibration_folder, check_output_files, read_calibration,
                               read_saved_model)
 from .argtypes import positive
-from .inputs import (add_input_arguments, read_input, require_calibrated_cameras,
-                     topics_from_calibration)
+from .inputs import (add_input_arguments, read_input, refuse_calibrate_only,
+                     require_calibrated_cameras, topics_from_calibration)
 
 log = logging.getLogger("densecalib.overlay")
 
@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"No COLMAP model in {folder}/colmap: overlay needs the folder that "
                              "`densecalib calibrate` (or the node) wrote, colmap/ included.")
         args.max_frame_sets = args.max_frame_sets or 1
+        refuse_calibrate_only(args, "the residuals drawn are the calibration's own")
         topics_from_calibration(args, rig)
         frame_sets, names, _, _ = read_input(args)
         require_calibrated_cameras(rig, names, frame_sets[0], at_least=1)
