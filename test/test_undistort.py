@@ -237,3 +237,24 @@ def test_stereo_pair_videos_are_rectified(tmp_path, capsys):
     for name in ("a", "b"):
         cap = cv2.VideoCapture(str(out / f"{name}.mp4"))
         assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 4
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--alpha", "0.5"], "--alpha goes with --stereo-pair"),
+    (["--codec", "MJPG"], "--codec goes with --videos"),
+    (["--stereo-pair", "a", "b", "--max-fov", "10"], "a stereo pair's view is --alpha's"),
+    (["--max-fov", "180"], "--max-fov 180: give an angle between 0 and 180 deg")])
+def test_options_of_another_mode_are_refused(tmp_path, caplog, options, message):
+    """Each of these was taken and ignored (--max-fov beside --stereo-pair changed nothing)."""
+    pose = np.eye(4)
+    pose[:3, 3] = [-0.4, 0.0, 0.0]
+    rig = RigCalibration("a", {"a": RigCamera("a", RADIAL, np.eye(4)),
+                               "b": RigCamera("b", RADIAL, pose)})
+    calib = _write_calibration(rig, tmp_path / "calib")
+    (tmp_path / "images").mkdir()
+    for name in ("a", "b"):
+        cv2.imwrite(str(tmp_path / "images" / f"{name}.png"), np.full((240, 320, 3), 90, np.uint8))
+    with caplog.at_level(logging.ERROR):
+        assert main(["undistort", str(calib), "--images", str(tmp_path / "images"), "--out",
+                     str(tmp_path / "out"), *options]) == 2
+    assert message in caplog.text and not (tmp_path / "out").exists()

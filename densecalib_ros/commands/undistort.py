@@ -31,13 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="videos to undistort: DIR/<camera>.<ext> (mp4, avi, mov, ...), "
                              "every frame, at the same frame rate (for tools that need pinhole "
                              "videos, e.g. DANNCE with fisheye cameras)")
-    parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default="mp4v",
+    parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default=None,
                         help="with --videos: mp4v (.mp4, default), MJPG (.avi, larger, less "
                              "loss) or FFV1 (.mkv, lossless, largest)")
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="output folder (replaced): the same layout (images as PNG), and "
                              "calibration.json + <camera>.yaml of the undistorted cameras")
-    parser.add_argument("--max-fov", type=float, default=DEFAULT_MAX_FOV_DEG, metavar="DEG",
+    parser.add_argument("--max-fov", type=float, default=None, metavar="DEG",
                         help="widest view across the undistorted image (fisheye lenses; default "
                              f"{DEFAULT_MAX_FOV_DEG:g} deg)")
     parser.add_argument("--stereo-pair", nargs=2, metavar=("LEFT", "RIGHT"),
@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(corresponding points on one row; as cv2.initUndistortRectifyMap "
                              "with the pair's R and P, see `export --format ros-stereo`); the "
                              "output calibration holds the rectified pair, LEFT as reference")
-    parser.add_argument("--alpha", type=float, default=0.0,
+    parser.add_argument("--alpha", type=float, default=None,
                         help="with --stereo-pair: 0 = only valid pixels (default), 1 = every "
                              "source pixel")
 
@@ -60,8 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.products.undistort import undistortion_maps
 
     try:
-        if not 0.0 < args.max_fov < 180.0:
-            raise InputError(f"--max-fov {args.max_fov:g}: give an angle between 0 and 180 deg.")
+        _check_options(args)
         inputs = [p for p in (args.images, args.videos) if p] + [
             calibration_folder(args.calibration)]
         check_output_folder(args.out, CALIBRATION_MARKERS, inputs)
@@ -130,6 +129,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {count} of {len(jobs) - len(missing)} camera(s) and their pinhole "
           "calibration")
     return 0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """InputError for an option out of range or of another mode (rather than ignored unsaid);
+    then the defaults of those not given."""
+    for option, value, mode, given in (
+            ("--codec", args.codec, "--videos", args.videos),
+            ("--alpha", args.alpha, "--stereo-pair", args.stereo_pair)):
+        if value is not None and not given:
+            raise InputError(f"{option} goes with {mode}.")
+    if args.max_fov is not None and args.stereo_pair:
+        raise InputError("--max-fov sets a single camera's view; a stereo pair's view is "
+                         "--alpha's (0 = only valid pixels, 1 = every source pixel).")
+    args.codec = args.codec or "mp4v"
+    args.alpha = 0.0 if args.alpha is None else args.alpha
+    args.max_fov = DEFAULT_MAX_FOV_DEG if args.max_fov is None else args.max_fov
+    if not 0.0 < args.max_fov < 180.0:
+        raise InputError(f"--max-fov {args.max_fov:g}: give an angle between 0 and 180 deg.")
 
 
 def _refuse_a_calibration(out: str) -> None:
