@@ -275,3 +275,10 @@ def test_trim_writes_videos_whose_frame_k_shows_one_instant(tmp_path, capsys, ca
     with caplog.at_level("ERROR"):
         assert main(["sync", "--videos", str(folder), "--time-offset", "cam1=0.7"]) == 2
     assert "it goes with --trim" in caplog.text
+    # options of another mode: refused, not ignored
+    for options, said in ((["--codec", "FFV1"], "--codec is the --trim videos' codec"),
+                          (["--max-time-gap", "1"], "--max-time-gap goes with --images")):
+        caplog.clear()
+        with caplog.at_level("ERROR"):
+            assert main(["sync", "--videos", str(folder), *options]) == 2
+        assert said in caplog.text

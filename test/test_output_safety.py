@@ -198,11 +198,26 @@ def test_out_of_range_options_are_usage_errors(folders, capsys):
                  ["calibrate", "--images", str(images), "--out", "x", "--max-side", "8"],
                  ["calibrate", "--images", str(images), "--out", "x", "--consensus-runs", "0"],
                  ["check", str(cal), "--images", str(images), "--tolerance-px", "nan"],
-                 ["generate", "--out", "x", "--seed", "99999999999999999"]):
+                 ["generate", "--out", "x", "--seed", "99999999999999999"],
+                 ["demo", "--offline", "--timeout", "0"]):
         with pytest.raises(SystemExit) as exit_:
             main(args)
         assert exit_.value.code == 2
         assert "out of range" in capsys.readouterr().err
+
+
+def test_generate_refuses_options_that_ask_for_another_rig(tmp_path, caplog):
+    """Each pair was taken and one of them ignored (--lens-mix mixed with --fov-deg 40 gave
+    three 40 deg lenses)."""
+    for options, said in ((["--lens-mix", "mixed", "--fov-deg", "40"], "give one of them"),
+                          (["--layout", "bar", "--gap-deg", "30"], "not --layout bar"),
+                          (["--layout", "outward", "--max-arc-deg", "360"], "not --layout outward"),
+                          (["--bar-spacing-m", "0.2"], "not --layout arc")):
+        caplog.clear()
+        with caplog.at_level("ERROR"):
+            assert main(["generate", "--out", str(tmp_path / "g"), "--cameras", "3", *options]) \
+                == 2
+        assert said in caplog.text and not (tmp_path / "g").exists()
 
 
 def test_scale_refuses_lengths_no_rig_has(folders, caplog):

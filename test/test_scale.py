@@ -80,6 +80,10 @@ def test_scale_command_from_a_measured_length_in_the_scene(tmp_path, caplog):
     with caplog.at_level("ERROR"):
         assert main(["scale", str(out), "--baseline", "cam0", "cam1", "1", *points[0]]) == 2
     assert "--point goes with --distance" in caplog.text
+    with caplog.at_level("ERROR"):
+        assert main(["scale", str(out), "--baseline", "cam0", "cam1", "1", "--pixel-sigma",
+                     "3"]) == 2
+    assert "--pixel-sigma goes with --distance" in caplog.text
     assert (out / "calibration.json").read_text() == before
 
     assert main(["scale", str(out), "--distance", str(length_m), *points[0], *points[1]]) == 0

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..core.config import DEFAULT_PIPELINE, PIPELINES, make_config
 from ..core.errors import CalibrationError, InputError
-from .argtypes import seed
+from .argtypes import positive, seed
 
 log = logging.getLogger("densecalib.demo")
 
@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--matcher", default="sift", help="matcher backend")
     parser.add_argument("--pipeline", choices=PIPELINES, default=DEFAULT_PIPELINE,
                         help=f"SfM pipeline (default: {DEFAULT_PIPELINE}; see docs/method.md)")
-    parser.add_argument("--timeout", type=float, default=600.0, metavar="S",
+    parser.add_argument("--timeout", type=positive(), default=600.0, metavar="S",
                         help="seconds to wait for the calibration (the ~/calibrate action)")
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from typing import Optional
 
 from ..core.errors import CalibrationError
 from .argtypes import seed
@@ -31,18 +32,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="horizontal field of view of every camera (default: random: "
                              "pinhole per --lenses, fisheye 150-190)")
     parser.add_argument("--noise-std", type=float, default=2.0, help="sensor noise, 8-bit levels")
-    parser.add_argument("--gap-deg", type=float, default=20.0,
+    parser.add_argument("--gap-deg", type=float, default=None,
                         help="azimuth between neighbouring cameras on their arc (wider = less "
-                             "alike views)")
-    parser.add_argument("--max-arc-deg", type=float, default=140.0,
-                        help="largest arc spanned by all cameras (360 = a ring around the scene)")
+                             "alike views; default 20)")
+    parser.add_argument("--max-arc-deg", type=float, default=None,
+                        help="largest arc spanned by all cameras (360 = a ring around the "
+                             "scene; default 140)")
     parser.add_argument("--layout", default="arc", choices=["arc", "bar", "outward"],  # LAYOUTS
                         help="arc: cameras around the scene looking at its centre (--gap-deg, "
                              "--max-arc-deg); bar: side by side on a bar looking the same way "
                              "(axes parallel to within 3 deg; --bar-spacing-m); outward: one "
                              "head near the room's centre facing out, yaws 360/N deg apart")
-    parser.add_argument("--bar-spacing-m", type=float, default=0.3,
-                        help="distance between neighbouring cameras of --layout bar")
+    parser.add_argument("--bar-spacing-m", type=float, default=None,
+                        help="distance between neighbouring cameras of --layout bar (default "
+                             "0.3)")
     parser.add_argument("--lenses", default="real", choices=["real", "ideal"],  # LENS_PROFILES
                         help="real: intrinsics as real lenses have them (principal points up "
                              "to 2 %% off-centre, focal 0.5-2.2x the width, fy != fx by up to "
@@ -67,10 +70,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="JPEG compression of every image, 10-100 (0: none)")
 
 
+def _conflicting_options(args: argparse.Namespace) -> Optional[str]:
+    """What is wrong where two options ask for different rigs (one would be ignored unsaid)."""
+    if args.lens_mix == "mixed" and args.fov_deg is not None:
+        return ("--fov-deg gives every camera one field of view; --lens-mix mixed gives each "
+                "its own: give one of them.")
+    if args.layout != "arc" and (args.gap_deg is not None or args.max_arc_deg is not None):
+        return f"--gap-deg and --max-arc-deg place cameras on an arc, not --layout {args.layout}."
+    if args.layout != "bar" and args.bar_spacing_m is not None:
+        return f"--bar-spacing-m spaces cameras on a bar, not --layout {args.layout}."
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.io.safe_write import replace_directory_atomic
     from ..core.synthetic import RigSpec, generate_rig, write_rig
 
+    conflict = _conflicting_options(args)
+    if conflict:
+        log.error("%s", conflict)
+        return 2
     fisheye = set(args.fisheye_cameras)
     if not fisheye <= set(range(args.cameras)):
         log.error("--fisheye-cameras %s: the cameras are 0..%d.", sorted(fisheye),
@@ -81,9 +100,11 @@ def run(args: argparse.Namespace) -> int:
     spec = RigSpec(num_cameras=args.cameras, camera_model=args.model, camera_models=models,
                    width=args.width,
                    height=args.height, num_time_steps=args.time_steps, seed=args.seed,
-                   fov_deg=args.fov_deg, noise_std=args.noise_std, gap_deg=args.gap_deg,
-                   max_arc_deg=args.max_arc_deg, layout=args.layout,
-                   bar_spacing_m=args.bar_spacing_m, lenses=args.lenses, room=args.room,
+                   fov_deg=args.fov_deg, noise_std=args.noise_std,
+                   **{field: value for field, value in (
+                       ("gap_deg", args.gap_deg), ("max_arc_deg", args.max_arc_deg),
+                       ("bar_spacing_m", args.bar_spacing_m)) if value is not None},
+                   layout=args.layout, lenses=args.lenses, room=args.room,
                    walker=args.walker, mount=args.mount, lens_mix=args.lens_mix,
                    blur_sigma_px=args.blur_sigma_px, jpeg_quality=args.jpeg_quality)
     try:

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "pixel in each camera that sees it (at least two; OpenCV/ROS "
                              "pixels of the original images), e.g. --point cam0=512.5,300 "
                              "cam2=640,310.2")
-    parser.add_argument("--pixel-sigma", type=float, default=DEFAULT_PIXEL_SIGMA, metavar="PX",
+    parser.add_argument("--pixel-sigma", type=float, default=None, metavar="PX",
                         help="assumed pixel error (1 sigma) for the scale's standard deviation "
                              f"(default {DEFAULT_PIXEL_SIGMA:g})")
     parser.add_argument("--dry-run", action="store_true",
@@ -41,9 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _scaled(args, rig):
     if args.baseline:
-        if args.point:
-            raise InputError("--point goes with --distance (a length in the scene); --baseline "
-                             "names two cameras instead.")
+        for option, given in (("--point", args.point), ("--pixel-sigma", args.pixel_sigma)):
+            if given is not None:
+                raise InputError(f"{option} goes with --distance (a length in the scene); "
+                                 "--baseline names two cameras instead.")
         cam_a, cam_b, metres = args.baseline
         try:
             baseline_m = float(metres)
@@ -54,10 +55,11 @@ def _scaled(args, rig):
     if not args.point or len(args.point) != 2:
         raise InputError("--distance needs the two ends of the measured length: --point "
                          "CAM=X,Y CAM=X,Y ... twice.")
-    if not args.pixel_sigma > 0:
-        raise InputError(f"--pixel-sigma {args.pixel_sigma:g}: give a positive pixel error.")
+    pixel_sigma = DEFAULT_PIXEL_SIGMA if args.pixel_sigma is None else args.pixel_sigma
+    if not pixel_sigma > 0:
+        raise InputError(f"--pixel-sigma {pixel_sigma:g}: give a positive pixel error.")
     return apply_known_distance(rig, *(parse_observations(p) for p in args.point),
-                                args.distance, args.pixel_sigma)
+                                args.distance, pixel_sigma)
 
 
 def run(args: argparse.Namespace) -> int:

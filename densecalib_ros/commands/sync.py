@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-offset", nargs="+", metavar="NAME=S",
                         help="--trim or --restamp: use these offsets (calibrate's convention) "
                              "instead of measuring them")
-    parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default="mp4v",
+    parser.add_argument("--codec", choices=tuple(VIDEO_CODECS), default=None,
                         help="--trim: mp4v (.mp4, default), MJPG (.avi) or FFV1 (.mkv, lossless)")
 
 
@@ -61,6 +61,12 @@ def run(args: argparse.Namespace) -> int:
                              "--restamp.")
         if args.bag and not args.topics:
             raise InputError("--bag needs --topics: the image topic of every camera.")
+        if args.max_time_gap is not None and not args.images:
+            raise InputError("--max-time-gap goes with --images (EXIF-stamped shots); videos "
+                             "and bag topics are paired by what moves in them.")
+        if args.codec is not None and not args.trim:
+            raise InputError("--codec is the --trim videos' codec: it goes with --trim.")
+        args.codec = args.codec or "mp4v"
         if args.trim:
             from ..core.io.safe_write import check_output_folder
             check_output_folder(args.trim, TRIM_MARKERS, [args.videos])
