@@ -12,10 +12,10 @@ from typing import Optional
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.method.frame_checks import camera_sizes
 from ..core.io.image_io import ALIGNMENTS, DEFAULT_MAX_TIME_GAP_S
 from ..core.io.sync import DEFAULT_MAX_FRAME_SETS, evenly_spaced
 from ..core.io.video_io import DEFAULT_VIDEO_FRAME_SETS
+from ..core.method.frame_checks import camera_sizes
 from ..core.named_values import split_named
 
 log = logging.getLogger("densecalib.inputs")
